@@ -1,0 +1,1 @@
+"""Mesh readers, mesh checks and result writers."""

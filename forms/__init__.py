@@ -1,0 +1,1 @@
+"""UFL strain energies and kinematics: pure functions of F and parameters."""

@@ -1,0 +1,1 @@
+"""Anatomical and test models built from artifem."""
