@@ -1,0 +1,410 @@
+"""Full-order FEM body: nodal displacements on a DOLFINx mesh.
+
+The body's potential energy is
+
+    Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, a_m) dX
+            - lambda * (int rho g . u dX + int b . u dX + f_nodal . u),
+
+with F = I + grad u, psi the bulk material, psi_m the fiber energy of muscle m
+(direction field a0_m, excitation a_m) and lambda a load factor. The
+internal-plus-external force is f = -dPi/du, the tangent K = d^2 Pi/du^2,
+both derived by ``ufl.derivative`` from the UFL energies of ``artifem.forms``.
+Mass is lumped (row sums of the consistent mass, ArtiSynth's default) or
+consistent; damping is Rayleigh, D = alpha M + beta K.
+
+Node and cell arguments are *input* indices (the order of the mesh file), so
+the same script runs in serial and under ``mpiexec``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import basix
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from dolfinx import fem, mesh as dmesh
+from dolfinx.fem import petsc as fem_petsc
+
+#: Default quadrature degree of the energy per cell type: 2x2x2 Gauss for Q1
+#: hexahedra (DESIGN.md: UFL's automatic degree is 14-20 for Mooney-Rivlin);
+#: F is constant on a P1 tetrahedron, so one point is exact.
+ENERGY_DEGREE = {"hexahedron": 2, "tetrahedron": 1}
+#: Mass needs products of two shape functions.
+MASS_DEGREE = {"hexahedron": 2, "tetrahedron": 2}
+
+
+class ElementInversionError(RuntimeError):
+    """det F <= 0 at a quadrature point, and the step could not recover."""
+
+    def __init__(self, time: float, elements: np.ndarray, min_det: float, detail: str = ""):
+        self.time, self.elements, self.min_det = time, np.asarray(elements), min_det
+        shown = ", ".join(str(e) for e in self.elements[:20])
+        more = f" (and {len(self.elements) - 20} more)" if len(self.elements) > 20 else ""
+        super().__init__(
+            f"element inversion at t = {time:.6g} s: det F = {min_det:.4g} <= 0 in "
+            f"{len(self.elements)} element(s) [{shown}{more}] (input element indices)"
+            + (f"; {detail}" if detail else ""))
+
+
+@dataclass
+class Muscle:
+    """A fiber-activated region of an FEM body."""
+
+    name: str
+    cells: np.ndarray           # owned local cell indices
+    direction: fem.Function     # DG0 unit fiber direction a0 (zero outside the region)
+    fiber: object               # fiber material: strain_energy(F, a0, excitation)
+    excitation: fem.Constant    # a in [0, 1], changed between steps without recompiling
+
+
+class FemBody:
+    """A deformable body discretized by vector Lagrange elements of degree 1.
+
+    Args:
+        domain: DOLFINx mesh (Q1 hexahedra or P1 tetrahedra).
+        material: bulk material from ``artifem.forms`` (``strain_energy(F)``).
+        density: rho in kg/m^3 (> 0).
+        mass: ``"lumped"`` (default) or ``"consistent"``.
+        rayleigh: (alpha, beta) of D = alpha M + beta K.
+        gravity: acceleration vector (m/s^2).
+        quadrature_degree: degree of the energy integrals (default per cell type).
+        name: component name in a system.
+    """
+
+    def __init__(self, domain: dmesh.Mesh, material, density: float, *,
+                 mass: str = "lumped", rayleigh: tuple[float, float] = (0.0, 0.0),
+                 gravity=(0.0, 0.0, 0.0), quadrature_degree: int | None = None,
+                 name: str = "fem"):
+        cell_name = domain.topology.cell_name()
+        if cell_name not in ENERGY_DEGREE:
+            raise ValueError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
+                             f"supported: {sorted(ENERGY_DEGREE)}")
+        if not np.isfinite(density) or density <= 0:
+            raise ValueError(f"FemBody {name!r}: density must be > 0, got {density}")
+        if mass not in ("lumped", "consistent"):
+            raise ValueError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
+        alpha, beta = rayleigh
+        if alpha < 0 or beta < 0:
+            raise ValueError(f"FemBody {name!r}: Rayleigh coefficients must be >= 0, got {rayleigh}")
+        self.name, self.mesh, self.material = name, domain, material
+        self.density, self.mass_kind = float(density), mass
+        self.alpha, self.beta = float(alpha), float(beta)
+        self.cell_name = cell_name
+        self.quadrature_degree = quadrature_degree or ENERGY_DEGREE[cell_name]
+
+        self.V = fem.functionspace(domain, ("Lagrange", 1, (3,)))
+        self.u = fem.Function(self.V, name="displacement")
+        self.v = fem.Function(self.V, name="velocity")
+        self.gravity = fem.Constant(domain, np.asarray(gravity, dtype=PETSc.ScalarType))
+        self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
+        self.body_force = None          # UFL vector expression per reference volume
+        self.muscles: dict[str, Muscle] = {}
+        self._fixed_dofs = np.zeros(0, dtype=np.int32)
+        self._fixed_values = fem.Function(self.V)   # prescribed displacement of fixed dofs
+        self.nodal_load = fem_petsc.create_vector(self.V)
+        self.nodal_load.zeroEntries()
+        self._node_to_dof = self._input_node_to_dof()
+        self._compiled = None
+
+    # ---- model definition -------------------------------------------------
+
+    def _input_node_to_dof(self) -> dict[int, int]:
+        """Map input node index -> local block dof (owned and ghost)."""
+        x_dofmap = self.mesh.geometry.dofmap
+        dofs = self.V.dofmap.list
+        geom_nodes = x_dofmap.reshape(-1)
+        node_dofs = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int32)
+        node_dofs[geom_nodes] = dofs.reshape(-1)
+        inputs = self.mesh.geometry.input_global_indices
+        return dict(zip(inputs.tolist(), node_dofs.tolist()))
+
+    def local_dofs(self, nodes) -> np.ndarray:
+        """Local block dofs of the given input node indices present on this rank."""
+        return np.array([self._node_to_dof[n] for n in np.asarray(nodes).ravel().tolist()
+                         if n in self._node_to_dof], dtype=np.int32)
+
+    def _check_nodes(self, nodes, what: str) -> np.ndarray:
+        nodes = np.asarray(nodes, dtype=np.int64).ravel()
+        n_total = self.mesh.geometry.index_map().size_global
+        bad = nodes[(nodes < 0) | (nodes >= n_total)]
+        if bad.size:
+            raise ValueError(f"FemBody {self.name!r}: {what}: node indices out of range "
+                             f"[0, {n_total}): {bad[:10].tolist()}")
+        return nodes
+
+    def fix_nodes(self, nodes, displacement=None) -> None:
+        """Fix input nodes (zero velocity); optionally prescribe their displacement.
+
+        ``displacement`` is None (keep 0) or a callable x -> u(x) evaluated at the
+        nodes' reference coordinates, x of shape (3, npoints).
+        """
+        nodes = self._check_nodes(nodes, "fix_nodes")
+        dofs = self.local_dofs(nodes)
+        self._fixed_dofs = np.unique(np.concatenate([self._fixed_dofs, dofs])).astype(np.int32)
+        if displacement is not None:
+            x = self.V.tabulate_dof_coordinates()[dofs]
+            vals = np.asarray(displacement(x.T), dtype=float).reshape(3, -1).T
+            arr = self._fixed_values.x.array.reshape(-1, 3)
+            arr[dofs] = vals
+            self.u.x.array.reshape(-1, 3)[dofs] = vals
+        self.v.x.array.reshape(-1, 3)[dofs] = 0.0
+        self._compiled = None
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        return self._fixed_dofs
+
+    def add_nodal_load(self, nodes, force) -> None:
+        """Add a constant force (N, shape (3,) or (len(nodes), 3)) at input nodes."""
+        nodes = self._check_nodes(nodes, "add_nodal_load")
+        force = np.broadcast_to(np.asarray(force, dtype=float), (len(nodes), 3))
+        n_owned = self.V.dofmap.index_map.size_local
+        with self.nodal_load.localForm() as loc:
+            arr = loc.array.reshape(-1, 3)
+            for n, f in zip(nodes.tolist(), force):
+                d = self._node_to_dof.get(n)
+                if d is not None and d < n_owned:     # owned copy only: no double count
+                    arr[d] += f
+
+    def set_body_force(self, b) -> None:
+        """Body force per reference volume (UFL vector expression), scaled by the load factor."""
+        self.body_force = b
+        self._compiled = None
+
+    def add_muscle(self, name: str, cells, directions, fiber, excitation: float = 0.0) -> Muscle:
+        """Add a fiber-activated region.
+
+        Args:
+            cells: input element indices of the region.
+            directions: fiber directions, (3,) for all cells or (len(cells), 3) per
+                element; normalized here; zero vectors are an error.
+            fiber: fiber material with ``strain_energy(F, a0, excitation)``.
+        """
+        if name in self.muscles:
+            raise ValueError(f"FemBody {self.name!r}: muscle {name!r} already defined")
+        cells = np.asarray(cells, dtype=np.int64).ravel()
+        n_cells_global = self.mesh.topology.index_map(self.mesh.topology.dim).size_global
+        if cells.size == 0 or cells.min() < 0 or cells.max() >= n_cells_global:
+            raise ValueError(f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
+                             f"non-empty subset of [0, {n_cells_global})")
+        directions = np.broadcast_to(np.asarray(directions, dtype=float), (cells.size, 3))
+        norms = np.linalg.norm(directions, axis=1)
+        if np.any(~np.isfinite(norms)) or np.any(norms <= 0):
+            bad = cells[~(norms > 0)]
+            raise ValueError(f"FemBody {self.name!r}: muscle {name!r}: zero or non-finite fiber "
+                             f"direction in elements {bad[:10].tolist()}")
+        unit = directions / norms[:, None]
+
+        local_of_input = self._input_cell_to_local()
+        pairs = [(local_of_input[c], k) for k, c in enumerate(cells.tolist()) if c in local_of_input]
+        local = np.array([p[0] for p in pairs], dtype=np.int32)
+        rows = np.array([p[1] for p in pairs], dtype=np.int64)
+        W = fem.functionspace(self.mesh, ("DG", 0, (3,)))
+        a0 = fem.Function(W, name=f"fiber_{name}")
+        if local.size:
+            a0.x.array.reshape(-1, 3)[W.dofmap.list[local, 0]] = unit[rows]
+        a0.x.scatter_forward()
+        n_owned = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
+        owned = np.sort(local[local < n_owned])
+        muscle = Muscle(name, owned, a0, fiber,
+                        fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
+        self.muscles[name] = muscle
+        self._compiled = None
+        return muscle
+
+    def set_excitation(self, name: str, value: float) -> None:
+        """Set a muscle's excitation in [0, 1] (no recompilation)."""
+        if name not in self.muscles:
+            raise KeyError(f"FemBody {self.name!r}: unknown muscle {name!r}; "
+                           f"defined: {sorted(self.muscles)}")
+        if not (0.0 <= value <= 1.0):
+            raise ValueError(f"excitation of {name!r} must be in [0, 1], got {value}")
+        self.muscles[name].excitation.value = value
+
+    def _input_cell_to_local(self) -> dict[int, int]:
+        tdim = self.mesh.topology.dim
+        n_local = self.mesh.topology.index_map(tdim).size_local + \
+            self.mesh.topology.index_map(tdim).num_ghosts
+        original = self.mesh.topology.original_cell_index[:n_local]
+        return dict(zip(np.asarray(original).tolist(), range(n_local)))
+
+    def input_cell_index(self, local_cells) -> np.ndarray:
+        """Input (file) indices of local cells."""
+        return np.asarray(self.mesh.topology.original_cell_index)[np.asarray(local_cells)]
+
+    # ---- compiled forms ----------------------------------------------------
+
+    def kinematics(self):
+        """F = I + grad u as a UFL expression."""
+        return ufl.Identity(3) + ufl.grad(self.u)
+
+    def potential_energy_form(self):
+        """UFL integrand of Pi(u) (see the module docstring)."""
+        F = self.kinematics()
+        md = {"quadrature_degree": self.quadrature_degree}
+        dx = ufl.Measure("dx", domain=self.mesh, metadata=md)
+        Pi = self.material.strain_energy(F) * dx
+        if self.muscles:
+            data = [(i + 1, m.cells) for i, m in enumerate(self.muscles.values())]
+            dxm = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
+            for i, m in enumerate(self.muscles.values()):
+                Pi += m.fiber.strain_energy(F, m.direction, m.excitation) * dxm(i + 1)
+        external = self.density * ufl.dot(self.gravity, self.u)
+        if self.body_force is not None:
+            external += ufl.dot(self.body_force, self.u)
+        Pi -= self.load_factor * external * dx
+        return Pi
+
+    def compile(self) -> None:
+        """Compile residual, tangent, energy, mass and det F evaluation (once)."""
+        if self._compiled is not None:
+            return
+        Pi = self.potential_energy_form()
+        v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        R = ufl.derivative(Pi, self.u, v)
+        K = ufl.derivative(R, self.u, du)
+        c = {}
+        c["R"], c["K"], c["Pi"] = fem.form(R), fem.form(K), fem.form(Pi)
+        zero = np.zeros(3, dtype=PETSc.ScalarType)
+        self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
+        self.K = fem_petsc.create_matrix(c["K"])
+        self.R = fem_petsc.create_vector(self.V)
+
+        dxm = ufl.Measure("dx", domain=self.mesh,
+                          metadata={"quadrature_degree": MASS_DEGREE[self.cell_name]})
+        mass_form = self.density * ufl.inner(du, v) * dxm
+        # Lumped mass: row sums of the consistent mass, M_ii = int rho phi_i dX.
+        ones = fem.Constant(self.mesh, np.ones(3, dtype=PETSc.ScalarType))
+        self.M_lumped = fem_petsc.assemble_vector(fem.form(self.density * ufl.dot(ones, v) * dxm))
+        self.M_lumped.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.M_consistent = None
+        if self.mass_kind == "consistent":
+            self.M_consistent = fem_petsc.assemble_matrix(fem.form(mass_form), bcs=self.bcs, diag=1.0)
+            self.M_consistent.assemble()
+            c["mass_form"] = mass_form
+
+        pts, _ = basix.make_quadrature(getattr(basix.CellType, self.cell_name),
+                                       self.quadrature_degree)
+        c["detF"] = fem.Expression(ufl.det(self.kinematics()), pts)
+        tdim = self.mesh.topology.dim
+        self._owned_cells = np.arange(self.mesh.topology.index_map(tdim).size_local, dtype=np.int32)
+        self._compiled = c
+
+    # ---- evaluation --------------------------------------------------------
+
+    def assemble(self, tangent: bool = True, diag: float = 0.0) -> None:
+        """Assemble R = dPi/du (into self.R, nodal loads included) and K (into self.K).
+
+        The force on the body is f = -R. Fixed rows/columns of K are zeroed with
+        ``diag`` on the diagonal (0 when a mass term is added, 1 for statics).
+        """
+        self.compile()
+        c = self._compiled
+        if tangent:
+            self.K.zeroEntries()
+            fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)
+            self.K.assemble()
+        with self.R.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(self.R, c["R"])
+        self.R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.R.axpy(-self.load_factor.value, self.nodal_load)
+
+    def zero_fixed(self, vec: PETSc.Vec) -> None:
+        """Zero the owned entries of fixed dofs in a blocked vector."""
+        n_owned = self.V.dofmap.index_map.size_local
+        fixed = self._fixed_dofs[self._fixed_dofs < n_owned]
+        arr = vec.array.reshape(-1, 3)
+        arr[fixed] = 0.0
+
+    def mass_mult(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """y = M x."""
+        if self.M_consistent is not None:
+            self.M_consistent.mult(x, y)
+        else:
+            y.pointwiseMult(self.M_lumped, x)
+
+    def add_mass(self, A: PETSc.Mat, scale: float) -> None:
+        """A += scale * M."""
+        if self.M_consistent is not None:
+            A.axpy(scale, self.M_consistent, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        else:
+            d = self.M_lumped.copy()
+            d.scale(scale)
+            A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
+            d.destroy()
+
+    def det_F(self) -> np.ndarray:
+        """det F at the energy quadrature points of owned cells, shape (cells, points)."""
+        self.compile()
+        return self._compiled["detF"].eval(self.mesh, self._owned_cells)
+
+    def inverted_elements(self) -> tuple[np.ndarray, float]:
+        """(input indices of elements with det F <= 0 anywhere, global min det F)."""
+        detF = self.det_F()
+        local_min = detF.min(axis=1) if detF.size else np.zeros(0)
+        bad = self.input_cell_index(self._owned_cells[local_min <= 0]) if detF.size else []
+        comm = self.mesh.comm
+        gmin = comm.allreduce(float(local_min.min()) if local_min.size else np.inf, op=MPI.MIN)
+        all_bad = np.sort(np.concatenate([np.asarray(b, dtype=np.int64)
+                                          for b in comm.allgather(np.asarray(bad))]))
+        return all_bad, gmin
+
+    def potential_energy(self) -> float:
+        """Pi(u) (strain and fiber energy minus the work of the loads)."""
+        self.compile()
+        local = fem.assemble_scalar(self._compiled["Pi"])
+        Pi = self.mesh.comm.allreduce(local)
+        with self.nodal_load.localForm() as f, self.u.x.petsc_vec.localForm() as u:
+            n = self.V.dofmap.index_map.size_local * 3
+            work = float(np.dot(f.array[:n], u.array[:n]))
+        return Pi - self.load_factor.value * self.mesh.comm.allreduce(work)
+
+    def kinetic_energy(self) -> float:
+        """T = 1/2 v^T M v."""
+        self.compile()
+        Mv = self.v.x.petsc_vec.duplicate()
+        self.mass_mult(self.v.x.petsc_vec, Mv)
+        T = 0.5 * Mv.dot(self.v.x.petsc_vec)
+        Mv.destroy()
+        return T
+
+    def total_mass(self) -> float:
+        self.compile()
+        return self.M_lumped.sum() / 3.0
+
+    # ---- state -------------------------------------------------------------
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """A copy of (u, v) local arrays (owned and ghost)."""
+        return self.u.x.array.copy(), self.v.x.array.copy()
+
+    def set_state(self, state) -> None:
+        u, v = state
+        self.u.x.array[:] = u
+        self.v.x.array[:] = v
+
+    def nodal_positions(self) -> np.ndarray:
+        """Current positions X + u of the local geometry nodes, shape (nodes, 3)."""
+        x = self.mesh.geometry.x.copy()
+        x_dofmap = self.mesh.geometry.dofmap.reshape(-1)
+        dofs = self.V.dofmap.list.reshape(-1)
+        x[x_dofmap] += self.u.x.array.reshape(-1, 3)[dofs]
+        return x
+
+    def displacement_at(self, nodes) -> np.ndarray:
+        """Displacements of input nodes (gathered on every rank), shape (len(nodes), 3)."""
+        nodes = self._check_nodes(nodes, "displacement_at")
+        n_owned = self.V.dofmap.index_map.size_local
+        out = np.zeros((nodes.size, 3))
+        arr = self.u.x.array.reshape(-1, 3)
+        for k, n in enumerate(nodes.tolist()):
+            d = self._node_to_dof.get(n)
+            if d is not None and d < n_owned:
+                out[k] = arr[d]
+        return self.mesh.comm.allreduce(out)
+

@@ -1,0 +1,168 @@
+"""Off-screen PNG rendering of deformed DOLFINx meshes with pyvista (no X server needed).
+
+Each body is a dolfinx Mesh or a (Mesh, displacement Function or None) pair.
+Meshes are converted with dolfinx.plot.vtk_mesh (on the displacement's function
+space when there is one, so nodal displacements warp the grid points); in
+parallel each rank renders only its local cells.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import dolfinx.mesh
+import dolfinx.plot
+import numpy as np
+import pyvista as pv
+from dolfinx import fem
+
+pv.OFF_SCREEN = True
+
+Body = dolfinx.mesh.Mesh | tuple[dolfinx.mesh.Mesh, fem.Function | None]
+#: A body's coloring: "displacement" (|u| at the nodes), a scalar Function
+#: (DG0 -> per cell, otherwise interpolated to the nodes), an array with one
+#: value per grid point or per cell, or None (plain surface).
+Scalars = str | fem.Function | np.ndarray | None
+
+_CAMERAS = {"iso", "xy", "yx", "xz", "zx", "yz", "zy"}
+_BODY_COLORS = ["lightsteelblue", "salmon", "khaki", "palegreen", "plum", "lightgray"]
+
+
+def body_grid(msh: dolfinx.mesh.Mesh, displacement: fem.Function | None = None
+              ) -> tuple[pv.UnstructuredGrid, pv.UnstructuredGrid]:
+    """(deformed grid, rest grid) of a mesh; the deformed grid carries "displacement"."""
+    if displacement is None:
+        # A Lagrange space of the geometry's degree gives linear VTK cells for
+        # linear meshes (vtk_mesh(msh) gives Lagrange cells, drawn tessellated).
+        nodes = fem.functionspace(msh, ("Lagrange", msh.geometry.cmaps[0].degree))
+        rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(nodes))
+        return rest.copy(), rest
+    space = displacement.function_space
+    if space.element.basix_element.discontinuous:
+        raise ValueError("render: the displacement must be a continuous Lagrange Function")
+    rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(space))
+    values = displacement.x.array.reshape(-1, space.dofmap.index_map_bs)[: rest.n_points]
+    if values.shape[1] != 3:
+        raise ValueError(f"render: the displacement must have 3 components, "
+                         f"not {values.shape[1]}")
+    deformed = rest.copy()
+    deformed.point_data["displacement"] = values
+    deformed.points = rest.points + values
+    return deformed, rest
+
+
+def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
+                    displacement: fem.Function | None, scalars: Scalars, name: str) -> bool:
+    """Store ``scalars`` on ``grid`` under ``name``; return False when there is nothing to color."""
+    if scalars is None:
+        return False
+    if isinstance(scalars, str):
+        if scalars != "displacement":
+            raise ValueError(f"render: unknown scalars {scalars!r}; use 'displacement', "
+                             f"a Function or an array")
+        if displacement is None:
+            raise ValueError("render: scalars='displacement' needs a displacement Function")
+        grid.point_data[name] = np.linalg.norm(grid.point_data["displacement"], axis=1)
+        return True
+    if isinstance(scalars, fem.Function):
+        space = scalars.function_space
+        if space.element.basix_element.discontinuous and space.element.basix_element.degree == 0:
+            cells = space.dofmap.list[: grid.n_cells, 0]
+            grid.cell_data[name] = scalars.x.array[cells]
+            return True
+        target_space = (displacement.function_space.sub(0).collapse()[0]
+                        if displacement is not None
+                        else fem.functionspace(msh, ("Lagrange", 1)))
+        nodal = fem.Function(target_space)
+        nodal.interpolate(scalars)
+        grid.point_data[name] = nodal.x.array[: grid.n_points]
+        return True
+    values = np.asarray(scalars)
+    if len(values) == grid.n_points:
+        grid.point_data[name] = values
+    elif len(values) == grid.n_cells:
+        grid.cell_data[name] = values
+    else:
+        raise ValueError(f"render: {len(values)} scalar values match neither the "
+                         f"{grid.n_points} points nor the {grid.n_cells} cells")
+    return True
+
+
+def _set_camera(plotter: pv.Plotter, camera) -> None:
+    """Apply a named view ("iso", "xy", "xz", "yz", ...) or a pyvista camera position."""
+    if isinstance(camera, str) and camera not in _CAMERAS:
+        raise ValueError(f"render: unknown camera {camera!r}; use one of "
+                         f"{sorted(_CAMERAS)} or a pyvista camera position")
+    plotter.camera_position = camera
+    plotter.reset_camera()
+
+
+def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
+                  scalars: Scalars | Sequence[Scalars] = None,
+                  titles: Sequence[str] | None = None, camera="iso",
+                  window_size: tuple[int, int] = (1200, 800), overlay: bool = False,
+                  show_rest: bool = False, scalar_name: str = "value",
+                  cmap: str = "viridis") -> Path:
+    """Render bodies to ``png``: side by side (one subplot each) or ``overlay``-ed in one view.
+
+    ``scalars`` is one coloring for all bodies, which then share one color
+    range, or a list with one per body, each with its own range (see Scalars).
+    Edges are drawn; ``show_rest`` adds the undeformed shape as a faint
+    wireframe.  ``camera`` is "iso", "xy", "xz", "yz" (and reversed) or a
+    pyvista camera position.  Returns the PNG path.
+    """
+    if isinstance(bodies, dolfinx.mesh.Mesh) or (
+            isinstance(bodies, tuple) and len(bodies) == 2
+            and isinstance(bodies[0], dolfinx.mesh.Mesh)
+            and (bodies[1] is None or isinstance(bodies[1], fem.Function))):
+        bodies = [bodies]
+    bodies = [(b, None) if isinstance(b, dolfinx.mesh.Mesh) else tuple(b) for b in bodies]
+    if not bodies:
+        raise ValueError("render: no bodies to draw")
+    per_body = (list(scalars) if isinstance(scalars, (list, tuple)) else [scalars] * len(bodies))
+    if len(per_body) != len(bodies):
+        raise ValueError(f"render: {len(per_body)} scalars for {len(bodies)} bodies")
+    if titles is not None and len(titles) != len(bodies):
+        raise ValueError(f"render: {len(titles)} titles for {len(bodies)} bodies")
+
+    grids, colored = [], []
+    for (msh, u), s in zip(bodies, per_body):
+        deformed, rest = body_grid(msh, u)
+        colored.append(_attach_scalars(deformed, msh, u, s, scalar_name))
+        grids.append((deformed, rest))
+    shared = not isinstance(scalars, (list, tuple))
+    ranges = [g.get_data_range(scalar_name) for (g, _), c in zip(grids, colored) if c]
+    shared_clim = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else None
+
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    shape = (1, 1) if overlay else (1, len(bodies))
+    plotter = pv.Plotter(off_screen=True, shape=shape, window_size=list(window_size))
+    try:
+        plotter.set_background("white")
+        for i, ((deformed, rest), has_scalars) in enumerate(zip(grids, colored)):
+            plotter.subplot(0, 0 if overlay else i)
+            if has_scalars:
+                # One color bar for a shared coloring, else one per body (bars are keyed by title).
+                bar = scalar_name if shared else (titles[i] if titles else f"{scalar_name} {i + 1}")
+                clim = shared_clim if shared else deformed.get_data_range(scalar_name)
+                plotter.add_mesh(deformed, scalars=scalar_name, cmap=cmap, clim=clim,
+                                 show_edges=True, edge_color="black",
+                                 scalar_bar_args={"title": bar, "color": "black", "fmt": "%.3g",
+                                                  "position_x": 0.2, "width": 0.6})
+            else:
+                label = titles[i] if overlay and titles is not None else None
+                plotter.add_mesh(deformed, color=_BODY_COLORS[i % len(_BODY_COLORS)],
+                                 show_edges=True, edge_color="black", label=label)
+            if show_rest:
+                plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.3)
+            if titles is not None and not overlay:
+                plotter.add_text(titles[i], font_size=12, color="black")
+            _set_camera(plotter, camera)
+        if overlay and titles is not None and not all(colored):
+            plotter.add_legend(bcolor="white", face="rectangle")
+        plotter.screenshot(str(png))
+    finally:
+        plotter.close()
+    return png

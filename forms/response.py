@@ -1,0 +1,123 @@
+"""Stress response of a material at homogeneous deformations: single points and test curves.
+
+Works for every material in ``artifem.forms`` (and any object with
+``strain_energy(F, **fields)``); fields such as a0 and excitation are passed
+as numpy values. The compiled evaluator (artifem.pointwise) is imported only
+when needed, so importing ``artifem.forms`` does not load dolfinx.
+"""
+
+import numpy as np
+
+
+def point_response(material, F, **fields):
+    """(psi, P, dPdF) at the homogeneous deformation gradient F (numpy 3x3).
+
+    psi = W(F), P = dW/dF (first Piola-Kirchhoff), dPdF[i, J, k, L] = dP_iJ/dF_kL.
+    """
+    from artifem.pointwise import evaluator_for
+
+    return evaluator_for(material, **fields)(F, **fields)
+
+
+def _solve_lateral(response, stretch, free, guess):
+    """Find the stretches F[d, d] for d in ``free`` that make P[d, d] = 0.
+
+    Newton-type solve (MINPACK hybr) in s = ln(stretch) so stretches stay
+    positive, with the exact Jacobian dP_dd/dF_ee from the tangent.
+    """
+    from scipy.optimize import root
+
+    def deformation(s):
+        F = np.diag(np.full(3, stretch))
+        F[free, free] = np.exp(s)
+        return F
+
+    def residual(s):
+        _, P, A = response(deformation(s))
+        jacobian = np.array([[A[d, d, e, e] for e in free] for d in free]) * np.exp(s)
+        return P[free, free], jacobian
+
+    s = root(residual, np.log(guess), jac=True, method="hybr").x
+    for _ in range(3):  # polish to round-off with exact Newton steps
+        value, jacobian = residual(s)
+        if np.linalg.cond(jacobian) > 1e12:
+            break
+        step = np.linalg.solve(jacobian, value)
+        s = s - step
+    if np.linalg.cond(jacobian) > 1e12 or not np.linalg.norm(step) < 1e-10:
+        raise RuntimeError(
+            f"no traction-free lateral stretch found at stretch {stretch}: the lateral stiffness is "
+            "singular or the solve diverged; a material without lateral stiffness (e.g. a fiber "
+            "alone) needs a matrix: use CombinedMaterial(matrix, fiber)")
+    return np.exp(s)
+
+
+def stress_stretch_curves(material, stretches, shears=None, **fields):
+    """Nominal (first Piola-Kirchhoff) stress along three homogeneous tests.
+
+    - "uniaxial": F = diag(l, t2, t3) with t2, t3 solved so P22 = P33 = 0
+      (traction-free sides); keys stretch, P11, P22, P33, lateral_stretch_2, lateral_stretch_3.
+    - "equibiaxial": F = diag(l, l, t3) with P33 = 0; keys stretch, P11, P22, P33, lateral_stretch_3.
+    - "simple_shear": F = I + g e1 (x) e2 for g in ``shears`` (default stretches - 1);
+      keys shear, P12, P11, P22.
+
+    The lateral solves keep F diagonal, which is traction-free only if the
+    coordinate axes stay principal (isotropic materials, fibers along an axis).
+    """
+    stretches = np.asarray(stretches, dtype=float)
+    shears = stretches - 1.0 if shears is None else np.asarray(shears, dtype=float)
+
+    def response(F):
+        return point_response(material, F, **fields)
+
+    uniaxial = {key: [] for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_2", "lateral_stretch_3")}
+    equibiaxial = {key: [] for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_3")}
+    lateral_uniaxial, lateral_biaxial = None, None
+    for stretch in stretches:
+        guess = lateral_uniaxial if lateral_uniaxial is not None else np.full(2, stretch**-0.5)
+        lateral_uniaxial = _solve_lateral(response, stretch, [1, 2], guess)
+        _, P, _ = response(np.diag([stretch, *lateral_uniaxial]))
+        for key, value in zip(uniaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], *lateral_uniaxial)):
+            uniaxial[key].append(value)
+
+        guess = lateral_biaxial if lateral_biaxial is not None else np.array([stretch**-2.0])
+        lateral_biaxial = _solve_lateral(response, stretch, [2], guess)
+        _, P, _ = response(np.diag([stretch, stretch, lateral_biaxial[0]]))
+        for key, value in zip(equibiaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], lateral_biaxial[0])):
+            equibiaxial[key].append(value)
+
+    shear = {key: [] for key in ("shear", "P12", "P11", "P22")}
+    for amount in shears:
+        F = np.eye(3)
+        F[0, 1] = amount
+        _, P, _ = response(F)
+        for key, value in zip(shear, (amount, P[0, 1], P[0, 0], P[1, 1])):
+            shear[key].append(value)
+
+    return {name: {key: np.asarray(values) for key, values in curve.items()}
+            for name, curve in (("uniaxial", uniaxial), ("equibiaxial", equibiaxial),
+                                ("simple_shear", shear))}
+
+
+def plot_stress_stretch(curves, png_path, title=None):
+    """Write a three-panel PNG (uniaxial P11, equibiaxial P11, simple-shear P12/P11/P22) of ``curves``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(12, 4), layout="constrained")
+    FigureCanvasAgg(figure)
+    uniaxial, biaxial, shear = figure.subplots(1, 3)
+    uniaxial.plot(curves["uniaxial"]["stretch"], curves["uniaxial"]["P11"], "o-")
+    uniaxial.set(title="uniaxial (traction-free sides)", xlabel="stretch", ylabel="P11")
+    biaxial.plot(curves["equibiaxial"]["stretch"], curves["equibiaxial"]["P11"], "o-")
+    biaxial.set(title="equibiaxial (traction-free e3)", xlabel="stretch", ylabel="P11")
+    for key, style in (("P12", "o-"), ("P11", "--"), ("P22", ":")):
+        shear.plot(curves["simple_shear"]["shear"], curves["simple_shear"][key], style, label=key)
+    shear.set(title="simple shear", xlabel="shear", ylabel="nominal stress")
+    shear.legend()
+    for axes in (uniaxial, biaxial, shear):
+        axes.grid(True, alpha=0.3)
+    if title:
+        figure.suptitle(title)
+    figure.savefig(png_path, dpi=120)
+    return png_path
