@@ -81,11 +81,18 @@ class SemiImplicitEuler:
 
 
 class ImplicitEuler:
-    """Fully implicit backward Euler: Newton on v_{k+1} with a line search."""
+    """Fully implicit backward Euler: Newton on v_{k+1} with a line search.
+
+    The line search is an Armijo backtracking on the incremental potential
+
+        E(v) = 1/2 (v - v_k)^T M (v - v_k) + Pi(u_k + h v) + h/2 v^T D_k v,
+
+    whose gradient is r(v), so every accepted step decreases E.
+    """
 
     name = "implicit"
 
-    def __init__(self, rtol: float = 1e-8, atol: float = 1e-12, max_iterations: int = 20):
+    def __init__(self, rtol: float = 1e-8, atol: float = 1e-12, max_iterations: int = 25):
         self.rtol, self.atol, self.max_iterations = rtol, atol, max_iterations
         self.iterations = 0
 
@@ -96,23 +103,43 @@ class ImplicitEuler:
         K0 = body.K.copy() if body.beta > 0 else None
         r, w, dv = v.duplicate(), v.duplicate(), v.duplicate()
 
-        def residual(tangent: bool) -> float:
-            """Set u = u0 + h v, assemble, and return ||r(v)||."""
+        def set_velocity(values) -> None:
+            v.array[:] = values
             u.array[:] = u0.array + h * v.array
-            _update_ghosts(u)
+            _update_ghosts(u, v)
+
+        def damping_mult(x: PETSc.Vec, y: PETSc.Vec) -> None:
+            """y = D_k x."""
+            body.mass_mult(x, y)
+            y.scale(body.alpha)
+            if K0 is not None:
+                tmp = y.duplicate()
+                K0.mult(x, tmp)
+                y.axpy(body.beta, tmp)
+                tmp.destroy()
+
+        def incremental_potential() -> float:
+            w.array[:] = v.array - v0.array
+            Mw = w.duplicate()
+            body.mass_mult(w, Mw)
+            E = 0.5 * Mw.dot(w) + body.potential_energy()
+            damping_mult(v, Mw)
+            E += 0.5 * h * Mw.dot(v)
+            Mw.destroy()
+            return E
+
+        def residual(tangent: bool) -> float:
+            """Assemble at the current v and return ||r(v)|| (r stored in r)."""
             body.assemble(tangent=tangent)
             w.array[:] = v.array - v0.array
             body.mass_mult(w, r)
             r.axpy(h, body.R)
-            if body.alpha:
-                body.mass_mult(v, w)
-                r.axpy(h * body.alpha, w)
-            if K0 is not None:
-                K0.mult(v, w)
-                r.axpy(h * body.beta, w)
+            damping_mult(v, w)
+            r.axpy(h, w)
             body.zero_fixed(r)
             return r.norm()
 
+        set_velocity(v0.array)          # initial guess v = v_k, so u = u_k + h v_k
         norm = residual(tangent=True)
         norm0 = max(norm, self.atol)
         try:
@@ -127,21 +154,13 @@ class ImplicitEuler:
                 body.add_mass(A, 1.0 + h * body.alpha)
                 r.scale(-1.0)
                 solver.solve(A, r, dv)
-                v_start = v.copy()
-                step = 1.0
-                while True:
-                    v.array[:] = v_start.array + step * dv.array
-                    _update_ghosts(v)
-                    u.array[:] = u0.array + h * v.array
-                    _update_ghosts(u)
-                    if not _has_inversion(body):
-                        trial = residual(tangent=False)
-                        if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm:
-                            break
-                    step *= 0.5
-                    if step < 1e-3:
-                        raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
-                v_start.destroy()
+                slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
+                E0 = incremental_potential()
+                v_start = v.array.copy()
+                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array),
+                                  body, incremental_potential, E0, slope)
+                if step is None:
+                    raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
                 norm = residual(tangent=True)
             raise StepFailed(f"implicit Euler: Newton did not converge in {self.max_iterations} "
                              f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})")
@@ -152,25 +171,50 @@ class ImplicitEuler:
                 K0.destroy()
 
 
+def _backtrack(apply_step, body: FemBody, merit, merit0: float, slope: float,
+               min_step: float = 1e-4) -> float | None:
+    """Armijo backtracking: the largest s in {1, 1/2, ...} with no inverted element and
+    merit(s) <= merit0 + 1e-4 s slope; None if s falls below min_step.
+
+    A non-descent direction (slope >= 0, round-off near the solution) takes the
+    full step; changes of the merit below its round-off level count as decrease.
+    """
+    noise = 1e-11 * abs(merit0)
+    step = 1.0
+    while step >= min_step:
+        apply_step(step)
+        if not _has_inversion(body):
+            value = merit()
+            if np.isfinite(value) and (slope >= 0 or value <= merit0 + 1e-4 * step * slope + noise):
+                return step
+        step *= 0.5
+    return None
+
+
 def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                  rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
                  progress=None) -> list[int]:
-    """Static equilibrium R(u) = 0 by Newton with a line search, in load increments.
+    """Static equilibrium R(u) = 0 by Newton, in load increments of the load factor.
 
+    Each Newton step is an Armijo backtracking on the potential energy Pi.
     Fixed dofs keep their prescribed displacement. Returns the Newton iteration
     count of each load step. Raises :class:`StepFailed` if an increment fails.
     """
     u = body.u.x.petsc_vec
     du = u.duplicate()
+    r = u.duplicate()
+
+    def residual() -> float:
+        body.assemble(tangent=True, diag=1.0)
+        body.R.copy(r)
+        body.zero_fixed(r)
+        return r.norm()
+
     counts = []
     for k in range(1, load_steps + 1):
         body.load_factor.value = k / load_steps
-        body.assemble(tangent=True, diag=1.0)
-        norm0 = body.R.norm()  # includes fixed rows: a scale for the tolerance
-        r = body.R.copy()
-        body.zero_fixed(r)
-        norm = r.norm()
-        scale = max(norm0, atol)
+        norm = residual()
+        scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
         it = 0
         while norm > max(rtol * scale, atol):
             it += 1
@@ -179,30 +223,21 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                                  f"iterations at load factor {k / load_steps:g} (|R| = {norm:.3e})")
             r.scale(-1.0)
             solver.solve(body.K, r, du)
-            u_start = u.copy()
-            step = 1.0
-            while True:
-                u.array[:] = u_start.array + step * du.array
+            slope = -r.dot(du)
+            u_start = u.array.copy()
+
+            def apply_step(s):
+                u.array[:] = u_start + s * du.array
                 _update_ghosts(u)
-                if not _has_inversion(body):
-                    body.assemble(tangent=False)
-                    body.zero_fixed(body.R)
-                    trial = body.R.norm()
-                    if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm:
-                        break
-                step *= 0.5
-                if step < 1e-4:
-                    raise StepFailed(f"static solve: line search failed at load factor "
-                                     f"{k / load_steps:g}, Newton iteration {it}")
-            u_start.destroy()
-            body.assemble(tangent=True, diag=1.0)
-            r.destroy()
-            r = body.R.copy()
-            body.zero_fixed(r)
-            norm = r.norm()
+
+            Pi0 = body.potential_energy()
+            if _backtrack(apply_step, body, body.potential_energy, Pi0, slope) is None:
+                raise StepFailed(f"static solve: line search failed at load factor "
+                                 f"{k / load_steps:g}, Newton iteration {it}")
+            norm = residual()
         counts.append(it)
-        r.destroy()
         if progress is not None:
             progress.update(1)
     du.destroy()
+    r.destroy()
     return counts
