@@ -1,0 +1,56 @@
+"""The ``artifem`` command line.
+
+    artifem mesh info PATH... [--json]       what a mesh holds, and whether it is sound
+    artifem material curves NAME --out PNG   stress-stretch curves of a material
+    artifem simulate beam --out DIR          the muscle-driven beam (VTX, PNG, JSON)
+    artifem bench fom --out FILE.json        full-order step timings
+    artifem demo --out DIR                   the main job (``make demo``)
+
+Each command lives in its own module, which declares its arguments
+(``add_arguments``) and runs (``run``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: subcommand path -> module with ``add_arguments(parser)`` and ``run(args) -> int``
+COMMANDS = {
+    ("mesh", "info"): ("artifem.io.mesh_info", "nodes, elements, volume, det J, bounding box"),
+    ("material", "curves"): ("artifem.material_curves",
+                             "uniaxial / equibiaxial / shear stress-stretch curves to PNG"),
+    ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam"),
+    ("bench", "fom"): ("artifem.bench", "full-order FEM step timings to JSON"),
+    ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="artifem", description=__doc__.split("\n\n")[0])
+    top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for path, (module, help_text) in COMMANDS.items():
+        if len(path) == 1:
+            sub = top.add_parser(path[0], help=help_text, description=help_text)
+        else:
+            if path[0] not in groups:
+                group = top.add_parser(path[0], help=f"{path[0]} commands")
+                groups[path[0]] = group.add_subparsers(dest="subcommand", required=True,
+                                                       metavar="SUBCOMMAND")
+            sub = groups[path[0]].add_parser(path[1], help=help_text, description=help_text)
+        sub.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(importlib.import_module(args._module).run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
