@@ -114,7 +114,7 @@ class FemBody:
 
     def _input_node_to_dof(self) -> dict[int, int]:
         """Map input node index -> local block dof (owned and ghost)."""
-        x_dofmap = self.mesh.geometry.dofmap
+        x_dofmap = self.mesh.geometry.dofmaps[0]
         dofs = self.V.dofmap.list
         geom_nodes = x_dofmap.reshape(-1)
         node_dofs = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int32)
@@ -126,6 +126,34 @@ class FemBody:
         """Local block dofs of the given input node indices present on this rank."""
         return np.array([self._node_to_dof[n] for n in np.asarray(nodes).ravel().tolist()
                          if n in self._node_to_dof], dtype=np.int32)
+
+    def find_nodes(self, marker) -> np.ndarray:
+        """Input indices of the nodes whose reference position satisfies ``marker``.
+
+        ``marker(x)`` takes x of shape (3, n) and returns n booleans; the result
+        is gathered from every rank (sorted, unique).
+        """
+        x = self.mesh.geometry.x
+        local = self.mesh.geometry.input_global_indices[np.asarray(marker(x.T), dtype=bool)]
+        return np.unique(np.concatenate(self.mesh.comm.allgather(np.asarray(local, np.int64))))
+
+    def nearest_node(self, point) -> int:
+        """Input index of the node nearest to ``point`` in the reference configuration."""
+        x = self.mesh.geometry.x
+        d = np.linalg.norm(x - np.asarray(point, dtype=float), axis=1)
+        k = int(np.argmin(d)) if d.size else -1
+        candidates = self.mesh.comm.allgather(
+            (float(d[k]) if k >= 0 else np.inf,
+             int(self.mesh.geometry.input_global_indices[k]) if k >= 0 else -1))
+        return min(candidates)[1]
+
+    def find_cells(self, marker) -> np.ndarray:
+        """Input indices of the cells whose reference midpoint satisfies ``marker``."""
+        tdim = self.mesh.topology.dim
+        owned = np.arange(self.mesh.topology.index_map(tdim).size_local, dtype=np.int32)
+        mid = self.mesh.geometry.x[self.mesh.geometry.dofmaps[0][owned]].mean(axis=1)
+        local = self.input_cell_index(owned[np.asarray(marker(mid.T), dtype=bool)])
+        return np.unique(np.concatenate(self.mesh.comm.allgather(np.asarray(local, np.int64))))
 
     def _check_nodes(self, nodes, what: str) -> np.ndarray:
         nodes = np.asarray(nodes, dtype=np.int64).ravel()
@@ -391,7 +419,7 @@ class FemBody:
     def nodal_positions(self) -> np.ndarray:
         """Current positions X + u of the local geometry nodes, shape (nodes, 3)."""
         x = self.mesh.geometry.x.copy()
-        x_dofmap = self.mesh.geometry.dofmap.reshape(-1)
+        x_dofmap = self.mesh.geometry.dofmaps[0].reshape(-1)
         dofs = self.V.dofmap.list.reshape(-1)
         x[x_dofmap] += self.u.x.array.reshape(-1, 3)[dofs]
         return x

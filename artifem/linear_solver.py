@@ -16,6 +16,7 @@ from __future__ import annotations
 from petsc4py import PETSc
 
 from dolfinx import fem, la
+from dolfinx.la.petsc import create_vector_wrap
 
 METHODS = ("mumps", "cg-gamg", "cg-hypre")
 
@@ -38,7 +39,7 @@ def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
     b[4][:n_local, 0], b[4][:n_local, 2] = x[:, 2], -x[:, 0]
     b[5][:n_local, 2], b[5][:n_local, 1] = x[:, 1], -x[:, 2]
     la.orthonormalize(basis)
-    vecs = [la.create_petsc_vector_wrap(v) for v in basis]
+    vecs = [create_vector_wrap(v) for v in basis]
     return PETSc.NullSpace().create(vectors=vecs, comm=V.mesh.comm)
 
 
@@ -68,6 +69,8 @@ class LinearSolver:
                 pc.setType("hypre")
                 pc.setHYPREType("boomeramg")
             self.ksp.setInitialGuessNonzero(False)
+        self.ksp.setOptionsPrefix("artifem_")
+        self.ksp.setFromOptions()
         self.iterations = 0
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> None:

@@ -89,13 +89,14 @@ def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
     return True
 
 
-def _set_camera(plotter: pv.Plotter, camera) -> None:
-    """Apply a named view ("iso", "xy", "xz", "yz", ...) or a pyvista camera position."""
+def _set_camera(plotter: pv.Plotter, camera, bounds) -> None:
+    """Apply a named view ("iso", "xy", "xz", "yz", ...) or a pyvista camera position,
+    framing ``bounds`` (the same box in every panel, so panels compare at one scale)."""
     if isinstance(camera, str) and camera not in _CAMERAS:
         raise ValueError(f"render: unknown camera {camera!r}; use one of "
                          f"{sorted(_CAMERAS)} or a pyvista camera position")
     plotter.camera_position = camera
-    plotter.reset_camera()
+    plotter.reset_camera(bounds=bounds)
 
 
 def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
@@ -135,6 +136,9 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
     ranges = [g.get_data_range(scalar_name) for (g, _), c in zip(grids, colored) if c]
     shared_clim = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else None
 
+    boxes = np.array([g.bounds for pair in grids for g in pair]).reshape(-1, 3, 2)
+    bounds = np.column_stack([boxes[:, :, 0].min(axis=0), boxes[:, :, 1].max(axis=0)]).ravel()
+
     png = Path(png)
     png.parent.mkdir(parents=True, exist_ok=True)
     shape = (1, 1) if overlay else (1, len(bodies))
@@ -159,7 +163,7 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
                 plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.3)
             if titles is not None and not overlay:
                 plotter.add_text(titles[i], font_size=12, color="black")
-            _set_camera(plotter, camera)
+            _set_camera(plotter, camera, bounds)
         if overlay and titles is not None and not all(colored):
             plotter.add_legend(bcolor="white", face="rectangle")
         plotter.screenshot(str(png))

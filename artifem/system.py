@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+from mpi4py import MPI
 
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.integrators import ImplicitEuler, SemiImplicitEuler, StepFailed, solve_static
@@ -31,8 +32,9 @@ from artifem.linear_solver import LinearSolver
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 
-#: A controller sets inputs (excitations, loads) for the step starting at time t.
-Controller = Callable[["System", float], None]
+#: A controller sets inputs (excitations, loads) for the step from t0 to t1
+#: (ArtiSynth's Controller.apply(t0, t1)).
+Controller = Callable[["System", float, float], None]
 
 
 class System:
@@ -61,6 +63,7 @@ class System:
         self.constraints: list = []     # bilateral joints (multibody issue)
         self.time = 0.0
         self.halvings = 0               # how many step halvings happened so far
+        self.min_det_F = np.inf         # smallest det F seen after any completed step
         self._solvers: dict[str, LinearSolver] = {}
 
     def add(self, component: FemBody) -> FemBody:
@@ -95,7 +98,7 @@ class System:
 
     def _advance(self, dt: float, depth: int) -> None:
         for controller in self.controllers:
-            controller(self, self.time)
+            controller(self, self.time, self.time + dt)
         saved = [c.state() for c in self.components]
         failure = None
         try:
@@ -117,12 +120,16 @@ class System:
         self._advance(dt / 2, depth + 1)
 
     def _check_state(self) -> str | None:
+        step_min = np.inf
         for body in self.components:
-            if not np.all(np.isfinite(body.u.x.array)) or not np.all(np.isfinite(body.v.x.array)):
+            finite = np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array))
+            if not body.mesh.comm.allreduce(bool(finite), op=MPI.LAND):
                 return f"non-finite displacement or velocity in {body.name!r}"
             bad, min_det = body.inverted_elements()
             if bad.size or not np.isfinite(min_det):
                 return f"inverted elements in {body.name!r}"
+            step_min = min(step_min, min_det)
+        self.min_det_F = min(self.min_det_F, step_min)
         return None
 
     def _raise_failure(self, failure: str, dt: float) -> None:

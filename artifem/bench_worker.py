@@ -1,0 +1,180 @@
+"""One full-order benchmark case, run in its own process (``artifem bench fom``).
+
+    mpiexec -n RANKS python -m artifem.bench_worker --cells NX NY NZ --solver S --steps N
+
+Builds a Q1 hex box of tongue size clamped at x = 0 (tongue Mooney-Rivlin,
+density 1040, Rayleigh (40, 0.03), gravity, a Blemker-fiber muscle along x in
+the upper half), takes ``--warmup`` untimed steps and then ``--steps`` timed
+semi-implicit steps of dt = 0.01 s through :meth:`System.step` (inversion
+check included), and prints one line ``BENCH_RESULT {json}`` on rank 0.
+
+Per step it measures the wall time of ``System.step`` (MPI barriers before
+and after), and inside it the time spent in ``FemBody.assemble`` (R and K) and
+in ``LinearSolver.solve``, each the maximum over ranks. ``peak_mb`` is the sum
+over ranks of the peak resident set size of the process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import resource
+import sys
+import time
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+
+import numpy as np
+from mpi4py import MPI
+
+from dolfinx import mesh as dmesh
+
+from artifem.fem_body import FemBody
+from artifem.forms import BlemkerFiber, MooneyRivlin
+from artifem.linear_solver import METHODS
+from artifem.system import System
+
+#: Box extent in metres (tongue scale); clamped at x = 0, fibers along x.
+BOX = (0.08, 0.035, 0.035)
+DT = 0.01
+DENSITY = 1040.0
+RAYLEIGH = (40.0, 0.03)
+GRAVITY = (0.0, 0.0, -9.81)
+MAX_STRESS = 5.0e3      # Pa, Blemker fiber (peak isometric stress of the model muscle)
+EXCITATION = 0.3
+
+
+def build(comm, cells, box=BOX, excitation=EXCITATION) -> FemBody:
+    """The benchmark body: tongue material, clamped at x = 0, muscle in the upper half."""
+    nx, ny, nz = cells
+    domain = dmesh.create_box(comm, [np.zeros(3), np.asarray(box, dtype=float)], [nx, ny, nz],
+                              dmesh.CellType.hexahedron)
+    body = FemBody(domain, MooneyRivlin.tongue(), DENSITY, rayleigh=RAYLEIGH, gravity=GRAVITY,
+                   name="box")
+    # Clamped end: input indices of the nodes at x = 0, gathered from every rank.
+    x = domain.geometry.x
+    inputs = np.asarray(domain.geometry.input_global_indices)
+    local_fixed = inputs[np.isclose(x[:, 0], 0.0, atol=1e-9 * box[0])]
+    fixed = np.unique(np.concatenate(comm.allgather(local_fixed)))
+    body.fix_nodes(fixed)
+    # Muscle: cells whose centroid lies in the upper half (z > H/2), fibers along x.
+    tdim = domain.topology.dim
+    n_owned = domain.topology.index_map(tdim).size_local
+    geom = domain.geometry.dofmaps[0][:n_owned]
+    centroid_z = x[geom, 2].mean(axis=1)
+    local_cells = np.asarray(domain.topology.original_cell_index)[:n_owned][centroid_z > 0.5 * box[2]]
+    muscle_cells = np.unique(np.concatenate(comm.allgather(local_cells)))
+    body.add_muscle("upper", muscle_cells, (1.0, 0.0, 0.0), BlemkerFiber(max_stress=MAX_STRESS),
+                    excitation=excitation)
+    return body
+
+
+class _Timed:
+    """Wrap a callable and accumulate its wall time (seconds) in ``total``."""
+
+    def __init__(self, fn):
+        self.fn, self.total = fn, 0.0
+
+    def __call__(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return self.fn(*args, **kwargs)
+        finally:
+            self.total += time.perf_counter() - t0
+
+
+def gather_displacement(body: FemBody) -> np.ndarray | None:
+    """Displacement of every input node, ordered by input index (rank 0; None elsewhere)."""
+    comm = body.mesh.comm
+    geom = body.mesh.geometry
+    dofs = body.V.dofmap.list.reshape(-1)
+    node_dof = np.empty(geom.x.shape[0], dtype=np.int64)
+    node_dof[geom.dofmaps[0].reshape(-1)] = dofs
+    u = body.u.x.array.reshape(-1, 3)[node_dof]
+    parts = comm.gather((np.asarray(geom.input_global_indices), u), root=0)
+    if comm.rank != 0:
+        return None
+    n = geom.index_map().size_global
+    out = np.zeros((n, 3))
+    for idx, vals in parts:
+        out[idx] = vals
+    return out
+
+
+def run_case(comm, cells, solver: str, steps: int, warmup: int,
+             dump: str | None = None) -> dict | None:
+    body = build(comm, cells)
+    system = System(linear_solver=solver)
+    system.add(body)
+    linear = system.solver_for(body)
+    assemble = body.assemble = _Timed(body.assemble)
+    solve = linear.solve = _Timed(linear.solve)
+
+    rows = []
+    for k in range(warmup + steps):
+        assemble.total = solve.total = 0.0
+        halvings = system.halvings
+        comm.Barrier()
+        t0 = time.perf_counter()
+        system.step(DT)
+        comm.Barrier()
+        wall = time.perf_counter() - t0
+        if k >= warmup:
+            rows.append((wall, comm.allreduce(assemble.total, op=MPI.MAX),
+                         comm.allreduce(solve.total, op=MPI.MAX), linear.iterations,
+                         system.halvings - halvings))
+
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # KiB on Linux
+    peak_mb = comm.allreduce(rss_mb, op=MPI.SUM)
+    n_nodes = body.mesh.geometry.index_map().size_global
+    n_cells = body.mesh.topology.index_map(3).size_global
+    tip = body.displacement_at([n_nodes - 1])[0]    # node at (L, W, H)
+    u_dump = gather_displacement(body) if dump else None
+    if comm.rank != 0:
+        return None
+    if dump:
+        np.save(dump, u_dump)
+    a = np.asarray(rows, dtype=float)
+    ms = 1e3 * a[:, :3]
+    return {
+        "nodes": int(n_nodes), "elements": int(n_cells), "cells": list(cells),
+        "ranks": comm.size, "solver": solver,
+        "ms_per_step": float(np.median(ms[:, 0])),
+        "assembly_ms": float(np.median(ms[:, 1])),
+        "solve_ms": float(np.median(ms[:, 2])),
+        "other_ms": float(np.median(ms[:, 0] - ms[:, 1] - ms[:, 2])),
+        "mean_ms_per_step": float(ms[:, 0].mean()),
+        "max_ms_per_step": float(ms[:, 0].max()),
+        "iterations": float(np.median(a[:, 3])),
+        "max_iterations": int(a[:, 3].max()),
+        "peak_mb": float(peak_mb),
+        "steps": steps, "warmup_steps": warmup, "dt": DT,
+        "halvings": int(a[:, 4].sum()),
+        "tip_displacement_m": [float(t) for t in tip],
+        "dofs": int(3 * n_nodes),
+        "box_m": list(BOX),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m artifem.bench_worker", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cells", type=int, nargs=3, required=True, metavar=("NX", "NY", "NZ"))
+    parser.add_argument("--solver", choices=METHODS, required=True)
+    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--dump", help="save the final displacement (input node order) to this .npy")
+    args = parser.parse_args(argv)
+    if min(args.cells) < 1 or args.steps < 1 or args.warmup < 0:
+        parser.error("cells and steps must be >= 1, warmup >= 0")
+    comm = MPI.COMM_WORLD
+    result = run_case(comm, tuple(args.cells), args.solver, args.steps, args.warmup, args.dump)
+    if comm.rank == 0:
+        result["python"] = sys.version.split()[0]
+        result["machine"] = platform.machine()
+        print("BENCH_RESULT " + json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
