@@ -67,6 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cells", type=int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ"))
     parser.add_argument("--excitation", type=float, default=1.0)
     parser.add_argument("--dt", type=float, default=0.01)
+    parser.add_argument("--duration", type=float, default=1.0)
     parser.add_argument("--no-progress", action="store_true")
 
 
@@ -75,19 +76,20 @@ def run(args: argparse.Namespace) -> int:
     from artifem.simulation import simulate
 
     config = BeamConfig(cells=tuple(args.cells), excitation=args.excitation, dt=args.dt,
-                        integrator=args.integrator)
+                        duration=args.duration, integrator=args.integrator)
     system, body = build_beam(config)
     out = Path(args.out)
     comm = body.mesh.comm
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     tip = body.nearest_node((LENGTH, 0.5 * WIDTH, 0.5 * HEIGHT))
+    shown = (0.0, 0.5 * config.duration, config.duration)
     traj = simulate(system, body, duration=config.duration, dt=config.dt,
-                    landmarks={"tip": tip}, snapshot_times=(0.0, 0.5, 1.0),
+                    landmarks={"tip": tip}, snapshot_times=shown,
                     vtx_path=out / "displacement.bp", progress=not args.no_progress,
                     label="muscle beam")
-    render_bodies(out / "beam.png", [(body.mesh, traj.snapshots[t]) for t in (0.0, 0.5, 1.0)],
-                  scalars="displacement", titles=["rest", "t = 0.5 s", "t = 1.0 s"],
+    render_bodies(out / "beam.png", [(body.mesh, traj.snapshots[t]) for t in shown],
+                  scalars="displacement", titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
                   scalar_name="displacement (m)", camera="xz", show_rest=True,
                   window_size=(1500, 500))
     tip_mm = 1e3 * traj.landmarks["tip"]
@@ -104,20 +106,20 @@ def run(args: argparse.Namespace) -> int:
         "ms_per_step": traj.ms_per_step,
         "min_det_F": traj.min_det_F,
         "halvings": traj.halvings,
-        "tip_displacement_mm": {"t=0.5": tip_mm[np.argmin(abs(traj.times - 0.5))].tolist(),
-                                "t=1.0": tip_mm[-1].tolist()},
+        "tip_displacement_mm": {f"t={t:g}": tip_mm[np.argmin(abs(traj.times - t))].tolist()
+                                for t in shown[1:]},
         "machine": platform.processor() or platform.machine(),
     }
     if comm.rank == 0:
-        _plot_tip(out / "tip.png", traj.times, tip_mm)
+        _plot_tip(out / "tip.png", traj.times, tip_mm, config.ramp_time)
         (out / "simulate.json").write_text(json.dumps(figures, indent=2))
         print(f"muscle beam: {figures['nodes']} nodes, {figures['ms_per_step']:.1f} ms/step, "
-              f"tip at 1 s {np.round(tip_mm[-1], 2).tolist()} mm, min det F "
+              f"tip at {config.duration:g} s {np.round(tip_mm[-1], 2).tolist()} mm, min det F "
               f"{figures['min_det_F']:.3f}; results in {out}/")
     return 0
 
 
-def _plot_tip(png: Path, times: np.ndarray, tip_mm: np.ndarray) -> None:
+def _plot_tip(png: Path, times: np.ndarray, tip_mm: np.ndarray, ramp_time: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -127,7 +129,7 @@ def _plot_tip(png: Path, times: np.ndarray, tip_mm: np.ndarray) -> None:
         ax.plot(times, tip_mm[:, k], label=f"u_{label}")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("tip displacement (mm)")
-    ax.axvline(0.5, color="gray", lw=0.8, ls="--")
+    ax.axvline(ramp_time, color="gray", lw=0.8, ls="--", label="end of ramp")
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -25,7 +25,8 @@ from artifem.io.to_dolfinx import (dolfinx_cell_ids, dolfinx_node_ids, dolfinx_n
                                    to_dolfinx)
 from artifem.render import render_bodies
 
-TONGUE = Path("/work/shared/data/artisynth-tongue/tongue.node")
+# The ArtiSynth tongue shipped with the project (models/data, with its LICENSE).
+TONGUE = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue" / "tongue.node"
 # Volume of the tongue: 2x2x2 Gauss is exact for trilinear hexahedra, and DOLFINx
 # assembly of 1*dx agrees to round-off (test_tongue_to_dolfinx_positive_det_j).
 TONGUE_VOLUME = 1.0229167206054e-4
@@ -34,7 +35,6 @@ UNIT_HEX = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
 BASIX_HEX_CORNERS = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],
                               [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]], dtype=float)
 
-pytestmark = pytest.mark.skipif(not TONGUE.exists(), reason="tongue data not available")
 
 
 @pytest.fixture(scope="module")

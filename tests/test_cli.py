@@ -1,0 +1,100 @@
+"""The command line, the set-up script and the demo scene, run as a user would."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from artifem.cli import main
+from artifem.excitation import ExcitationSchedule
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_help_lists_every_command(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for word in ("mesh", "material", "simulate", "bench", "demo"):
+        assert word in out
+
+
+def test_console_script_runs():
+    exe = Path(sys.executable).parent / "artifem"
+    if not exe.exists():
+        pytest.skip("artifem console script not installed in this environment")
+    out = subprocess.run([str(exe), "mesh", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "info" in out.stdout
+
+
+def test_simulate_beam_writes_results(tmp_path):
+    """A short, coarse run of the demo scene: series, pictures and figures exist and make sense."""
+    out = tmp_path / "beam"
+    status = main(["simulate", "beam", "--out", str(out), "--cells", "8", "2", "2",
+                   "--duration", "0.2", "--dt", "0.02", "--no-progress"])
+    assert status == 0
+    figures = json.loads((out / "simulate.json").read_text())
+    assert figures["nodes"] == 9 * 3 * 3 and figures["elements"] == 32
+    assert figures["steps"] == 10
+    assert figures["ms_per_step"] > 0 and 0 < figures["min_det_F"] < 1.5
+    tip = figures["tip_displacement_mm"]["t=0.2"]
+    assert np.all(np.isfinite(tip)) and np.linalg.norm(tip) > 0.1  # the beam moved
+    assert (out / "beam.png").stat().st_size > 10_000
+    assert (out / "tip.png").stat().st_size > 5_000
+    assert (out / "displacement.bp").exists()
+
+
+def test_material_curves_command(tmp_path):
+    png = tmp_path / "tongue.png"
+    assert main(["material", "curves", "tongue", "--out", str(png), "--json"]) == 0
+    assert png.stat().st_size > 10_000
+    curves = json.loads(png.with_suffix(".json").read_text())
+    uni = curves["uniaxial"]
+    # Traction-free lateral faces and a tensile stress that grows with stretch.
+    assert np.allclose(uni["P22"], 0.0, atol=1e-6 * max(abs(np.array(uni["P11"]))))
+    assert np.all(np.diff(uni["P11"]) > 0)
+
+
+def test_excitation_schedule_ramp_hold_and_file(tmp_path):
+    s = ExcitationSchedule.ramp_and_hold({"GGP": 0.4, "TRANS": 0.4}, 0.5)
+    assert s.at(0.25) == pytest.approx({"GGP": 0.2, "TRANS": 0.2})
+    assert s.at(0.9) == pytest.approx({"GGP": 0.4, "TRANS": 0.4})
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"times": [0, 1], "excitations": {"A": [0, 1]}}))
+    assert ExcitationSchedule.from_file(path).at(0.3)["A"] == pytest.approx(0.3)
+    path.write_text(json.dumps({"times": [0, 1], "excitations": {"A": [0, 2]}}))
+    with pytest.raises(ValueError, match="'A'.*\\[0, 1\\]"):
+        ExcitationSchedule.from_file(path)
+    with pytest.raises(FileNotFoundError, match="missing.json"):
+        ExcitationSchedule.from_file(tmp_path / "missing.json")
+
+
+def test_find_python_says_what_to_install(tmp_path):
+    """With no Python >= 3.12 on PATH nor under pyenv, set-up stops with advice."""
+    env = {"PATH": "/usr/bin:/bin", "PYENV_ROOT": str(tmp_path), "HOME": str(tmp_path)}
+    fake_bin = tmp_path / "bin"
+    fake_bin.mkdir()
+    # Hide any system python >= 3.12 behind an old-version impostor.
+    for name in ("python3.12", "python3.13", "python3", "python"):
+        exe = fake_bin / name
+        exe.write_text("#!/bin/sh\nexit 1\n")
+        exe.chmod(0o755)
+    env["PATH"] = f"{fake_bin}:/bin"
+    out = subprocess.run(["bash", str(ROOT / "scripts" / "find-python")], env=env,
+                         capture_output=True, text=True)
+    assert out.returncode == 1
+    assert "Python >= 3.12" in out.stderr and "pyenv install" in out.stderr
+
+
+def test_find_python_finds_this_interpreter():
+    out = subprocess.run(["bash", str(ROOT / "scripts" / "find-python")],
+                         capture_output=True, text=True, env={**os.environ})
+    assert out.returncode == 0
+    version = subprocess.run([out.stdout.strip(), "-c", "import sys; print(sys.version_info[:2])"],
+                             capture_output=True, text=True).stdout
+    assert eval(version) >= (3, 12)
