@@ -368,3 +368,11 @@ def test_render_png(tmp_path, tongue):
     assert png.stat().st_size > 10_000
     pixels = np.asarray(pv.read(png).point_data.active_scalars)
     assert pixels.std() > 10  # not a blank image
+
+
+def test_node_and_cell_rows_by_file_id(tongue):
+    rows = tongue.node_rows([1, 920, 946])
+    assert np.array_equal(tongue.node_ids[rows], [1, 920, 946])
+    assert np.array_equal(tongue.cell_ids[tongue.cell_rows([740, 1])], [740, 1])
+    with pytest.raises(MeshError, match="node ids not in the mesh: \\[947\\]"):
+        tongue.node_rows([5, 947])

@@ -104,3 +104,23 @@ class MeshData:
     def element_label(self, index: int) -> str:
         """Human-readable name of the element in row ``index``: its file id."""
         return f"element {int(self.cell_ids[index])}"
+
+    def node_rows(self, ids) -> np.ndarray:
+        """Row (input) indices of the nodes with the given file ids; unknown ids are an error."""
+        return _rows_of(self.node_ids, ids, f"{self.source or 'mesh'}: node")
+
+    def cell_rows(self, ids) -> np.ndarray:
+        """Row (input) indices of the elements with the given file ids; unknown ids are an error."""
+        return _rows_of(self.cell_ids, ids, f"{self.source or 'mesh'}: element")
+
+
+def _rows_of(file_ids: np.ndarray, ids, what: str) -> np.ndarray:
+    ids = np.asarray(ids, dtype=np.int64).ravel()
+    order = np.argsort(file_ids)
+    pos = np.searchsorted(file_ids, ids, sorter=order)
+    pos = np.minimum(pos, len(file_ids) - 1)
+    rows = order[pos]
+    unknown = ids[file_ids[rows] != ids]
+    if unknown.size:
+        raise MeshError(f"{what} ids not in the mesh: {unknown[:20].tolist()}")
+    return rows
