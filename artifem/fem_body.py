@@ -88,8 +88,9 @@ class FemBody:
         if mass not in ("lumped", "consistent"):
             raise ValueError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
         alpha, beta = rayleigh
-        if alpha < 0 or beta < 0:
-            raise ValueError(f"FemBody {name!r}: Rayleigh coefficients must be >= 0, got {rayleigh}")
+        if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
+            raise ValueError(f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, "
+                             f"got {rayleigh}")
         self.name, self.mesh, self.material = name, domain, material
         self.density, self.mass_kind = float(density), mass
         self.alpha, self.beta = float(alpha), float(beta)
@@ -214,6 +215,7 @@ class FemBody:
         """
         if name in self.muscles:
             raise ValueError(f"FemBody {self.name!r}: muscle {name!r} already defined")
+        _check_excitation(name, excitation)
         cells = np.asarray(cells, dtype=np.int64).ravel()
         n_cells_global = self.mesh.topology.index_map(self.mesh.topology.dim).size_global
         if cells.size == 0 or cells.min() < 0 or cells.max() >= n_cells_global:
@@ -249,8 +251,7 @@ class FemBody:
         if name not in self.muscles:
             raise KeyError(f"FemBody {self.name!r}: unknown muscle {name!r}; "
                            f"defined: {sorted(self.muscles)}")
-        if not (0.0 <= value <= 1.0):
-            raise ValueError(f"excitation of {name!r} must be in [0, 1], got {value}")
+        _check_excitation(name, value)
         self.muscles[name].excitation.value = value
 
     def _input_cell_to_local(self) -> dict[int, int]:
@@ -436,3 +437,7 @@ class FemBody:
                 out[k] = arr[d]
         return self.mesh.comm.allreduce(out)
 
+
+def _check_excitation(name: str, value: float) -> None:
+    if not (0.0 <= value <= 1.0):     # also rejects NaN
+        raise ValueError(f"excitation of {name!r} must be in [0, 1], got {value}")

@@ -139,7 +139,9 @@ class ImplicitEuler:
             body.zero_fixed(r)
             return r.norm()
 
-        set_velocity(v0.array)          # initial guess v = v_k, so u = u_k + h v_k
+        set_velocity(v0.array)          # initial guess v = v_k, so u = u_k + h v_k ...
+        if _has_inversion(body):
+            set_velocity(0.0 * v0.array)    # ... unless that inverts: then u = u_k
         norm = residual(tangent=True)
         norm0 = max(norm, self.atol)
         try:
@@ -157,11 +159,15 @@ class ImplicitEuler:
                 slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
                 E0 = incremental_potential()
                 v_start = v.array.copy()
-                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array),
-                                  body, incremental_potential, E0, slope)
+                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array), body,
+                                  incremental_potential, E0, slope,
+                                  lambda: residual(tangent=False), norm)
                 if step is None:
                     raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
                 norm = residual(tangent=True)
+                if step == 1.0 and _at_round_off(dv, v):
+                    self.iterations = it
+                    return
             raise StepFailed(f"implicit Euler: Newton did not converge in {self.max_iterations} "
                              f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})")
         finally:
@@ -172,23 +178,33 @@ class ImplicitEuler:
 
 
 def _backtrack(apply_step, body: FemBody, merit, merit0: float, slope: float,
-               min_step: float = 1e-4) -> float | None:
-    """Armijo backtracking: the largest s in {1, 1/2, ...} with no inverted element and
-    merit(s) <= merit0 + 1e-4 s slope; None if s falls below min_step.
+               residual_norm, norm0: float, min_step: float = 1e-4) -> float | None:
+    """Backtracking line search: the largest s in {1, 1/2, ...} with no inverted element
+    that decreases the merit (Armijo: merit(s) <= merit0 + 1e-4 s slope) or, failing
+    that, the residual norm (|r(s)| <= (1 - 1e-4 s) |r(0)|); None below min_step.
 
-    A non-descent direction (slope >= 0, round-off near the solution) takes the
-    full step; changes of the merit below its round-off level count as decrease.
+    The energy is the natural merit of these potential problems, but near the
+    solution its changes fall below its round-off (it is a sum of terms much
+    larger than their differences); the residual norm then decides.
     """
-    noise = 1e-11 * abs(merit0)
     step = 1.0
     while step >= min_step:
         apply_step(step)
         if not _has_inversion(body):
             value = merit()
-            if np.isfinite(value) and (slope >= 0 or value <= merit0 + 1e-4 * step * slope + noise):
+            if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
+                return step
+            trial = residual_norm()
+            if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
                 return step
         step *= 0.5
     return None
+
+
+def _at_round_off(correction: PETSc.Vec, value: PETSc.Vec, tol: float = 1e-12) -> bool:
+    """True when a Newton correction is at round-off relative to the value it corrects."""
+    return correction.norm(PETSc.NormType.INFINITY) <= tol * max(
+        value.norm(PETSc.NormType.INFINITY), np.finfo(float).tiny)
 
 
 def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
@@ -196,16 +212,19 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                  progress=None) -> list[int]:
     """Static equilibrium R(u) = 0 by Newton, in load increments of the load factor.
 
-    Each Newton step is an Armijo backtracking on the potential energy Pi.
-    Fixed dofs keep their prescribed displacement. Returns the Newton iteration
+    Each Newton step is a backtracking line search on the potential energy Pi
+    (see :func:`_backtrack`). Newton stops when |R| on the free dofs falls below
+    rtol times the size of the loads (|R| with the reactions), below atol, or
+    when a full correction is at round-off relative to u. Fixed dofs keep their
+    prescribed displacement. Returns the Newton iteration
     count of each load step. Raises :class:`StepFailed` if an increment fails.
     """
     u = body.u.x.petsc_vec
     du = u.duplicate()
     r = u.duplicate()
 
-    def residual() -> float:
-        body.assemble(tangent=True, diag=1.0)
+    def residual(tangent: bool = True) -> float:
+        body.assemble(tangent=tangent, diag=1.0)
         body.R.copy(r)
         body.zero_fixed(r)
         return r.norm()
@@ -231,10 +250,14 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                 _update_ghosts(u)
 
             Pi0 = body.potential_energy()
-            if _backtrack(apply_step, body, body.potential_energy, Pi0, slope) is None:
+            step = _backtrack(apply_step, body, body.potential_energy, Pi0, slope,
+                              lambda: residual(tangent=False), norm)
+            if step is None:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                  f"{k / load_steps:g}, Newton iteration {it}")
             norm = residual()
+            if step == 1.0 and _at_round_off(du, u):
+                break
         counts.append(it)
         if progress is not None:
             progress.update(1)
