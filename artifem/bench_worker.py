@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import resource
 import sys
 import time
@@ -151,6 +150,8 @@ def run_case(comm, cells, solver: str, steps: int, warmup: int,
         "peak_mb": float(peak_mb),
         "steps": steps, "warmup_steps": warmup, "dt": DT,
         "halvings": int(a[:, 4].sum()),
+        "preconditioner_setups": int(linear.setups),
+        "iterations_per_step": [int(i) for i in a[:, 3]],
         "tip_displacement_m": [float(t) for t in tip],
         "dofs": int(3 * n_nodes),
         "box_m": list(BOX),
@@ -170,8 +171,11 @@ def main(argv: list[str] | None = None) -> int:
     comm = MPI.COMM_WORLD
     result = run_case(comm, tuple(args.cells), args.solver, args.steps, args.warmup, args.dump)
     if comm.rank == 0:
+        import dolfinx
+        from petsc4py import PETSc
         result["python"] = sys.version.split()[0]
-        result["machine"] = platform.machine()
+        result["dolfinx"] = dolfinx.__version__
+        result["petsc"] = ".".join(str(v) for v in PETSc.Sys.getVersion())
         print("BENCH_RESULT " + json.dumps(result), flush=True)
     return 0
 

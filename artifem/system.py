@@ -28,7 +28,7 @@ from mpi4py import MPI
 
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.integrators import ImplicitEuler, SemiImplicitEuler, StepFailed, solve_static
-from artifem.linear_solver import LinearSolver
+from artifem.linear_solver import DEFAULT_METHOD, LinearSolveError, LinearSolver
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 
@@ -47,7 +47,7 @@ class System:
         max_halvings: how many times a failing step may be halved.
     """
 
-    def __init__(self, *, integrator="semi-implicit", linear_solver: str = "mumps",
+    def __init__(self, *, integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD,
                  max_halvings: int = 4):
         if isinstance(integrator, str):
             if integrator not in INTEGRATORS:
@@ -106,7 +106,7 @@ class System:
                 for body in island:
                     self.integrator.advance(body, dt, self.solver_for(body))
             failure = self._check_state()
-        except StepFailed as exc:
+        except (StepFailed, LinearSolveError) as exc:
             failure = str(exc)
         if failure is None:
             self.time += dt
@@ -141,7 +141,7 @@ class System:
             try:
                 self.integrator.advance(body, dt, self.solver_for(body))
                 bad, min_det = body.inverted_elements()
-            except StepFailed:
+            except (StepFailed, LinearSolveError):
                 bad, min_det = body.inverted_elements()
             body.set_state(saved)
             if bad.size or min_det <= 0:

@@ -26,6 +26,7 @@ from dolfinx import mesh as dmesh
 
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
+from artifem.linear_solver import DEFAULT_METHOD
 from artifem.forms import BlemkerFiber, MooneyRivlin
 from artifem.system import INTEGRATORS, System
 
@@ -42,7 +43,7 @@ class BeamConfig:
     duration: float = 1.0
     dt: float = 0.01
     integrator: str = "semi-implicit"
-    linear_solver: str = "mumps"
+    linear_solver: str = DEFAULT_METHOD
 
 
 def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[System, FemBody]:
