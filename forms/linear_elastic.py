@@ -5,11 +5,11 @@ from dataclasses import dataclass
 import ufl
 
 from .kinematics import small_strain
-from .parameters import check_lame, lame_from_young_poisson
+from .parameters import LameParameters
 
 
 @dataclass(frozen=True)
-class LinearElastic:
+class LinearElastic(LameParameters):
     """Hooke's law W = lmbda/2 tr(eps)^2 + mu tr(eps^2), eps = sym(F) - I = sym(grad u).
 
     P = dW/dF = sigma(eps) = lmbda tr(eps) I + 2 mu eps, so the stress is linear in
@@ -17,19 +17,6 @@ class LinearElastic:
     a rigid rotation F = R gives eps = sym(R) - I != 0 and a spurious stress, so it
     is valid only for small rotations (use StVenantKirchhoff or NeoHookean otherwise).
     """
-
-    mu: float
-    lmbda: float
-
-    def __post_init__(self):
-        check_lame(type(self).__name__, self.mu, self.lmbda)
-        object.__setattr__(self, "mu", float(self.mu))
-        object.__setattr__(self, "lmbda", float(self.lmbda))
-
-    @classmethod
-    def from_young_poisson(cls, E, nu):
-        """Build from Young's modulus E and Poisson ratio nu."""
-        return cls(*lame_from_young_poisson(cls.__name__, E, nu))
 
     def strain_energy(self, F):
         """W(F) = lmbda/2 tr(eps)^2 + mu tr(eps^2)."""

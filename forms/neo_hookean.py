@@ -5,28 +5,15 @@ from dataclasses import dataclass
 import ufl
 
 from .kinematics import invariants, jacobian
-from .parameters import check_lame, lame_from_young_poisson
+from .parameters import LameParameters
 
 
 @dataclass(frozen=True)
-class NeoHookean:
+class NeoHookean(LameParameters):
     """Compressible neo-Hookean energy W = mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2.
 
     P = mu (F - F^-T) + lmbda ln(J) F^-T; linearizes to Hooke's law with Lame mu, lmbda.
     """
-
-    mu: float
-    lmbda: float
-
-    def __post_init__(self):
-        check_lame(type(self).__name__, self.mu, self.lmbda)
-        object.__setattr__(self, "mu", float(self.mu))
-        object.__setattr__(self, "lmbda", float(self.lmbda))
-
-    @classmethod
-    def from_young_poisson(cls, E, nu):
-        """Build from Young's modulus E and Poisson ratio nu."""
-        return cls(*lame_from_young_poisson(cls.__name__, E, nu))
 
     def strain_energy(self, F):
         """W(F) = mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2."""

@@ -1,6 +1,7 @@
 """Validation of material parameters: one clear ValueError naming class, parameter and value."""
 
 import math
+from dataclasses import dataclass
 
 
 def require_finite(owner, name, value):
@@ -63,3 +64,24 @@ def check_lame(owner, mu, lmbda):
     require_positive(owner, "mu", mu)
     require_greater(owner, "lmbda", lmbda, -2.0 * float(mu) / 3.0,
                     f"-2 mu / 3 = {-2.0 * float(mu) / 3.0:g} (positive bulk modulus)")
+
+
+@dataclass(frozen=True)
+class LameParameters:
+    """Base of the isotropic materials parameterized by Lame's mu and lmbda.
+
+    Validates mu > 0 and a positive bulk modulus, and builds from (E, nu).
+    """
+
+    mu: float
+    lmbda: float
+
+    def __post_init__(self):
+        check_lame(type(self).__name__, self.mu, self.lmbda)
+        object.__setattr__(self, "mu", float(self.mu))
+        object.__setattr__(self, "lmbda", float(self.lmbda))
+
+    @classmethod
+    def from_young_poisson(cls, E, nu):
+        """Build from Young's modulus E and Poisson ratio nu."""
+        return cls(*lame_from_young_poisson(cls.__name__, E, nu))
