@@ -25,7 +25,8 @@ from artifem.system import System
 DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/tongue_gravity")
 
-# The mesh: ANSYS node ids -> file rows, which is what FemBody takes.
+# The mesh; FemBody takes file-order node rows. The attachment files hold
+# ArtiSynth's 0-based node numbers (ANSYS id - 1), i.e. rows already.
 mesh_data = read_mesh(DATA / "tongue.node")
 domain, _ = to_dolfinx(mesh_data)
 attached = np.concatenate([np.loadtxt(DATA / f, dtype=int).ravel()
@@ -33,7 +34,7 @@ attached = np.concatenate([np.loadtxt(DATA / f, dtype=int).ravel()
 
 body = FemBody(domain, MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.03),
                gravity=(0.0, 0.0, -9.81), name="tongue")
-body.fix_nodes(mesh_data.node_rows(attached))
+body.fix_nodes(attached)
 
 system = System(integrator="semi-implicit")
 system.add(body)

@@ -1,0 +1,1 @@
+"""The ArtiSynth hex tongue: data readers, fibers, refinement and the model."""
