@@ -3,10 +3,15 @@
 The body's potential energy is
 
     Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, a_m) dX
+            + sum_e V_e kappa_inc/2 (J(X_e) - 1)^2
             - lambda * (int rho g . u dX + int b . u dX + f_nodal . u),
 
 with F = I + grad u, psi the bulk material, psi_m the fiber energy of muscle m
-(direction field a0_m, excitation a_m) and lambda a load factor. The
+(direction field a0_m, excitation a_m) and lambda a load factor. The optional
+kappa_inc term is an element-wise incompressibility penalty: J at the element
+centre (one-point rule), which for hexahedra approximates the element's mean
+dilatation, so it penalizes volume change per element without locking the
+bending modes (ArtiSynth's soft "element" incompressibility). The
 internal-plus-external force is f = -dPi/du, the tangent K = d^2 Pi/du^2,
 both derived by ``ufl.derivative`` from the UFL energies of ``artifem.forms``.
 Mass is lumped (row sums of the consistent mass, ArtiSynth's default) or
@@ -72,13 +77,14 @@ class FemBody:
         rayleigh: (alpha, beta) of D = alpha M + beta K.
         gravity: acceleration vector (m/s^2).
         quadrature_degree: degree of the energy integrals (default per cell type).
+        incompressibility: kappa_inc (Pa) of the element-wise volume penalty, or None.
         name: component name in a system.
     """
 
     def __init__(self, domain: dmesh.Mesh, material, density: float, *,
                  mass: str = "lumped", rayleigh: tuple[float, float] = (0.0, 0.0),
                  gravity=(0.0, 0.0, 0.0), quadrature_degree: int | None = None,
-                 name: str = "fem"):
+                 incompressibility: float | None = None, name: str = "fem"):
         cell_name = domain.topology.cell_name()
         if cell_name not in ENERGY_DEGREE:
             raise ValueError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
@@ -87,6 +93,10 @@ class FemBody:
             raise ValueError(f"FemBody {name!r}: density must be > 0, got {density}")
         if mass not in ("lumped", "consistent"):
             raise ValueError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
+        if incompressibility is not None and not (np.isfinite(incompressibility)
+                                                   and incompressibility > 0):
+            raise ValueError(f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
+                             f"None, got {incompressibility}")
         alpha, beta = rayleigh
         if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
             raise ValueError(f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, "
@@ -96,6 +106,7 @@ class FemBody:
         self.alpha, self.beta = float(alpha), float(beta)
         self.cell_name = cell_name
         self.quadrature_degree = quadrature_degree or ENERGY_DEGREE[cell_name]
+        self.incompressibility = incompressibility
 
         self.V = fem.functionspace(domain, ("Lagrange", 1, (3,)))
         self.u = fem.Function(self.V, name="displacement")
@@ -282,6 +293,9 @@ class FemBody:
             dxm = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
             for i, m in enumerate(self.muscles.values()):
                 Pi += m.fiber.strain_energy(F, m.direction, m.excitation) * dxm(i + 1)
+        if self.incompressibility is not None:
+            centre = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": 1})
+            Pi += 0.5 * self.incompressibility * (ufl.det(F) - 1) ** 2 * centre
         external = self.density * ufl.dot(self.gravity, self.u)
         if self.body_force is not None:
             external += ufl.dot(self.body_force, self.u)
