@@ -3,6 +3,7 @@
     artifem mesh info PATH... [--json]       what a mesh holds, and whether it is sound
     artifem material curves NAME --out PNG   stress-stretch curves of a material
     artifem simulate beam --out DIR          the muscle-driven beam (VTX, PNG, JSON)
+    artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
     artifem bench fom --out FILE.json        full-order step timings
     artifem demo --out DIR                   the main job (``make demo``)
 
@@ -22,6 +23,8 @@ COMMANDS = {
     ("material", "curves"): ("artifem.material_curves",
                              "uniaxial / equibiaxial / shear stress-stretch curves to PNG"),
     ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam"),
+    ("simulate", "tongue"): ("artifem.models.tongue.simulate",
+                             "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
     ("bench", "fom"): ("artifem.bench", "full-order FEM step timings to JSON"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }

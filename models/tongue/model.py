@@ -192,6 +192,16 @@ class Tongue:
                 values[bundle] = vals
         return ExcitationSchedule(schedule.times, values)
 
+    def reset(self) -> None:
+        """Back to rest: zero displacement, velocity, excitations and time."""
+        self.body.u.x.array[:] = 0.0
+        self.body.v.x.array[:] = 0.0
+        for name in self.body.muscles:
+            self.body.set_excitation(name, 0.0)
+        self.system.time = 0.0
+        self.system.min_det_F = np.inf
+        self.system.halvings = 0
+
     def drive(self, schedule: ExcitationSchedule) -> None:
         """Apply an exciter schedule at every step (replacing earlier ones)."""
         self.system.controllers.clear()
