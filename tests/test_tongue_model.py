@@ -1,0 +1,110 @@
+"""The ArtiSynth tongue model: exciters, muscle strengths, the three speech motions, the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+
+from artifem.cli import main
+from artifem.excitation import ExcitationSchedule
+from artifem.models.tongue.model import (DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data,
+                                         read_max_forces)
+from artifem.simulation import simulate
+
+EXCITERS = ["GGA", "GGM", "GGP", "GH", "HG", "IL", "MH", "SL", "STY", "TRANS", "VERT"]
+
+
+@pytest.fixture(scope="module")
+def tongue():
+    return Tongue(TongueConfig(level=0))
+
+
+@pytest.fixture(scope="module")
+def motions(tongue):
+    """Final (t = 1 s) landmark displacements in mm of the three motions."""
+    out = {}
+    for name in MOTIONS:
+        tongue.reset()
+        tongue.drive(Tongue.motion(name))
+        traj = simulate(tongue.system, tongue.body, duration=1.0, dt=0.01,
+                        landmarks=tongue.data.landmarks, progress=False)
+        assert traj.halvings == 0 and traj.min_det_F > 0.2
+        out[name] = {k: 1e3 * v[-1] for k, v in traj.landmarks.items()}
+    return out
+
+
+def test_exciters_are_the_eleven_bilateral_muscles(tongue):
+    assert tongue.exciters == EXCITERS
+    assert tongue.data.exciters["GGP"] == ["GGP_L", "GGP_R"] and tongue.data.exciters["SL"] == ["SL"]
+    tongue.reset()
+    tongue.set_excitations({"HG": 0.6})
+    assert tongue.body.muscles["HG_L"].excitation.value == 0.6
+    assert tongue.body.muscles["HG_R"].excitation.value == 0.6
+    assert tongue.body.muscles["IL_L"].excitation.value == 0.0
+
+
+def test_unknown_muscle_is_a_clear_error(tongue):
+    with pytest.raises(KeyError, match="unknown muscle 'GGX'.*GGA, GGM, GGP"):
+        tongue.set_excitations({"GGX": 0.5})
+    with pytest.raises(KeyError, match="unknown muscle 'XYZ'"):
+        tongue.bundle_schedule(ExcitationSchedule.ramp_and_hold({"XYZ": 0.5}, 0.5))
+    with pytest.raises(KeyError, match="unknown motion 'swallow'"):
+        Tongue.motion("swallow")
+
+
+def test_max_stress_carries_the_muscle_force_through_its_cross_section():
+    """sigma_max * A = F_max / 2 per side (ArtiSynth halves bilateral forces), F_max for SL."""
+    data = load_tongue_data(0)
+    forces = read_max_forces(DATA / "MuscleMaxForce.txt")
+    for exciter, bundles in data.exciters.items():
+        total = sum(data.max_stress[b] * data.geometry[b]["cross_section_inside_m2"] for b in bundles)
+        assert total == pytest.approx(forces[exciter], rel=1e-12)
+    assert all(1e4 < s < 1e6 for s in data.max_stress.values())
+
+
+def test_level_one_carries_muscles_and_attachments_over():
+    coarse, fine = load_tongue_data(0), load_tongue_data(1)
+    assert len(fine.mesh.points) == 6699 and len(fine.mesh.cells) == 5920
+    for name, rows in coarse.bundles.items():
+        assert len(fine.bundles[name]) == 8 * len(rows)
+        assert np.allclose(np.linalg.norm(fine.directions[name], axis=1), 1.0)
+    assert set(coarse.fixed_nodes) <= set(fine.fixed_nodes)
+    for name, row in coarse.landmarks.items():          # the same material points
+        assert np.array_equal(fine.mesh.points[fine.landmarks[name]], coarse.mesh.points[row])
+
+
+def test_protrusion_moves_the_tip_forward(motions):
+    tip = motions["protrusion"]["tip"]
+    assert tip[0] < -1.0                      # anterior is -x in the data's frame
+    assert abs(tip[1]) < 1e-3                 # mm: the data mirror across y = 0 to 4e-6 m
+
+
+def test_retraction_moves_the_tip_back(motions):
+    tip = motions["retraction"]["tip"]
+    assert tip[0] > 10.0
+
+
+def test_retroflexion_raises_the_tip(motions):
+    tip = motions["retroflexion"]["tip"]
+    assert tip[2] > 10.0 and tip[2] > motions["protrusion"]["tip"][2]
+
+
+def test_simulate_tongue_command_writes_results(tmp_path):
+    status = main(["simulate", "tongue", "--motion", "retraction", "--duration", "0.1",
+                   "--out", str(tmp_path), "--no-progress"])
+    assert status == 0
+    figures = json.loads((tmp_path / "retraction" / "simulate.json").read_text())
+    assert (figures["nodes"], figures["elements"], figures["steps"]) == (946, 740, 10)
+    assert figures["ms_per_step"] > 0 and figures["min_det_F"] > 0
+    assert set(figures["landmarks"]) == {"tip", "top", "base"}
+    assert figures["landmarks"]["tip"][0] > 0           # moving back already
+    assert (tmp_path / "retraction" / "tongue.png").stat().st_size > 10_000
+    assert (tmp_path / "retraction" / "tongue.bp").exists()
+
+
+def test_simulate_tongue_rejects_an_unknown_exciter_in_a_schedule(tmp_path):
+    schedule = tmp_path / "s.json"
+    schedule.write_text(json.dumps({"times": [0, 1], "excitations": {"GGQ": [0, 1]}}))
+    with pytest.raises(KeyError, match="GGQ"):
+        main(["simulate", "tongue", "--schedule", str(schedule), "--out", str(tmp_path / "o")])
+    assert not (tmp_path / "o").exists()                # failed before writing anything
