@@ -1,18 +1,32 @@
-"""``artifem bench fom``: full-order FEM step timings to JSON.
+"""``artifem bench fom`` and ``artifem bench tongue``: step timings to JSON.
 
-Each case (box size x MPI ranks x linear solver) runs in a fresh process,
-``mpiexec -n RANKS python -m artifem.bench_worker ...`` (the mpiexec beside
-the running Python), so its peak memory is its own. The worker builds a Q1
-hex box of tongue size (0.08 x 0.035 x 0.035 m, clamped at x = 0, tongue
-Mooney-Rivlin, density 1040, Rayleigh (40, 0.03), gravity, a Blemker-fiber
-muscle along x in the upper half at excitation 0.3), takes 2 warm-up steps and
-then times semi-implicit steps of dt = 0.01 s through ``System.step``.
+Each case (scene x MPI ranks x linear solver) runs in a fresh process,
+``mpiexec -n RANKS python -m artifem.bench_worker --scene box|tongue ...``
+(the mpiexec beside the running Python), so its peak memory is its own. Both
+subcommands share the case loop (:func:`run_cases`), the JSON writing
+(:func:`write_report`) and the table (:func:`format_table`); they differ in
+the scene and its options:
 
-Figures per case: the median over the timed steps of the wall time per step
-(MPI barriers around it), of the time in ``FemBody.assemble`` (residual and
-tangent) and in ``LinearSolver.solve``; ``peak_mb`` is the sum over ranks of
-the peak resident memory. Unless already set, OMP_NUM_THREADS and
-OPENBLAS_NUM_THREADS are 1, so a case uses as many cores as it has ranks.
+- ``fom``: a Q1 hex box of tongue size (0.08 x 0.035 x 0.035 m, clamped at
+  x = 0, tongue Mooney-Rivlin, density 1040, Rayleigh (40, 0.03), gravity, a
+  Blemker-fiber muscle along x in the upper half at excitation 0.3) in named
+  sizes; 2 warm-up steps, 10 timed.
+- ``tongue``: the ArtiSynth hex tongue at levels 0 (946 nodes) and 1
+  (6,699 nodes) running a speech motion (protrusion by default: excitations
+  ramp over 0.5 s, then hold); 5 warm-up steps, then 20 timed ones, i.e.
+  t = 0.05 ... 0.25 s, inside the ramp where the muscles do work. The JSON
+  carries the seed paper's figure (188.9 ms per step, 2,961 nodes) as
+  ``reference``.
+
+Every step is semi-implicit backward Euler with dt = 0.01 s through
+``System.step``. Figures per case: the median over the timed steps of the wall
+time per step (MPI barriers around it), of the time in ``FemBody.assemble``
+(residual and tangent) and in ``LinearSolver.solve``; ``peak_mb`` is the sum
+over ranks of the peak resident memory. Unless already set, OMP_NUM_THREADS
+and OPENBLAS_NUM_THREADS are 1, so a case uses as many cores as it has ranks.
+
+One module serves both subcommands: :func:`add_arguments` reads which one from
+the name of the parser it is given (``artifem bench tongue`` -> ``tongue``).
 """
 
 from __future__ import annotations
@@ -32,7 +46,15 @@ SIZES = {"1k": (15, 7, 7), "3k": (24, 10, 10), "13k": (40, 17, 17)}
 TARGETS = {"3k": 100.0, "13k": 650.0}
 TARGET_RANKS = 2
 DEFAULT_SOLVER = "cg-gamg-lagged"
-CASE_FIELDS = ("nodes", "elements", "ranks", "ms_per_step", "assembly_ms", "solve_ms", "peak_mb")
+CASE_FIELDS = ("nodes", "elements", "ranks", "ms_per_step", "assembly_ms", "solve_ms", "peak_mb",
+               "solver", "iterations")
+#: The tongue benchmark's defaults and the seed paper's figure (Lloyd et al. 2019).
+TONGUE_LEVELS = (0, 1)
+TONGUE_STEPS, TONGUE_WARMUP = 20, 5
+TONGUE_REFERENCE = {"seed_paper_ms_per_step": 188.9, "seed_paper_nodes": 2961,
+                    "machine": "quad-core i7-7700, Pardiso"}
+BENCHMARKS = ("fom", "tongue")
+DT = 0.01                # s, the worker's step (artifem.bench_worker.DT)
 
 
 def _solver_methods() -> tuple[str, ...]:
@@ -73,14 +95,32 @@ def parse_ints(text: str, what: str) -> list[int]:
     return values
 
 
+def _benchmark_of(parser) -> str:
+    """'fom' or 'tongue', from the subcommand's parser name ('artifem bench tongue')."""
+    name = parser.prog.split()[-1] if parser.prog else ""
+    return name if name in BENCHMARKS else "fom"
+
+
 def add_arguments(parser) -> None:
+    kind = _benchmark_of(parser)
+    parser.set_defaults(_benchmark=kind)
     parser.add_argument("--out", required=True, type=Path, help="JSON file to write")
-    parser.add_argument("--sizes", default="1k,3k,13k",
-                        help=f"comma-separated cases: {', '.join(f'{k}={'x'.join(map(str, v))}' for k, v in SIZES.items())}"
-                             " or NXxNYxNZ cells (default: %(default)s)")
+    if kind == "tongue":
+        parser.add_argument("--levels", default=",".join(map(str, TONGUE_LEVELS)),
+                            help="comma-separated tongue levels: 0 as shipped (946 nodes), "
+                                 "1 split 2x2x2 (6,699 nodes) (default: %(default)s)")
+        parser.add_argument("--motion", default="protrusion",
+                            help="speech motion: protrusion, retroflexion, retraction "
+                                 "(default: %(default)s)")
+        steps, warmup = TONGUE_STEPS, TONGUE_WARMUP
+    else:
+        parser.add_argument("--sizes", default="1k,3k,13k",
+                            help=f"comma-separated cases: {', '.join(f'{k}={'x'.join(map(str, v))}' for k, v in SIZES.items())}"
+                                 " or NXxNYxNZ cells (default: %(default)s)")
+        steps, warmup = 10, 2
     parser.add_argument("--ranks", default="1,2", help="comma-separated MPI rank counts (default: %(default)s)")
-    parser.add_argument("--steps", type=int, default=10, help="timed steps per case (default: %(default)s)")
-    parser.add_argument("--warmup", type=int, default=2, help="untimed steps first (default: %(default)s)")
+    parser.add_argument("--steps", type=int, default=steps, help="timed steps per case (default: %(default)s)")
+    parser.add_argument("--warmup", type=int, default=warmup, help="untimed steps first (default: %(default)s)")
     parser.add_argument("--solver", default=DEFAULT_SOLVER,
                         help="linear solver, or a comma-separated list to compare "
                              "(mumps, cg-gamg, cg-gamg-lagged, cg-mumps-lagged, cg-hypre; "
@@ -100,10 +140,11 @@ def find_mpiexec() -> str:
     return found
 
 
-def worker_command(mpiexec: str, ranks: int, cells, solver: str, steps: int, warmup: int) -> list[str]:
+def worker_command(mpiexec: str, ranks: int, scene_args: list[str], solver: str, steps: int,
+                   warmup: int) -> list[str]:
+    """``scene_args``: e.g. ['--scene', 'box', '--cells', '24', '10', '10']."""
     return [mpiexec, "-n", str(ranks), sys.executable, "-m", "artifem.bench_worker",
-            "--cells", *map(str, cells), "--solver", solver,
-            "--steps", str(steps), "--warmup", str(warmup)]
+            *scene_args, "--solver", solver, "--steps", str(steps), "--warmup", str(warmup)]
 
 
 def run_worker(cmd: list[str], timeout: float) -> dict:
@@ -135,14 +176,17 @@ def machine_info() -> dict:
             "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
 
 
-def format_table(cases: list[dict]) -> str:
-    head = (f"{'nodes':>6} {'ranks':>5} {'solver':<16} {'ms/step':>8} {'assembly':>8} "
-            f"{'solve':>8} {'iters':>5} {'peak MB':>8}")
+def format_table(cases: list[dict], lead: tuple[str, ...] = ()) -> str:
+    """Text table of the cases; ``lead``: case fields shown first (e.g. ('level',))."""
+    head = " ".join(f"{k:>5}" for k in lead) + (" " if lead else "")
+    head += (f"{'nodes':>6} {'ranks':>5} {'solver':<16} {'ms/step':>8} {'assembly':>8} "
+             f"{'solve':>8} {'iters':>5} {'peak MB':>8}")
     rows = [head, "-" * len(head)]
     for c in cases:
-        rows.append(f"{c['nodes']:>6} {c['ranks']:>5} {c.get('solver', ''):<16} {c['ms_per_step']:>8.1f} "
-                    f"{c['assembly_ms']:>8.1f} {c['solve_ms']:>8.1f} {c.get('iterations', 0):>5.0f} "
-                    f"{c['peak_mb']:>8.0f}")
+        first = " ".join(f"{c.get(k, ''):>5}" for k in lead) + (" " if lead else "")
+        rows.append(first + f"{c['nodes']:>6} {c['ranks']:>5} {c.get('solver', ''):<16} "
+                    f"{c['ms_per_step']:>8.1f} {c['assembly_ms']:>8.1f} {c['solve_ms']:>8.1f} "
+                    f"{c.get('iterations', 0):>5.0f} {c['peak_mb']:>8.0f}")
     return "\n".join(rows)
 
 
@@ -157,66 +201,136 @@ def check_targets(cases: list[dict]) -> list[dict]:
     return out
 
 
-def run(args) -> int:
+def parse_solvers(text: str) -> list[str]:
+    solvers = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in solvers if s not in _solver_methods()]
+    if unknown or not solvers:
+        raise ValueError(f"--solver: unknown {unknown or text!r}; choose from "
+                         f"{', '.join(_solver_methods())}")
+    return solvers
+
+
+def parse_levels(text: str) -> list[int]:
+    try:
+        levels = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        levels = []
+    if not levels or any(level not in TONGUE_LEVELS for level in levels):
+        raise ValueError(f"--levels: expected comma-separated levels among "
+                         f"{', '.join(map(str, TONGUE_LEVELS))}, got {text!r}")
+    return levels
+
+
+def run_cases(title: str, plan: list[dict], steps: int, warmup: int, timeout: float,
+              mpiexec: str) -> tuple[list[dict], list[dict]]:
+    """Run each planned case in its own process: (cases, errors).
+
+    A plan item: {"label": str, "scene_args": [...], "ranks": int, "solver": str,
+    "fields": {...}} (fields identify the case in the JSON, e.g. {"size": "3k"}).
+    """
     from tqdm import tqdm
 
-    try:
-        sizes = parse_sizes(args.sizes)
-        ranks = parse_ints(args.ranks, "--ranks")
-        solvers = [s.strip() for s in args.solver.split(",") if s.strip()]
-        unknown = [s for s in solvers if s not in _solver_methods()]
-        if unknown or not solvers:
-            raise ValueError(f"--solver: unknown {unknown or args.solver!r}; choose from "
-                             f"{', '.join(_solver_methods())}")
-        if args.steps < 1 or args.warmup < 0:
-            raise ValueError("--steps must be >= 1 and --warmup >= 0")
-        mpiexec = find_mpiexec()
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"artifem bench fom: {exc}", file=sys.stderr)
-        return 2
-
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    plan = [(name, cells, r, s) for name, cells in sizes for r in ranks for s in solvers]
     cases, errors = [], []
-    bar = tqdm(plan, desc="bench fom", unit="case")
-    for name, cells, r, solver in bar:
-        bar.set_postfix_str(f"{'x'.join(map(str, cells))} cells, {r} rank(s), {solver}")
-        cmd = worker_command(mpiexec, r, cells, solver, args.steps, args.warmup)
+    bar = tqdm(plan, desc=title, unit="case")
+    for item in bar:
+        r, solver = item["ranks"], item["solver"]
+        bar.set_postfix_str(f"{item['label']}, {r} rank(s), {solver}")
+        cmd = worker_command(mpiexec, r, item["scene_args"], solver, steps, warmup)
         load_before = os.getloadavg()[0]
         try:
-            case = run_worker(cmd, args.timeout)
+            case = run_worker(cmd, timeout)
         except RuntimeError as exc:
-            errors.append({"size": name, "cells": list(cells), "ranks": r, "solver": solver,
-                           "error": str(exc)})
-            tqdm.write(f"case {name} / {r} rank(s) / {solver} failed: {exc}", file=sys.stderr)
+            errors.append({**item["fields"], "ranks": r, "solver": solver, "error": str(exc)})
+            tqdm.write(f"case {item['label']} / {r} rank(s) / {solver} failed: {exc}", file=sys.stderr)
             continue
-        case["size"] = name
+        case.update(item["fields"])
         # 1-minute load average before and after: other work on the machine skews timings.
         case["loadavg_before"], case["loadavg_after"] = load_before, os.getloadavg()[0]
         cases.append(case)
     bar.close()
+    return cases, errors
 
+
+def write_report(out: Path, benchmark: str, description: str, settings: dict, cases: list[dict],
+                 errors: list[dict], **extra) -> dict:
+    """Write the JSON (atomically) and return it."""
     report = {
-        "benchmark": "fom",
-        "description": "semi-implicit backward Euler steps (dt = 0.01 s) of a clamped Q1 hex box, "
-                       "tongue Mooney-Rivlin + active Blemker fiber; median over timed steps",
+        "benchmark": benchmark,
+        "description": description,
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "machine": machine_info(),
-        "settings": {"steps": args.steps, "warmup_steps": args.warmup, "ranks": ranks,
-                     "solvers": solvers, "sizes": {n: list(c) for n, c in sizes}},
-        "targets": check_targets(cases),
+        "settings": settings,
+        **extra,
         "cases": cases,
     }
     if errors:
         report["errors"] = errors
+    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text(json.dumps(report, indent=2) + "\n")
     tmp.replace(out)
+    return report
 
-    print(format_table(cases))
-    for t in report["targets"]:
-        print(f"target {t['size']} on {t['ranks']} ranks ({t['solver']}): {t['ms_per_step']:.1f} ms "
-              f"<= {t['target_ms_per_step']:.0f} ms: {'met' if t['met'] else 'NOT met'}")
+
+def _tongue_motions() -> tuple[str, ...]:
+    from artifem.models.tongue.model import MOTIONS
+    return tuple(MOTIONS)
+
+
+def run(args) -> int:
+    kind = getattr(args, "_benchmark", "fom")
+    try:
+        ranks = parse_ints(args.ranks, "--ranks")
+        solvers = parse_solvers(args.solver)
+        if args.steps < 1 or args.warmup < 0:
+            raise ValueError("--steps must be >= 1 and --warmup >= 0")
+        if kind == "tongue":
+            levels = parse_levels(args.levels)
+            if args.motion not in _tongue_motions():
+                raise ValueError(f"--motion: unknown {args.motion!r}; choose from "
+                                 f"{', '.join(_tongue_motions())}")
+        else:
+            sizes = parse_sizes(args.sizes)
+        mpiexec = find_mpiexec()
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"artifem bench {kind}: {exc}", file=sys.stderr)
+        return 2
+
+    settings = {"steps": args.steps, "warmup_steps": args.warmup, "ranks": ranks, "solvers": solvers}
+    if kind == "tongue":
+        plan = [{"label": f"level {level}", "ranks": r, "solver": s, "fields": {"level": level},
+                 "scene_args": ["--scene", "tongue", "--level", str(level), "--motion", args.motion]}
+                for level in levels for r in ranks for s in solvers]
+    else:
+        plan = [{"label": f"{'x'.join(map(str, cells))} cells", "ranks": r, "solver": s,
+                 "fields": {"size": name, "cells": list(cells)},
+                 "scene_args": ["--scene", "box", "--cells", *map(str, cells)]}
+                for name, cells in sizes for r in ranks for s in solvers]
+    cases, errors = run_cases(f"bench {kind}", plan, args.steps, args.warmup, args.timeout, mpiexec)
+
+    out = Path(args.out)
+    if kind == "tongue":
+        settings.update(levels=levels, motion=args.motion, integrator="semi-implicit", dt=DT,
+                        timed_window_s=[round(args.warmup * DT, 10),
+                                        round((args.warmup + args.steps) * DT, 10)])
+        write_report(out, "tongue",
+                     f"semi-implicit backward Euler steps (dt = 0.01 s) of the ArtiSynth hex tongue "
+                     f"running {args.motion} (excitations ramp over 0.5 s, then hold); "
+                     f"{args.warmup} warm-up steps, median over the next {args.steps}",
+                     settings, cases, errors, reference=dict(TONGUE_REFERENCE))
+        print(format_table(cases, lead=("level",)))
+        ref = TONGUE_REFERENCE
+        print(f"seed paper: {ref['seed_paper_ms_per_step']} ms/step for its "
+              f"{ref['seed_paper_nodes']:,}-node tongue ({ref['machine']})")
+    else:
+        settings["sizes"] = {n: list(c) for n, c in sizes}
+        report = write_report(out, "fom",
+                              "semi-implicit backward Euler steps (dt = 0.01 s) of a clamped Q1 hex box, "
+                              "tongue Mooney-Rivlin + active Blemker fiber; median over timed steps",
+                              settings, cases, errors, targets=check_targets(cases))
+        print(format_table(cases))
+        for t in report["targets"]:
+            print(f"target {t['size']} on {t['ranks']} ranks ({t['solver']}): {t['ms_per_step']:.1f} ms "
+                  f"<= {t['target_ms_per_step']:.0f} ms: {'met' if t['met'] else 'NOT met'}")
     print(f"wrote {out}")
     return 1 if errors else 0

@@ -1,12 +1,23 @@
-"""One full-order benchmark case, run in its own process (``artifem bench fom``).
+"""One benchmark case, run in its own process (``artifem bench fom|tongue``).
 
-    mpiexec -n RANKS python -m artifem.bench_worker --cells NX NY NZ --solver S --steps N
+    mpiexec -n RANKS python -m artifem.bench_worker --scene box --cells NX NY NZ --solver S --steps N
+    mpiexec -n RANKS python -m artifem.bench_worker --scene tongue --level L --motion M --solver S
 
-Builds a Q1 hex box of tongue size clamped at x = 0 (tongue Mooney-Rivlin,
-density 1040, Rayleigh (40, 0.03), gravity, a Blemker-fiber muscle along x in
-the upper half), takes ``--warmup`` untimed steps and then ``--steps`` timed
-semi-implicit steps of dt = 0.01 s through :meth:`System.step` (inversion
-check included), and prints one line ``BENCH_RESULT {json}`` on rank 0.
+Scenes (one function each, :data:`SCENES`, returning a :class:`Scene`: the
+system, the body and how many steps to skip before timing):
+
+- ``box``: a Q1 hex box of tongue size clamped at x = 0 (tongue
+  Mooney-Rivlin, density 1040, Rayleigh (40, 0.03), gravity, a Blemker-fiber
+  muscle along x in the upper half at excitation 0.3); 2 warm-up steps.
+- ``tongue``: the ArtiSynth hex tongue (``artifem.models.tongue``, level 0
+  as shipped or level 1 split 2x2x2) driven by a speech motion (its
+  excitations ramp over 0.5 s, then hold); 5 warm-up steps, so the default
+  20 timed steps cover t = 0.05 ... 0.25 s, the active part of the ramp.
+
+The case takes ``--warmup`` untimed steps (default: the scene's) and then
+``--steps`` timed semi-implicit steps of dt = 0.01 s through
+:meth:`System.step` (inversion check and controllers included), and prints
+one line ``BENCH_RESULT {json}`` on rank 0.
 
 Per step it measures the wall time of ``System.step`` (MPI barriers before
 and after), and inside it the time spent in ``FemBody.assemble`` (R and K) and
@@ -21,6 +32,7 @@ import json
 import resource
 import sys
 import time
+from typing import NamedTuple
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 
@@ -69,6 +81,44 @@ def build(comm, cells, box=BOX, excitation=EXCITATION) -> FemBody:
     return body
 
 
+class Scene(NamedTuple):
+    """What a case times: ``system.step(DT)`` moving ``body``."""
+
+    system: System
+    body: FemBody
+    warmup: int                 # steps to skip before timing, unless --warmup says otherwise
+    probe: int                  # input node whose final displacement is reported
+    info: dict                  # scene fields for the JSON
+
+
+def box_scene(comm, solver: str, cells) -> Scene:
+    """The clamped box of :func:`build`; probe: the node at (L, W, H)."""
+    body = build(comm, cells)
+    system = System(linear_solver=solver)
+    system.add(body)
+    n_nodes = body.mesh.geometry.index_map().size_global
+    return Scene(system, body, 2, n_nodes - 1, {"cells": list(cells), "box_m": list(BOX)})
+
+
+def tongue_scene(comm, solver: str, level: int, motion: str) -> Scene:
+    """The ArtiSynth tongue at ``level`` running ``motion``; probe: the tip landmark."""
+    from artifem.models.tongue.model import DT as TONGUE_DT
+    from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, TongueConfig
+
+    if TONGUE_DT != DT:
+        raise RuntimeError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
+    tongue = Tongue(TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver),
+                    comm=comm)
+    tongue.drive(Tongue.motion(motion))
+    return Scene(tongue.system, tongue.body, 5, tongue.data.landmarks["tip"],
+                 {"level": level, "motion": motion, "peak_excitations": MOTIONS[motion],
+                  "ramp_s": RAMP_TIME})
+
+
+#: scene name -> function(comm, solver, **scene options) -> Scene
+SCENES = {"box": box_scene, "tongue": tongue_scene}
+
+
 class _Timed:
     """Wrap a callable and accumulate its wall time (seconds) in ``total``."""
 
@@ -101,17 +151,20 @@ def gather_displacement(body: FemBody) -> np.ndarray | None:
     return out
 
 
-def run_case(comm, cells, solver: str, steps: int, warmup: int,
+def run_case(comm, scene: Scene, solver: str, steps: int, warmup: int | None = None,
              dump: str | None = None) -> dict | None:
-    body = build(comm, cells)
-    system = System(linear_solver=solver)
-    system.add(body)
+    """Time ``steps`` steps of ``scene`` after ``warmup`` (default: the scene's) untimed ones."""
+    system, body = scene.system, scene.body
+    warmup = scene.warmup if warmup is None else warmup
     linear = system.solver_for(body)
     assemble = body.assemble = _Timed(body.assemble)
     solve = linear.solve = _Timed(linear.solve)
 
     rows = []
+    t_start = None
     for k in range(warmup + steps):
+        if k == warmup:
+            t_start = system.time
         assemble.total = solve.total = 0.0
         halvings = system.halvings
         comm.Barrier()
@@ -128,7 +181,7 @@ def run_case(comm, cells, solver: str, steps: int, warmup: int,
     peak_mb = comm.allreduce(rss_mb, op=MPI.SUM)
     n_nodes = body.mesh.geometry.index_map().size_global
     n_cells = body.mesh.topology.index_map(3).size_global
-    tip = body.displacement_at([n_nodes - 1])[0]    # node at (L, W, H)
+    probe = body.displacement_at([scene.probe])[0]
     u_dump = gather_displacement(body) if dump else None
     if comm.rank != 0:
         return None
@@ -137,7 +190,7 @@ def run_case(comm, cells, solver: str, steps: int, warmup: int,
     a = np.asarray(rows, dtype=float)
     ms = 1e3 * a[:, :3]
     return {
-        "nodes": int(n_nodes), "elements": int(n_cells), "cells": list(cells),
+        "nodes": int(n_nodes), "elements": int(n_cells), **scene.info,
         "ranks": comm.size, "solver": solver,
         "ms_per_step": float(np.median(ms[:, 0])),
         "assembly_ms": float(np.median(ms[:, 1])),
@@ -149,30 +202,41 @@ def run_case(comm, cells, solver: str, steps: int, warmup: int,
         "max_iterations": int(a[:, 3].max()),
         "peak_mb": float(peak_mb),
         "steps": steps, "warmup_steps": warmup, "dt": DT,
+        "timed_window_s": [round(t_start, 10), round(system.time, 10)],
         "halvings": int(a[:, 4].sum()),
         "preconditioner_setups": int(linear.setups),
         "iterations_per_step": [int(i) for i in a[:, 3]],
-        "tip_displacement_m": [float(t) for t in tip],
+        "tip_displacement_m": [float(t) for t in probe],
         "dofs": int(3 * n_nodes),
-        "box_m": list(BOX),
     }
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m artifem.bench_worker", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--cells", type=int, nargs=3, required=True, metavar=("NX", "NY", "NZ"))
+    parser.add_argument("--scene", choices=sorted(SCENES), default="box")
+    parser.add_argument("--cells", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="box scene")
+    parser.add_argument("--level", type=int, choices=(0, 1), default=0, help="tongue scene")
+    parser.add_argument("--motion", default="protrusion", help="tongue scene")
     parser.add_argument("--solver", choices=METHODS, required=True)
     parser.add_argument("--steps", type=int, default=10)
-    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--warmup", type=int, help="untimed steps first (default: the scene's)")
     parser.add_argument("--dump", help="save the final displacement (input node order) to this .npy")
     args = parser.parse_args(argv)
-    if min(args.cells) < 1 or args.steps < 1 or args.warmup < 0:
-        parser.error("cells and steps must be >= 1, warmup >= 0")
+    if args.steps < 1 or (args.warmup is not None and args.warmup < 0):
+        parser.error("steps must be >= 1, warmup >= 0")
+    if args.scene == "box":
+        if args.cells is None or min(args.cells) < 1:
+            parser.error("the box scene needs --cells NX NY NZ, each >= 1")
+        options = {"cells": tuple(args.cells)}
+    else:
+        options = {"level": args.level, "motion": args.motion}
     comm = MPI.COMM_WORLD
-    result = run_case(comm, tuple(args.cells), args.solver, args.steps, args.warmup, args.dump)
+    scene = SCENES[args.scene](comm, args.solver, **options)
+    result = run_case(comm, scene, args.solver, args.steps, args.warmup, args.dump)
     if comm.rank == 0:
         import dolfinx
         from petsc4py import PETSc
+        result["scene"] = args.scene
         result["python"] = sys.version.split()[0]
         result["dolfinx"] = dolfinx.__version__
         result["petsc"] = ".".join(str(v) for v in PETSc.Sys.getVersion())

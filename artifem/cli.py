@@ -5,6 +5,7 @@
     artifem simulate beam --out DIR          the muscle-driven beam (VTX, PNG, JSON)
     artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
     artifem bench fom --out FILE.json        full-order step timings
+    artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem demo --out DIR                   the main job (``make demo``)
 
 Each command lives in its own module, which declares its arguments
@@ -26,6 +27,7 @@ COMMANDS = {
     ("simulate", "tongue"): ("artifem.models.tongue.simulate",
                              "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
     ("bench", "fom"): ("artifem.bench", "full-order FEM step timings to JSON"),
+    ("bench", "tongue"): ("artifem.bench", "tongue step timings (protrusion, levels 0 and 1) to JSON"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }
 

@@ -1,4 +1,4 @@
-"""``artifem bench fom``: JSON schema on the smallest case (not a timing test)."""
+"""``artifem bench fom|tongue``: JSON schema on the smallest cases (not timing tests)."""
 
 import json
 import math
@@ -42,6 +42,54 @@ def test_bench_fom_rejects_bad_arguments(tmp_path, capsys):
     assert main(["bench", "fom", "--out", str(out), "--solver", "lu"]) == 2
     assert not out.exists()
     assert "--solver" in capsys.readouterr().err
+
+
+def test_bench_tongue_level0_writes_sound_json(tmp_path):
+    out = tmp_path / "bench_tongue.json"
+    code = main(["bench", "tongue", "--out", str(out), "--levels", "0", "--ranks", "1",
+                 "--steps", "2"])
+    assert code == 0
+    report = json.loads(out.read_text())
+    assert report["benchmark"] == "tongue"
+    assert "errors" not in report
+    assert report["reference"] == {"seed_paper_ms_per_step": 188.9, "seed_paper_nodes": 2961,
+                                   "machine": "quad-core i7-7700, Pardiso"}
+    settings = report["settings"]
+    assert settings["motion"] == "protrusion" and settings["dt"] == 0.01
+    assert settings["warmup_steps"] == bench.TONGUE_WARMUP
+    assert settings["timed_window_s"] == [0.05, 0.07]
+    assert len(report["cases"]) == 1
+    case = report["cases"][0]
+    for field in bench.CASE_FIELDS + ("level", "loadavg_before", "loadavg_after"):
+        assert field in case, field
+    assert (case["level"], case["nodes"], case["elements"]) == (0, 946, 740)
+    assert case["ranks"] == 1 and case["steps"] == 2
+    assert case["solver"] == bench.DEFAULT_SOLVER
+    assert case["timed_window_s"] == [0.05, 0.07]
+    for field in ("ms_per_step", "assembly_ms", "solve_ms", "peak_mb"):
+        value = case[field]
+        assert isinstance(value, float) and math.isfinite(value) and value > 0, (field, value)
+    assert case["iterations"] >= 1
+    assert case["halvings"] == 0
+    # the protrusion motion is under way: the tip has moved
+    assert math.hypot(*case["tip_displacement_m"]) > 1e-5
+
+
+def test_bench_tongue_rejects_bad_arguments(tmp_path, capsys):
+    out = tmp_path / "t.json"
+    assert main(["bench", "tongue", "--out", str(out), "--levels", "2"]) == 2
+    assert main(["bench", "tongue", "--out", str(out), "--motion", "swallow"]) == 2
+    assert not out.exists()
+    err = capsys.readouterr().err
+    assert "--levels" in err and "--motion" in err
+
+
+def test_format_table_leading_columns():
+    case = {"level": 1, "nodes": 6699, "ranks": 2, "solver": "mumps", "ms_per_step": 1.0,
+            "assembly_ms": 0.5, "solve_ms": 0.4, "iterations": 1.0, "peak_mb": 100.0}
+    head, _, row = bench.format_table([case], lead=("level",)).splitlines()
+    assert head.split()[:2] == ["level", "nodes"]
+    assert row.split()[:4] == ["1", "6699", "2", "mumps"]
 
 
 def test_parse_sizes():

@@ -1,0 +1,262 @@
+"""Numerical stability of the tongue on hard cases.
+
+    python -m artifem.models.tongue.hard_cases [--cases NAME ...] [--integrators ...]
+
+Each case is a variation of the protrusion motion (level 0, dt = 0.01 s,
+1.0 s, excitations ramped over 0.5 s and held) that makes the step harder:
+
+- ``all_exciters``: every one of the tongue's eleven exciters at 1.0
+  (ramped over 0.5 s like the motions; the step case covers steps);
+- ``step``: the protrusion targets (GGP 0.4, TRANS 0.4, SL 0.1) at full value
+  from the first step on, no ramp;
+- ``dt_0.05``: protrusion with dt = 0.05 s (20 steps);
+- ``kappa_100C10`` / ``kappa_1000C10``: protrusion with the Mooney-Rivlin
+  bulk modulus kappa = 100 C10 = 103,700 Pa and 1000 C10 = 1,037,000 Pa
+  (default 10 C10). Only ``kappa`` changes; the element-wise incompressibility
+  penalty stays at its default 100 C10;
+- ``level_1``: protrusion on the 2x2x2-split mesh (6,699 nodes).
+
+A run either finishes (no inverted element, every value finite) or the
+system gives up after its step halvings with
+:class:`~artifem.fem_body.ElementInversionError` (time, elements, det F),
+leaving the body at the start of the failed step. Anything else (a NaN, a
+non-convergence reported as another exception) is a failure of the library.
+:func:`main` runs every case with both integrators and writes
+docs/tongue_hard_cases.md and docs/tongue_hard_cases.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from artifem.excitation import ExcitationSchedule
+from artifem.fem_body import ElementInversionError
+from artifem.models.tongue.model import (DT, DURATION, MOTIONS, RAMP_TIME, Tongue,
+                                         TongueConfig, load_tongue_data)
+
+INTEGRATOR_NAMES = ("semi-implicit", "implicit")
+C10 = TongueConfig().C10
+PROTRUSION = MOTIONS["protrusion"]
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+
+
+@dataclass(frozen=True)
+class Case:
+    description: str
+    config: dict = field(default_factory=dict)      # TongueConfig overrides
+    excitations: dict | None = None                 # exciter -> target; None: protrusion
+    ramp: bool = True
+    dt: float = DT
+
+
+def _all_exciters() -> dict[str, float]:
+    return {name: 1.0 for name in sorted(load_tongue_data(0).exciters)}
+
+
+CASES: dict[str, Case] = {
+    "all_exciters": Case("all 11 exciters at 1.0, ramped over 0.5 s", excitations={}),
+    "step": Case("protrusion targets stepped to full value at t = 0 (no ramp)", ramp=False),
+    "dt_0.05": Case("protrusion, dt = 0.05 s", dt=0.05),
+    "kappa_100C10": Case("protrusion, kappa = 100 C10 = 103,700 Pa "
+                         "(incompressibility penalty kept at 100 C10)",
+                         config={"kappa": 100 * C10}),
+    "kappa_1000C10": Case("protrusion, kappa = 1000 C10 = 1,037,000 Pa "
+                          "(incompressibility penalty kept at 100 C10)",
+                          config={"kappa": 1000 * C10}),
+    "level_1": Case("protrusion on level 1 (2x2x2 split, 6,699 nodes)", config={"level": 1}),
+}
+
+
+def case_schedule(case: Case) -> ExcitationSchedule:
+    targets = case.excitations if case.excitations is not None else PROTRUSION
+    if case.excitations == {}:
+        targets = _all_exciters()
+    if case.ramp:
+        return ExcitationSchedule.ramp_and_hold(targets, RAMP_TIME)
+    # Constant from t = 0: the controller applies the value at each step's end time,
+    # so the first step already runs at full excitation.
+    return ExcitationSchedule(np.array([0.0, 1.0]),
+                              {name: np.array([value, value]) for name, value in targets.items()})
+
+
+def build_case(name: str, integrator: str = "semi-implicit"):
+    """(Tongue at rest and driven by the case's schedule, schedule, dt)."""
+    if name not in CASES:
+        raise KeyError(f"unknown hard case {name!r}; choose one of {sorted(CASES)}")
+    case = CASES[name]
+    tongue = Tongue(TongueConfig(integrator=integrator, **case.config))
+    schedule = case_schedule(case)
+    tongue.reset()
+    tongue.drive(schedule)
+    return tongue, schedule, case.dt
+
+
+def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
+              record_times=(RAMP_TIME,), progress: str | None = None) -> dict:
+    """Step a driven tongue for ``duration``; never raises for a failed step.
+
+    Returns the outcome ("finished", "inversion error" or the name of another
+    exception), how far it got, min det F over completed steps, halvings,
+    landmark displacements (mm) at the end and at ``record_times``, the median
+    ms per step, the wall time, whether the state is finite afterwards and, on
+    an inversion error, its time, element count, det F and message.
+    """
+    system, body = tongue.system, tongue.body
+    nodes = list(tongue.data.landmarks.values())
+    names = list(tongue.data.landmarks)
+    steps = int(round(duration / dt))
+    t_start = system.time
+    step_ms, recorded = [], {}
+    outcome, error = "finished", None
+    wall = time.perf_counter()
+    last_print = wall
+    for k in range(1, steps + 1):
+        tic = time.perf_counter()
+        try:
+            system.step(dt)
+        except ElementInversionError as exc:
+            outcome, error = "inversion error", exc
+            break
+        except Exception as exc:                 # reported, not hidden: a library failure
+            outcome, error = type(exc).__name__, exc
+            break
+        step_ms.append(1e3 * (time.perf_counter() - tic))
+        system.time = t_start + k * dt
+        for t in record_times:
+            if abs(system.time - t) < 0.5 * dt:
+                recorded[float(t)] = body.displacement_at(nodes)
+        if progress and time.perf_counter() - last_print > 30:
+            last_print = time.perf_counter()
+            print(f"  {progress}: t = {system.time:.3f} s, {np.median(step_ms):.0f} ms/step, "
+                  f"halvings {system.halvings}", flush=True)
+    wall = time.perf_counter() - wall
+    final = body.displacement_at(nodes)
+    finite = bool(np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array)))
+    bad, det_now = body.inverted_elements()
+
+    def mm(disp):
+        return {n: np.round(1e3 * disp[i], 4).tolist() for i, n in enumerate(names)}
+
+    result = {
+        "outcome": outcome,
+        "t_reached": float(system.time),
+        "steps_done": len(step_ms),
+        "steps": steps,
+        "dt": dt,
+        "min_det_F": float(system.min_det_F),
+        "halvings": int(system.halvings),
+        "landmarks_mm": mm(final),
+        "landmarks_mm_at": {f"{t:g}": mm(d) for t, d in recorded.items()},
+        "ms_per_step": float(np.median(step_ms)) if step_ms else float("nan"),
+        "wall_s": round(wall, 2),
+        "state_finite": finite,
+        "inverted_now": int(len(bad)),
+        "det_F_now": float(det_now),
+    }
+    if isinstance(error, ElementInversionError):
+        result["inversion"] = {"time": float(error.time), "elements": int(len(error.elements)),
+                               "min_det_F": float(error.min_det), "message": str(error)}
+    elif error is not None:
+        result["error"] = f"{type(error).__name__}: {error}"
+    return result
+
+
+def run_case(name: str, integrator: str = "semi-implicit", duration: float = DURATION,
+             progress: bool = False) -> dict:
+    """Build and run one hard case with one integrator (see :func:`run_built`)."""
+    tongue, _, dt = build_case(name, integrator)
+    result = run_built(tongue, dt, duration, progress=f"{name}/{integrator}" if progress else None)
+    return {"case": name, "description": CASES[name].description, "integrator": integrator,
+            "level": tongue.config.level, "kappa": tongue.config.kappa,
+            "incompressibility": tongue.config.incompressibility,
+            "nodes": int(tongue.data.mesh.points.shape[0]), "duration": duration, **result}
+
+
+def _norm(v) -> float:
+    return float(np.linalg.norm(v))
+
+
+def write_docs(results: list[dict], out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tongue_hard_cases.json").write_text(json.dumps(
+        {"units": {"landmarks_mm": "mm, displacement from rest (x, y, z)",
+                   "ms_per_step": "median wall ms per step", "wall_s": "s"},
+         "results": results}, indent=2))
+    lines = [
+        "# Tongue: numerical stability on hard cases",
+        "",
+        "Written by `python -m artifem.models.tongue.hard_cases` "
+        "(models/tongue/hard_cases.py); raw figures in `tongue_hard_cases.json`.",
+        "",
+        "Every case is a variation of the protrusion motion (level 0, 946 nodes, dt = 0.01 s, "
+        "1.0 s, excitations ramped over 0.5 s then held) run with both integrators. "
+        "The kappa cases change only the Mooney-Rivlin bulk modulus `kappa` "
+        "(default 10 C10 = 10,370 Pa); the element-wise incompressibility penalty stays at its "
+        "default 100 C10. A case *passes* when it either finishes with every element "
+        "uninverted and every value finite, or stops with `ElementInversionError` (time, "
+        "elements, det F) and leaves a finite state. It fails on a NaN or any other exception.",
+        "",
+        "| case | integrator | outcome | t reached (s) | halvings | min det F | "
+        "tip (x, z) mm | \\|tip\\| mm | top \\|u\\| mm | base \\|u\\| mm | ms/step | wall s | passes |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        tip = r["landmarks_mm"]["tip"]
+        passes = r["state_finite"] and (
+            (r["outcome"] == "finished" and r["inverted_now"] == 0 and r["min_det_F"] > 0)
+            or r["outcome"] == "inversion error")
+        outcome = r["outcome"]
+        if "inversion" in r:
+            inv = r["inversion"]
+            outcome += (f" at t = {inv['time']:.4g} s, {inv['elements']} element(s), "
+                        f"det F = {inv['min_det_F']:.3g}")
+        elif "error" in r:
+            outcome += f": {r['error'][:120]}"
+        lines.append(
+            f"| {r['case']} | {r['integrator']} | {outcome} | {r['t_reached']:.3g} | "
+            f"{r['halvings']} | {r['min_det_F']:.3f} | ({tip[0]:.2f}, {tip[2]:.2f}) | "
+            f"{_norm(tip):.2f} | {_norm(r['landmarks_mm']['top']):.2f} | "
+            f"{_norm(r['landmarks_mm']['base']):.2f} | {r['ms_per_step']:.0f} | "
+            f"{r['wall_s']:.0f} | {'yes' if passes else '**no**'} |")
+    lines += ["", "Cases:", ""]
+    lines += [f"- `{name}`: {case.description}" for name, case in CASES.items()]
+    lines += ["", "Columns: landmark displacements are at the end of the run (t = 1.0 s, or the "
+              "start of the failed step); min det F is the smallest det F at any quadrature "
+              "point after any completed step; halvings counts retried half steps; ms/step is "
+              "the median wall time of a (possibly halved) step on this machine (serial).", ""]
+    (out / "tongue_hard_cases.md").write_text("\n".join(lines))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--integrators", nargs="+", default=list(INTEGRATOR_NAMES),
+                        choices=list(INTEGRATOR_NAMES))
+    parser.add_argument("--duration", type=float, default=DURATION)
+    parser.add_argument("--out", type=Path, default=DOCS)
+    args = parser.parse_args(argv)
+    results = []
+    for name in args.cases:
+        for integrator in args.integrators:
+            print(f"{name} / {integrator}: {CASES[name].description} ...", flush=True)
+            r = run_case(name, integrator, args.duration, progress=True)
+            results.append(r)
+            tip = r["landmarks_mm"]["tip"]
+            print(f"  -> {r['outcome']} at t = {r['t_reached']:.3g} s, halvings {r['halvings']}, "
+                  f"min det F {r['min_det_F']:.3f}, tip {tip} mm, {r['ms_per_step']:.0f} ms/step, "
+                  f"{r['wall_s']:.0f} s" + (f"; {r['inversion']['message']}" if "inversion" in r
+                                            else f"; {r['error']}" if "error" in r else ""),
+                  flush=True)
+            write_docs(results, args.out)        # partial results survive an interruption
+    print(f"wrote {args.out / 'tongue_hard_cases.md'} and .json")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
