@@ -1,7 +1,9 @@
-"""The main job (``make demo``): the muscle-driven beam, rendered and measured.
+"""The main job (``make demo``): the muscle-driven beam and the tongue's three motions.
 
-Until the tongue study exists, the demo runs the muscle-driven cantilever of
-``artifem.models.muscle_beam`` and says where its pictures and figures are.
+Until the reduced-model study exists, the demo runs the muscle-driven
+cantilever (``artifem simulate beam``) and the ArtiSynth tongue's protrusion,
+retroflexion and retraction (``artifem simulate tongue --motion all``), and
+says where their pictures and figures are. About a minute and a half on 2 cores.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from artifem.models import muscle_beam
+from artifem.models.tongue import simulate as tongue
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,10 +20,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    beam_args = argparse.Namespace(out=args.out / "muscle_beam", integrator="semi-implicit",
-                                   cells=[24, 6, 6], excitation=1.0, dt=0.01, no_progress=False)
-    status = muscle_beam.run(beam_args)
-    print(f"demo: pictures {args.out}/muscle_beam/beam.png and tip.png, figures "
-          f"{args.out}/muscle_beam/simulate.json, ParaView series "
-          f"{args.out}/muscle_beam/displacement.bp")
+    beam_parser, tongue_parser = argparse.ArgumentParser(), argparse.ArgumentParser()
+    muscle_beam.add_arguments(beam_parser)
+    tongue.add_arguments(tongue_parser)
+    status = muscle_beam.run(beam_parser.parse_args(["--out", str(args.out / "muscle_beam")]))
+    status = status or tongue.run(tongue_parser.parse_args(
+        ["--motion", "all", "--out", str(args.out / "tongue")]))
+    print(f"demo: beam pictures {args.out}/muscle_beam/beam.png and tip.png; tongue motions "
+          f"side by side {args.out}/tongue/motions.png; figures in */simulate.json; "
+          f"ParaView series in */*.bp")
     return status
