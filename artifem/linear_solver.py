@@ -21,6 +21,10 @@ Configurations:
 - ``"cg-hypre"``: conjugate gradients with hypre BoomerAMG (only when the
   PETSc build has hypre; the ``dolfinx-solver-real`` wheel does not).
 
+When CG fails (it needs a positive definite matrix, and the step matrix is
+indefinite when the tangent is, e.g. under compressed active fibers), that
+one system is solved by MUMPS LDL^T instead (``direct_solves`` counts them).
+
 The iterative methods stop when the *unpreconditioned* residual satisfies
 ||b - A x|| <= rtol ||b|| (a test that means the same thing whatever the
 preconditioner and however stale it is). The initial guess is the previous
@@ -163,6 +167,8 @@ class LinearSolver:
         self.ksp.setFromOptions()
         self.iterations = 0
         self.setups = 0                 # preconditioner (re)builds so far
+        self.direct_solves = 0          # iterative failures solved by MUMPS instead
+        self._direct = None
         self._operator = None
         self._previous = None           # previous solution (warm start)
         self._work = None
@@ -216,6 +222,11 @@ class LinearSolver:
             # A stale preconditioner (e.g. from before the matrix lost definiteness): rebuild.
             rebuild = True
             reason = self._solve_once(A, b, x, rebuild)
+        if reason < 0 and self.iterative:
+            # CG needs a positive definite matrix. The step matrix loses definiteness
+            # when the tangent does (compressed active fibers, and stiffness damping
+            # beta K keeps it so however small the step): solve this one directly.
+            reason = self._direct_solve(A, b, x)
         if reason < 0:
             raise LinearSolveError(
                 f"linear solve ({self.method}) failed: KSP reason {reason}, "
@@ -229,6 +240,20 @@ class LinearSolver:
                 self._work = None
             x.copy(self._previous)
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def _direct_solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
+        """MUMPS LDL^T with pivoting (symmetric indefinite), created on first use."""
+        if self._direct is None:
+            self._direct = PETSc.KSP().create(A.getComm())
+            self._direct.setType("preonly")
+            _set_mumps_cholesky(self._direct.getPC())
+            self._direct.setOperators(A)
+            _configure_mumps(self._direct.getPC())
+        self._direct.setOperators(A)
+        self._direct.solve(b, x)
+        self.direct_solves += 1
+        self._rebuild = True            # the AMG hierarchy is stale: rebuild next time
+        return self._direct.getConvergedReason()
 
     def _update_lag(self, rebuilt: bool) -> None:
         """Decide (from iteration counts, the same on every rank) whether to rebuild next time.
@@ -256,6 +281,8 @@ class LinearSolver:
 
     def destroy(self):
         self.ksp.destroy()
+        if self._direct is not None:
+            self._direct.destroy()
         for vec in (self._previous, self._work):
             if vec is not None:
                 vec.destroy()
