@@ -95,14 +95,17 @@ def parse_ints(text: str, what: str) -> list[int]:
     return values
 
 
-def _benchmark_of(parser) -> str:
-    """'fom' or 'tongue', from the subcommand's parser name ('artifem bench tongue')."""
-    name = parser.prog.split()[-1] if parser.prog else ""
-    return name if name in BENCHMARKS else "fom"
+def add_fom_arguments(parser) -> None:
+    """Arguments of ``artifem bench fom``."""
+    _add_arguments(parser, "fom")
 
 
-def add_arguments(parser) -> None:
-    kind = _benchmark_of(parser)
+def add_tongue_arguments(parser) -> None:
+    """Arguments of ``artifem bench tongue``."""
+    _add_arguments(parser, "tongue")
+
+
+def _add_arguments(parser, kind: str) -> None:
     parser.set_defaults(_benchmark=kind)
     parser.add_argument("--out", required=True, type=Path, help="JSON file to write")
     if kind == "tongue":
@@ -278,7 +281,7 @@ def _tongue_motions() -> tuple[str, ...]:
 
 
 def run(args) -> int:
-    kind = getattr(args, "_benchmark", "fom")
+    kind = args._benchmark
     try:
         ranks = parse_ints(args.ranks, "--ranks")
         solvers = parse_solvers(args.solver)

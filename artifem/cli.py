@@ -18,7 +18,9 @@ import argparse
 import importlib
 import sys
 
-#: subcommand path -> module with ``add_arguments(parser)`` and ``run(args) -> int``
+#: subcommand path -> (module, help). The module provides ``add_arguments(parser)``
+#: and ``run(args) -> int``; "module:NAME" names ``add_NAME_arguments`` instead,
+#: for modules that serve several subcommands with one ``run``.``
 COMMANDS = {
     ("mesh", "info"): ("artifem.io.mesh_info", "nodes, elements, volume, det J, bounding box"),
     ("material", "curves"): ("artifem.material_curves",
@@ -26,8 +28,9 @@ COMMANDS = {
     ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam"),
     ("simulate", "tongue"): ("artifem.models.tongue.simulate",
                              "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
-    ("bench", "fom"): ("artifem.bench", "full-order FEM step timings to JSON"),
-    ("bench", "tongue"): ("artifem.bench", "tongue step timings (protrusion, levels 0 and 1) to JSON"),
+    ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
+    ("bench", "tongue"): ("artifem.bench:tongue",
+                          "tongue step timings (protrusion, levels 0 and 1) to JSON"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }
 
@@ -45,8 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
                 groups[path[0]] = group.add_subparsers(dest="subcommand", required=True,
                                                        metavar="SUBCOMMAND")
             sub = groups[path[0]].add_parser(path[1], help=help_text, description=help_text)
+        module, _, name = module.partition(":")
         sub.set_defaults(_module=module)
-        importlib.import_module(module).add_arguments(sub)
+        add_arguments = f"add_{name}_arguments" if name else "add_arguments"
+        getattr(importlib.import_module(module), add_arguments)(sub)
     return parser
 
 
