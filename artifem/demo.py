@@ -3,7 +3,7 @@
 Until the reduced-model study exists, the demo runs the muscle-driven
 cantilever (``artifem simulate beam``) and the ArtiSynth tongue's protrusion,
 retroflexion and retraction (``artifem simulate tongue --motion all``), and
-says where their pictures and figures are. About a minute and a half on 2 cores.
+says where their pictures and figures are. About 30 s on 2 cores once compiled.
 """
 
 from __future__ import annotations
