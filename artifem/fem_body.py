@@ -325,6 +325,7 @@ class FemBody:
         self.M_lumped = fem_petsc.assemble_vector(fem.form(self.density * ufl.dot(ones, v) * dxm))
         self.M_lumped.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.M_consistent = None
+        self._scaled_mass = None        # work vector of add_mass
         if self.mass_kind == "consistent":
             self.M_consistent = fem_petsc.assemble_matrix(fem.form(mass_form), bcs=self.bcs, diag=1.0)
             self.M_consistent.assemble()
@@ -376,10 +377,11 @@ class FemBody:
         if self.M_consistent is not None:
             A.axpy(scale, self.M_consistent, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         else:
-            d = self.M_lumped.copy()
-            d.scale(scale)
-            A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
-            d.destroy()
+            if self._scaled_mass is None:
+                self._scaled_mass = self.M_lumped.duplicate()
+            self.M_lumped.copy(self._scaled_mass)
+            self._scaled_mass.scale(scale)
+            A.setDiagonal(self._scaled_mass, addv=PETSc.InsertMode.ADD_VALUES)
 
     def det_F(self) -> np.ndarray:
         """det F at the energy quadrature points of owned cells, shape (cells, points)."""
