@@ -1,0 +1,226 @@
+"""Reduced FEM body (artifem.reduction.reduced_body) against the full model.
+
+(a) full basis + every cell with weight 1: the reduced semi-implicit
+    trajectory equals the full one (System, MUMPS) to round-off;
+(b) U^T f consistency: f~(q) = U^T f(U q) and K~(q) = U^T K(U q) U for a
+    general basis, all cells, weights 1;
+(c) a subset of cells with weights w equals the full-mesh assembly of the
+    w-weighted (DG0) energy;
+(d) muscles: the full body's excitation Constant drives the reduced force;
+(e) bad input (nonzero basis rows at fixed dofs) and inversion detection.
+"""
+
+import numpy as np
+import pytest
+import ufl
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from dolfinx import fem, mesh as dmesh
+from mpi4py import MPI
+
+from artifem.fem_body import ElementInversionError, FemBody
+from artifem.forms import BlemkerFiber, NeoHookean
+from artifem.reduction.cubature import IntegrationPoints
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.system import System
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
+
+
+def make_body(mass="lumped", excitation=0.5, incompressibility=2.0e5):
+    """A 4x2x2 hex beam clamped at x = 0, gravity, body force, tip load, a muscle."""
+    msh = dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.array([1.0, 0.3, 0.2])],
+                           [4, 2, 2], dmesh.CellType.hexahedron)
+    body = FemBody(msh, NeoHookean.from_young_poisson(1.0e5, 0.3), 1000.0, mass=mass,
+                   rayleigh=(0.5, 0.01), gravity=(0.0, 0.0, -9.81),
+                   incompressibility=incompressibility)
+    x = msh.geometry.x
+    inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
+    body.fix_nodes(inputs[x[:, 0] < 1e-12])
+    body.add_nodal_load(inputs[np.abs(x[:, 0] - 1.0) < 1e-12], [0.0, 0.5, 0.0])
+    X = ufl.SpatialCoordinate(msh)
+    body.set_body_force(ufl.as_vector([0.0, 100.0 * X[0], 0.0]))
+    n = msh.topology.index_map(3).size_local
+    centroids = x[msh.geometry.dofmaps[0][:n]].mean(axis=1)
+    cells = np.asarray(msh.topology.original_cell_index[:n])[centroids[:, 2] > 0.1]
+    rng = np.random.default_rng(1)
+    directions = np.array([1.0, 0.0, 0.0]) + 0.3 * rng.standard_normal((cells.size, 3))
+    body.add_muscle("top", cells, directions, BlemkerFiber(2.0e4), excitation=excitation)
+    return body
+
+
+def ndofs(body):
+    return 3 * body.V.dofmap.index_map.size_local
+
+
+def free_rows(body):
+    fixed = (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
+    return np.setdiff1d(np.arange(ndofs(body)), fixed)
+
+
+def full_basis(body):
+    free = free_rows(body)
+    U = np.zeros((ndofs(body), free.size))
+    U[free, np.arange(free.size)] = 1.0
+    return U
+
+
+def random_basis(body, r, seed=0, scale=1.0):
+    rng = np.random.default_rng(seed)
+    U = np.zeros((ndofs(body), r))
+    free = free_rows(body)
+    U[free] = scale * rng.standard_normal((free.size, r))
+    return U
+
+
+def all_cells(body, weights=None):
+    n = body.mesh.topology.index_map(3).size_local
+    return IntegrationPoints(np.arange(n), np.ones(n) if weights is None else weights, "all")
+
+
+def full_force_and_tangent(body, u):
+    body.u.x.array[:u.size] = u
+    body.u.x.scatter_forward()
+    body.assemble(tangent=True)
+    n = ndofs(body)
+    K = body.K.convert("dense").getDenseArray()[:n, :n]
+    return -body.R.array[:n].copy(), K
+
+
+# ---- (a) the key test: full basis, all cells ------------------------------------------------
+
+@pytest.mark.parametrize("mass", ["lumped", "consistent"])
+def test_full_basis_reproduces_the_full_trajectory(mass):
+    body = make_body(mass=mass)
+    reduced = ReducedFemBody(body, full_basis(body), all_cells(body))
+    assert reduced.m == body.mesh.topology.index_map(3).size_local
+    system = System(linear_solver="mumps")
+    system.add(body)
+    n = ndofs(body)
+    dt = 0.01
+    for _ in range(10):
+        system.step(dt)
+        reduced.step(dt)
+        u_full, v_full = body.u.x.array[:n], body.v.x.array[:n]
+        assert np.abs(u_full).max() > 1e-4          # it moves
+        np.testing.assert_allclose(reduced.nodal_displacement(), u_full,
+                                   rtol=0, atol=1e-10 * np.abs(u_full).max())
+        np.testing.assert_allclose(reduced.nodal_velocity(), v_full,
+                                   rtol=0, atol=1e-10 * np.abs(v_full).max())
+    assert reduced.time == pytest.approx(system.time)
+
+
+# ---- (b) U^T f consistency ------------------------------------------------------------------
+
+def test_reduced_force_and_tangent_are_projections_of_the_full_ones():
+    body = make_body()
+    U = random_basis(body, 7, seed=3)
+    reduced = ReducedFemBody(body, U, all_cells(body))
+    q = 1e-2 * np.random.default_rng(4).standard_normal(7)
+    reduced.set_q(q)
+    f_full, K_full = full_force_and_tangent(body, U @ q)
+    f_red = reduced.force()
+    np.testing.assert_allclose(f_red, U.T @ f_full, rtol=0,
+                               atol=1e-12 * np.abs(U.T @ f_full).max())
+    K_ref = U.T @ K_full @ U
+    np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0, atol=1e-12 * np.abs(K_ref).max())
+    # Mass: U^T M U with the lumped mass.
+    m = body.M_lumped.array[:ndofs(body)]
+    np.testing.assert_allclose(reduced.M, U.T @ (m[:, None] * U), rtol=1e-13)
+
+
+# ---- (c) subset of cells with weights -------------------------------------------------------
+
+def weighted_full_residual(body, cells, weights):
+    """Full-mesh assembly of the w-weighted internal energy (w = 0 off the subset)."""
+    W = fem.functionspace(body.mesh, ("DG", 0))
+    w = fem.Function(W)
+    w.x.array[W.dofmap.list[cells, 0]] = weights
+    F = body.kinematics()
+    md = {"quadrature_degree": body.quadrature_degree}
+    dx = ufl.Measure("dx", domain=body.mesh, metadata=md)
+    Pi = w * body.material.strain_energy(F) * dx
+    data = [(i + 1, m.cells) for i, m in enumerate(body.muscles.values())]
+    dxm = ufl.Measure("dx", domain=body.mesh, metadata=md, subdomain_data=data)
+    for i, m in enumerate(body.muscles.values()):
+        Pi += w * m.fiber.strain_energy(F, m.direction, m.excitation) * dxm(i + 1)
+    centre = ufl.Measure("dx", domain=body.mesh, metadata={"quadrature_degree": 1})
+    Pi += w * 0.5 * body.incompressibility * (ufl.det(F) - 1) ** 2 * centre
+    R = fem.assemble_vector(fem.form(ufl.derivative(Pi, body.u, ufl.TestFunction(body.V))))
+    return R.array[:ndofs(body)].copy()
+
+
+def test_subset_with_weights_equals_the_weighted_full_assembly():
+    body = make_body()
+    rng = np.random.default_rng(5)
+    n = body.mesh.topology.index_map(3).size_local
+    cells = np.sort(rng.choice(n, size=5, replace=False))
+    weights = rng.uniform(0.5, 3.0, size=5)
+    U = random_basis(body, 6, seed=6)
+    reduced = ReducedFemBody(body, U, IntegrationPoints(cells, weights, "random"))
+    assert reduced.m == 5
+    q = 1e-2 * rng.standard_normal(6)
+    reduced.set_q(q)
+    body.u.x.array[:ndofs(body)] = U @ q
+    ref = U.T @ weighted_full_residual(body, cells, weights)
+    got = reduced.internal_residual()
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # The external force stays exact (not sampled): U^T f_ext of the full model.
+    body.u.x.array[:] = 0.0
+    body.muscles["top"].excitation.value = 0.0
+    f0, _ = full_force_and_tangent(body, np.zeros(ndofs(body)))
+    # At u = 0 with no excitation the internal force vanishes: only the external
+    # part is left, and it must equal the full model's.
+    reduced.set_q(np.zeros(6))
+    np.testing.assert_allclose(reduced.force(), U.T @ f0, rtol=0,
+                               atol=1e-12 * np.abs(U.T @ f0).max())
+
+
+# ---- (d) muscles ----------------------------------------------------------------------------
+
+def test_full_body_excitation_drives_the_reduced_force():
+    body = make_body(excitation=0.0)
+    U = random_basis(body, 5, seed=7)
+    reduced = ReducedFemBody(body, U, all_cells(body))
+    q = 1e-2 * np.random.default_rng(8).standard_normal(5)
+    reduced.set_q(q)
+    f0 = reduced.force()
+    body.set_excitation("top", 0.8)
+    f1 = reduced.force()
+    assert np.abs(f1 - f0).max() > 1e-3 * np.abs(f0).max()
+    f_full, _ = full_force_and_tangent(body, U @ q)
+    np.testing.assert_allclose(f1, U.T @ f_full, rtol=0, atol=1e-12 * np.abs(f1).max())
+
+
+# ---- (e) bad input and inversion ------------------------------------------------------------
+
+def test_basis_rows_at_fixed_dofs_must_be_zero():
+    body = make_body()
+    U = random_basis(body, 3)
+    U[3 * body.fixed_dofs[0], 1] = 1.0
+    with pytest.raises(ValueError, match="fixed dofs"):
+        ReducedFemBody(body, U, all_cells(body))
+    with pytest.raises(ValueError, match="shape"):
+        ReducedFemBody(body, U[:-1], all_cells(body))
+
+
+def test_inversion_is_reported_with_input_cell_indices():
+    body = make_body()
+    U = full_basis(body)
+    reduced = ReducedFemBody(body, U, all_cells(body))
+    u = np.zeros(ndofs(body))
+    x = body.V.tabulate_dof_coordinates()[:ndofs(body) // 3]
+    u[0::3] = -3.0 * x[:, 0] * (x[:, 0] > 0.5)       # fold the outer half back
+    q = U.T @ u
+    reduced.set_q(q)
+    bad, min_det = reduced.inverted_elements()
+    body.u.x.array[:ndofs(body)] = U @ q
+    bad_full, min_full = body.inverted_elements()
+    assert bad.size > 0 and min_det <= 0
+    np.testing.assert_array_equal(bad, bad_full)
+    assert min_det == pytest.approx(min_full)
+    state = reduced.state()
+    with pytest.raises(ElementInversionError) as info:
+        reduced.step(1e-6)
+    assert info.value.elements.size > 0
+    np.testing.assert_array_equal(reduced.q, state[0])      # state kept
