@@ -144,8 +144,12 @@ def test_degenerate_hex_rejected(tmp_path, nodes, collapse):
 
 # --- orientation ---------------------------------------------------------------------------
 
+TWO_CUBES = np.vstack([UNIT_HEX, [[2, 0, 0], [2, 1, 0], [2, 0, 1], [2, 1, 1]]])
+
+
 def test_inverted_hex_reported_and_fixed():
-    mesh = hex_mesh([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 0, 1, 2, 3]])
+    # Two unit cubes side by side; the second has its top and bottom faces swapped.
+    mesh = hex_mesh([[0, 1, 2, 3, 4, 5, 6, 7], [5, 10, 11, 6, 1, 8, 9, 2]], points=TWO_CUBES)
     np.testing.assert_allclose(element_jacobians(mesh), [1.0, -1.0])
     fixed, inverted = check_orientation(mesh, fix=True)
     np.testing.assert_array_equal(inverted, [2])
@@ -167,6 +171,13 @@ def test_inverted_tet_fixed():
     np.testing.assert_array_equal(inverted, [5])
     assert element_jacobians(fixed)[0] == pytest.approx(1.0)
     assert volume(tet) == pytest.approx(1 / 6)
+
+
+def test_duplicate_element_refused():
+    """Two cells on the same nodes would corrupt DOLFINx's topology: refused before it."""
+    mesh = hex_mesh([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 0, 1, 2, 3]])
+    with pytest.raises(MeshError, match="element 2 repeats element 1"):
+        to_dolfinx(mesh, MPI.COMM_SELF)
 
 
 def test_tangled_hex_refused():

@@ -29,7 +29,8 @@ def to_dolfinx(mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD,
                reorient: bool = True) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags | None]:
     """Build (DOLFINx mesh, cell MeshTags of ``mesh.cell_tags``) from MeshData.
 
-    Degenerate, tangled and mixed-type meshes are refused with MeshError.
+    Degenerate, tangled, duplicated and mixed-type meshes are refused with MeshError
+    (two cells on the same vertices corrupt DOLFINx's topology computation).
     Inverted elements are renumbered when ``reorient`` (default) and refused
     otherwise.  The tags are None when every cell tag is 0 (no regions in the
     file).  Input cell rows are recovered with ``mesh.topology.original_cell_index``
@@ -45,6 +46,7 @@ def to_dolfinx(mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD,
                         f"tetrahedra ({counts}); converting the rest would leave holes")
     reject_degenerate(mesh)
     fixed, inverted = check_orientation(mesh, fix=reorient)
+    _reject_duplicate_cells(mesh)
     if len(inverted) and not reorient:
         raise MeshError(f"{mesh.source}: {len(inverted)} inverted element(s) (negative det J "
                         f"everywhere), ids {', '.join(map(str, inverted[:20]))}; "
@@ -60,6 +62,18 @@ def to_dolfinx(mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD,
         points = np.empty((0, 3), dtype=np.float64)
     msh = dolfinx.mesh.create_mesh(comm, cells, element, points)
     return msh, _cell_tags(msh, mesh.cell_tags)
+
+
+def _reject_duplicate_cells(mesh: MeshData) -> None:
+    """MeshError naming the elements that use the same vertex set as an earlier one."""
+    keys = np.sort(np.asarray(mesh.cells), axis=1)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    duplicates = np.flatnonzero(first[inverse.ravel()] != np.arange(len(keys)))
+    if duplicates.size:
+        pairs = ", ".join(f"{mesh.element_label(d)} repeats {mesh.element_label(first[inverse.ravel()[d]])}"
+                          for d in duplicates[:10])
+        raise MeshError(f"{mesh.source}: {duplicates.size} element(s) on the same nodes as "
+                        f"another: {pairs}")
 
 
 def _cell_tags(msh: dolfinx.mesh.Mesh, input_tags: np.ndarray) -> dolfinx.mesh.MeshTags | None:
