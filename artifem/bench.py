@@ -156,9 +156,7 @@ def run_worker(cmd: list[str], timeout: float) -> dict:
     env.setdefault("OMP_NUM_THREADS", "1")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
-        # A session of its own: signals mpiexec sends to its process group stay there.
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env,
-                              start_new_session=True)
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired as exc:
         raise RuntimeError(f"timed out after {timeout:g} s: {' '.join(cmd)}") from exc
     for line in proc.stdout.splitlines():

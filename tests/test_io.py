@@ -236,7 +236,7 @@ def test_tongue_to_dolfinx_two_ranks(tmp_path):
         "t = msh.comm.allreduce(len(tags.values), op=MPI.SUM)\n"
         "if msh.comm.rank == 0: print(v, n, t, msh.comm.size)\n")
     out = subprocess.run([str(mpiexec), "-n", "2", sys.executable, str(script)],
-                         capture_output=True, text=True, timeout=300, start_new_session=True)
+                         capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     v, n, t, size = out.stdout.split()
     assert float(v) == pytest.approx(TONGUE_VOLUME, rel=1e-10)

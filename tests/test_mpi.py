@@ -87,9 +87,7 @@ def run(tmp_path: Path, ranks: int) -> dict:
     command = [sys.executable, str(script), str(out)]
     if ranks > 1:
         command = [str(MPIEXEC), "-n", str(ranks)] + command
-    # A session of its own: signals mpiexec sends to its process group stay there.
-    proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path,
-                          start_new_session=True)
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, f"{' '.join(command)} failed:\n{proc.stdout}\n{proc.stderr}"
     return json.loads(out.read_text())
 
