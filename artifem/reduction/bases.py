@@ -143,6 +143,20 @@ def body_mass(body):
 
 # ---- linear modes ---------------------------------------------------------------------------
 
+def _rest_stiffness(body) -> PETSc.Mat:
+    """A copy of K at u = 0 with fixed rows/columns eliminated (1 on their diagonal).
+
+    The body's displacement is restored; body.K and body.R keep the rest assembly.
+    """
+    u_saved = body.u.x.array.copy()
+    try:
+        body.u.x.array[:] = 0.0
+        body.assemble(tangent=True, diag=1.0)
+        return body.K.copy()
+    finally:
+        body.u.x.array[:] = u_saved
+
+
 def linear_modes(body, r: int, *, shift: float | None = None,
                  tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
     """Lowest r vibration modes of ``body`` at rest: K phi = lambda M phi, phi^T M phi = 1.
@@ -169,13 +183,7 @@ def linear_modes(body, r: int, *, shift: float | None = None,
 
     r = _check_count(r, "r")
     body.compile()
-    u_saved = body.u.x.array.copy()
-    try:
-        body.u.x.array[:] = 0.0
-        body.assemble(tangent=True, diag=1.0)
-        K = body.K.copy()
-    finally:
-        body.u.x.array[:] = u_saved
+    K = _rest_stiffness(body)
     M = mass_matrix(body)
     n_free = K.getSize()[0] - body.mesh.comm.allreduce(len(_owned_fixed_rows(body)))
     if r > n_free:
@@ -256,13 +264,7 @@ def _mat_apply(A: PETSc.Mat, X: np.ndarray) -> np.ndarray:
 
 def linear_mode_residuals(body, U: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """||K phi - lambda M phi|| / ||K phi|| per mode (K at rest, fixed dofs eliminated)."""
-    u_saved = body.u.x.array.copy()
-    try:
-        body.u.x.array[:] = 0.0
-        body.assemble(tangent=True, diag=1.0)
-        K = body.K.copy()
-    finally:
-        body.u.x.array[:] = u_saved
+    K = _rest_stiffness(body)
     M = mass_matrix(body)
     KU, MU = _mat_apply(K, U), _mat_apply(M, U)
     comm = body.mesh.comm
