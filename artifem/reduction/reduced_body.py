@@ -54,7 +54,7 @@ from dolfinx.fem import petsc as fem_petsc
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.reduction.cubature import IntegrationPoints
 
-__all__ = ["ReducedFemBody"]
+__all__ = ["ReducedFemBody", "all_points"]
 
 
 def _dof_of_node(msh: dmesh.Mesh, V: fem.FunctionSpace) -> np.ndarray:
@@ -62,6 +62,12 @@ def _dof_of_node(msh: dmesh.Mesh, V: fem.FunctionSpace) -> np.ndarray:
     out = np.full(msh.geometry.x.shape[0], -1, dtype=np.int64)
     out[msh.geometry.dofmaps[0].reshape(-1)] = V.dofmap.list.reshape(-1)
     return out
+
+
+def all_points(full: FemBody) -> IntegrationPoints:
+    """Every integration point of ``full`` with weight 1 (the full quadrature)."""
+    n = full.mesh.topology.index_map(full.mesh.topology.dim).size_local
+    return IntegrationPoints(np.arange(n), np.ones(n), "all")
 
 
 class ReducedFemBody:
