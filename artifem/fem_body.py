@@ -24,6 +24,7 @@ the same script runs in serial and under ``mpiexec``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import basix
 import numpy as np
@@ -64,6 +65,24 @@ class Muscle:
     direction: fem.Function     # DG0 unit fiber direction a0 (zero outside the region)
     fiber: object               # fiber material: strain_energy(F, a0, excitation)
     excitation: fem.Constant    # a in [0, 1], changed between steps without recompiling
+
+
+@dataclass(frozen=True, eq=False)
+class EnergyTerm:
+    """One integral of a body's internal energy, int_{cells} density(F, a0) dX.
+
+    ``density(F, a0)`` is the UFL energy density (``a0`` the DG0 direction
+    field for fiber terms, None otherwise), integrated with a quadrature rule
+    of ``degree`` over ``cells`` (owned local cells; None means all). The
+    full body assembles the sum of its terms; a reduced body evaluates the
+    same densities at its integration points.
+    """
+
+    name: str
+    density: Callable
+    degree: int
+    cells: np.ndarray | None = None
+    direction: fem.Function | None = None
 
 
 class FemBody:
@@ -282,23 +301,39 @@ class FemBody:
         """F = I + grad u as a UFL expression."""
         return ufl.Identity(3) + ufl.grad(self.u)
 
+    def energy_terms(self) -> list[EnergyTerm]:
+        """The internal energy as a sum of integrals, one per ingredient (see EnergyTerm)."""
+        terms = [EnergyTerm("material", lambda F, a0: self.material.strain_energy(F),
+                            self.quadrature_degree)]
+        for m in self.muscles.values():
+            terms.append(EnergyTerm(f"muscle:{m.name}",
+                                    lambda F, a0, m=m: m.fiber.strain_energy(F, a0, m.excitation),
+                                    self.quadrature_degree, m.cells, m.direction))
+        if self.incompressibility is not None:
+            kappa = self.incompressibility
+            terms.append(EnergyTerm("incompressibility",
+                                    lambda F, a0: 0.5 * kappa * (ufl.det(F) - 1) ** 2, 1))
+        return terms
+
     def potential_energy_form(self):
         """UFL integrand of Pi(u) (see the module docstring)."""
         F = self.kinematics()
-        md = {"quadrature_degree": self.quadrature_degree}
-        dx = ufl.Measure("dx", domain=self.mesh, metadata=md)
-        Pi = self.material.strain_energy(F) * dx
-        if self.muscles:
-            data = [(i + 1, m.cells) for i, m in enumerate(self.muscles.values())]
-            dxm = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
-            for i, m in enumerate(self.muscles.values()):
-                Pi += m.fiber.strain_energy(F, m.direction, m.excitation) * dxm(i + 1)
-        if self.incompressibility is not None:
-            centre = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": 1})
-            Pi += 0.5 * self.incompressibility * (ufl.det(F) - 1) ** 2 * centre
+        terms = self.energy_terms()
+        restricted = [t for t in terms if t.cells is not None]
+        data = [(i + 1, t.cells) for i, t in enumerate(restricted)] or None
+        Pi = 0
+        for t in terms:
+            md = {"quadrature_degree": t.degree}
+            if t.cells is None:
+                Pi += t.density(F, None) * ufl.Measure("dx", domain=self.mesh, metadata=md)
+            else:
+                dx = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
+                Pi += t.density(F, t.direction) * dx(restricted.index(t) + 1)
         external = self.density * ufl.dot(self.gravity, self.u)
         if self.body_force is not None:
             external += ufl.dot(self.body_force, self.u)
+        dx = ufl.Measure("dx", domain=self.mesh,
+                         metadata={"quadrature_degree": self.quadrature_degree})
         Pi -= self.load_factor * external * dx
         return Pi
 

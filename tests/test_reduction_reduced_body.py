@@ -1,10 +1,10 @@
 """Reduced FEM body (artifem.reduction.reduced_body) against the full model.
 
-(a) full basis + every cell with weight 1: the reduced semi-implicit
+(a) full basis + every point with weight 1: the reduced semi-implicit
     trajectory equals the full one (System, MUMPS) to round-off;
 (b) U^T f consistency: f~(q) = U^T f(U q) and K~(q) = U^T K(U q) U for a
     general basis, all cells, weights 1;
-(c) a subset of cells with weights w equals the full-mesh assembly of the
+(c) the points of a subset of cells with weights w equal the full-mesh assembly of the
     w-weighted (DG0) energy;
 (d) muscles: the full body's excitation Constant drives the reduced force;
 (e) bad input (nonzero basis rows at fixed dofs) and inversion detection.
@@ -21,7 +21,8 @@ from mpi4py import MPI
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.forms import BlemkerFiber, NeoHookean
 from artifem.reduction.cubature import IntegrationPoints
-from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.quadrature_points import quadrature_points
+from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.system import System
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
@@ -73,11 +74,6 @@ def random_basis(body, r, seed=0, scale=1.0):
     return U
 
 
-def all_cells(body, weights=None):
-    n = body.mesh.topology.index_map(3).size_local
-    return IntegrationPoints(np.arange(n), np.ones(n) if weights is None else weights, "all")
-
-
 def full_force_and_tangent(body, u):
     body.u.x.array[:u.size] = u
     body.u.x.scatter_forward()
@@ -92,8 +88,9 @@ def full_force_and_tangent(body, u):
 @pytest.mark.parametrize("mass", ["lumped", "consistent"])
 def test_full_basis_reproduces_the_full_trajectory(mass):
     body = make_body(mass=mass)
-    reduced = ReducedFemBody(body, full_basis(body), all_cells(body))
-    assert reduced.m == body.mesh.topology.index_map(3).size_local
+    reduced = ReducedFemBody(body, full_basis(body), all_points(body))
+    # 2x2x2 Gauss points of the energy and the centre point of the penalty, per cell
+    assert reduced.m == 9 * body.mesh.topology.index_map(3).size_local
     system = System(linear_solver="mumps")
     system.add(body)
     n = ndofs(body)
@@ -115,7 +112,7 @@ def test_full_basis_reproduces_the_full_trajectory(mass):
 def test_reduced_force_and_tangent_are_projections_of_the_full_ones():
     body = make_body()
     U = random_basis(body, 7, seed=3)
-    reduced = ReducedFemBody(body, U, all_cells(body))
+    reduced = ReducedFemBody(body, U, all_points(body))
     q = 1e-2 * np.random.default_rng(4).standard_normal(7)
     reduced.set_q(q)
     f_full, K_full = full_force_and_tangent(body, U @ q)
@@ -157,8 +154,12 @@ def test_subset_with_weights_equals_the_weighted_full_assembly():
     cells = np.sort(rng.choice(n, size=5, replace=False))
     weights = rng.uniform(0.5, 3.0, size=5)
     U = random_basis(body, 6, seed=6)
-    reduced = ReducedFemBody(body, U, IntegrationPoints(cells, weights, "random"))
-    assert reduced.m == 5
+    # Every point of the chosen cells, weighted by its cell's weight.
+    table = quadrature_points(body)
+    at = np.flatnonzero(np.isin(table.cell, cells))
+    point_weights = weights[np.searchsorted(cells, table.cell[at])]
+    reduced = ReducedFemBody(body, U, IntegrationPoints(at, point_weights, "random"))
+    assert reduced.m == 5 * 9
     q = 1e-2 * rng.standard_normal(6)
     reduced.set_q(q)
     body.u.x.array[:ndofs(body)] = U @ q
@@ -181,7 +182,7 @@ def test_subset_with_weights_equals_the_weighted_full_assembly():
 def test_full_body_excitation_drives_the_reduced_force():
     body = make_body(excitation=0.0)
     U = random_basis(body, 5, seed=7)
-    reduced = ReducedFemBody(body, U, all_cells(body))
+    reduced = ReducedFemBody(body, U, all_points(body))
     q = 1e-2 * np.random.default_rng(8).standard_normal(5)
     reduced.set_q(q)
     f0 = reduced.force()
@@ -199,15 +200,15 @@ def test_basis_rows_at_fixed_dofs_must_be_zero():
     U = random_basis(body, 3)
     U[3 * body.fixed_dofs[0], 1] = 1.0
     with pytest.raises(ValueError, match="fixed dofs"):
-        ReducedFemBody(body, U, all_cells(body))
+        ReducedFemBody(body, U, all_points(body))
     with pytest.raises(ValueError, match="shape"):
-        ReducedFemBody(body, U[:-1], all_cells(body))
+        ReducedFemBody(body, U[:-1], all_points(body))
 
 
 def test_inversion_is_reported_with_input_cell_indices():
     body = make_body()
     U = full_basis(body)
-    reduced = ReducedFemBody(body, U, all_cells(body))
+    reduced = ReducedFemBody(body, U, all_points(body))
     u = np.zeros(ndofs(body))
     x = body.V.tabulate_dof_coordinates()[:ndofs(body) // 3]
     u[0::3] = -3.0 * x[:, 0] * (x[:, 0] > 0.5)       # fold the outer half back

@@ -5,69 +5,71 @@ Displacements live in the span of a basis U (ndofs x r):
     u = u_bar + U q,
 
 with u_bar the prescribed displacement of the full body's fixed dofs (zero
-unless prescribed) and U's rows at fixed dofs zero. The online step never
-touches all n nodes: the internal energy is evaluated on a *submesh* of the
-m cells of the integration points only, with the same UFL energy ingredients
-as the full body (``full.material.strain_energy``, each muscle's
-``fiber.strain_energy`` with its DG0 directions copied to the submesh and the
-*same* excitation ``fem.Constant`` objects, the element-wise incompressibility
-penalty), each cell weighted by its cubature weight w_e (a DG0 function):
+unless prescribed) and U's rows at fixed dofs zero. The internal energy is a
+cubature over m of the full body's energy integration points
+(:mod:`artifem.reduction.quadrature_points`), point p with weight w_p (1 for
+the full quadrature) times its quadrature volume V_p:
 
-    Pi~(q) = sum_e w_e int_e psi(F(u_bar + U q)) dX  -  lambda q^T f~_ext,
+    Pi~(q) = sum_p w_p V_p sum_{t at p} psi_t(F_p; a0_p)  -  q^T f~_ext,
+    F_p = I + H_p,   vec(H_p) = vec(H_bar_p) + D_p q,
 
-    f~(q) = -dPi~/dq = -U_s^T R_s(u_s) + lambda f~_ext,
-    K~(q) = d^2 Pi~/dq^2 = U_s^T K_s(u_s) U_s,
+where D_p (9 x r) = B_p U_e is the point's strain-displacement matrix times the
+basis rows of its cell, precomputed once. psi_t are the full body's own
+:class:`~artifem.fem_body.EnergyTerm` densities (bulk material, each muscle's
+fiber energy with the *same* excitation ``fem.Constant``, the element-wise
+incompressibility penalty), compiled by FFCx into batched
+:class:`~artifem.reduction.stress_kernel.StressKernel` evaluations of P and
+A = dP/dF at the m points. Then
 
-where U_s are the rows of U at the submesh dofs, u_s = u_bar_s + U_s q, and R_s,
-K_s are assembled on the submesh (forms compiled once). The external loads
-are linear in u, so their reduced force is computed exactly on the full model
-once: f~_ext = U^T (int rho g . phi dX + int b . phi dX + f_nodal), with the
-gravity part kept per component so that changing ``full.gravity`` acts on the
-reduced body (the load factor is read from ``full.load_factor`` too). Body
-forces and nodal loads are taken at construction.
+    f~(q) = -sum_p w_p V_p D_p^T vec(P_p) + f~_ext,
+    K~(q) =  sum_p w_p V_p D_p^T A_p D_p,
 
-Dynamics: the full body's semi-implicit Euler (ArtiSynth's
-ConstrainedBackwardEuler), dense r x r:
+O(m r^2) per evaluation, never O(n). The external loads are linear in u, so
+their reduced force is exact and precomputed on the full model:
+f~_ext = lambda (U^T int rho g . phi dX + U^T (int b . phi dX + f_nodal)), the
+gravity part per component so that changing ``full.gravity`` acts here too.
 
-    (M~ + h D~ + h^2 K~) dq' = h f~ - h D~ q' - h^2 K~ q',
-    q' += dq',  q += h q',
+Dynamics: the full body's semi-implicit Euler with dense r x r matrices,
+M~ = U^T M U and D~ = alpha M~ + beta K~:
 
-with M~ = U^T M U and D~ = alpha M~ + beta K~ (Rayleigh with the current tangent).
+    (M~ + h D~ + h^2 K~) dq' = h f~ - h D~ q' - h^2 K~ q',   q' += dq',  q += h q'.
 
-Cost per step: O(m) assembly, O(nnz(K_s) r + m r^2) projection, O(r^3) solve;
-never O(n). With the full basis (U = identity on the free dofs) and every cell
-an integration point of weight 1, the reduced body reproduces the full body to
-round-off.
-
-Integration point indices are *local* cell indices of ``full.mesh`` (serial:
-all cells); errors name *input* (file) element indices.
+With the full basis and every point at weight 1 the reduced body reproduces
+the full body to round-off. Point indices refer to
+:func:`~artifem.reduction.quadrature_points.quadrature_points` of the full
+body; errors name *input* (file) element indices.
 """
 
 from __future__ import annotations
 
-import basix
 import numpy as np
 import ufl
-from dolfinx import fem, la, mesh as dmesh
+from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.reduction.cubature import IntegrationPoints
+from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
+from artifem.reduction.stress_kernel import StressKernel
 
 __all__ = ["ReducedFemBody", "all_points"]
 
 
-def _dof_of_node(msh: dmesh.Mesh, V: fem.FunctionSpace) -> np.ndarray:
-    """Block dof of each local geometry node (P1 on a linear mesh)."""
-    out = np.full(msh.geometry.x.shape[0], -1, dtype=np.int64)
-    out[msh.geometry.dofmaps[0].reshape(-1)] = V.dofmap.list.reshape(-1)
-    return out
-
-
 def all_points(full: FemBody) -> IntegrationPoints:
-    """Every integration point of ``full`` with weight 1 (the full quadrature)."""
-    n = full.mesh.topology.index_map(full.mesh.topology.dim).size_local
+    """Every energy integration point of ``full`` with weight 1 (the full quadrature)."""
+    n = quadrature_points(full).size
     return IntegrationPoints(np.arange(n), np.ones(n), "all")
+
+
+def strain_displacement(table: QuadraturePoints, points: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """D_p = B_p V_e at the given points, shape (m, 9, cols): vec(H_p) = D_p x for u = V x.
+
+    Row 3 i + J of D_p is d u_i / d X_J.
+    """
+    cols = V.shape[1]
+    Ve = V.reshape(-1, 3, cols)[table.dofs[points]]                  # (m, k, 3, cols)
+    D = np.einsum("pkJ,pkic->piJc", table.grad_N[points], Ve)
+    return np.ascontiguousarray(D.reshape(points.size, 9, cols))
 
 
 class ReducedFemBody:
@@ -78,7 +80,8 @@ class ReducedFemBody:
         U: basis, shape (ndofs, r), rows = block-interleaved dofs of ``full.V``
             (like ``full.u.x.array[:ndofs]``); zero rows at fixed dofs (entries up to
             1e-10 max|U| there are taken as round-off and zeroed, larger ones raise).
-        points: integration points (local cell indices of ``full.mesh``, weights > 0).
+        points: integration points: indices into ``quadrature_points(full)`` and weights > 0
+            (multiplying each point's quadrature volume; ``all_points(full)`` is the full rule).
         name: component name.
     """
 
@@ -90,7 +93,6 @@ class ReducedFemBody:
         self.name = name or f"{full.name}_reduced"
         self.alpha, self.beta = full.alpha, full.beta
         full.compile()
-        tdim = full.mesh.topology.dim
         bs = 3
         n_owned = full.V.dofmap.index_map.size_local
         ndofs = bs * n_owned
@@ -109,11 +111,12 @@ class ReducedFemBody:
             raise ValueError(f"ReducedFemBody {self.name!r}: rows of U at fixed dofs must be "
                              f"zero; nonzero at {bad.size} fixed node(s), local dofs "
                              f"{bad[:10].tolist()}")
-        n_cells = full.mesh.topology.index_map(tdim).size_local
-        cells = np.asarray(points.indices, dtype=np.int64)
-        if cells.size == 0 or cells.max() >= n_cells:
+        self.table = quadrature_points(full)
+        idx = np.asarray(points.indices, dtype=np.int64)
+        if idx.size == 0 or idx.max() >= self.table.size:
             raise ValueError(f"ReducedFemBody {self.name!r}: integration point indices must be "
-                             f"a non-empty subset of the {n_cells} cells")
+                             f"a non-empty subset of the {self.table.size} quadrature points "
+                             f"of {full.name!r}")
         if fixed_rows.size:
             U = U.copy()
             U[fixed_rows] = 0.0
@@ -156,136 +159,106 @@ class ReducedFemBody:
             vec.destroy()
         self.f_const = U.T @ f_const
 
-        # ---- online: submesh of the integration cells --------------------------
-        sub, entity_map, _, node_map = dmesh.create_submesh(
-            full.mesh, tdim, np.sort(cells).astype(np.int32))
-        self.submesh = sub
-        n_sub = sub.topology.index_map(tdim).size_local
-        self.parent_cells = np.asarray(entity_map.sub_topology_to_topology(
-            np.arange(n_sub, dtype=np.int32), False), dtype=np.int64)
-        weight_of = dict(zip(cells.tolist(), np.asarray(points.weights).tolist()))
-        self.Vs = fem.functionspace(sub, ("Lagrange", 1, (3,)))
-        self.us = fem.Function(self.Vs, name="displacement")
-        W0 = fem.functionspace(sub, ("DG", 0))
-        self.weight = fem.Function(W0, name="cubature_weight")
-        self.weight.x.array[W0.dofmap.list[:, 0]] = [weight_of[c] for c in
-                                                     self.parent_cells.tolist()]
-
-        # Rows of U at the submesh dofs.
-        sub_dof = _dof_of_node(sub, self.Vs)
-        parent_dof = _dof_of_node(full.mesh, full.V)
-        ndofs_s = self.Vs.dofmap.index_map.size_local
-        parent_of_sub = np.empty(ndofs_s, dtype=np.int64)
-        parent_of_sub[sub_dof] = parent_dof[np.asarray(node_map)]
-        rows = (bs * parent_of_sub[:, None] + np.arange(bs)).ravel()
-        self.U_s = np.ascontiguousarray(U[rows])
-        self.u_bar_s = self.u_bar[rows]
-        self._sub_rows = rows
-
-        # The same energy on the submesh, weighted per cell.
-        F = ufl.Identity(3) + ufl.grad(self.us)
-        md = {"quadrature_degree": full.quadrature_degree}
-        w = self.weight
-        dxs = ufl.Measure("dx", domain=sub, metadata=md)
-        Pi = w * full.material.strain_energy(F) * dxs
-        self.directions = {}
-        if full.muscles:
-            parent_to_sub = {c: i for i, c in enumerate(self.parent_cells.tolist())}
-            data, terms = [], []
-            Wd = fem.functionspace(sub, ("DG", 0, (3,)))
-            for i, mus in enumerate(full.muscles.values()):
-                local = np.array([parent_to_sub[c] for c in mus.cells.tolist()
-                                  if c in parent_to_sub], dtype=np.int32)
-                if local.size == 0:
-                    continue
-                a0 = fem.Function(Wd, name=f"fiber_{mus.name}")
-                Wfull = mus.direction.function_space
-                full_rows = Wfull.dofmap.list[self.parent_cells[local], 0]
-                a0.x.array.reshape(-1, 3)[Wd.dofmap.list[local, 0]] = \
-                    mus.direction.x.array.reshape(-1, 3)[full_rows]
-                self.directions[mus.name] = a0
-                data.append((i + 1, np.sort(local)))
-                terms.append((i + 1, mus, a0))
-            if terms:
-                dxm = ufl.Measure("dx", domain=sub, metadata=md, subdomain_data=data)
-                for tag, mus, a0 in terms:
-                    Pi += w * mus.fiber.strain_energy(F, a0, mus.excitation) * dxm(tag)
-        if full.incompressibility is not None:
-            centre = ufl.Measure("dx", domain=sub, metadata={"quadrature_degree": 1})
-            Pi += w * 0.5 * full.incompressibility * (ufl.det(F) - 1) ** 2 * centre
-        vs, dus = ufl.TestFunction(self.Vs), ufl.TrialFunction(self.Vs)
-        R = ufl.derivative(Pi, self.us, vs)
-        self._R_form = fem.form(R)
-        self._K_form = fem.form(ufl.derivative(R, self.us, dus))
-        self._Pi_form = fem.form(Pi)
-        self._K_mat = fem.create_matrix(self._K_form)
-        pts, _ = basix.make_quadrature(getattr(basix.CellType, full.cell_name),
-                                       full.quadrature_degree)
-        self._detF = fem.Expression(ufl.det(F), pts)
-        self._sub_cells = np.arange(n_sub, dtype=np.int32)
+        # ---- online: the m points, their D_p and one stress kernel per energy term ----
+        self.point_index = idx
+        self.cells = self.table.cell[idx]
+        self.weights = np.asarray(points.weights, dtype=float) * self.table.volume[idx]
+        self.D = strain_displacement(self.table, idx, U)
+        self.H_bar = strain_displacement(self.table, idx, self.u_bar[:, None])[:, :, 0]
+        self._kernels = []
+        for term in full.energy_terms():
+            at = np.flatnonzero(np.isin(idx, self.table.of_term(term)))
+            if at.size == 0:
+                continue
+            kernel = StressKernel(term.density, at.size, directed=term.direction is not None)
+            if term.direction is not None:
+                a0 = term.direction.x.array.reshape(-1, 3)
+                W = term.direction.function_space
+                kernel.set_directions(a0[W.dofmap.list[self.cells[at], 0]])
+            self._kernels.append((term.name, at, kernel))
         self.set_q(self.q)
 
     # ---- evaluation --------------------------------------------------------
 
     @property
     def m(self) -> int:
-        return int(self.parent_cells.size)
+        """Number of integration points."""
+        return int(self.point_index.size)
 
     def set_q(self, q) -> None:
-        """Set the reduced coordinates (and the submesh displacement u_s)."""
+        """Set the reduced coordinates and evaluate F at the integration points."""
         self.q = np.array(q, dtype=float).reshape(self.r)
-        self._update_submesh()
+        self._H = (self.H_bar + self.D @ self.q).reshape(-1, 3, 3)
+        self._stress = None
 
-    def _update_submesh(self) -> None:
-        n = self.U_s.shape[0]
-        self.us.x.array[:n] = self.u_bar_s + self.U_s @ self.q
+    def _evaluate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(psi, P, A) summed over the energy terms at every point.
+
+        Cached until q or an excitation changes (force and tangent of one step
+        share one evaluation).
+        """
+        key = tuple(float(m.excitation.value) for m in self.full.muscles.values())
+        if self._stress is None or self._stress_key != key:
+            self._stress_key = key
+            psi, P, A = np.zeros(self.m), np.zeros((self.m, 9)), np.zeros((self.m, 9, 9))
+            for _, at, kernel in self._kernels:
+                psi_t, P_t, A_t = kernel(self._H[at])
+                psi[at] += psi_t
+                P[at] += P_t
+                A[at] += A_t
+            self._stress = psi, P, A
+        return self._stress
 
     def external_force(self) -> np.ndarray:
         """f~_ext = lambda (G g + U^T (b, f_nodal)) (constant in q)."""
         lf = float(self.full.load_factor.value)
         return lf * (self.G @ np.asarray(self.full.gravity.value, dtype=float) + self.f_const)
 
+    def point_forces(self) -> np.ndarray:
+        """Each point's unweighted internal force V_p D_p^T vec(P_p), shape (m, r).
+
+        sum_p w_p (row p) is U^T R_int; the training matrix of trained cubature
+        stacks these over snapshots.
+        """
+        _, P, _ = self._evaluate()
+        V = self.table.volume[self.point_index]
+        return V[:, None] * np.einsum("pir,pi->pr", self.D, P)
+
     def internal_residual(self) -> np.ndarray:
-        """U_s^T R_s(u_s): the gradient of the weighted internal energy in q."""
-        vec = fem.assemble_vector(self._R_form)
-        vec.scatter_reverse(la.InsertMode.add)
-        n = self.U_s.shape[0]
-        return self.U_s.T @ vec.array[:n]
+        """dPi~_int/dq = sum_p w_p V_p D_p^T vec(P_p)."""
+        _, P, _ = self._evaluate()
+        return self.D.reshape(-1, self.r).T @ (self.weights[:, None] * P).reshape(-1)
 
     def force(self) -> np.ndarray:
-        """f~(q) = -U_s^T R_s(u_s) + f~_ext."""
+        """f~(q) = -dPi~_int/dq + f~_ext."""
         return -self.internal_residual() + self.external_force()
 
     def tangent(self) -> np.ndarray:
-        """K~(q) = U_s^T K_s(u_s) U_s (dense r x r, symmetric)."""
-        A = self._K_mat
-        A.set_value(0.0)
-        fem.assemble_matrix(A, self._K_form)
-        A.scatter_reverse()
-        K = A.to_scipy()            # block sparse (3x3 blocks); serial: no ghost rows
-        KU = K @ self.U_s
-        Kr = self.U_s.T @ KU
-        return 0.5 * (Kr + Kr.T)
+        """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric)."""
+        _, _, A = self._evaluate()
+        AD = np.matmul(A, self.D) * self.weights[:, None, None]
+        K = self.D.reshape(-1, self.r).T @ AD.reshape(-1, self.r)
+        return 0.5 * (K + K.T)
 
     def potential_energy(self) -> float:
-        """Pi~(q) = weighted internal energy - q^T f~_ext (up to the constant u_bar work)."""
-        return float(fem.assemble_scalar(self._Pi_form)) - float(self.q @ self.external_force())
+        """Pi~(q) = sum_p w_p V_p psi(F_p) - q^T f~_ext (up to the constant u_bar work)."""
+        psi, _, _ = self._evaluate()
+        return float(self.weights @ psi) - float(self.q @ self.external_force())
 
     def kinetic_energy(self) -> float:
         return 0.5 * float(self.qdot @ self.M @ self.qdot)
 
     def det_F(self) -> np.ndarray:
-        """det F at the energy quadrature points of the submesh cells, (m, points)."""
-        return self._detF.eval(self.submesh, self._sub_cells)
+        """det F at the m integration points."""
+        with np.errstate(invalid="ignore"):             # a NaN state is reported, not warned
+            return np.linalg.det(np.eye(3) + self._H)
 
     def inverted_elements(self) -> tuple[np.ndarray, float]:
-        """(input indices of integration cells with det F <= 0 or NaN, min det F)."""
+        """(input indices of cells with a point at det F <= 0 or NaN, min det F)."""
         detF = self.det_F()
         detF = np.where(np.isnan(detF), -np.inf, detF)      # NaN counts as inverted
-        low = detF.min(axis=1) if detF.size else np.zeros(0)
-        bad = np.sort(self.full.input_cell_index(self.parent_cells[low <= 0]))
-        gmin = float(low.min()) if low.size else np.inf
-        return np.asarray(bad, dtype=np.int64), gmin
+        bad = np.unique(self.cells[detF <= 0])
+        return np.sort(self.full.input_cell_index(bad)).astype(np.int64), float(detF.min())
 
     # ---- dynamics ----------------------------------------------------------
 
@@ -306,11 +279,11 @@ class ReducedFemBody:
         q0, qdot0 = self.q.copy(), self.qdot.copy()
         self.qdot = self.qdot + dqdot
         self.q = self.q + h * self.qdot
-        self._update_submesh()
+        self.set_q(self.q)
         bad, min_det = self.inverted_elements()
         if bad.size or not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.qdot))):
             self.q, self.qdot = q0, qdot0
-            self._update_submesh()
+            self.set_q(self.q)
             raise ElementInversionError(self.time + h, bad, min_det,
                                         f"reduced body {self.name!r}")
         self.time += h
