@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 import ufl
 from dolfinx import fem
+from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 
 from artifem.fem_body import ElementInversionError, FemBody
@@ -165,17 +166,30 @@ class ReducedFemBody:
         self.weights = np.asarray(points.weights, dtype=float) * self.table.volume[idx]
         self.D = strain_displacement(self.table, idx, U)
         self.H_bar = strain_displacement(self.table, idx, self.u_bar[:, None])[:, :, 0]
+        m = idx.size
+        self._blocks = sparse.bsr_matrix((np.zeros((m, 9, 9)), np.arange(m), np.arange(m + 1)),
+                                         shape=(9 * m, 9 * m))
+        # One kernel per energy term over the points where it is integrated; all
+        # write into one buffer, and the sparse 0/1 matrix S sums them per point.
+        active = [(term, np.flatnonzero(np.isin(idx, self.table.of_term(term))))
+                  for term in full.energy_terms()]
+        active = [(term, at) for term, at in active if at.size]
+        sizes = [at.size for _, at in active]
+        self._buffer = np.zeros((sum(sizes), 1, 91))
         self._kernels = []
-        for term in full.energy_terms():
-            at = np.flatnonzero(np.isin(idx, self.table.of_term(term)))
-            if at.size == 0:
-                continue
-            kernel = StressKernel(term.density, at.size, directed=term.direction is not None)
+        offset = 0
+        for (term, at), size in zip(active, sizes):
+            kernel = StressKernel(term.density, size, directed=term.direction is not None,
+                                  out=self._buffer[offset:offset + size])
             if term.direction is not None:
                 a0 = term.direction.x.array.reshape(-1, 3)
                 W = term.direction.function_space
                 kernel.set_directions(a0[W.dofmap.list[self.cells[at], 0]])
             self._kernels.append((term.name, at, kernel))
+            offset += size
+        rows = np.concatenate([at for _, at in active])
+        self._sum = sparse.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
+                                      shape=(m, rows.size))
         self.set_q(self.q)
 
     # ---- evaluation --------------------------------------------------------
@@ -200,13 +214,10 @@ class ReducedFemBody:
         key = tuple(float(m.excitation.value) for m in self.full.muscles.values())
         if self._stress is None or self._stress_key != key:
             self._stress_key = key
-            psi, P, A = np.zeros(self.m), np.zeros((self.m, 9)), np.zeros((self.m, 9, 9))
             for _, at, kernel in self._kernels:
-                psi_t, P_t, A_t = kernel(self._H[at])
-                psi[at] += psi_t
-                P[at] += P_t
-                A[at] += A_t
-            self._stress = psi, P, A
+                kernel(self._H[at])
+            total = self._sum @ self._buffer.reshape(-1, 91)
+            self._stress = total[:, 0], total[:, 1:10], total[:, 10:].reshape(self.m, 9, 9)
         return self._stress
 
     def external_force(self) -> np.ndarray:
@@ -236,8 +247,10 @@ class ReducedFemBody:
     def tangent(self) -> np.ndarray:
         """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric)."""
         _, _, A = self._evaluate()
-        AD = np.matmul(A, self.D) * self.weights[:, None, None]
-        K = self.D.reshape(-1, self.r).T @ AD.reshape(-1, self.r)
+        # blockdiag(w_p A_p) as a BSR matrix: one compiled pass over the 9x9 blocks.
+        self._blocks.data[:] = A * self.weights[:, None, None]
+        D = self.D.reshape(-1, self.r)
+        K = D.T @ (self._blocks @ D)
         return 0.5 * (K + K.T)
 
     def potential_energy(self) -> float:
