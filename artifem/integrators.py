@@ -20,6 +20,12 @@ step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
 - :func:`solve_static`: Newton with line search on R(u) = 0, optionally in
   load increments of the load factor lambda.
 
+Reduced bodies (:class:`~artifem.reduction.reduced_body.ReducedFemBody`,
+u = u_bar + U q) have dense r x r versions of each: ``advance_reduced(body, h)``
+and :func:`solve_static_reduced`, the same equations with M~, K~(q) =
+d^2 Pi~/dq^2, f~(q) = -dPi~/dq, D~ = alpha M~ + beta K~ and q, q' in place of
+M, K, f, D, u, v (numpy, no PETSc).
+
 An integrator raises :class:`StepFailed` when it cannot complete the step
 (an inverted element in every line-search trial, a Newton that does not
 converge); the system then retries with a halved step.
@@ -27,12 +33,17 @@ converge); the system then retries with a halved step.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
 from artifem.fem_body import FemBody
 from artifem.linear_solver import LinearSolver
+
+if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
+    from artifem.reduction.reduced_body import ReducedFemBody
 
 
 class StepFailed(RuntimeError):
@@ -42,6 +53,31 @@ class StepFailed(RuntimeError):
 def _update_ghosts(*vecs: PETSc.Vec) -> None:
     for vec in vecs:
         vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+
+def _reduced_inverted(body: ReducedFemBody) -> bool:
+    """True when q or q' is non-finite or det F <= 0 at an integration cell."""
+    q, qdot = body.state()
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot))):
+        return True
+    bad, min_det = body.inverted_elements()
+    return bool(bad.size) or not min_det > 0
+
+
+def _dense_solve(A: np.ndarray, b: np.ndarray, what: str) -> np.ndarray:
+    """x = A^-1 b for the small dense reduced systems; StepFailed if singular or non-finite."""
+    try:
+        x = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError as exc:
+        raise StepFailed(f"{what}: singular reduced matrix ({exc})") from exc
+    if not np.all(np.isfinite(x)):
+        raise StepFailed(f"{what}: non-finite solution of the reduced system")
+    return x
+
+
+def _round_off(correction: np.ndarray, value: np.ndarray, tol: float = 1e-12) -> bool:
+    """:func:`_at_round_off` for numpy arrays."""
+    return np.abs(correction).max() <= tol * max(np.abs(value).max(), np.finfo(float).tiny)
 
 
 def _has_inversion(body: FemBody) -> bool:
@@ -78,6 +114,21 @@ class SemiImplicitEuler:
         _update_ghosts(u, v)
         b.destroy()
         dv.destroy()
+
+    def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
+        """The same step in reduced coordinates (dense r x r):
+
+            (M~ + h D~ + h^2 K~) dq' = h f~ - h D~ q' - h^2 K~ q',   D~ = alpha M~ + beta K~,
+            q' += dq',   q += h q'.
+        """
+        K, f = body.tangent(), body.force()
+        q, qdot = body.state()
+        M = body.M
+        c = h * body.beta + h * h
+        b = h * f - c * (K @ qdot) - h * body.alpha * (M @ qdot)
+        A = c * K + (1.0 + h * body.alpha) * M
+        qdot = qdot + _dense_solve(A, b, "semi-implicit Euler (reduced)")
+        body.set_state((q + h * qdot, qdot))
 
 
 class ImplicitEuler:
@@ -159,8 +210,8 @@ class ImplicitEuler:
                 slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
                 E0 = incremental_potential()
                 v_start = v.array.copy()
-                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array), body,
-                                  incremental_potential, E0, slope,
+                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array),
+                                  lambda: _has_inversion(body), incremental_potential, E0, slope,
                                   lambda: residual(tangent=False), norm)
                 if step is None:
                     raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
@@ -168,6 +219,9 @@ class ImplicitEuler:
                 if step == 1.0 and _at_round_off(dv, v):
                     self.iterations = it
                     return
+            if norm <= self.rtol * norm0 or norm <= self.atol:     # the last iteration converged
+                self.iterations = self.max_iterations
+                return
             raise StepFailed(f"implicit Euler: Newton did not converge in {self.max_iterations} "
                              f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})")
         finally:
@@ -177,11 +231,73 @@ class ImplicitEuler:
                 K0.destroy()
 
 
-def _backtrack(apply_step, body: FemBody, merit, merit0: float, slope: float,
+    def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
+        """The same Newton iteration in reduced coordinates (dense r x r), on
+
+            r(v) = M~ (v - q'_k) - h f~(q_k + h v) + h D~_k v,
+            J(v) = M~ + h D~_k + h^2 K~(q_k + h v),   D~_k = alpha M~ + beta K~(q_k),
+
+        with the Armijo line search on E(v) = 1/2 (v - q'_k)^T M~ (v - q'_k)
+        + Pi~(q_k + h v) + h/2 v^T D~_k v.
+        """
+        q0, v0 = body.state()
+        M = body.M
+        D = body.alpha * M
+        if body.beta > 0:
+            D = D + body.beta * body.tangent()
+
+        def set_velocity(v: np.ndarray) -> None:
+            body.set_state((q0 + h * v, v))
+
+        def incremental_potential() -> float:
+            v = body.qdot
+            w = v - v0
+            return 0.5 * w @ M @ w + body.potential_energy() + 0.5 * h * v @ D @ v
+
+        def residual() -> np.ndarray:
+            v = body.qdot
+            return M @ (v - v0) - h * body.force() + h * (D @ v)
+
+        set_velocity(v0)                 # initial guess v = q'_k, so q = q_k + h q'_k ...
+        if _reduced_inverted(body):
+            set_velocity(np.zeros_like(v0))     # ... unless that inverts: then q = q_k
+        r = residual()
+        norm = float(np.linalg.norm(r))
+        norm0 = max(norm, self.atol)
+        for it in range(1, self.max_iterations + 1):
+            if norm <= self.rtol * norm0 or norm <= self.atol:
+                self.iterations = it - 1
+                return
+            A = M + h * D + h * h * body.tangent()
+            dv = _dense_solve(A, -r, "implicit Euler (reduced)")
+            slope = float(r @ dv)                   # dE/ds at s = 0
+            E0 = incremental_potential()
+            v_start = body.qdot.copy()
+            step = _backtrack(lambda s: set_velocity(v_start + s * dv),
+                              lambda: _reduced_inverted(body), incremental_potential, E0, slope,
+                              lambda: float(np.linalg.norm(residual())), norm)
+            if step is None:
+                raise StepFailed(f"implicit Euler (reduced): line search failed at Newton "
+                                 f"iteration {it}")
+            r = residual()
+            norm = float(np.linalg.norm(r))
+            if step == 1.0 and _round_off(dv, body.qdot):
+                self.iterations = it
+                return
+        if norm <= self.rtol * norm0 or norm <= self.atol:         # the last iteration converged
+            self.iterations = self.max_iterations
+            return
+        raise StepFailed(f"implicit Euler (reduced): Newton did not converge in "
+                         f"{self.max_iterations} iterations (|r| = {norm:.3e}, "
+                         f"|r0| = {norm0:.3e})")
+
+
+def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
                residual_norm, norm0: float, min_step: float = 1e-4) -> float | None:
     """Backtracking line search: the largest s in {1, 1/2, ...} with no inverted element
-    that decreases the merit (Armijo: merit(s) <= merit0 + 1e-4 s slope) or, failing
-    that, the residual norm (|r(s)| <= (1 - 1e-4 s) |r(0)|); None below min_step.
+    (``inverted()`` false) that decreases the merit (Armijo: merit(s) <= merit0 +
+    1e-4 s slope) or, failing that, the residual norm (|r(s)| <= (1 - 1e-4 s) |r(0)|);
+    None below min_step.
 
     The energy is the natural merit of these potential problems, but near the
     solution its changes fall below its round-off (it is a sum of terms much
@@ -190,7 +306,7 @@ def _backtrack(apply_step, body: FemBody, merit, merit0: float, slope: float,
     step = 1.0
     while step >= min_step:
         apply_step(step)
-        if not _has_inversion(body):
+        if not inverted():
             value = merit()
             if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
                 return step
@@ -250,8 +366,8 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                 _update_ghosts(u)
 
             Pi0 = body.potential_energy()
-            step = _backtrack(apply_step, body, body.potential_energy, Pi0, slope,
-                              lambda: residual(tangent=False), norm)
+            step = _backtrack(apply_step, lambda: _has_inversion(body), body.potential_energy,
+                              Pi0, slope, lambda: residual(tangent=False), norm)
             if step is None:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                  f"{k / load_steps:g}, Newton iteration {it}")
@@ -263,4 +379,49 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
             progress.update(1)
     du.destroy()
     r.destroy()
+    return counts
+
+
+def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: float = 1e-10,
+                         atol: float = 1e-12, max_iterations: int = 30,
+                         progress=None) -> list[int]:
+    """Static equilibrium f~(q) = 0 of a reduced body by Newton, K~(q) dq = f~(q),
+    in load increments of ``body.full.load_factor`` (dense r x r).
+
+    Each Newton step is a backtracking line search on Pi~ (see :func:`_backtrack`).
+    Newton stops when |f~| falls below rtol times |f~| at the start of the
+    increment, below atol, or when a full correction is at round-off relative
+    to q; q' is left as it is. Returns the Newton iteration count of each load
+    step. Raises :class:`StepFailed` if an increment fails.
+    """
+    counts = []
+    for k in range(1, load_steps + 1):
+        body.full.load_factor.value = k / load_steps
+        f = body.force()
+        norm = float(np.linalg.norm(f))
+        scale = max(norm, atol)
+        it = 0
+        while norm > max(rtol * scale, atol):
+            it += 1
+            if it > max_iterations:
+                raise StepFailed(f"static solve (reduced): Newton did not converge in "
+                                 f"{max_iterations} iterations at load factor "
+                                 f"{k / load_steps:g} (|f| = {norm:.3e})")
+            dq = _dense_solve(body.tangent(), f, "static solve (reduced)")
+            slope = -float(f @ dq)
+            q_start = body.q.copy()
+            step = _backtrack(lambda s: body.set_q(q_start + s * dq),
+                              lambda: _reduced_inverted(body), body.potential_energy,
+                              body.potential_energy(), slope,
+                              lambda: float(np.linalg.norm(body.force())), norm)
+            if step is None:
+                raise StepFailed(f"static solve (reduced): line search failed at load factor "
+                                 f"{k / load_steps:g}, Newton iteration {it}")
+            f = body.force()
+            norm = float(np.linalg.norm(f))
+            if step == 1.0 and _round_off(dq, body.q):
+                break
+        counts.append(it)
+        if progress is not None:
+            progress.update(1)
     return counts

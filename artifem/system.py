@@ -4,6 +4,14 @@ A :class:`System` holds dynamic components (each owns its coordinates and
 velocities), controllers that change inputs between steps (excitation
 schedules), and the list of attachments and bilateral constraints.
 
+Components are full-order :class:`~artifem.fem_body.FemBody` objects (nodal
+displacements, PETSc, a linear solver per body) and reduced
+:class:`~artifem.reduction.reduced_body.ReducedFemBody` objects (u = u_bar + U q,
+dense r x r, no PETSc in their step). Both are advanced by the same integrator
+(``advance`` for full bodies, ``advance_reduced`` for reduced ones) and driven
+by the same controllers: a reduced body shares its full body's excitation and
+load-factor constants.
+
 The step is organized by *islands*: sets of components coupled through
 attachments (x_a = f(x_m), velocities G v_m, forces back as G^T f_a) or
 constraints (Lagrange multipliers). Components in different islands do not
@@ -12,8 +20,9 @@ attachments every component is its own island; the coupled island solve
 (P^T A P with the attachment prolongation P, KKT rows for joints) is where
 attachments and joints plug in.
 
-Robustness: after each step every FEM body is checked for det F <= 0 at its
-quadrature points and for non-finite values. A failed step is undone and
+Robustness: after each step every component is checked for non-finite
+coordinates or velocities and for det F <= 0 at its quadrature points (a
+reduced body: those of its integration cells). A failed step is undone and
 retried as two steps of half the size, recursively up to ``max_halvings``
 times; beyond that :class:`~artifem.fem_body.ElementInversionError` names the
 time, the elements and the smallest det F.
@@ -27,8 +36,13 @@ import numpy as np
 from mpi4py import MPI
 
 from artifem.fem_body import ElementInversionError, FemBody
-from artifem.integrators import ImplicitEuler, SemiImplicitEuler, StepFailed, solve_static
+from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, StepFailed, solve_static,
+                                 solve_static_reduced)
 from artifem.linear_solver import DEFAULT_METHOD, LinearSolveError, LinearSolver
+from artifem.reduction.reduced_body import ReducedFemBody
+
+#: A dynamic component of a System.
+Component = FemBody | ReducedFemBody
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 
@@ -42,7 +56,8 @@ class System:
 
     Args:
         integrator: ``"semi-implicit"`` (ArtiSynth's default), ``"implicit"``,
-            or an integrator object with ``advance(body, h, solver)``.
+            or an integrator object with ``advance(body, h, solver)`` (and
+            ``advance_reduced(body, h)`` for reduced bodies).
         linear_solver: a method of :class:`~artifem.linear_solver.LinearSolver`.
         max_halvings: how many times a failing step may be halved.
     """
@@ -57,7 +72,7 @@ class System:
         self.integrator = integrator
         self.linear_solver_method = linear_solver
         self.max_halvings = max_halvings
-        self.components: list[FemBody] = []
+        self.components: list[Component] = []
         self.controllers: list[Controller] = []
         self.attachments: list = []     # x_a = f(x_m) couplings (multibody issue)
         self.constraints: list = []     # bilateral joints (multibody issue)
@@ -66,16 +81,20 @@ class System:
         self.min_det_F = np.inf         # smallest det F seen after any completed step
         self._solvers: dict[str, LinearSolver] = {}
 
-    def add(self, component: FemBody) -> FemBody:
+    def add(self, component: Component) -> Component:
         if any(c.name == component.name for c in self.components):
             raise ValueError(f"a component named {component.name!r} is already in the system")
+        if isinstance(component, ReducedFemBody) and not hasattr(self.integrator,
+                                                                  "advance_reduced"):
+            raise TypeError(f"integrator {type(self.integrator).__name__} has no "
+                            f"advance_reduced(body, h) for the reduced body {component.name!r}")
         self.components.append(component)
         return component
 
     def add_controller(self, controller: Controller) -> None:
         self.controllers.append(controller)
 
-    def islands(self) -> list[list[FemBody]]:
+    def islands(self) -> list[list[Component]]:
         """Groups of components coupled by attachments or constraints."""
         if self.attachments or self.constraints:
             raise NotImplementedError(
@@ -83,6 +102,9 @@ class System:
         return [[c] for c in self.components]
 
     def solver_for(self, body: FemBody) -> LinearSolver:
+        """The linear solver of a full-order body (reduced bodies solve densely)."""
+        if not isinstance(body, FemBody):
+            raise TypeError(f"{body.name!r} is not a full-order FemBody: it has no linear solver")
         if body.name not in self._solvers:
             self._solvers[body.name] = LinearSolver(body.mesh.comm, self.linear_solver_method,
                                                     V=body.V)
@@ -104,12 +126,15 @@ class System:
         try:
             for island in self.islands():
                 for body in island:
-                    self.integrator.advance(body, dt, self.solver_for(body))
+                    self._advance_body(body, dt)
             failure = self._check_state()
         except (StepFailed, LinearSolveError) as exc:
             failure = str(exc)
         if failure is None:
             self.time += dt
+            for c in self.components:
+                if isinstance(c, ReducedFemBody):
+                    c.time += dt        # its own clock (ReducedFemBody.step advances it too)
             return
         for c, s in zip(self.components, saved):
             c.set_state(s)
@@ -119,12 +144,19 @@ class System:
         self._advance(dt / 2, depth + 1)
         self._advance(dt / 2, depth + 1)
 
+    def _advance_body(self, body: Component, dt: float) -> None:
+        if isinstance(body, ReducedFemBody):
+            self.integrator.advance_reduced(body, dt)
+        else:
+            self.integrator.advance(body, dt, self.solver_for(body))
+
     def _check_state(self) -> str | None:
         step_min = np.inf
         for body in self.components:
-            finite = np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array))
-            if not body.mesh.comm.allreduce(bool(finite), op=MPI.LAND):
-                return f"non-finite displacement or velocity in {body.name!r}"
+            finite = all(np.all(np.isfinite(a)) for a in body.state())
+            comm = body.full.mesh.comm if isinstance(body, ReducedFemBody) else body.mesh.comm
+            if not comm.allreduce(bool(finite), op=MPI.LAND):
+                return f"non-finite coordinates or velocities in {body.name!r}"
             bad, min_det = body.inverted_elements()
             if bad.size or not np.isfinite(min_det):
                 return f"inverted elements in {body.name!r}"
@@ -139,7 +171,7 @@ class System:
             # Report the elements that invert when the smallest step is taken.
             saved = body.state()
             try:
-                self.integrator.advance(body, dt, self.solver_for(body))
+                self._advance_body(body, dt)
                 bad, min_det = body.inverted_elements()
             except (StepFailed, LinearSolveError):
                 bad, min_det = body.inverted_elements()
@@ -152,7 +184,10 @@ class System:
         """Static equilibrium of every component (load increments of the load factor)."""
         for island in self.islands():
             for body in island:
-                solve_static(body, self.solver_for(body), load_steps=load_steps, **kwargs)
+                if isinstance(body, ReducedFemBody):
+                    solve_static_reduced(body, load_steps=load_steps, **kwargs)
+                else:
+                    solve_static(body, self.solver_for(body), load_steps=load_steps, **kwargs)
 
     def energy(self) -> dict[str, float]:
         """Kinetic, potential and total energy summed over components."""

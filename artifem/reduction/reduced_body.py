@@ -29,10 +29,9 @@ their reduced force is exact and precomputed on the full model:
 f~_ext = lambda (U^T int rho g . phi dX + U^T (int b . phi dX + f_nodal)), the
 gravity part per component so that changing ``full.gravity`` acts here too.
 
-Dynamics: the full body's semi-implicit Euler with dense r x r matrices,
-M~ = U^T M U and D~ = alpha M~ + beta K~:
-
-    (M~ + h D~ + h^2 K~) dq' = h f~ - h D~ q' - h^2 K~ q',   q' += dq',  q += h q'.
+Dynamics: a reduced body is a System component like a full one; the
+integrators of :mod:`artifem.integrators` advance it with dense r x r
+matrices, M~ = U^T M U and D~ = alpha M~ + beta K~ (``advance_reduced``).
 
 With the full basis and every point at weight 1 the reduced body reproduces
 the full body to round-off. Point indices refer to
@@ -49,6 +48,7 @@ from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 
 from artifem.fem_body import ElementInversionError, FemBody
+from artifem.integrators import SemiImplicitEuler, StepFailed
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
 from artifem.reduction.stress_kernel import StressKernel
@@ -276,27 +276,24 @@ class ReducedFemBody:
     # ---- dynamics ----------------------------------------------------------
 
     def step(self, h: float) -> None:
-        """One semi-implicit Euler step of size h (dense r x r).
+        """One semi-implicit Euler step of size h, outside a System (no halving).
 
         Raises ElementInversionError (state kept at the start of the step) if
         det F <= 0 at an integration cell's quadrature point after the step.
         """
         if not np.isfinite(h) or h <= 0:
             raise ValueError(f"time step must be > 0, got {h}")
-        K = self.tangent()
-        f = self.force()
-        c = h * self.beta + h * h
-        b = h * f - c * (K @ self.qdot) - h * self.alpha * (self.M @ self.qdot)
-        A = c * K + (1.0 + h * self.alpha) * self.M
-        dqdot = np.linalg.solve(A, b)
-        q0, qdot0 = self.q.copy(), self.qdot.copy()
-        self.qdot = self.qdot + dqdot
-        self.q = self.q + h * self.qdot
-        self.set_q(self.q)
+        saved = self.state()
+        try:
+            SemiImplicitEuler().advance_reduced(self, h)
+        except StepFailed:                  # singular or non-finite: look at the start state
+            self.set_state(saved)
+            bad, min_det = self.inverted_elements()
+            if not bad.size:
+                raise
         bad, min_det = self.inverted_elements()
         if bad.size or not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.qdot))):
-            self.q, self.qdot = q0, qdot0
-            self.set_q(self.q)
+            self.set_state(saved)
             raise ElementInversionError(self.time + h, bad, min_det,
                                         f"reduced body {self.name!r}")
         self.time += h
