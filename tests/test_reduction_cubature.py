@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points
+from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points, trained_points_path
 
 
 # ---------------------------------------------------------------- random
@@ -134,3 +134,30 @@ def test_integration_points_validates():
         IntegrationPoints(np.array([0, 1]), np.array([1.0, 0.0]), "random", None)
     with pytest.raises(ValueError, match="distinct"):
         IntegrationPoints(np.array([1, 1]), np.array([1.0, 1.0]), "random", None)
+
+
+def test_random_points_by_group_share_m_and_keep_each_group_volume():
+    rng = np.random.default_rng(3)
+    V = rng.uniform(0.5, 2.0, 90)
+    groups = np.repeat([2, 1], [80, 10])          # e.g. 8 Gauss points and 1 centre per cell
+    pts = random_points(V, 27, rng=1, groups=groups)
+    assert pts.m == 27
+    chosen = groups[pts.indices]
+    assert np.sum(chosen == 2) == 24 and np.sum(chosen == 1) == 3
+    for g in (1, 2):
+        at = chosen == g
+        assert np.sum(pts.weights[at] * V[pts.indices[at]]) == pytest.approx(V[groups == g].sum())
+    tiny = random_points(V, 3, rng=2, groups=np.repeat([0, 1, 2], [88, 1, 1]))
+    assert tiny.m == 3 and set(np.repeat([0, 1, 2], [88, 1, 1])[tiny.indices]) == {0, 1, 2}
+
+
+def test_trained_points_path_equals_separate_greedy_runs():
+    rng = np.random.default_rng(11)
+    G = rng.uniform(0.0, 1.0, (40, 120))
+    b = G @ rng.uniform(0.5, 1.5, 120)
+    path = trained_points_path(G, b, sizes=[5, 12, 20], tol=1e-9)
+    for m in (5, 12, 20):
+        alone = trained_points(G, b, tol=1e-9, max_points=m)
+        np.testing.assert_array_equal(path[m].indices, alone.indices)
+        np.testing.assert_allclose(path[m].weights, alone.weights, rtol=1e-12)
+    assert path[5].residual > path[12].residual > path[20].residual

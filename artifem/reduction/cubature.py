@@ -30,8 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import nnls
+from tqdm import tqdm
 
-__all__ = ["IntegrationPoints", "random_points", "trained_points"]
+__all__ = ["IntegrationPoints", "random_points", "trained_points", "trained_points_path"]
 
 
 @dataclass(frozen=True)
@@ -92,18 +93,22 @@ class IntegrationPoints:
         return int(self.indices.size)
 
 
-def random_points(volumes, m, rng=None) -> IntegrationPoints:
-    """Draw ``m`` distinct elements uniformly at random (without replacement).
+def random_points(volumes, m, rng=None, groups=None) -> IntegrationPoints:
+    """Draw ``m`` distinct elements (or quadrature points) uniformly at random.
 
-    The draw is *uniform* (not volume-weighted).  Every selected element gets
-    the same weight ``w = V_total / sum_k V_e_k``, so that
-    ``sum_k w_k V_e_k = V_total``: the sample keeps the total volume.
+    The draw is *uniform* (not volume-weighted).  Every selected point gets
+    the same weight ``w = V_total / sum_k V_k``, so that ``sum_k w V_k =
+    V_total``: the sample keeps the total volume.  With ``groups`` (one label
+    per point, e.g. the quadrature rule a point belongs to) the m points are
+    shared among the groups in proportion to their sizes (at least one each
+    when m allows) and each group keeps its own volume.
 
     Parameters
     ----------
     volumes : (n,) array of positive element (or quadrature point) volumes.
     m : number of points, ``1 <= m <= n``.
     rng : None, int seed or :class:`numpy.random.Generator`.
+    groups : optional (n,) array of group labels.
     """
     V = np.asarray(volumes, dtype=float)
     if V.ndim != 1 or V.size == 0:
@@ -116,10 +121,29 @@ def random_points(volumes, m, rng=None) -> IntegrationPoints:
     if not 1 <= m <= n:
         raise ValueError(f"m must be in [1, {n}], got {m}")
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    idx = np.sort(gen.choice(n, size=int(m), replace=False))
-    V_total = V.sum()
-    w = np.full(idx.size, V_total / V[idx].sum())
-    return IntegrationPoints(indices=idx, weights=w, method="random", residual=None)
+    labels = np.zeros(n, dtype=np.int64) if groups is None else np.asarray(groups)
+    if labels.shape != (n,):
+        raise ValueError(f"groups must have one label per point ({n}), got shape {labels.shape}")
+    names, sizes = np.unique(labels, return_counts=True)
+    share = m * sizes / n
+    counts = np.floor(share).astype(np.int64)
+    if m >= names.size:
+        counts = np.maximum(counts, 1)
+    while counts.sum() > m:                                    # the minimum of one overshot
+        counts[np.argmax(counts)] -= 1
+    for g in np.argsort(counts - share)[: m - counts.sum()]:     # largest remainders
+        counts[g] += 1
+    idx, w = [], []
+    for name, count in zip(names, counts):
+        members = np.flatnonzero(labels == name)
+        if count == 0:
+            continue
+        chosen = gen.choice(members, size=min(int(count), members.size), replace=False)
+        idx.append(chosen)
+        w.append(np.full(chosen.size, V[members].sum() / V[chosen].sum()))
+    idx, w = np.concatenate(idx), np.concatenate(w)
+    order = np.argsort(idx)
+    return IntegrationPoints(indices=idx[order], weights=w[order], method="random", residual=None)
 
 
 def _check_training(G, b, tol, max_points):
@@ -187,6 +211,40 @@ def trained_points(G, b=None, *, tol=1e-2, max_points=None, strict=False) -> Int
     increases along the greedy path.
     """
     G, b, tol, max_points = _check_training(G, b, tol, max_points)
+    bnorm = float(np.linalg.norm(b))
+    S, w, rnorm = np.zeros(0, dtype=np.int64), np.zeros(0), bnorm
+    for S, w, rnorm in _greedy(G, b, tol, max_points):
+        pass
+    return _points(S, w, rnorm, bnorm, tol, max_points, strict)
+
+
+def trained_points_path(G, b=None, *, sizes, tol=1e-2,
+                        progress: bool = False) -> dict[int, IntegrationPoints]:
+    """:func:`trained_points` for several ``max_points`` at once, from one greedy path.
+
+    Returns {m: the points ``trained_points(G, b, tol=tol, max_points=m)`` gives}
+    for each m in ``sizes``; the path is run once, up to the largest m.
+    """
+    sizes = sorted({int(m) for m in sizes})
+    G, b, tol, largest = _check_training(G, b, tol, sizes[-1] if sizes else None)
+    bnorm = float(np.linalg.norm(b))
+    found: dict[int, IntegrationPoints] = {}
+    S, w, rnorm = np.zeros(0, dtype=np.int64), np.zeros(0), bnorm
+    bar = tqdm(total=largest, desc="trained points", unit="point", disable=not progress)
+    for S, w, rnorm in _greedy(G, b, tol, largest):
+        bar.update(S.size - bar.n)
+        for m in sizes:
+            if m not in found and S.size >= m:
+                found[m] = _points(S, w, rnorm, bnorm, tol, m, False)
+    bar.close()
+    for m in sizes:
+        if m not in found:
+            found[m] = _points(S, w, rnorm, bnorm, tol, m, False)
+    return found
+
+
+def _greedy(G: np.ndarray, b: np.ndarray, tol: float, max_points: int):
+    """The greedy ECSW path: yields (S, w, ||b - G_S w||) after every accepted pick."""
     T, n = G.shape
     bnorm = float(np.linalg.norm(b))
     target = tol * bnorm
@@ -224,15 +282,19 @@ def trained_points(G, b=None, *, tol=1e-2, max_points=None, strict=False) -> Int
         if not rnorm_try < rnorm * (1.0 - 1e-14):
             break  # stall: no progress
         S, w, r, rnorm = S_try, w_try, r_try, rnorm_try
+        yield S, w, rnorm
 
-    residual = rnorm / bnorm
+
+def _points(S, w, rnorm, bnorm, tol, max_points, strict) -> IntegrationPoints:
     if S.size == 0:
         raise ValueError("trained_points: no element correlates positively with b; "
                          "b is not in the cone of the columns of G")
-    if strict and rnorm > target:
+    if strict and rnorm > tol * bnorm:
         raise ValueError(
             f"trained_points: tol={tol:g} not reached with max_points={max_points} "
-            f"(relative residual {residual:.3e} with {S.size} points)")
+            f"(relative residual {rnorm / bnorm:.3e} with {S.size} points)")
     order = np.argsort(S)
     return IntegrationPoints(indices=S[order], weights=w[order], method="trained",
-                             residual=residual)
+                             residual=rnorm / bnorm)
+
+

@@ -1,0 +1,175 @@
+"""Training a reduced model from full runs (Lloyd et al. 2019, section 2.2).
+
+The pipeline, each stage an artifact cached on disk by a hash of its inputs:
+
+1. snapshots: the full model driven by training excitations (the paper: each
+   muscle alone), recording nodal displacements u_s and the excitations a_s
+   every few steps (:func:`record_snapshots`);
+2. a basis: mass-weighted POD of the snapshots
+   (:func:`~artifem.reduction.bases.pod_basis`);
+3. trained integration points: the snapshots projected on the basis,
+   q_s = U^T M u_s, give the training matrix of the reduced internal force
+
+       G[(s, :), p] = V_p D_p^T vec(P(F_p(q_s); a_s)),   b = G 1,
+
+   one column per quadrature point of the full model
+   (:func:`force_training_matrix`), fitted by greedy ECSW / NNLS
+   (:func:`~artifem.reduction.cubature.trained_points`).
+
+:class:`ArtifactCache` stores each stage as an ``.npz`` file written
+atomically, so an interrupted training run resumes at the first stage (or
+training run) that is not on disk.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from artifem.fem_body import FemBody
+from artifem.reduction.reduced_body import ReducedFemBody, all_points
+from artifem.system import System
+
+__all__ = ["ArtifactCache", "Snapshots", "record_snapshots", "project",
+           "force_training_matrix"]
+
+#: Bump when a change in the code changes what a cached artifact would hold.
+CACHE_VERSION = 1
+
+
+def _jsonable(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+class ArtifactCache:
+    """npz artifacts in ``root``, named ``<kind>-<hash of the inputs>.npz``."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    @staticmethod
+    def key(kind: str, **inputs) -> str:
+        """A file-name-safe key: the kind and a hash of the JSON of the inputs."""
+        text = json.dumps(_jsonable({"version": CACHE_VERSION, **inputs}), sort_keys=True)
+        return f"{kind}-{hashlib.sha256(text.encode()).hexdigest()[:16]}"
+
+    def path(self, key: str) -> Path:
+        return self.root / f"{key}.npz"
+
+    def load(self, key: str) -> dict[str, np.ndarray] | None:
+        path = self.path(key)
+        if not path.exists():
+            return None
+        with np.load(path) as data:
+            return {name: data[name] for name in data.files}
+
+    def save(self, key: str, arrays: dict[str, np.ndarray]) -> None:
+        """Write atomically: a killed run never leaves a truncated artifact."""
+        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **arrays)
+            os.replace(tmp, self.path(key))
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def get(self, key: str, compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        """The artifact ``key``, computed and saved if it is not on disk."""
+        found = self.load(key)
+        if found is None:
+            found = {name: np.asarray(value) for name, value in compute().items()}
+            self.save(key, found)
+        return found
+
+
+@dataclass
+class Snapshots:
+    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states."""
+
+    displacements: np.ndarray
+    excitations: np.ndarray
+
+    @staticmethod
+    def concatenate(parts: list[Snapshots]) -> Snapshots:
+        return Snapshots(np.concatenate([p.displacements for p in parts]),
+                         np.concatenate([p.excitations for p in parts]))
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        return {"displacements": self.displacements, "excitations": self.excitations}
+
+
+def record_snapshots(system: System, body: FemBody, *, duration: float, dt: float,
+                     every: int, label: str = "training", progress: bool = True) -> Snapshots:
+    """Step ``system`` for ``duration`` and keep (u, excitations) of ``body`` every ``every`` steps."""
+    steps = int(round(duration / dt))
+    if steps < 1 or every < 1:
+        raise ValueError(f"record_snapshots: need duration >= dt and every >= 1, got "
+                         f"duration={duration}, dt={dt}, every={every}")
+    n = 3 * body.V.dofmap.index_map.size_local
+    u, a = [], []
+    for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not progress):
+        system.step(dt)
+        if k % every == 0:
+            u.append(body.u.x.array[:n].copy())
+            a.append([float(m.excitation.value) for m in body.muscles.values()])
+    return Snapshots(np.array(u), np.array(a).reshape(len(u), len(body.muscles)))
+
+
+def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:
+    """Reduced coordinates q_s = U^T M u_s of displacement rows (S, ndofs) -> (S, r).
+
+    ``mass`` is the lumped diagonal (M-orthonormal U makes this the M-orthogonal
+    projection) or a callable x -> M x.
+    """
+    if callable(mass):
+        return np.array([U.T @ mass(u) for u in displacements])
+    return displacements @ (np.asarray(mass)[:, None] * U)
+
+
+def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitations: np.ndarray,
+                          *, progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(G, b) of ECSW: each quadrature point's reduced internal force at each training state.
+
+    Rows are (snapshot, reduced coordinate), columns the points of
+    ``quadrature_points(full)``; b = G 1 is the full quadrature. Muscle
+    excitations are set per snapshot and restored afterwards.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    excitations = np.atleast_2d(np.asarray(excitations, dtype=float))
+    muscles = list(full.muscles.values())
+    if excitations.shape != (q.shape[0], len(muscles)):
+        raise ValueError(f"force_training_matrix: excitations must have shape "
+                         f"({q.shape[0]}, {len(muscles)}), got {excitations.shape}")
+    everything = ReducedFemBody(full, U, all_points(full), name=f"{full.name}_training")
+    r = everything.r
+    saved = [float(m.excitation.value) for m in muscles]
+    G = np.empty((q.shape[0] * r, everything.m))
+    try:
+        for s in tqdm(range(q.shape[0]), desc="training forces", unit="snapshot",
+                      disable=not progress):
+            for m, value in zip(muscles, excitations[s]):
+                m.excitation.value = value
+            everything.set_q(q[s])
+            G[s * r:(s + 1) * r] = everything.point_forces().T
+    finally:
+        for m, value in zip(muscles, saved):
+            m.excitation.value = value
+    return G, G.sum(axis=1)
