@@ -6,6 +6,7 @@
     artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
+    artifem study tongue --out DIR           reduced tongue models: speed versus error report
     artifem demo --out DIR                   the main job (``make demo``)
 
 Each command lives in its own module, which declares its arguments
@@ -31,6 +32,8 @@ COMMANDS = {
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
+    ("study", "tongue"): ("artifem.models.tongue.study",
+                          "reduced tongue models against the full one: speed versus error"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }
 

@@ -109,6 +109,7 @@ class SemiImplicitEuler:
         body.add_mass(K, 1.0 + h * body.alpha)
         dv = w
         solver.solve(K, b, dv)
+        body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
         v.axpy(1.0, dv)
         u.axpy(h, v)
         _update_ghosts(u, v)
@@ -207,6 +208,7 @@ class ImplicitEuler:
                 body.add_mass(A, 1.0 + h * body.alpha)
                 r.scale(-1.0)
                 solver.solve(A, r, dv)
+                body.zero_fixed(dv)
                 slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
                 E0 = incremental_potential()
                 v_start = v.array.copy()
@@ -358,6 +360,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                                  f"iterations at load factor {k / load_steps:g} (|R| = {norm:.3e})")
             r.scale(-1.0)
             solver.solve(body.K, r, du)
+            body.zero_fixed(du)
             slope = -r.dot(du)
             u_start = u.array.copy()
 

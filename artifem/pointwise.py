@@ -45,7 +45,8 @@ class PointEvaluator:
         self._F = fem.Constant(self._mesh, np.eye(3))
         self._fields = {name: fem.Constant(self._mesh, np.zeros(shape))
                         for name, shape in self.field_shapes.items()}
-        F = ufl.variable(self._F)
+        # A fixed Label: ufl.variable's global counter would enter FFCx's signature.
+        F = ufl.classes.Variable(self._F, ufl.classes.Label(0))
         psi = material.strain_energy(F, **self._fields)
         if ufl.shape(psi) != ():
             raise ValueError(f"{type(material).__name__}.strain_energy must return a scalar, "

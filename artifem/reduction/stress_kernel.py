@@ -63,7 +63,9 @@ class StressKernel:
         a0 = None
         if directed:
             a0 = fem.Function(fem.functionspace(self._mesh, ("DG", 0, (3,))))
-        F = ufl.variable(ufl.Identity(3) + ufl.grad(u))
+        # A Variable with a fixed Label: ufl.variable's global label counter would
+        # enter FFCx's signature and defeat the JIT cache across kernels and runs.
+        F = ufl.classes.Variable(ufl.Identity(3) + ufl.grad(u), ufl.classes.Label(0))
         psi = density(F, a0)
         # The density's constants (excitations) belong to the full body's mesh; an
         # Expression must live on one mesh, so each gets a local twin whose value

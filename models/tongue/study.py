@@ -1,0 +1,339 @@
+"""The tongue speed-versus-error study of reduced models (Lloyd et al. 2019, section 2.3).
+
+    artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
+
+In one process, on one tongue:
+
+1. training (cached in DIR/cache, resumable): the full model driven by each
+   exciter alone (ramp to ``training_excitation`` over 0.5 s, hold), nodal
+   displacements and excitations recorded every ``snapshot_every`` steps;
+2. bases: *extended modal* (6 linear modes x 9 linear maps = 54 vectors, von
+   Tycowicz et al. 2013) and *trained* (mass-weighted POD of the snapshots, r = 20);
+3. integration points: m = 600, 300, 200 quadrature points, *trained* (ECSW
+   on the snapshots' reduced forces, one greedy path per basis) or *random*
+   (uniform per quadrature rule, volume kept);
+4. the full model runs each speech motion (1 s, dt = 10 ms), then every
+   reduced configuration runs it in a System with the same integrator and
+   the same excitation controller; the error at a step is the mean over the
+   nodes of |x_reduced - x_full|.
+
+Results: DIR/study.json, DIR/series.npz, DIR/frames/*.npz (full and reduced
+displacements at the time of largest error), then the report stage
+(:mod:`artifem.reduction.study_report`): report.md and PNGs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from artifem.excitation import ExcitationSchedule
+from artifem.fem_body import ElementInversionError
+from artifem.integrators import StepFailed
+from artifem.linear_solver import LinearSolveError
+from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
+from artifem.reduction.bases import body_mass, extended_modes, linear_modes, pod_basis
+from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
+from artifem.reduction.quadrature_points import quadrature_points
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
+                                        project, record_snapshots)
+from artifem.system import System
+
+TARGETS = {"ms_per_step": 1.0, "speedup": 100.0, "max_error_mm": 1.0}
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """What the study runs (defaults: the paper's experiment)."""
+
+    level: int = 0
+    bases: tuple[str, ...] = ("extended-modal", "trained-pod")
+    linear_modes: int = 6                  # extended: 9 x 6 = 54 vectors
+    pod_r: int = 20
+    points: tuple[int, ...] = (600, 300, 200)
+    samplings: tuple[str, ...] = ("trained", "random")
+    motions: tuple[str, ...] = tuple(MOTIONS)
+    training_excitation: float = 0.6
+    training_duration: float = 0.7
+    snapshot_every: int = 5
+    #: Training states used for the cubature fit (evenly spaced among all snapshots).
+    force_snapshots: int = 66
+    cubature_tol: float = 1e-4
+    seed: int = 0
+    dt: float = DT
+    duration: float = DURATION
+
+    def __post_init__(self):
+        unknown = set(self.bases) - {"extended-modal", "trained-pod"}
+        if unknown:
+            raise ValueError(f"unknown bases {sorted(unknown)}; use extended-modal, trained-pod")
+        unknown = set(self.samplings) - {"trained", "random"}
+        if unknown:
+            raise ValueError(f"unknown samplings {sorted(unknown)}; use trained, random")
+        unknown = set(self.motions) - set(MOTIONS)
+        if unknown:
+            raise ValueError(f"unknown motions {sorted(unknown)}; choose from {sorted(MOTIONS)}")
+        if not self.points or min(self.points) < 1:
+            raise ValueError(f"points must be positive counts, got {self.points}")
+        if not 0.0 < self.training_excitation <= 1.0:
+            raise ValueError(f"training_excitation must be in (0, 1], got "
+                             f"{self.training_excitation}")
+
+
+class TongueStudy:
+    """Runs the study (see the module docstring); each stage is a method."""
+
+    def __init__(self, config: StudyConfig, out: Path, cache: Path | None = None):
+        self.config, self.out = config, Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.cache = ArtifactCache(cache or self.out / "cache")
+        self.tongue = Tongue(TongueConfig(level=config.level))
+        self.body = self.tongue.body
+        self.body.compile()
+        self.mass = body_mass(self.body)
+        self.table = quadrature_points(self.body)
+        self.model_key = {"tongue": asdict(self.tongue.config), "dt": config.dt}
+        n = self.body.V.dofmap.index_map.size_local
+        node_of_dof = np.empty(n, dtype=np.int64)
+        for node, dof in self.body._input_node_to_dof().items():
+            if dof < n:
+                node_of_dof[dof] = node
+        self.node_of_dof = node_of_dof
+
+    # ---- training ---------------------------------------------------------
+
+    def snapshots(self) -> tuple[Snapshots, list[str]]:
+        """Training snapshots, one cached run per exciter."""
+        c, parts, keys = self.config, [], []
+        for exciter in self.tongue.exciters:
+            key = self.cache.key("snapshots", model=self.model_key, exciter=exciter,
+                                 excitation=c.training_excitation, ramp=RAMP_TIME,
+                                 duration=c.training_duration, every=c.snapshot_every)
+
+            def run(exciter=exciter):
+                self.tongue.reset()
+                self.tongue.drive(ExcitationSchedule.ramp_and_hold(
+                    {exciter: c.training_excitation}, RAMP_TIME))
+                return record_snapshots(self.tongue.system, self.body,
+                                        duration=c.training_duration, dt=c.dt,
+                                        every=c.snapshot_every,
+                                        label=f"training {exciter}").as_arrays()
+            data = self.cache.get(key, run)
+            parts.append(Snapshots(data["displacements"], data["excitations"]))
+            keys.append(key)
+        return Snapshots.concatenate(parts), keys
+
+    def basis(self, name: str, snapshots: Snapshots, snapshot_keys: list[str]):
+        """(U, cache key) of a named basis."""
+        c = self.config
+        if name == "trained-pod":
+            key = self.cache.key("basis-pod", snapshots=snapshot_keys, r=c.pod_r)
+            data = self.cache.get(key, lambda: {"U": pod_basis(snapshots.displacements.T,
+                                                               self.mass, r=c.pod_r)[0]})
+        else:
+            key = self.cache.key("basis-extended", model=self.model_key, modes=c.linear_modes)
+
+            def compute():
+                modes, _ = linear_modes(self.body, c.linear_modes)
+                return {"U": extended_modes(modes, self.mass, fixed_dofs=self.body.fixed_dofs)}
+            data = self.cache.get(key, compute)
+        return data["U"], key
+
+    def trained_points(self, U, basis_key, snapshots: Snapshots) -> dict[int, IntegrationPoints]:
+        """ECSW points for every m of the study, from one greedy path (cached per m)."""
+        c = self.config
+        keys = {m: self.cache.key("points", basis=basis_key, m=m, tol=c.cubature_tol,
+                                  states=c.force_snapshots) for m in c.points}
+        cached = {m: self.cache.load(k) for m, k in keys.items()}
+        if any(v is None for v in cached.values()):
+            S = snapshots.displacements.shape[0]
+            rows = np.unique(np.linspace(0, S - 1, min(S, c.force_snapshots)).round().astype(int))
+            q = project(U, self.mass, snapshots.displacements[rows])
+            G, b = force_training_matrix(self.body, U, q, snapshots.excitations[rows])
+            path = trained_points_path(G, b, sizes=c.points, tol=c.cubature_tol, progress=True)
+            del G
+            for m, pts in path.items():
+                cached[m] = {"indices": pts.indices, "weights": pts.weights,
+                             "residual": np.array(pts.residual)}
+                self.cache.save(keys[m], cached[m])
+        return {m: IntegrationPoints(d["indices"], d["weights"], "trained",
+                                     float(d["residual"])) for m, d in cached.items()}
+
+    # ---- runs ---------------------------------------------------------------
+
+    def _controller(self, motion: str):
+        return self.tongue.bundle_schedule(Tongue.motion(motion)).controller(self.body)
+
+    def full_run(self, motion: str) -> dict:
+        """The full model through a motion: displacements at every step and step times."""
+        c = self.config
+        self.tongue.reset()
+        self.tongue.drive(Tongue.motion(motion))
+        n = 3 * self.body.V.dofmap.index_map.size_local
+        steps = int(round(c.duration / c.dt))
+        u = np.zeros((steps + 1, n))
+        ms = []
+        for k in tqdm(range(1, steps + 1), desc=f"full {motion}", unit="step"):
+            tic = time.perf_counter()
+            self.tongue.system.step(c.dt)
+            ms.append(1e3 * (time.perf_counter() - tic))
+            u[k] = self.body.u.x.array[:n]
+        return {"u": u, "ms_per_step": float(np.median(ms))}
+
+    def reduced_run(self, reduced: ReducedFemBody, motion: str, full: dict, run_id: str) -> dict:
+        """A reduced configuration through a motion, its error against the full run."""
+        c = self.config
+        self.tongue.reset()
+        reduced.set_state((np.zeros(reduced.r), np.zeros(reduced.r)))
+        reduced.time = 0.0
+        system = System(integrator=self.tongue.config.integrator)
+        system.add(reduced)
+        system.add_controller(self._controller(motion))
+        steps = full["u"].shape[0] - 1
+        q = np.full((steps + 1, reduced.r), np.nan)
+        q[0] = reduced.q
+        ms, failure = [], None
+        for k in tqdm(range(1, steps + 1), desc=run_id, unit="step", leave=False):
+            tic = time.perf_counter()
+            try:
+                system.step(c.dt)
+            except (ElementInversionError, StepFailed, LinearSolveError) as exc:
+                failure = str(exc)
+                break
+            ms.append(1e3 * (time.perf_counter() - tic))
+            q[k] = reduced.q
+        u_red = q @ reduced.U.T + reduced.u_bar                  # (steps + 1, ndofs)
+        node_error = 1e3 * np.linalg.norm((u_red - full["u"]).reshape(steps + 1, -1, 3), axis=2)
+        mean_error = node_error.mean(axis=1)
+        worst = int(np.nanargmax(mean_error)) if np.any(np.isfinite(mean_error)) else 0
+        return {"q": q, "ms": ms, "failure": failure, "mean_error": mean_error,
+                "max_node_error": float(np.nanmax(node_error)) if ms else float("nan"),
+                "worst_step": worst, "u_worst": u_red[worst]}
+
+    # ---- the study ------------------------------------------------------------
+
+    def run(self) -> Path:
+        c = self.config
+        snapshots, snapshot_keys = self.snapshots()
+        bases = {name: self.basis(name, snapshots, snapshot_keys) for name in c.bases}
+        point_sets = {}
+        for name, (U, key) in bases.items():
+            if "trained" in c.samplings:
+                for m, pts in self.trained_points(U, key, snapshots).items():
+                    point_sets[(name, m, "trained")] = pts
+            if "random" in c.samplings:
+                for m in c.points:
+                    point_sets[(name, m, "random")] = random_points(
+                        self.table.volume, m, rng=c.seed, groups=self.table.degree)
+        full = {motion: self.full_run(motion) for motion in c.motions}
+        steps = int(round(c.duration / c.dt))
+        times = np.arange(steps + 1) * c.dt
+        runs, series = [], {"times": times}
+        frames = self.out / "frames"
+        frames.mkdir(exist_ok=True)
+        for (name, m, sampling), pts in tqdm(point_sets.items(), desc="reduced configurations",
+                                             unit="config"):
+            U, _ = bases[name]
+            reduced = ReducedFemBody(self.body, U, pts, name=f"{name}_{m}_{sampling}")
+            for motion in c.motions:
+                run_id = f"{name}_r{U.shape[1]}_m{m}_{sampling}_{motion}"
+                result = self.reduced_run(reduced, motion, full[motion], run_id)
+                series[f"error/{run_id}"] = result["mean_error"]
+                runs.append(self._summary(run_id, name, U.shape[1], m, sampling, motion, pts,
+                                          result, full[motion]))
+                if name == "trained-pod" and sampling == "trained" and m == self._frame_m():
+                    self._write_frame(frames / f"{run_id}.npz", full[motion], result, times)
+        study = {
+            "model": {"name": "tongue", "level": c.level, "nodes": int(self.node_of_dof.size),
+                      "elements": int(self.tongue.data.mesh.cells.shape[0]),
+                      "dofs": int(3 * self.node_of_dof.size),
+                      "quadrature_points": int(self.table.size)},
+            "dt": c.dt, "duration": c.duration,
+            "full": {"ms_per_step": float(np.median([f["ms_per_step"] for f in full.values()])),
+                     "ms_per_step_by_motion": {k: f["ms_per_step"] for k, f in full.items()}},
+            "training": {"snapshots": int(snapshots.displacements.shape[0]),
+                         "exciters": len(snapshot_keys),
+                         "training_excitation": c.training_excitation,
+                         "force_snapshots": c.force_snapshots,
+                         "cubature_tol": c.cubature_tol,
+                         "trained_residual": {f"{b}_m{m}": pts.residual
+                                              for (b, m, s), pts in point_sets.items()
+                                              if s == "trained"}},
+            "config": asdict(c),
+            "runs": runs,
+            "targets": TARGETS,
+        }
+        (self.out / "study.json").write_text(json.dumps(study, indent=1))
+        np.savez(self.out / "series.npz", **series)
+        from artifem.reduction.study_report import write_report
+        return write_report(self.out)
+
+    def _frame_m(self) -> int:
+        """The point count shown in renders: 300 as in the paper's Fig. 5, else the middle one."""
+        points = sorted(self.config.points)
+        return 300 if 300 in points else points[len(points) // 2]
+
+    def _summary(self, run_id, basis, r, m, sampling, motion, pts, result, full) -> dict:
+        ms = float(np.median(result["ms"])) if result["ms"] else float("nan")
+        summary = {"id": run_id, "basis": basis, "r": int(r), "points": int(m),
+                   "points_used": int(pts.m), "sampling": sampling, "motion": motion,
+                   "ms_per_step": ms,
+                   "mean_error_mm": float(np.nanmean(result["mean_error"])),
+                   "max_error_mm": float(np.nanmax(result["mean_error"])),
+                   "max_node_error_mm": result["max_node_error"],
+                   "speedup": full["ms_per_step"] / ms,
+                   "time_of_max_error": float(result["worst_step"] * self.config.dt),
+                   "failed": result["failure"] is not None}
+        if result["failure"] is not None:
+            summary["error"] = result["failure"]
+        return summary
+
+    def _write_frame(self, path: Path, full: dict, result: dict, times) -> None:
+        """Rest nodes, hexahedra and both displacements (input node order) at the worst step."""
+        k = result["worst_step"]
+        mesh = self.tongue.data.mesh
+        n = mesh.points.shape[0]
+        u_full = np.zeros((n, 3))
+        u_red = np.zeros((n, 3))
+        u_full[self.node_of_dof] = full["u"][k].reshape(-1, 3)
+        u_red[self.node_of_dof] = result["u_worst"].reshape(-1, 3)
+        np.savez(path, points=mesh.points, cells=mesh.cells, u_full=u_full, u_reduced=u_red,
+                 time=float(times[k]))
+
+
+def quick_config(level: int = 0) -> StudyConfig:
+    """A small study for tests and smoke runs: one motion, short, few points."""
+    return StudyConfig(level=level, points=(120, 60), motions=("protrusion",), duration=0.3,
+                       training_duration=0.3, snapshot_every=10, force_snapshots=20, pod_r=8,
+                       linear_modes=2)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--level", type=int, choices=(0, 1), default=0,
+                        help="tongue fidelity: 0 as shipped, 1 split 2x2x2")
+    parser.add_argument("--points", type=int, nargs="+", default=None,
+                        help="integration point counts (default 600 300 200)")
+    parser.add_argument("--motions", nargs="+", choices=sorted(MOTIONS), default=None)
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="training cache directory (default OUT/cache)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a small smoke-test study (one motion, 0.3 s, few points)")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
+    if args.points:
+        config = replace(config, points=tuple(args.points))
+    if args.motions:
+        config = replace(config, motions=tuple(args.motions))
+    report = TongueStudy(config, args.out, args.cache).run()
+    print(f"report: {report}")
+    return 0
