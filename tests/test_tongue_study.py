@@ -1,0 +1,87 @@
+"""`artifem study tongue`: the reduced-model study end to end (a quick configuration).
+
+Runs the real pipeline on the level-0 tongue (training runs of every exciter,
+both bases, trained and random points, full and reduced runs of protrusion,
+report), then checks what a researcher reads: the JSON schema, errors that
+are finite and small, a reduced step far cheaper than the full one, the
+report and its pictures; and that a second run reuses the cached training
+(and resumes after one training artifact is lost).
+"""
+
+import json
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from artifem.cli import main
+from artifem.models.tongue import study
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the study runs in serial")
+
+
+@pytest.fixture(scope="module")
+def quick_study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+def test_study_json_has_every_configuration(quick_study):
+    data = json.loads((quick_study / "study.json").read_text())
+    assert data["model"] == {"name": "tongue", "level": 0, "nodes": 946, "elements": 740,
+                             "dofs": 2838, "quadrature_points": 740 * 9}
+    config = study.quick_config()
+    runs = data["runs"]
+    expected = {(b, m, s, mo) for b in config.bases for m in config.points
+                for s in config.samplings for mo in config.motions}
+    assert {(r["basis"], r["points"], r["sampling"], r["motion"]) for r in runs} == expected
+    full_ms = data["full"]["ms_per_step"]
+    for r in runs:
+        assert not r["failed"], r
+        assert 0 < r["mean_error_mm"] <= r["max_error_mm"] <= r["max_node_error_mm"]
+        assert r["max_error_mm"] < 5.0, r          # a 60 mm tongue moving ~10 mm
+        assert r["ms_per_step"] < full_ms / 5, r    # reduced steps are much cheaper
+        assert r["speedup"] == pytest.approx(full_ms / r["ms_per_step"])
+    pod = [r for r in runs if r["basis"] == "trained-pod" and r["sampling"] == "trained"]
+    assert min(r["max_error_mm"] for r in pod) < 2.0
+    series = np.load(quick_study / "series.npz")
+    steps = round(config.duration / config.dt)
+    assert series["times"].shape == (steps + 1,)
+    for r in runs:
+        error = series[f"error/{r['id']}"]
+        assert error[0] == pytest.approx(0.0, abs=1e-9)      # both start at rest
+        assert np.nanmax(error) == pytest.approx(r["max_error_mm"])
+
+
+def test_report_and_pictures_exist(quick_study):
+    report = (quick_study / "report.md").read_text()
+    assert "Table 2" in report and "Targets" in report
+    for png in ["error_protrusion.png", "speed_vs_error.png"]:
+        assert (quick_study / png).stat().st_size > 10_000
+    renders = list(quick_study.glob("render_*.png"))
+    assert renders and all(p.stat().st_size > 10_000 for p in renders)
+    frame = np.load(next((quick_study / "frames").glob("*.npz")))
+    assert frame["u_full"].shape == frame["u_reduced"].shape == (946, 3)
+
+
+def test_second_run_reuses_the_training_and_resumes_a_lost_artifact(quick_study, monkeypatch):
+    snapshots = sorted((quick_study / "cache").glob("snapshots-*.npz"))
+    assert len(snapshots) == 11                     # one training run per exciter
+    snapshots[3].unlink()                           # as if the run had stopped there
+    calls = []
+    real = study.record_snapshots
+
+    def counting(*args, **kwargs):
+        calls.append(kwargs.get("label"))
+        return real(*args, **kwargs)
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("trained points should come from the cache")
+
+    monkeypatch.setattr(study, "record_snapshots", counting)
+    monkeypatch.setattr(study, "force_training_matrix", no_training)
+    assert main(["study", "tongue", "--quick", "--out", str(quick_study)]) == 0
+    assert len(calls) == 1                          # only the lost training run again
+    assert len(list((quick_study / "cache").glob("snapshots-*.npz"))) == 11
