@@ -161,3 +161,15 @@ def test_trained_points_path_equals_separate_greedy_runs():
         np.testing.assert_array_equal(path[m].indices, alone.indices)
         np.testing.assert_allclose(path[m].weights, alone.weights, rtol=1e-12)
     assert path[5].residual > path[12].residual > path[20].residual
+
+
+def test_batched_greedy_growth_reaches_the_tolerance_with_fewer_solves():
+    rng = np.random.default_rng(12)
+    G = rng.uniform(0.0, 1.0, (60, 400))
+    b = G @ rng.uniform(0.5, 1.5, 400)
+    one = trained_points(G, b, tol=1e-12, max_points=80)
+    batched = trained_points(G, b, tol=1e-12, max_points=80, growth=0.2)
+    assert batched.m <= 80 and batched.residual < 2 * one.residual + 1e-12
+    path = trained_points_path(G, b, sizes=[25, 50, 80], tol=1e-12, growth=0.2)
+    assert [path[m].m <= m for m in (25, 50, 80)] == [True] * 3
+    assert path[25].residual >= path[50].residual >= path[80].residual

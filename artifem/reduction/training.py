@@ -27,6 +27,7 @@ import hashlib
 import json
 import os
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -150,7 +151,10 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
 
     Rows are (snapshot, reduced coordinate), columns the points of
     ``quadrature_points(full)``; b = G 1 is the full quadrature. Muscle
-    excitations are set per snapshot and restored afterwards.
+    excitations are set per snapshot and restored afterwards. A state whose
+    projection inverts an element somewhere (possible for a basis that does
+    not contain the snapshot, e.g. linear modes under large strain) has no
+    finite force and is left out with a warning.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     excitations = np.atleast_2d(np.asarray(excitations, dtype=float))
@@ -162,14 +166,25 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
     r = everything.r
     saved = [float(m.excitation.value) for m in muscles]
     G = np.empty((q.shape[0] * r, everything.m))
+    kept = np.zeros(q.shape[0], dtype=bool)
     try:
         for s in tqdm(range(q.shape[0]), desc="training forces", unit="snapshot",
                       disable=not progress):
             for m, value in zip(muscles, excitations[s]):
                 m.excitation.value = value
             everything.set_q(q[s])
-            G[s * r:(s + 1) * r] = everything.point_forces().T
+            if np.min(everything.det_F()) > 0:
+                G[s * r:(s + 1) * r] = everything.point_forces().T
+                kept[s] = np.all(np.isfinite(G[s * r:(s + 1) * r]))
     finally:
         for m, value in zip(muscles, saved):
             m.excitation.value = value
+    if not kept.any():
+        raise ValueError("force_training_matrix: every training state inverts an element "
+                         "once projected on the basis")
+    if not kept.all():
+        warnings.warn(f"force_training_matrix: {np.count_nonzero(~kept)} of {kept.size} "
+                      f"training states invert an element once projected on the basis; "
+                      f"left out", stacklevel=2)
+    G = G[np.repeat(kept, r)]
     return G, G.sum(axis=1)

@@ -66,6 +66,8 @@ class StudyConfig:
     #: Training states used for the cubature fit (evenly spaced among all snapshots).
     force_snapshots: int = 66
     cubature_tol: float = 1e-4
+    #: Points added per NNLS solve, as a fraction of those selected (see trained_points).
+    cubature_growth: float = 0.1
     seed: int = 0
     dt: float = DT
     duration: float = DURATION
@@ -150,14 +152,16 @@ class TongueStudy:
         """ECSW points for every m of the study, from one greedy path (cached per m)."""
         c = self.config
         keys = {m: self.cache.key("points", basis=basis_key, m=m, tol=c.cubature_tol,
-                                  states=c.force_snapshots) for m in c.points}
+                                  growth=c.cubature_growth, states=c.force_snapshots)
+                for m in c.points}
         cached = {m: self.cache.load(k) for m, k in keys.items()}
         if any(v is None for v in cached.values()):
             S = snapshots.displacements.shape[0]
             rows = np.unique(np.linspace(0, S - 1, min(S, c.force_snapshots)).round().astype(int))
             q = project(U, self.mass, snapshots.displacements[rows])
             G, b = force_training_matrix(self.body, U, q, snapshots.excitations[rows])
-            path = trained_points_path(G, b, sizes=c.points, tol=c.cubature_tol, progress=True)
+            path = trained_points_path(G, b, sizes=c.points, tol=c.cubature_tol,
+                                       growth=c.cubature_growth, progress=True)
             del G
             for m, pts in path.items():
                 cached[m] = {"indices": pts.indices, "weights": pts.weights,
