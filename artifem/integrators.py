@@ -56,7 +56,7 @@ def _update_ghosts(*vecs: PETSc.Vec) -> None:
 
 
 def _reduced_inverted(body: ReducedFemBody) -> bool:
-    """True when q or q' is non-finite or det F <= 0 at an integration cell."""
+    """True when q or q' is non-finite or det F <= 0 at an integration point."""
     q, qdot = body.state()
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot))):
         return True

@@ -22,7 +22,9 @@ attachments and joints plug in.
 
 Robustness: after each step every component is checked for non-finite
 coordinates or velocities and for det F <= 0 at its quadrature points (a
-reduced body: those of its integration cells). A failed step is undone and
+reduced body: at its m integration points only -- the energy sees nothing
+else, so the mesh rebuilt from U q may invert elsewhere, see
+``ReducedFemBody.full_mesh_inversion``). A failed step is undone and
 retried as two steps of half the size, recursively up to ``max_halvings``
 times; beyond that :class:`~artifem.fem_body.ElementInversionError` names the
 time, the elements and the smallest det F.

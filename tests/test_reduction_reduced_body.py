@@ -225,3 +225,24 @@ def test_inversion_is_reported_with_input_cell_indices():
         reduced.step(1e-6)
     assert info.value.elements.size > 0
     np.testing.assert_array_equal(reduced.q, state[0])      # state kept
+
+
+def test_full_mesh_inversion_sees_what_the_integration_points_cannot():
+    """A corner node pushed through its cell: invisible to points outside that cell."""
+    body = make_body()
+    x = body.V.tabulate_dof_coordinates()[:ndofs(body) // 3]
+    corner = int(np.argmax(x[:, 0] + x[:, 1] + x[:, 2]))       # (1, 0.3, 0.2): one hex only
+    U = np.zeros((ndofs(body), 1))
+    U[3 * corner, 0] = 1.0
+    table = quadrature_points(body)
+    corner_cells = np.unique(table.cell[np.any(table.dofs == corner, axis=1)])
+    assert corner_cells.size == 1
+    elsewhere = np.flatnonzero(table.cell != corner_cells[0])
+    reduced = ReducedFemBody(body, U, IntegrationPoints(elsewhere, np.ones(elsewhere.size),
+                                                        "random"))
+    reduced.set_q([-0.45])                      # the cell is 0.25 long in x
+    bad, min_det = reduced.inverted_elements()
+    assert bad.size == 0 and min_det > 0
+    bad_full, min_full = reduced.full_mesh_inversion()
+    assert bad_full.tolist() == body.input_cell_index(corner_cells).tolist() and min_full < 0
+    assert np.all(body.u.x.array == 0.0)        # the full body's state is left alone

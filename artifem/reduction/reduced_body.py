@@ -266,8 +266,21 @@ class ReducedFemBody:
         with np.errstate(invalid="ignore"):             # a NaN state is reported, not warned
             return np.linalg.det(np.eye(3) + self._H)
 
+    def full_mesh_inversion(self) -> tuple[np.ndarray, float]:
+        """The full body's inverted_elements() at u = u_bar + U q (O(n r), for output).
+
+        The reduced energy sees only its m points; elements elsewhere can invert
+        in the rebuilt mesh without the reduced dynamics noticing.
+        """
+        saved = self.full.state()
+        try:
+            self.to_full()
+            return self.full.inverted_elements()
+        finally:
+            self.full.set_state(saved)
+
     def inverted_elements(self) -> tuple[np.ndarray, float]:
-        """(input indices of cells with a point at det F <= 0 or NaN, min det F)."""
+        """(input indices of cells with an integration point at det F <= 0 or NaN, min det F)."""
         detF = self.det_F()
         detF = np.where(np.isnan(detF), -np.inf, detF)      # NaN counts as inverted
         bad = np.unique(self.cells[detF <= 0])
@@ -279,7 +292,7 @@ class ReducedFemBody:
         """One semi-implicit Euler step of size h, outside a System (no halving).
 
         Raises ElementInversionError (state kept at the start of the step) if
-        det F <= 0 at an integration cell's quadrature point after the step.
+        det F <= 0 at one of the m integration points after the step.
         """
         if not np.isfinite(h) or h <= 0:
             raise ValueError(f"time step must be > 0, got {h}")

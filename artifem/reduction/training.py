@@ -49,7 +49,7 @@ CACHE_VERSION = 1
 def _jsonable(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
-    if isinstance(value, (np.integer, np.floating)):
+    if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
