@@ -18,7 +18,7 @@ basis rows of its cell, precomputed once. psi_t are the full body's own
 :class:`~artifem.fem_body.EnergyTerm` densities (bulk material, each muscle's
 fiber energy with the *same* excitation ``fem.Constant``, the element-wise
 incompressibility penalty), compiled by FFCx into batched
-:class:`~artifem.reduction.stress_kernel.StressKernel` evaluations of P and
+:class:`~artifem.reduction.stress_kernel.PointStresses` evaluations of P and
 A = dP/dF at the m points. Then
 
     f~(q) = -sum_p w_p V_p D_p^T vec(P_p) + f~_ext,
@@ -51,7 +51,7 @@ from artifem.fem_body import ElementInversionError, FemBody
 from artifem.integrators import SemiImplicitEuler, StepFailed
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
-from artifem.reduction.stress_kernel import StressKernel
+from artifem.reduction.stress_kernel import PointStresses
 
 __all__ = ["ReducedFemBody", "all_points"]
 
@@ -169,27 +169,21 @@ class ReducedFemBody:
         m = idx.size
         self._blocks = sparse.bsr_matrix((np.zeros((m, 9, 9)), np.arange(m), np.arange(m + 1)),
                                          shape=(9 * m, 9 * m))
-        # One kernel per energy term over the points where it is integrated; all
-        # write into one buffer, and the sparse 0/1 matrix S sums them per point.
-        active = [(term, np.flatnonzero(np.isin(idx, self.table.of_term(term))))
-                  for term in full.energy_terms()]
-        active = [(term, at) for term, at in active if at.size]
-        sizes = [at.size for _, at in active]
-        self._buffer = np.zeros((sum(sizes), 1, 91))
-        self._kernels = []
-        offset = 0
-        for (term, at), size in zip(active, sizes):
-            kernel = StressKernel(term.density, size, directed=term.direction is not None,
-                                  out=self._buffer[offset:offset + size])
+        # Each energy term's density at the points where it is integrated.
+        terms = []
+        for term in full.energy_terms():
+            at = np.flatnonzero(np.isin(idx, self.table.of_term(term)))
+            if at.size == 0:
+                continue
+            directions = None
             if term.direction is not None:
-                a0 = term.direction.x.array.reshape(-1, 3)
                 W = term.direction.function_space
-                kernel.set_directions(a0[W.dofmap.list[self.cells[at], 0]])
-            self._kernels.append((term.name, at, kernel))
-            offset += size
-        rows = np.concatenate([at for _, at in active])
-        self._sum = sparse.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
-                                      shape=(m, rows.size))
+                directions = term.direction.x.array.reshape(-1, 3)[
+                    W.dofmap.list[self.cells[at], 0]]
+            terms.append((term.density, at, directions))
+        self._stresses = PointStresses(terms, m)
+        # Views of the excitation values (updated in place when a controller sets them).
+        self._excitations = [mus.excitation.value for mus in full.muscles.values()]
         self.set_q(self.q)
 
     # ---- evaluation --------------------------------------------------------
@@ -211,13 +205,10 @@ class ReducedFemBody:
         Cached until q or an excitation changes (force and tangent of one step
         share one evaluation).
         """
-        key = tuple(float(m.excitation.value) for m in self.full.muscles.values())
+        key = tuple(float(v) for v in self._excitations)
         if self._stress is None or self._stress_key != key:
             self._stress_key = key
-            for _, at, kernel in self._kernels:
-                kernel(self._H[at])
-            total = self._sum @ self._buffer.reshape(-1, 91)
-            self._stress = total[:, 0], total[:, 1:10], total[:, 10:].reshape(self.m, 9, 9)
+            self._stress = self._stresses(self._H)
         return self._stress
 
     def external_force(self) -> np.ndarray:
