@@ -310,3 +310,18 @@ def test_modal_derivatives_solve_the_third_derivative_system():
     lin = cantilever(1.0, 0.1, (10, 2, 2), LinearElastic.from_young_poisson(E, NU))
     Ul, _ = linear_modes(lin, 2)
     assert np.abs(modal_derivatives(lin, Ul)).max() < 1e-12 * np.abs(Ul).max()
+
+
+def test_modal_derivative_basis_is_mass_orthonormal_and_spans_the_modes():
+    from artifem.reduction.bases import modal_derivative_basis, modal_derivatives
+    body = cantilever(1.0, 0.1, (10, 2, 2))
+    B = modal_derivative_basis(body, 3)
+    assert B.shape[1] == 3 + 6                    # r modes + r (r + 1) / 2 derivatives
+    mass = body_mass(body)
+    assert mass_orthonormality_error(B, mass) < 1e-12
+    assert np.all(B[fixed_rows(body)] == 0.0)
+    U, _ = linear_modes(body, 3)
+    Psi = modal_derivatives(body, U)
+    for X in (U, Psi):                            # both lie in span(B) (M-projection exact)
+        P = B @ (B.T @ (mass[:, None] * X))
+        assert np.linalg.norm(P - X) < 1e-8 * np.linalg.norm(X)

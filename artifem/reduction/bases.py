@@ -34,7 +34,8 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from petsc4py import PETSc
 
 __all__ = ["linear_modes", "linear_mode_residuals", "extended_modes", "pod_basis",
-           "modal_derivatives", "mass_orthonormality_error", "mass_matrix", "body_mass"]
+           "modal_derivatives", "modal_derivative_basis", "mass_orthonormality_error",
+           "mass_matrix", "body_mass"]
 
 # ---- mass helpers ---------------------------------------------------------------------------
 
@@ -506,3 +507,20 @@ def modal_derivatives(body, U: np.ndarray) -> np.ndarray:
     finally:
         body.u.x.array[:] = u_saved
     return np.column_stack(cols) if cols else np.zeros((n_owned, 0))
+
+
+def modal_derivative_basis(body, r: int, *, tol: float = 1e-8) -> np.ndarray:
+    """Linear modes and their modal derivatives, M-orthonormalized (Barbic & James 2005).
+
+    The r lowest modes U (:func:`linear_modes`) followed by the r (r + 1) / 2
+    modal derivatives Psi_ij (:func:`modal_derivatives`), scaled to unit M-norm
+    and M-orthonormalized by two passes of modified Gram-Schmidt; numerically
+    dependent vectors (relative M-norm below ``tol`` after projection) are
+    dropped. At most r (r + 3) / 2 vectors (6 modes: 27).
+    """
+    U, _ = linear_modes(body, _check_count(r, "r"))
+    Psi = modal_derivatives(body, U)
+    mass = body_mass(body)
+    norms = np.sqrt(np.maximum(np.einsum("ij,ij->j", Psi, _mass_apply(mass, Psi)), 0.0))
+    Psi = Psi[:, norms > 0] / norms[norms > 0]
+    return _m_orthonormalize(np.column_stack([U, Psi]), mass, tol)

@@ -41,8 +41,9 @@ PAPER_FULL_MS = 188.9
 RAMP_END = 0.5
 #: Motions in the paper's order; others follow alphabetically.
 MOTION_ORDER = ("protrusion", "retroflexion", "retraction")
-BASIS_NAMES = {"extended-modal": "Extended modal", "trained-pod": "Trained"}
-BASIS_CMAPS = {"extended-modal": "Blues", "trained-pod": "Oranges"}
+BASIS_NAMES = {"extended-modal": "Extended modal", "trained-pod": "Trained",
+               "modal-derivatives": "Modal derivatives"}
+BASIS_CMAPS = {"extended-modal": "Blues", "trained-pod": "Oranges", "modal-derivatives": "Greens"}
 SAMPLING_LINES = {"trained": "-", "random": "--"}
 SAMPLING_MARKERS = {"trained": "o", "random": "^"}
 #: Largest number of trained points for which the targets are checked.

@@ -9,6 +9,8 @@ In one process, on one tongue:
    displacements and excitations recorded every ``snapshot_every`` steps;
 2. bases: *extended modal* (6 linear modes x 9 linear maps = 54 vectors, von
    Tycowicz et al. 2013) and *trained* (mass-weighted POD of the snapshots, r = 20);
+   optionally (``--bases``) *modal derivatives* (6 modes and their 21 derivatives,
+   Barbic & James 2005);
 3. integration points: m = 600, 300, 200 quadrature points, *trained* (ECSW
    on the snapshots' reduced forces, one greedy path per basis) or *random*
    (uniform per quadrature rule, volume kept);
@@ -38,7 +40,8 @@ from artifem.fem_body import ElementInversionError
 from artifem.integrators import StepFailed
 from artifem.linear_solver import LinearSolveError
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
-from artifem.reduction.bases import body_mass, extended_modes, linear_modes, pod_basis
+from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
+                                     modal_derivative_basis, pod_basis)
 from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
@@ -47,6 +50,8 @@ from artifem.reduction.training import (ArtifactCache, Snapshots, force_training
 from artifem.system import System
 
 TARGETS = {"ms_per_step": 1.0, "speedup": 100.0, "max_error_mm": 1.0}
+#: Bases the study can build (the paper's two, and linear modes with modal derivatives).
+BASES = ("extended-modal", "trained-pod", "modal-derivatives")
 
 
 @dataclass(frozen=True)
@@ -73,9 +78,9 @@ class StudyConfig:
     duration: float = DURATION
 
     def __post_init__(self):
-        unknown = set(self.bases) - {"extended-modal", "trained-pod"}
+        unknown = set(self.bases) - set(BASES)
         if unknown:
-            raise ValueError(f"unknown bases {sorted(unknown)}; use extended-modal, trained-pod")
+            raise ValueError(f"unknown bases {sorted(unknown)}; use {', '.join(BASES)}")
         unknown = set(self.samplings) - {"trained", "random"}
         if unknown:
             raise ValueError(f"unknown samplings {sorted(unknown)}; use trained, random")
@@ -139,6 +144,10 @@ class TongueStudy:
             key = self.cache.key("basis-pod", snapshots=snapshot_keys, r=c.pod_r)
             data = self.cache.get(key, lambda: {"U": pod_basis(snapshots.displacements.T,
                                                                self.mass, r=c.pod_r)[0]})
+        elif name == "modal-derivatives":
+            key = self.cache.key("basis-derivatives", model=self.model_key, modes=c.linear_modes)
+            data = self.cache.get(key, lambda: {
+                "U": modal_derivative_basis(self.body, c.linear_modes)})
         else:
             key = self.cache.key("basis-extended", model=self.model_key, modes=c.linear_modes)
 
@@ -326,6 +335,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=int, nargs="+", default=None,
                         help="integration point counts (default 600 300 200)")
     parser.add_argument("--motions", nargs="+", choices=sorted(MOTIONS), default=None)
+    parser.add_argument("--bases", nargs="+", choices=BASES, default=None,
+                        help="bases to compare (default: extended-modal trained-pod)")
     parser.add_argument("--cache", type=Path, default=None,
                         help="training cache directory (default OUT/cache)")
     parser.add_argument("--quick", action="store_true",
@@ -338,6 +349,8 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, points=tuple(args.points))
     if args.motions:
         config = replace(config, motions=tuple(args.motions))
+    if args.bases:
+        config = replace(config, bases=tuple(args.bases))
     report = TongueStudy(config, args.out, args.cache).run()
     print(f"report: {report}")
     return 0
