@@ -161,7 +161,6 @@ class PointStresses:
         rows, comps, positions, targets = [], [], [], []
         offset = 0
         sizes = [np.size(at) for _, at, _ in terms]
-        self._flat = np.zeros(0)
         for (density, at, directions), size in zip(terms, sizes):
             at = np.asarray(at, dtype=np.int64)
             kernel = StressKernel(density, size, directed=directions is not None)
@@ -185,11 +184,15 @@ class PointStresses:
             block[:] = kernel.coefficients
             kernel.coefficients = block
             offset += block.size
+        # flat = Q vec(grad_u) + a0 entries, Q sparse: u_i(X) = sum_J grad_u[p, i, J] X_J.
+        rows, comps = np.concatenate(rows), np.concatenate(comps)
+        positions, targets = np.concatenate(positions), np.concatenate(targets)
+        columns = 9 * rows[:, None] + 3 * comps[:, None] + np.arange(3)[None, :]
+        self._pack = sparse.csr_matrix(
+            (positions.ravel(), (np.repeat(targets, 3), columns.ravel())),
+            shape=(flat.size, 9 * self.m))
+        self._fixed = flat.copy()                   # the a0 entries (u entries are zero)
         self._flat = flat
-        self._rows = np.concatenate(rows)
-        self._comps = np.concatenate(comps)
-        self._positions = np.concatenate(positions)
-        self._targets = np.concatenate(targets)
         # Every kernel writes into its rows of one buffer; S sums them per point.
         self._values = np.zeros((sum(sizes), 1, VALUES))
         start = 0
@@ -202,8 +205,8 @@ class PointStresses:
 
     def __call__(self, grad_u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Summed psi (m,), P (m, 9), A (m, 9, 9) at F_p = I + grad_u[p], grad_u (m, 3, 3)."""
-        H = grad_u[self._rows, self._comps]                         # (entries, 3)
-        self._flat[self._targets] = np.einsum("ej,ej->e", H, self._positions)
+        self._flat[:] = self._pack @ grad_u.reshape(-1)
+        self._flat += self._fixed
         for kernel in self.kernels:
             kernel.tabulate()
         total = self._sum @ self._values.reshape(-1, VALUES)
