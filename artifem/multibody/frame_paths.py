@@ -1,0 +1,81 @@
+"""Springs and muscles routed through frames: force elements of a rigid scene.
+
+A :class:`FramePath` carries a point-path element of
+:mod:`artifem.multibody.muscles` (``AxialSpring``, ``ThelenMuscle``) whose
+points are the origins of frames on rigid bodies or in the world. At each
+step it evaluates the element at the frames' positions and velocities and
+hands the rigid step the wrenches G^T f and their stiffness and damping
+blocks (:func:`~artifem.multibody.rigid_system.point_force_wrenches`), so the
+element is implicit in the step.
+
+A muscle's excitation may follow a schedule ``excitation(t)``; its activation
+is advanced once per new time t by the step between the previous t and this
+one, and an elastic tendon's fiber state is committed when the next step
+starts (the previous step was accepted).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from artifem.multibody.rigid_body import Frame
+from artifem.multibody.rigid_system import point_force_wrenches
+
+__all__ = ["FramePath"]
+
+
+class FramePath:
+    """A spring or muscle through ``frames`` (at least two), a RigidSystem force element."""
+
+    def __init__(self, element, frames: Sequence[Frame], *,
+                 excitation: Callable[[float], float] | None = None, name: str = "path"):
+        if len(frames) < 2:
+            raise ValueError(f"FramePath {name!r}: a path needs at least two frames, "
+                             f"got {len(frames)}")
+        if excitation is not None and not hasattr(element, "set_excitation"):
+            raise ValueError(f"FramePath {name!r}: {type(element).__name__} takes no excitation")
+        self.element, self.frames, self.excitation, self.name = element, list(frames), \
+            excitation, name
+        self._t = None
+        self._result = None
+
+    def positions(self) -> np.ndarray:
+        return np.array([f.world_position() for f in self.frames])
+
+    def velocities(self) -> np.ndarray:
+        return np.array([f.velocity() for f in self.frames])
+
+    def _evaluate(self, t: float):
+        if self._t is None or t != self._t:
+            dt = None if self._t is None else t - self._t
+            if self._result is not None:
+                self.element.commit(self._result)          # the previous step was accepted
+            if self.excitation is not None:
+                self.element.set_excitation(float(self.excitation(t)))
+                if dt is not None and dt > 0 and hasattr(self.element, "update_activation"):
+                    self.element.update_activation(dt)
+            self._t, self._dt = t, dt
+        self._result = self.element.evaluate(self.positions(), self.velocities(), self._dt)
+        return self._result
+
+    def wrenches(self, t: float):
+        result = self._evaluate(t)
+        wrenches, _ = point_force_wrenches(self.frames, result.forces)
+        return wrenches
+
+    def jacobians(self, t: float):
+        result = self._evaluate(t)
+        _, blocks = point_force_wrenches(self.frames, result.forces, result.stiffness,
+                                         result.damping)
+        return blocks
+
+    def tension(self) -> float:
+        """The element's tension at the last evaluation (N)."""
+        return float(self._result.tension) if self._result is not None else 0.0
+
+    def potential_energy(self) -> float:
+        """The element's stored energy, for elements that have one (springs)."""
+        energy = getattr(self.element, "energy", None)
+        return float(energy(self.positions())) if energy is not None else 0.0
