@@ -45,6 +45,7 @@ class FemPointWeights:
     weights: np.ndarray
     rest_position: np.ndarray        # X_a as reproduced by the weights
     distance: float = 0.0            # how far the requested point was from the mesh
+    cell: int = -1                   # the containing element (local), -1 for a node support
 
     def __post_init__(self):
         if self.dofs.shape != self.weights.shape or self.dofs.ndim != 1 or self.dofs.size == 0:
@@ -95,7 +96,7 @@ def shape_function_weights(body: FemBody, point, *, snap: bool = False,
                                    getattr(basix.CellType, body.cell_name), 1)
     w = element.tabulate(0, ref)[0, 0, :, 0]
     dofs = body.V.dofmap.list[cell].astype(np.int64)
-    return FemPointWeights(dofs, w, w @ _node_positions(body)[dofs], distance)
+    return FemPointWeights(dofs, w, w @ _node_positions(body)[dofs], distance, cell)
 
 
 def _closest_point_in_cell(body: FemBody, cell: int, X: np.ndarray) -> np.ndarray:
