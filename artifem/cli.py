@@ -29,6 +29,8 @@ COMMANDS = {
     ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam"),
     ("simulate", "tongue"): ("artifem.models.tongue.simulate",
                              "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
+    ("simulate", "beam-ellipsoid"): ("artifem.models.beam_ellipsoid",
+                                     "FEM beam with a rigid ellipsoid at its end (Fig. 11)"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),

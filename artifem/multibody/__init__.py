@@ -1,1 +1,2 @@
-"""Rigid bodies, joints, point-to-point springs and muscles (Lloyd et al. 2019, section 3)."""
+"""Rigid bodies, joints, springs and muscles, attachments, and the coupled FEM-rigid step
+(Lloyd et al. 2019, section 3)."""

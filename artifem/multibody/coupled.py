@@ -1,0 +1,1097 @@
+"""FEM bodies and rigid bodies coupled by attachments and joints, advanced in one step.
+
+Lloyd et al. 2019, section 3 (ArtiSynth's MechModel advanced by its
+ConstrainedBackwardEuler): every attachment is x_s = f(x_m) with G = df/dx_m,
+the attached (slave) coordinates leave the solve, forces come back to the
+masters as G^T f_s, and joints are bilateral constraints solved in the same
+linear system. Serial.
+
+Coordinates
+-----------
+The "all" velocity vector z stacks every FEM body's nodal velocities (3 per
+node, the body's local blocked dofs) and every rigid body's twist u = [v; w]
+(rigid_body: COM velocity and angular velocity, world). Each coordinate is
+
+- a *master*: a free FEM dof, or the twist of a dynamic rigid body attached to
+  nothing (a *root*);
+- a *slave*: an FEM node attached to a rigid body (:class:`NodeAttachment`,
+  bones inside soft tissue), or a rigid body welded to another one
+  (:class:`RigidAttachment`);
+- *known*: a fixed FEM dof (velocity 0), a fixed or prescribed rigid body.
+
+Attachments chain (node -> body B -> body A); every slave is rigidly carried
+by the root of its chain (the rigid body at its end that is attached to
+nothing; a cycle is an error). With x_s the slave's position (the node, or a
+slave body's COM) and p, R, u = [v; w] its root's pose and twist,
+
+    node:        v_s = v + w x d_s = G_s u,       G_s = [1, -[d_s]x],        d_s = x_s - p,
+    slave body:  u_s = [[1, -[d_s]x], [0, 1]] u,
+
+so z = P z_m + z_k with the sparse prolongation P (identity on the masters,
+the rows above on the slaves of dynamic roots, zero elsewhere) and z_k the
+known velocities: 0 on fixed dofs and bodies, the trajectory's twist at t + h
+on prescribed bodies, and, on a slave node of a prescribed root, the secant
+(x_s(t + h) - x_s(t)) / h of its exact motion (so that the FEM force
+linearized about x_s(t) sees exactly the displacement the node will have).
+
+The step
+--------
+Each component gives a linear system A_c z+ = b_c for the velocities at the
+end of the step (backward Euler linearized at its start, one solve):
+
+    FEM:    A = (1 + h alpha) M + (h beta + h^2) K,     b = M v + h f,     f = -dPi/du,
+            (``SemiImplicitEuler``, written for v+ = v + dv instead of dv)
+    rigid:  A = M - h D - h^2 K_e,                      b = M u + h (f - D u),
+            (``RigidSystem``: gravity m g, the gyroscopic wrench, force elements; D and
+            K_e the velocity and pose Jacobians of the wrenches)
+
+stacked into A_all, b_all (force elements add their off-diagonal blocks) and
+reduced by P, with the joint rows as Lagrange multipliers:
+
+    [ P^T A_all P - h^2 K_geo    G_m^T ] [ z_m+ ]   [ P^T (b_all - A_all z_k) ]
+    [ G_m                        0     ] [ mu   ] = [ -beta phi / h - G z_k   ],
+
+G the joint rows on the all-space twists (joints.py), G_m = G P, beta the
+Baumgarte stabilization (RigidSystem) and lambda = -mu the joint impulses
+(A z+ - G^T lambda = b, as in RigidSystem). Joint limits are unilateral rows
+solved by an active set (add the most violated limit row, drop the most
+negative multiplier), each trial a new factorization.
+
+K_geo is the attachment's consistent (geometric) stiffness. The master wrench
+of the slave forces, sum_s [f_s; d_s x f_s] (node) or [f_s; d_s x f_s + tau_s]
+(slave body), changes with the root's rotation at fixed f_s because the levers
+d_s turn with it: d(d x f)/dtheta = [f]x [d]x (``Frame.wrench_stiffness``), so
+
+    K_geo(root) = sum_s [[0, 0], [0, [f_s]x [d_s]x]],
+
+f_s the applied force on the slave (an FEM node: -dPi/du - (D v) at the node,
+gravity included; a slave body: m g plus the force part of its force-element
+wrenches). P^T K P alone misses this term of size |f| |d|, and a heavily
+loaded attachment then goes unstable; the dynamic and the static tangent
+include it (tested by finite differences in tests/test_multibody_coupled.py).
+
+Update. z+ = P z_m+ + z_k. Free FEM dofs: u += h v+; dynamic roots:
+p += h v+, R = exp(h [w+]x) R; prescribed bodies take their trajectory's pose
+at t + h; then slave bodies and slave nodes are set *exactly* from their
+master's pose (x_s = p + R r_s, r_s fixed at attachment time: no drift).
+Fixed dofs keep their (prescribed) displacement. The slaves keep the step's
+velocities z+ = P z_m+ (not G at the new pose times u+): P^T M z then carries
+each slave's momentum into the next step, so the linear momentum of a free
+scene (no Rayleigh mass damping, no fixed dofs) is conserved to round-off, and
+the next step, which solves for the velocity in the span of the attachments
+at the new pose, can only remove kinetic energy from that mismatch (M-
+orthogonal projection), an O(h) dissipation like backward Euler's.
+
+Linear solver. The KKT matrix is sparse, indefinite (the zero block) and not
+symmetric (gyroscopic and geometric terms), so it is factored by a direct LU,
+MUMPS through petsc4py (one process, COMM_SELF), every step.
+
+Statics (:meth:`CoupledSystem.solve_static`): Newton on the master forces
+F_m = P^T f_all = 0 and phi = 0 with the same tangent without the inertia,
+
+    [ P^T K_all P - K_geo   G_m^T ] [ dq ]   [ F_m  ]
+    [ G_m                   0     ] [ mu ] = [ -phi ],
+
+K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the rigid ones, master
+displacements dq = free FEM du and [dp; dtheta] of each dynamic root
+(p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
+line search on |[F_m; phi]| refuses inverted elements.
+
+Not here yet (issue 5): reduced FEM bodies as masters, frames attached to FEM
+bodies (polar decomposition / Procrustes), points attached to FEM bodies as
+slaves of the nodes (point_attachments gives their G), MPI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from petsc4py import PETSc
+from scipy import sparse
+
+from artifem.fem_body import FemBody
+from artifem.multibody.joints import Joint
+from artifem.multibody.rigid_body import RigidBody, exp_so3, orthonormalize, skew
+from artifem.multibody.rigid_system import ForceElement
+
+__all__ = ["CoupledStepFailed", "CoupledSystem", "NodeAttachment", "RigidAttachment"]
+
+
+class CoupledStepFailed(RuntimeError):
+    """The coupled step's linear system is singular or its solution non-finite."""
+
+
+def _skews(d: np.ndarray) -> np.ndarray:
+    """[d_i]x for each row of d (n, 3) -> (n, 3, 3)."""
+    S = np.zeros((len(d), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -d[:, 2], d[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = d[:, 2], -d[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -d[:, 1], d[:, 0]
+    return S
+
+
+def _dof_positions(fem: FemBody) -> np.ndarray:
+    """Current positions X + u of the body's local blocked dofs (P1: its nodes), (n, 3)."""
+    return fem.V.tabulate_dof_coordinates() + fem.u.x.array.reshape(-1, 3)
+
+
+class NodeAttachment:
+    """FEM nodes attached to a rigid body: x_i = p + R r_i (module docstring).
+
+    Args:
+        fem: the FEM body.
+        nodes: input (mesh file) indices of its nodes; each at most once.
+        body: the rigid body that carries them.
+        name: used in errors.
+
+    The body-frame offsets r_i = R^T (x_i - p) are taken *now*, from the
+    current node positions and the body's current pose. The node velocities
+    are v_i = G_i u with G_i = [1, -[R r_i]x] (3 x 6), and forces f_i on the
+    nodes act on the body as the wrench G^T f = [sum f_i; sum R r_i x f_i].
+    """
+
+    def __init__(self, fem: FemBody, nodes, body: RigidBody, *, name: str = ""):
+        if not isinstance(fem, FemBody):
+            raise TypeError(f"NodeAttachment: expected a FemBody, got {type(fem).__name__}")
+        if not isinstance(body, RigidBody):
+            raise TypeError(f"NodeAttachment: expected a RigidBody, got {type(body).__name__}")
+        self.name = name or f"{fem.name}->{body.name}"
+        what = f"node attachment {self.name!r}"
+        if fem.mesh.comm.size != 1:
+            raise NotImplementedError(f"{what}: coupled scenes run in serial only for now")
+        nodes = np.asarray(nodes)
+        if nodes.size == 0 or not np.issubdtype(nodes.dtype, np.integer):
+            raise ValueError(f"{what}: nodes must be a non-empty array of integer node indices")
+        try:
+            nodes = fem._check_nodes(nodes, what)
+        except ValueError as exc:
+            raise ValueError(f"{what}: unknown nodes: {exc}") from None
+        unique, counts = np.unique(nodes, return_counts=True)
+        if np.any(counts > 1):
+            raise ValueError(f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed "
+                             "more than once")
+        self.fem, self.body, self.nodes = fem, body, nodes
+        self.dofs = fem.local_dofs(nodes).astype(np.int64)
+        x = _dof_positions(fem)[self.dofs]
+        self.offsets = (x - body.position) @ body.rotation        # r_i = R^T (x_i - p), rows
+
+    def __repr__(self) -> str:
+        return f"NodeAttachment({self.name!r}, {self.nodes.size} nodes)"
+
+    def levers(self) -> np.ndarray:
+        """R r_i (n, 3): the nodes relative to the body's COM, world axes."""
+        return self.offsets @ self.body.rotation.T
+
+    def positions(self) -> np.ndarray:
+        """x_i = p + R r_i (n, 3)."""
+        return self.body.position + self.levers()
+
+    def jacobian(self) -> np.ndarray:
+        """G (3n x 6), rows [1, -[R r_i]x] per node: v = G u."""
+        n = self.nodes.size
+        G = np.zeros((n, 3, 6))
+        G[:, :, :3] = np.eye(3)
+        G[:, :, 3:] = -_skews(self.levers())
+        return G.reshape(3 * n, 6)
+
+    def velocities(self, twist=None) -> np.ndarray:
+        """v_i = v + w x R r_i (n, 3) for the body's twist (or ``twist``)."""
+        u = self.body.twist if twist is None else np.asarray(twist, dtype=float)
+        return (self.jacobian() @ u).reshape(-1, 3)
+
+    def wrench(self, forces) -> np.ndarray:
+        """G^T f = [sum f_i; sum R r_i x f_i] for forces (n, 3) on the nodes."""
+        f = np.asarray(forces, dtype=float).reshape(-1, 3)
+        return np.concatenate([f.sum(axis=0), np.cross(self.levers(), f).sum(axis=0)])
+
+    def wrench_stiffness(self, forces) -> np.ndarray:
+        """d(G^T f)/dq at fixed f (6 x 6, q = [p; theta]): [[0, 0], [0, sum [f_i]x [R r_i]x]]."""
+        f = np.asarray(forces, dtype=float).reshape(-1, 3)
+        K = np.zeros((6, 6))
+        K[3:, 3:] = np.einsum("nij,njk->ik", _skews(f), _skews(self.levers()))
+        return K
+
+
+class RigidAttachment:
+    """A rigid body welded to another: its pose follows ``master``'s (a slave body).
+
+    The relative pose (offset d_b = R_m^T (p_s - p_m), R_rel = R_m^T R_s) is
+    taken now. The slave keeps its own mass, inertia and loads, which act on
+    the master through u_s = [[1, -[d]x], [0, 1]] u_m, d = p_s - p_m (world).
+    Attachments chain; a cycle is an error of the scene.
+    """
+
+    def __init__(self, slave: RigidBody, master: RigidBody, *, name: str = ""):
+        for b in (slave, master):
+            if not isinstance(b, RigidBody):
+                raise TypeError(f"RigidAttachment: expected RigidBody objects, got "
+                                f"{type(b).__name__}")
+        self.name = name or f"{slave.name}->{master.name}"
+        if slave is master:
+            raise ValueError(f"rigid attachment {self.name!r}: a body cannot be attached to "
+                             "itself (an attachment cycle)")
+        if slave.motion != "dynamic":
+            raise ValueError(f"rigid attachment {self.name!r}: the slave {slave.name!r} is "
+                             f"{slave.motion}; only a dynamic body can follow another")
+        self.slave, self.master = slave, master
+        self.offset = master.rotation.T @ (slave.position - master.position)
+        self.relative_rotation = master.rotation.T @ slave.rotation
+
+    def __repr__(self) -> str:
+        return f"RigidAttachment({self.name!r})"
+
+    def pose(self, position=None, rotation=None) -> tuple[np.ndarray, np.ndarray]:
+        """The slave's pose for the master's pose (default: the master's current pose)."""
+        p = self.master.position if position is None else position
+        R = self.master.rotation if rotation is None else rotation
+        return p + R @ self.offset, orthonormalize(R @ self.relative_rotation)
+
+
+@dataclass
+class _Slaves:
+    """The nodes of one NodeAttachment, as the scene indexes them."""
+
+    attachment: NodeAttachment
+    rows: np.ndarray            # all-space rows (3 per node, node-major)
+
+
+class CoupledSystem:
+    """FEM bodies, rigid bodies, attachments, joints and force elements (module docstring).
+
+    Args:
+        gravity: the gravitational acceleration (world), applied to every body:
+            an FEM body's own ``gravity`` constant is set to it when added.
+        stabilization: Baumgarte beta in [0, 1] of the joint rows (RigidSystem).
+        geometric_stiffness: include K_geo in the step and the static tangent (default);
+            False drops it, for comparisons.
+    """
+
+    def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
+                 geometric_stiffness: bool = True):
+        g = np.asarray(gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers, got {gravity!r}")
+        if not 0.0 <= stabilization <= 1.0:
+            raise ValueError(f"stabilization must be in [0, 1], got {stabilization!r}")
+        self._gravity = g
+        self.stabilization = float(stabilization)
+        self.geometric_stiffness = bool(geometric_stiffness)
+        self.t = 0.0
+        self.fem_bodies: list[FemBody] = []
+        self.rigid_bodies: list[RigidBody] = []
+        self.node_attachments: list[NodeAttachment] = []
+        self.rigid_attachments: list[RigidAttachment] = []
+        self.joints: list[Joint] = []
+        self.forces: list[ForceElement] = []
+        self._layout = None
+        self._solver = _MumpsLU()
+        self._impulses: dict = {}
+        self._last_h = 1.0
+        self.last_solve: dict = {}
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """g (world); setting it sets every FEM body's gravity constant too."""
+        return self._gravity
+
+    @gravity.setter
+    def gravity(self, value) -> None:
+        g = np.asarray(value, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers, got {value!r}")
+        self._gravity = g.copy()
+        for body in self.fem_bodies:
+            body.gravity.value[:] = g
+
+    # ---- building ------------------------------------------------------------------------
+
+    def add(self, *items) -> None:
+        """Add FEM bodies, rigid bodies, attachments, joints and force elements (any order).
+
+        Cross-references (attachments and joints naming bodies of the scene, a
+        node attached twice or also fixed, attachment cycles) are checked at
+        the first step or static solve after a change (:meth:`check`).
+        """
+        for item in items:
+            if isinstance(item, FemBody):
+                if item.mesh.comm.size != 1:
+                    raise NotImplementedError(f"FEM body {item.name!r}: coupled scenes run in "
+                                              "serial only for now")
+                if any(item is b for b in self.fem_bodies):
+                    raise ValueError(f"FEM body {item.name!r} is already in the scene")
+                item.gravity.value[:] = self.gravity
+                self.fem_bodies.append(item)
+            elif isinstance(item, RigidBody):
+                if any(item is b for b in self.rigid_bodies):
+                    raise ValueError(f"rigid body {item.name!r} is already in the scene")
+                if item.motion == "prescribed":
+                    state = item.prescribed_state(self.t)
+                    item.position, item.rotation = state.position, state.rotation
+                    item.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
+                self.rigid_bodies.append(item)
+            elif isinstance(item, NodeAttachment):
+                if any(item is a for a in self.node_attachments):
+                    raise ValueError(f"{item!r} is already in the scene")
+                self.node_attachments.append(item)
+            elif isinstance(item, RigidAttachment):
+                if any(item is a for a in self.rigid_attachments):
+                    raise ValueError(f"{item!r} is already in the scene")
+                self.rigid_attachments.append(item)
+            elif isinstance(item, Joint):
+                if any(item is j for j in self.joints):
+                    raise ValueError(f"joint {item.name!r} is already in the scene")
+                self.joints.append(item)
+            elif isinstance(item, ForceElement):
+                self.forces.append(item)
+            else:
+                raise TypeError(f"cannot add {type(item).__name__} to a CoupledSystem: expected "
+                                "a FemBody, RigidBody, NodeAttachment, RigidAttachment, Joint "
+                                "or a force element with wrenches(t)")
+            self._layout = None
+
+    def check(self) -> None:
+        """Validate the scene and index its coordinates (done automatically when needed)."""
+        self._layout = _Layout(self)
+
+    def _ready(self) -> "_Layout":
+        if self._layout is None:
+            self._layout = _Layout(self)
+        # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
+        if any(not np.array_equal(b.fixed_dofs, f)
+               for b, f in zip(self.fem_bodies, self._layout.fixed)):
+            self._layout = _Layout(self)
+        return self._layout
+
+    # ---- observation ---------------------------------------------------------------------
+
+    def _moving_bodies(self) -> list[RigidBody]:
+        return [b for b in self.rigid_bodies if b.dynamic]
+
+    def kinetic_energy(self) -> float:
+        """1/2 v^T M v of the FEM bodies plus the rigid kinetic energy of the moving bodies."""
+        return (sum(b.kinetic_energy() for b in self.fem_bodies)
+                + sum(b.kinetic_energy() for b in self._moving_bodies()))
+
+    def potential_energy(self) -> float:
+        """FEM Pi(u) (strain minus the work of gravity and loads), -m g . p of the moving
+        rigid bodies, and the force elements' potential_energy()."""
+        return (sum(b.potential_energy() for b in self.fem_bodies)
+                + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
+                + sum(e.potential_energy() for e in self.forces
+                      if hasattr(e, "potential_energy")))
+
+    def energy(self) -> float:
+        return self.kinetic_energy() + self.potential_energy()
+
+    def momentum(self) -> np.ndarray:
+        """Linear momentum: sum M v over the FEM nodes plus m v of the moving rigid bodies."""
+        total = np.zeros(3)
+        for body in self.fem_bodies:
+            body.compile()
+            Mv = body.v.x.petsc_vec.duplicate()
+            body.mass_mult(body.v.x.petsc_vec, Mv)
+            total += Mv.array.reshape(-1, 3).sum(axis=0)
+            Mv.destroy()
+        return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
+
+    def attachment_errors(self) -> dict[str, float]:
+        """max |x_i - (p + R r_i)| of each node attachment (0 by construction after a step)."""
+        return {a.name: float(np.abs(_dof_positions(a.fem)[a.dofs] - a.positions()).max())
+                for a in self.node_attachments}
+
+    def constraint_errors(self) -> dict[str, float]:
+        """max |phi| of each joint's bilateral rows (m and rad)."""
+        return {j.name: float(np.abs(j.constraint().phi).max()) for j in self.joints}
+
+    def reaction(self, joint: Joint) -> tuple[np.ndarray, np.ndarray]:
+        """The wrenches the joint applied to its bodies A and B over the last step
+        (G_A^T lambda / h, G_B^T lambda / h, rows at the start of the step)."""
+        if not any(joint is j for j in self.joints):
+            raise KeyError(f"joint {joint.name!r} is not in the scene")
+        parts = self._impulses.get(joint, [])
+        return (sum((rows.G_a.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h,
+                sum((rows.G_b.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h)
+
+    # ---- the step ------------------------------------------------------------------------
+
+    def step(self, h: float) -> None:
+        """Advance from t to t + h (module docstring)."""
+        L, P, z_k, targets, A_m, b_m = self._step_system(h)
+        bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
+        z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
+        z = P @ z_m + z_k
+        L.advance(z, h, targets)
+        self._impulses, self._last_h = impulses, h
+        self.t += h
+
+    def step_matrix(self, h: float) -> sparse.csr_matrix:
+        """The masters' block P^T A_all P - h^2 K_geo of the next step's KKT matrix (for
+        inspection; prescribed bodies take their twist at t + h, nothing else changes)."""
+        return self._step_system(h)[4]
+
+    def _step_system(self, h: float):
+        """(layout, P, z_k, prescribed targets, A_m, b_m) of the step from t to t + h."""
+        if not (np.isfinite(h) and h > 0):
+            raise ValueError(f"time step must be positive and finite, got {h!r}")
+        L = self._ready()
+        t1 = self.t + h
+        targets = L.kinematic_targets(t1)               # prescribed poses and twists at t1
+        for body, (_, _, twist) in targets.items():
+            body.set_twist(twist)
+        P = L.prolongation()
+        z_k = L.known_velocities(h, targets)
+        A, b, f_all = L.dynamics(h, t1)
+        A_m = (P.T @ A @ P).tocsr()
+        if self.geometric_stiffness:
+            A_m = A_m - h * h * L.geometric_stiffness(f_all)
+        b_m = P.T @ (b - A @ z_k)
+        return L, P, z_k, targets, A_m, b_m
+
+    def _solve(self, A_m, b_m, bilateral, unilateral):
+        """z_m+ and the joint impulses from the KKT system, with an active set for the limits."""
+        n = A_m.shape[0]
+        if n == 0:                                  # everything fixed, prescribed or attached
+            self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
+            return np.zeros(0), {}
+        groups = bilateral + unilateral
+        n_bi = sum(len(g[3]) for g in bilateral)
+        G = sparse.vstack([g[2] for g in groups]).tocsr() if groups else \
+            sparse.csr_matrix((0, n))
+        c = np.concatenate([g[3] for g in groups]) if groups else np.zeros(0)
+        active = np.zeros(len(c), dtype=bool)
+        active[:n_bi] = True
+        limits = np.arange(n_bi, len(c))
+        tol = 1e-10 * max(1.0, np.abs(c).max()) if c.size else 0.0
+        self.last_solve = {"masters": n, "constraint_rows": int(active.sum()), "factorizations": 0}
+        for _ in range(2 * limits.size + 10):
+            on = np.flatnonzero(active)
+            K = sparse.bmat([[A_m, G[on].T], [G[on], None]], format="csr") if on.size else A_m
+            rhs = np.concatenate([b_m, c[on]])
+            x = self._solver.solve(K, rhs, f"t = {self.t:g}")
+            self.last_solve["factorizations"] += 1
+            z_m = x[:n]
+            lam = np.zeros(len(c))
+            lam[on] = -x[n:]
+            if not limits.size:
+                break
+            slack = G[limits] @ z_m - c[limits]             # >= 0 wanted
+            negative = active[limits] & (lam[limits] < -tol)
+            violated = ~active[limits] & (slack < -tol)
+            if negative.any():
+                active[limits[np.argmin(np.where(negative, lam[limits], np.inf))]] = False
+            elif violated.any():
+                active[limits[np.argmin(np.where(violated, slack, np.inf))]] = True
+            else:
+                break
+        else:
+            raise CoupledStepFailed(f"t = {self.t:g}: the joint-limit active set did not settle")
+        impulses: dict = {}
+        start = 0
+        for joint, rows, _, c_rows in groups:
+            impulses.setdefault(joint, []).append((rows, lam[start:start + len(c_rows)]))
+            start += len(c_rows)
+        return z_m, impulses
+
+    # ---- statics -------------------------------------------------------------------------
+
+    def master_forces(self) -> np.ndarray:
+        """F_m = P^T f_all: the static generalized forces on the masters (no inertia)."""
+        L = self._ready()
+        return L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
+
+    def static_tangent(self) -> sparse.csr_matrix:
+        """-dF_m/dq_m = P^T K_all P - K_geo at the current configuration (module docstring)."""
+        L = self._ready()
+        f_all, K_all = L.static_forces(self.t, tangent=True)
+        P = L.prolongation()
+        K = (P.T @ K_all @ P).tocsr()
+        return K - L.geometric_stiffness(f_all) if self.geometric_stiffness else K
+
+    def displace_masters(self, dq) -> None:
+        """Apply a master displacement: free FEM u += dq, dynamic roots p += dp and
+        R = exp([dtheta]x) R; slaves follow their roots' poses exactly."""
+        self._ready().displace(np.asarray(dq, dtype=float))
+
+    def master_count(self) -> int:
+        return self._ready().n_masters
+
+    def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
+                     max_iterations: int = 30) -> list[int]:
+        """Static equilibrium F_m = 0, phi = 0 by Newton (module docstring), the gravity and
+        the FEM loads ramped over ``load_steps`` increments. Velocities are set to zero.
+        Returns the Newton iterations per increment."""
+        L = self._ready()
+        for body in self.fem_bodies:
+            body.v.x.array[:] = 0.0
+        for body in self.rigid_bodies:
+            if body.dynamic:
+                body.set_twist(np.zeros(6))
+        g = self.gravity.copy()
+        counts = []
+        try:
+            for k in range(1, load_steps + 1):
+                self._set_load_factor(k / load_steps, g)
+                counts.append(self._newton(L, rtol, atol, max_iterations, k / load_steps))
+        finally:
+            self._set_load_factor(1.0, g)
+        return counts
+
+    def _set_load_factor(self, factor: float, g: np.ndarray) -> None:
+        """Ramp the loads: the rigid bodies' gravity, and the FEM load factor (which scales
+        the FEM bodies' gravity, body forces and nodal loads)."""
+        self._gravity = factor * g
+        for body in self.fem_bodies:
+            body.load_factor.value = factor
+
+    def _residual(self, L) -> tuple[np.ndarray, np.ndarray]:
+        F = L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
+        phi = np.concatenate([j.constraint().phi for j in self.joints]) if self.joints \
+            else np.zeros(0)
+        return F, phi
+
+    def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
+        F, phi = self._residual(L)
+        norm = float(np.linalg.norm(np.concatenate([F, phi])))
+        scale = max(norm, atol)
+        for it in range(1, max_iterations + 1):
+            if norm <= max(rtol * scale, atol):
+                return it - 1
+            K = self.static_tangent()
+            P = L.prolongation()
+            G = L.joint_matrix(P) if self.joints else sparse.csr_matrix((0, K.shape[0]))
+            KKT = sparse.bmat([[K, G.T], [G, None]], format="csr") if G.shape[0] else K
+            x = self._solver.solve(KKT, np.concatenate([F, -phi]), "static solve")
+            dq, mu = x[:K.shape[0]], x[K.shape[0]:]
+            saved = L.save()
+            # the energy is a merit only when it is the whole potential (no joint rows)
+            use_energy = not phi.size and all(hasattr(e, "potential_energy")
+                                              for e in self.forces)
+            energy0 = self.potential_energy() if use_energy else 0.0
+            slope = -float(F @ dq)                  # d(energy)/ds along the step
+            step = 1.0
+            while step >= 1e-4:
+                L.displace(step * dq)
+                if not L.inverted():
+                    # Energy (Armijo) first: a rotation of a root moves its slaves on arcs
+                    # while the free nodes beside them move on straight lines, so a large
+                    # rotation raises the force residual sharply (stiff elements by the
+                    # attachment), not the energy (integrators._backtrack, same rule).
+                    energy = self.potential_energy() if use_energy else np.inf
+                    F_new, phi_new = self._residual(L)
+                    # equilibrium with the joint reactions: F_m = G^T mu (mu: the multipliers
+                    # of this solve, the whole reaction since the right side is F_m itself)
+                    unbalanced = F_new - G.T @ mu if phi.size else F_new
+                    trial = float(np.linalg.norm(np.concatenate([unbalanced, phi_new])))
+                    if np.isfinite(trial) and (
+                            energy <= energy0 + 1e-4 * step * slope
+                            or trial <= (1.0 - 1e-4 * step) * norm):
+                        break
+                L.restore(saved)
+                step *= 0.5
+            else:
+                raise CoupledStepFailed(f"static solve: line search failed at load factor "
+                                        f"{factor:g}, Newton iteration {it}")
+            F, phi, norm = F_new, phi_new, trial
+            if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
+                return it
+        if norm <= max(rtol * scale, atol):
+            return max_iterations
+        raise CoupledStepFailed(f"static solve: Newton did not converge in {max_iterations} "
+                                f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+
+
+class _Layout:
+    """The scene's coordinates: all-space offsets, masters, slaves, roots (module docstring)."""
+
+    def __init__(self, scene: CoupledSystem):
+        self.scene = scene
+        fem_bodies, rigid = scene.fem_bodies, scene.rigid_bodies
+        self.fixed = [b.fixed_dofs.copy() for b in fem_bodies]
+        offset = 0
+        self.fem_offset: dict[int, int] = {}
+        self.fem_size: dict[int, int] = {}
+        for body in fem_bodies:
+            n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
+            self.fem_offset[id(body)], self.fem_size[id(body)] = offset, 3 * n
+            offset += 3 * n
+        self.rigid_offset: dict[int, int] = {}
+        for body in rigid:
+            self.rigid_offset[id(body)] = offset
+            offset += 6
+        self.n_all = offset
+        self._check_references()
+
+        # Roots of the rigid attachment chains, in dependency order (masters first).
+        master_of = {id(a.slave): a for a in scene.rigid_attachments}
+        self.root: dict[int, RigidBody] = {}
+        for body in rigid:
+            chain, b = [body], body
+            while id(b) in master_of:
+                b = master_of[id(b)].master
+                if any(b is c for c in chain):
+                    names = " -> ".join(c.name for c in chain + [b])
+                    raise ValueError(f"attachment cycle: {names}")
+                chain.append(b)
+            self.root[id(body)] = b
+        depth = {}
+        for body in rigid:
+            d, b = 0, body
+            while id(b) in master_of:
+                b, d = master_of[id(b)].master, d + 1
+            depth[id(body)] = d
+        self.rigid_attachments = sorted(scene.rigid_attachments, key=lambda a: depth[id(a.slave)])
+
+        # Masters: free FEM dofs, then the dynamic roots.
+        is_slave_row = np.zeros(self.n_all, dtype=bool)
+        self.slaves: list[_Slaves] = []
+        for att in scene.node_attachments:
+            o = self.fem_offset[id(att.fem)]
+            rows = (o + 3 * att.dofs[:, None] + np.arange(3)).ravel()
+            is_slave_row[rows] = True
+            self.slaves.append(_Slaves(att, rows))
+        master_rows = []
+        for body, fixed in zip(fem_bodies, self.fixed):
+            o = self.fem_offset[id(body)]
+            known = np.zeros(self.fem_size[id(body)], dtype=bool)
+            known[(3 * fixed[:, None] + np.arange(3)).ravel()] = True
+            rows = o + np.flatnonzero(~known)
+            master_rows.append(rows[~is_slave_row[rows]])
+        self.roots = [b for b in rigid if b.dynamic and id(b) not in master_of]
+        for body in self.roots:
+            master_rows.append(self.rigid_offset[id(body)] + np.arange(6))
+        self.master_rows = np.concatenate(master_rows) if master_rows else np.zeros(0, int)
+        self.n_masters = self.master_rows.size
+        self.master_col = {id(b): int(np.searchsorted(self.master_rows,
+                                                      self.rigid_offset[id(b)]))
+                           for b in self.roots}
+        # (rows sorted: FEM bodies first, then rigid bodies in order, so searchsorted finds them)
+        assert np.all(np.diff(self.master_rows) > 0)
+        self.free_fem = [(body, rows - self.fem_offset[id(body)])
+                         for body, rows in zip(fem_bodies, master_rows)]
+
+    def _check_references(self) -> None:
+        scene = self.scene
+        fem_ids = {id(b) for b in scene.fem_bodies}
+        rigid_ids = {id(b) for b in scene.rigid_bodies}
+        attached: dict[tuple[int, int], str] = {}
+        for att in scene.node_attachments:
+            what = f"node attachment {att.name!r}"
+            if id(att.fem) not in fem_ids:
+                raise ValueError(f"{what}: FEM body {att.fem.name!r} is not in the scene")
+            if id(att.body) not in rigid_ids:
+                raise ValueError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+            fixed = np.intersect1d(att.dofs, att.fem.fixed_dofs)
+            if fixed.size:
+                inverse = {d: n for n, d in att.fem._node_to_dof.items()}
+                raise ValueError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
+                                 f"{att.fem.name!r} are fixed; a node is either fixed or "
+                                 "attached")
+            for node in att.nodes.tolist():
+                key = (id(att.fem), node)
+                if key in attached:
+                    raise ValueError(f"node {node} of FEM body {att.fem.name!r} is attached "
+                                     f"twice: by {attached[key]!r} and by {att.name!r}")
+                attached[key] = att.name
+        slaves: dict[int, str] = {}
+        for att in scene.rigid_attachments:
+            what = f"rigid attachment {att.name!r}"
+            for b in (att.slave, att.master):
+                if id(b) not in rigid_ids:
+                    raise ValueError(f"{what}: rigid body {b.name!r} is not in the scene")
+            if att.slave.motion != "dynamic":
+                raise ValueError(f"{what}: the slave {att.slave.name!r} is {att.slave.motion}")
+            if id(att.slave) in slaves:
+                raise ValueError(f"rigid body {att.slave.name!r} is attached twice: by "
+                                 f"{slaves[id(att.slave)]!r} and by {att.name!r}")
+            slaves[id(att.slave)] = att.name
+        # The offsets were taken when the attachment was made: if a body moved since (a
+        # prescribed body is placed on its trajectory only when it is added to the scene),
+        # the slaves are no longer where the attachment puts them.
+        for att in scene.node_attachments:
+            x = _dof_positions(att.fem)[att.dofs]
+            gap = float(np.abs(x - att.positions()).max())
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offsets).max())):
+                raise ValueError(
+                    f"node attachment {att.name!r}: the nodes are up to {gap:.3g} from where the "
+                    f"attachment puts them; {att.body.name!r} or {att.fem.name!r} moved after the "
+                    "attachment was made (a prescribed body takes its trajectory's pose when "
+                    "added to the scene: add it before making the attachment)")
+        for att in scene.rigid_attachments:
+            p, R = att.pose()
+            gap = max(float(np.abs(p - att.slave.position).max()),
+                      float(np.abs(R - att.slave.rotation).max()))
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
+                raise ValueError(
+                    f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
+                    f"the attachment gives it; a body moved after the attachment was made")
+        for joint in scene.joints:
+            for body in joint.bodies:
+                if body is not None and id(body) not in rigid_ids:
+                    raise ValueError(f"joint {joint.name!r} connects rigid body {body.name!r}, "
+                                     "which is not in the scene")
+
+    # ---- per-step pieces ---------------------------------------------------------------
+
+    def kinematic_targets(self, t1: float) -> dict:
+        """Prescribed roots: (p, R, twist) at t1."""
+        out = {}
+        for body in self.scene.rigid_bodies:
+            if body.motion == "prescribed":
+                s = body.prescribed_state(t1)
+                out[body] = (s.position, s.rotation, np.concatenate([s.velocity,
+                                                                      s.angular_velocity]))
+        return out
+
+    def prolongation(self) -> sparse.csr_matrix:
+        """P (n_all x n_masters) at the current poses (module docstring)."""
+        rows = [self.master_rows]
+        cols = [np.arange(self.n_masters)]
+        vals = [np.ones(self.n_masters)]
+
+        def carried(all_rows: np.ndarray, d: np.ndarray, root: RigidBody) -> None:
+            """3 rows per point d (n, 3) relative to the root: [1, -[d]x] on its 6 columns."""
+            c0 = self.master_col[id(root)]
+            n = len(d)
+            G = np.zeros((n, 3, 6))
+            G[:, :, :3] = np.eye(3)
+            G[:, :, 3:] = -_skews(d)
+            rows.append(np.repeat(all_rows.reshape(n, 3), 6, axis=1).ravel())
+            cols.append(np.tile(c0 + np.arange(6), 3 * n))
+            vals.append(G.ravel())
+
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root.dynamic:
+                carried(s.rows, s.attachment.positions() - root.position, root)
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root.dynamic:
+                o = self.rigid_offset[id(att.slave)]
+                carried(o + np.arange(3), (att.slave.position - root.position)[None], root)
+                c0 = self.master_col[id(root)]
+                rows.append(o + 3 + np.arange(3))
+                cols.append(c0 + 3 + np.arange(3))
+                vals.append(np.ones(3))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_all, self.n_masters))
+
+    def known_velocities(self, h: float, targets: dict) -> np.ndarray:
+        """z_k: prescribed twists at t1, secant velocities of slave nodes of prescribed roots."""
+        z = np.zeros(self.n_all)
+        for body, (_, _, twist) in targets.items():
+            o = self.rigid_offset[id(body)]
+            z[o:o + 6] = twist
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root in targets:
+                p1, R1, twist = targets[root]
+                d1 = R1 @ root.rotation.T @ (att.slave.position - root.position)
+                o = self.rigid_offset[id(att.slave)]
+                z[o:o + 3] = twist[:3] + np.cross(twist[3:], d1)
+                z[o + 3:o + 6] = twist[3:]
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root in targets:
+                p1, R1, _ = targets[root]
+                x0 = s.attachment.positions()
+                x1 = p1 + (x0 - root.position) @ (R1 @ root.rotation.T).T
+                z[s.rows] = ((x1 - x0) / h).ravel()
+        return z
+
+    def _rigid_wrenches(self, t1: float, h: float | None, A, b):
+        """Force elements: wrenches into b (times h, or 1 for statics), Jacobian blocks into
+        A (-h D - h^2 K, or -K for statics); returns the force part per body id."""
+        scene = self.scene
+        forces = {}
+        known = {id(x) for x in scene.rigid_bodies}
+        scale = 1.0 if h is None else h
+        for element in scene.forces:
+            for body, wrench in element.wrenches(t1):
+                wrench = _checked(element, known, body, wrench, (6,))
+                o = self.rigid_offset[id(body)]
+                b[o:o + 6] += scale * wrench
+                forces[id(body)] = forces.get(id(body), np.zeros(3)) + wrench[:3]
+            for bi, bj, K, D in getattr(element, "jacobians", lambda t: ())(t1):
+                K, D = (_checked(element, known, bi, np.zeros((6, 6)) if X is None else X,
+                                 (6, 6), bj) for X in (K, D))
+                i, j = self.rigid_offset[id(bi)], self.rigid_offset[id(bj)]
+                if h is None:
+                    A.append((i, j, -K))
+                else:
+                    A.append((i, j, -h * D - h * h * K))
+                    b[i:i + 6] -= h * D @ bj.twist
+        return forces
+
+    def dynamics(self, h: float, t1: float):
+        """A_all, b_all (module docstring) and the applied forces f_all (for K_geo)."""
+        scene = self.scene
+        blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
+        for body in scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.assemble(tangent=True)
+            K = _csr(body.K)
+            M = _mass(body)
+            v = body.v.x.array[:n]
+            Mv = M @ v
+            f = -body.R.array[:n]
+            b[o:o + n] = Mv + h * f
+            f_all[o:o + n] = f - body.alpha * Mv - body.beta * (K @ v)
+            blocks.append(((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K).tocsr())
+        rigid_blocks = []
+        for body in scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            if not body.dynamic:
+                rigid_blocks.append(np.zeros((6, 6)))
+                continue
+            M, D, u = body.mass_matrix(), body.gyroscopic_damping(), body.twist
+            f = body.gyroscopic_wrench()
+            f[:3] += body.mass * scene.gravity
+            rigid_blocks.append(M - h * D)
+            b[o:o + 6] += M @ u + h * (f - D @ u)
+            f_all[o:o + 3] += f[:3]
+        extra: list = []
+        element_forces = self._rigid_wrenches(t1, h, extra, b)
+        for key, force in element_forces.items():
+            o = self.rigid_offset[key]
+            f_all[o:o + 3] += force
+        A = self._stack(blocks, rigid_blocks, extra)
+        return A, b, f_all
+
+    def static_forces(self, t: float, tangent: bool):
+        """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
+        scene = self.scene
+        blocks, f_all = [], np.zeros(self.n_all)
+        for body in scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.assemble(tangent=tangent)
+            f_all[o:o + n] = -body.R.array[:n]
+            if tangent:
+                blocks.append(_csr(body.K))
+        for body in scene.rigid_bodies:
+            if body.dynamic:
+                o = self.rigid_offset[id(body)]
+                f_all[o:o + 3] += body.mass * scene.gravity
+        extra: list = []
+        self._rigid_wrenches(t, None, extra, f_all)
+        if not tangent:
+            return f_all, None
+        zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
+        return f_all, self._stack(blocks, zeros, extra)
+
+    def _stack(self, fem_blocks, rigid_blocks, extra) -> sparse.csr_matrix:
+        parts = list(fem_blocks)
+        if rigid_blocks:
+            parts.append(sparse.block_diag([sparse.csr_matrix(b) for b in rigid_blocks],
+                                           format="csr"))
+        A = sparse.block_diag(parts, format="csr") if parts else \
+            sparse.csr_matrix((self.n_all, self.n_all))
+        if extra:
+            rows, cols, vals = [], [], []
+            for i, j, X in extra:
+                r, c = np.meshgrid(i + np.arange(6), j + np.arange(6), indexing="ij")
+                rows.append(r.ravel()), cols.append(c.ravel()), vals.append(X.ravel())
+            A = A + sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                              np.concatenate(cols))),
+                                      shape=A.shape)
+        return A.tocsr()
+
+    def geometric_stiffness(self, f_all: np.ndarray) -> sparse.csr_matrix:
+        """K_geo on the masters (module docstring): sum_s [f_s]x [d_s]x on each dynamic root's
+        rotation block, for the applied forces f_all on the slaves."""
+        K = {}
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root.dynamic:
+                f = f_all[s.rows].reshape(-1, 3)
+                d = s.attachment.positions() - root.position
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", _skews(f),
+                                                               _skews(d))
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root.dynamic:
+                o = self.rigid_offset[id(att.slave)]
+                K[id(root)] = K.get(id(root), 0.0) + skew(f_all[o:o + 3]) @ skew(
+                    att.slave.position - root.position)
+        rows, cols, vals = [], [], []
+        for key, block in K.items():
+            c0 = self.master_col[key] + 3
+            r, c = np.meshgrid(c0 + np.arange(3), c0 + np.arange(3), indexing="ij")
+            rows.append(r.ravel()), cols.append(c.ravel()), vals.append(block.ravel())
+        if not rows:
+            return sparse.csr_matrix((self.n_masters, self.n_masters))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_masters, self.n_masters))
+
+    def joint_matrix(self, P) -> sparse.csr_matrix:
+        """The bilateral joint rows on the masters, G P (static solve)."""
+        blocks = self.joint_rows(P, np.zeros(self.n_all), 1.0, 0.0)[0]
+        return sparse.vstack([g[2] for g in blocks]).tocsr()
+
+    def joint_rows(self, P, z_k, h, beta):
+        """(joint, rows, G P, c) of the bilateral and of the unilateral rows (module docstring)."""
+        out = {"bilateral": [], "unilateral": []}
+        for joint in self.scene.joints:
+            for kind, rows in (("bilateral", joint.constraint()), ("unilateral",
+                                                                    joint.unilateral())):
+                if not len(rows):
+                    continue
+                G = np.zeros((len(rows), self.n_all))
+                for body, G_body in zip(joint.bodies, (rows.G_a, rows.G_b)):
+                    if body is not None:
+                        o = self.rigid_offset[id(body)]
+                        G[:, o:o + 6] += G_body
+                if kind == "bilateral":
+                    c = -beta * rows.phi / h
+                else:                               # reach the limit, never cross it
+                    c = np.where(rows.phi > 0, -rows.phi / h, -beta * rows.phi / h)
+                G = sparse.csr_matrix(G)
+                out[kind].append((joint, rows, (G @ P).tocsr(), c - G @ z_k))
+        return out["bilateral"], out["unilateral"]
+
+    # ---- updates -----------------------------------------------------------------------
+
+    def advance(self, z: np.ndarray, h: float, targets: dict) -> None:
+        """Velocities from z; free FEM dofs and dynamic roots move by h z; prescribed bodies
+        go to their targets; slaves are set from their masters' poses."""
+        for body, free in self.free_fem:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.v.x.array[:n] = z[o:o + n]
+            body.u.x.array[free] += h * z[o + free]
+        for body in self.scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            if body.motion == "prescribed":
+                p1, R1, twist = targets[body]
+                body.position, body.rotation = p1, R1
+                body.set_twist(twist)
+            elif body.dynamic:
+                body.set_twist(z[o:o + 6])
+                if any(body is r for r in self.roots):
+                    body.advance_pose(h)
+        self.place_slaves()
+
+    def place_slaves(self) -> None:
+        for att in self.rigid_attachments:              # dependency order
+            att.slave.position, att.slave.rotation = att.pose()
+        for s in self.slaves:
+            att = s.attachment
+            u = att.fem.u.x.array.reshape(-1, 3)
+            u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
+        for body in self.scene.fem_bodies:
+            body.u.x.scatter_forward()
+            body.v.x.scatter_forward()
+
+    def displace(self, dq: np.ndarray) -> None:
+        """Master displacement (static solve, finite differences); see displace_masters."""
+        if dq.shape != (self.n_masters,):
+            raise ValueError(f"expected {self.n_masters} master displacements, got {dq.shape}")
+        for body, free in self.free_fem:
+            o = self.fem_offset[id(body)]
+            idx = np.searchsorted(self.master_rows, o + free)
+            body.u.x.array[free] += dq[idx]
+        for body in self.roots:
+            c = self.master_col[id(body)]
+            body.position = body.position + dq[c:c + 3]
+            body.rotation = orthonormalize(exp_so3(dq[c + 3:c + 6]) @ body.rotation)
+        self.place_slaves()
+
+    def save(self):
+        return ([b.u.x.array.copy() for b in self.scene.fem_bodies],
+                [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies])
+
+    def restore(self, saved) -> None:
+        for body, u in zip(self.scene.fem_bodies, saved[0]):
+            body.u.x.array[:] = u
+        for body, (p, R) in zip(self.scene.rigid_bodies, saved[1]):
+            body.position, body.rotation = p, R
+
+    def master_scale(self) -> float:
+        vals = [np.abs(b.u.x.array).max() for b in self.scene.fem_bodies if b.u.x.array.size]
+        vals += [np.abs(b.position).max() for b in self.roots]
+        return max(vals, default=1.0)
+
+    def inverted(self) -> bool:
+        for body in self.scene.fem_bodies:
+            detF = body.det_F()
+            if detF.size and not np.nanmin(detF) > 0:
+                return True
+        return False
+
+
+def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
+    """``array`` as a finite float array of ``shape``, on bodies of the scene."""
+    what = f"force element {type(element).__name__}"
+    for b in (body, other or body):
+        if not isinstance(b, RigidBody) or id(b) not in known:
+            raise ValueError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
+    array = np.asarray(array, dtype=float)
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise ValueError(f"{what}: expected a finite array of shape {shape} for body "
+                         f"{body.name!r}, got shape {array.shape}")
+    return array
+
+
+def _csr(mat: PETSc.Mat) -> sparse.csr_matrix:
+    """A serial PETSc AIJ matrix as scipy CSR (copied)."""
+    indptr, indices, data = mat.getValuesCSR()
+    return sparse.csr_matrix((data.copy(), indices.copy(), indptr.copy()), shape=mat.getSize())
+
+
+def _mass(body: FemBody) -> sparse.csr_matrix:
+    body.compile()
+    if body.M_consistent is not None:
+        return _csr(body.M_consistent)
+    return sparse.diags(body.M_lumped.array.copy(), format="csr")
+
+
+class _MumpsLU:
+    """x = K^-1 b by a MUMPS LU factorization (petsc4py, one process)."""
+
+    def __init__(self):
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setType("preonly")
+        pc = self.ksp.getPC()
+        pc.setType("lu")
+        pc.setFactorSolverType("mumps")
+        self._mat = None
+        self._pattern = None
+
+    def solve(self, K: sparse.csr_matrix, b: np.ndarray, what: str) -> np.ndarray:
+        K = K.tocsr()
+        K.sort_indices()
+        n = K.shape[0]
+        indptr = K.indptr.astype(PETSc.IntType)
+        indices = K.indices.astype(PETSc.IntType)
+        pattern = (n, indptr.tobytes(), indices.tobytes())
+        if self._mat is not None and pattern == self._pattern:
+            self._mat.setValuesCSR(indptr, indices, K.data)    # same pattern: keep the analysis
+            self._mat.assemble()
+        else:
+            if self._mat is not None:
+                self.ksp.reset()                # a new pattern (or size): a new analysis
+                self._mat.destroy()
+            self._mat = PETSc.Mat().createAIJ(size=(n, n), csr=(indptr, indices, K.data),
+                                              comm=PETSc.COMM_SELF)
+            self._mat.assemble()
+            self._pattern = pattern
+        self.ksp.setOperators(self._mat)
+        rhs = self._mat.createVecLeft()
+        x = self._mat.createVecRight()
+        rhs.array[:] = b
+        try:
+            self.ksp.solve(rhs, x)
+        except PETSc.Error as exc:
+            raise CoupledStepFailed(f"{what}: the LU factorization failed ({exc}); a singular "
+                                    "system: redundant joints, or a free body with no mass?") \
+                from exc
+        reason = self.ksp.getConvergedReason()
+        out = x.array.copy()
+        rhs.destroy()
+        x.destroy()
+        if reason < 0 or not np.all(np.isfinite(out)):
+            raise CoupledStepFailed(f"{what}: the direct solve failed (KSP reason {reason}, "
+                                    "finite: " f"{bool(np.all(np.isfinite(out)))}); a singular "
+                                    "system: redundant joints, or a free body with no mass?")
+        return out
