@@ -1,0 +1,155 @@
+"""Embedded point sets, polylines and triangle surfaces in full and reduced FEM bodies."""
+
+import numpy as np
+import pytest
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+import pyvista as pv
+from dolfinx import mesh as dmesh
+from mpi4py import MPI
+
+from artifem.embedding import EmbeddedMesh, OutsideMeshError
+from artifem.fem_body import FemBody
+from artifem.forms import NeoHookean
+from artifem.reduction.reduced_body import ReducedFemBody, all_points
+from reduced_beam import make_body, random_basis
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="embedding is serial for now")
+
+A = np.array([[0.1, -0.2, 0.05], [0.3, 0.02, -0.1], [0.0, 0.15, -0.05]])
+C = np.array([0.01, -0.02, 0.03])
+CENTRE = np.array([0.5, 0.45, 0.4])
+
+
+def box_body(cell_type, n=(5, 4, 3)):
+    """A distorted box (so hexahedra are not parallelepipeds: a real Newton pull-back)."""
+    ct = getattr(dmesh.CellType, cell_type)
+    msh = dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.array([1.0, 0.9, 0.8])], list(n), ct)
+    x = msh.geometry.x
+    x[:, 0] += 0.03 * np.sin(3.0 * x[:, 1]) * np.sin(2.0 * x[:, 2])
+    x[:, 2] += 0.02 * np.cos(4.0 * x[:, 0]) * x[:, 1]
+    return FemBody(msh, NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
+
+
+def sphere(radius=0.3, res=16):
+    s = pv.Sphere(radius=radius, center=CENTRE, theta_resolution=res, phi_resolution=res)
+    s = s.triangulate().clean()
+    return np.asarray(s.points, dtype=float), s.faces.reshape(-1, 4)[:, 1:]
+
+
+def helix(n=200):
+    t = np.linspace(0.0, 4.0 * np.pi, n)
+    pts = CENTRE + np.c_[0.3 * np.cos(t), 0.3 * np.sin(t), 0.3 * (t / (2 * np.pi) - 1.0)]
+    return pts, np.c_[np.arange(n - 1), np.arange(1, n)]
+
+
+def set_affine(body):
+    x = body.V.tabulate_dof_coordinates()
+    body.u.x.array[:] = (x @ A.T + C).ravel()
+
+
+@pytest.mark.parametrize("cell_type", ["hexahedron", "tetrahedron"])
+@pytest.mark.parametrize("kind", ["vertex", "line", "triangle"])
+def test_affine_displacement_reproduced_exactly(cell_type, kind):
+    body = box_body(cell_type)
+    rng = np.random.default_rng(0)
+    if kind == "vertex":
+        pts, cells = CENTRE + 0.35 * (rng.random((500, 3)) - 0.5), None
+    elif kind == "line":
+        pts, cells = helix()
+    else:
+        pts, cells = sphere()
+    emb = EmbeddedMesh(body, pts, cells, kind)
+    np.testing.assert_allclose(emb.rest_positions, pts, atol=1e-13)
+    assert np.all(emb.distance == 0.0)
+    # Weights: partition of unity, nonnegative inside.
+    row_sums = np.asarray(emb.G.sum(axis=1)).ravel()
+    np.testing.assert_allclose(row_sums, 1.0, atol=1e-13)
+    assert emb.G.data.min() > -1e-12
+    set_affine(body)
+    np.testing.assert_allclose(emb.positions(), pts + pts @ A.T + C, atol=1e-13)
+    poly = emb.to_pyvista()
+    assert poly.n_points == len(pts)
+    if kind == "triangle":      # the surface deforms by F = I + A: volume scales by det F
+        vol0 = pv.PolyData(pts, np.c_[np.full(len(cells), 3), cells].ravel()).volume
+        assert poly.volume == pytest.approx(np.linalg.det(np.eye(3) + A) * vol0, rel=1e-12)
+
+
+@pytest.mark.parametrize("cell_type", ["hexahedron", "tetrahedron"])
+def test_virtual_work(cell_type):
+    body = box_body(cell_type)
+    pts, tris = sphere()
+    emb = EmbeddedMesh(body, pts, tris, "triangle")
+    rng = np.random.default_rng(1)
+    n3 = emb.G.shape[1]
+    v = rng.standard_normal(n3)
+    body.v.x.array[:n3] = v
+    f = rng.standard_normal((emb.num_points, 3))
+    power_embedded = float(np.sum(f * emb.velocities()))
+    power_nodes = float(emb.force_to_nodes(f) @ v)
+    assert power_embedded == pytest.approx(power_nodes, rel=1e-12)
+    # Total force is preserved (weights sum to one).
+    np.testing.assert_allclose(emb.force_to_nodes(f).reshape(-1, 3).sum(axis=0), f.sum(axis=0),
+                               atol=1e-12)
+
+
+def test_outside_points_raise_or_snap_with_distance():
+    body = box_body("hexahedron", (4, 4, 4))
+    msh = body.mesh
+    x = msh.geometry.x
+    # Undistorted reference box for exact distances: a plain box body.
+    plain = FemBody(dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [4, 4, 4],
+                                     dmesh.CellType.hexahedron),
+                    NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
+    pts = np.array([[0.5, 0.5, 0.5],        # inside
+                    [1.2, 0.5, 0.5],        # 0.2 beyond the face x = 1
+                    [-0.3, -0.4, 0.5],      # beyond the edge x = y = 0: distance 0.5
+                    [1.1, 1.2, 1.3]])       # beyond the corner: distance sqrt(.01+.04+.09)
+    with pytest.raises(OutsideMeshError, match=r"3 embedded point\(s\).*point 2 at distance 0.5"):
+        EmbeddedMesh(plain, pts)
+    emb = EmbeddedMesh(plain, pts, snap=True)
+    np.testing.assert_allclose(emb.distance, [0.0, 0.2, 0.5, np.sqrt(0.14)], atol=1e-12)
+    np.testing.assert_allclose(emb.rest_positions, np.clip(pts, 0.0, 1.0), atol=1e-12)
+    np.testing.assert_allclose(emb.G.sum(axis=1), 1.0, atol=1e-13)
+    set_affine(plain)
+    snapped = np.clip(pts, 0.0, 1.0)
+    np.testing.assert_allclose(emb.positions(), snapped + snapped @ A.T + C, atol=1e-13)
+    assert x.shape[0] > 0
+
+
+def test_reduced_body_G_is_full_G_times_U():
+    body = make_body()
+    U = random_basis(body, 6, seed=3)
+    reduced = ReducedFemBody(body, U, all_points(body))
+    rng = np.random.default_rng(2)
+    pts = np.array([0.0, 0.0, 0.0]) + rng.random((40, 3)) * np.array([1.0, 0.3, 0.2])
+    emb_full = EmbeddedMesh(body, pts)
+    emb_red = EmbeddedMesh(reduced, pts)
+    np.testing.assert_allclose(emb_red.G_reduced, emb_full.G @ reduced.U, atol=1e-14)
+    q = rng.standard_normal(reduced.r) * 1e-2
+    qdot = rng.standard_normal(reduced.r)
+    reduced.set_q(q)
+    reduced.qdot = qdot
+    n3 = emb_full.G.shape[1]
+    body.u.x.array[:n3] = reduced.nodal_displacement()
+    body.v.x.array[:n3] = reduced.nodal_velocity()
+    np.testing.assert_allclose(emb_red.positions(), emb_full.positions(), atol=1e-14)
+    np.testing.assert_allclose(emb_red.velocities(), emb_full.velocities(), atol=1e-13)
+    f = rng.standard_normal((40, 3))
+    np.testing.assert_allclose(emb_red.force_to_nodes(f), U.T @ emb_full.force_to_nodes(f),
+                               atol=1e-12)
+    assert float(f.ravel() @ (emb_red.G_reduced @ qdot)) == pytest.approx(
+        float(emb_red.force_to_nodes(f) @ qdot), rel=1e-12)
+
+
+def test_bad_input():
+    body = box_body("tetrahedron", (2, 2, 2))
+    with pytest.raises(ValueError, match="cell_type"):
+        EmbeddedMesh(body, np.zeros((1, 3)) + 0.5, cell_type="quad")
+    with pytest.raises(ValueError, match="shape"):
+        EmbeddedMesh(body, np.zeros((2, 3)) + 0.5, [[0, 1, 2]], "line")
+    with pytest.raises(ValueError, match="out of range"):
+        EmbeddedMesh(body, np.zeros((2, 3)) + 0.5, [[0, 2]], "line")
+    emb = EmbeddedMesh(body, np.zeros((2, 3)) + 0.5)
+    with pytest.raises(ValueError, match="forces"):
+        emb.force_to_nodes(np.zeros(3))
