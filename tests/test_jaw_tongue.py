@@ -1,0 +1,85 @@
+"""The jaw-tongue scene (models/jaw_tongue.py): a short run of the hinged, muscle-opened jaw
+carrying the tongue's jaw-attachment nodes, and the welded jaw against the plain tongue."""
+
+import numpy as np
+import pytest
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from artifem.models import jaw_tongue as jt
+from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
+from artifem.multibody.rigid_body import RigidBody
+
+DT, DURATION = 0.01, 0.15
+
+
+@pytest.fixture(scope="module")
+def data():
+    return load_tongue_data(0)
+
+
+@pytest.fixture(scope="module")
+def opened(data):
+    s = jt.build_scene(jt.JawTongueConfig(), data=data)
+    R0, axis0 = s.jaw.rotation.copy(), s.joint.frame_b.world_rotation()[:, 2].copy()
+    z0 = s.attachment.positions()[:, 2].copy()
+    rec = jt.simulate(s, "protrusion", DURATION, DT)
+    return s, rec, R0, axis0, z0
+
+
+def test_jaw_surface_is_aligned_to_the_attachment_nodes(opened):
+    s = opened[0]
+    a = s.alignment
+    assert a["mean_distance"] < 2e-3 and a["max_distance"] < 6e-3      # measured 1.19 / 4.86 mm
+    assert 0.05 < s.jaw.mass < 0.3                                      # 1900 kg/m^3 bone
+    # hinge posterior-superior of the jaw attachment nodes (x posterior, z up)
+    nodes = s.attachment.positions()
+    assert s.hinge[0] > nodes[:, 0].max() and s.hinge[2] > nodes[:, 2].max()
+
+
+def test_short_run_is_finite_and_attachments_are_exact(opened):
+    s, rec = opened[:2]
+    assert np.all(np.isfinite(s.tongue.body.u.x.array))
+    assert np.all(np.isfinite(rec["tip"]))
+    assert rec["attachment_error"].max() < 1e-12
+    assert max(s.scene.attachment_errors().values()) < 1e-12
+
+
+def test_jaw_turns_only_about_its_hinge(opened):
+    s, rec, R0, axis0, _ = opened
+    assert rec["joint_error"].max() < 1e-5                  # m and rad, Baumgarte-stabilized
+    dR = s.jaw.rotation @ R0.T
+    angle = np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))
+    w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+    axis = w / np.linalg.norm(w)
+    assert abs(abs(axis @ axis0) - 1) < 1e-6
+    assert np.isclose(angle, s.opening_angle(), rtol=1e-6, atol=1e-9)
+    lo, hi = s.joint.limits
+    assert lo - 1e-6 <= rec["angle"].min() and rec["angle"].max() <= hi + 1e-6
+
+
+def test_opening_the_jaw_lowers_the_attached_tongue_nodes(opened):
+    s, rec, _, _, z0 = opened
+    assert rec["angle"][-1] > np.radians(2.0)               # the opener opened the jaw
+    dz = s.attachment.positions()[:, 2] - z0
+    assert dz.mean() < -1e-3 and np.all(dz < 0)
+
+
+def test_welded_jaw_matches_the_plain_tongue(data):
+    """Jaw welded to the skull (FixedJoint), no opener/closer: the tongue must move like the
+    level-0 tongue with fixed jaw and hyoid nodes (same gravity). Tolerance: 1e-6 of the
+    largest displacement (measured ~1e-10; the two differ by the solver path only)."""
+    config = jt.JawTongueConfig(joint="welded", opener_force=0.0, closer_stiffness=0.0)
+    s = jt.build_scene(config, data=data)
+    jt.simulate(s, "protrusion", 0.1, DT)
+    plain = Tongue(TongueConfig(level=0, linear_solver="mumps"), data=data)
+    plain.body.gravity.value[:] = config.gravity
+    plain.drive(Tongue.motion("protrusion"))
+    for _ in range(10):
+        plain.system.step(DT)
+    rows = np.arange(data.mesh.points.shape[0])
+    u_plain = plain.body.displacement_at(rows)
+    u_jaw = s.tongue.body.displacement_at(rows)
+    scale = np.abs(u_plain).max()
+    assert scale > 1e-4
+    assert np.abs(u_jaw - u_plain).max() < 1e-6 * scale
+    assert isinstance(s.jaw, RigidBody) and np.linalg.norm(s.jaw.velocity) < 1e-8
