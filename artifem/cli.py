@@ -31,6 +31,8 @@ COMMANDS = {
                              "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
     ("simulate", "beam-ellipsoid"): ("artifem.models.beam_ellipsoid",
                                      "FEM beam with a rigid ellipsoid at its end (Fig. 11)"),
+    ("simulate", "jaw-tongue"): ("artifem.models.jaw_tongue",
+                                 "tongue on a hinged rigid jaw opened by a Hill muscle"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
