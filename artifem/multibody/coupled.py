@@ -97,6 +97,23 @@ displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
 line search on |[F_m; phi]| refuses inverted elements.
 
+Path elements (:class:`PointPath`): a spring or muscle of
+:mod:`artifem.multibody.muscles` through points that are FEM points
+(:class:`FemPoint`: x_a = sum_j w_j x_j, the weights of point_attachments, e.g.
+4 or 24 support nodes), rigid frames, or fixed world points. With G the
+all-space map of the path points (x_a' = G z: [w_j I] on an FEM point's
+nodes, [1, -[r]x] on a frame's body, nothing for a world point), the
+element's point forces f, K = df/dx and D = df/dv enter as
+
+    b += h G^T f - h G^T D G z,     A -= h G^T D G + h^2 (G^T K G + K_r),
+
+K_r the rigid frames' lever terms (``point_force_wrenches``: [f]x [r]x and
+the D [w]x [r]x term), i.e. the same backward-Euler linearization as the
+rigid force elements (A = M - h D - h^2 K); statics adds G^T f to the forces
+and -(G^T K G + K_r) to K_all. The forces also enter f_all, so a path on
+slave nodes adds to their root's K_geo. Excitation schedules and activation
+as in FramePath (advanced once per new time t).
+
 Not here yet (issue 5): reduced FEM bodies as masters, frames attached to FEM
 bodies (polar decomposition / Procrustes), points attached to FEM bodies as
 slaves of the nodes (point_attachments gives their G), MPI.
@@ -112,10 +129,12 @@ from scipy import sparse
 
 from artifem.fem_body import FemBody
 from artifem.multibody.joints import Joint
-from artifem.multibody.rigid_body import RigidBody, exp_so3, orthonormalize, skew
+from artifem.multibody.point_attachments import FemPointWeights
+from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
 from artifem.multibody.rigid_system import ForceElement
 
-__all__ = ["CoupledStepFailed", "CoupledSystem", "NodeAttachment", "RigidAttachment"]
+__all__ = ["CoupledStepFailed", "CoupledSystem", "FemPoint", "NodeAttachment", "PointPath",
+           "RigidAttachment"]
 
 
 class CoupledStepFailed(RuntimeError):
@@ -248,6 +267,101 @@ class RigidAttachment:
         return p + R @ self.offset, orthonormalize(R @ self.relative_rotation)
 
 
+class FemPoint:
+    """A point on a FEM body, x_a = sum_j w_j (X_j + u_j) (``FemPointWeights``: the shape
+    functions of its element, or a support of k nodes: the paper's 4 versus 24)."""
+
+    def __init__(self, fem: FemBody, weights: FemPointWeights, *, name: str = ""):
+        if not isinstance(fem, FemBody):
+            raise TypeError(f"FemPoint: expected a FemBody, got {type(fem).__name__}")
+        if not isinstance(weights, FemPointWeights):
+            raise TypeError(f"FemPoint: expected FemPointWeights, got {type(weights).__name__}")
+        n = fem.V.dofmap.index_map.size_local + fem.V.dofmap.index_map.num_ghosts
+        if weights.dofs.min() < 0 or weights.dofs.max() >= n:
+            raise ValueError(f"FemPoint {name!r}: support dofs outside FEM body {fem.name!r}")
+        self.fem, self.weights, self.name = fem, weights, name or f"point on {fem.name}"
+
+    def __repr__(self) -> str:
+        return f"FemPoint({self.name!r}, {self.weights.dofs.size} support nodes)"
+
+    def position(self) -> np.ndarray:
+        u = self.fem.u.x.array.reshape(-1, 3)[self.weights.dofs]
+        return self.weights.rest_position + self.weights.weights @ u
+
+    def velocity(self) -> np.ndarray:
+        return self.weights.weights @ self.fem.v.x.array.reshape(-1, 3)[self.weights.dofs]
+
+
+class PointPath:
+    """A spring or muscle (``AxialSpring``, ``ThelenMuscle``: ``evaluate(x, v, dt)``) through
+    ``points``: :class:`FemPoint` objects, rigid-body or world ``Frame`` objects, or fixed
+    world points (3 numbers). Add it to a :class:`CoupledSystem` (module docstring).
+
+    ``excitation(t)``, if given, sets the muscle's excitation at the step's end time; the
+    activation advances once per new time (as ``FramePath``).
+    """
+
+    def __init__(self, element, points, *, excitation=None, name: str = "path"):
+        pts = []
+        for p in points:
+            if isinstance(p, (FemPoint, Frame)):
+                pts.append(p)
+            else:
+                x = np.asarray(p, dtype=float)
+                if x.shape != (3,) or not np.all(np.isfinite(x)):
+                    raise ValueError(f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
+                                     f"finite numbers (a fixed world point), got {p!r}")
+                pts.append(Frame(None, x))
+        if len(pts) < 2:
+            raise ValueError(f"PointPath {name!r}: a path needs at least two points, "
+                             f"got {len(pts)}")
+        if excitation is not None and not hasattr(element, "set_excitation"):
+            raise ValueError(f"PointPath {name!r}: {type(element).__name__} takes no excitation")
+        self.element, self.points, self.excitation, self.name = element, pts, excitation, name
+        self._t = None
+        self._dt = None
+        self._result = None
+
+    def __repr__(self) -> str:
+        return f"PointPath({self.name!r}, {len(self.points)} points)"
+
+    @property
+    def conservative(self) -> bool:
+        """True when the element has an energy (springs): statics may use it as a merit."""
+        return hasattr(self.element, "energy")
+
+    def positions(self) -> np.ndarray:
+        return np.array([p.position() if isinstance(p, FemPoint) else p.world_position()
+                         for p in self.points])
+
+    def velocities(self) -> np.ndarray:
+        return np.array([p.velocity() for p in self.points])
+
+    def evaluate(self, t: float):
+        """The element's PathForces at the current positions and velocities, time t."""
+        if self._t is None or t != self._t:
+            dt = None if self._t is None else t - self._t
+            if self._result is not None:
+                self.element.commit(self._result)          # the previous step was accepted
+            if self.excitation is not None:
+                self.element.set_excitation(float(self.excitation(t)))
+                if dt is not None and dt > 0 and hasattr(self.element, "update_activation"):
+                    self.element.update_activation(dt)
+            self._t, self._dt = t, dt
+        self._result = self.element.evaluate(self.positions(), self.velocities(), self._dt)
+        return self._result
+
+    def tension(self) -> float:
+        return float(self._result.tension) if self._result is not None else 0.0
+
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.positions(), axis=0), axis=1).sum())
+
+    def potential_energy(self) -> float:
+        energy = getattr(self.element, "energy", None)
+        return float(energy(self.positions())) if energy is not None else 0.0
+
+
 @dataclass
 class _Slaves:
     """The nodes of one NodeAttachment, as the scene indexes them."""
@@ -284,6 +398,7 @@ class CoupledSystem:
         self.rigid_attachments: list[RigidAttachment] = []
         self.joints: list[Joint] = []
         self.forces: list[ForceElement] = []
+        self.paths: list[PointPath] = []
         self._layout = None
         self._solver = _MumpsLU()
         self._impulses: dict = {}
@@ -342,6 +457,10 @@ class CoupledSystem:
                 if any(item is j for j in self.joints):
                     raise ValueError(f"joint {item.name!r} is already in the scene")
                 self.joints.append(item)
+            elif isinstance(item, PointPath):
+                if any(item is p for p in self.paths):
+                    raise ValueError(f"path {item.name!r} is already in the scene")
+                self.paths.append(item)
             elif isinstance(item, ForceElement):
                 self.forces.append(item)
             else:
@@ -379,7 +498,8 @@ class CoupledSystem:
         return (sum(b.potential_energy() for b in self.fem_bodies)
                 + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
                 + sum(e.potential_energy() for e in self.forces
-                      if hasattr(e, "potential_energy")))
+                      if hasattr(e, "potential_energy"))
+                + sum(p.potential_energy() for p in self.paths))
 
     def energy(self) -> float:
         return self.kinetic_energy() + self.potential_energy()
@@ -566,7 +686,8 @@ class CoupledSystem:
             saved = L.save()
             # the energy is a merit only when it is the whole potential (no joint rows)
             use_energy = not phi.size and all(hasattr(e, "potential_energy")
-                                              for e in self.forces)
+                                              for e in self.forces) \
+                and all(p.conservative for p in self.paths)
             energy0 = self.potential_energy() if use_energy else 0.0
             slope = -float(F @ dq)                  # d(energy)/ds along the step
             step = 1.0
@@ -725,6 +846,14 @@ class _Layout:
                 raise ValueError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
                     f"the attachment gives it; a body moved after the attachment was made")
+        for path in scene.paths:
+            for pt in path.points:
+                if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids:
+                    raise ValueError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
+                                     "the scene")
+                if isinstance(pt, Frame) and pt.body is not None and id(pt.body) not in rigid_ids:
+                    raise ValueError(f"path {path.name!r}: rigid body {pt.body.name!r} is not in "
+                                     "the scene")
         for joint in scene.joints:
             for body in joint.bodies:
                 if body is not None and id(body) not in rigid_ids:
@@ -857,7 +986,87 @@ class _Layout:
             o = self.rigid_offset[key]
             f_all[o:o + 3] += force
         A = self._stack(blocks, rigid_blocks, extra)
+        if scene.paths:
+            F, K, D = self.path_terms(t1, h)
+            z = self.current_velocities()
+            b += h * F - h * (D @ z)
+            A = (A - h * D - h * h * K).tocsr()
+            f_all += self._applied_part(F)
         return A, b, f_all
+
+    def current_velocities(self) -> np.ndarray:
+        """z: the FEM nodal velocities and the rigid twists (all-space)."""
+        z = np.zeros(self.n_all)
+        for body in self.scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            z[o:o + n] = body.v.x.array[:n]
+        for body in self.scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            z[o:o + 6] = body.twist
+        return z
+
+    def _applied_part(self, F: np.ndarray) -> np.ndarray:
+        """F on the FEM rows, and only the force part on the rigid rows (f_all's content)."""
+        out = F.copy()
+        for body in self.scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            out[o + 3:o + 6] = 0.0
+        return out
+
+    def path_map(self, path: "PointPath") -> sparse.csr_matrix:
+        """G (3n x n_all): x_a' = G z for the path's points (module docstring)."""
+        rows, cols, vals = [], [], []
+        for i, pt in enumerate(path.points):
+            if isinstance(pt, FemPoint):
+                o = self.fem_offset[id(pt.fem)]
+                w, d = pt.weights.weights, pt.weights.dofs
+                for c in range(3):
+                    rows.append(np.full(d.size, 3 * i + c))
+                    cols.append(o + 3 * d + c)
+                    vals.append(w)
+            elif isinstance(pt, Frame) and pt.body is not None:
+                o = self.rigid_offset[id(pt.body)]
+                Gi = pt.jacobian()
+                r, c = np.meshgrid(3 * i + np.arange(3), o + np.arange(6), indexing="ij")
+                rows.append(r.ravel()), cols.append(c.ravel()), vals.append(Gi.ravel())
+        n = 3 * len(path.points)
+        if not rows:
+            return sparse.csr_matrix((n, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(n, self.n_all))
+
+    def path_terms(self, t: float, h: float | None):
+        """All paths at time t: F = G^T f (all-space), K = G^T K_p G + K_r and D = G^T D_p G
+        (n_all x n_all, the derivatives of F by the positions and the velocities)."""
+        scene = self.scene
+        F = np.zeros(self.n_all)
+        K = sparse.csr_matrix((self.n_all, self.n_all))
+        D = sparse.csr_matrix((self.n_all, self.n_all))
+        for path in scene.paths:
+            result = path.evaluate(t)
+            G = self.path_map(path)
+            F += G.T @ result.forces.ravel()
+            K = K + G.T @ sparse.csr_matrix(result.stiffness) @ G
+            D = D + G.T @ sparse.csr_matrix(result.damping) @ G
+            # rigid frames: the levers turn with the body (point_force_wrenches' extra terms)
+            rigid = [(i, pt) for i, pt in enumerate(path.points)
+                     if isinstance(pt, Frame) and pt.body is not None]
+            if rigid:
+                rr, cc, vv = [], [], []
+                for i, pt in rigid:
+                    o = self.rigid_offset[id(pt.body)]
+                    Ki = np.zeros((self.n_all, 6))
+                    Ki[o:o + 6] += pt.wrench_stiffness(result.forces[i])
+                    # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
+                    Dcol = (G.T @ sparse.csr_matrix(result.damping[:, 3 * i:3 * i + 3])).toarray()
+                    Ki[:, 3:] -= Dcol @ skew(pt.body.angular_velocity) @ skew(pt.lever())
+                    nz = np.nonzero(Ki)
+                    rr.append(nz[0]), cc.append(o + nz[1]), vv.append(Ki[nz])
+                K = K + sparse.csr_matrix((np.concatenate(vv), (np.concatenate(rr),
+                                                                np.concatenate(cc))),
+                                          shape=(self.n_all, self.n_all))
+        return F, K.tocsr(), D.tocsr()
 
     def static_forces(self, t: float, tangent: bool):
         """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
@@ -875,10 +1084,17 @@ class _Layout:
                 f_all[o:o + 3] += body.mass * scene.gravity
         extra: list = []
         self._rigid_wrenches(t, None, extra, f_all)
+        K_path = None
+        if scene.paths:
+            F, K_path, _ = self.path_terms(t, None)
+            f_all += F                           # statics: whole wrenches on rigid rows
         if not tangent:
             return f_all, None
         zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
-        return f_all, self._stack(blocks, zeros, extra)
+        K_all = self._stack(blocks, zeros, extra)
+        if K_path is not None:
+            K_all = (K_all - K_path).tocsr()
+        return f_all, K_all
 
     def _stack(self, fem_blocks, rigid_blocks, extra) -> sparse.csr_matrix:
         parts = list(fem_blocks)
