@@ -33,6 +33,8 @@ COMMANDS = {
                                      "FEM beam with a rigid ellipsoid at its end (Fig. 11)"),
     ("simulate", "jaw-tongue"): ("artifem.models.jaw_tongue",
                                  "tongue on a hinged rigid jaw opened by a Hill muscle"),
+    ("simulate", "styloglossus"): ("artifem.models.styloglossus",
+                                   "external styloglossus on 4 vs 24 support nodes: stress"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
