@@ -132,7 +132,7 @@ def cells_near(body, point, radius) -> np.ndarray:
     return np.flatnonzero(d <= radius)
 
 
-def run(support: int, *, duration: float = DURATION, dt: float = DT, radius: float = 0.012,
+def simulate(support: int, *, duration: float = DURATION, dt: float = DT, radius: float = 0.012,
         data=None, config: TongueConfig = TongueConfig(level=0)) -> dict:
     """Simulate with the given support size; returns the results and the objects."""
     tongue = Tongue(config, comm=MPI.COMM_SELF, data=data)
@@ -175,20 +175,32 @@ def run(support: int, *, duration: float = DURATION, dt: float = DT, radius: flo
             "_body": body, "_vm": vm}
 
 
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--duration", type=float, default=DURATION)
+
+
+def run(args: argparse.Namespace) -> int:
+    report(args)
+    return 0
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/styloglossus"))
-    parser.add_argument("--duration", type=float, default=DURATION)
-    args = parser.parse_args(argv)
+    add_arguments(parser)
+    return report(parser.parse_args(argv))
+
+
+def report(args: argparse.Namespace) -> dict:
+    """Both supports, the shared-scale stress render and the JSON summary."""
     args.out.mkdir(parents=True, exist_ok=True)
     data = load_tongue_data(0)
-    results = {k: run(k, duration=args.duration, data=data) for k in (4, 24)}
+    results = {k: simulate(k, duration=args.duration, data=data) for k in (4, 24)}
     from artifem.render import render_bodies
     vmax = max(r["peak_von_mises_Pa"] for r in results.values())
     bodies = [(r["_body"].mesh, r["_body"].u) for r in results.values()]
     png = args.out / "styloglossus_stress.png"
-    # one shared colour scale: pass a single array per body would give per-body ranges, so
-    # clip both to the same max and pass them as one coloring through a shared list trick
+    # one colour scale for both panels
     scal = [r["_vm"] for r in results.values()]
     render_shared(png, bodies, scal, [f"{k} support nodes" for k in results], vmax)
     summary = {str(k): {kk: v for kk, v in r.items() if not kk.startswith("_")}

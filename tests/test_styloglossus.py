@@ -18,7 +18,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
 from artifem.models.tongue.model import load_tongue_data
-from models.styloglossus import STYLOID, run
+from artifem.models.styloglossus import STYLOID, simulate
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
@@ -26,7 +26,7 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 @pytest.fixture(scope="module")
 def results():
     data = load_tongue_data(0)
-    return {k: run(k, duration=0.3, data=data) for k in (4, 24)}
+    return {k: simulate(k, duration=0.3, data=data) for k in (4, 24)}
 
 
 @pytest.mark.parametrize("k", [4, 24])
