@@ -128,6 +128,7 @@ from petsc4py import PETSc
 from scipy import sparse
 
 from artifem.fem_body import FemBody
+from artifem.multibody.frame_paths import TimedPath
 from artifem.multibody.joints import Joint
 from artifem.multibody.point_attachments import FemPointWeights
 from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
@@ -315,12 +316,8 @@ class PointPath:
         if len(pts) < 2:
             raise ValueError(f"PointPath {name!r}: a path needs at least two points, "
                              f"got {len(pts)}")
-        if excitation is not None and not hasattr(element, "set_excitation"):
-            raise ValueError(f"PointPath {name!r}: {type(element).__name__} takes no excitation")
-        self.element, self.points, self.excitation, self.name = element, pts, excitation, name
-        self._t = None
-        self._dt = None
-        self._result = None
+        self.element, self.points, self.name = element, pts, name
+        self._timed = TimedPath(element, excitation, f"PointPath {name!r}")
 
     def __repr__(self) -> str:
         return f"PointPath({self.name!r}, {len(self.points)} points)"
@@ -339,20 +336,10 @@ class PointPath:
 
     def evaluate(self, t: float):
         """The element's PathForces at the current positions and velocities, time t."""
-        if self._t is None or t != self._t:
-            dt = None if self._t is None else t - self._t
-            if self._result is not None:
-                self.element.commit(self._result)          # the previous step was accepted
-            if self.excitation is not None:
-                self.element.set_excitation(float(self.excitation(t)))
-                if dt is not None and dt > 0 and hasattr(self.element, "update_activation"):
-                    self.element.update_activation(dt)
-            self._t, self._dt = t, dt
-        self._result = self.element.evaluate(self.positions(), self.velocities(), self._dt)
-        return self._result
+        return self._timed(t, self.positions(), self.velocities())
 
     def tension(self) -> float:
-        return float(self._result.tension) if self._result is not None else 0.0
+        return self._timed.tension()
 
     def length(self) -> float:
         return float(np.linalg.norm(np.diff(self.positions(), axis=0), axis=1).sum())

@@ -23,7 +23,40 @@ import numpy as np
 from artifem.multibody.rigid_body import Frame
 from artifem.multibody.rigid_system import point_force_wrenches
 
-__all__ = ["FramePath"]
+__all__ = ["FramePath", "TimedPath"]
+
+
+class TimedPath:
+    """Evaluates a path element at the step's end time t, stepping its time-dependent state.
+
+    On the first evaluation at a new t: the previous result is committed (that
+    step was accepted), the excitation is set to ``excitation(t)`` and the
+    activation advanced by t - t_previous. Repeated evaluations at the same t
+    (force and Jacobians of one step) reuse that state.
+    """
+
+    def __init__(self, element, excitation: Callable[[float], float] | None, name: str):
+        if excitation is not None and not hasattr(element, "set_excitation"):
+            raise ValueError(f"path {name!r}: {type(element).__name__} takes no excitation")
+        self.element, self.excitation = element, excitation
+        self._t = self._dt = self.result = None
+
+    def __call__(self, t: float, positions: np.ndarray, velocities: np.ndarray):
+        if self._t is None or t != self._t:
+            dt = None if self._t is None else t - self._t
+            if self.result is not None:
+                self.element.commit(self.result)
+            if self.excitation is not None:
+                self.element.set_excitation(float(self.excitation(t)))
+                if dt is not None and dt > 0 and hasattr(self.element, "update_activation"):
+                    self.element.update_activation(dt)
+            self._t, self._dt = t, dt
+        self.result = self.element.evaluate(positions, velocities, self._dt)
+        return self.result
+
+    def tension(self) -> float:
+        """The element's tension at the last evaluation (N)."""
+        return float(self.result.tension) if self.result is not None else 0.0
 
 
 class FramePath:
@@ -34,12 +67,8 @@ class FramePath:
         if len(frames) < 2:
             raise ValueError(f"FramePath {name!r}: a path needs at least two frames, "
                              f"got {len(frames)}")
-        if excitation is not None and not hasattr(element, "set_excitation"):
-            raise ValueError(f"FramePath {name!r}: {type(element).__name__} takes no excitation")
-        self.element, self.frames, self.excitation, self.name = element, list(frames), \
-            excitation, name
-        self._t = None
-        self._result = None
+        self.element, self.frames, self.name = element, list(frames), name
+        self._timed = TimedPath(element, excitation, f"FramePath {name!r}")
 
     def positions(self) -> np.ndarray:
         return np.array([f.world_position() for f in self.frames])
@@ -48,17 +77,7 @@ class FramePath:
         return np.array([f.velocity() for f in self.frames])
 
     def _evaluate(self, t: float):
-        if self._t is None or t != self._t:
-            dt = None if self._t is None else t - self._t
-            if self._result is not None:
-                self.element.commit(self._result)          # the previous step was accepted
-            if self.excitation is not None:
-                self.element.set_excitation(float(self.excitation(t)))
-                if dt is not None and dt > 0 and hasattr(self.element, "update_activation"):
-                    self.element.update_activation(dt)
-            self._t, self._dt = t, dt
-        self._result = self.element.evaluate(self.positions(), self.velocities(), self._dt)
-        return self._result
+        return self._timed(t, self.positions(), self.velocities())
 
     def wrenches(self, t: float):
         result = self._evaluate(t)
@@ -73,7 +92,7 @@ class FramePath:
 
     def tension(self) -> float:
         """The element's tension at the last evaluation (N)."""
-        return float(self._result.tension) if self._result is not None else 0.0
+        return self._timed.tension()
 
     def potential_energy(self) -> float:
         """The element's stored energy, for elements that have one (springs)."""
