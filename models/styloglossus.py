@@ -196,7 +196,6 @@ def report(args: argparse.Namespace) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     data = load_tongue_data(0)
     results = {k: simulate(k, duration=args.duration, data=data) for k in (4, 24)}
-    from artifem.render import render_bodies
     vmax = max(r["peak_von_mises_Pa"] for r in results.values())
     bodies = [(r["_body"].mesh, r["_body"].u) for r in results.values()]
     png = args.out / "styloglossus_stress.png"

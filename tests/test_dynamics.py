@@ -19,7 +19,6 @@ from mpi4py import MPI
 
 from artifem.fem_body import ElementInversionError, FemBody
 from artifem.forms import BlemkerFiber, LinearElastic, NeoHookean
-from artifem.integrators import StepFailed
 from artifem.system import System
 
 INTEGRATORS = ["semi-implicit", "implicit"]
