@@ -99,6 +99,19 @@ def _set_camera(plotter: pv.Plotter, camera, bounds) -> None:
     plotter.reset_camera(bounds=bounds)
 
 
+def add_displacement(plotter: pv.Plotter, displacement: fem.Function, clim, *,
+                     scalar_bar: bool = True, fmt: str = "%.1f",
+                     rest_opacity: float = 0.3) -> None:
+    """Draw a body deformed by ``displacement``, colored by |u| in mm over ``clim``, with its
+    rest shape as a faint wireframe, in the plotter's current subplot (for custom scenes)."""
+    grid, rest = body_grid(displacement.function_space.mesh, displacement)
+    grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"], axis=1)
+    plotter.add_mesh(grid, scalars="|u| (mm)", cmap="viridis", show_edges=True, clim=clim,
+                     show_scalar_bar=scalar_bar,
+                     scalar_bar_args={"title": "|u| (mm)", "color": "black", "fmt": fmt})
+    plotter.add_mesh(rest, style="wireframe", color="gray", opacity=rest_opacity)
+
+
 def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
                   scalars: Scalars | Sequence[Scalars] = None,
                   titles: Sequence[str] | None = None, camera="iso",

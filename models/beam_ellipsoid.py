@@ -188,7 +188,7 @@ def render(png: Path, config: BeamEllipsoidConfig, beam: FemBody, frames) -> Pat
     """The beam (colored by |u|) and the ellipsoid at the given (title, u, p, R) frames."""
     import pyvista as pv
 
-    from artifem.render import body_grid
+    from artifem.render import add_displacement
 
     pv.OFF_SCREEN = True
     plotter = pv.Plotter(off_screen=True, shape=(1, len(frames)),
@@ -200,14 +200,7 @@ def render(png: Path, config: BeamEllipsoidConfig, beam: FemBody, frames) -> Pat
         for i, (title, u, p, R) in enumerate(frames):
             plotter.subplot(0, i)
             u_fun.x.array[:] = u
-            grid, rest = body_grid(beam.mesh, u_fun)
-            grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"],
-                                                               axis=1)
-            plotter.add_mesh(grid, scalars="|u| (mm)", cmap="viridis", show_edges=True,
-                             clim=clim, show_scalar_bar=i == 0,
-                             scalar_bar_args={"title": "|u| (mm)", "color": "black",
-                                              "fmt": "%.0f"})
-            plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.3)
+            add_displacement(plotter, u_fun, clim, scalar_bar=i == 0, fmt="%.0f")
             shell = pv.ParametricEllipsoid(*config.semi_axes)
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, p

@@ -352,7 +352,7 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
     import pyvista as pv
     from dolfinx import fem
 
-    from artifem.render import body_grid
+    from artifem.render import add_displacement
 
     pv.OFF_SCREEN = True
     body = s.tongue.body
@@ -368,14 +368,7 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
         for i, (title, u, p, R) in enumerate(frames):
             plotter.subplot(0, i)
             u_fun.x.array[:] = u
-            grid, rest = body_grid(body.mesh, u_fun)
-            grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"],
-                                                               axis=1)
-            plotter.add_mesh(grid, scalars="|u| (mm)", cmap="viridis", show_edges=True,
-                             clim=clim, show_scalar_bar=i == 0,
-                             scalar_bar_args={"title": "|u| (mm)", "color": "black",
-                                              "fmt": "%.1f"})
-            plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.15)
+            add_displacement(plotter, u_fun, clim, scalar_bar=i == 0, rest_opacity=0.15)
             plotter.add_mesh(pv.PolyData(verts @ R.T + p, faces), color="wheat", opacity=0.55)
             plotter.add_mesh(pv.Sphere(0.002, s.hinge), color="red")
             plotter.add_text(title, font_size=11, color="black")
