@@ -428,26 +428,17 @@ class CoupledSystem:
                 if any(item is b for b in self.rigid_bodies):
                     raise ValueError(f"rigid body {item.name!r} is already in the scene")
                 if item.motion == "prescribed":
-                    state = item.prescribed_state(self.t)
-                    item.position, item.rotation = state.position, state.rotation
-                    item.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
+                    item.follow_trajectory(self.t)
                 self.rigid_bodies.append(item)
-            elif isinstance(item, NodeAttachment):
-                if any(item is a for a in self.node_attachments):
-                    raise ValueError(f"{item!r} is already in the scene")
-                self.node_attachments.append(item)
-            elif isinstance(item, RigidAttachment):
-                if any(item is a for a in self.rigid_attachments):
-                    raise ValueError(f"{item!r} is already in the scene")
-                self.rigid_attachments.append(item)
-            elif isinstance(item, Joint):
-                if any(item is j for j in self.joints):
-                    raise ValueError(f"joint {item.name!r} is already in the scene")
-                self.joints.append(item)
-            elif isinstance(item, PointPath):
-                if any(item is p for p in self.paths):
-                    raise ValueError(f"path {item.name!r} is already in the scene")
-                self.paths.append(item)
+            elif isinstance(item, (NodeAttachment, RigidAttachment, Joint, PointPath)):
+                members = {NodeAttachment: self.node_attachments,
+                           RigidAttachment: self.rigid_attachments,
+                           Joint: self.joints, PointPath: self.paths}
+                group = next(g for kind, g in members.items() if isinstance(item, kind))
+                if any(item is other for other in group):
+                    raise ValueError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
+                                     f"already in the scene")
+                group.append(item)
             elif isinstance(item, ForceElement):
                 self.forces.append(item)
             else:

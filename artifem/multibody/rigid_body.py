@@ -329,6 +329,12 @@ class RigidBody:
                          _vector(state.velocity, f"{what} velocity"),
                          _vector(state.angular_velocity, f"{what} angular velocity"))
 
+    def follow_trajectory(self, t: float) -> None:
+        """Put a prescribed body at its trajectory's pose and twist at time t."""
+        state = self.prescribed_state(t)
+        self.position, self.rotation = state.position, state.rotation
+        self.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
+
     def to_world(self, points) -> np.ndarray:
         """World positions of body-coordinate points (n, 3): p + R r_b."""
         return self.position + np.asarray(points, dtype=float) @ self.rotation.T

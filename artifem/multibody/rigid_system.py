@@ -174,9 +174,7 @@ class RigidSystem:
                 if item.name in {b.name for b in self.bodies}:
                     raise ValueError(f"a body named {item.name!r} is already in the system")
                 if item.motion == "prescribed":
-                    state = item.prescribed_state(self.t)
-                    item.position, item.rotation = state.position, state.rotation
-                    item.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
+                    item.follow_trajectory(self.t)
                 self.bodies.append(item)
             elif isinstance(item, Joint):
                 if any(item is j for j in self.joints):
