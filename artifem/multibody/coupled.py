@@ -127,15 +127,18 @@ import numpy as np
 from petsc4py import PETSc
 from scipy import sparse
 
+from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.fem_body import FemBody
 from artifem.multibody.frame_paths import TimedPath
 from artifem.multibody.joints import Joint
 from artifem.multibody.point_attachments import FemPointWeights
 from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
 from artifem.multibody.rigid_system import ForceElement
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.rigid_lift import RigidLift
 
-__all__ = ["CoupledStepFailed", "CoupledSystem", "FemPoint", "NodeAttachment", "PointPath",
-           "RigidAttachment"]
+__all__ = ["CoupledStepFailed", "CoupledSystem", "EmbeddedFemAttachment", "FemPoint",
+           "LiftAttachment", "LoadElement", "NodeAttachment", "PointPath", "RigidAttachment"]
 
 
 class CoupledStepFailed(RuntimeError):
@@ -268,28 +271,170 @@ class RigidAttachment:
         return p + R @ self.offset, orthonormalize(R @ self.relative_rotation)
 
 
+class EmbeddedFemAttachment:
+    """Every node of FEM body ``slave`` follows FEM body ``master`` (Lloyd et al. 2019,
+    section 4.2: the masseter's aponeurosis membranes, attached node by node to the
+    primary FEM they lie in, non-conforming).
+
+    With W (3 n_s x 3 n_m) the shape functions of the master element that contains
+    each slave node's rest position (:class:`~artifem.embedding.EmbeddedMesh`),
+
+        x_s = W x_m + c,     v_s = W v_m,     f_m = W^T f_s,
+
+    c = x_s - W x_m taken now (0 for nodes inside the master at rest; the snapping
+    offset of nodes snapped from outside, ``snap=True``, ``distance`` per node).
+    The slave's dofs leave the solve (its rows of P are W times the master's), so
+    its mass, stiffness and loads act on the master: P^T A P holds W^T A_s W.
+    Embedded bodies chain (a slave may be the master of another); a cycle is an
+    error of the scene. The slave may have no fixed dofs.
+    """
+
+    def __init__(self, slave: FemBody, master: FemBody, *, snap: bool = False,
+                 name: str = ""):
+        for b in (slave, master):
+            if not isinstance(b, FemBody):
+                raise TypeError(f"EmbeddedFemAttachment: expected FemBody objects, got "
+                                f"{type(b).__name__}")
+        self.name = name or f"{slave.name}->{master.name}"
+        if slave is master:
+            raise ValueError(f"embedded attachment {self.name!r}: a body cannot be embedded "
+                             "in itself (an attachment cycle)")
+        for b in (slave, master):
+            if b.mesh.comm.size != 1:
+                raise NotImplementedError(f"embedded attachment {self.name!r}: coupled scenes "
+                                          "run in serial only for now")
+        self.slave, self.master = slave, master
+        rest = slave.V.tabulate_dof_coordinates()
+        embedded = EmbeddedMesh(master, rest, snap=snap, name=self.name)
+        self.W = embedded.G.tocsr()
+        self.distance = embedded.distance
+        x_m = _dof_positions(master).ravel()
+        self.offset = _dof_positions(slave).ravel() - self.W @ x_m[:self.W.shape[1]]
+
+    def __repr__(self) -> str:
+        return f"EmbeddedFemAttachment({self.name!r}, {self.W.shape[0] // 3} nodes)"
+
+    def displacement(self) -> np.ndarray:
+        """u_s = W x_m + c - X_s (block-interleaved, the slave's dof layout)."""
+        x_m = _dof_positions(self.master).ravel()[:self.W.shape[1]]
+        return self.W @ x_m + self.offset - self.slave.V.tabulate_dof_coordinates().ravel()
+
+
+class LiftAttachment:
+    """The 12 rigid-lift coordinates of a reduced body follow a rigid body's pose
+    (:mod:`artifem.reduction.rigid_lift`): g = [p - p_0; vec(R - R_0)], g' = G_g u.
+
+    Args:
+        reduced: the reduced body; its basis holds ``lift.columns`` as 12 consecutive
+            columns, and its other columns vanish on the carried nodes (so the nodes
+            ride on the body exactly).
+        lift: the RigidLift the basis was built with.
+        body: the rigid body that carries the nodes (at the lift's pose or moved since:
+            the coordinates g are set from its pose when the scene is checked).
+        name: used in errors.
+
+    Forces on the lift coordinates reach the body as the wrench G_g^T f_g; its
+    lever stiffness is sum_k [f_gRk]x [R_k]x (the columns R_k turn with the body
+    like a node's lever), plus [f_gp]x [p - p_root]x on a body carried by another.
+    """
+
+    def __init__(self, reduced: ReducedFemBody, lift: RigidLift, body: RigidBody, *,
+                 name: str = ""):
+        if not isinstance(reduced, ReducedFemBody):
+            raise TypeError(f"LiftAttachment: expected a ReducedFemBody, got "
+                            f"{type(reduced).__name__}")
+        if not isinstance(lift, RigidLift):
+            raise TypeError(f"LiftAttachment: expected a RigidLift, got {type(lift).__name__}")
+        if not isinstance(body, RigidBody):
+            raise TypeError(f"LiftAttachment: expected a RigidBody, got {type(body).__name__}")
+        self.name = name or f"{reduced.name}->{body.name}"
+        what = f"lift attachment {self.name!r}"
+        U, L = reduced.U, lift.columns
+        if U.shape[0] != L.shape[0]:
+            raise ValueError(f"{what}: the lift has {L.shape[0]} rows, the basis {U.shape[0]}")
+        scale = float(np.abs(L).max())
+        match = [k for k in range(U.shape[1] - 11)
+                 if np.abs(U[:, k:k + 12] - L).max() <= 1e-12 * scale]
+        if not match:
+            raise ValueError(f"{what}: the basis of {reduced.name!r} does not contain the "
+                             "lift's 12 columns")
+        self.first = match[0]
+        rows = (3 * lift.dofs[:, None] + np.arange(3)).ravel()
+        others = np.delete(U[rows], np.s_[self.first:self.first + 12], axis=1)
+        if others.size and np.abs(others).max() > 1e-9 * max(1.0, float(np.abs(U).max())):
+            raise ValueError(f"{what}: basis columns other than the lift move the carried "
+                             f"nodes (up to {np.abs(others).max():.3g}); they would not "
+                             "follow the body")
+        self.reduced, self.lift, self.body = reduced, lift, body
+        self.columns = np.arange(self.first, self.first + 12)
+
+    def __repr__(self) -> str:
+        return f"LiftAttachment({self.name!r}, {self.lift.nodes.size} nodes)"
+
+    def coordinates(self) -> np.ndarray:
+        """g of the body's current pose."""
+        return self.lift.coordinates(self.body.position, self.body.rotation)
+
+
+class LoadElement:
+    """What :class:`CoupledSystem` accepts as an explicit load: an object with
+
+        master_loads(t) -> iterable of (body, array)
+
+    per body of the scene: an FEM body (nodal forces in its blocked dof layout,
+    the length of ``body.v.x.array``), a rigid body (the wrench [f; tau about the
+    COM], world) or a reduced body (its generalized force, r). Loads enter the
+    step explicitly (b += h f) and the static residual; e.g. a pressure on a skin
+    mapped to its masters by G^T (virtual work).
+    """
+
+    @staticmethod
+    def is_load(item) -> bool:
+        return callable(getattr(item, "master_loads", None))
+
+
 class FemPoint:
     """A point on a FEM body, x_a = sum_j w_j (X_j + u_j) (``FemPointWeights``: the shape
-    functions of its element, or a support of k nodes: the paper's 4 versus 24)."""
+    functions of its element, or a support of k nodes: the paper's 4 versus 24).
 
-    def __init__(self, fem: FemBody, weights: FemPointWeights, *, name: str = ""):
-        if not isinstance(fem, FemBody):
-            raise TypeError(f"FemPoint: expected a FemBody, got {type(fem).__name__}")
+    On a reduced body (weights on its full body's dofs) u = u_bar + U q, so
+    x_a' = G q' with G = sum_j w_j U_j (3 x r), the paper's reduced point attachment.
+    """
+
+    def __init__(self, fem: FemBody | ReducedFemBody, weights: FemPointWeights, *,
+                 name: str = ""):
+        if not isinstance(fem, (FemBody, ReducedFemBody)):
+            raise TypeError(f"FemPoint: expected a FemBody or ReducedFemBody, got "
+                            f"{type(fem).__name__}")
         if not isinstance(weights, FemPointWeights):
             raise TypeError(f"FemPoint: expected FemPointWeights, got {type(weights).__name__}")
-        n = fem.V.dofmap.index_map.size_local + fem.V.dofmap.index_map.num_ghosts
+        full = fem.full if isinstance(fem, ReducedFemBody) else fem
+        n = full.V.dofmap.index_map.size_local + full.V.dofmap.index_map.num_ghosts
         if weights.dofs.min() < 0 or weights.dofs.max() >= n:
             raise ValueError(f"FemPoint {name!r}: support dofs outside FEM body {fem.name!r}")
         self.fem, self.weights, self.name = fem, weights, name or f"point on {fem.name}"
+        if isinstance(fem, ReducedFemBody):
+            rows = (3 * weights.dofs[:, None] + np.arange(3)).ravel()
+            k = weights.dofs.size
+            self.G = np.einsum("j,jcr->cr", weights.weights, fem.U[rows].reshape(k, 3, -1))
+            self._x_bar = weights.rest_position + weights.weights @ fem.u_bar[rows].reshape(k, 3)
 
     def __repr__(self) -> str:
         return f"FemPoint({self.name!r}, {self.weights.dofs.size} support nodes)"
 
+    @property
+    def reduced(self) -> bool:
+        return isinstance(self.fem, ReducedFemBody)
+
     def position(self) -> np.ndarray:
+        if self.reduced:
+            return self._x_bar + self.G @ self.fem.q
         u = self.fem.u.x.array.reshape(-1, 3)[self.weights.dofs]
         return self.weights.rest_position + self.weights.weights @ u
 
     def velocity(self) -> np.ndarray:
+        if self.reduced:
+            return self.G @ self.fem.qdot
         return self.weights.weights @ self.fem.v.x.array.reshape(-1, 3)[self.weights.dofs]
 
 
@@ -380,12 +525,16 @@ class CoupledSystem:
         self.geometric_stiffness = bool(geometric_stiffness)
         self.t = 0.0
         self.fem_bodies: list[FemBody] = []
+        self.reduced_bodies: list[ReducedFemBody] = []
         self.rigid_bodies: list[RigidBody] = []
         self.node_attachments: list[NodeAttachment] = []
         self.rigid_attachments: list[RigidAttachment] = []
+        self.embedded_attachments: list[EmbeddedFemAttachment] = []
+        self.lift_attachments: list[LiftAttachment] = []
         self.joints: list[Joint] = []
         self.forces: list[ForceElement] = []
         self.paths: list[PointPath] = []
+        self.loads: list = []
         self._layout = None
         self._solver = _MumpsLU()
         self._impulses: dict = {}
@@ -403,13 +552,18 @@ class CoupledSystem:
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"gravity must be 3 finite numbers, got {value!r}")
         self._gravity = g.copy()
-        for body in self.fem_bodies:
+        for body in self._full_bodies():
             body.gravity.value[:] = g
+
+    def _full_bodies(self) -> list[FemBody]:
+        """The FEM bodies and the full bodies of the reduced ones (gravity, load factor)."""
+        return self.fem_bodies + [b.full for b in self.reduced_bodies]
 
     # ---- building ------------------------------------------------------------------------
 
     def add(self, *items) -> None:
-        """Add FEM bodies, rigid bodies, attachments, joints and force elements (any order).
+        """Add FEM bodies (full or reduced), rigid bodies, attachments, joints, force and
+        load elements (any order).
 
         Cross-references (attachments and joints naming bodies of the scene, a
         node attached twice or also fixed, attachment cycles) are checked at
@@ -424,15 +578,23 @@ class CoupledSystem:
                     raise ValueError(f"FEM body {item.name!r} is already in the scene")
                 item.gravity.value[:] = self.gravity
                 self.fem_bodies.append(item)
+            elif isinstance(item, ReducedFemBody):
+                if any(item is b for b in self.reduced_bodies):
+                    raise ValueError(f"reduced body {item.name!r} is already in the scene")
+                item.full.gravity.value[:] = self.gravity
+                self.reduced_bodies.append(item)
             elif isinstance(item, RigidBody):
                 if any(item is b for b in self.rigid_bodies):
                     raise ValueError(f"rigid body {item.name!r} is already in the scene")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.rigid_bodies.append(item)
-            elif isinstance(item, (NodeAttachment, RigidAttachment, Joint, PointPath)):
+            elif isinstance(item, (NodeAttachment, RigidAttachment, EmbeddedFemAttachment,
+                                   LiftAttachment, Joint, PointPath)):
                 members = {NodeAttachment: self.node_attachments,
                            RigidAttachment: self.rigid_attachments,
+                           EmbeddedFemAttachment: self.embedded_attachments,
+                           LiftAttachment: self.lift_attachments,
                            Joint: self.joints, PointPath: self.paths}
                 group = next(g for kind, g in members.items() if isinstance(item, kind))
                 if any(item is other for other in group):
@@ -441,10 +603,15 @@ class CoupledSystem:
                 group.append(item)
             elif isinstance(item, ForceElement):
                 self.forces.append(item)
+            elif LoadElement.is_load(item):
+                if any(item is other for other in self.loads):
+                    raise ValueError(f"load element {item!r} is already in the scene")
+                self.loads.append(item)
             else:
                 raise TypeError(f"cannot add {type(item).__name__} to a CoupledSystem: expected "
-                                "a FemBody, RigidBody, NodeAttachment, RigidAttachment, Joint "
-                                "or a force element with wrenches(t)")
+                                "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
+                                "a force element with wrenches(t) or a load element with "
+                                "master_loads(t)")
             self._layout = None
 
     def check(self) -> None:
@@ -467,13 +634,13 @@ class CoupledSystem:
 
     def kinetic_energy(self) -> float:
         """1/2 v^T M v of the FEM bodies plus the rigid kinetic energy of the moving bodies."""
-        return (sum(b.kinetic_energy() for b in self.fem_bodies)
+        return (sum(b.kinetic_energy() for b in self.fem_bodies + self.reduced_bodies)
                 + sum(b.kinetic_energy() for b in self._moving_bodies()))
 
     def potential_energy(self) -> float:
         """FEM Pi(u) (strain minus the work of gravity and loads), -m g . p of the moving
         rigid bodies, and the force elements' potential_energy()."""
-        return (sum(b.potential_energy() for b in self.fem_bodies)
+        return (sum(b.potential_energy() for b in self.fem_bodies + self.reduced_bodies)
                 + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
                 + sum(e.potential_energy() for e in self.forces
                       if hasattr(e, "potential_energy"))
@@ -491,6 +658,8 @@ class CoupledSystem:
             body.mass_mult(body.v.x.petsc_vec, Mv)
             total += Mv.array.reshape(-1, 3).sum(axis=0)
             Mv.destroy()
+        for body in self.reduced_bodies:    # 1_k^T M U q' = (U^T int rho e_k . phi dX) . q'
+            total += body.G.T @ body.qdot
         return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
 
     def attachment_errors(self) -> dict[str, float]:
@@ -622,6 +791,8 @@ class CoupledSystem:
         L = self._ready()
         for body in self.fem_bodies:
             body.v.x.array[:] = 0.0
+        for body in self.reduced_bodies:
+            body.qdot[:] = 0.0
         for body in self.rigid_bodies:
             if body.dynamic:
                 body.set_twist(np.zeros(6))
@@ -639,7 +810,7 @@ class CoupledSystem:
         """Ramp the loads: the rigid bodies' gravity, and the FEM load factor (which scales
         the FEM bodies' gravity, body forces and nodal loads)."""
         self._gravity = factor * g
-        for body in self.fem_bodies:
+        for body in self._full_bodies():
             body.load_factor.value = factor
 
     def _residual(self, L) -> tuple[np.ndarray, np.ndarray]:
@@ -714,6 +885,10 @@ class _Layout:
             n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
             self.fem_offset[id(body)], self.fem_size[id(body)] = offset, 3 * n
             offset += 3 * n
+        self.reduced_offset: dict[int, int] = {}
+        for body in scene.reduced_bodies:
+            self.reduced_offset[id(body)] = offset
+            offset += body.r
         self.rigid_offset: dict[int, int] = {}
         for body in rigid:
             self.rigid_offset[id(body)] = offset
@@ -740,8 +915,9 @@ class _Layout:
                 b, d = master_of[id(b)].master, d + 1
             depth[id(body)] = d
         self.rigid_attachments = sorted(scene.rigid_attachments, key=lambda a: depth[id(a.slave)])
+        self.embedded = self._embedding_order()
 
-        # Masters: free FEM dofs, then the dynamic roots.
+        # Masters: free FEM dofs, free reduced coordinates, then the dynamic roots.
         is_slave_row = np.zeros(self.n_all, dtype=bool)
         self.slaves: list[_Slaves] = []
         for att in scene.node_attachments:
@@ -749,12 +925,20 @@ class _Layout:
             rows = (o + 3 * att.dofs[:, None] + np.arange(3)).ravel()
             is_slave_row[rows] = True
             self.slaves.append(_Slaves(att, rows))
+        for att in self.embedded:
+            o = self.fem_offset[id(att.slave)]
+            is_slave_row[o:o + self.fem_size[id(att.slave)]] = True
+        for att in scene.lift_attachments:
+            is_slave_row[self.reduced_offset[id(att.reduced)] + att.columns] = True
         master_rows = []
         for body, fixed in zip(fem_bodies, self.fixed):
             o = self.fem_offset[id(body)]
             known = np.zeros(self.fem_size[id(body)], dtype=bool)
             known[(3 * fixed[:, None] + np.arange(3)).ravel()] = True
             rows = o + np.flatnonzero(~known)
+            master_rows.append(rows[~is_slave_row[rows]])
+        for body in scene.reduced_bodies:
+            rows = self.reduced_offset[id(body)] + np.arange(body.r)
             master_rows.append(rows[~is_slave_row[rows]])
         self.roots = [b for b in rigid if b.dynamic and id(b) not in master_of]
         for body in self.roots:
@@ -764,10 +948,67 @@ class _Layout:
         self.master_col = {id(b): int(np.searchsorted(self.master_rows,
                                                       self.rigid_offset[id(b)]))
                            for b in self.roots}
-        # (rows sorted: FEM bodies first, then rigid bodies in order, so searchsorted finds them)
+        # (rows sorted: FEM, reduced, then rigid bodies in order, so searchsorted finds them)
         assert np.all(np.diff(self.master_rows) > 0)
         self.free_fem = [(body, rows - self.fem_offset[id(body)])
                          for body, rows in zip(fem_bodies, master_rows)]
+        self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
+                             zip(scene.reduced_bodies, master_rows[len(fem_bodies):])]
+        self._embedding_map = self._embedding_matrix()
+        self.place_slaves()             # lift coordinates from the bodies' poses
+
+    def _embedding_order(self) -> list[EmbeddedFemAttachment]:
+        """The embedded attachments, masters before slaves (a cycle is an error)."""
+        master_of = {id(a.slave): a for a in self.scene.embedded_attachments}
+        depth = {}
+        for att in self.scene.embedded_attachments:
+            chain, d, b = [att.slave], 0, att.slave
+            while id(b) in master_of:
+                b, d = master_of[id(b)].master, d + 1
+                if any(b is c for c in chain):
+                    names = " -> ".join(c.name for c in chain + [b])
+                    raise ValueError(f"embedded attachment cycle: {names}")
+                chain.append(b)
+            depth[id(att)] = d
+        return sorted(self.scene.embedded_attachments, key=lambda a: -depth[id(a)])
+
+    def _embedding_matrix(self) -> sparse.csr_matrix:
+        """Z_e (n_all x n_all): z_slave = W z_master of every embedded body (constant)."""
+        blocks = []
+        for att in self.embedded:
+            o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
+            W = att.W.tocoo()
+            blocks.append((W.data, o_s + W.row, o_m + W.col))
+        if not blocks:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        vals, rows, cols = (np.concatenate(x) for x in zip(*blocks))
+        return sparse.csr_matrix((vals, (rows, cols)), shape=(self.n_all, self.n_all))
+
+    def _lift_matrix(self) -> sparse.csr_matrix:
+        """Z_l (n_all x n_all): g' = G_g(R) u of every lift, at the bodies' current poses."""
+        rows, cols, vals = [], [], []
+        for att in self.scene.lift_attachments:
+            r = self.reduced_offset[id(att.reduced)] + att.columns
+            c = self.rigid_offset[id(att.body)] + np.arange(6)
+            rr, cc = np.meshgrid(r, c, indexing="ij")
+            rows.append(rr.ravel()), cols.append(cc.ravel())
+            vals.append(RigidLift.jacobian(att.body.rotation).ravel())
+        if not rows:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_all, self.n_all))
+
+    @staticmethod
+    def _chain(Z: sparse.csr_matrix, X):
+        """X + Z X + Z^2 X + ... (Z nilpotent: derived rows of derived rows, in any order)."""
+        out, term = X.copy(), X
+        for _ in range(Z.shape[0] + 1):
+            term = Z @ term
+            if (term.nnz if sparse.issparse(term) else np.count_nonzero(term)) == 0:
+                return out
+            out = out + term
+        raise AssertionError("attachment chain did not terminate (a cycle?)")
 
     def _check_references(self) -> None:
         scene = self.scene
@@ -824,9 +1065,38 @@ class _Layout:
                 raise ValueError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
                     f"the attachment gives it; a body moved after the attachment was made")
+        embedded: dict[int, str] = {}
+        for att in scene.embedded_attachments:
+            what = f"embedded attachment {att.name!r}"
+            for b in (att.slave, att.master):
+                if id(b) not in fem_ids:
+                    raise ValueError(f"{what}: FEM body {b.name!r} is not in the scene")
+            if att.slave.fixed_dofs.size:
+                raise ValueError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
+                                 "its nodes are either fixed or embedded")
+            if any(a.fem is att.slave for a in scene.node_attachments):
+                raise ValueError(f"{what}: nodes of {att.slave.name!r} are also attached to a "
+                                 "rigid body")
+            if id(att.slave) in embedded:
+                raise ValueError(f"FEM body {att.slave.name!r} is embedded twice: by "
+                                 f"{embedded[id(att.slave)]!r} and by {att.name!r}")
+            embedded[id(att.slave)] = att.name
+        reduced_ids = {id(b) for b in scene.reduced_bodies}
+        lifted: dict[int, list] = {}
+        for att in scene.lift_attachments:
+            what = f"lift attachment {att.name!r}"
+            if id(att.reduced) not in reduced_ids:
+                raise ValueError(f"{what}: reduced body {att.reduced.name!r} is not in the scene")
+            if id(att.body) not in rigid_ids:
+                raise ValueError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+            for other in lifted.get(id(att.reduced), []):
+                if np.intersect1d(other.columns, att.columns).size:
+                    raise ValueError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
+                                     f"are already driven by {other.name!r}")
+            lifted.setdefault(id(att.reduced), []).append(att)
         for path in scene.paths:
             for pt in path.points:
-                if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids:
+                if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids | reduced_ids:
                     raise ValueError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
                                      "the scene")
                 if isinstance(pt, Frame) and pt.body is not None and id(pt.body) not in rigid_ids:
@@ -880,9 +1150,13 @@ class _Layout:
                 rows.append(o + 3 + np.arange(3))
                 cols.append(c0 + 3 + np.arange(3))
                 vals.append(np.ones(3))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(self.n_all, self.n_masters))
+        P0 = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                       np.concatenate(cols))),
+                               shape=(self.n_all, self.n_masters))
+        # rows derived from others: embedded FEM bodies (W) and lift coordinates (G_g)
+        if self.embedded or self.scene.lift_attachments:
+            return self._chain((self._embedding_map + self._lift_matrix()).tocsr(), P0).tocsr()
+        return P0
 
     def known_velocities(self, h: float, targets: dict) -> np.ndarray:
         """z_k: prescribed twists at t1, secant velocities of slave nodes of prescribed roots."""
@@ -905,6 +1179,17 @@ class _Layout:
                 x0 = s.attachment.positions()
                 x1 = p1 + (x0 - root.position) @ (R1 @ root.rotation.T).T
                 z[s.rows] = ((x1 - x0) / h).ravel()
+        for att in self.scene.lift_attachments:        # g is linear in (p, R): the secant
+            root = self.root[id(att.body)]
+            if root in targets:
+                p1, R1, _ = targets[root]
+                turn = R1 @ root.rotation.T
+                g1 = att.lift.coordinates(p1 + turn @ (att.body.position - root.position),
+                                          turn @ att.body.rotation)
+                z[self.reduced_offset[id(att.reduced)] + att.columns] = \
+                    (g1 - att.coordinates()) / h
+        if self.embedded:
+            z = self._chain(self._embedding_map, z)
         return z
 
     def _rigid_wrenches(self, t1: float, h: float | None, A, b):
@@ -946,6 +1231,13 @@ class _Layout:
             b[o:o + n] = Mv + h * f
             f_all[o:o + n] = f - body.alpha * Mv - body.beta * (K @ v)
             blocks.append(((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K).tocsr())
+        for body in scene.reduced_bodies:       # the same, dense r x r (advance_reduced)
+            o, r = self.reduced_offset[id(body)], body.r
+            K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
+            b[o:o + r] = M @ v + h * f
+            f_all[o:o + r] = f - body.alpha * (M @ v) - body.beta * (K @ v)
+            blocks.append(sparse.csr_matrix((1.0 + h * body.alpha) * M
+                                            + (h * body.beta + h * h) * K))
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
@@ -970,7 +1262,33 @@ class _Layout:
             b += h * F - h * (D @ z)
             A = (A - h * D - h * h * K).tocsr()
             f_all += self._applied_part(F)
+        if scene.loads:
+            F = self.load_vector(t1)
+            b += h * F
+            f_all += self._applied_part(F)
         return A, b, f_all
+
+    def load_vector(self, t: float) -> np.ndarray:
+        """The load elements' forces at time t, all-space (LoadElement)."""
+        F = np.zeros(self.n_all)
+        for element in self.scene.loads:
+            for body, f in element.master_loads(t):
+                what = f"load element {type(element).__name__}"
+                if isinstance(body, FemBody) and id(body) in self.fem_offset:
+                    o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+                elif isinstance(body, ReducedFemBody) and id(body) in self.reduced_offset:
+                    o, n = self.reduced_offset[id(body)], body.r
+                elif isinstance(body, RigidBody) and id(body) in self.rigid_offset:
+                    o, n = self.rigid_offset[id(body)], 6
+                else:
+                    raise ValueError(f"{what} loads {getattr(body, 'name', body)!r}, which is "
+                                     "not a body of this scene")
+                f = np.asarray(f, dtype=float).ravel()
+                if f.shape != (n,) or not np.all(np.isfinite(f)):
+                    raise ValueError(f"{what}: expected {n} finite values for "
+                                     f"{body.name!r}, got shape {f.shape}")
+                F[o:o + n] += f
+        return F
 
     def current_velocities(self) -> np.ndarray:
         """z: the FEM nodal velocities and the rigid twists (all-space)."""
@@ -978,6 +1296,9 @@ class _Layout:
         for body in self.scene.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             z[o:o + n] = body.v.x.array[:n]
+        for body in self.scene.reduced_bodies:
+            o = self.reduced_offset[id(body)]
+            z[o:o + body.r] = body.qdot
         for body in self.scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
             z[o:o + 6] = body.twist
@@ -995,7 +1316,13 @@ class _Layout:
         """G (3n x n_all): x_a' = G z for the path's points (module docstring)."""
         rows, cols, vals = [], [], []
         for i, pt in enumerate(path.points):
-            if isinstance(pt, FemPoint):
+            if isinstance(pt, FemPoint) and pt.reduced:
+                o = self.reduced_offset[id(pt.fem)]
+                r = pt.G.shape[1]
+                rows.append(np.repeat(3 * i + np.arange(3), r))
+                cols.append(np.tile(o + np.arange(r), 3))
+                vals.append(pt.G.ravel())
+            elif isinstance(pt, FemPoint):
                 o = self.fem_offset[id(pt.fem)]
                 w, d = pt.weights.weights, pt.weights.dofs
                 for c in range(3):
@@ -1056,6 +1383,11 @@ class _Layout:
             f_all[o:o + n] = -body.R.array[:n]
             if tangent:
                 blocks.append(_csr(body.K))
+        for body in scene.reduced_bodies:
+            o = self.reduced_offset[id(body)]
+            f_all[o:o + body.r] = body.force()
+            if tangent:
+                blocks.append(sparse.csr_matrix(body.tangent()))
         for body in scene.rigid_bodies:
             if body.dynamic:
                 o = self.rigid_offset[id(body)]
@@ -1066,6 +1398,8 @@ class _Layout:
         if scene.paths:
             F, K_path, _ = self.path_terms(t, None)
             f_all += F                           # statics: whole wrenches on rigid rows
+        if scene.loads:
+            f_all += self.load_vector(t)
         if not tangent:
             return f_all, None
         zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
@@ -1093,8 +1427,21 @@ class _Layout:
 
     def geometric_stiffness(self, f_all: np.ndarray) -> sparse.csr_matrix:
         """K_geo on the masters (module docstring): sum_s [f_s]x [d_s]x on each dynamic root's
-        rotation block, for the applied forces f_all on the slaves."""
+        rotation block, for the applied forces f_all on the slaves (an embedded body's
+        forces first moved to its master's nodes, W^T f_s; a lift as levers R_k)."""
+        if self.embedded:
+            f_all = f_all.copy()
+            for att in self.embedded:                   # slaves before their masters
+                o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
+                f_all[o_m:o_m + att.W.shape[1]] += att.W.T @ f_all[o_s:o_s + att.W.shape[0]]
         K = {}
+        for att in self.scene.lift_attachments:
+            root = self.root[id(att.body)]
+            if root.dynamic:
+                f = f_all[self.reduced_offset[id(att.reduced)] + att.columns].reshape(4, 3)
+                levers = np.vstack([att.body.position - root.position, att.body.rotation.T])
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", _skews(f),
+                                                               _skews(levers))
         for s in self.slaves:
             root = self.root[id(s.attachment.body)]
             if root.dynamic:
@@ -1148,12 +1495,19 @@ class _Layout:
     # ---- updates -----------------------------------------------------------------------
 
     def advance(self, z: np.ndarray, h: float, targets: dict) -> None:
-        """Velocities from z; free FEM dofs and dynamic roots move by h z; prescribed bodies
-        go to their targets; slaves are set from their masters' poses."""
+        """Velocities from z; free FEM dofs, free reduced coordinates and dynamic roots move
+        by h z; prescribed bodies go to their targets; slaves are set from their masters."""
         for body, free in self.free_fem:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             body.v.x.array[:n] = z[o:o + n]
             body.u.x.array[free] += h * z[o + free]
+        for att in self.embedded:
+            o, n = self.fem_offset[id(att.slave)], self.fem_size[id(att.slave)]
+            att.slave.v.x.array[:n] = z[o:o + n]
+        for body, free in self.free_reduced:
+            o = self.reduced_offset[id(body)]
+            body.qdot = z[o:o + body.r].copy()
+            body.q[free] += h * z[o + free]
         for body in self.scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
             if body.motion == "prescribed":
@@ -1173,6 +1527,12 @@ class _Layout:
             att = s.attachment
             u = att.fem.u.x.array.reshape(-1, 3)
             u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
+        for att in reversed(self.embedded):             # masters before their slaves
+            att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
+        for att in self.scene.lift_attachments:
+            att.reduced.q[att.columns] = att.coordinates()
+        for body in self.scene.reduced_bodies:
+            body.set_q(body.q)
         for body in self.scene.fem_bodies:
             body.u.x.scatter_forward()
             body.v.x.scatter_forward()
@@ -1185,6 +1545,9 @@ class _Layout:
             o = self.fem_offset[id(body)]
             idx = np.searchsorted(self.master_rows, o + free)
             body.u.x.array[free] += dq[idx]
+        for body, free in self.free_reduced:
+            o = self.reduced_offset[id(body)]
+            body.q[free] += dq[np.searchsorted(self.master_rows, o + free)]
         for body in self.roots:
             c = self.master_col[id(body)]
             body.position = body.position + dq[c:c + 3]
@@ -1193,20 +1556,28 @@ class _Layout:
 
     def save(self):
         return ([b.u.x.array.copy() for b in self.scene.fem_bodies],
-                [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies])
+                [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies],
+                [b.q.copy() for b in self.scene.reduced_bodies])
 
     def restore(self, saved) -> None:
         for body, u in zip(self.scene.fem_bodies, saved[0]):
             body.u.x.array[:] = u
         for body, (p, R) in zip(self.scene.rigid_bodies, saved[1]):
             body.position, body.rotation = p, R
+        for body, q in zip(self.scene.reduced_bodies, saved[2]):
+            body.set_q(q)
 
     def master_scale(self) -> float:
         vals = [np.abs(b.u.x.array).max() for b in self.scene.fem_bodies if b.u.x.array.size]
+        vals += [np.abs(b.q).max() for b in self.scene.reduced_bodies if b.r]
         vals += [np.abs(b.position).max() for b in self.roots]
         return max(vals, default=1.0)
 
     def inverted(self) -> bool:
+        for body in self.scene.reduced_bodies:
+            detF = body.det_F()
+            if detF.size and not np.nanmin(detF) > 0:
+                return True
         for body in self.scene.fem_bodies:
             detF = body.det_F()
             if detF.size and not np.nanmin(detF) > 0:
