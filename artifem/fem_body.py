@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import basix
+import basix.ufl
 import numpy as np
 import ufl
 from mpi4py import MPI
@@ -37,10 +38,11 @@ from dolfinx.fem import petsc as fem_petsc
 
 #: Default quadrature degree of the energy per cell type: 2x2x2 Gauss for Q1
 #: hexahedra (DESIGN.md: UFL's automatic degree is 14-20 for Mooney-Rivlin);
-#: F is constant on a P1 tetrahedron, so one point is exact.
-ENERGY_DEGREE = {"hexahedron": 2, "tetrahedron": 1}
+#: F is constant on a P1 tetrahedron, so one point is exact; degree 2 (2 x 2 x 2
+#: Gauss-Jacobi points) on P1 prisms (wedges: linear triangle x linear segment).
+ENERGY_DEGREE = {"hexahedron": 2, "tetrahedron": 1, "prism": 2}
 #: Mass needs products of two shape functions.
-MASS_DEGREE = {"hexahedron": 2, "tetrahedron": 2}
+MASS_DEGREE = {"hexahedron": 2, "tetrahedron": 2, "prism": 2}
 
 
 class ElementInversionError(RuntimeError):
@@ -62,7 +64,7 @@ class Muscle:
 
     name: str
     cells: np.ndarray           # owned local cell indices
-    direction: fem.Function     # DG0 unit fiber direction a0 (zero outside the region)
+    direction: fem.Function     # unit fiber direction a0: DG0, or per quadrature point
     fiber: object               # fiber material: strain_energy(F, a0, excitation)
     excitation: fem.Constant    # a in [0, 1], changed between steps without recompiling
 
@@ -71,8 +73,8 @@ class Muscle:
 class EnergyTerm:
     """One integral of a body's internal energy, int_{cells} density(F, a0) dX.
 
-    ``density(F, a0)`` is the UFL energy density (``a0`` the DG0 direction
-    field for fiber terms, None otherwise), integrated with a quadrature rule
+    ``density(F, a0)`` is the UFL energy density (``a0`` the direction field
+    of fiber terms, DG0 or a quadrature function, None otherwise), integrated with a quadrature rule
     of ``degree`` over ``cells`` (owned local cells; None means all). The
     full body assembles the sum of its terms; a reduced body evaluates the
     same densities at its integration points.
@@ -240,7 +242,11 @@ class FemBody:
         Args:
             cells: input element indices of the region.
             directions: fiber directions, (3,) for all cells or (len(cells), 3) per
-                element; normalized here; zero vectors are an error.
+                element; normalized here; zero vectors are an error. Or a vector
+                ``fem.Function`` on this body's mesh holding unit directions per
+                quadrature point (a quadrature space of the energy's degree, see
+                :meth:`quadrature_points`), used as is: full-order bodies only (a
+                reduced body reads one direction per cell).
             fiber: fiber material with ``strain_energy(F, a0, excitation)``.
         """
         if name in self.muscles:
@@ -251,6 +257,17 @@ class FemBody:
         if cells.size == 0 or cells.min() < 0 or cells.max() >= n_cells_global:
             raise ValueError(f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
                              f"non-empty subset of [0, {n_cells_global})")
+        if isinstance(directions, fem.Function):
+            a0 = self._check_point_directions(name, directions)
+            local_of_input = self._input_cell_to_local()
+            local = np.array([local_of_input[c] for c in cells.tolist() if c in local_of_input],
+                             dtype=np.int32)
+            n_owned = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
+            muscle = Muscle(name, np.sort(local[local < n_owned]), a0, fiber,
+                            fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
+            self.muscles[name] = muscle
+            self._compiled = None
+            return muscle
         directions = np.broadcast_to(np.asarray(directions, dtype=float), (cells.size, 3))
         norms = np.linalg.norm(directions, axis=1)
         if np.any(~np.isfinite(norms)) or np.any(norms <= 0):
@@ -275,6 +292,40 @@ class FemBody:
         self.muscles[name] = muscle
         self._compiled = None
         return muscle
+
+    def quadrature_space(self) -> fem.FunctionSpace:
+        """The vector quadrature space of the energy rule (degree ``quadrature_degree``)."""
+        element = basix.ufl.quadrature_element(self.cell_name, value_shape=(3,),
+                                               degree=self.quadrature_degree)
+        return fem.functionspace(self.mesh, element)
+
+    def quadrature_points(self) -> np.ndarray:
+        """Reference positions of the energy's quadrature points of the local cells,
+        shape (cells, points, 3), in the order of :meth:`quadrature_space`'s dofs."""
+        pts, _ = basix.make_quadrature(getattr(basix.CellType, self.cell_name),
+                                       self.quadrature_degree)
+        tdim = self.mesh.topology.dim
+        imap = self.mesh.topology.index_map(tdim)
+        cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+        x = fem.Expression(ufl.SpatialCoordinate(self.mesh), pts).eval(self.mesh, cells)
+        return x.reshape(cells.size, pts.shape[0], 3)
+
+    def _check_point_directions(self, name: str, a0: fem.Function) -> fem.Function:
+        what = f"FemBody {self.name!r}: muscle {name!r}"
+        space = a0.function_space
+        if space.mesh is not self.mesh or space.value_shape != (3,):
+            raise ValueError(f"{what}: a direction Function must be a 3-vector field on this "
+                             "body's mesh")
+        expected = self.quadrature_space()
+        if space.dofmap.list.shape[1] not in (1, expected.dofmap.list.shape[1]):
+            raise ValueError(f"{what}: the direction Function has {space.dofmap.list.shape[1]} "
+                             f"values per cell; expected 1 (DG0) or one per quadrature point "
+                             f"({expected.dofmap.list.shape[1]}, degree {self.quadrature_degree})")
+        norms = np.linalg.norm(a0.x.array.reshape(-1, 3), axis=1)
+        if not np.all(np.isfinite(norms)) or np.any(np.abs(norms - 1.0) > 1e-8):
+            raise ValueError(f"{what}: fiber directions must be finite unit vectors "
+                             f"(|a0| in [{norms.min():.3g}, {norms.max():.3g}])")
+        return a0
 
     def set_excitation(self, name: str, value: float) -> None:
         """Set a muscle's excitation in [0, 1] (no recompilation)."""

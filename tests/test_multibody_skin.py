@@ -266,3 +266,55 @@ def test_outside_vertices_are_snapped_and_bad_input_is_refused():
         SkinMesh(V, None, ["jaw"])
     with pytest.raises(ValueError, match="faces"):
         SkinMesh(V, [[0, 1, 2]], [body])
+
+
+def test_skin_pressure_load_element_is_G_transpose_and_does_the_same_work():
+    """SkinPressure.master_loads: (body, G^T f_v) per master, f_m . u_m = f_v . u_v."""
+    from artifem.multibody.skin import SkinPressure
+    rng = np.random.default_rng(7)
+    body = make_body()
+    V, F = cylinder(radius=0.1, length=0.8, n_theta=12, n_z=5, caps=True,
+                    center=[0.1, 0.15, 0.1])
+    V = V[:, [2, 1, 0]] - [0.0, 0.0, 0.0]             # along x, through the beam
+    F = F[:, ::-1]                                     # the axis swap mirrors: re-orient outward
+    jaw = rigid("jaw", [1.3, 0.15, 0.1])
+    skin = SkinMesh(V, F, [body, jaw], weighting="gaussian", sigma=0.4)
+    x = skin.positions()
+    assert np.einsum("ij,ij->", skin.face_area_vectors(x), x[F[:, 0]]) > 0   # outward
+    load = SkinPressure(skin, lambda t: 100.0 * t)
+    move(jaw, 1.0, np.array([0.02, -0.01, 0.03, 0.2, -0.1, 0.3]))
+    body.u.x.array[:ndofs(body)] = 1e-2 * rng.standard_normal(ndofs(body))
+    jaw.set_twist(rng.standard_normal(6))
+    body.v.x.array[:ndofs(body)] = rng.standard_normal(ndofs(body))
+    loads = load.master_loads(2.0)
+    assert [b for b, _ in loads] == [body, jaw]
+    assert loads[0][1].shape == body.v.x.array.shape and loads[1][1].shape == (6,)
+    f_v = skin.pressure_forces(200.0)
+    uv = skin.velocities()
+    power_masters = loads[0][1] @ body.v.x.array + loads[1][1] @ jaw.twist
+    assert power_masters == pytest.approx(float(np.sum(f_v * uv)), rel=1e-12)
+    # closed surface: the loads on all masters add up to no net force
+    net = loads[0][1].reshape(-1, 3).sum(axis=0) + loads[1][1][:3]
+    assert np.abs(net).max() < 1e-12 * np.abs(f_v).sum()
+    with pytest.raises(ValueError, match="no faces"):
+        SkinPressure(SkinMesh(V, None, [jaw]), 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        SkinPressure(skin, float("nan"))
+    with pytest.raises(ValueError, match="pressure"):
+        SkinPressure(skin, lambda t: float("inf")).master_loads(0.0)
+
+
+def test_skin_pressure_in_a_coupled_step_pushes_a_free_body():
+    """An open sheet on a free rigid body: one step gives v = h p A n / m (explicit load)."""
+    from artifem.multibody.coupled import CoupledSystem
+    from artifem.multibody.skin import SkinPressure
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0], [0.0, 2.0, 0.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])                  # normal +z, area 2
+    body = RigidBody("plate", 0.5, np.eye(3), position=[0.5, 1.0, 0.0])
+    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene.add(body, SkinPressure(SkinMesh(V, F, [body]), 3.0))
+    h = 0.01
+    scene.step(h)
+    np.testing.assert_allclose(body.velocity, [0.0, 0.0, h * 3.0 * 2.0 / 0.5], rtol=1e-12,
+                               atol=1e-15)
+    np.testing.assert_allclose(body.angular_velocity, 0.0, atol=1e-13)

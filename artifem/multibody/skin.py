@@ -73,6 +73,8 @@ per rigid master, nodal forces per FEM master, U^T-projected forces per reduced
 master. A pressure p on the faces (:meth:`SkinMesh.pressure_forces`) gives each
 face the force p * area * n (n along (x_1 - x_0) x (x_2 - x_0), i.e. outward for
 an outward-oriented surface, so p > 0 inflates), a third to each of its vertices.
+:class:`SkinPressure` makes that pressure a load element of a CoupledSystem
+(``master_loads(t)``: f_m = G^T f_v per master, explicit in the step).
 """
 
 from __future__ import annotations
@@ -88,8 +90,8 @@ from artifem.multibody.point_attachments import FemPointWeights, shape_function_
 from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew
 from artifem.reduction.reduced_body import ReducedFemBody
 
-__all__ = ["RigidMaster", "FemMaster", "ReducedMaster", "SkinMesh", "skin_weights",
-           "embedding_weights"]
+__all__ = ["RigidMaster", "FemMaster", "ReducedMaster", "SkinMesh", "SkinPressure",
+           "skin_weights", "embedding_weights"]
 
 WEIGHTINGS = ("inverse_square", "gaussian")
 BLENDINGS = ("linear", "dual_quaternion")
@@ -530,4 +532,64 @@ class SkinMesh:
         out = np.zeros((self.n, 3))
         for k in range(3):
             np.add.at(out, self.faces[:, k], F)
+        return out
+
+
+class SkinPressure:
+    """A uniform pressure p(t) on a skin's faces as a CoupledSystem load element.
+
+    Vertex forces f_v = sum over the vertex's faces of p A_f n_f / 3
+    (:meth:`SkinMesh.pressure_forces`) go to the masters by virtual work,
+    f_m = G^T f_v (:meth:`SkinMesh.master_forces`), so that f_v . u_v = f_m . u_m for
+    every master velocity. ``master_loads(t)`` yields (body, array) per master:
+    the rigid body and its wrench [f; tau about the COM] (world), the FEM body and
+    its nodal forces (blocked, the length of ``body.v.x.array``), or the reduced body
+    and its generalized force (r). The load follows the skin (a follower load) and
+    enters the step explicitly (b += h f_m).
+
+    Args:
+        skin: a SkinMesh with faces, outward oriented (p > 0 pushes the faces along
+            their normals).
+        pressure: p in Pa, a float or a callable t -> p.
+    """
+
+    def __init__(self, skin: SkinMesh, pressure, *, name: str = "pressure"):
+        if not isinstance(skin, SkinMesh):
+            raise TypeError(f"SkinPressure needs a SkinMesh, got {type(skin).__name__}")
+        if skin.faces is None:
+            raise ValueError(f"SkinPressure {name!r}: skin {skin.name!r} has no faces")
+        if not callable(pressure):
+            value = float(pressure)
+            if not np.isfinite(value):
+                raise ValueError(f"SkinPressure {name!r}: pressure must be finite, "
+                                 f"got {pressure!r}")
+        self.skin = skin
+        self.pressure = pressure
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"SkinPressure({self.name!r}, skin={self.skin.name!r})"
+
+    def pressure_at(self, t: float) -> float:
+        p = float(self.pressure(t)) if callable(self.pressure) else float(self.pressure)
+        if not np.isfinite(p):
+            raise ValueError(f"SkinPressure {self.name!r}: pressure({t:g}) = {p}")
+        return p
+
+    def vertex_forces(self, t: float) -> np.ndarray:
+        """f_v (n, 3) at the skin's current positions."""
+        return self.skin.pressure_forces(self.pressure_at(t))
+
+    def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:
+        """[(body, G^T f_v restricted to the body's dofs)] for every master of the skin."""
+        out = []
+        for m, f in zip(self.skin.masters, self.skin.master_forces(self.vertex_forces(t))):
+            if m.kind == "rigid":
+                out.append((m.body, f))
+            elif m.kind == "reduced":
+                out.append((m.reduced, f))
+            else:
+                full = np.zeros(m.body.v.x.array.size)
+                full[:f.size] = f
+                out.append((m.body, full))
         return out
