@@ -40,6 +40,8 @@ COMMANDS = {
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
     ("study", "tongue"): ("artifem.models.tongue.study",
                           "reduced tongue models against the full one: speed versus error"),
+    ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",
+                              "jaw-tongue scene, full against reduced tongue: speed, error"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }
 

@@ -375,6 +375,17 @@ class LiftAttachment:
         """g of the body's current pose."""
         return self.lift.coordinates(self.body.position, self.body.rotation)
 
+    def positions(self) -> np.ndarray:
+        """Where the body carries the nodes, x_j = p + R r_j (k, 3)."""
+        return self.body.position + self.lift.offsets @ self.body.rotation.T
+
+    def node_positions(self) -> np.ndarray:
+        """The carried nodes as the reduced body has them, X_j + u_bar_j + U_j q (k, 3)."""
+        rows = (3 * self.lift.dofs[:, None] + np.arange(3)).ravel()
+        X = self.reduced.full.V.tabulate_dof_coordinates()[self.lift.dofs]
+        u = self.reduced.u_bar[rows] + self.reduced.U[rows] @ self.reduced.q
+        return X + u.reshape(-1, 3)
+
 
 class LoadElement:
     """What :class:`CoupledSystem` accepts as an explicit load: an object with
@@ -663,9 +674,12 @@ class CoupledSystem:
         return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
 
     def attachment_errors(self) -> dict[str, float]:
-        """max |x_i - (p + R r_i)| of each node attachment (0 by construction after a step)."""
-        return {a.name: float(np.abs(_dof_positions(a.fem)[a.dofs] - a.positions()).max())
-                for a in self.node_attachments}
+        """max |x_i - (p + R r_i)| of each node and lift attachment (round-off after a step)."""
+        out = {a.name: float(np.abs(_dof_positions(a.fem)[a.dofs] - a.positions()).max())
+               for a in self.node_attachments}
+        out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
+                    for a in self.lift_attachments})
+        return out
 
     def constraint_errors(self) -> dict[str, float]:
         """max |phi| of each joint's bilateral rows (m and rad)."""
@@ -955,7 +969,7 @@ class _Layout:
         self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
                              zip(scene.reduced_bodies, master_rows[len(fem_bodies):])]
         self._embedding_map = self._embedding_matrix()
-        self.place_slaves()             # lift coordinates from the bodies' poses
+        self._place_lifts()             # lift coordinates from the bodies' poses
 
     def _embedding_order(self) -> list[EmbeddedFemAttachment]:
         """The embedded attachments, masters before slaves (a cycle is an error)."""
@@ -1529,13 +1543,16 @@ class _Layout:
             u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
         for att in reversed(self.embedded):             # masters before their slaves
             att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
+        self._place_lifts()
+        for body in self.scene.fem_bodies:
+            body.u.x.scatter_forward()
+            body.v.x.scatter_forward()
+
+    def _place_lifts(self) -> None:
         for att in self.scene.lift_attachments:
             att.reduced.q[att.columns] = att.coordinates()
         for body in self.scene.reduced_bodies:
             body.set_q(body.q)
-        for body in self.scene.fem_bodies:
-            body.u.x.scatter_forward()
-            body.v.x.scatter_forward()
 
     def displace(self, dq: np.ndarray) -> None:
         """Master displacement (static solve, finite differences); see displace_masters."""
@@ -1612,7 +1629,11 @@ def _mass(body: FemBody) -> sparse.csr_matrix:
 
 
 class _MumpsLU:
-    """x = K^-1 b by a MUMPS LU factorization (petsc4py, one process)."""
+    """x = K^-1 b by a MUMPS LU factorization (petsc4py, one process); systems of at most
+    ``DENSE_MAX`` unknowns (reduced and rigid bodies only) by dense LAPACK LU instead, which
+    costs microseconds where building the PETSc matrix alone costs a millisecond."""
+
+    DENSE_MAX = 400
 
     def __init__(self):
         self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
@@ -1624,6 +1645,18 @@ class _MumpsLU:
         self._pattern = None
 
     def solve(self, K: sparse.csr_matrix, b: np.ndarray, what: str) -> np.ndarray:
+        if K.shape[0] <= self.DENSE_MAX:
+            try:
+                out = np.linalg.solve(K.toarray(), b)
+            except np.linalg.LinAlgError as exc:
+                raise CoupledStepFailed(f"{what}: the dense LU failed ({exc}); a singular "
+                                        "system: redundant joints, or a free body with no "
+                                        "mass?") from exc
+            if not np.all(np.isfinite(out)):
+                raise CoupledStepFailed(f"{what}: the dense solve gave non-finite values; a "
+                                        "singular system: redundant joints, or a free body "
+                                        "with no mass?")
+            return out
         K = K.tocsr()
         K.sort_indices()
         n = K.shape[0]

@@ -1,0 +1,255 @@
+"""Jaw and tongue with a *reduced* tongue, side by side with the full one.
+
+The scene is :mod:`artifem.models.jaw_tongue` (level-0 tongue, rigid jaw on a
+TMJ hinge with limits, opener muscle, closer spring, gravity); only the tongue
+changes. Its 59 jaw-attachment nodes ride on the jaw, which a reduced body
+cannot express with node slaves, so the basis carries the jaw
+(:mod:`artifem.reduction.rigid_lift`):
+
+    u = U q + L g,     g = [p - p_0; vec(R - R_0)]  (the jaw's pose, 12 numbers),
+
+L the 12 lift columns (exact rigid motion of the attachment nodes, extended
+by the rest tangent), U a trained POD basis that vanishes on the attachment
+and hyoid nodes. In the CoupledSystem g is a slave of the jaw
+(:class:`LiftAttachment`); the masters are q and the jaw's twist.
+
+Training (cached on disk by the inputs, :class:`ArtifactCache`): the *full*
+jaw-tongue scene run with each exciter alone at ``training_excitation``
+(ramped over the paper's 0.5 s) while the jaw opens by its own schedule;
+snapshots of u - L g (zero on the attachment and hyoid nodes) every
+``snapshot_every`` steps; U = the r leading mass-weighted POD vectors;
+integration points by ECSW (non-negative least squares) on the reduced forces
+of the basis [U, L] at those states (the points and weights of the tongue
+study, :mod:`artifem.reduction.cubature`).
+
+Comparison (``artifem study jaw-tongue --out DIR``): the three speech motions,
+full and reduced scene in one process; per motion the mean nodal tongue error
+over time (mm), the jaw angle of both, ms per step and the speed-up; JSON,
+Markdown table and a side-by-side render at each motion's largest error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
+
+from artifem.excitation import ExcitationSchedule
+from artifem.models import jaw_tongue as jt
+from artifem.models.tongue.model import MOTIONS, RAMP_TIME
+from artifem.multibody.coupled import LiftAttachment
+from artifem.reduction.bases import body_mass, pod_basis
+from artifem.reduction.cubature import IntegrationPoints, trained_points_path
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.rigid_lift import rigid_lift
+from artifem.reduction.training import ArtifactCache, force_training_matrix, project
+
+__all__ = ["ReducedJawTongueConfig", "ReducedTongue", "train", "build_reduced_scene",
+           "compare"]
+
+
+@dataclass(frozen=True)
+class ReducedJawTongueConfig:
+    r: int = 20                          # POD vectors (plus the 12 lift columns)
+    points: int = 300                    # trained integration points
+    training_excitation: float = 0.6
+    training_duration: float = 0.6
+    snapshot_every: int = 2
+    force_snapshots: int = 150
+    cubature_tol: float = 1e-3
+    dt: float = 0.01
+    jaw: jt.JawTongueConfig = field(default_factory=jt.JawTongueConfig)
+
+
+@dataclass
+class ReducedTongue:
+    """The trained parts: the POD basis U (zero on the carried and fixed nodes) and the
+    integration points of [U, L]."""
+
+    U: np.ndarray
+    points: IntegrationPoints
+    snapshots: int
+
+    def reducer(self):
+        """``build_scene(reduce=...)``: the reduced tongue riding on the jaw."""
+        def reduce(body, jaw, jaw_rows):
+            lift = rigid_lift(body, jaw_rows, jaw.position, jaw.rotation)
+            reduced = ReducedFemBody(body, np.hstack([self.U, lift.columns]), self.points,
+                                     name="tongue_reduced")
+            return reduced, LiftAttachment(reduced, lift, jaw, name="tongue->jaw")
+        return reduce
+
+
+def _training_run(config: ReducedJawTongueConfig, exciter: str) -> dict[str, np.ndarray]:
+    """Snapshots (u - L g, g, excitations) of the full scene driven by one exciter."""
+    s = jt.build_scene(config.jaw)
+    body = s.tongue.body
+    lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
+    n = 3 * body.V.dofmap.index_map.size_local
+    u, g, a = [], [], []
+
+    def keep(k):
+        if k % config.snapshot_every == 0:
+            gk = lift.coordinates(s.jaw.position, s.jaw.rotation)
+            u.append(body.u.x.array[:n] - lift.columns[:n] @ gk)
+            g.append(gk)
+            a.append([float(m.excitation.value) for m in body.muscles.values()])
+    schedule = ExcitationSchedule.ramp_and_hold({exciter: config.training_excitation},
+                                                RAMP_TIME)
+    jt.simulate(s, schedule, config.training_duration, config.dt, callback=keep)
+    return {"residual": np.array(u), "lift": np.array(g), "excitations": np.array(a)}
+
+
+def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedTongue:
+    """Training runs, POD and trained points (module docstring), cached under ``cache``."""
+    store = ArtifactCache(cache)
+    model = {"config": asdict(config)}
+    s = jt.build_scene(config.jaw)
+    body = s.tongue.body
+    parts = []
+    for exciter in tqdm(s.tongue.exciters, desc="jaw-tongue training runs", unit="run"):
+        key = store.key("jaw-tongue-snapshots", jaw=asdict(config.jaw), exciter=exciter,
+                        excitation=config.training_excitation,
+                        duration=config.training_duration, every=config.snapshot_every,
+                        dt=config.dt)
+        parts.append(store.get(key, lambda e=exciter: _training_run(config, e)))
+    residual = np.concatenate([p["residual"] for p in parts])
+    lifted = np.concatenate([p["lift"] for p in parts])
+    excitations = np.concatenate([p["excitations"] for p in parts])
+    mass = body_mass(body)
+    key = store.key("jaw-tongue-pod", model=model)
+    pod = store.get(key, lambda: dict(zip(("U", "sigma"),
+                                          pod_basis(residual.T, mass, r=config.r))))
+    lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
+    W = np.hstack([pod["U"], lift.columns])
+    key = store.key("jaw-tongue-points", model=model)
+
+    def cubature():
+        rows = np.unique(np.linspace(0, len(residual) - 1,
+                                     min(len(residual), config.force_snapshots)).round()
+                         .astype(int))
+        q = np.hstack([project(pod["U"], mass, residual[rows]), lifted[rows]])
+        G, b = force_training_matrix(body, W, q, excitations[rows])
+        pts = trained_points_path(G, b, sizes=[config.points], tol=config.cubature_tol,
+                                  progress=True)[config.points]
+        return {"indices": pts.indices, "weights": pts.weights,
+                "residual": np.array(pts.residual)}
+    p = store.get(key, cubature)
+    points = IntegrationPoints(p["indices"], p["weights"], "trained", float(p["residual"]))
+    return ReducedTongue(pod["U"], points, len(residual))
+
+
+def build_reduced_scene(model: ReducedTongue, config: ReducedJawTongueConfig
+                        ) -> jt.JawTongueScene:
+    return jt.build_scene(config.jaw, reduce=model.reducer())
+
+
+def _run(s: jt.JawTongueScene, motion: str, duration: float, dt: float) -> dict:
+    """simulate() with the tongue displacement and the jaw pose kept at every step (outside
+    the timing)."""
+    u, poses = [], []
+
+    def keep(k=0):
+        u.append(s.tongue_displacement())
+        poses.append((s.jaw.position.copy(), s.jaw.rotation.copy()))
+    keep()
+    rec = jt.simulate(s, motion, duration, dt, callback=keep)
+    rec["u"], rec["poses"] = np.array(u), poses
+    return rec
+
+
+def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS),
+            duration: float = 0.6, cache: Path | None = None) -> dict:
+    """Full against reduced jaw-tongue scene for ``motions``: JSON, report, renders."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tic = time.perf_counter()
+    model = train(config, cache or out / "cache")
+    train_s = time.perf_counter() - tic
+    results = {}
+    for motion in motions:
+        full = jt.build_scene(config.jaw)
+        rf = _run(full, motion, duration, config.dt)
+        reduced = build_reduced_scene(model, config)
+        with threadpool_limits(limits=1, user_api="blas"):     # r x r algebra
+            rr = _run(reduced, motion, duration, config.dt)
+        node_error = 1e3 * np.linalg.norm((rr["u"] - rf["u"]).reshape(len(rf["u"]), -1, 3),
+                                          axis=2)
+        mean_error = node_error.mean(axis=1)
+        worst = int(np.argmax(mean_error))
+        results[motion] = {
+            "full_ms_per_step": float(np.median(rf["ms"])),
+            "reduced_ms_per_step": float(np.median(rr["ms"])),
+            "speedup": float(np.median(rf["ms"]) / np.median(rr["ms"])),
+            "max_mean_error_mm": float(mean_error.max()),
+            "max_node_error_mm": float(node_error.max()),
+            "max_tip_displacement_mm": float(1e3 * np.linalg.norm(rf["tip"], axis=1).max()),
+            "max_angle_deg": {"full": float(np.degrees(rf["angle"].max())),
+                              "reduced": float(np.degrees(rr["angle"].max()))},
+            "max_angle_difference_deg": float(np.degrees(np.abs(rf["angle"]
+                                                                - rr["angle"]).max())),
+            "max_attachment_error_m": float(rr["attachment_error"].max()),
+            "max_joint_error": float(rr["joint_error"].max()),
+            "worst_time_s": float(worst * config.dt),
+        }
+        png = out / f"jaw_tongue_reduced_{motion}.png"
+        t = worst * config.dt
+        jt.render(png, full, [
+            (f"full, t = {t:.2f} s", rf["u"][worst], *rf["poses"][worst]),
+            (f"reduced r = {config.r}+12, {config.points} pts, t = {t:.2f} s, "
+             f"error {mean_error[worst]:.2f} mm", rr["u"][worst], *rr["poses"][worst])])
+        results[motion]["png"] = png.name
+    figures = {
+        "model": "jaw_tongue_reduced", "level": 0, "dt": config.dt, "duration": duration,
+        "basis": {"pod_vectors": config.r, "lift_columns": 12,
+                  "training": "full jaw-tongue scene, each exciter alone at "
+                              f"{config.training_excitation}, jaw opener on",
+                  "snapshots": model.snapshots},
+        "points": {"count": int(model.points.m), "kind": "trained (ECSW NNLS)",
+                   "training_residual": model.points.residual},
+        "training_seconds": train_s,
+        "motions": results,
+    }
+    (out / "jaw_tongue_reduced.json").write_text(json.dumps(figures, indent=2))
+    (out / "jaw_tongue_reduced.md").write_text(report(figures))
+    return figures
+
+
+def report(figures: dict) -> str:
+    lines = ["# Jaw and tongue: full against reduced tongue", "",
+             f"Level-0 tongue, dt = {figures['dt']} s, {figures['duration']} s per motion; "
+             f"reduced: {figures['basis']['pod_vectors']} POD vectors + 12 jaw-lift columns, "
+             f"{figures['points']['count']} trained points.", "",
+             "| motion | full ms/step | reduced ms/step | speed-up | max mean error (mm) | "
+             "max node error (mm) | jaw angle full / reduced (deg) |",
+             "|---|---|---|---|---|---|---|"]
+    for motion, r in figures["motions"].items():
+        lines.append(f"| {motion} | {r['full_ms_per_step']:.1f} | "
+                     f"{r['reduced_ms_per_step']:.2f} | {r['speedup']:.0f}x | "
+                     f"{r['max_mean_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
+                     f"{r['max_angle_deg']['full']:.2f} / {r['max_angle_deg']['reduced']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, type=Path, help="output directory")
+    parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS), choices=sorted(MOTIONS))
+    parser.add_argument("--duration", type=float, default=0.6)
+    parser.add_argument("--r", type=int, default=ReducedJawTongueConfig.r)
+    parser.add_argument("--points", type=int, default=ReducedJawTongueConfig.points)
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="training cache (default OUT/cache)")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = ReducedJawTongueConfig(r=args.r, points=args.points)
+    figures = compare(config, args.out, motions=tuple(args.motions), duration=args.duration,
+                      cache=args.cache)
+    print(report(figures))
+    return 0
