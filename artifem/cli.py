@@ -38,6 +38,8 @@ COMMANDS = {
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
+    ("bench", "scenes"): ("artifem.bench_scenes",
+                          "ms per coupled step: jaw-tongue full/reduced, airway, masseter"),
     ("study", "tongue"): ("artifem.models.tongue.study",
                           "reduced tongue models against the full one: speed versus error"),
     ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",

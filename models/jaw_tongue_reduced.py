@@ -253,3 +253,27 @@ def run(args: argparse.Namespace) -> int:
                       cache=args.cache)
     print(report(figures))
     return 0
+
+
+def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig | None = None,
+              cache: Path | None = None) -> dict:
+    """Milliseconds per coupled step (median of ``steps`` after ``warmup``) of the jaw-tongue
+    scene during protrusion with the full and with the reduced tongue (training cached in
+    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced)."""
+    if steps < 1 or warmup < 0:
+        raise ValueError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
+    config = config or ReducedJawTongueConfig()
+    cache = cache or Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
+    model = train(config, cache)
+    cases = {}
+    for name, build in (("full", lambda: jt.build_scene(config.jaw)),
+                        ("reduced", lambda: build_reduced_scene(model, config))):
+        s = build()
+        with threadpool_limits(limits=1, user_api="blas"):
+            rec = jt.simulate(s, "protrusion", (warmup + steps) * config.dt, config.dt)
+        cases[name] = {"ms_per_step": float(np.median(rec["ms"][warmup:])),
+                       "masters": s.scene.master_count()}
+    cases["speedup"] = cases["full"]["ms_per_step"] / cases["reduced"]["ms_per_step"]
+    return {"benchmark": "jaw-tongue", "steps": steps, "dt": config.dt,
+            "reduced": {"pod_vectors": config.r, "lift_columns": 12, "points": config.points},
+            "cases": cases}

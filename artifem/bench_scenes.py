@@ -1,0 +1,67 @@
+"""``artifem bench scenes``: milliseconds per coupled step of the anatomical scenes, to JSON.
+
+Each scene module has a ``benchmark(steps=...) -> dict`` that builds its
+variants and times them in this process (medians over the timed steps):
+
+- ``jaw-tongue`` (:mod:`artifem.models.jaw_tongue_reduced`): the jaw-tongue
+  scene during protrusion with the full and with the reduced tongue (the
+  reduced tongue's training is cached, ~/.cache/artifem by default);
+- ``airway`` (:mod:`artifem.models.airway`): the jaw-tongue scene without and
+  with the airway skin and its pressure, and the skin's own update costs;
+- ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
+  conforming masseter, with and without aponeuroses.
+
+Unless already set, OMP_NUM_THREADS and OPENBLAS_NUM_THREADS are 1 (one core
+per case, like ``artifem bench fom``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import time
+from pathlib import Path
+
+SCENES = {"jaw-tongue": "artifem.models.jaw_tongue_reduced",
+          "airway": "artifem.models.airway",
+          "masseter": "artifem.models.masseter"}
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", required=True, type=Path, help="JSON file to write")
+    parser.add_argument("--scenes", default=",".join(SCENES),
+                        help="comma-separated scenes (default: %(default)s)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="timed steps per case (default: each scene's own)")
+
+
+def run(args) -> int:
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    unknown = sorted(set(scenes) - set(SCENES))
+    if unknown or not scenes:
+        raise SystemExit(f"artifem bench scenes: unknown scenes {unknown}; choose from "
+                         f"{sorted(SCENES)}")
+    if args.steps is not None and args.steps < 1:
+        raise SystemExit(f"artifem bench scenes: --steps must be >= 1, got {args.steps}")
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    from artifem.bench import write_report           # after the thread settings
+
+    results, errors = {}, []
+    for name in scenes:
+        print(f"[bench scenes] {name} ...", flush=True)
+        tic = time.perf_counter()
+        module = importlib.import_module(SCENES[name])
+        kwargs = {} if args.steps is None else {"steps": args.steps}
+        try:
+            results[name] = module.benchmark(**kwargs)
+        except Exception as exc:                      # keep the other scenes' figures
+            errors.append({"scene": name, "error": f"{type(exc).__name__}: {exc}"})
+            print(f"[bench scenes] {name} failed: {exc}", flush=True)
+            continue
+        results[name]["seconds"] = time.perf_counter() - tic
+        print(f"[bench scenes] {name}: {results[name].get('cases', results[name])}", flush=True)
+    write_report(Path(args.out), "scenes", __doc__.split("\n\n")[0], {"scenes": scenes},
+                 [], errors, scenes=results)
+    print(f"[bench scenes] wrote {args.out}")
+    return 1 if errors else 0
