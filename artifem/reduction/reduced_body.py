@@ -178,6 +178,11 @@ class ReducedFemBody:
             directions = None
             if term.direction is not None:
                 W = term.direction.function_space
+                if W.dofmap.list.shape[1] != 1:
+                    raise NotImplementedError(
+                        f"reduced body of {full.name!r}: energy term {term.name!r} has fiber "
+                        "directions per quadrature point; reduced bodies take one per cell "
+                        "(DG0) for now")
                 directions = term.direction.x.array.reshape(-1, 3)[
                     W.dofmap.list[self.cells[at], 0]]
             terms.append((term.density, at, directions))
