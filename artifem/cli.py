@@ -35,6 +35,8 @@ COMMANDS = {
                                  "tongue on a hinged rigid jaw opened by a Hill muscle"),
     ("simulate", "styloglossus"): ("artifem.models.styloglossus",
                                    "external styloglossus on 4 vs 24 support nodes: stress"),
+    ("simulate", "masseter"): ("artifem.models.masseter",
+                               "synthetic masseter: embedding vs conforming, aponeuroses"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),

@@ -317,10 +317,11 @@ class FemBody:
             raise ValueError(f"{what}: a direction Function must be a 3-vector field on this "
                              "body's mesh")
         expected = self.quadrature_space()
-        if space.dofmap.list.shape[1] not in (1, expected.dofmap.list.shape[1]):
-            raise ValueError(f"{what}: the direction Function has {space.dofmap.list.shape[1]} "
-                             f"values per cell; expected 1 (DG0) or one per quadrature point "
-                             f"({expected.dofmap.list.shape[1]}, degree {self.quadrature_degree})")
+        dg0 = fem.functionspace(self.mesh, ("DG", 0, (3,)))
+        if space.ufl_element() not in (expected.ufl_element(), dg0.ufl_element()):
+            raise ValueError(f"{what}: the direction Function must be DG0 or on the quadrature "
+                             f"space of degree {self.quadrature_degree} "
+                             f"(FemBody.quadrature_space()), got {space.ufl_element()}")
         norms = np.linalg.norm(a0.x.array.reshape(-1, 3), axis=1)
         if not np.all(np.isfinite(norms)) or np.any(np.abs(norms - 1.0) > 1e-8):
             raise ValueError(f"{what}: fiber directions must be finite unit vectors "
