@@ -114,9 +114,31 @@ and -(G^T K G + K_r) to K_all. The forces also enter f_all, so a path on
 slave nodes adds to their root's K_geo. Excitation schedules and activation
 as in FramePath (advanced once per new time t).
 
-Not here yet (issue 5): reduced FEM bodies as masters, frames attached to FEM
-bodies (polar decomposition / Procrustes), points attached to FEM bodies as
-slaves of the nodes (point_attachments gives their G), MPI.
+Reduced bodies (:class:`~artifem.reduction.reduced_body.ReducedFemBody`): their
+coordinates q are all-space rows like an FEM body's nodal velocities, with the
+same backward-Euler block, dense r x r: A = (1 + h alpha) M~ + (h beta + h^2) K~,
+b = M~ q' + h f~ (``advance_reduced``). A point on a reduced body
+(:class:`FemPoint` with a reduced body) maps as G = sum_j w_j U_j. Nodes of a
+reduced body ride on a bone through the basis: 12 rigid-lift columns whose
+coordinates g = [p - p_0; vec(R - R_0)] are linear in the pose
+(:mod:`artifem.reduction.rigid_lift`) and slaves of the body
+(:class:`LiftAttachment`): P rows G_g = [[1, 0], [0, -[R_k]x]] on the body's
+twist, z_k the exact secant of g on prescribed bodies, and K_geo the lever term
+sum_k [f_gRk]x [R_k]x (the columns of R turn like node levers).
+
+Embedded FEM bodies (:class:`EmbeddedFemAttachment`): every node of a slave
+body follows the master element containing it, z_s = W z_m, so its P rows are
+W times the master's (P = P_0 + Z P_0 + Z^2 P_0 + ... over the chain of derived
+rows Z, lifts included); its forces reach K_geo as W^T f_s.
+
+Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
+FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
+b += h F, and in the static residual.
+
+Systems of at most ``_MumpsLU.DENSE_MAX`` unknowns (reduced and rigid bodies)
+are solved by a dense LU instead of MUMPS. Not here yet: MPI, rigid bodies as
+slaves of frames on FEM bodies (the paper's direction of Fig. 11; here the
+beam's end face rides on the ellipsoid instead).
 """
 
 from __future__ import annotations
