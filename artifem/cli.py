@@ -35,6 +35,8 @@ COMMANDS = {
                                  "tongue on a hinged rigid jaw opened by a Hill muscle"),
     ("simulate", "styloglossus"): ("artifem.models.styloglossus",
                                    "external styloglossus on 4 vs 24 support nodes: stress"),
+    ("simulate", "airway"): ("artifem.models.airway",
+                             "airway skin over tongue, jaw and palate, with air pressure"),
     ("simulate", "masseter"): ("artifem.models.masseter",
                                "synthetic masseter: embedding vs conforming, aponeuroses"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),

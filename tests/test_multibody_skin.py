@@ -275,7 +275,7 @@ def test_skin_pressure_load_element_is_G_transpose_and_does_the_same_work():
     body = make_body()
     V, F = cylinder(radius=0.1, length=0.8, n_theta=12, n_z=5, caps=True,
                     center=[0.1, 0.15, 0.1])
-    V = V[:, [2, 1, 0]] - [0.0, 0.0, 0.0]             # along x, through the beam
+    V = V[:, [2, 1, 0]]                                # along x, through the beam
     F = F[:, ::-1]                                     # the axis swap mirrors: re-orient outward
     jaw = rigid("jaw", [1.3, 0.15, 0.1])
     skin = SkinMesh(V, F, [body, jaw], weighting="gaussian", sigma=0.4)
@@ -318,3 +318,32 @@ def test_skin_pressure_in_a_coupled_step_pushes_a_free_body():
     np.testing.assert_allclose(body.velocity, [0.0, 0.0, h * 3.0 * 2.0 / 0.5], rtol=1e-12,
                                atol=1e-15)
     np.testing.assert_allclose(body.angular_velocity, 0.0, atol=1e-13)
+
+
+def test_snapping_to_a_distorted_hexahedron_stays_in_the_element():
+    """A point outside a strongly distorted (non-affine) hexahedron snaps to the closest point
+    of the trilinear cell: weights in [0, 1], no farther than the nearest node, and the
+    snapped point is a local minimum of the distance over the reference cube."""
+    import basix
+    from dolfinx import mesh as dmesh
+
+    from artifem.fem_body import FemBody
+    from artifem.forms import NeoHookean
+    from artifem.multibody.skin import embedding_weights
+    nodes = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.3, 1.2, 0.4],
+                      [0.0, 0.0, 1.0], [1.0, -0.3, 1.1], [-0.2, 1.0, 1.0], [0.6, 0.7, 1.5]])
+    element = basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,))
+    msh = dmesh.create_mesh(MPI.COMM_SELF, np.arange(8, dtype=np.int64).reshape(1, 8), element,
+                            nodes)
+    body = FemBody(msh, NeoHookean.from_young_poisson(1e4, 0.3), 1000.0)
+    points = np.array([[1.8, 1.7, 0.3], [2.0, 0.5, 0.5], [0.5, 0.5, -0.7], [1.5, 1.5, 2.0]])
+    b = basix.create_element(basix.ElementFamily.P, basix.CellType.hexahedron, 1)
+    x_nodes = body.V.tabulate_dof_coordinates()
+    grid = np.stack(np.meshgrid(*[np.linspace(0, 1, 21)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    on_cell = b.tabulate(0, grid)[0, :, :, 0] @ msh.geometry.x[msh.geometry.dofmaps[0][0]]
+    for X, e in zip(points, embedding_weights(body, points)):
+        assert e.weights.min() > -1e-12 and e.weights.max() < 1 + 1e-12
+        assert e.distance == pytest.approx(np.linalg.norm(e.rest_position - X), rel=1e-12)
+        assert e.distance <= np.linalg.norm(x_nodes - X, axis=1).min() + 1e-12
+        # no sampled point of the cell is closer than the snapped one (up to the sampling)
+        assert e.distance <= np.linalg.norm(on_cell - X, axis=1).min() + 1e-9

@@ -1,0 +1,206 @@
+"""The airway skin over the tongue, the jaw and the palate, with the air pressure inside it
+(models/airway.py; Lloyd et al. 2019, section 4.1)."""
+
+import numpy as np
+import pytest
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from artifem.models import airway as aw
+from artifem.models.tongue.model import DATA, load_tongue_data
+from artifem.multibody.rigid_body import exp_so3
+from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
+
+STEPS, DT = 5, 0.01
+
+
+@pytest.fixture(scope="module")
+def data():
+    return load_tongue_data(0)
+
+
+@pytest.fixture(scope="module")
+def scene(data):
+    return aw.build_scene(aw.AirwayConfig(), data=data)
+
+
+def test_airway_and_palate_are_aligned_to_the_tongue(scene):
+    a = scene.alignment
+    # measured: 0.79 mm (fitted half), 1.8 mm median, 2.8 degrees, 7 % inside, 2.1 mm deep
+    assert a["trimmed_mean_distance"] < 1.5e-3 and a["median_distance"] < 3e-3
+    assert a["residual_rotation_deg"] < 10.0
+    assert a["fraction_inside_tongue"] < 0.15 and a["max_depth_inside_tongue"] < 4e-3
+    assert a["palate"]["vertices_inside_tongue"] == 0
+    assert a["palate"]["min_gap_to_tongue_m"] > 1e-3
+    # closed, outward, about 36 cm^3 (the adult oral + pharyngeal airway is tens of cm^3)
+    assert a["holes_capped"] == 2 and 20e-6 < a["volume_m3"] < 60e-6
+    # the airway runs between the tongue's dorsum and the palate: its roof over the
+    # dorsum is above the tongue's top landmark
+    x = scene.skin.positions()
+    top = scene.jt.tongue.data.mesh.points[scene.jt.tongue.data.landmarks["top"]]
+    above = x[np.linalg.norm(x[:, :2] - top[:2], axis=1) < 5e-3]
+    assert above[:, 2].max() > top[2] + 5e-3
+
+
+def test_sections_are_closed_loops_and_scale_as_areas(scene):
+    sec = scene.sections
+    x = scene.skin.positions()
+    A = sec.areas(x)
+    assert len(A) >= 50 and np.all(A > 0)
+    assert sec.interior.sum() >= len(A) - 2
+    c = x.mean(0)
+    np.testing.assert_allclose(sec.areas(c + 2.0 * (x - c)), 4.0 * A, rtol=1e-12)
+    R = exp_so3([0.3, -0.2, 0.5])
+    np.testing.assert_allclose(sec.areas(x @ R.T + 1.0), A, rtol=1e-10)
+    L = sec.length(x)
+    assert np.all(np.diff(L) > 0) and 0.12 < L[-1] < 0.25        # larynx to lips, m
+
+
+def test_skin_vertices_outside_the_tongue_snap_into_its_elements(scene):
+    """Shape-function weights of the snapped vertices in [0, 1] (the trilinear cells of this
+    mesh are distorted: a pull-back of the convex hull's closest point extrapolated to +-90),
+    and no snapped vertex farther from the tongue than its nearest node."""
+    tongue = scene.skin.masters[0]
+    outside = tongue.distance > 0
+    assert outside.sum() > 600
+    for k in np.flatnonzero(outside):
+        e = tongue.embedding[k]
+        assert e.weights.min() > -1e-12 and e.weights.max() < 1 + 1e-12
+    nodes = scene.jt.tongue.body.V.tabulate_dof_coordinates()
+    nearest_node = np.array([np.linalg.norm(nodes - X, axis=1).min()
+                             for X in scene.skin.rest[outside]])
+    assert np.all(tongue.distance[outside] <= nearest_node + 1e-12)
+
+
+def _common_rigid_motion(a, R, c):
+    """Move every master by x -> R x + c (tongue displacement, jaw and palate poses)."""
+    body = a.jt.tongue.body
+    X = body.V.tabulate_dof_coordinates()
+    body.u.x.array[:] = (X @ R.T + c - X).ravel()
+    for b in (a.jt.jaw, a.palate):
+        b.position = R @ b.position + c
+        b.rotation = R @ b.rotation
+
+
+def test_skin_follows_a_rigid_motion_of_all_masters(scene):
+    """Exact for a translation; for a rotation exact except the FEM master's snapping: a
+    vertex outside the tongue moves with its nearest tongue point, off by at most
+    |R - 1| w_tongue d_tongue."""
+    a = scene
+    x0 = a.skin.positions()
+    saved = [(b.position.copy(), b.rotation.copy()) for b in (a.jt.jaw, a.palate)]
+    try:
+        c = np.array([0.004, -0.002, 0.003])
+        _common_rigid_motion(a, np.eye(3), c)
+        np.testing.assert_allclose(a.skin.positions(), x0 + c, atol=1e-14)
+        for (b, (p, Rb)) in zip((a.jt.jaw, a.palate), saved):
+            b.position, b.rotation = p.copy(), Rb.copy()
+        R = exp_so3([0.05, 0.1, -0.08])
+        _common_rigid_motion(a, R, c)
+        err = np.linalg.norm(a.skin.positions() - (x0 @ R.T + c), axis=1)
+        tongue = a.skin.masters[0]
+        bound = np.linalg.norm(R - np.eye(3), 2) * a.skin.weights[:, 0] * tongue.distance
+        assert np.all(err <= bound + 1e-13)
+        inside = tongue.distance == 0.0
+        assert inside.sum() > 50 and err[inside].max() < 1e-13
+    finally:
+        a.jt.tongue.body.u.x.array[:] = 0.0
+        for (b, (p, Rb)) in zip((a.jt.jaw, a.palate), saved):
+            b.position, b.rotation = p, Rb
+
+
+def test_pressure_does_the_same_virtual_work_on_the_skin_and_the_masters(scene):
+    a = scene
+    rng = np.random.default_rng(4)
+    body, jaw = a.jt.tongue.body, a.jt.jaw
+    try:
+        body.v.x.array[:] = 1e-2 * rng.standard_normal(body.v.x.array.size)
+        jaw.set_twist(1e-2 * rng.standard_normal(6))
+        t = 1.0
+        loads = a.pressure.master_loads(t)
+        assert [b.name for b, _ in loads] == ["tongue", "jaw", "palate"]
+        assert loads[0][1].shape == body.v.x.array.shape
+        f_v = a.skin.pressure_forces(a.pressure.pressure_at(t))
+        power_skin = float(np.sum(f_v * a.skin.velocities()))
+        power_masters = (loads[0][1] @ body.v.x.array + loads[1][1] @ jaw.twist
+                         + loads[2][1] @ a.palate.twist)
+        assert abs(power_skin) > 1e-6
+        assert power_masters == pytest.approx(power_skin, rel=1e-10)
+        # closed surface: the air's resultant on all the masters together is zero
+        net = aw.resultants(a, t)
+        assert np.abs(net["sum"]).max() < 1e-12 * np.abs(f_v).sum()
+        assert np.linalg.norm(net["tongue"]) > 0.1                 # N, at 1 kPa
+    finally:
+        body.v.x.array[:] = 0.0
+        jaw.set_twist(np.zeros(6))
+
+
+def test_closed_skin_on_rigid_masters_only_gets_no_net_wrench(scene):
+    """The airway on the jaw and the palate alone, the jaw moved: sum of forces and of
+    moments (about the origin) of the pressure's master loads is zero."""
+    a = scene
+    jaw, palate = a.jt.jaw, a.palate
+    skin = SkinMesh(a.skin.rest, a.skin.faces,
+                    [RigidMaster(jaw, reference=jaw.surface[0]),
+                     RigidMaster(palate, reference=palate.surface[0])],
+                    blending="dual_quaternion")
+    p0, R0 = jaw.position.copy(), jaw.rotation.copy()
+    try:
+        jaw.rotation = exp_so3([0.0, 0.15, 0.0]) @ jaw.rotation
+        jaw.position = jaw.position + [0.002, 0.0, -0.004]
+        loads = SkinPressure(skin, 500.0).master_loads(0.0)
+        force = sum(w[:3] for _, w in loads)
+        moment = sum(w[3:] + np.cross(b.position, w[:3]) for b, w in loads)
+        scale = np.abs(skin.pressure_forces(500.0)).sum()
+        assert np.abs(force).max() < 1e-12 * scale
+        assert np.abs(moment).max() < 1e-12 * scale
+        assert np.abs(loads[0][1][:3]).max() > 1e-3 * scale      # each one is loaded
+    finally:
+        jaw.position, jaw.rotation = p0, R0
+
+
+def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, data):
+    """Same scene with and without the air pressure, no muscles: the airway's tongue-borne
+    vertices move outward (along the airway's outward normal, into the tongue) and the
+    tongue's top sinks."""
+    off = aw.build_scene(aw.AirwayConfig(), pressure=False, data=data)
+    runs = {}
+    for name, a in (("on", scene), ("off", off)):
+        runs[name] = aw.simulate(a, None, STEPS * DT, DT, snapshots=(1.0,))
+    x_on, x_off = runs["on"]["skin_frames"][-1], runs["off"]["skin_frames"][-1]
+    rest = scene.skin.rest
+    normals = np.zeros_like(rest)
+    for k in range(3):
+        np.add.at(normals, scene.skin.faces[:, k], scene.skin.face_area_vectors(rest))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    on_tongue = scene.tongue_vertices
+    outward = np.einsum("ij,ij->i", (x_on - x_off)[on_tongue], normals[on_tongue])
+    assert outward.mean() > 0 and (outward > 0).mean() > 0.8
+    assert runs["on"]["top"][-1][2] < runs["off"]["top"][-1][2]
+    assert np.all(np.isfinite(runs["on"]["areas"]))
+    assert runs["on"]["attachment_error"].max() < 1e-12
+
+
+def test_benchmark_reports_positive_times():
+    out = aw.benchmark(steps=1)
+    for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
+                "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
+        assert out[key] > 0, key
+    assert out["skin_vertices"] > 900
+
+
+def test_bad_input_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="pressure"):
+        aw.AirwayConfig(pressure=float("nan"))
+    with pytest.raises(ValueError, match="ramp"):
+        aw.AirwayConfig(pressure_ramp=0.0)
+    with pytest.raises(ValueError, match="trim"):
+        aw.AirwayConfig(trim=0.0)
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="no section planes"):
+        aw.read_sections(bad)
+    bad.write_text("s 0 0 2 1.0\n")
+    with pytest.raises(ValueError, match="unit vector"):
+        aw.read_sections(bad)
+    normals, offsets, names = aw.read_sections(DATA / "airway.obj")
+    assert len(offsets) == 58 and names[0] == "larynx"
