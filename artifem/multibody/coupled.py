@@ -327,6 +327,7 @@ class EmbeddedFemAttachment:
                                           "run in serial only for now")
         self.slave, self.master = slave, master
         rest = slave.V.tabulate_dof_coordinates()
+        self._rest = rest.ravel()
         embedded = EmbeddedMesh(master, rest, snap=snap, name=self.name)
         self.W = embedded.G.tocsr()
         self.distance = embedded.distance
@@ -339,7 +340,7 @@ class EmbeddedFemAttachment:
     def displacement(self) -> np.ndarray:
         """u_s = W x_m + c - X_s (block-interleaved, the slave's dof layout)."""
         x_m = _dof_positions(self.master).ravel()[:self.W.shape[1]]
-        return self.W @ x_m + self.offset - self.slave.V.tabulate_dof_coordinates().ravel()
+        return self.W @ x_m + self.offset - self._rest
 
 
 class LiftAttachment:
@@ -389,6 +390,7 @@ class LiftAttachment:
                              "follow the body")
         self.reduced, self.lift, self.body = reduced, lift, body
         self.columns = np.arange(self.first, self.first + 12)
+        self._rest = reduced.full.V.tabulate_dof_coordinates()[lift.dofs]
 
     def __repr__(self) -> str:
         return f"LiftAttachment({self.name!r}, {self.lift.nodes.size} nodes)"
@@ -404,9 +406,8 @@ class LiftAttachment:
     def node_positions(self) -> np.ndarray:
         """The carried nodes as the reduced body has them, X_j + u_bar_j + U_j q (k, 3)."""
         rows = (3 * self.lift.dofs[:, None] + np.arange(3)).ravel()
-        X = self.reduced.full.V.tabulate_dof_coordinates()[self.lift.dofs]
         u = self.reduced.u_bar[rows] + self.reduced.U[rows] @ self.reduced.q
-        return X + u.reshape(-1, 3)
+        return self._rest + u.reshape(-1, 3)
 
 
 class LoadElement:
@@ -933,25 +934,14 @@ class _Layout:
         self._check_references()
 
         # Roots of the rigid attachment chains, in dependency order (masters first).
-        master_of = {id(a.slave): a for a in scene.rigid_attachments}
-        self.root: dict[int, RigidBody] = {}
-        for body in rigid:
-            chain, b = [body], body
-            while id(b) in master_of:
-                b = master_of[id(b)].master
-                if any(b is c for c in chain):
-                    names = " -> ".join(c.name for c in chain + [b])
-                    raise ValueError(f"attachment cycle: {names}")
-                chain.append(b)
-            self.root[id(body)] = b
-        depth = {}
-        for body in rigid:
-            d, b = 0, body
-            while id(b) in master_of:
-                b, d = master_of[id(b)].master, d + 1
-            depth[id(body)] = d
-        self.rigid_attachments = sorted(scene.rigid_attachments, key=lambda a: depth[id(a.slave)])
-        self.embedded = self._embedding_order()
+        chains = {id(b): _chain(b, scene.rigid_attachments, "attachment cycle")
+                  for b in rigid}
+        self.root: dict[int, RigidBody] = {key: c[-1] for key, c in chains.items()}
+        self.rigid_attachments = sorted(scene.rigid_attachments,
+                                        key=lambda a: len(chains[id(a.slave)]))
+        # Embedded bodies, slaves before their masters (deepest first).
+        self.embedded = sorted(scene.embedded_attachments, key=lambda a: -len(_chain(
+            a.slave, scene.embedded_attachments, "embedded attachment cycle")))
 
         # Masters: free FEM dofs, free reduced coordinates, then the dynamic roots.
         is_slave_row = np.zeros(self.n_all, dtype=bool)
@@ -976,7 +966,7 @@ class _Layout:
         for body in scene.reduced_bodies:
             rows = self.reduced_offset[id(body)] + np.arange(body.r)
             master_rows.append(rows[~is_slave_row[rows]])
-        self.roots = [b for b in rigid if b.dynamic and id(b) not in master_of]
+        self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b]
         for body in self.roots:
             master_rows.append(self.rigid_offset[id(body)] + np.arange(6))
         self.master_rows = np.concatenate(master_rows) if master_rows else np.zeros(0, int)
@@ -992,21 +982,6 @@ class _Layout:
                              zip(scene.reduced_bodies, master_rows[len(fem_bodies):])]
         self._embedding_map = self._embedding_matrix()
         self._place_lifts()             # lift coordinates from the bodies' poses
-
-    def _embedding_order(self) -> list[EmbeddedFemAttachment]:
-        """The embedded attachments, masters before slaves (a cycle is an error)."""
-        master_of = {id(a.slave): a for a in self.scene.embedded_attachments}
-        depth = {}
-        for att in self.scene.embedded_attachments:
-            chain, d, b = [att.slave], 0, att.slave
-            while id(b) in master_of:
-                b, d = master_of[id(b)].master, d + 1
-                if any(b is c for c in chain):
-                    names = " -> ".join(c.name for c in chain + [b])
-                    raise ValueError(f"embedded attachment cycle: {names}")
-                chain.append(b)
-            depth[id(att)] = d
-        return sorted(self.scene.embedded_attachments, key=lambda a: -depth[id(a)])
 
     def _embedding_matrix(self) -> sparse.csr_matrix:
         """Z_e (n_all x n_all): z_slave = W z_master of every embedded body (constant)."""
@@ -1622,6 +1597,19 @@ class _Layout:
             if detF.size and not np.nanmin(detF) > 0:
                 return True
         return False
+
+
+def _chain(body, attachments, cycle: str) -> list:
+    """[body, its master, its master's master, ..., the root] through ``attachments``
+    (objects with .slave and .master); a cycle is a ValueError starting with ``cycle``."""
+    master_of = {id(a.slave): a.master for a in attachments}
+    chain = [body]
+    while id(chain[-1]) in master_of:
+        b = master_of[id(chain[-1])]
+        if any(b is c for c in chain):
+            raise ValueError(f"{cycle}: " + " -> ".join(c.name for c in chain + [b]))
+        chain.append(b)
+    return chain
 
 
 def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
