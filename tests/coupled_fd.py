@@ -1,6 +1,5 @@
 """Finite differences of a coupled scene's static master forces (shared by the tests)."""
 
-import numpy as np
 
 def master_force_difference(scene, dq, eps):
     """(F_m(eps dq) - F_m(-eps dq)) / (2 eps), the scene restored after each evaluation;
