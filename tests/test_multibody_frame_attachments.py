@@ -91,3 +91,40 @@ def test_degenerate_supports_and_inverted_elements_are_errors():
         FemFrame(body, ORIGIN, method="euler")
     with pytest.raises(ValueError, match="det A"):
         polar_rotation(np.diag([1.0, 1.0, -1.0]))
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_torque_stiffness_matches_finite_differences(which):
+    """H = d(G_w^T tau)/dx (analytic, through the polar decomposition's derivative)."""
+    body = make_body()
+    rng = np.random.default_rng(10 + which)
+    rigid_motion(body, Rotation.from_rotvec([0.4, -0.3, 0.9]).as_matrix(), np.zeros(3))
+    body.u.x.array[:ndofs(body)] += 0.02 * rng.standard_normal(ndofs(body))
+    frame = frames(body)[which]
+    tau = rng.standard_normal(3)
+    H = frame.torque_stiffness(tau)
+    rows = frame.rows(frame.dofs)
+    dx = rng.standard_normal(rows.size)
+    u0 = body.u.x.array.copy()
+
+    def nodal(eps):
+        body.u.x.array[rows] = u0[rows] + eps * dx
+        return frame.angular_velocity_jacobian().T @ tau
+    eps = 1e-6
+    fd = (nodal(eps) - nodal(-eps)) / (2 * eps)
+    body.u.x.array[:] = u0
+    np.testing.assert_allclose(H @ dx, fd, rtol=1e-6, atol=1e-7 * np.abs(fd).max())
+
+
+def test_procrustes_frame_without_a_point_sits_at_the_support_centroid():
+    body = make_body()
+    support = nearest_nodes(body, ORIGIN, 12)
+    frame = FemFrame(body, method="procrustes", support=support)
+    x = body.V.tabulate_dof_coordinates()[frame.dofs]
+    np.testing.assert_allclose(frame.position(), x.mean(axis=0), atol=1e-15)
+    Q = Rotation.from_rotvec([0.2, 1.1, -0.5]).as_matrix()
+    rigid_motion(body, Q, np.array([0.1, 0.0, -0.2]))
+    np.testing.assert_allclose(frame.position(), Q @ x.mean(axis=0) + [0.1, 0.0, -0.2],
+                               atol=1e-13)
+    with pytest.raises(ValueError, match="origin point"):
+        FemFrame(body)

@@ -135,10 +135,21 @@ Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
 FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
 b += h F, and in the static residual.
 
+Rigid bodies on frames of FEM bodies (:class:`FrameAttachment`, the paper's
+section 3.2 and Fig. 11): a body follows a frame (origin and polar or Procrustes
+rotation, :mod:`~artifem.multibody.frame_attachments`) on a full or reduced body,
+u = J v_nodes; its rows of P are J times the nodes' (derived rows, like the
+embedded ones), and K_geo adds d(J^T [f; tau])/dx. A massless body
+(``RigidBody.marker``) on a frame carries joints: joints between frames on
+deformable bodies. The joints' reactions load such attachments like any force;
+they enter K_geo lagged by one step (or one Newton iteration).
+
+Statics with joints use the exact-penalty merit E + rho |phi|_1 (rho = 2 max |mu|)
+when every force has an energy, and otherwise the force residual left after the
+least-squares joint reactions.
+
 Systems of at most ``_MumpsLU.DENSE_MAX`` unknowns (reduced and rigid bodies)
-are solved by a dense LU instead of MUMPS. Not here yet: MPI, rigid bodies as
-slaves of frames on FEM bodies (the paper's direction of Fig. 11; here the
-beam's end face rides on the ellipsoid instead).
+are solved by a dense LU instead of MUMPS. Not here yet: MPI.
 """
 
 from __future__ import annotations
@@ -151,6 +162,7 @@ from scipy import sparse
 
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.fem_body import FemBody
+from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.frame_paths import TimedPath
 from artifem.multibody.joints import Joint
 from artifem.multibody.point_attachments import FemPointWeights
@@ -160,7 +172,8 @@ from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.rigid_lift import RigidLift
 
 __all__ = ["CoupledStepFailed", "CoupledSystem", "EmbeddedFemAttachment", "FemPoint",
-           "LiftAttachment", "LoadElement", "NodeAttachment", "PointPath", "RigidAttachment"]
+           "FrameAttachment", "LiftAttachment", "LoadElement", "NodeAttachment", "PointPath",
+           "RigidAttachment"]
 
 
 class CoupledStepFailed(RuntimeError):
@@ -291,6 +304,90 @@ class RigidAttachment:
         p = self.master.position if position is None else position
         R = self.master.rotation if rotation is None else rotation
         return p + R @ self.offset, orthonormalize(R @ self.relative_rotation)
+
+
+class FrameAttachment:
+    """A rigid body attached to a frame on an FEM body, full or reduced (Lloyd et al. 2019,
+    section 3.2, Fig. 11 right: the rigid body follows the deformable one).
+
+    The frame (:class:`~artifem.multibody.frame_attachments.FemFrame`) has origin
+    o = sum_j w_j x_j and rotation R_f = polar(sum_j x_j c_j^T) R_rest^T. The body's pose
+    relative to it (r_b = R_f^T (p - o), R_rel = R_f^T R) is taken now, and
+
+        p = o + R_f r_b,   R = R_f R_rel,   u = [v; w] = J v_nodes,
+        J = [[G_x - [d]x G_w], [G_w]],   d = p - o = R_f r_b,
+
+    G_x the origin's weights and G_w the frame's angular-velocity Jacobian (on a reduced
+    body both times the support's rows of U). The body's rows of P are J times its
+    nodes' (derived rows), so its mass, gravity, joints and paths act on the nodes
+    through J^T. K_geo: at fixed wrench [f; tau], d(J^T [f; tau])/dx = H(tau_o) +
+    G_w^T [f]x [d]x G_w, tau_o = tau + d x f, H the frame's ``torque_stiffness``.
+
+    The body may be massless (``RigidBody.marker``): a frame on the FEM body for joints
+    (joints between frames on deformable bodies) and paths. Nothing may be attached to
+    the body itself (attach to the FEM body instead).
+    """
+
+    def __init__(self, slave: RigidBody, frame: FemFrame, *, name: str = ""):
+        if not isinstance(slave, RigidBody):
+            raise TypeError(f"FrameAttachment: expected a RigidBody, got {type(slave).__name__}")
+        if not isinstance(frame, FemFrame):
+            raise TypeError(f"FrameAttachment: expected a FemFrame, got {type(frame).__name__}")
+        self.name = name or f"{slave.name}->{frame.body.name}"
+        if slave.motion != "dynamic":
+            raise ValueError(f"frame attachment {self.name!r}: the slave {slave.name!r} is "
+                             f"{slave.motion}; only a dynamic body can follow a frame")
+        if frame.full.mesh.comm.size != 1:
+            raise NotImplementedError(f"frame attachment {self.name!r}: coupled scenes run in "
+                                      "serial only for now")
+        self.slave, self.frame = slave, frame
+        R_f = frame.rotation()
+        self.offset = R_f.T @ (slave.position - frame.position())
+        self.relative_rotation = R_f.T @ slave.rotation
+
+    def __repr__(self) -> str:
+        return f"FrameAttachment({self.name!r}, {self.frame.method})"
+
+    @property
+    def master(self):
+        return self.frame.body
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(p, R) the frame gives the body now."""
+        R_f = self.frame.rotation()
+        return self.frame.position() + R_f @ self.offset, \
+            orthonormalize(R_f @ self.relative_rotation)
+
+    def _blocks(self):
+        """[(rows, J_part)] on the FEM body's blocked dofs (origin, support), and d."""
+        f = self.frame
+        d = f.rotation() @ self.offset
+        G_w = f.angular_velocity_jacobian()
+        k_o = f.origin.dofs.size
+        J_o = np.zeros((6, 3 * k_o))
+        J_o[:3] = np.kron(f.origin.weights, np.eye(3))
+        J_s = np.vstack([-skew(d) @ G_w, G_w])
+        return [(f.rows(f.origin.dofs), J_o), (f.rows(f.dofs), J_s)], d, G_w
+
+    def jacobian(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """u = J v: [(columns, block)] on the master body's coordinates (its blocked dofs,
+        or q on a reduced body: one block J U)."""
+        blocks, _, _ = self._blocks()
+        if not self.frame.reduced:
+            return blocks
+        U = self.frame.body.U
+        return [(np.arange(U.shape[1]), sum(J @ U[rows] for rows, J in blocks))]
+
+    def stiffness(self, wrench: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(columns, K) with K = d(J^T wrench)/dx at a fixed wrench [f; tau] (class docstring)."""
+        f, tau = wrench[:3], wrench[3:]
+        _, d, G_w = self._blocks()
+        K = self.frame.torque_stiffness(tau + np.cross(d, f)) + G_w.T @ skew(f) @ skew(d) @ G_w
+        rows = self.frame.rows(self.frame.dofs)
+        if not self.frame.reduced:
+            return rows, K
+        U = self.frame.body.U[rows]
+        return np.arange(U.shape[1]), U.T @ K @ U
 
 
 class EmbeddedFemAttachment:
@@ -565,6 +662,7 @@ class CoupledSystem:
         self.rigid_attachments: list[RigidAttachment] = []
         self.embedded_attachments: list[EmbeddedFemAttachment] = []
         self.lift_attachments: list[LiftAttachment] = []
+        self.frame_attachments: list[FrameAttachment] = []
         self.joints: list[Joint] = []
         self.forces: list[ForceElement] = []
         self.paths: list[PointPath] = []
@@ -573,6 +671,7 @@ class CoupledSystem:
         self._solver = _MumpsLU()
         self._impulses: dict = {}
         self._last_h = 1.0
+        self._reactions = None          # the joints' last forces, all-space (for K_geo)
         self.last_solve: dict = {}
 
     @property
@@ -624,11 +723,12 @@ class CoupledSystem:
                     item.follow_trajectory(self.t)
                 self.rigid_bodies.append(item)
             elif isinstance(item, (NodeAttachment, RigidAttachment, EmbeddedFemAttachment,
-                                   LiftAttachment, Joint, PointPath)):
+                                   LiftAttachment, FrameAttachment, Joint, PointPath)):
                 members = {NodeAttachment: self.node_attachments,
                            RigidAttachment: self.rigid_attachments,
                            EmbeddedFemAttachment: self.embedded_attachments,
                            LiftAttachment: self.lift_attachments,
+                           FrameAttachment: self.frame_attachments,
                            Joint: self.joints, PointPath: self.paths}
                 group = next(g for kind, g in members.items() if isinstance(item, kind))
                 if any(item is other for other in group):
@@ -697,11 +797,16 @@ class CoupledSystem:
         return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
 
     def attachment_errors(self) -> dict[str, float]:
-        """max |x_i - (p + R r_i)| of each node and lift attachment (round-off after a step)."""
+        """max |x_i - (p + R r_i)| of each node and lift attachment, and the pose error
+        (m and rad) of each frame attachment (round-off after a step)."""
         out = {a.name: float(np.abs(_dof_positions(a.fem)[a.dofs] - a.positions()).max())
                for a in self.node_attachments}
         out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
                     for a in self.lift_attachments})
+        for a in self.frame_attachments:
+            p, R = a.pose()
+            out[a.name] = max(float(np.abs(p - a.slave.position).max()),
+                              float(np.abs(R - a.slave.rotation).max()))
         return out
 
     def constraint_errors(self) -> dict[str, float]:
@@ -727,6 +832,9 @@ class CoupledSystem:
         z = P @ z_m + z_k
         L.advance(z, h, targets)
         self._impulses, self._last_h = impulses, h
+        self._reactions = L.joint_forces((joint, rows, lam / h)
+                                         for joint, parts in impulses.items()
+                                         for rows, lam in parts)
         self.t += h
 
     def step_matrix(self, h: float) -> sparse.csr_matrix:
@@ -748,7 +856,7 @@ class CoupledSystem:
         A, b, f_all = L.dynamics(h, t1)
         A_m = (P.T @ A @ P).tocsr()
         if self.geometric_stiffness:
-            A_m = A_m - h * h * L.geometric_stiffness(f_all)
+            A_m = A_m - h * h * L.geometric_stiffness(self._with_reactions(f_all), P)
         b_m = P.T @ (b - A @ z_k)
         return L, P, z_k, targets, A_m, b_m
 
@@ -810,7 +918,16 @@ class CoupledSystem:
         f_all, K_all = L.static_forces(self.t, tangent=True)
         P = L.prolongation()
         K = (P.T @ K_all @ P).tocsr()
-        return K - L.geometric_stiffness(f_all) if self.geometric_stiffness else K
+        if not self.geometric_stiffness:
+            return K
+        return K - L.geometric_stiffness(self._with_reactions(f_all), P)
+
+    def _with_reactions(self, f_all: np.ndarray) -> np.ndarray:
+        """f_all plus the joints' last reaction forces: on a body that follows a frame or
+        another body they load the attachment like any force (lagged by one step or one
+        Newton iteration)."""
+        r = self._reactions
+        return f_all if r is None or r.shape != f_all.shape else f_all + r
 
     def displace_masters(self, dq) -> None:
         """Apply a master displacement: free FEM u += dq, dynamic roots p += dp and
@@ -834,6 +951,7 @@ class CoupledSystem:
             if body.dynamic:
                 body.set_twist(np.zeros(6))
         g = self.gravity.copy()
+        self._reactions = None
         counts = []
         try:
             for k in range(1, load_steps + 1):
@@ -856,9 +974,17 @@ class CoupledSystem:
             else np.zeros(0)
         return F, phi
 
+    def _merit(self, L, F: np.ndarray, phi: np.ndarray) -> float:
+        """|[F_m - G_m^T mu; phi]| with mu the least-squares joint reactions at the current
+        configuration: the forces the joints cannot balance, and the joints' error."""
+        if self.joints:
+            G = L.joint_matrix(L.prolongation()).toarray()
+            F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
+        return float(np.linalg.norm(np.concatenate([F, phi])))
+
     def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
         F, phi = self._residual(L)
-        norm = float(np.linalg.norm(np.concatenate([F, phi])))
+        norm = self._merit(L, F, phi)
         scale = max(norm, atol)
         for it in range(1, max_iterations + 1):
             if norm <= max(rtol * scale, atol):
@@ -869,13 +995,21 @@ class CoupledSystem:
             KKT = sparse.bmat([[K, G.T], [G, None]], format="csr") if G.shape[0] else K
             x = self._solver.solve(KKT, np.concatenate([F, -phi]), "static solve")
             dq, mu = x[:K.shape[0]], x[K.shape[0]:]
+            if self.joints:             # K dq = F - G^T mu: the joints apply -G^T mu
+                groups = L.joint_rows(P, np.zeros(L.n_all), 1.0, 0.0)[0]
+                cuts = np.cumsum([len(g[1]) for g in groups])[:-1]
+                self._reactions = L.joint_forces((g[0], g[1], m) for g, m in
+                                                 zip(groups, np.split(-mu, cuts)))
             saved = L.save()
-            # the energy is a merit only when it is the whole potential (no joint rows)
-            use_energy = not phi.size and all(hasattr(e, "potential_energy")
-                                              for e in self.forces) \
+            # The energy is a merit when it is the whole potential; with joints, the exact
+            # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
+            # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
+            use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
                 and all(p.conservative for p in self.paths)
-            energy0 = self.potential_energy() if use_energy else 0.0
-            slope = -float(F @ dq)                  # d(energy)/ds along the step
+            rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
+            energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
+                if use_energy else 0.0
+            slope = -float(F @ dq) - rho * float(np.abs(phi).sum())
             step = 1.0
             while step >= 1e-4:
                 L.displace(step * dq)
@@ -884,12 +1018,10 @@ class CoupledSystem:
                     # while the free nodes beside them move on straight lines, so a large
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
-                    energy = self.potential_energy() if use_energy else np.inf
                     F_new, phi_new = self._residual(L)
-                    # equilibrium with the joint reactions: F_m = G^T mu (mu: the multipliers
-                    # of this solve, the whole reaction since the right side is F_m itself)
-                    unbalanced = F_new - G.T @ mu if phi.size else F_new
-                    trial = float(np.linalg.norm(np.concatenate([unbalanced, phi_new])))
+                    energy = self.potential_energy() + rho * float(np.abs(phi_new).sum()) \
+                        if use_energy else np.inf
+                    trial = self._merit(L, F_new, phi_new)
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -956,6 +1088,7 @@ class _Layout:
             is_slave_row[o:o + self.fem_size[id(att.slave)]] = True
         for att in scene.lift_attachments:
             is_slave_row[self.reduced_offset[id(att.reduced)] + att.columns] = True
+        framed = {id(att.slave) for att in scene.frame_attachments}
         master_rows = []
         for body, fixed in zip(fem_bodies, self.fixed):
             o = self.fem_offset[id(body)]
@@ -966,7 +1099,8 @@ class _Layout:
         for body in scene.reduced_bodies:
             rows = self.reduced_offset[id(body)] + np.arange(body.r)
             master_rows.append(rows[~is_slave_row[rows]])
-        self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b]
+        self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b
+                      and id(b) not in framed]
         for body in self.roots:
             master_rows.append(self.rigid_offset[id(body)] + np.arange(6))
         self.master_rows = np.concatenate(master_rows) if master_rows else np.zeros(0, int)
@@ -1009,6 +1143,27 @@ class _Layout:
         return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
                                                          np.concatenate(cols))),
                                  shape=(self.n_all, self.n_all))
+
+    def _frame_matrix(self) -> sparse.csr_matrix:
+        """Z_f (n_all x n_all): u_b = J z_nodes of every frame-attached body, at the current
+        configuration (FrameAttachment)."""
+        rows, cols, vals = [], [], []
+        for att in self.scene.frame_attachments:
+            r0 = self.rigid_offset[id(att.slave)] + np.arange(6)
+            o = self._body_offset(att.frame.body)
+            for c, J in att.jacobian():
+                rr, cc = np.meshgrid(r0, o + c, indexing="ij")
+                rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(J.ravel())
+        if not rows:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_all, self.n_all))
+
+    def _body_offset(self, body) -> int:
+        """The all-space offset of an FEM (blocked dofs) or reduced body (q)."""
+        return self.fem_offset[id(body)] if isinstance(body, FemBody) else \
+            self.reduced_offset[id(body)]
 
     @staticmethod
     def _chain(Z: sparse.csr_matrix, X):
@@ -1105,6 +1260,34 @@ class _Layout:
                     raise ValueError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
                                      f"are already driven by {other.name!r}")
             lifted.setdefault(id(att.reduced), []).append(att)
+        framed: dict[int, str] = {}
+        for att in scene.frame_attachments:
+            what = f"frame attachment {att.name!r}"
+            if id(att.slave) not in rigid_ids:
+                raise ValueError(f"{what}: rigid body {att.slave.name!r} is not in the scene")
+            if id(att.frame.body) not in fem_ids | reduced_ids:
+                raise ValueError(f"{what}: FEM body {att.frame.body.name!r} is not in the scene")
+            if id(att.slave) in framed or id(att.slave) in slaves:
+                raise ValueError(f"rigid body {att.slave.name!r} is attached twice: by "
+                                 f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
+                                 f"and by {att.name!r}")
+            framed[id(att.slave)] = att.name
+            p, R = att.pose()
+            gap = max(float(np.abs(p - att.slave.position).max()),
+                      float(np.abs(R - att.slave.rotation).max()))
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
+                raise ValueError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
+                                 "frame gives it; a body moved after the attachment was made")
+        carried = [(a.name, a.body) for a in scene.node_attachments + scene.lift_attachments] \
+            + [(a.name, a.master) for a in scene.rigid_attachments]
+        for name, body in carried:
+            if id(body) in framed:
+                raise ValueError(f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
+                                 f"body ({framed[id(body)]!r}); attach to that FEM body instead")
+        for body in scene.rigid_bodies:
+            if body.massless and body.dynamic and id(body) not in framed.keys() | slaves.keys():
+                raise ValueError(f"rigid body {body.name!r} is massless (a marker) but attached "
+                                 "to nothing: its step would be singular")
         for path in scene.paths:
             for pt in path.points:
                 if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids | reduced_ids:
@@ -1164,9 +1347,11 @@ class _Layout:
         P0 = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
                                                        np.concatenate(cols))),
                                shape=(self.n_all, self.n_masters))
-        # rows derived from others: embedded FEM bodies (W) and lift coordinates (G_g)
-        if self.embedded or self.scene.lift_attachments:
-            return self._chain((self._embedding_map + self._lift_matrix()).tocsr(), P0).tocsr()
+        # rows derived from others: embedded FEM bodies (W), lift coordinates (G_g) and
+        # frame-attached bodies (J)
+        if self.embedded or self.scene.lift_attachments or self.scene.frame_attachments:
+            Z = self._embedding_map + self._lift_matrix() + self._frame_matrix()
+            return self._chain(Z.tocsr(), P0).tocsr()
         return P0
 
     def known_velocities(self, h: float, targets: dict) -> np.ndarray:
@@ -1199,13 +1384,13 @@ class _Layout:
                                           turn @ att.body.rotation)
                 z[self.reduced_offset[id(att.reduced)] + att.columns] = \
                     (g1 - att.coordinates()) / h
-        if self.embedded:
-            z = self._chain(self._embedding_map, z)
+        if self.embedded or self.scene.frame_attachments:
+            z = self._chain((self._embedding_map + self._frame_matrix()).tocsr(), z)
         return z
 
     def _rigid_wrenches(self, t1: float, h: float | None, A, b):
         """Force elements: wrenches into b (times h, or 1 for statics), Jacobian blocks into
-        A (-h D - h^2 K, or -K for statics); returns the force part per body id."""
+        A (-h D - h^2 K, or -K for statics); returns the wrench per body id."""
         scene = self.scene
         forces = {}
         known = {id(x) for x in scene.rigid_bodies}
@@ -1215,7 +1400,7 @@ class _Layout:
                 wrench = _checked(element, known, body, wrench, (6,))
                 o = self.rigid_offset[id(body)]
                 b[o:o + 6] += scale * wrench
-                forces[id(body)] = forces.get(id(body), np.zeros(3)) + wrench[:3]
+                forces[id(body)] = forces.get(id(body), np.zeros(6)) + wrench
             for bi, bj, K, D in getattr(element, "jacobians", lambda t: ())(t1):
                 K, D = (_checked(element, known, bi, np.zeros((6, 6)) if X is None else X,
                                  (6, 6), bj) for X in (K, D))
@@ -1260,23 +1445,23 @@ class _Layout:
             f[:3] += body.mass * scene.gravity
             rigid_blocks.append(M - h * D)
             b[o:o + 6] += M @ u + h * (f - D @ u)
-            f_all[o:o + 3] += f[:3]
+            f_all[o:o + 6] += f
         extra: list = []
-        element_forces = self._rigid_wrenches(t1, h, extra, b)
-        for key, force in element_forces.items():
+        element_wrenches = self._rigid_wrenches(t1, h, extra, b)
+        for key, wrench in element_wrenches.items():
             o = self.rigid_offset[key]
-            f_all[o:o + 3] += force
+            f_all[o:o + 6] += wrench
         A = self._stack(blocks, rigid_blocks, extra)
         if scene.paths:
             F, K, D = self.path_terms(t1, h)
             z = self.current_velocities()
             b += h * F - h * (D @ z)
             A = (A - h * D - h * h * K).tocsr()
-            f_all += self._applied_part(F)
+            f_all += F
         if scene.loads:
             F = self.load_vector(t1)
             b += h * F
-            f_all += self._applied_part(F)
+            f_all += F
         return A, b, f_all
 
     def load_vector(self, t: float) -> np.ndarray:
@@ -1314,14 +1499,6 @@ class _Layout:
             o = self.rigid_offset[id(body)]
             z[o:o + 6] = body.twist
         return z
-
-    def _applied_part(self, F: np.ndarray) -> np.ndarray:
-        """F on the FEM rows, and only the force part on the rigid rows (f_all's content)."""
-        out = F.copy()
-        for body in self.scene.rigid_bodies:
-            o = self.rigid_offset[id(body)]
-            out[o + 3:o + 6] = 0.0
-        return out
 
     def path_map(self, path: "PointPath") -> sparse.csr_matrix:
         """G (3n x n_all): x_a' = G z for the path's points (module docstring)."""
@@ -1436,10 +1613,26 @@ class _Layout:
                                       shape=A.shape)
         return A.tocsr()
 
-    def geometric_stiffness(self, f_all: np.ndarray) -> sparse.csr_matrix:
+    def geometric_stiffness(self, f_all: np.ndarray, P: sparse.csr_matrix) -> sparse.csr_matrix:
         """K_geo on the masters (module docstring): sum_s [f_s]x [d_s]x on each dynamic root's
         rotation block, for the applied forces f_all on the slaves (an embedded body's
         forces first moved to its master's nodes, W^T f_s; a lift as levers R_k)."""
+        K_frames = None
+        if self.scene.frame_attachments:
+            f_all = f_all.copy()
+            rows, cols, vals = [], [], []
+            for att in self.scene.frame_attachments:    # leaves: before the embedded bodies
+                wrench = f_all[self.rigid_offset[id(att.slave)] + np.arange(6)]
+                o = self._body_offset(att.frame.body)
+                for c, J in att.jacobian():
+                    f_all[o + c] += J.T @ wrench
+                c, Kf = att.stiffness(wrench)
+                rr, cc = np.meshgrid(o + c, o + c, indexing="ij")
+                rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(Kf.ravel())
+            K_frames = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                                 np.concatenate(cols))),
+                                         shape=(self.n_all, self.n_all))
+            K_frames = (P.T @ K_frames @ P).tocsr()
         if self.embedded:
             f_all = f_all.copy()
             for att in self.embedded:                   # slaves before their masters
@@ -1471,11 +1664,21 @@ class _Layout:
             c0 = self.master_col[key] + 3
             r, c = np.meshgrid(c0 + np.arange(3), c0 + np.arange(3), indexing="ij")
             rows.append(r.ravel()), cols.append(c.ravel()), vals.append(block.ravel())
-        if not rows:
-            return sparse.csr_matrix((self.n_masters, self.n_masters))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(self.n_masters, self.n_masters))
+        K_roots = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                            np.concatenate(cols))),
+                                    shape=(self.n_masters, self.n_masters)) if rows else \
+            sparse.csr_matrix((self.n_masters, self.n_masters))
+        return K_roots if K_frames is None else (K_roots + K_frames).tocsr()
+
+    def joint_forces(self, parts) -> np.ndarray:
+        """sum G^T lambda over (joint, ConstraintRows, lambda), on the all-space rigid rows."""
+        out = np.zeros(self.n_all)
+        for joint, rows, lam in parts:
+            for body, G in zip(joint.bodies, (rows.G_a, rows.G_b)):
+                if body is not None:
+                    o = self.rigid_offset[id(body)]
+                    out[o:o + 6] += G.T @ lam
+        return out
 
     def joint_matrix(self, P) -> sparse.csr_matrix:
         """The bilateral joint rows on the masters, G P (static solve)."""
@@ -1541,6 +1744,8 @@ class _Layout:
         for att in reversed(self.embedded):             # masters before their slaves
             att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
         self._place_lifts()
+        for att in self.scene.frame_attachments:        # leaves: after every FEM body
+            att.slave.position, att.slave.rotation = att.pose()
         for body in self.scene.fem_bodies:
             body.u.x.scatter_forward()
             body.v.x.scatter_forward()

@@ -16,6 +16,16 @@ deformation around it. Both ways of the paper reduce to the rotation of a
 Both give R = I at rest when rest offsets are used (A = S at rest for the
 Procrustes case, F = I for polar) and recover any rigid rotation exactly.
 
+A planar Procrustes support (e.g. the nodes of a face) has A n = 0 for its rest
+normal n, so A = R S with S positive *semi*-definite of rank 2: R is then the
+rotation of the Kabsch fit, U diag(1, 1, det U V^T) V^T from the SVD, unique as
+long as the support is not collinear; everything below holds unchanged
+(tr(S) I - S stays invertible). Such a frame cannot tell a mirrored face from a
+turned one, so inversion is not detected there.
+
+On a reduced body (u = u_bar + U q) the support's nodes are read from q and every
+Jacobian below is multiplied by the support's rows of U.
+
 Angular velocity: with A' = sum_j v_j c_j^T and w = R w_b,
 R^T A' - A'^T R = [(tr(S) I - S) w_b]x, so
 
@@ -46,39 +56,60 @@ def _axial(W: np.ndarray) -> np.ndarray:
     return np.array([W[2, 1], W[0, 2], W[1, 0]])
 
 
-def polar_rotation(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def polar_rotation(A: np.ndarray, planar: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(R, S) with A = R S, R a rotation and S symmetric (from the SVD; det R = +1).
 
     Raises ValueError for a singular or inverted A (det A <= 0): no frame there.
+    ``planar``: A has rank 2 by construction (a planar support, module docstring);
+    R = U diag(1, 1, det U V^T) V^T, and only a collapse to rank 1 is an error.
     """
-    if not np.linalg.det(A) > 0:
+    U, s, Vt = np.linalg.svd(A)
+    if planar:
+        if not s[1] > 1e-12 * s[0]:
+            raise ValueError(f"polar_rotation: singular values {s.tolist()}: the planar "
+                             "support collapsed to a line; the frame's rotation is undefined")
+        U[:, 2] *= np.linalg.det(U @ Vt)
+        s[2] = 0.0
+    elif not np.linalg.det(A) > 0:
         raise ValueError(f"polar_rotation: det A = {np.linalg.det(A):.3g} <= 0 (inverted or "
                          f"collapsed support): the frame's rotation is undefined")
-    U, s, Vt = np.linalg.svd(A)
     R = U @ Vt
     S = Vt.T @ np.diag(s) @ Vt
     return R, S
 
 
 class FemFrame:
-    """A frame on a full FEM body: origin at a point, rotation by polar decomposition.
+    """A frame on an FEM body (full or reduced): origin at a point, rotation by polar
+    decomposition.
 
     Args:
-        body: the FEM body.
-        point: the frame's origin at rest.
+        body: the FEM body, a FemBody or a ReducedFemBody (u = u_bar + U q on its full
+            body's dofs; the frame then reads the support's nodes from q).
+        point: the frame's origin at rest. For ``"procrustes"`` it may be None: the
+            origin is then the weighted centroid of the support, x_o = sum_j m_j x_j /
+            sum_j m_j (a support point attachment, so forces spread over the support).
         method: ``"polar"`` (the element's deformation gradient at the point) or
             ``"procrustes"`` (a fit over ``support`` nodes, input indices, with
-            optional ``support_weights``; the origin then uses the containing
-            element's shape functions as well).
+            optional ``support_weights`` m_j; a given point uses the containing
+            element's shape functions).
     """
 
-    def __init__(self, body: FemBody, point, *, method: str = "polar", support=None,
+    def __init__(self, body, point=None, *, method: str = "polar", support=None,
                  support_weights=None, snap: bool = False):
         if method not in ("polar", "procrustes"):
             raise ValueError(f"FemFrame: method must be 'polar' or 'procrustes', got {method!r}")
-        self.body, self.method = body, method
-        self.origin: FemPointWeights = shape_function_weights(body, point, snap=snap)
-        x = body.V.tabulate_dof_coordinates()
+        full = getattr(body, "full", body)
+        if not isinstance(full, FemBody):
+            raise TypeError(f"FemFrame: expected a FemBody or ReducedFemBody, got "
+                            f"{type(body).__name__}")
+        self.body, self.full, self.method = body, full, method
+        self.planar = False
+        self.reduced = full is not body
+        x = full.V.tabulate_dof_coordinates()
+        if method == "polar" or point is not None:
+            if point is None:
+                raise ValueError("FemFrame: a polar frame needs its origin point")
+            self.origin: FemPointWeights = shape_function_weights(full, point, snap=snap)
         if method == "polar":
             self.dofs = self.origin.dofs
             self.c = self._gradients(self.origin.rest_position)
@@ -86,69 +117,110 @@ class FemFrame:
             if support is None or len(support) < 3:
                 raise ValueError("FemFrame: a Procrustes frame needs at least 3 support nodes")
             nodes = np.asarray(support, dtype=np.int64)
-            self.dofs = body.local_dofs(nodes).astype(np.int64)
+            self.dofs = full.local_dofs(nodes).astype(np.int64)
             if self.dofs.size != nodes.size:
                 raise ValueError(f"FemFrame: support nodes {nodes.tolist()[:10]} are not all "
-                                 f"nodes of FEM body {body.name!r}")
+                                 f"nodes of FEM body {full.name!r}")
             m = np.ones(nodes.size) if support_weights is None else \
                 np.asarray(support_weights, dtype=float)
+            if m.shape != nodes.shape or not np.all(m > 0):
+                raise ValueError(f"FemFrame: support_weights must be {nodes.size} positive "
+                                 f"numbers, got {support_weights!r}")
             X = x[self.dofs]
             centroid = m @ X / m.sum()
             self.c = m[:, None] * (X - centroid)
-            if np.linalg.matrix_rank(X.T @ self.c) < 3:
-                raise ValueError(f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear "
-                                 f"or coplanar-degenerate: no rotation can be fitted")
+            s = np.linalg.svd(X.T @ self.c, compute_uv=False)
+            if not s[1] > 1e-10 * s[0]:
+                raise ValueError(f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear: "
+                                 f"no rotation can be fitted")
+            self.planar = not s[2] > 1e-10 * s[0]
+            if point is None:
+                self.origin = FemPointWeights(self.dofs, m / m.sum(), centroid)
         # Rest rotation: identity for polar; the rest fit's rotation for Procrustes.
-        self.A_rest = x[self.dofs].T @ self.c
-        self.R_rest, _ = polar_rotation(self.A_rest)
+        self._X = x[self.dofs]
+        self.A_rest = self._X.T @ self.c
+        self.R_rest, _ = polar_rotation(self.A_rest, self.planar)
 
     def _gradients(self, X: np.ndarray) -> np.ndarray:
         """grad N_j(X) of the element containing the origin, (k, 3)."""
-        msh = self.body.mesh
+        msh = self.full.mesh
         cell = self.origin.cell
         nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
         ref = msh.geometry.cmaps[0].pull_back(X.reshape(1, 3), nodes)
         element = basix.create_element(basix.ElementFamily.P,
-                                       getattr(basix.CellType, self.body.cell_name), 1)
+                                       getattr(basix.CellType, self.full.cell_name), 1)
         dN = element.tabulate(1, ref)[1:4, 0, :, 0]                      # (3, k) d/dxi
         J = nodes.T @ dN.T                                               # dx/dxi
         return dN.T @ np.linalg.inv(J)                                   # (k, 3) dN/dX
 
     # ---- state ----------------------------------------------------------------------------
 
-    def _nodal(self, array) -> np.ndarray:
-        return array.reshape(-1, 3)[self.dofs]
+    def rows(self, dofs: np.ndarray) -> np.ndarray:
+        """The blocked dof rows (3 per node, node-major) of ``dofs``."""
+        return (3 * dofs[:, None] + np.arange(3)).ravel()
+
+    def _nodal(self, dofs: np.ndarray, velocity: bool = False) -> np.ndarray:
+        """Displacements (or velocities) of ``dofs``, (k, 3): u = u_bar + U q on a reduced body."""
+        if self.reduced:
+            r = self.rows(dofs)
+            b = self.body
+            u = b.U[r] @ b.qdot if velocity else b.u_bar[r] + b.U[r] @ b.q
+            return u.reshape(-1, 3)
+        array = self.body.v.x.array if velocity else self.body.u.x.array
+        return array.reshape(-1, 3)[dofs]
 
     def matrix(self) -> np.ndarray:
         """A = sum_j x_j c_j^T at the current nodal positions."""
-        x = self.body.V.tabulate_dof_coordinates()[self.dofs] + self._nodal(self.body.u.x.array)
-        return x.T @ self.c
+        return (self._X + self._nodal(self.dofs)).T @ self.c
 
     def position(self) -> np.ndarray:
-        u = self.body.u.x.array.reshape(-1, 3)[self.origin.dofs]
-        return self.origin.rest_position + self.origin.weights @ u
+        return self.origin.rest_position + self.origin.weights @ self._nodal(self.origin.dofs)
 
     def rotation(self) -> np.ndarray:
         """R = polar(A) R_rest^T: the identity at rest, the body's rotation under rigid motion."""
-        R, _ = polar_rotation(self.matrix())
+        R, _ = polar_rotation(self.matrix(), self.planar)
         return R @ self.R_rest.T
 
     def angular_velocity_jacobian(self) -> np.ndarray:
-        """G_w (3 x 3k) with w = G_w v over the support dofs (module docstring)."""
-        R, S = polar_rotation(self.matrix())
-        inv = np.linalg.inv(np.trace(S) * np.eye(3) - S)
-        k = self.dofs.size
-        G = np.zeros((3, 3 * k))
-        for j in range(k):
-            for a in range(3):              # velocity component a of node j
-                Adot = np.zeros((3, 3))
-                Adot[a] = self.c[j]
-                W = R.T @ Adot - Adot.T @ R
-                G[:, 3 * j + a] = R @ inv @ _axial(W)
-        return G
+        """G_w (3 x 3k) with w = G_w v over the support dofs (module docstring).
+
+        Column (j, a) is R N^-1 (c_j x R_a), N = tr(S) I - S and R_a the a-th row of R:
+        for A' = e_a c_j^T, R^T A' - A'^T R = [c_j x R_a]x."""
+        R, S = polar_rotation(self.matrix(), self.planar)
+        N_inv = np.linalg.inv(np.trace(S) * np.eye(3) - S)
+        cols = np.cross(self.c[:, None, :], R[None, :, :])              # (k, a, 3)
+        return np.einsum("ij,kaj->ika", R @ N_inv, cols).reshape(3, -1)
 
     def angular_velocity(self) -> np.ndarray:
-        return self.angular_velocity_jacobian() @ self._nodal(self.body.v.x.array).ravel()
+        return self.angular_velocity_jacobian() @ self._nodal(self.dofs, velocity=True).ravel()
+
+    def torque_stiffness(self, torque) -> np.ndarray:
+        """H = d(G_w^T tau)/dx at fixed tau (3k x 3k over the support dofs).
+
+        G_w^T tau gives node j the force B c_j with B_a = R_a x m, m = N^-1 R^T tau.
+        For dA: dw_b = N^-1 axial(R^T dA - dA^T R), dR = R [dw_b]x,
+        dS = R^T dA - [dw_b]x S, dm = -N^-1 ((tr dS) I - dS) m - N^-1 [dw_b]x R^T tau,
+        dB_a = dR_a x m + R_a x dm; and dA = sum_d c_kd E_ed for a move of node k along e.
+        """
+        tau = np.asarray(torque, dtype=float)
+        R, S = polar_rotation(self.matrix(), self.planar)
+        N_inv = np.linalg.inv(np.trace(S) * np.eye(3) - S)
+        Rt_tau = R.T @ tau
+        m = N_inv @ Rt_tau
+        dB = np.zeros((3, 3, 3, 3))                     # [e, d] -> dB (a, b) for dA = E_ed
+        for e in range(3):
+            for d in range(3):
+                dA = np.zeros((3, 3))
+                dA[e, d] = 1.0
+                W = R.T @ dA - dA.T @ R
+                dw = N_inv @ np.array([W[2, 1], W[0, 2], W[1, 0]])
+                dR = R @ _skew(dw)
+                dS = R.T @ dA - _skew(dw) @ S
+                dm = -N_inv @ ((np.trace(dS) * np.eye(3) - dS) @ m + _skew(dw) @ Rt_tau)
+                dB[e, d] = dR @ _skew(m) + R @ _skew(dm)          # rows: dR_a x m + R_a x dm
+        H = np.einsum("edab,jb,kd->jake", dB, self.c, self.c)
+        k = self.dofs.size
+        return H.reshape(3 * k, 3 * k)
 
     def master_wrench(self, force, torque) -> tuple[np.ndarray, np.ndarray]:
         """(origin dofs, forces) and (support dofs, forces): G_x^T f and G_w^T tau, (k, 3) each."""

@@ -256,6 +256,19 @@ class RigidBody:
         return cls(name, props.mass, props.inertia, position=props.center, surface=surface,
                    **kwargs)
 
+    @classmethod
+    def marker(cls, name: str, *, position=(0.0, 0.0, 0.0), rotation=None) -> RigidBody:
+        """A massless dynamic body: a coordinate frame that follows an attachment (e.g. a
+        frame on an FEM body, for joints and paths). It has no inertia of its own, so it
+        can only be a slave (CoupledSystem checks); free, its step would be singular."""
+        body = cls(name, 1.0, np.eye(3), position=position, rotation=rotation)
+        body.mass, body.inertia = 0.0, np.zeros((3, 3))
+        return body
+
+    @property
+    def massless(self) -> bool:
+        return self.mass == 0.0
+
     def __repr__(self) -> str:
         return f"RigidBody({self.name!r}, mass={self.mass:.6g}, motion={self.motion!r})"
 

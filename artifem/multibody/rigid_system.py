@@ -173,6 +173,9 @@ class RigidSystem:
             if isinstance(item, RigidBody):
                 if item.name in {b.name for b in self.bodies}:
                     raise ValueError(f"a body named {item.name!r} is already in the system")
+                if item.massless:
+                    raise ValueError(f"rigid body {item.name!r} is massless (a marker): it can "
+                                     "only follow an attachment in a CoupledSystem")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.bodies.append(item)
