@@ -153,3 +153,43 @@ def test_bad_input():
     emb = EmbeddedMesh(body, np.zeros((2, 3)) + 0.5)
     with pytest.raises(ValueError, match="forces"):
         emb.force_to_nodes(np.zeros(3))
+
+
+def test_point_attachment_snapping_to_a_hex_mesh_stays_in_the_element():
+    """shape_function_weights(snap=True) delegates to locate_points: beyond a face and beyond a
+    corner of a box, the closest point of the mesh with weights in [0, 1] summing to one."""
+    from artifem.multibody.point_attachments import shape_function_weights
+
+    body = FemBody(dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [3, 4, 5],
+                                    dmesh.CellType.hexahedron),
+                   NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
+    x_nodes = body.V.tabulate_dof_coordinates()
+    for X, closest in (([0.4, 1.25, 0.55], [0.4, 1.0, 0.55]),         # beyond the face y = 1
+                       ([-0.1, 1.2, 1.3], [0.0, 1.0, 1.0])):          # beyond a corner
+        w = shape_function_weights(body, X, snap=True)
+        assert w.weights.min() >= -1e-14 and w.weights.max() <= 1 + 1e-14
+        assert w.weights.sum() == pytest.approx(1.0, abs=1e-14)
+        np.testing.assert_allclose(w.rest_position, closest, atol=1e-12)
+        np.testing.assert_allclose(w.weights @ x_nodes[w.dofs], closest, atol=1e-12)
+        assert w.distance == pytest.approx(np.linalg.norm(np.subtract(X, closest)), rel=1e-12)
+        with pytest.raises(ValueError, match=f"outside FEM body .*distance {w.distance:.4g}"):
+            shape_function_weights(body, X)
+    # A strongly distorted (trilinear) hexahedron: the old pull-back of the convex hull's
+    # closest point extrapolated to weights of -0.05; now in [0, 1], and no sampled point of
+    # the cell is closer than the snapped one.
+    import basix
+    import basix.ufl
+
+    nodes = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.3, 1.2, 0.4],
+                      [0.0, 0.0, 1.0], [1.0, -0.3, 1.1], [-0.2, 1.0, 1.0], [0.6, 0.7, 1.5]])
+    msh = dmesh.create_mesh(MPI.COMM_SELF, np.arange(8, dtype=np.int64).reshape(1, 8),
+                            basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,)), nodes)
+    body = FemBody(msh, NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
+    grid = np.stack(np.meshgrid(*[np.linspace(0, 1, 21)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    hexahedron = basix.create_element(basix.ElementFamily.P, basix.CellType.hexahedron, 1)
+    on_cell = hexahedron.tabulate(0, grid)[0, :, :, 0] @ msh.geometry.x[msh.geometry.dofmaps[0][0]]
+    for X in ([2.0, 0.5, 0.5], [0.5, 0.5, -0.7]):
+        w = shape_function_weights(body, X, snap=True)
+        assert w.weights.min() >= -1e-14 and w.weights.max() <= 1 + 1e-14
+        assert w.distance == pytest.approx(np.linalg.norm(w.rest_position - X), rel=1e-12)
+        assert w.distance <= np.linalg.norm(on_cell - X, axis=1).min() + 1e-9

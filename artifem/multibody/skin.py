@@ -79,14 +79,13 @@ an outward-oriented surface, so p > 0 inflates), a third to each of its vertices
 
 from __future__ import annotations
 
-import basix
 import numpy as np
-from dolfinx import geometry
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
+from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
-from artifem.multibody.point_attachments import FemPointWeights, shape_function_weights
+from artifem.multibody.point_attachments import FemPointWeights
 from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew
 from artifem.reduction.reduced_body import ReducedFemBody
 
@@ -181,85 +180,17 @@ class RigidMaster:
         return self.body.twist
 
 
-def _closest_in_hexahedron(element, nodes: np.ndarray, X: np.ndarray,
-                           iterations: int = 200) -> np.ndarray:
-    """Reference coordinates xi in [0, 1]^3 of the closest point of a trilinear cell to X:
-    argmin |x(xi) - X|^2 by an active-set Gauss-Newton (coordinates on a bound whose
-    gradient points outward stay there; the others take the Gauss-Newton step), projected
-    onto the cube with backtracking, falling back to a projected gradient step; from the
-    cell centre. (A pull-back of the closest point of the cell's convex hull can land on a
-    spurious root far outside a distorted hexahedron, hence extrapolated weights.)"""
-    def residual(xi):
-        return element.tabulate(0, xi.reshape(1, 3))[0, 0, :, 0] @ nodes - X
-
-    def descend(xi, r, step):
-        alpha = 1.0
-        while alpha > 1e-8:
-            trial = np.clip(xi + alpha * step, 0.0, 1.0)
-            r_trial = residual(trial)
-            if r_trial @ r_trial < r @ r:
-                return trial, r_trial
-            alpha *= 0.5
-        return None
-
-    xi = np.full(3, 0.5)
-    r = residual(xi)
-    for _ in range(iterations):
-        J = (element.tabulate(1, xi.reshape(1, 3))[1:, 0, :, 0] @ nodes).T     # dx/dxi
-        g = J.T @ r
-        free = ~(((xi <= 0.0) & (g > 0)) | ((xi >= 1.0) & (g < 0)))
-        step = np.zeros(3)
-        if free.any():
-            step[free] = np.linalg.lstsq(J[:, free], -r, rcond=None)[0]
-        found = descend(xi, r, step) or descend(xi, r, -g / max(np.linalg.norm(J, 2) ** 2,
-                                                                  1e-300))
-        if found is None or np.abs(found[0] - xi).max() < 1e-14:
-            break
-        xi, r = found
-    return xi
-
-
 def embedding_weights(body: FemBody, points: np.ndarray, tol: float = 1e-10
                       ) -> list[FemPointWeights]:
-    """Shape-function weights of many points on a FEM body (one bounding-box tree).
-
-    Points inside use their containing element; points outside are snapped to
-    the closest point of the nearest element (the distance kept in the result):
-    on hexahedra by :func:`_closest_in_hexahedron` (weights in [0, 1]), otherwise
-    by ``shape_function_weights(snap=True)`` (exact for affine tetrahedra).
-    """
-    points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
-    msh = body.mesh
-    tdim = msh.topology.dim
-    tree = geometry.bb_tree(msh, tdim, padding=tol)
-    candidates = geometry.compute_collisions_points(tree, points)
-    colliding = geometry.compute_colliding_cells(msh, candidates, points)
-    element = basix.create_element(basix.ElementFamily.P,
-                                   getattr(basix.CellType, body.cell_name), 1)
+    """Shape-function weights of many points on a FEM body, located at once by
+    :func:`~artifem.embedding.embedded_mesh.locate_points` with ``snap=True``: the containing
+    element inside; outside, the closest point of the nearest element (weights in [0, 1],
+    the distance kept in the result). Serial (in parallel: the points this rank owns)."""
+    loc = locate_points(body, points, snap=True, tol=tol)
+    dofs = body.V.dofmap.list[loc.cells].astype(np.int64)
     x_nodes = body.V.tabulate_dof_coordinates()
-    cmap = msh.geometry.cmaps[0]
-    out = []
-    for k, X in enumerate(points):
-        cells = colliding.links(k)
-        if cells.size == 0:
-            snapped = shape_function_weights(body, X, snap=True, tol=tol)
-            if body.cell_name == "hexahedron":
-                cell = snapped.cell
-                nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
-                xi = _closest_in_hexahedron(element, nodes, X)
-                w = element.tabulate(0, xi.reshape(1, 3))[0, 0, :, 0]
-                dofs = body.V.dofmap.list[cell].astype(np.int64)
-                y = w @ x_nodes[dofs]
-                snapped = FemPointWeights(dofs, w, y, float(np.linalg.norm(y - X)), cell)
-            out.append(snapped)
-            continue
-        cell = int(cells[0])
-        nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
-        ref = cmap.pull_back(X.reshape(1, 3), nodes)
-        w = element.tabulate(0, ref)[0, 0, :, 0]
-        dofs = body.V.dofmap.list[cell].astype(np.int64)
-        out.append(FemPointWeights(dofs, w, w @ x_nodes[dofs], 0.0, cell))
-    return out
+    return [FemPointWeights(d, w, w @ x_nodes[d], float(loc.distance[i]), int(c))
+            for i, c, d, w in zip(loc.indices, loc.cells, dofs, loc.weights)]
 
 
 class FemMaster:
