@@ -101,3 +101,48 @@ def test_bad_supports_are_clear_errors():
         support_weights(body, INSIDE, [0, 1, 2, 10**6])
     with pytest.raises(ValueError, match="at least 4"):
         nearest_nodes(body, INSIDE, 3)
+
+
+def test_nonnegative_weights_partition_reproduce_and_keep_virtual_work():
+    body = make_body()
+    # where the min-norm weights are already >= 0 they are the answer
+    nodes = nearest_nodes(body, INSIDE, 24)
+    np.testing.assert_allclose(support_weights(body, INSIDE, nodes, nonnegative=True).weights,
+                               support_weights(body, INSIDE, nodes).weights, atol=1e-12)
+    near = np.array([0.61, 0.17, 0.195])             # 5 mm under the top face
+    nodes = nearest_nodes(body, near, 24)
+    w24 = support_weights(body, near, nodes)
+    assert w24.weights.min() < -0.01                 # the min-norm weights are signed here
+    w = support_weights(body, near, nodes, nonnegative=True)
+    assert w.weights.min() >= 0.0
+    assert w.weights.sum() == pytest.approx(1.0, abs=1e-14)
+    np.testing.assert_allclose(w.rest_position, near, atol=1e-14)
+    # minimum norm among the non-negative weights: between the signed minimum and the
+    # element's shape functions (also non-negative)
+    assert np.linalg.norm(w24.weights) - 1e-12 <= np.linalg.norm(w.weights) \
+        <= np.linalg.norm(shape_function_weights(body, near).weights) + 1e-12
+    X = body.V.tabulate_dof_coordinates()[w.dofs]
+    A = np.vstack([X.T, np.ones(len(X))])
+    assert np.linalg.norm(A @ w.weights - np.append(near, 1.0)) < 1e-14
+    att = FemPointAttachment(body, w)
+    rng = np.random.default_rng(7)
+    v, f = rng.standard_normal(ndofs(body)), rng.standard_normal(3)
+    body.v.x.array[:ndofs(body)] = v
+    assert f @ att.velocity() == pytest.approx(att.master_force(f) @ v, rel=1e-13)
+    # coplanar nodes are fine when the point lies in their hull: a face centre, 1/4 each
+    x = body.V.tabulate_dof_coordinates()
+    inverse = {d: n for n, d in body._input_node_to_dof().items()}
+    face = [inverse[d] for d in np.flatnonzero((np.abs(x[:, 2] - 0.2) < 1e-12)
+                                               & (x[:, 0] <= 0.25 + 1e-12)
+                                               & (x[:, 1] <= 0.15 + 1e-12))]
+    centre = np.array([0.125, 0.075, 0.2])
+    wf = support_weights(body, centre, face, nonnegative=True)
+    np.testing.assert_allclose(wf.weights, 0.25, atol=1e-12)
+
+
+def test_nonnegative_weights_refuse_a_point_outside_the_hull_with_its_distance():
+    body = make_body()
+    outside = np.array([1.05, 0.1, 0.1])              # 5 cm beyond the tip face
+    with pytest.raises(ValueError, match=r"not in the convex hull of its 24 support nodes "
+                                         r"\(distance 0.05\)"):
+        support_weights(body, outside, nearest_nodes(body, outside, 24), nonnegative=True)

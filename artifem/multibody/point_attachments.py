@@ -13,7 +13,10 @@ sum_j w_j X_j = X_a. Two ways to choose them:
   reference coordinates, tabulated with basix): 8 nodes on a hexahedron;
 - :func:`support_weights`: any k >= 4 support nodes (the paper's Fig. 9: 4
   versus 24), with the minimum-norm weights under the two conditions above,
-  w = A^T (A A^T)^-1 [X_a; 1] with A = [X_j; 1] (4 x k).
+  w = A^T (A A^T)^-1 [X_a; 1] with A = [X_j; 1] (4 x k), or, with
+  ``nonnegative=True``, the minimum-norm weights with w >= 0 as well
+  (:func:`nonnegative_weights`, a small QP; they exist iff X_a is in the
+  convex hull of the support nodes).
 
 On a reduced body u = u_bar + U q the same weights give
 x_a = sum_j w_j (X_j + u_bar_j) + (sum_j w_j U_j) q, so G = sum_j w_j U_j (3 x r).
@@ -26,15 +29,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import basix
 import numpy as np
-from dolfinx import geometry
 from scipy import sparse
 
+from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
 
-__all__ = ["FemPointWeights", "shape_function_weights", "support_weights", "nearest_nodes",
-           "FemPointAttachment", "ReducedPointAttachment"]
+__all__ = ["FemPointWeights", "shape_function_weights", "support_weights", "nonnegative_weights",
+           "nearest_nodes", "FemPointAttachment", "ReducedPointAttachment"]
 
 
 @dataclass(frozen=True)
@@ -62,48 +64,26 @@ def _node_positions(body: FemBody) -> np.ndarray:
 
 def shape_function_weights(body: FemBody, point, *, snap: bool = False,
                            tol: float = 1e-10) -> FemPointWeights:
-    """Weights of the element containing ``point`` (its shape functions at the point).
+    """Weights of the element containing ``point`` (its shape functions at the point), from
+    :func:`~artifem.embedding.embedded_mesh.locate_points`. Serial.
 
     A point outside the mesh is an error naming its distance to the mesh, or,
     with ``snap=True``, is moved to the closest point of the nearest element
-    (the distance is kept in the result).
+    (weights in [0, 1]; the distance is kept in the result).
     """
-    X = np.asarray(point, dtype=float).reshape(3)
-    msh = body.mesh
-    tdim = msh.topology.dim
-    n_cells = msh.topology.index_map(tdim).size_local
-    tree = geometry.bb_tree(msh, tdim, padding=tol)
-    candidates = geometry.compute_collisions_points(tree, X.reshape(1, 3))
-    colliding = geometry.compute_colliding_cells(msh, candidates, X.reshape(1, 3))
-    cells = colliding.links(0)
-    distance = 0.0
-    if cells.size == 0:
-        midpoints = geometry.create_midpoint_tree(msh, tdim, np.arange(n_cells, dtype=np.int32))
-        cell = int(geometry.compute_closest_entity(tree, midpoints, msh, X.reshape(1, 3))[0])
-        closest = _closest_point_in_cell(body, cell, X)
-        distance = float(np.linalg.norm(closest - X))
-        if not snap:
-            raise ValueError(f"point {X.tolist()} is outside FEM body {body.name!r} "
-                             f"(distance {distance:.4g} to element "
-                             f"{int(body.input_cell_index([cell])[0])}); pass snap=True to "
-                             f"attach it to the closest point of that element")
-        X = closest
-    else:
-        cell = int(cells[0])
-    nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
-    ref = msh.geometry.cmaps[0].pull_back(X.reshape(1, 3), nodes)
-    element = basix.create_element(basix.ElementFamily.P,
-                                   getattr(basix.CellType, body.cell_name), 1)
-    w = element.tabulate(0, ref)[0, 0, :, 0]
+    if body.mesh.comm.size != 1:
+        raise NotImplementedError(f"point attachments to FEM body {body.name!r} are serial "
+                                  f"for now (use EmbeddedMesh in parallel)")
+    X = np.asarray(point, dtype=float).reshape(1, 3)
+    loc = locate_points(body, X, snap=True, tol=tol)
+    cell, w, distance = int(loc.cells[0]), loc.weights[0], float(loc.distance[0])
+    if distance > tol and not snap:
+        raise ValueError(f"point {X[0].tolist()} is outside FEM body {body.name!r} "
+                         f"(distance {distance:.4g} to element "
+                         f"{int(body.input_cell_index([cell])[0])}); pass snap=True to "
+                         f"attach it to the closest point of that element")
     dofs = body.V.dofmap.list[cell].astype(np.int64)
     return FemPointWeights(dofs, w, w @ _node_positions(body)[dofs], distance, cell)
-
-
-def _closest_point_in_cell(body: FemBody, cell: int, X: np.ndarray) -> np.ndarray:
-    """Closest point of a cell to X (GJK on the cell's vertices: the cells are convex)."""
-    msh = body.mesh
-    nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
-    return X + geometry.compute_distance_gjk(nodes, X.reshape(1, 3))
 
 
 def nearest_nodes(body: FemBody, point, k: int) -> np.ndarray:
@@ -128,9 +108,13 @@ def nearest_nodes(body: FemBody, point, k: int) -> np.ndarray:
     return np.array([inverse[int(d)] for d in local], dtype=np.int64)
 
 
-def support_weights(body: FemBody, point, nodes) -> FemPointWeights:
+def support_weights(body: FemBody, point, nodes, *, nonnegative: bool = False) -> FemPointWeights:
     """Minimum-norm weights on the given support nodes (input indices) that sum to one and
-    reproduce ``point`` at rest (see the module docstring)."""
+    reproduce ``point`` at rest (see the module docstring).
+
+    ``nonnegative=True``: the minimum-norm weights with w >= 0 as well
+    (:func:`nonnegative_weights`); the point must lie in the convex hull of the nodes.
+    """
     X = np.asarray(point, dtype=float).reshape(3)
     nodes = np.asarray(nodes, dtype=np.int64).ravel()
     dofs = body.local_dofs(nodes).astype(np.int64)
@@ -138,12 +122,79 @@ def support_weights(body: FemBody, point, nodes) -> FemPointWeights:
         missing = [int(n) for n in nodes if n not in body._input_node_to_dof()]
         raise ValueError(f"support nodes {missing[:10]} are not nodes of FEM body {body.name!r}")
     Xj = _node_positions(body)[dofs]
+    if nonnegative:
+        try:
+            w = nonnegative_weights(Xj, X)
+        except ValueError as e:
+            raise ValueError(f"FEM body {body.name!r}, support nodes "
+                             f"{[int(n) for n in nodes[:10]]}{'...' if nodes.size > 10 else ''}:"
+                             f" {e}") from None
+        return FemPointWeights(dofs, w, w @ Xj)
     A = np.vstack([Xj.T, np.ones(len(dofs))])                          # (4, k)
     if np.linalg.matrix_rank(A) < 4:
         raise ValueError(f"support nodes {[int(n) for n in nodes[:10]]} are coplanar: they "
                          f"cannot reproduce an arbitrary point")
     w = A.T @ np.linalg.solve(A @ A.T, np.append(X, 1.0))
     return FemPointWeights(dofs, w, w @ Xj)
+
+
+def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
+    """Minimum-norm non-negative weights of ``point`` on ``nodes`` (k, 3): the quadratic program
+
+        min |w|^2 / 2   s.t.   sum_j w_j = 1,   sum_j w_j X_j = X_a,   w >= 0,
+
+    solved in the scaled coordinates Y_j = (X_j - X_a) / h, h = max_j |X_j - X_a|, by scipy's
+    SLSQP from a feasible start (HiGHS linear program), then made exact on its support S
+    (w_j > 0): w_S = pinv([Y_S; 1]) [0; 1], the minimum-norm solution there (the QP's KKT
+    conditions on S). Such weights exist iff X_a is in the convex hull of the X_j; otherwise a
+    ValueError gives the distance min_{w >= 0, sum w = 1} |sum_j w_j X_j - X_a| (``tol`` * h
+    is the tolerance of "in the hull"). Coplanar nodes are fine if the point is in their hull.
+    """
+    from scipy.optimize import linprog, minimize
+
+    Xj = np.asarray(nodes, dtype=float).reshape(-1, 3)
+    X = np.asarray(point, dtype=float).reshape(3)
+    h = float(np.linalg.norm(Xj - X, axis=1).max())
+    if h == 0.0:
+        return np.full(len(Xj), 1.0 / len(Xj))
+    A = np.vstack([((Xj - X) / h).T, np.ones(len(Xj))])                 # (4, k)
+    b = np.array([0.0, 0.0, 0.0, 1.0])
+    k = len(Xj)
+    feasible = linprog(np.zeros(k), A_eq=A, b_eq=b, bounds=(0.0, None), method="highs")
+    if feasible.status not in (0, 2):
+        raise RuntimeError(f"nonnegative_weights: feasibility LP failed for point {X.tolist()} "
+                           f"on {k} nodes: {feasible.message}")
+    if feasible.status == 2:                                             # infeasible
+        # distance of the point to the hull: min |Y^T w| over the simplex
+        Y = A[:3]
+        near = minimize(lambda w: 0.5 * np.sum((Y @ w) ** 2), np.full(k, 1.0 / k),
+                        jac=lambda w: Y.T @ (Y @ w), bounds=[(0.0, None)] * k,
+                        constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
+                                      "jac": lambda w: np.ones(k)}],
+                        method="SLSQP", options={"ftol": 1e-15})
+        distance = h * float(np.linalg.norm(Y @ np.clip(near.x, 0.0, None)))
+        raise ValueError(f"point {X.tolist()} is not in the convex hull of its {k} support "
+                         f"nodes (distance {distance:.4g}): no non-negative weights reproduce "
+                         f"it; use more or other nodes, or signed weights")
+    # independent rows of A w = b (coplanar nodes make A rank 3; SLSQP needs full rank)
+    left, sigma, right = np.linalg.svd(A, full_matrices=False)
+    rank = int(np.count_nonzero(sigma > 1e-12 * sigma[0]))
+    A_eq, b_eq = sigma[:rank, None] * right[:rank], left[:, :rank].T @ b
+    qp = minimize(lambda w: 0.5 * w @ w, feasible.x, jac=lambda w: w,
+                  bounds=[(0.0, None)] * k, method="SLSQP", options={"ftol": 1e-15},
+                  constraints=[{"type": "eq", "fun": lambda w: A_eq @ w - b_eq,
+                                "jac": lambda w: A_eq}])
+    w = np.zeros(k)
+    support = qp.x > tol * max(float(qp.x.max()), 1.0 / k)
+    w[support] = np.linalg.pinv(A[:, support]) @ b
+    # KKT certificate: w_S = A_S^T lambda and A_j^T lambda <= 0 off the support
+    lam = np.linalg.lstsq(A[:, support].T, w[support], rcond=None)[0]
+    dual = float((A[:, ~support].T @ lam).max(initial=0.0))
+    if w.min() < -tol or np.linalg.norm(A @ w - b) > tol or dual > tol:
+        raise RuntimeError(f"nonnegative_weights: no optimal weights found for point "
+                           f"{X.tolist()} on {k} nodes ({qp.message}; min w {w.min():.3g}, "
+                           f"residual {np.linalg.norm(A @ w - b):.3g}, dual {dual:.3g})")
+    return np.clip(w, 0.0, None) / np.clip(w, 0.0, None).sum()
 
 
 class FemPointAttachment:
