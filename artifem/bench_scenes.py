@@ -6,8 +6,10 @@ variants and times them in this process (medians over the timed steps):
 - ``jaw-tongue`` (:mod:`artifem.models.jaw_tongue_reduced`): the jaw-tongue
   scene during protrusion with the full and with the reduced tongue (the
   reduced tongue's training is cached, ~/.cache/artifem by default);
-- ``airway`` (:mod:`artifem.models.airway`): the jaw-tongue scene without and
-  with the airway skin and its pressure, and the skin's own update costs;
+- ``airway`` (:mod:`artifem.models.airway`): the jaw-tongue scene with the full
+  and with the reduced tongue (the jaw-tongue training, same cache), each
+  without and with the airway skin and its pressure, and the skin's own
+  update costs;
 - ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
   conforming masseter, with and without aponeuroses.
 

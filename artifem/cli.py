@@ -34,9 +34,11 @@ COMMANDS = {
     ("simulate", "jaw-tongue"): ("artifem.models.jaw_tongue",
                                  "tongue on a hinged rigid jaw opened by a Hill muscle"),
     ("simulate", "styloglossus"): ("artifem.models.styloglossus",
-                                   "external styloglossus on 4 vs 24 support nodes: stress"),
+                                   "external styloglossus on 4 vs 24 support nodes: stress at "
+                                   "equal excitation and tension, w >= 0, reduced tongue"),
     ("simulate", "airway"): ("artifem.models.airway",
-                             "airway skin over tongue, jaw and palate, with air pressure"),
+                             "airway skin over tongue (full or --reduced), jaw and palate, "
+                             "with air pressure"),
     ("simulate", "masseter"): ("artifem.models.masseter",
                                "synthetic masseter: embedding vs conforming, aponeuroses"),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),

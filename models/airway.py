@@ -44,6 +44,17 @@ mean, all vertices 1.8 mm median (the pharynx below the tongue up to 27 mm), 7 %
 vertices inside the tongue (at most 2.1 mm deep). It is a best fit of meshes from different
 subjects, not a registration.
 
+Reduced tongue
+--------------
+``build_scene(..., reduced=reduced_tongue(config, cache))`` puts the reduced tongue of
+:mod:`artifem.models.jaw_tongue_reduced` in the scene (same training and cache:
+u = u_bar + U q + L g, U a trained POD basis, L the 12 jaw-lift columns whose coordinates g
+are slaves of the jaw). The skin's tongue master is then that ReducedFemBody
+(``ReducedMaster``): x_v = X_v + w_v N(X_v) (u_bar + [U, L] q) + the rigid terms, and the
+air's load on it is the generalized force [U, L]^T N^T (w_v f_v); its POD part drives q, its
+lift part reaches the jaw as G_g^T f_g (coupled system, P^T). :func:`compare` measures the
+reduced airway against the full one run by run; ``--reduced`` adds that to the report.
+
 Measurements
 ------------
 - Cross-section areas along the airway: each of the airway's section planes cut the rest
@@ -60,10 +71,14 @@ Measured (0.6 s, dt = 0.01 s, 1 kPa; docs/airway.md): the air moves the tongue's
 down and forward (tip 3-13 mm) against the same motion without it, widens the oral airway
 by up to 40 % when no muscle resists, and opens the jaw by 0.1-0.2 degrees; its resultants
 (1.9 N on the tongue, 0.06 N on the jaw, 1.9 N on the palate at rest) sum to zero. Steps
-cost 76 ms without the airway and 83 ms with the skin and its pressure (G: 5.4 ms, skin
-positions 0.08 ms).
+cost 78 ms without the airway's load and 84 ms with the skin and its pressure (G: 5.4 ms,
+skin positions 0.09 ms); with the reduced tongue (20 + 12 columns, 300 points) 5.4 and
+12.5 ms (G: 6.9 ms). The reduced airway follows the full one within 0.1-1.0 mm mean skin
+error without the air and 0.9-1.3 mm with it (a basis trained without air), jaw angles
+within 0.33 degrees.
 
-Run ``python -m artifem.models.airway --out DIR`` (``artifem simulate airway --out DIR``).
+Run ``python -m artifem.models.airway --out DIR [--reduced]`` (``artifem simulate airway
+--out DIR [--reduced]``).
 """
 
 from __future__ import annotations
@@ -71,25 +86,30 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 import numpy as np
 import pyvista as pv
+from threadpoolctl import threadpool_limits
 
 from artifem.models import jaw_tongue as jt
+from artifem.models import jaw_tongue_reduced as jtr
 from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, read_obj
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
 
 __all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark",
-           "build_scene", "read_sections", "simulate"]
+           "build_scene", "compare", "read_sections", "reduced_table", "reduced_tongue",
+           "resultants", "simulate"]
 
 #: airway.obj axes -> tongue axes: (x, y, z)_obj -> (-x, -y, z)_tongue (det +1).
 AIRWAY_AXES = np.diag([-1.0, -1.0, 1.0])
+#: where the reduced tongue's training is cached (shared with jaw_tongue_reduced.benchmark).
+DEFAULT_CACHE = Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
 
 
 @dataclass(frozen=True)
@@ -142,21 +162,22 @@ def _polydata(vertices, triangles):
 
 
 class TongueSurface:
-    """The tongue's boundary triangles, deformable: points X + u of the surface nodes."""
+    """The tongue's boundary triangles, deformable: points X + u of the surface nodes, u the
+    scene's tongue displacement (full, or u_bar + U q of a reduced tongue)."""
 
-    def __init__(self, body, points: np.ndarray, hexes: np.ndarray):
+    def __init__(self, s: jt.JawTongueScene, points: np.ndarray, hexes: np.ndarray):
         grid = pv.UnstructuredGrid({pv.CellType.HEXAHEDRON: hexes}, points)
         surf = grid.extract_surface(algorithm="dataset_surface").triangulate()
         self.rows = np.asarray(surf.point_data["vtkOriginalPointIds"], dtype=np.int64)
         self.rest = surf.points.copy()
-        self.dofs = body.local_dofs(self.rows).astype(np.int64)
+        self.dofs = s.tongue.body.local_dofs(self.rows).astype(np.int64)
         self.triangles = surf.faces.reshape(-1, 4)[:, 1:]
-        self.body = body
+        self.scene = s
 
     def polydata(self, deformed: bool = True):
         x = self.rest.copy()
         if deformed:
-            x += self.body.u.x.array.reshape(-1, 3)[self.dofs]
+            x += self.scene.tongue_displacement().reshape(-1, 3)[self.dofs]
         return _polydata(x, self.triangles)
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
@@ -375,18 +396,32 @@ class AirwayScene:
         return self.jt.scene
 
 
+def reduced_tongue(config: AirwayConfig, cache: Path,
+                   base: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig()
+                   ) -> jtr.ReducedTongue:
+    """The jaw-tongue reduced tongue (POD + 12 jaw-lift columns, trained points) for this
+    airway's jaw-tongue scene: ``jaw_tongue_reduced.train`` with ``base``'s training settings
+    and the airway's jaw-tongue config, cached under ``cache``."""
+    return jtr.train(replace(base, jaw=config.jaw_tongue), Path(cache))
+
+
 def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
-                data=None) -> AirwayScene:
+                data=None, reduced: jtr.ReducedTongue | None = None) -> AirwayScene:
     """The jaw-tongue scene, the fixed palate, the airway skin and (``pressure``) its air
-    pressure load (module docstring)."""
+    pressure load (module docstring). With ``reduced`` (from :func:`reduced_tongue`) the
+    tongue is the reduced one, u = U q + L g (jaw_tongue_reduced), and the skin's tongue
+    master is that ReducedFemBody: x_v = X_v + w_v N(X_v) (u_bar + [U, L] q) + rigid terms,
+    and the air's load on it is the generalized force [U, L]^T N^T (w f_v), its lift part
+    reaching the jaw as G_g^T f_g."""
     data = data or load_tongue_data(0)
-    s = jt.build_scene(config.jaw_tongue, data=data)
+    s = jt.build_scene(config.jaw_tongue, data=data,
+                       reduce=None if reduced is None else reduced.reducer())
     x, triangles, sections, alignment, (pal_v, pal_t) = _aligned_airway(config.trim)
     centre = pal_v.mean(0)
     palate = RigidBody("palate", 1e-3, 1e-9 * np.eye(3), position=centre, motion="fixed",
                        surface=(pal_v - centre, pal_t))
     s.scene.add(palate)
-    masters = [s.tongue.body, RigidMaster(s.jaw, reference=s.jaw.surface[0]),
+    masters = [s.reduced or s.tongue.body, RigidMaster(s.jaw, reference=s.jaw.surface[0]),
                RigidMaster(palate, reference=palate.surface[0])]
     skin = SkinMesh(x, triangles, masters, weighting=config.weighting,
                     blending=config.blending, name="airway")
@@ -394,7 +429,7 @@ def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
     load = SkinPressure(skin, lambda t: P * min(1.0, max(0.0, t - t0) / ramp), name="air")
     if pressure:
         s.scene.add(load)
-    surface = TongueSurface(s.tongue.body, data.mesh.points, data.mesh.cells)
+    surface = TongueSurface(s, data.mesh.points, data.mesh.cells)
     return AirwayScene(s, palate, skin, load, pressure, sections, alignment, surface,
                        np.flatnonzero(skin.weights[:, 0] >= 0.9), config)
 
@@ -402,39 +437,85 @@ def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
 def simulate(a: AirwayScene, motion: str | None, duration: float, dt: float = 0.01, *,
              snapshots=()) -> dict:
     """Run a tongue motion (or none) in the airway scene: jaw_tongue.simulate's record plus,
-    per step, the section areas, the skin's distance to the tongue, the top landmark and the
-    pressure; frames add the skin's positions."""
-    top = a.jt.tongue.data.landmarks["top"]
-    body = a.jt.tongue.body
+    per step (outside the step timing), the skin's positions ``skin`` (steps + 1, n, 3), the
+    section areas, the skin's distance to the tongue, the top landmark and the pressure;
+    ``skin_frames``: the skin at the snapshots."""
+    top = int(a.jt.tongue.body.local_dofs([a.jt.tongue.data.landmarks["top"]])[0])
     x0 = a.skin.positions()
     gap0 = a.surface.signed_distance(x0[a.tongue_vertices])
-    rec = {"areas": [a.sections.areas(x0)], "gap_drift": [0.0], "top": [np.zeros(3)],
+    rec = {"skin": [x0], "areas": [a.sections.areas(x0)], "gap_drift": [0.0],
+           "top": [np.zeros(3)],
            "pressure": [a.pressure.pressure_at(0.0) if a.pressure_on else 0.0]}
-    skins = {}
 
     def observe(k):
         x = a.skin.positions()
+        rec["skin"].append(x)
         rec["areas"].append(a.sections.areas(x))
         gap = a.surface.signed_distance(x[a.tongue_vertices])
         rec["gap_drift"].append(float(np.abs(gap - gap0).max()))
-        rec["top"].append(body.displacement_at([top])[0])
+        rec["top"].append(a.jt.tongue_displacement().reshape(-1, 3)[top])
         rec["pressure"].append(a.pressure.pressure_at(a.scene.t) if a.pressure_on else 0.0)
-        skins[k] = x
 
     out = jt.simulate(a.jt, motion, duration, dt, snapshots=snapshots, callback=observe)
     for key, values in rec.items():
         out[key] = np.array(values)
-    out["skin_frames"] = [skins[int(round(t / dt))] for t, *_ in out["frames"]]
+    out["skin_frames"] = [out["skin"][int(round(t / dt))] for t, *_ in out["frames"]]
     return out
 
 
 def resultants(a: AirwayScene, t: float) -> dict:
-    """Net force (N) of the air on each master and their sum (zero: closed surface)."""
+    """Net force (N) of the air on each master and their sum (zero: closed surface): the
+    force part of a rigid master's wrench; sum_v w_v f_v on the tongue (full: the sum of
+    its nodal forces G^T f, since sum_j N_j = 1; reduced: the force on its material, which
+    its generalized force [U, L]^T N^T (w f) does not show)."""
+    f_v = a.pressure.vertex_forces(t)
     net = {}
-    for body, f in a.pressure.master_loads(t):
-        net[body.name] = (f.reshape(-1, 3).sum(0) if f.size != 6 else f[:3]).tolist()
+    for i, (m, (_, f)) in enumerate(zip(a.skin.masters, a.pressure.master_loads(t))):
+        net[m.name] = (f[:3] if m.kind == "rigid" else a.skin.weights[:, i] @ f_v).tolist()
     net["sum"] = np.sum([v for v in net.values()], axis=0).tolist()
     return net
+
+
+def compare(a: AirwayScene, full: dict, reduced: dict) -> dict:
+    """Reduced against full run of the same motion and pressure, over all steps: skin vertex
+    error e_v(t) = |x_v^red - x_v^full| (mm: max over t of the mean over v, max over t and v,
+    mean at the end); section area error 100 |A_red - A_full| / A_full over the interior
+    sections (max over t and sections, mean over sections at the end); jaw angles; median
+    ms per step of both (same process) and their ratio."""
+    if full["skin"].shape != reduced["skin"].shape:
+        raise ValueError(f"airway compare: runs of different length {full['skin'].shape} "
+                         f"and {reduced['skin'].shape}")
+    e = 1e3 * np.linalg.norm(reduced["skin"] - full["skin"], axis=2)
+    inner = a.sections.interior
+    area = 100 * np.abs(reduced["areas"][:, inner] / full["areas"][:, inner] - 1)
+    ms_full, ms_red = float(np.median(full["ms"])), float(np.median(reduced["ms"]))
+    return {"skin_error_mm": {"mean_max_over_t": float(e.mean(1).max()), "max": float(e.max()),
+                              "final_mean": float(e[-1].mean())},
+            "max_skin_displacement_mm": float(1e3 * np.linalg.norm(
+                full["skin"] - full["skin"][0], axis=2).max()),
+            "area_error_percent": {"max": float(area.max()),
+                                   "final_mean": float(area[-1].mean())},
+            "jaw_angle_deg": {"full": float(np.degrees(full["angle"][-1])),
+                              "reduced": float(np.degrees(reduced["angle"][-1])),
+                              "max_difference": float(np.degrees(
+                                  np.abs(reduced["angle"] - full["angle"]).max()))},
+            "ms_per_step": {"full": ms_full, "reduced": ms_red, "speedup": ms_full / ms_red},
+            "max_attachment_error_m": float(reduced["attachment_error"].max())}
+
+
+def reduced_table(comparison: dict) -> str:
+    """The Markdown table of :func:`compare`'s results per run."""
+    lines = ["| run | skin error mean / max (mm) | max skin displacement (mm) | "
+             "area error max / final mean (%) | jaw full / reduced (deg) | "
+             "ms/step full / reduced | speed-up |", "|---|---|---|---|---|---|---|"]
+    for key, c in comparison.items():
+        e, A, j, ms = (c["skin_error_mm"], c["area_error_percent"], c["jaw_angle_deg"],
+                       c["ms_per_step"])
+        lines.append(f"| {key} | {e['mean_max_over_t']:.2f} / {e['max']:.2f} | "
+                     f"{c['max_skin_displacement_mm']:.1f} | {A['max']:.1f} / "
+                     f"{A['final_mean']:.1f} | {j['full']:.2f} / {j['reduced']:.2f} | "
+                     f"{ms['full']:.1f} / {ms['reduced']:.1f} | {ms['speedup']:.1f}x |")
+    return "\n".join(lines) + "\n"
 
 
 # ---- output ---------------------------------------------------------------------------------
@@ -547,10 +628,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="air pressure inside the airway (Pa)")
     parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS),
                         choices=sorted(MOTIONS), help="tongue motions to run")
+    parser.add_argument("--reduced", action="store_true",
+                        help="also run every case over the reduced tongue (jaw_tongue_reduced "
+                             "training) and compare it with the full one")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE,
+                        help="reduced tongue training cache (default: %(default)s)")
 
 
 def run(args: argparse.Namespace) -> int:
-    report(args)
+    figures = report(args)
+    if "reduced" in figures:
+        print(reduced_table(figures["reduced"]["runs"]))
     return 0
 
 
@@ -636,19 +724,81 @@ def report(args: argparse.Namespace) -> dict:
             "mean_area_change_percent": float(100 * (on["areas"][-1].sum()
                                                      / off["areas"][-1].sum() - 1))}
     figures["pressure_effect_final"] = effect
+    if args.reduced:
+        figures["reduced"] = report_reduced(out, config, data, runs, args)
     (out / "airway.json").write_text(json.dumps(figures, indent=2))
     short = {k: v for k, v in figures.items() if k in ("alignment", "pressure_effect_final")}
     print(json.dumps(short, indent=2))
     return figures
 
 
-def benchmark(steps: int = 10, dt: float = 0.01, data=None) -> dict:
-    """Milliseconds per coupled step of the jaw-tongue scene during protrusion without the
-    airway, then with its skin and pressure load; and the cost of one skin update
-    (positions), of G (jacobian) and of the pressure's master loads."""
+def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
+                   args: argparse.Namespace) -> dict:
+    """Every run of ``runs`` again over the reduced tongue (:func:`reduced_tongue`, cached in
+    ``args.cache``), compared with the full one (:func:`compare`); renders full | reduced at
+    the end of each motion with the pressure; ``airway_reduced.md``: the table."""
+    tic = time.perf_counter()
+    model = reduced_tongue(config, args.cache)
+    train_s = time.perf_counter() - tic
+    base = jtr.ReducedJawTongueConfig()
+    comparison, panels = {}, []
+    for key, (full_scene, full) in runs.items():
+        motion, p = key.split("/")
+        a = build_scene(config, pressure=p == "pressure", data=data, reduced=model)
+        with threadpool_limits(limits=1, user_api="blas"):         # r x r algebra
+            rec = simulate(a, None if motion == "none" else motion, args.duration, args.dt,
+                           snapshots=(1.0,))
+        comparison[key] = c = compare(full_scene, full, rec)
+        print(f"{key} reduced: {c['ms_per_step']['reduced']:.1f} ms/step "
+              f"(full {c['ms_per_step']['full']:.1f}), skin error mean "
+              f"{c['skin_error_mm']['mean_max_over_t']:.2f} mm", flush=True)
+        if p == "pressure" and motion != "none":
+            t = rec["t"][-1]
+            for name, r in (("full", full), (f"reduced {base.r}+12", rec)):
+                (_, u, pj, Rj), xs = r["frames"][-1], r["skin_frames"][-1]
+                title = (f"{motion}, {name}, t = {t:.2f} s, "
+                         f"jaw {np.degrees(r['angle'][-1]):.2f} deg")
+                if r is rec:
+                    title += f", skin error {c['skin_error_mm']['final_mean']:.2f} mm"
+                panels.append((title, u, pj, Rj, xs))
+    png = render(out / "airway_reduced.png", runs["none/pressure"][0], panels)
+    (out / "airway_reduced.md").write_text(reduced_table(comparison))
+    return {"basis": {"pod_vectors": base.r, "lift_columns": 12, "points": base.points,
+                      "training": "jaw_tongue_reduced.train (each tongue exciter alone at "
+                                  f"{base.training_excitation}, no air pressure)",
+                      "snapshots": model.snapshots, "cache": str(args.cache)},
+            "training_seconds": train_s, "runs": comparison, "png": str(png)}
+
+
+def benchmark(steps: int = 10, dt: float = 0.01, data=None,
+              reduced: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig(),
+              cache: Path | None = None) -> dict:
+    """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
+    protrusion, with the full and with the reduced tongue (``reduced`` training, cached in
+    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced): without the airway's load,
+    then with its skin and pressure; and the cost of one skin update (positions), of G
+    (jacobian) and of the pressure's master loads."""
     if steps < 1:
         raise ValueError(f"benchmark: steps must be >= 1, got {steps}")
-    a = build_scene(AirwayConfig(pressure_start=(steps + 1) * dt), pressure=False, data=data)
+    data = data or load_tongue_data(0)
+    config = AirwayConfig(pressure_start=(steps + 1) * dt)
+    model = reduced_tongue(config, cache or DEFAULT_CACHE, reduced)
+    cases = {}
+    for name, red in (("full", None), ("reduced", model)):
+        with threadpool_limits(limits=1, user_api="blas"):
+            cases[name] = _benchmark_case(build_scene(config, pressure=False, data=data,
+                                                      reduced=red), steps, dt)
+    ratio = {k: cases["full"][k] / cases["reduced"][k]
+             for k in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure")}
+    return {"benchmark": "airway", "steps": steps, "dt": dt,
+            "skin_vertices": [c.pop("skin_vertices") for c in cases.values()][0],
+            "reduced": {"pod_vectors": reduced.r, "lift_columns": 12,
+                        "points": reduced.points},
+            "cases": cases, "speedup": ratio}
+
+
+def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
+    """benchmark() of one airway scene built without its pressure load (added midway)."""
     s = a.jt
     control = s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body)
 
@@ -674,7 +824,7 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None) -> dict:
         return 1e3 * (time.perf_counter() - t0) / n
 
     t = s.scene.t
-    return {"steps": steps, "dt": dt, "skin_vertices": a.skin.n,
+    return {"skin_vertices": a.skin.n, "masters": s.scene.master_count(),
             "ms_per_step_without_airway": plain, "ms_per_step_with_skin_pressure": loaded,
             "ms_skin_positions": cost(a.skin.positions), "ms_skin_jacobian": cost(a.skin.jacobian),
             "ms_pressure_master_loads": cost(lambda: a.pressure.master_loads(t))}

@@ -1,14 +1,16 @@
 """The airway skin over the tongue, the jaw and the palate, with the air pressure inside it
-(models/airway.py; Lloyd et al. 2019, section 4.1)."""
+(models/airway.py; Lloyd et al. 2019, section 4.1), over the full and the reduced tongue."""
 
 import numpy as np
 import pytest
+from test_jaw_tongue_reduced import QUICK
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models import airway as aw
 from artifem.models.tongue.model import DATA, load_tongue_data
 from artifem.multibody.rigid_body import exp_so3
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
+from artifem.reduction.rigid_lift import RigidLift
 
 STEPS, DT = 5, 0.01
 
@@ -158,14 +160,20 @@ def test_closed_skin_on_rigid_masters_only_gets_no_net_wrench(scene):
         jaw.position, jaw.rotation = p0, R0
 
 
-def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, data):
-    """Same scene with and without the air pressure, no muscles: the airway's tongue-borne
-    vertices move outward (along the airway's outward normal, into the tongue) and the
-    tongue's top sinks."""
+@pytest.fixture(scope="module")
+def full_runs(scene, data):
+    """STEPS of protrusion of the full airway with (the ``scene`` fixture) and without the
+    air pressure (ramped to 500 Pa at the end)."""
     off = aw.build_scene(aw.AirwayConfig(), pressure=False, data=data)
-    runs = {}
-    for name, a in (("on", scene), ("off", off)):
-        runs[name] = aw.simulate(a, None, STEPS * DT, DT, snapshots=(1.0,))
+    return {name: aw.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
+            for name, a in (("on", scene), ("off", off))}
+
+
+def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, full_runs):
+    """Same scene with and without the air pressure, during protrusion: the airway's
+    tongue-borne vertices move outward (along the airway's outward normal, into the
+    tongue) and the tongue's top sinks."""
+    runs = full_runs
     x_on, x_off = runs["on"]["skin_frames"][-1], runs["off"]["skin_frames"][-1]
     rest = scene.skin.rest
     normals = np.zeros_like(rest)
@@ -180,12 +188,110 @@ def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, data):
     assert runs["on"]["attachment_error"].max() < 1e-12
 
 
-def test_benchmark_reports_positive_times():
-    out = aw.benchmark(steps=1)
-    for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
-                "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
-        assert out[key] > 0, key
-    assert out["skin_vertices"] > 900
+@pytest.fixture(scope="module")
+def reduced(tmp_path_factory):
+    """The quick jaw-tongue reduced training of test_jaw_tongue_reduced (r = 12 + 12, 150
+    points), once per module: (model, cache)."""
+    cache = tmp_path_factory.mktemp("airway_reduced") / "cache"
+    return aw.reduced_tongue(aw.AirwayConfig(), cache, QUICK), cache
+
+
+@pytest.fixture(scope="module")
+def reduced_scene(reduced, data):
+    return aw.build_scene(aw.AirwayConfig(), data=data, reduced=reduced[0])
+
+
+def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_scene, scene):
+    """At a moved state (random POD coordinates, jaw turned and shifted), the air's load on
+    the reduced airway, f_v = p A n / 3 on the skin:
+
+    - the generalized force on the reduced tongue is [U, L]^T G_full^T f_v, G_full the same
+      skin over the *full* tongue at u = u_bar + [U, L] q (the U^T G^T f of the brief);
+    - on the scene's masters (POD q and the jaw's twist; the lift coordinates g are jaw
+      slaves, g' = G_g u_jaw) it is F_m = [F_q; w_jaw + G_g^T F_g] and equals the coupled
+      system's P^T F;
+    - F_m . dz = f_v . dx_v/dz with dx_v/dz a central difference of the skin's positions
+      along a random master direction dz (no G involved): the virtual work of the air.
+    The lift part carries >= 1 % of that work, so a mapping dropping it fails."""
+    a = reduced_scene
+    red, jaw = a.jt.reduced, a.jt.jaw
+    L = a.scene._ready()
+    saved = L.save()
+    rng = np.random.default_rng(11)
+    pod = np.setdiff1d(np.arange(red.r), a.jt.attachment.columns)
+    n_m = a.scene.master_count()
+    assert n_m == pod.size + 6
+    try:
+        dq = np.concatenate([2e-3 * rng.standard_normal(pod.size), [1e-3, -2e-3, 1e-3],
+                             [0.0, 0.08, 0.0]])                   # q, jaw (dp, dtheta)
+        a.scene.displace_masters(dq)
+        t = 1.0
+        loads = a.pressure.master_loads(t)
+        assert [b for b, _ in loads] == [red, jaw, a.palate]
+        F_red, w_jaw = loads[0][1], loads[1][1]
+        f_v = a.pressure.vertex_forces(t)
+        # U^T G^T f against the full tongue's skin at the same displacement
+        body = a.jt.tongue.body
+        full = SkinMesh(a.skin.rest, a.skin.faces, [body] + a.skin.masters[1:],
+                        weights=a.skin.weights)
+        body.u.x.array[:] = red.nodal_displacement()
+        np.testing.assert_allclose(full.positions(), a.skin.positions(), atol=1e-12)
+        nodal = full.master_forces(f_v)[0]
+        np.testing.assert_allclose(F_red, red.U.T @ nodal, atol=1e-10 * np.abs(F_red).max())
+        # generalized force on the masters, explicit and through the coupled system
+        g = a.jt.attachment.columns
+        F_m = np.concatenate([F_red[pod], w_jaw + RigidLift.jacobian(jaw.rotation).T @ F_red[g]])
+        P_F = L.prolongation().T @ L.load_vector(t)
+        np.testing.assert_allclose(P_F, F_m, atol=1e-12 * np.abs(F_m).max())
+        # virtual work against a central difference of the skin's positions
+        dz = rng.standard_normal(n_m) * np.concatenate([np.full(pod.size, 1e-2),
+                                                        np.full(3, 1e-2), np.full(3, 1.0)])
+        here = L.save()
+        eps, x = 1e-6, []
+        for sign in (1.0, -1.0):
+            a.scene.displace_masters(sign * eps * dz)
+            x.append(a.skin.positions())
+            L.restore(here)
+        v_fd = (x[0] - x[1]) / (2 * eps)
+        work_skin = float(np.sum(f_v * v_fd))
+        assert abs(work_skin) > 1e-6
+        assert F_m @ dz == pytest.approx(work_skin, rel=1e-6)
+        lift_work = (RigidLift.jacobian(jaw.rotation).T @ F_red[g]) @ dz[pod.size:]
+        assert abs(lift_work) > 0.01 * abs(work_skin)
+    finally:
+        L.restore(saved)
+        a.jt.tongue.body.u.x.array[:] = 0.0
+
+
+def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
+    """STEPS of protrusion with the air pressure: the reduced airway (quick training, no
+    pressure in it) against the full one. Measured: skin error 0.10 mm mean, 0.94 mm max,
+    0.18 of the pressure's own effect (full with minus without: 0.58 mm mean); areas
+    within 2.2 %; jaw angles within 0.03 degrees."""
+    rec = aw.simulate(reduced_scene, "protrusion", STEPS * DT, DT)
+    on, off = full_runs["on"], full_runs["off"]
+    c = aw.compare(reduced_scene, on, rec)
+    effect = np.linalg.norm(on["skin"][-1] - off["skin"][-1], axis=1).mean()
+    error = np.linalg.norm(rec["skin"][-1] - on["skin"][-1], axis=1).mean()
+    assert c["max_skin_displacement_mm"] > 3.0                     # the skin really moved
+    assert c["skin_error_mm"]["mean_max_over_t"] < 0.25
+    assert error < 0.3 * effect                                    # the air acts on it
+    assert c["area_error_percent"]["max"] < 5.0
+    assert c["jaw_angle_deg"]["full"] > 0.5
+    assert c["jaw_angle_deg"]["max_difference"] < 0.1
+    assert c["max_attachment_error_m"] < 1e-12
+    assert rec["top"][-1][2] < off["top"][-1][2]                   # the air lowers the top
+    assert c["ms_per_step"]["reduced"] > 0
+
+
+def test_benchmark_reports_positive_times(reduced):
+    out = aw.benchmark(steps=1, reduced=QUICK, cache=reduced[1])
+    for case in ("full", "reduced"):
+        for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
+                    "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
+            assert out["cases"][case][key] > 0, (case, key)
+    assert out["cases"]["reduced"]["masters"] == QUICK.r + 6
+    assert out["skin_vertices"] > 900 and out["speedup"]["ms_per_step_without_airway"] > 0
 
 
 def test_bad_input_is_refused(tmp_path):

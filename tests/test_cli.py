@@ -98,3 +98,12 @@ def test_find_python_finds_this_interpreter():
     version = subprocess.run([out.stdout.strip(), "-c", "import sys; print(sys.version_info[:2])"],
                              capture_output=True, text=True).stdout
     assert eval(version) >= (3, 12)
+
+
+def test_simulate_airway_takes_the_reduced_tongue_options(tmp_path):
+    from artifem.cli import build_parser
+    args = build_parser().parse_args(["simulate", "airway", "--out", str(tmp_path), "--reduced",
+                                      "--cache", str(tmp_path / "cache")])
+    assert args.reduced and args.cache == tmp_path / "cache"
+    args = build_parser().parse_args(["simulate", "airway", "--out", str(tmp_path)])
+    assert not args.reduced
