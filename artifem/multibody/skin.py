@@ -89,6 +89,10 @@ from artifem.multibody.point_attachments import FemPointWeights
 from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew
 from artifem.reduction.reduced_body import ReducedFemBody
 
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
+_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
+
 __all__ = ["RigidMaster", "FemMaster", "ReducedMaster", "SkinMesh", "SkinPressure",
            "skin_weights", "embedding_weights"]
 
@@ -401,7 +405,7 @@ class SkinMesh:
                     r = Y - self.masters[self.rigid[k]].body.position
                     B = np.zeros((self.n, 3, 6))
                     B[:, :, :3] = np.eye(3)
-                    B[:, :, 3:] = -np.stack([skew(ri) for ri in r])
+                    B[:, :, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, r)    # -[r]x
                     blocks.append(W[:, k, None, None] * B)
             return disp, blocks
         # dual quaternions
@@ -491,11 +495,22 @@ class SkinMesh:
     def master_forces(self, forces, G: sparse.csr_matrix | None = None) -> list[np.ndarray]:
         """G^T f split per master: a wrench [f; r x f] (about the COM, world) per rigid master,
         nodal forces (3 n_owned, block-interleaved) per FEM master, generalized forces (r)
-        per reduced master."""
-        f = np.asarray(forces, dtype=float).reshape(self.n * 3)
-        G = self.jacobian() if G is None else G
-        fm = G.T @ f
-        return [fm[s] for s in self.slices]
+        per reduced master. Without ``G`` each part is formed directly, without assembling G:
+        sum_v B_vk^T f_v (the rigid master's 3 x 6 blocks), N^T (w_i f) on an FEM master's
+        nodes, (N U)^T (w_i f) on a reduced master's coordinates."""
+        f = np.asarray(forces, dtype=float).reshape(self.n, 3)
+        if G is not None:
+            fm = G.T @ f.ravel()
+            return [fm[s] for s in self.slices]
+        out: list = [None] * len(self.masters)
+        if self.rigid:
+            _, blocks = self._rigid_part(jacobian=True)
+            for k, i in enumerate(self.rigid):
+                out[i] = np.einsum("nij,ni->j", blocks[k], f)
+        for i in self.deformable:
+            m, wf = self.masters[i], self.weights[:, i, None] * f
+            out[i] = m.NU.T @ wf.ravel() if isinstance(m, ReducedMaster) else (m.N.T @ wf).ravel()
+        return out
 
     def face_area_vectors(self, x: np.ndarray | None = None) -> np.ndarray:
         """area * n per face, (x_1 - x_0) x (x_2 - x_0) / 2, at the current positions."""
