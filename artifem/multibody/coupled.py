@@ -348,10 +348,6 @@ class FrameAttachment:
     def __repr__(self) -> str:
         return f"FrameAttachment({self.name!r}, {self.frame.method})"
 
-    @property
-    def master(self):
-        return self.frame.body
-
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, R) the frame gives the body now."""
         R_f = self.frame.rotation()
