@@ -800,9 +800,7 @@ class CoupledSystem:
         out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
                     for a in self.lift_attachments})
         for a in self.frame_attachments:
-            p, R = a.pose()
-            out[a.name] = max(float(np.abs(p - a.slave.position).max()),
-                              float(np.abs(R - a.slave.rotation).max()))
+            out[a.name] = _pose_gap(a)
         return out
 
     def constraint_errors(self) -> dict[str, float]:
@@ -1220,9 +1218,7 @@ class _Layout:
                     "attachment was made (a prescribed body takes its trajectory's pose when "
                     "added to the scene: add it before making the attachment)")
         for att in scene.rigid_attachments:
-            p, R = att.pose()
-            gap = max(float(np.abs(p - att.slave.position).max()),
-                      float(np.abs(R - att.slave.rotation).max()))
+            gap = _pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
                 raise ValueError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
@@ -1268,9 +1264,7 @@ class _Layout:
                                  f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
                                  f"and by {att.name!r}")
             framed[id(att.slave)] = att.name
-            p, R = att.pose()
-            gap = max(float(np.abs(p - att.slave.position).max()),
-                      float(np.abs(R - att.slave.rotation).max()))
+            gap = _pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
                 raise ValueError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
                                  "frame gives it; a body moved after the attachment was made")
@@ -1811,6 +1805,14 @@ def _chain(body, attachments, cycle: str) -> list:
             raise ValueError(f"{cycle}: " + " -> ".join(c.name for c in chain + [b]))
         chain.append(b)
     return chain
+
+
+def _pose_gap(att) -> float:
+    """max |p - p_s|, |R - R_s| between the pose an attachment gives its slave body and the
+    body's own pose (m and rad-like; round-off when in place)."""
+    p, R = att.pose()
+    return max(float(np.abs(p - att.slave.position).max()),
+               float(np.abs(R - att.slave.rotation).max()))
 
 
 def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
