@@ -1,21 +1,22 @@
 # Set-up and entry points. `make demo` and `make test` do the whole set-up on
 # a fresh machine: a .venv with Python >= 3.12 (found by scripts/find-python)
-# and the package with every dependency from PyPI.
+# and the package with every dependency from PyPI, at the versions pinned in
+# constraints.txt (the ones the suite last passed with; `make lock` refreshes it).
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test test-wheel bench lock venv clean
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	@python=$${PYTHON:-$$(scripts/find-python)} || exit 1; \
 	  echo "using $$python ($$($$python --version))"; \
 	  [ -x $(PY) ] || $$python -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test]"
+	$(PY) -m pip install --quiet -c constraints.txt -e ".[test]"
 	@touch $(STAMP)
 
 demo: $(STAMP)
@@ -24,8 +25,18 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
+# The wheel a user installs: built from this tree, installed with its pinned
+# dependencies into a fresh venv outside the source tree, and run there.
+test-wheel: $(STAMP)
+	scripts/test-wheel $(PY)
+
 bench: $(STAMP)
 	$(VENV)/bin/artifem bench fom --out results/bench_fom.json
 
+# Refresh constraints.txt: the newest release of every dependency in a scratch
+# venv, the whole suite run there, and the file rewritten only if it passed.
+lock:
+	scripts/lock
+
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results .pytest_cache dist

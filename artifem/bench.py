@@ -40,6 +40,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+from artifem.arguments import positive_float, positive_int
+from artifem.errors import InputError, InputFileNotFoundError, SolverError
+
 #: Named box sizes (cells along x, y, z) -> about 1,000, 3,000 and 13,000 nodes.
 SIZES = {"1k": (15, 7, 7), "3k": (24, 10, 10), "13k": (40, 17, 17)}
 #: Targets on 2 cores (ms per step), keyed by size name.
@@ -77,11 +80,11 @@ def parse_sizes(text: str) -> list[tuple[str, tuple[int, int, int]]]:
         except ValueError:
             cells = ()
         if len(cells) != 3 or min(cells) < 1:
-            raise ValueError(f"--sizes: {item!r} is neither one of {sorted(SIZES)} nor NXxNYxNZ "
+            raise InputError(f"--sizes: {item!r} is neither one of {sorted(SIZES)} nor NXxNYxNZ "
                              f"with positive integers")
         out.append((item, cells))
     if not out:
-        raise ValueError("--sizes: no case given")
+        raise InputError("--sizes: no case given")
     return out
 
 
@@ -89,9 +92,9 @@ def parse_ints(text: str, what: str) -> list[int]:
     try:
         values = [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise ValueError(f"{what}: expected comma-separated integers, got {text!r}") from None
+        raise InputError(f"{what}: expected comma-separated integers, got {text!r}") from None
     if not values or min(values) < 1:
-        raise ValueError(f"{what}: expected positive integers, got {text!r}")
+        raise InputError(f"{what}: expected positive integers, got {text!r}")
     return values
 
 
@@ -122,13 +125,13 @@ def _add_arguments(parser, kind: str) -> None:
                                  " or NXxNYxNZ cells (default: %(default)s)")
         steps, warmup = 10, 2
     parser.add_argument("--ranks", default="1,2", help="comma-separated MPI rank counts (default: %(default)s)")
-    parser.add_argument("--steps", type=int, default=steps, help="timed steps per case (default: %(default)s)")
+    parser.add_argument("--steps", type=positive_int, default=steps, help="timed steps per case (default: %(default)s)")
     parser.add_argument("--warmup", type=int, default=warmup, help="untimed steps first (default: %(default)s)")
     parser.add_argument("--solver", default=DEFAULT_SOLVER,
                         help="linear solver, or a comma-separated list to compare "
                              "(mumps, cg-gamg, cg-gamg-lagged, cg-mumps-lagged, cg-hypre; "
                              "default: %(default)s)")
-    parser.add_argument("--timeout", type=float, default=1800.0,
+    parser.add_argument("--timeout", type=positive_float, default=1800.0,
                         help="seconds allowed per case (default: %(default)s)")
 
 
@@ -138,8 +141,8 @@ def find_mpiexec() -> str:
         return str(beside)
     found = shutil.which("mpiexec")
     if found is None:
-        raise FileNotFoundError(f"no mpiexec beside {sys.executable} nor on PATH "
-                                "(the mpich wheel installs one into the environment's bin/)")
+        raise InputFileNotFoundError(f"no mpiexec beside {sys.executable} nor on PATH "
+                                     "(the mpich wheel installs one into the environment's bin/)")
     return found
 
 
@@ -158,12 +161,12 @@ def run_worker(cmd: list[str], timeout: float) -> dict:
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired as exc:
-        raise RuntimeError(f"timed out after {timeout:g} s: {' '.join(cmd)}") from exc
+        raise SolverError(f"timed out after {timeout:g} s: {' '.join(cmd)}") from exc
     for line in proc.stdout.splitlines():
         if line.startswith("BENCH_RESULT "):
             return json.loads(line[len("BENCH_RESULT "):])
     tail = "\n".join((proc.stdout + proc.stderr).strip().splitlines()[-15:])
-    raise RuntimeError(f"exit code {proc.returncode}, no result from: {' '.join(cmd)}\n{tail}")
+    raise SolverError(f"exit code {proc.returncode}, no result from: {' '.join(cmd)}\n{tail}")
 
 
 def machine_info() -> dict:
@@ -208,7 +211,7 @@ def parse_solvers(text: str) -> list[str]:
     solvers = [s.strip() for s in text.split(",") if s.strip()]
     unknown = [s for s in solvers if s not in _solver_methods()]
     if unknown or not solvers:
-        raise ValueError(f"--solver: unknown {unknown or text!r}; choose from "
+        raise InputError(f"--solver: unknown {unknown or text!r}; choose from "
                          f"{', '.join(_solver_methods())}")
     return solvers
 
@@ -219,7 +222,7 @@ def parse_levels(text: str) -> list[int]:
     except ValueError:
         levels = []
     if not levels or any(level not in TONGUE_LEVELS for level in levels):
-        raise ValueError(f"--levels: expected comma-separated levels among "
+        raise InputError(f"--levels: expected comma-separated levels among "
                          f"{', '.join(map(str, TONGUE_LEVELS))}, got {text!r}")
     return levels
 
@@ -282,22 +285,18 @@ def _tongue_motions() -> tuple[str, ...]:
 
 def run(args) -> int:
     kind = args._benchmark
-    try:
-        ranks = parse_ints(args.ranks, "--ranks")
-        solvers = parse_solvers(args.solver)
-        if args.steps < 1 or args.warmup < 0:
-            raise ValueError("--steps must be >= 1 and --warmup >= 0")
-        if kind == "tongue":
-            levels = parse_levels(args.levels)
-            if args.motion not in _tongue_motions():
-                raise ValueError(f"--motion: unknown {args.motion!r}; choose from "
-                                 f"{', '.join(_tongue_motions())}")
-        else:
-            sizes = parse_sizes(args.sizes)
-        mpiexec = find_mpiexec()
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"artifem bench {kind}: {exc}", file=sys.stderr)
-        return 2
+    ranks = parse_ints(args.ranks, "--ranks")
+    solvers = parse_solvers(args.solver)
+    if args.steps < 1 or args.warmup < 0:
+        raise InputError("--steps must be >= 1 and --warmup >= 0")
+    if kind == "tongue":
+        levels = parse_levels(args.levels)
+        if args.motion not in _tongue_motions():
+            raise InputError(f"--motion: unknown {args.motion!r}; choose from "
+                             f"{', '.join(_tongue_motions())}")
+    else:
+        sizes = parse_sizes(args.sizes)
+    mpiexec = find_mpiexec()
 
     settings = {"steps": args.steps, "warmup_steps": args.warmup, "ranks": ranks, "solvers": solvers}
     if kind == "tongue":

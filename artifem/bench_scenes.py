@@ -24,6 +24,9 @@ import os
 import time
 from pathlib import Path
 
+from artifem.arguments import positive_int
+from artifem.errors import UnknownNameError
+
 SCENES = {"jaw-tongue": "artifem.models.jaw_tongue_reduced",
           "airway": "artifem.models.airway",
           "masseter": "artifem.models.masseter"}
@@ -33,7 +36,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="JSON file to write")
     parser.add_argument("--scenes", default=",".join(SCENES),
                         help="comma-separated scenes (default: %(default)s)")
-    parser.add_argument("--steps", type=int, default=None,
+    parser.add_argument("--steps", type=positive_int, default=None,
                         help="timed steps per case (default: each scene's own)")
 
 
@@ -41,10 +44,8 @@ def run(args) -> int:
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = sorted(set(scenes) - set(SCENES))
     if unknown or not scenes:
-        raise SystemExit(f"artifem bench scenes: unknown scenes {unknown}; choose from "
-                         f"{sorted(SCENES)}")
-    if args.steps is not None and args.steps < 1:
-        raise SystemExit(f"artifem bench scenes: --steps must be >= 1, got {args.steps}")
+        raise UnknownNameError(f"--scenes: unknown scenes {unknown}; choose from "
+                               f"{sorted(SCENES)}")
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     from artifem.bench import write_report           # after the thread settings

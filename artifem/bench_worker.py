@@ -41,6 +41,7 @@ from mpi4py import MPI
 
 from dolfinx import mesh as dmesh
 
+from artifem.errors import SolverError
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin
 from artifem.linear_solver import METHODS
@@ -106,7 +107,7 @@ def tongue_scene(comm, solver: str, level: int, motion: str) -> Scene:
     from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, TongueConfig
 
     if TONGUE_DT != DT:
-        raise RuntimeError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
+        raise SolverError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
     tongue = Tongue(TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver),
                     comm=comm)
     tongue.drive(Tongue.motion(motion))

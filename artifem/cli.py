@@ -11,13 +11,20 @@
 
 Each command lives in its own module, which declares its arguments
 (``add_arguments``) and runs (``run``).
+
+Bad input ends in one line on stderr, ``artifem: error: ...``, and exit status 2
+(as argparse's own errors); a failed solve in ``artifem: solver failed: ...`` and
+status 1. ``ARTIFEM_TRACEBACK=1`` shows the Python traceback as well.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+from artifem.errors import SolverError
 
 #: subcommand path -> (module, help). The module provides ``add_arguments(parser)``
 #: and ``run(args) -> int``; "module:NAME" names ``add_NAME_arguments`` instead,
@@ -54,8 +61,15 @@ COMMANDS = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a usage error in one line (the usage is one ``--help`` away)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="artifem", description=__doc__.split("\n\n")[0])
+    parser = _Parser(prog="artifem", description=__doc__.split("\n\n")[0])
     top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}
     for path, (module, help_text) in COMMANDS.items():
@@ -78,7 +92,16 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(importlib.import_module(args._module).run(args) or 0)
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except (ValueError, OSError, SolverError) as exc:
+        # artifem's InputError (a ValueError) and SolverError, the materials' ValueError
+        # (forms/ imports nothing of artifem) and unreadable or unwritable files
+        if os.environ.get("ARTIFEM_TRACEBACK"):
+            raise
+        kind = "solver failed" if isinstance(exc, SolverError) else "error"
+        print(f"{parser.prog}: {kind}: {exc}", file=sys.stderr)
+        return 1 if isinstance(exc, SolverError) else 2
 
 
 if __name__ == "__main__":

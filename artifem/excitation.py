@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.errors import InputError, InputFileNotFoundError, UnknownNameError
+
 
 @dataclass(frozen=True)
 class ExcitationSchedule:
@@ -23,15 +25,15 @@ class ExcitationSchedule:
     def __post_init__(self):
         times = np.asarray(self.times, dtype=float)
         if times.ndim != 1 or times.size == 0 or np.any(np.diff(times) <= 0):
-            raise ValueError(f"excitation schedule: times must be a non-empty increasing list, "
+            raise InputError(f"excitation schedule: times must be a non-empty increasing list, "
                              f"got {self.times!r}")
         for name, vals in self.values.items():
             vals = np.asarray(vals, dtype=float)
             if vals.shape != times.shape:
-                raise ValueError(f"excitation schedule: muscle {name!r} has {vals.size} values "
+                raise InputError(f"excitation schedule: muscle {name!r} has {vals.size} values "
                                  f"for {times.size} times")
             if np.any(~np.isfinite(vals)) or vals.min() < 0 or vals.max() > 1:
-                raise ValueError(f"excitation schedule: values of {name!r} must be in [0, 1]")
+                raise InputError(f"excitation schedule: values of {name!r} must be in [0, 1]")
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "values", {k: np.asarray(v, float) for k, v in self.values.items()})
 
@@ -46,12 +48,12 @@ class ExcitationSchedule:
         """Read ``{"times": [...], "excitations": {"MUSCLE": [...], ...}}`` (JSON)."""
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"excitation schedule file not found: {path}")
+            raise InputFileNotFoundError(f"excitation schedule file not found: {path}")
         try:
             data = json.loads(path.read_text())
             return cls(np.asarray(data["times"]), dict(data["excitations"]))
         except (json.JSONDecodeError, KeyError, TypeError) as exc:
-            raise ValueError(f"{path}: not an excitation schedule ({exc}); expected "
+            raise InputError(f"{path}: not an excitation schedule ({exc}); expected "
                              '{"times": [...], "excitations": {"NAME": [...]}}') from exc
 
     def at(self, t: float) -> dict[str, float]:
@@ -62,8 +64,8 @@ class ExcitationSchedule:
         """A System controller that sets ``body``'s muscle excitations at each step's end time."""
         unknown = sorted(set(self.values) - set(body.muscles))
         if unknown:
-            raise KeyError(f"excitation schedule names unknown muscles {unknown}; "
-                           f"{body.name!r} defines {sorted(body.muscles)}")
+            raise UnknownNameError(f"excitation schedule names unknown muscles {unknown}; "
+                                   f"{body.name!r} defines {sorted(body.muscles)}")
 
         def apply(system, t0: float, t1: float) -> None:
             for name, value in self.at(t1).items():

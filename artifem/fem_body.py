@@ -36,6 +36,8 @@ from petsc4py import PETSc
 from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
+from artifem.errors import InputError, UnknownNameError
+
 #: Default quadrature degree of the energy per cell type: 2x2x2 Gauss for Q1
 #: hexahedra (DESIGN.md: UFL's automatic degree is 14-20 for Mooney-Rivlin);
 #: F is constant on a P1 tetrahedron, so one point is exact; degree 2 (2 x 2 x 2
@@ -43,19 +45,6 @@ from dolfinx.fem import petsc as fem_petsc
 ENERGY_DEGREE = {"hexahedron": 2, "tetrahedron": 1, "prism": 2}
 #: Mass needs products of two shape functions.
 MASS_DEGREE = {"hexahedron": 2, "tetrahedron": 2, "prism": 2}
-
-
-class ElementInversionError(RuntimeError):
-    """det F <= 0 at a quadrature point, and the step could not recover."""
-
-    def __init__(self, time: float, elements: np.ndarray, min_det: float, detail: str = ""):
-        self.time, self.elements, self.min_det = time, np.asarray(elements), min_det
-        shown = ", ".join(str(e) for e in self.elements[:20])
-        more = f" (and {len(self.elements) - 20} more)" if len(self.elements) > 20 else ""
-        super().__init__(
-            f"element inversion at t = {time:.6g} s: det F = {min_det:.4g} <= 0 in "
-            f"{len(self.elements)} element(s) [{shown}{more}] (input element indices)"
-            + (f"; {detail}" if detail else ""))
 
 
 @dataclass
@@ -108,19 +97,19 @@ class FemBody:
                  incompressibility: float | None = None, name: str = "fem"):
         cell_name = domain.topology.cell_name()
         if cell_name not in ENERGY_DEGREE:
-            raise ValueError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
+            raise InputError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
                              f"supported: {sorted(ENERGY_DEGREE)}")
         if not np.isfinite(density) or density <= 0:
-            raise ValueError(f"FemBody {name!r}: density must be > 0, got {density}")
+            raise InputError(f"FemBody {name!r}: density must be > 0, got {density}")
         if mass not in ("lumped", "consistent"):
-            raise ValueError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
+            raise InputError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
         if incompressibility is not None and not (np.isfinite(incompressibility)
                                                    and incompressibility > 0):
-            raise ValueError(f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
+            raise InputError(f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
                              f"None, got {incompressibility}")
         alpha, beta = rayleigh
         if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
-            raise ValueError(f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, "
+            raise InputError(f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, "
                              f"got {rayleigh}")
         self.name, self.mesh, self.material = name, domain, material
         self.density, self.mass_kind = float(density), mass
@@ -193,7 +182,7 @@ class FemBody:
         n_total = self.mesh.geometry.index_map().size_global
         bad = nodes[(nodes < 0) | (nodes >= n_total)]
         if bad.size:
-            raise ValueError(f"FemBody {self.name!r}: {what}: node indices out of range "
+            raise InputError(f"FemBody {self.name!r}: {what}: node indices out of range "
                              f"[0, {n_total}): {bad[:10].tolist()}")
         return nodes
 
@@ -250,12 +239,12 @@ class FemBody:
             fiber: fiber material with ``strain_energy(F, a0, excitation)``.
         """
         if name in self.muscles:
-            raise ValueError(f"FemBody {self.name!r}: muscle {name!r} already defined")
+            raise InputError(f"FemBody {self.name!r}: muscle {name!r} already defined")
         _check_excitation(name, excitation)
         cells = np.asarray(cells, dtype=np.int64).ravel()
         n_cells_global = self.mesh.topology.index_map(self.mesh.topology.dim).size_global
         if cells.size == 0 or cells.min() < 0 or cells.max() >= n_cells_global:
-            raise ValueError(f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
+            raise InputError(f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
                              f"non-empty subset of [0, {n_cells_global})")
         if isinstance(directions, fem.Function):
             a0 = self._check_point_directions(name, directions)
@@ -272,7 +261,7 @@ class FemBody:
         norms = np.linalg.norm(directions, axis=1)
         if np.any(~np.isfinite(norms)) or np.any(norms <= 0):
             bad = cells[~(norms > 0)]
-            raise ValueError(f"FemBody {self.name!r}: muscle {name!r}: zero or non-finite fiber "
+            raise InputError(f"FemBody {self.name!r}: muscle {name!r}: zero or non-finite fiber "
                              f"direction in elements {bad[:10].tolist()}")
         unit = directions / norms[:, None]
 
@@ -314,25 +303,25 @@ class FemBody:
         what = f"FemBody {self.name!r}: muscle {name!r}"
         space = a0.function_space
         if space.mesh is not self.mesh or space.value_shape != (3,):
-            raise ValueError(f"{what}: a direction Function must be a 3-vector field on this "
+            raise InputError(f"{what}: a direction Function must be a 3-vector field on this "
                              "body's mesh")
         expected = self.quadrature_space()
         dg0 = fem.functionspace(self.mesh, ("DG", 0, (3,)))
         if space.ufl_element() not in (expected.ufl_element(), dg0.ufl_element()):
-            raise ValueError(f"{what}: the direction Function must be DG0 or on the quadrature "
+            raise InputError(f"{what}: the direction Function must be DG0 or on the quadrature "
                              f"space of degree {self.quadrature_degree} "
                              f"(FemBody.quadrature_space()), got {space.ufl_element()}")
         norms = np.linalg.norm(a0.x.array.reshape(-1, 3), axis=1)
         if not np.all(np.isfinite(norms)) or np.any(np.abs(norms - 1.0) > 1e-8):
-            raise ValueError(f"{what}: fiber directions must be finite unit vectors "
+            raise InputError(f"{what}: fiber directions must be finite unit vectors "
                              f"(|a0| in [{norms.min():.3g}, {norms.max():.3g}])")
         return a0
 
     def set_excitation(self, name: str, value: float) -> None:
         """Set a muscle's excitation in [0, 1] (no recompilation)."""
         if name not in self.muscles:
-            raise KeyError(f"FemBody {self.name!r}: unknown muscle {name!r}; "
-                           f"defined: {sorted(self.muscles)}")
+            raise UnknownNameError(f"FemBody {self.name!r}: unknown muscle {name!r}; "
+                                   f"defined: {sorted(self.muscles)}")
         _check_excitation(name, value)
         self.muscles[name].excitation.value = value
 
@@ -543,4 +532,4 @@ class FemBody:
 
 def _check_excitation(name: str, value: float) -> None:
     if not (0.0 <= value <= 1.0):     # also rejects NaN
-        raise ValueError(f"excitation of {name!r} must be in [0, 1], got {value}")
+        raise InputError(f"excitation of {name!r} must be in [0, 1], got {value}")

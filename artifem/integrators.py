@@ -39,15 +39,12 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from artifem.errors import StepFailed
 from artifem.fem_body import FemBody
 from artifem.linear_solver import LinearSolver
 
 if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
     from artifem.reduction.reduced_body import ReducedFemBody
-
-
-class StepFailed(RuntimeError):
-    """A step could not be completed at this step size."""
 
 
 def _update_ghosts(*vecs: PETSc.Vec) -> None:

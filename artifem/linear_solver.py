@@ -43,15 +43,13 @@ from petsc4py import PETSc
 from dolfinx import fem, la
 from dolfinx.la.petsc import create_vector_wrap
 
+from artifem.errors import InputError, LinearSolveError
+
 METHODS = ("mumps", "cg-gamg", "cg-gamg-lagged", "cg-mumps-lagged", "cg-hypre")
 #: The default of :class:`~artifem.system.System`.
 DEFAULT_METHOD = "cg-gamg-lagged"
 #: Relative residual of the iterative methods (see :class:`LinearSolver`).
 DEFAULT_RTOL = 1e-7
-
-
-class LinearSolveError(RuntimeError):
-    """The KSP did not converge (or the factorization failed) for this matrix."""
 
 
 def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
@@ -61,7 +59,7 @@ def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
     """
     index_map, bs = V.dofmap.index_map, V.dofmap.index_map_bs
     if bs != 3:
-        raise ValueError(f"rigid_body_modes: expected a 3D vector space, got block size {bs}")
+        raise InputError(f"rigid_body_modes: expected a 3D vector space, got block size {bs}")
     n_local = index_map.size_local
     x = V.tabulate_dof_coordinates()[:n_local]
     basis = [la.vector(index_map, bs=bs, dtype=PETSc.ScalarType) for _ in range(6)]
@@ -121,13 +119,13 @@ class LinearSolver:
                  rtol: float = DEFAULT_RTOL, *, warm_start: bool = True,
                  lag_growth: float = 1.5, lag_extra: int = 2, lag_max_solves: int = 50):
         if method not in METHODS:
-            raise ValueError(f"unknown linear solver {method!r}; choose one of {METHODS}")
+            raise InputError(f"unknown linear solver {method!r}; choose one of {METHODS}")
         if method == "cg-hypre" and not PETSc.Sys.hasExternalPackage("hypre"):
-            raise ValueError("linear solver 'cg-hypre': this PETSc build has no hypre "
+            raise InputError("linear solver 'cg-hypre': this PETSc build has no hypre "
                              "(the dolfinx-solver-real wheel ships MUMPS and GAMG); "
                              "use 'cg-gamg-lagged', 'cg-gamg' or 'mumps'")
         if not (0.0 < rtol < 1.0):
-            raise ValueError(f"rtol must be in (0, 1), got {rtol}")
+            raise InputError(f"rtol must be in (0, 1), got {rtol}")
         self.method, self.rtol = method, rtol
         self.iterative = method != "mumps"
         self.lagged = method.endswith("-lagged")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from artifem import forms
+from artifem.errors import InputError
 
 #: Materials reachable by name; parameters in Pa.
 MATERIALS = {
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.max_stretch <= 1.0:
-        raise SystemExit(f"--max-stretch must be > 1, got {args.max_stretch}")
+        raise InputError(f"--max-stretch must be > 1, got {args.max_stretch}")
     material = MATERIALS[args.material]()
     stretches = np.linspace(1.0 / args.max_stretch, args.max_stretch, 41)
     curves = forms.stress_stretch_curves(material, stretches)

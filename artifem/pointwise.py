@@ -15,6 +15,8 @@ from mpi4py import MPI
 
 import basix.ufl
 
+from artifem.errors import InputError
+
 _CELL = np.zeros(1, dtype=np.int32)
 _REFERENCE_POINT = np.array([[0.25, 0.25, 0.25]])
 _mesh = None
@@ -49,7 +51,7 @@ class PointEvaluator:
         F = ufl.classes.Variable(self._F, ufl.classes.Label(0))
         psi = material.strain_energy(F, **self._fields)
         if ufl.shape(psi) != ():
-            raise ValueError(f"{type(material).__name__}.strain_energy must return a scalar, "
+            raise InputError(f"{type(material).__name__}.strain_energy must return a scalar, "
                              f"got shape {ufl.shape(psi)}")
         P = ufl.diff(psi, F)
         A = ufl.diff(P, F)
@@ -62,15 +64,15 @@ class PointEvaluator:
     def __call__(self, F, **fields):
         F = np.asarray(F, dtype=float)
         if F.shape != (3, 3) or not np.all(np.isfinite(F)):
-            raise ValueError(f"F must be a finite 3x3 array, got shape {F.shape}: {F!r}")
+            raise InputError(f"F must be a finite 3x3 array, got shape {F.shape}: {F!r}")
         if set(fields) != set(self.field_shapes):
-            raise ValueError(f"{type(self.material).__name__}: expected fields "
+            raise InputError(f"{type(self.material).__name__}: expected fields "
                              f"{sorted(self.field_shapes)}, got {sorted(fields)}")
         self._F.value[:] = F
         for name, value in fields.items():
             value = np.asarray(value, dtype=float)
             if value.shape != self.field_shapes[name]:
-                raise ValueError(f"field {name!r} must have shape {self.field_shapes[name]}, "
+                raise InputError(f"field {name!r} must have shape {self.field_shapes[name]}, "
                                  f"got {value.shape}")
             self._fields[name].value[...] = value
         values = self._expression.eval(self._mesh, _CELL).reshape(-1)

@@ -17,6 +17,8 @@ import numpy as np
 import pyvista as pv
 from dolfinx import fem
 
+from artifem.errors import InputError
+
 pv.OFF_SCREEN = True
 
 Body = dolfinx.mesh.Mesh | tuple[dolfinx.mesh.Mesh, fem.Function | None]
@@ -40,11 +42,11 @@ def body_grid(msh: dolfinx.mesh.Mesh, displacement: fem.Function | None = None
         return rest.copy(), rest
     space = displacement.function_space
     if space.element.basix_element.discontinuous:
-        raise ValueError("render: the displacement must be a continuous Lagrange Function")
+        raise InputError("render: the displacement must be a continuous Lagrange Function")
     rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(space))
     values = displacement.x.array.reshape(-1, space.dofmap.index_map_bs)[: rest.n_points]
     if values.shape[1] != 3:
-        raise ValueError(f"render: the displacement must have 3 components, "
+        raise InputError(f"render: the displacement must have 3 components, "
                          f"not {values.shape[1]}")
     deformed = rest.copy()
     deformed.point_data["displacement"] = values
@@ -59,10 +61,10 @@ def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
         return False
     if isinstance(scalars, str):
         if scalars != "displacement":
-            raise ValueError(f"render: unknown scalars {scalars!r}; use 'displacement', "
+            raise InputError(f"render: unknown scalars {scalars!r}; use 'displacement', "
                              f"a Function or an array")
         if displacement is None:
-            raise ValueError("render: scalars='displacement' needs a displacement Function")
+            raise InputError("render: scalars='displacement' needs a displacement Function")
         grid.point_data[name] = np.linalg.norm(grid.point_data["displacement"], axis=1)
         return True
     if isinstance(scalars, fem.Function):
@@ -84,7 +86,7 @@ def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
     elif len(values) == grid.n_cells:
         grid.cell_data[name] = values
     else:
-        raise ValueError(f"render: {len(values)} scalar values match neither the "
+        raise InputError(f"render: {len(values)} scalar values match neither the "
                          f"{grid.n_points} points nor the {grid.n_cells} cells")
     return True
 
@@ -93,7 +95,7 @@ def _set_camera(plotter: pv.Plotter, camera, bounds) -> None:
     """Apply a named view ("iso", "xy", "xz", "yz", ...) or a pyvista camera position,
     framing ``bounds`` (the same box in every panel, so panels compare at one scale)."""
     if isinstance(camera, str) and camera not in _CAMERAS:
-        raise ValueError(f"render: unknown camera {camera!r}; use one of "
+        raise InputError(f"render: unknown camera {camera!r}; use one of "
                          f"{sorted(_CAMERAS)} or a pyvista camera position")
     plotter.camera_position = camera
     plotter.reset_camera(bounds=bounds)
@@ -133,12 +135,12 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
         bodies = [bodies]
     bodies = [(b, None) if isinstance(b, dolfinx.mesh.Mesh) else tuple(b) for b in bodies]
     if not bodies:
-        raise ValueError("render: no bodies to draw")
+        raise InputError("render: no bodies to draw")
     per_body = (list(scalars) if isinstance(scalars, (list, tuple)) else [scalars] * len(bodies))
     if len(per_body) != len(bodies):
-        raise ValueError(f"render: {len(per_body)} scalars for {len(bodies)} bodies")
+        raise InputError(f"render: {len(per_body)} scalars for {len(bodies)} bodies")
     if titles is not None and len(titles) != len(bodies):
-        raise ValueError(f"render: {len(titles)} titles for {len(bodies)} bodies")
+        raise InputError(f"render: {len(titles)} titles for {len(bodies)} bodies")
 
     grids, colored = [], []
     for (msh, u), s in zip(bodies, per_body):

@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from dolfinx import fem
 
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.io.results import ResultWriter
 from artifem.system import System
@@ -52,7 +53,7 @@ def simulate(system: System, body: FemBody, *, duration: float, dt: float,
         write_every: write every k-th step to the series.
     """
     if duration <= 0 or dt <= 0:
-        raise ValueError(f"duration and dt must be > 0, got {duration}, {dt}")
+        raise InputError(f"duration and dt must be > 0, got {duration}, {dt}")
     steps = int(round(duration / dt))
     landmarks = landmarks or {}
     names = list(landmarks)

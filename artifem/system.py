@@ -37,10 +37,10 @@ from typing import Callable
 import numpy as np
 from mpi4py import MPI
 
-from artifem.fem_body import ElementInversionError, FemBody
-from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, StepFailed, solve_static,
-                                 solve_static_reduced)
-from artifem.linear_solver import DEFAULT_METHOD, LinearSolveError, LinearSolver
+from artifem.errors import ElementInversionError, InputError, LinearSolveError, StepFailed
+from artifem.fem_body import FemBody
+from artifem.integrators import ImplicitEuler, SemiImplicitEuler, solve_static, solve_static_reduced
+from artifem.linear_solver import DEFAULT_METHOD, LinearSolver
 from artifem.reduction.reduced_body import ReducedFemBody
 
 #: A dynamic component of a System.
@@ -68,7 +68,7 @@ class System:
                  max_halvings: int = 4):
         if isinstance(integrator, str):
             if integrator not in INTEGRATORS:
-                raise ValueError(f"unknown integrator {integrator!r}; choose one of "
+                raise InputError(f"unknown integrator {integrator!r}; choose one of "
                                  f"{sorted(INTEGRATORS)}")
             integrator = INTEGRATORS[integrator]()
         self.integrator = integrator
@@ -85,7 +85,7 @@ class System:
 
     def add(self, component: Component) -> Component:
         if any(c.name == component.name for c in self.components):
-            raise ValueError(f"a component named {component.name!r} is already in the system")
+            raise InputError(f"a component named {component.name!r} is already in the system")
         if isinstance(component, ReducedFemBody) and not hasattr(self.integrator,
                                                                   "advance_reduced"):
             raise TypeError(f"integrator {type(self.integrator).__name__} has no "
@@ -117,7 +117,7 @@ class System:
     def step(self, dt: float) -> None:
         """Advance every island by dt (halving on failure, see module docstring)."""
         if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"time step must be > 0, got {dt}")
+            raise InputError(f"time step must be > 0, got {dt}")
         self._advance(dt, depth=0)
 
     def _advance(self, dt: float, depth: int) -> None:

@@ -95,6 +95,8 @@ import numpy as np
 import pyvista as pv
 from threadpoolctl import threadpool_limits
 
+from artifem.arguments import nonnegative_float, positive_float
+from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
 from artifem.models import jaw_tongue_reduced as jtr
 from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, read_obj
@@ -126,11 +128,11 @@ class AirwayConfig:
 
     def __post_init__(self):
         if not np.isfinite(self.pressure):
-            raise ValueError(f"airway: pressure must be finite, got {self.pressure!r}")
+            raise InputError(f"airway: pressure must be finite, got {self.pressure!r}")
         if not self.pressure_ramp > 0:
-            raise ValueError(f"airway: pressure_ramp must be > 0, got {self.pressure_ramp!r}")
+            raise InputError(f"airway: pressure_ramp must be > 0, got {self.pressure_ramp!r}")
         if not 0.1 <= self.trim <= 1.0:
-            raise ValueError(f"airway: trim must be in [0.1, 1], got {self.trim!r}")
+            raise InputError(f"airway: trim must be in [0.1, 1], got {self.trim!r}")
 
 
 # ---- geometry ---------------------------------------------------------------------------
@@ -143,16 +145,16 @@ def read_sections(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         parts = line.split()
         if parts and parts[0] == "s":
             if len(parts) < 5:
-                raise ValueError(f"{path}:{lineno}: expected 's nx ny nz d [name]', "
+                raise InputError(f"{path}:{lineno}: expected 's nx ny nz d [name]', "
                                  f"got {line!r}")
             n = np.array([float(v) for v in parts[1:4]])
             if not np.isclose(np.linalg.norm(n), 1.0, atol=1e-3):
-                raise ValueError(f"{path}:{lineno}: section normal {n} is not a unit vector")
+                raise InputError(f"{path}:{lineno}: section normal {n} is not a unit vector")
             normals.append(n / np.linalg.norm(n))
             offsets.append(float(parts[4]))
             names.append(" ".join(parts[5:]))
     if not normals:
-        raise ValueError(f"{path}: no section planes ('s' lines)")
+        raise InputError(f"{path}: no section planes ('s' lines)")
     return np.array(normals), np.array(offsets), names
 
 
@@ -274,7 +276,7 @@ def _check_closed(triangles: np.ndarray) -> None:
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     keys = {(int(a), int(b)) for a, b in e}
     if len(keys) != len(e) or any((b, a) not in keys for a, b in keys):
-        raise ValueError("airway: the capped surface is not closed and consistently oriented")
+        raise InputError("airway: the capped surface is not closed and consistently oriented")
 
 
 def _volume(x: np.ndarray, triangles: np.ndarray) -> float:
@@ -314,7 +316,7 @@ class Sections:
             A.append(a), B.append(b), S.append(s), kept.append(k)
             prev = cents[pick]
         if not kept:
-            raise ValueError("airway: no section plane cuts the surface")
+            raise InputError("airway: no section plane cuts the surface")
         interior = np.array([a.max() < caps_from and b.max() < caps_from
                              for a, b in zip(A, B)])
         return cls(A, B, S, [names[k] for k in kept], np.array(kept), interior)
@@ -483,7 +485,7 @@ def compare(a: AirwayScene, full: dict, reduced: dict) -> dict:
     sections (max over t and sections, mean over sections at the end); jaw angles; median
     ms per step of both (same process) and their ratio."""
     if full["skin"].shape != reduced["skin"].shape:
-        raise ValueError(f"airway compare: runs of different length {full['skin'].shape} "
+        raise InputError(f"airway compare: runs of different length {full['skin'].shape} "
                          f"and {reduced['skin'].shape}")
     e = 1e3 * np.linalg.norm(reduced["skin"] - full["skin"], axis=2)
     inner = a.sections.interior
@@ -622,9 +624,9 @@ def _summary(a: AirwayScene, rec: dict) -> dict:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--duration", type=float, default=0.6)
-    parser.add_argument("--dt", type=float, default=0.01)
-    parser.add_argument("--pressure", type=float, default=AirwayConfig.pressure,
+    parser.add_argument("--duration", type=positive_float, default=0.6)
+    parser.add_argument("--dt", type=positive_float, default=0.01)
+    parser.add_argument("--pressure", type=nonnegative_float, default=AirwayConfig.pressure,
                         help="air pressure inside the airway (Pa)")
     parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS),
                         choices=sorted(MOTIONS), help="tongue motions to run")
@@ -779,7 +781,7 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None,
     then with its skin and pressure; and the cost of one skin update (positions), of G
     (jacobian) and of the pressure's master loads."""
     if steps < 1:
-        raise ValueError(f"benchmark: steps must be >= 1, got {steps}")
+        raise InputError(f"benchmark: steps must be >= 1, got {steps}")
     data = data or load_tongue_data(0)
     config = AirwayConfig(pressure_start=(steps + 1) * dt)
     model = reduced_tongue(config, cache or DEFAULT_CACHE, reduced)

@@ -51,6 +51,8 @@ from mpi4py import MPI
 
 from dolfinx import fem, mesh as dmesh
 
+from artifem.arguments import positive_float
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.multibody.coupled import CoupledSystem, FrameAttachment, NodeAttachment
@@ -99,7 +101,7 @@ def build_scene(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: 
                 ) -> tuple[CoupledSystem, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
     """The clamped beam, the ellipsoid and its attachment (module docstring), in one scene."""
     if attach not in ("face", "frame"):
-        raise ValueError(f"build_scene: attach must be 'face' or 'frame', got {attach!r}")
+        raise InputError(f"build_scene: attach must be 'face' or 'frame', got {attach!r}")
     beam = FemBody(_beam_mesh(config), NeoHookean.from_young_poisson(config.young, config.poisson),
                    config.density, rayleigh=config.rayleigh, name="beam")
     beam.fix_nodes(beam.find_nodes(lambda x: np.isclose(x[0], 0.0)))
@@ -143,7 +145,7 @@ def build_reference(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *,
     block = 2.0 * config.semi_axes[0]
     extra = int(round(block / dx))
     if not np.isclose(extra * dx, block):
-        raise ValueError(f"build_reference: the block length 2a = {block:g} must be a whole "
+        raise InputError(f"build_reference: the block length 2a = {block:g} must be a whole "
                          f"number of beam cells ({dx:g})")
     material = NeoHookean.from_young_poisson(config.young, config.poisson)
     body = FemBody(_beam_mesh(config, extra, block), material, config.density,
@@ -234,8 +236,8 @@ def render(png: Path, config: BeamEllipsoidConfig, beam: FemBody, frames) -> Pat
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--dt", type=float, default=2e-3)
-    parser.add_argument("--duration", type=float, default=0.5)
+    parser.add_argument("--dt", type=positive_float, default=2e-3)
+    parser.add_argument("--duration", type=positive_float, default=0.5)
 
 
 def run(args: argparse.Namespace) -> int:

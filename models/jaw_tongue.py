@@ -62,6 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.arguments import positive_float
+from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.coupled import CoupledSystem, FemPoint, LiftAttachment, NodeAttachment
@@ -110,7 +112,7 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
         elif parts[0] == "f":
             face = [int(p.split("/")[0]) - 1 for p in parts[1:]]
             if len(face) != 3:
-                raise ValueError(f"{path}: only triangles are supported, got {line!r}")
+                raise InputError(f"{path}: only triangles are supported, got {line!r}")
             faces.append(face)
     return np.array(vertices), np.array(faces, dtype=np.int64)
 
@@ -140,7 +142,7 @@ def close_surface(vertices: np.ndarray, triangles: np.ndarray):
     for (a, b) in edges:
         if (b, a) not in edges:
             if b in nxt:
-                raise ValueError("close_surface: a boundary vertex with two outgoing edges")
+                raise InputError("close_surface: a boundary vertex with two outgoing edges")
             nxt[b] = a                          # cap edge b -> a
     vertices, triangles = list(vertices), list(triangles)
     holes = 0
@@ -266,7 +268,7 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     """
     data = data or load_tongue_data(config.tongue.level)
     if config.tongue.level != 0:
-        raise ValueError("jaw_tongue: the attachment files index level-0 nodes")
+        raise InputError("jaw_tongue: the attachment files index level-0 nodes")
     jaw_rows, hyoid_rows = jaw_attachment_rows(), hyoid_attachment_rows()
     tongue = Tongue(config.tongue, data=replace(data, fixed_nodes=np.unique(hyoid_rows)))
     nodes = data.mesh.points[jaw_rows]
@@ -293,7 +295,7 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     elif config.joint == "welded":
         joint = FixedJoint.at_world(jaw, None, hinge, name="TMJ welded")
     else:
-        raise ValueError(f"jaw_tongue: joint must be 'hinge' or 'welded', got {config.joint!r}")
+        raise InputError(f"jaw_tongue: joint must be 'hinge' or 'welded', got {config.joint!r}")
     scene.add(joint)
     # chin: the most anterior (min x) jaw vertex near the midline; opener origin below the hyoid.
     mid = vertices[np.abs(vertices[:, 1]) < 0.005]
@@ -408,8 +410,8 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--motion", default="protrusion", choices=sorted(MOTIONS) + ["none"])
-    parser.add_argument("--duration", type=float, default=0.6)
-    parser.add_argument("--dt", type=float, default=0.01)
+    parser.add_argument("--duration", type=positive_float, default=0.6)
+    parser.add_argument("--dt", type=positive_float, default=0.01)
 
 
 def run(args: argparse.Namespace) -> int:

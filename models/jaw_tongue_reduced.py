@@ -40,6 +40,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from artifem.arguments import positive_float, positive_int
+from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.models import jaw_tongue as jt
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME
@@ -240,9 +242,9 @@ def report(figures: dict) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS), choices=sorted(MOTIONS))
-    parser.add_argument("--duration", type=float, default=0.6)
-    parser.add_argument("--r", type=int, default=ReducedJawTongueConfig.r)
-    parser.add_argument("--points", type=int, default=ReducedJawTongueConfig.points)
+    parser.add_argument("--duration", type=positive_float, default=0.6)
+    parser.add_argument("--r", type=positive_int, default=ReducedJawTongueConfig.r)
+    parser.add_argument("--points", type=positive_int, default=ReducedJawTongueConfig.points)
     parser.add_argument("--cache", type=Path, default=None,
                         help="training cache (default OUT/cache)")
 
@@ -261,7 +263,7 @@ def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig |
     scene during protrusion with the full and with the reduced tongue (training cached in
     ``cache``, default ~/.cache/artifem/jaw_tongue_reduced)."""
     if steps < 1 or warmup < 0:
-        raise ValueError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
+        raise InputError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     config = config or ReducedJawTongueConfig()
     cache = cache or Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
     model = train(config, cache)

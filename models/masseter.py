@@ -93,6 +93,8 @@ from dolfinx import mesh as dmesh
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
+from artifem.arguments import fraction, positive_int
+from artifem.errors import InputError, SolverError
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.embedding.voxel_fem import VoxelFemBody
 from artifem.fem_body import FemBody
@@ -157,23 +159,23 @@ class MasseterConfig:
                      "bone_density", "dt"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"MasseterConfig: {name} must be > 0, got {value!r}")
+                raise InputError(f"MasseterConfig: {name} must be > 0, got {value!r}")
         if not 0.0 <= self.excitation <= 1.0:
-            raise ValueError(f"MasseterConfig: excitation must be in [0, 1], got "
+            raise InputError(f"MasseterConfig: excitation must be in [0, 1], got "
                              f"{self.excitation!r}")
         if self.jaw_strip is not None and not 0 < self.jaw_strip <= self.thickness:
-            raise ValueError(f"MasseterConfig: jaw_strip must be in (0, thickness] or None, got "
+            raise InputError(f"MasseterConfig: jaw_strip must be in (0, thickness] or None, got "
                              f"{self.jaw_strip!r}")
         if self.steps < 1 or self.fascicle_segments < 1 or min(self.fascicle_grid) < 1:
-            raise ValueError("MasseterConfig: steps, fascicle_segments and fascicle_grid must "
+            raise InputError("MasseterConfig: steps, fascicle_segments and fascicle_grid must "
                              "be >= 1")
         for t, r0, r1 in self.sheets:
             if not (-0.5 < t < 0.5 and 0.0 <= r0 < r1 <= 1.0):
-                raise ValueError(f"MasseterConfig: a sheet (t, r0, r1) needs -1/2 < t < 1/2 and "
+                raise InputError(f"MasseterConfig: a sheet (t, r0, r1) needs -1/2 < t < 1/2 and "
                                  f"0 <= r0 < r1 <= 1, got {(t, r0, r1)}")
         s0, s1 = self.sheet_span
         if not -0.5 < s0 < s1 < 0.5:
-            raise ValueError(f"MasseterConfig: sheet_span must satisfy -1/2 < s0 < s1 < 1/2, "
+            raise InputError(f"MasseterConfig: sheet_span must satisfy -1/2 < s0 < s1 < 1/2, "
                              f"got {self.sheet_span}")
 
 
@@ -243,13 +245,13 @@ def fiber_directions(points, lines) -> np.ndarray:
     """
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     if not lines:
-        raise ValueError("fiber_directions: no fascicles")
+        raise InputError("fiber_directions: no fascicles")
     a = np.concatenate([np.asarray(L, float)[:-1] for L in lines])
     b = np.concatenate([np.asarray(L, float)[1:] for L in lines])
     d = b - a
     length = np.linalg.norm(d, axis=1)
     if np.any(length <= 0):
-        raise ValueError("fiber_directions: a fascicle has a zero-length segment")
+        raise InputError("fiber_directions: a fascicle has a zero-length segment")
     tangent = d / length[:, None]
     tree = cKDTree(0.5 * (a + b))
     d0, _ = tree.query(P)
@@ -388,7 +390,7 @@ def block_mesh(config: MasseterConfig, slabs: bool) -> dict:
             types, _, nodes = gmsh.model.mesh.getElements(3, tag)
             for etype, enodes in zip(types, nodes):
                 if etype != 4:
-                    raise RuntimeError(f"block_mesh: gmsh made element type {etype}, not tets")
+                    raise SolverError(f"block_mesh: gmsh made element type {etype}, not tets")
                 cells = index[np.asarray(enodes, dtype=np.int64)].reshape(-1, 4)
                 tets.append(cells)
                 regions.append(np.full(len(cells), region[tag]))
@@ -469,7 +471,7 @@ def _attachment_nodes(config: MasseterConfig, body: FemBody):
                            & (np.abs(x[0] - c.lean) <= 0.5 * c.width_top + tol)
                            & (np.abs(x[1]) <= 0.5 * c.thickness + tol))
     if jaw.size == 0 or arch.size == 0:
-        raise ValueError(f"masseter: no nodes on the jaw strip ({jaw.size}) or the arch "
+        raise InputError(f"masseter: no nodes on the jaw strip ({jaw.size}) or the arch "
                          f"({arch.size}); refine the mesh")
     return arch, jaw
 
@@ -493,7 +495,7 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
             "slabs" (conforming tendon slabs; conforming primary only).
     """
     if (primary, aponeuroses) not in MODELS:
-        raise ValueError(f"masseter: unknown model ({primary!r}, {aponeuroses!r}); choose one "
+        raise InputError(f"masseter: unknown model ({primary!r}, {aponeuroses!r}); choose one "
                          f"of {MODELS}")
     c = config
     muscle = MooneyRivlin(c.muscle_c10, kappa=c.muscle_kappa)
@@ -599,7 +601,7 @@ def simulate(model: MasseterModel, *, excitation: float | None = None,
     a = c.excitation if excitation is None else excitation
     n = c.steps if steps is None else steps
     if not 0.0 <= a <= 1.0:
-        raise ValueError(f"masseter: excitation must be in [0, 1], got {a!r}")
+        raise InputError(f"masseter: excitation must be in [0, 1], got {a!r}")
     times = []
     for k in range(1, n + 1):
         model.primary.set_excitation("masseter", a * k / n)
@@ -701,8 +703,8 @@ def _wedge_grid(body: FemBody):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--excitation", type=float, default=MasseterConfig.excitation)
-    parser.add_argument("--steps", type=int, default=MasseterConfig.steps,
+    parser.add_argument("--excitation", type=fraction, default=MasseterConfig.excitation)
+    parser.add_argument("--steps", type=positive_int, default=MasseterConfig.steps,
                         help="timed coupled steps (excitation ramp) before the statics")
     parser.add_argument("--coarse", action="store_true",
                         help="5 mm voxels and tets (the test setting): quick")

@@ -24,6 +24,7 @@ from mpi4py import MPI
 
 from dolfinx import mesh as dmesh
 
+from artifem.arguments import fraction, positive_float, positive_int
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
 from artifem.linear_solver import DEFAULT_METHOD
@@ -65,10 +66,10 @@ def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[System, FemBody
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
-    parser.add_argument("--cells", type=int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ"))
-    parser.add_argument("--excitation", type=float, default=1.0)
-    parser.add_argument("--dt", type=float, default=0.01)
-    parser.add_argument("--duration", type=float, default=1.0)
+    parser.add_argument("--cells", type=positive_int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ"))
+    parser.add_argument("--excitation", type=fraction, default=1.0)
+    parser.add_argument("--dt", type=positive_float, default=0.01)
+    parser.add_argument("--duration", type=positive_float, default=1.0)
     parser.add_argument("--no-progress", action="store_true")
 
 

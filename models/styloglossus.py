@@ -77,6 +77,8 @@ from mpi4py import MPI
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
+from artifem.arguments import nonnegative_float, positive_float, positive_int
+from artifem.errors import InputError
 from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.coupled import CoupledSystem, FemPoint, PointPath
 from artifem.multibody.muscles import PathForces, PathGeometry, ThelenMuscle, ThelenParameters
@@ -112,7 +114,7 @@ class PrescribedTension:
 
     def __init__(self, max_force: float):
         if not np.isfinite(max_force) or max_force < 0:
-            raise ValueError(f"PrescribedTension: max_force must be finite and >= 0, got "
+            raise InputError(f"PrescribedTension: max_force must be finite and >= 0, got "
                              f"{max_force!r}")
         self.max_force, self.excitation = float(max_force), 0.0
 
@@ -206,10 +208,10 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
     by the prescribed tension T = ``tension`` e(t) (``load="tension"``), on the full tongue or
     on ``reduced``. Returns the figures and, under "_" keys, the body and the stress."""
     if load not in ("thelen", "tension"):
-        raise ValueError(f"styloglossus: load must be 'thelen' or 'tension', got {load!r}")
+        raise InputError(f"styloglossus: load must be 'thelen' or 'tension', got {load!r}")
     unknown = set(sides) - set(STYLOID)
     if unknown or not sides:
-        raise ValueError(f"styloglossus: sides must be among {sorted(STYLOID)}, got {sides!r}")
+        raise InputError(f"styloglossus: sides must be among {sorted(STYLOID)}, got {sides!r}")
     tongue = Tongue(config, comm=MPI.COMM_SELF, data=data)
     body = tongue.body
     master = body if reduced is None else ReducedFemBody(body, reduced.U, reduced.points,
@@ -438,12 +440,12 @@ def render_panels(png, rows, *, vmax: float | None = None):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--duration", type=float, default=DURATION)
-    parser.add_argument("--tension", type=float, default=TENSION,
+    parser.add_argument("--duration", type=positive_float, default=DURATION)
+    parser.add_argument("--tension", type=nonnegative_float, default=TENSION,
                         help="equal-tension runs: prescribed tension per side (N)")
     parser.add_argument("--no-reduced", action="store_true", help="skip the reduced tongue")
-    parser.add_argument("--r", type=int, default=ReducedConfig.r, help="POD vectors")
-    parser.add_argument("--points", type=int, default=ReducedConfig.points,
+    parser.add_argument("--r", type=positive_int, default=ReducedConfig.r, help="POD vectors")
+    parser.add_argument("--points", type=positive_int, default=ReducedConfig.points,
                         help="trained integration points")
     parser.add_argument("--cache", type=Path, default=None,
                         help="training cache (default OUT/cache)")

@@ -17,7 +17,8 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.fem_body import ElementInversionError, FemBody
+from artifem.errors import ElementInversionError
+from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, LinearElastic, NeoHookean
 from artifem.system import System
 

@@ -8,7 +8,8 @@ import pyvista as pv
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.embedding import EmbeddedMesh, OutsideMeshError
+from artifem.errors import OutsideMeshError
+from artifem.embedding import EmbeddedMesh
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.reduction.reduced_body import ReducedFemBody, all_points

@@ -18,7 +18,8 @@ from artifem.io import mesh_info
 from artifem.io.ansys import read_ansys
 from artifem.io.mesh_checks import (check_orientation, degenerate_elements, element_jacobians,
                                     volume)
-from artifem.io.mesh_data import MeshData, MeshError
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData
 from artifem.io.readers import read_mesh
 from artifem.io.results import ResultWriter
 from artifem.io.to_dolfinx import (dolfinx_cell_ids, dolfinx_node_ids, dolfinx_node_to_input,
@@ -120,6 +121,35 @@ def test_malformed_ansys(tmp_path, nodes, elems, message):
     node_path = write_ansys(tmp_path, nodes, elems, name="bad")
     with pytest.raises(MeshError, match=message):
         read_ansys(node_path)
+
+
+def test_ansys_non_solid_elements_are_skipped_and_counted(tmp_path, capsys):
+    """Shells, links and mass elements pad their unused node slots with id 0 (ANSYS EWRITE):
+    the hexahedron is read, the others are counted by kind, and the mesh converts."""
+    elems = (elem_line([1, 2, 3, 4, 0, 0, 0, 0], eid=5)          # SHELL181 on the bottom face
+             + elem_line(range(1, 9), eid=6)
+             + elem_line([1, 8, 0, 0, 0, 0, 0, 0], eid=7)          # LINK180
+             + elem_line([5, 6, 7, 8, 0, 0, 0, 0], eid=8)
+             + elem_line([3, 0, 0, 0, 0, 0, 0, 0], eid=9))         # MASS21
+    node_path = write_ansys(tmp_path, UNIT_NODES, elems, name="mixed")
+    for mesh in (read_ansys(node_path), read_mesh(node_path.with_suffix(".elem"))):
+        assert mesh.cells.shape == (1, 8) and list(mesh.cell_ids) == [6]
+        assert mesh.skipped_cells == {"quad (shell or surface)": 2, "line (link or beam)": 1,
+                                      "vertex (mass element)": 1}
+        assert mesh.skipped_volume_cells == {}
+    msh, _ = to_dolfinx(read_ansys(node_path), MPI.COMM_SELF)
+    assert dolfinx_volume(msh) == pytest.approx(volume(read_ansys(node_path)), rel=1e-12)
+    assert mesh_info.run(argparse.Namespace(paths=[str(node_path)], json=False)) == 0
+    assert "skipped cells  2 quad (shell or surface), 1 line (link or beam), 1 vertex" \
+        in capsys.readouterr().out
+    # padding still names nodes that do not exist, and a file of shells alone has no solid
+    bad = write_ansys(tmp_path, UNIT_NODES, elem_line([1, 2, 99, 0, 0, 0, 0, 0], eid=3), "bad")
+    with pytest.raises(MeshError, match=r"bad\.elem:1: element 3 references node id\(s\) 99"):
+        read_ansys(bad)
+    shells = write_ansys(tmp_path, UNIT_NODES, elem_line([1, 2, 3, 4, 0, 0, 0, 0]), "shells")
+    with pytest.raises(MeshError, match=r"no solid \(8-node\) elements found; only non-solid "
+                                        r"ones: 1 quad"):
+        read_ansys(shells)
 
 
 @pytest.mark.parametrize("nodes, collapse", [

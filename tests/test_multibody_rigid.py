@@ -21,7 +21,8 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.multibody.joints import (FixedJoint, PlanarJoint, RevoluteJoint, SliderJoint,
                                       SphericalJoint, axis_rotation)
 from artifem.multibody.rigid_body import BodyState, Frame, MassProperties, RigidBody, exp_so3
-from artifem.multibody.rigid_system import RigidStepFailed, RigidSystem, point_force_wrenches
+from artifem.errors import RigidStepFailed
+from artifem.multibody.rigid_system import RigidSystem, point_force_wrenches
 
 G = 9.81
 GRAVITY = (0.0, 0.0, -G)

@@ -18,7 +18,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from dolfinx import fem
 from mpi4py import MPI
 
-from artifem.fem_body import ElementInversionError
+from artifem.errors import ElementInversionError
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points

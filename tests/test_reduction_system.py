@@ -20,9 +20,10 @@ from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
 from artifem.excitation import ExcitationSchedule
-from artifem.fem_body import ElementInversionError, FemBody
+from artifem.errors import ElementInversionError, StepFailed
+from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.integrators import ImplicitEuler, StepFailed, solve_static_reduced
+from artifem.integrators import ImplicitEuler, solve_static_reduced
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.system import System

@@ -45,7 +45,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
 from artifem.excitation import ExcitationSchedule
-from artifem.fem_body import ElementInversionError
+from artifem.errors import ElementInversionError
 from artifem.models.tongue.hard_cases import CASES, build_case
 from artifem.models.tongue.model import DURATION, Tongue, TongueConfig
 from artifem.reduction.bases import body_mass, extended_modes, linear_modes, pod_basis

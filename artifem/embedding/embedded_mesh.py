@@ -58,21 +58,11 @@ import numpy as np
 from dolfinx import fem, geometry, la
 from scipy import sparse
 
+from artifem.errors import InputError, OutsideMeshError
+
 __all__ = ["EmbeddedMesh", "locate_points", "PointLocation", "OutsideMeshError"]
 
 CELL_TYPES = {"vertex": 1, "line": 2, "triangle": 3}
-
-
-class OutsideMeshError(ValueError):
-    """Embedded points lie outside the body (and ``snap`` was not requested)."""
-
-    def __init__(self, name: str, outside: np.ndarray, distance: np.ndarray):
-        self.outside, self.distance = outside, distance
-        worst = int(outside[np.argmax(distance[outside])])
-        super().__init__(
-            f"{outside.size} embedded point(s) lie outside FEM body {name!r}; the worst is "
-            f"point {worst} at distance {distance[worst]:.4g}; pass snap=True to move them to "
-            f"the closest point of the nearest element")
 
 
 class PointLocation:
@@ -290,23 +280,23 @@ class EmbeddedMesh:
     def __init__(self, body, points, cells=None, cell_type: str = "vertex", *,
                  snap: bool = False, tol: float = 1e-10, name: str = "embedded"):
         if cell_type not in CELL_TYPES:
-            raise ValueError(f"EmbeddedMesh {name!r}: cell_type must be one of "
+            raise InputError(f"EmbeddedMesh {name!r}: cell_type must be one of "
                              f"{sorted(CELL_TYPES)}, got {cell_type!r}")
         points = np.asarray(points, dtype=float)
         if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
-            raise ValueError(f"EmbeddedMesh {name!r}: points must have shape (p, 3), p >= 1, "
+            raise InputError(f"EmbeddedMesh {name!r}: points must have shape (p, 3), p >= 1, "
                              f"got {points.shape}")
         k = CELL_TYPES[cell_type]
         if cells is None:
             cells = np.arange(points.shape[0]).reshape(-1, 1) if k == 1 else None
             if cells is None:
-                raise ValueError(f"EmbeddedMesh {name!r}: a {cell_type} mesh needs cells")
+                raise InputError(f"EmbeddedMesh {name!r}: a {cell_type} mesh needs cells")
         cells = np.asarray(cells, dtype=np.int64)
         if cells.ndim != 2 or cells.shape[1] != k:
-            raise ValueError(f"EmbeddedMesh {name!r}: {cell_type} cells must have shape "
+            raise InputError(f"EmbeddedMesh {name!r}: {cell_type} cells must have shape "
                              f"(c, {k}), got {cells.shape}")
         if cells.size and (cells.min() < 0 or cells.max() >= points.shape[0]):
-            raise ValueError(f"EmbeddedMesh {name!r}: cell vertex indices out of range "
+            raise InputError(f"EmbeddedMesh {name!r}: cell vertex indices out of range "
                              f"[0, {points.shape[0]})")
         self.name, self.body, self.cell_type, self.cells = name, body, cell_type, cells
         self.full, self.reduced = _full_body(body)
@@ -381,7 +371,7 @@ class EmbeddedMesh:
         reduced body."""
         f = np.asarray(f, dtype=float).reshape(-1)
         if f.size != 3 * self.num_points:
-            raise ValueError(f"EmbeddedMesh {self.name!r}: expected {self.num_points} x 3 "
+            raise InputError(f"EmbeddedMesh {self.name!r}: expected {self.num_points} x 3 "
                              f"forces, got {f.size} values")
         if self.reduced is not None:
             return self.G_reduced.T @ f

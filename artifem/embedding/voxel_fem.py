@@ -52,6 +52,7 @@ import numpy as np
 from dolfinx import fem, mesh as dmesh
 from mpi4py import MPI
 
+from artifem.errors import InputError
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.fem_body import FemBody
 
@@ -63,10 +64,10 @@ def _check_surface(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
     V = np.asarray(vertices, dtype=float)
     T = np.asarray(triangles, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or T.ndim != 2 or T.shape[1] != 3 or T.size == 0:
-        raise ValueError(f"a surface needs vertices (n, 3) and triangles (m, 3), got "
+        raise InputError(f"a surface needs vertices (n, 3) and triangles (m, 3), got "
                          f"{V.shape} and {T.shape}")
     if T.min() < 0 or T.max() >= V.shape[0]:
-        raise ValueError("triangle vertex indices out of range")
+        raise InputError("triangle vertex indices out of range")
     return V, T
 
 
@@ -149,25 +150,25 @@ def voxelize(vertices, triangles, divisions=None, *, cell_size: float | None = N
     """
     V, T = _check_surface(vertices, triangles)
     if inside not in ("vtk", "winding"):
-        raise ValueError(f"voxelize: inside must be 'vtk' or 'winding', got {inside!r}")
+        raise InputError(f"voxelize: inside must be 'vtk' or 'winding', got {inside!r}")
     if enclosed_volume(V, T) < 0:
         T = T[:, ::-1]
     lo, hi = (V.min(axis=0), V.max(axis=0)) if bounds is None else \
         (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
     if (divisions is None) == (cell_size is None):
-        raise ValueError("voxelize: give exactly one of divisions and cell_size")
+        raise InputError("voxelize: give exactly one of divisions and cell_size")
     if divisions is None:
         if not cell_size > 0:
-            raise ValueError(f"voxelize: cell_size must be > 0, got {cell_size}")
+            raise InputError(f"voxelize: cell_size must be > 0, got {cell_size}")
         n = np.maximum(np.ceil((hi - lo) / cell_size - 1e-9).astype(int), 1)
         h = np.full(3, float(cell_size))
     else:
         n = np.asarray(divisions, dtype=int).reshape(3)
         if np.any(n < 1):
-            raise ValueError(f"voxelize: divisions must be >= 1, got {n.tolist()}")
+            raise InputError(f"voxelize: divisions must be >= 1, got {n.tolist()}")
         h = (hi - lo) / n
     if samples < 1:
-        raise ValueError(f"voxelize: samples must be >= 1, got {samples}")
+        raise InputError(f"voxelize: samples must be >= 1, got {samples}")
     import pyvista as pv
 
     ijk = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij"), -1).reshape(-1, 3)

@@ -6,6 +6,11 @@
 The MAT column becomes ``MeshData.cell_tags``.  The node order I..P is the
 SOLID185 order, which equals the VTK hexahedron order that MeshData stores.
 Blank lines and lines starting with ``!`` or ``#`` are ignored.
+
+Non-solid elements (shells, links, beams, surface and mass elements) share the
+file: ANSYS writes their unused node slots as id 0, which no node has. They are
+skipped and counted in ``MeshData.skipped_cells`` by their number of nodes (1:
+vertex, 2: line, 3: triangle, 4: quad); the solids are read.
 """
 
 from __future__ import annotations
@@ -15,11 +20,15 @@ from pathlib import Path
 import numpy as np
 
 from artifem.io.mesh_checks import reject_degenerate
-from artifem.io.mesh_data import MeshData, MeshError, require_file
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData, require_file
 
 #: Columns of an .elem line: 8 node ids, MAT, TYPE, REAL, SECNUM, ESYS, element id.
 ELEM_COLUMNS = 14
 MATERIAL_COLUMN = 8
+#: Kind of a zero-padded (non-solid) element by its number of distinct nodes.
+PADDED_KIND = {1: "vertex (mass element)", 2: "line (link or beam)",
+               3: "triangle (shell)", 4: "quad (shell or surface)"}
 
 
 def _data_lines(path: Path):
@@ -71,6 +80,7 @@ def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
     ``elem_path`` defaults to ``node_path`` with the suffix ``.elem``.  Hexahedra
     with repeated node ids (collapsed to wedges, pyramids or tetrahedra) are
     rejected with their element ids unless ``allow_degenerate`` is true.
+    Zero-padded (non-solid) elements are skipped and counted in ``skipped_cells``.
     """
     node_path = Path(node_path)
     elem_path = Path(elem_path) if elem_path is not None else node_path.with_suffix(".elem")
@@ -79,7 +89,7 @@ def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
     node_ids, points = read_ansys_nodes(node_path)
     row_of_node = {int(i): row for row, i in enumerate(node_ids)}
 
-    cells, cell_ids, tags, line_of_elem = [], [], [], {}
+    cells, cell_ids, tags, line_of_elem, skipped = [], [], [], {}, {}
     for lineno, fields in _data_lines(elem_path):
         if len(fields) != ELEM_COLUMNS:
             raise MeshError(
@@ -93,21 +103,29 @@ def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
             raise MeshError(f"{elem_path}:{lineno}: element id {elem_id} already defined "
                             f"at line {line_of_elem[elem_id]}")
         line_of_elem[elem_id] = lineno
-        missing = [n for n in values[:8] if n not in row_of_node]
+        nodes = [n for n in values[:8] if n != 0]          # 0 pads a non-solid element
+        missing = [n for n in nodes if n not in row_of_node]
         if missing:
             raise MeshError(
                 f"{elem_path}:{lineno}: element {elem_id} references node id(s) "
                 f"{', '.join(map(str, missing))} not defined in {node_path}")
+        if len(nodes) < 8:
+            kind = PADDED_KIND.get(len(set(nodes)), f"zero-padded {len(set(nodes))}-node element")
+            skipped[kind] = skipped.get(kind, 0) + 1
+            continue
         cells.append([row_of_node[n] for n in values[:8]])
         cell_ids.append(elem_id)
         tags.append(values[MATERIAL_COLUMN])
     if not cells:
-        raise MeshError(f"{elem_path}: no elements found")
+        others = ", ".join(f"{n} {t}" for t, n in skipped.items())
+        raise MeshError(f"{elem_path}: no solid (8-node) elements found"
+                        + (f"; only non-solid ones: {others}" if others else ""))
 
     mesh = MeshData(points=points, cell_type="hexahedron",
                     cells=np.array(cells, dtype=np.int64), node_ids=node_ids,
                     cell_ids=np.array(cell_ids, dtype=np.int64),
-                    cell_tags=np.array(tags, dtype=np.int32), source=str(elem_path))
+                    cell_tags=np.array(tags, dtype=np.int32), source=str(elem_path),
+                    skipped_cells=skipped)
     if not allow_degenerate:
         reject_degenerate(mesh)
     return mesh

@@ -11,7 +11,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from artifem.io.mesh_data import MeshData, MeshError
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData
 
 # VTK hexahedron vertex of each reference corner (a, b, c) in {0,1}^3.
 _HEX_VTK_AT = {(0, 0, 0): 0, (1, 0, 0): 1, (1, 1, 0): 2, (0, 1, 0): 3,

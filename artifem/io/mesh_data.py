@@ -14,16 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.errors import MeshError, MeshFileNotFoundError
+
 #: Volume cell types MeshData can hold, with their number of vertices.
 VERTICES_PER_CELL = {"hexahedron": 8, "tetrahedron": 4}
-
-
-class MeshError(ValueError):
-    """A mesh file or mesh that cannot be used; the message says what and where."""
-
-
-class MeshFileNotFoundError(MeshError, FileNotFoundError):
-    """A mesh file that does not exist (both a MeshError and a FileNotFoundError)."""
 
 
 def require_file(path: str | Path, what: str = "mesh file") -> Path:

@@ -12,7 +12,8 @@ import numpy as np
 
 from artifem.io.mesh_checks import (classify_orientation, corner_jacobians,
                                     degenerate_elements, volume)
-from artifem.io.mesh_data import MeshData, MeshError
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData
 from artifem.io.readers import read_mesh
 
 _ID_LIST_LIMIT = 50

@@ -20,7 +20,8 @@ import numpy as np
 
 from artifem.io.ansys import read_ansys
 from artifem.io.mesh_checks import reject_degenerate
-from artifem.io.mesh_data import MeshData, MeshError, require_file
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData, require_file
 
 _MESHIO_TO_CELL_TYPE = {"hexahedron": "hexahedron", "tetra": "tetrahedron"}
 _TAG_KEYS = ("gmsh:physical", "medit:ref", "CellEntityIds", "cell_tags", "material")

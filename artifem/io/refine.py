@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from artifem.io.mesh_data import MeshData, MeshError
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData
 
 # VTK hexahedron corner at reference position (a, b, c) in {0, 1}^3, and back.
 _VTK_AT = {(0, 0, 0): 0, (1, 0, 0): 1, (1, 1, 0): 2, (0, 1, 0): 3,

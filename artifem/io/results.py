@@ -14,6 +14,8 @@ import dolfinx.common
 import dolfinx.io
 from dolfinx import fem
 
+from artifem.errors import InputError
+
 
 class ResultWriter:
     """Write one or more Functions of one mesh at successive times.
@@ -28,7 +30,7 @@ class ResultWriter:
                  engine: str = "BP4"):
         self.functions = [functions] if isinstance(functions, fem.Function) else list(functions)
         if not self.functions:
-            raise ValueError("ResultWriter needs at least one Function to write")
+            raise InputError("ResultWriter needs at least one Function to write")
         msh = self.functions[0].function_space.mesh
         self.comm = msh.comm
         self.use_vtx = dolfinx.common.has_adios2

@@ -18,7 +18,8 @@ import numpy as np
 from mpi4py import MPI
 
 from artifem.io.mesh_checks import check_orientation, reject_degenerate
-from artifem.io.mesh_data import MeshData, MeshError
+from artifem.errors import MeshError
+from artifem.io.mesh_data import MeshData
 
 #: Column permutation from VTK node order to DOLFINx/basix node order, per cell type.
 VTK_TO_DOLFINX = {"hexahedron": np.array([0, 1, 3, 2, 4, 5, 7, 6]),

@@ -160,6 +160,7 @@ import numpy as np
 from petsc4py import PETSc
 from scipy import sparse
 
+from artifem.errors import CoupledStepFailed, InputError, UnknownNameError
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.fem_body import FemBody
 from artifem.multibody.frame_attachments import FemFrame
@@ -174,10 +175,6 @@ from artifem.reduction.rigid_lift import RigidLift
 __all__ = ["CoupledStepFailed", "CoupledSystem", "EmbeddedFemAttachment", "FemPoint",
            "FrameAttachment", "LiftAttachment", "LoadElement", "NodeAttachment", "PointPath",
            "RigidAttachment"]
-
-
-class CoupledStepFailed(RuntimeError):
-    """The coupled step's linear system is singular or its solution non-finite."""
 
 
 def _skews(d: np.ndarray) -> np.ndarray:
@@ -220,14 +217,14 @@ class NodeAttachment:
             raise NotImplementedError(f"{what}: coupled scenes run in serial only for now")
         nodes = np.asarray(nodes)
         if nodes.size == 0 or not np.issubdtype(nodes.dtype, np.integer):
-            raise ValueError(f"{what}: nodes must be a non-empty array of integer node indices")
+            raise InputError(f"{what}: nodes must be a non-empty array of integer node indices")
         try:
             nodes = fem._check_nodes(nodes, what)
         except ValueError as exc:
-            raise ValueError(f"{what}: unknown nodes: {exc}") from None
+            raise InputError(f"{what}: unknown nodes: {exc}") from None
         unique, counts = np.unique(nodes, return_counts=True)
         if np.any(counts > 1):
-            raise ValueError(f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed "
+            raise InputError(f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed "
                              "more than once")
         self.fem, self.body, self.nodes = fem, body, nodes
         self.dofs = fem.local_dofs(nodes).astype(np.int64)
@@ -287,10 +284,10 @@ class RigidAttachment:
                                 f"{type(b).__name__}")
         self.name = name or f"{slave.name}->{master.name}"
         if slave is master:
-            raise ValueError(f"rigid attachment {self.name!r}: a body cannot be attached to "
+            raise InputError(f"rigid attachment {self.name!r}: a body cannot be attached to "
                              "itself (an attachment cycle)")
         if slave.motion != "dynamic":
-            raise ValueError(f"rigid attachment {self.name!r}: the slave {slave.name!r} is "
+            raise InputError(f"rigid attachment {self.name!r}: the slave {slave.name!r} is "
                              f"{slave.motion}; only a dynamic body can follow another")
         self.slave, self.master = slave, master
         self.offset = master.rotation.T @ (slave.position - master.position)
@@ -335,7 +332,7 @@ class FrameAttachment:
             raise TypeError(f"FrameAttachment: expected a FemFrame, got {type(frame).__name__}")
         self.name = name or f"{slave.name}->{frame.body.name}"
         if slave.motion != "dynamic":
-            raise ValueError(f"frame attachment {self.name!r}: the slave {slave.name!r} is "
+            raise InputError(f"frame attachment {self.name!r}: the slave {slave.name!r} is "
                              f"{slave.motion}; only a dynamic body can follow a frame")
         if frame.full.mesh.comm.size != 1:
             raise NotImplementedError(f"frame attachment {self.name!r}: coupled scenes run in "
@@ -412,7 +409,7 @@ class EmbeddedFemAttachment:
                                 f"{type(b).__name__}")
         self.name = name or f"{slave.name}->{master.name}"
         if slave is master:
-            raise ValueError(f"embedded attachment {self.name!r}: a body cannot be embedded "
+            raise InputError(f"embedded attachment {self.name!r}: a body cannot be embedded "
                              "in itself (an attachment cycle)")
         for b in (slave, master):
             if b.mesh.comm.size != 1:
@@ -467,18 +464,18 @@ class LiftAttachment:
         what = f"lift attachment {self.name!r}"
         U, L = reduced.U, lift.columns
         if U.shape[0] != L.shape[0]:
-            raise ValueError(f"{what}: the lift has {L.shape[0]} rows, the basis {U.shape[0]}")
+            raise InputError(f"{what}: the lift has {L.shape[0]} rows, the basis {U.shape[0]}")
         scale = float(np.abs(L).max())
         match = [k for k in range(U.shape[1] - 11)
                  if np.abs(U[:, k:k + 12] - L).max() <= 1e-12 * scale]
         if not match:
-            raise ValueError(f"{what}: the basis of {reduced.name!r} does not contain the "
+            raise InputError(f"{what}: the basis of {reduced.name!r} does not contain the "
                              "lift's 12 columns")
         self.first = match[0]
         rows = (3 * lift.dofs[:, None] + np.arange(3)).ravel()
         others = np.delete(U[rows], np.s_[self.first:self.first + 12], axis=1)
         if others.size and np.abs(others).max() > 1e-9 * max(1.0, float(np.abs(U).max())):
-            raise ValueError(f"{what}: basis columns other than the lift move the carried "
+            raise InputError(f"{what}: basis columns other than the lift move the carried "
                              f"nodes (up to {np.abs(others).max():.3g}); they would not "
                              "follow the body")
         self.reduced, self.lift, self.body = reduced, lift, body
@@ -538,7 +535,7 @@ class FemPoint:
         full = fem.full if isinstance(fem, ReducedFemBody) else fem
         n = full.V.dofmap.index_map.size_local + full.V.dofmap.index_map.num_ghosts
         if weights.dofs.min() < 0 or weights.dofs.max() >= n:
-            raise ValueError(f"FemPoint {name!r}: support dofs outside FEM body {fem.name!r}")
+            raise InputError(f"FemPoint {name!r}: support dofs outside FEM body {fem.name!r}")
         self.fem, self.weights, self.name = fem, weights, name or f"point on {fem.name}"
         if isinstance(fem, ReducedFemBody):
             rows = (3 * weights.dofs[:, None] + np.arange(3)).ravel()
@@ -582,11 +579,11 @@ class PointPath:
             else:
                 x = np.asarray(p, dtype=float)
                 if x.shape != (3,) or not np.all(np.isfinite(x)):
-                    raise ValueError(f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
+                    raise InputError(f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
                                      f"finite numbers (a fixed world point), got {p!r}")
                 pts.append(Frame(None, x))
         if len(pts) < 2:
-            raise ValueError(f"PointPath {name!r}: a path needs at least two points, "
+            raise InputError(f"PointPath {name!r}: a path needs at least two points, "
                              f"got {len(pts)}")
         self.element, self.points, self.name = element, pts, name
         self._timed = TimedPath(element, excitation, f"PointPath {name!r}")
@@ -644,9 +641,9 @@ class CoupledSystem:
                  geometric_stiffness: bool = True):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"gravity must be 3 finite numbers, got {gravity!r}")
+            raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
         if not 0.0 <= stabilization <= 1.0:
-            raise ValueError(f"stabilization must be in [0, 1], got {stabilization!r}")
+            raise InputError(f"stabilization must be in [0, 1], got {stabilization!r}")
         self._gravity = g
         self.stabilization = float(stabilization)
         self.geometric_stiffness = bool(geometric_stiffness)
@@ -679,7 +676,7 @@ class CoupledSystem:
     def gravity(self, value) -> None:
         g = np.asarray(value, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"gravity must be 3 finite numbers, got {value!r}")
+            raise InputError(f"gravity must be 3 finite numbers, got {value!r}")
         self._gravity = g.copy()
         for body in self._full_bodies():
             body.gravity.value[:] = g
@@ -704,17 +701,17 @@ class CoupledSystem:
                     raise NotImplementedError(f"FEM body {item.name!r}: coupled scenes run in "
                                               "serial only for now")
                 if any(item is b for b in self.fem_bodies):
-                    raise ValueError(f"FEM body {item.name!r} is already in the scene")
+                    raise InputError(f"FEM body {item.name!r} is already in the scene")
                 item.gravity.value[:] = self.gravity
                 self.fem_bodies.append(item)
             elif isinstance(item, ReducedFemBody):
                 if any(item is b for b in self.reduced_bodies):
-                    raise ValueError(f"reduced body {item.name!r} is already in the scene")
+                    raise InputError(f"reduced body {item.name!r} is already in the scene")
                 item.full.gravity.value[:] = self.gravity
                 self.reduced_bodies.append(item)
             elif isinstance(item, RigidBody):
                 if any(item is b for b in self.rigid_bodies):
-                    raise ValueError(f"rigid body {item.name!r} is already in the scene")
+                    raise InputError(f"rigid body {item.name!r} is already in the scene")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.rigid_bodies.append(item)
@@ -728,14 +725,14 @@ class CoupledSystem:
                            Joint: self.joints, PointPath: self.paths}
                 group = next(g for kind, g in members.items() if isinstance(item, kind))
                 if any(item is other for other in group):
-                    raise ValueError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
+                    raise InputError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
                                      f"already in the scene")
                 group.append(item)
             elif isinstance(item, ForceElement):
                 self.forces.append(item)
             elif LoadElement.is_load(item):
                 if any(item is other for other in self.loads):
-                    raise ValueError(f"load element {item!r} is already in the scene")
+                    raise InputError(f"load element {item!r} is already in the scene")
                 self.loads.append(item)
             else:
                 raise TypeError(f"cannot add {type(item).__name__} to a CoupledSystem: expected "
@@ -811,7 +808,7 @@ class CoupledSystem:
         """The wrenches the joint applied to its bodies A and B over the last step
         (G_A^T lambda / h, G_B^T lambda / h, rows at the start of the step)."""
         if not any(joint is j for j in self.joints):
-            raise KeyError(f"joint {joint.name!r} is not in the scene")
+            raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
         return (sum((rows.G_a.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h,
                 sum((rows.G_b.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h)
@@ -839,7 +836,7 @@ class CoupledSystem:
     def _step_system(self, h: float):
         """(layout, P, z_k, prescribed targets, A_m, b_m) of the step from t to t + h."""
         if not (np.isfinite(h) and h > 0):
-            raise ValueError(f"time step must be positive and finite, got {h!r}")
+            raise InputError(f"time step must be positive and finite, got {h!r}")
         L = self._ready()
         t1 = self.t + h
         targets = L.kinematic_targets(t1)               # prescribed poses and twists at t1
@@ -1178,19 +1175,19 @@ class _Layout:
         for att in scene.node_attachments:
             what = f"node attachment {att.name!r}"
             if id(att.fem) not in fem_ids:
-                raise ValueError(f"{what}: FEM body {att.fem.name!r} is not in the scene")
+                raise InputError(f"{what}: FEM body {att.fem.name!r} is not in the scene")
             if id(att.body) not in rigid_ids:
-                raise ValueError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+                raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
             fixed = np.intersect1d(att.dofs, att.fem.fixed_dofs)
             if fixed.size:
                 inverse = {d: n for n, d in att.fem._node_to_dof.items()}
-                raise ValueError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
+                raise InputError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
                                  f"{att.fem.name!r} are fixed; a node is either fixed or "
                                  "attached")
             for node in att.nodes.tolist():
                 key = (id(att.fem), node)
                 if key in attached:
-                    raise ValueError(f"node {node} of FEM body {att.fem.name!r} is attached "
+                    raise InputError(f"node {node} of FEM body {att.fem.name!r} is attached "
                                      f"twice: by {attached[key]!r} and by {att.name!r}")
                 attached[key] = att.name
         slaves: dict[int, str] = {}
@@ -1198,11 +1195,11 @@ class _Layout:
             what = f"rigid attachment {att.name!r}"
             for b in (att.slave, att.master):
                 if id(b) not in rigid_ids:
-                    raise ValueError(f"{what}: rigid body {b.name!r} is not in the scene")
+                    raise InputError(f"{what}: rigid body {b.name!r} is not in the scene")
             if att.slave.motion != "dynamic":
-                raise ValueError(f"{what}: the slave {att.slave.name!r} is {att.slave.motion}")
+                raise InputError(f"{what}: the slave {att.slave.name!r} is {att.slave.motion}")
             if id(att.slave) in slaves:
-                raise ValueError(f"rigid body {att.slave.name!r} is attached twice: by "
+                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
                                  f"{slaves[id(att.slave)]!r} and by {att.name!r}")
             slaves[id(att.slave)] = att.name
         # The offsets were taken when the attachment was made: if a body moved since (a
@@ -1212,7 +1209,7 @@ class _Layout:
             x = _dof_positions(att.fem)[att.dofs]
             gap = float(np.abs(x - att.positions()).max())
             if gap > 1e-9 * (1.0 + float(np.abs(att.offsets).max())):
-                raise ValueError(
+                raise InputError(
                     f"node attachment {att.name!r}: the nodes are up to {gap:.3g} from where the "
                     f"attachment puts them; {att.body.name!r} or {att.fem.name!r} moved after the "
                     "attachment was made (a prescribed body takes its trajectory's pose when "
@@ -1220,7 +1217,7 @@ class _Layout:
         for att in scene.rigid_attachments:
             gap = _pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
-                raise ValueError(
+                raise InputError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
                     f"the attachment gives it; a body moved after the attachment was made")
         embedded: dict[int, str] = {}
@@ -1228,15 +1225,15 @@ class _Layout:
             what = f"embedded attachment {att.name!r}"
             for b in (att.slave, att.master):
                 if id(b) not in fem_ids:
-                    raise ValueError(f"{what}: FEM body {b.name!r} is not in the scene")
+                    raise InputError(f"{what}: FEM body {b.name!r} is not in the scene")
             if att.slave.fixed_dofs.size:
-                raise ValueError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
+                raise InputError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
                                  "its nodes are either fixed or embedded")
             if any(a.fem is att.slave for a in scene.node_attachments):
-                raise ValueError(f"{what}: nodes of {att.slave.name!r} are also attached to a "
+                raise InputError(f"{what}: nodes of {att.slave.name!r} are also attached to a "
                                  "rigid body")
             if id(att.slave) in embedded:
-                raise ValueError(f"FEM body {att.slave.name!r} is embedded twice: by "
+                raise InputError(f"FEM body {att.slave.name!r} is embedded twice: by "
                                  f"{embedded[id(att.slave)]!r} and by {att.name!r}")
             embedded[id(att.slave)] = att.name
         reduced_ids = {id(b) for b in scene.reduced_bodies}
@@ -1244,52 +1241,52 @@ class _Layout:
         for att in scene.lift_attachments:
             what = f"lift attachment {att.name!r}"
             if id(att.reduced) not in reduced_ids:
-                raise ValueError(f"{what}: reduced body {att.reduced.name!r} is not in the scene")
+                raise InputError(f"{what}: reduced body {att.reduced.name!r} is not in the scene")
             if id(att.body) not in rigid_ids:
-                raise ValueError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+                raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
             for other in lifted.get(id(att.reduced), []):
                 if np.intersect1d(other.columns, att.columns).size:
-                    raise ValueError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
+                    raise InputError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
                                      f"are already driven by {other.name!r}")
             lifted.setdefault(id(att.reduced), []).append(att)
         framed: dict[int, str] = {}
         for att in scene.frame_attachments:
             what = f"frame attachment {att.name!r}"
             if id(att.slave) not in rigid_ids:
-                raise ValueError(f"{what}: rigid body {att.slave.name!r} is not in the scene")
+                raise InputError(f"{what}: rigid body {att.slave.name!r} is not in the scene")
             if id(att.frame.body) not in fem_ids | reduced_ids:
-                raise ValueError(f"{what}: FEM body {att.frame.body.name!r} is not in the scene")
+                raise InputError(f"{what}: FEM body {att.frame.body.name!r} is not in the scene")
             if id(att.slave) in framed or id(att.slave) in slaves:
-                raise ValueError(f"rigid body {att.slave.name!r} is attached twice: by "
+                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
                                  f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
                                  f"and by {att.name!r}")
             framed[id(att.slave)] = att.name
             gap = _pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
-                raise ValueError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
+                raise InputError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
                                  "frame gives it; a body moved after the attachment was made")
         carried = [(a.name, a.body) for a in scene.node_attachments + scene.lift_attachments] \
             + [(a.name, a.master) for a in scene.rigid_attachments]
         for name, body in carried:
             if id(body) in framed:
-                raise ValueError(f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
+                raise InputError(f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
                                  f"body ({framed[id(body)]!r}); attach to that FEM body instead")
         for body in scene.rigid_bodies:
             if body.massless and body.dynamic and id(body) not in framed.keys() | slaves.keys():
-                raise ValueError(f"rigid body {body.name!r} is massless (a marker) but attached "
+                raise InputError(f"rigid body {body.name!r} is massless (a marker) but attached "
                                  "to nothing: its step would be singular")
         for path in scene.paths:
             for pt in path.points:
                 if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids | reduced_ids:
-                    raise ValueError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
+                    raise InputError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
                                      "the scene")
                 if isinstance(pt, Frame) and pt.body is not None and id(pt.body) not in rigid_ids:
-                    raise ValueError(f"path {path.name!r}: rigid body {pt.body.name!r} is not in "
+                    raise InputError(f"path {path.name!r}: rigid body {pt.body.name!r} is not in "
                                      "the scene")
         for joint in scene.joints:
             for body in joint.bodies:
                 if body is not None and id(body) not in rigid_ids:
-                    raise ValueError(f"joint {joint.name!r} connects rigid body {body.name!r}, "
+                    raise InputError(f"joint {joint.name!r} connects rigid body {body.name!r}, "
                                      "which is not in the scene")
 
     # ---- per-step pieces ---------------------------------------------------------------
@@ -1467,11 +1464,11 @@ class _Layout:
                 elif isinstance(body, RigidBody) and id(body) in self.rigid_offset:
                     o, n = self.rigid_offset[id(body)], 6
                 else:
-                    raise ValueError(f"{what} loads {getattr(body, 'name', body)!r}, which is "
+                    raise InputError(f"{what} loads {getattr(body, 'name', body)!r}, which is "
                                      "not a body of this scene")
                 f = np.asarray(f, dtype=float).ravel()
                 if f.shape != (n,) or not np.all(np.isfinite(f)):
-                    raise ValueError(f"{what}: expected {n} finite values for "
+                    raise InputError(f"{what}: expected {n} finite values for "
                                      f"{body.name!r}, got shape {f.shape}")
                 F[o:o + n] += f
         return F
@@ -1749,7 +1746,7 @@ class _Layout:
     def displace(self, dq: np.ndarray) -> None:
         """Master displacement (static solve, finite differences); see displace_masters."""
         if dq.shape != (self.n_masters,):
-            raise ValueError(f"expected {self.n_masters} master displacements, got {dq.shape}")
+            raise InputError(f"expected {self.n_masters} master displacements, got {dq.shape}")
         for body, free in self.free_fem:
             o = self.fem_offset[id(body)]
             idx = np.searchsorted(self.master_rows, o + free)
@@ -1802,7 +1799,7 @@ def _chain(body, attachments, cycle: str) -> list:
     while id(chain[-1]) in master_of:
         b = master_of[id(chain[-1])]
         if any(b is c for c in chain):
-            raise ValueError(f"{cycle}: " + " -> ".join(c.name for c in chain + [b]))
+            raise InputError(f"{cycle}: " + " -> ".join(c.name for c in chain + [b]))
         chain.append(b)
     return chain
 
@@ -1820,10 +1817,10 @@ def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
     what = f"force element {type(element).__name__}"
     for b in (body, other or body):
         if not isinstance(b, RigidBody) or id(b) not in known:
-            raise ValueError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
+            raise InputError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
     array = np.asarray(array, dtype=float)
     if array.shape != shape or not np.all(np.isfinite(array)):
-        raise ValueError(f"{what}: expected a finite array of shape {shape} for body "
+        raise InputError(f"{what}: expected a finite array of shape {shape} for body "
                          f"{body.name!r}, got shape {array.shape}")
     return array
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 import basix
 import numpy as np
 
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.multibody.point_attachments import FemPointWeights, shape_function_weights
 
@@ -66,12 +67,12 @@ def polar_rotation(A: np.ndarray, planar: bool = False) -> tuple[np.ndarray, np.
     U, s, Vt = np.linalg.svd(A)
     if planar:
         if not s[1] > 1e-12 * s[0]:
-            raise ValueError(f"polar_rotation: singular values {s.tolist()}: the planar "
+            raise InputError(f"polar_rotation: singular values {s.tolist()}: the planar "
                              "support collapsed to a line; the frame's rotation is undefined")
         U[:, 2] *= np.linalg.det(U @ Vt)
         s[2] = 0.0
     elif not np.linalg.det(A) > 0:
-        raise ValueError(f"polar_rotation: det A = {np.linalg.det(A):.3g} <= 0 (inverted or "
+        raise InputError(f"polar_rotation: det A = {np.linalg.det(A):.3g} <= 0 (inverted or "
                          f"collapsed support): the frame's rotation is undefined")
     R = U @ Vt
     S = Vt.T @ np.diag(s) @ Vt
@@ -97,7 +98,7 @@ class FemFrame:
     def __init__(self, body, point=None, *, method: str = "polar", support=None,
                  support_weights=None, snap: bool = False):
         if method not in ("polar", "procrustes"):
-            raise ValueError(f"FemFrame: method must be 'polar' or 'procrustes', got {method!r}")
+            raise InputError(f"FemFrame: method must be 'polar' or 'procrustes', got {method!r}")
         full = getattr(body, "full", body)
         if not isinstance(full, FemBody):
             raise TypeError(f"FemFrame: expected a FemBody or ReducedFemBody, got "
@@ -108,30 +109,30 @@ class FemFrame:
         x = full.V.tabulate_dof_coordinates()
         if method == "polar" or point is not None:
             if point is None:
-                raise ValueError("FemFrame: a polar frame needs its origin point")
+                raise InputError("FemFrame: a polar frame needs its origin point")
             self.origin: FemPointWeights = shape_function_weights(full, point, snap=snap)
         if method == "polar":
             self.dofs = self.origin.dofs
             self.c = self._gradients(self.origin.rest_position)
         else:
             if support is None or len(support) < 3:
-                raise ValueError("FemFrame: a Procrustes frame needs at least 3 support nodes")
+                raise InputError("FemFrame: a Procrustes frame needs at least 3 support nodes")
             nodes = np.asarray(support, dtype=np.int64)
             self.dofs = full.local_dofs(nodes).astype(np.int64)
             if self.dofs.size != nodes.size:
-                raise ValueError(f"FemFrame: support nodes {nodes.tolist()[:10]} are not all "
+                raise InputError(f"FemFrame: support nodes {nodes.tolist()[:10]} are not all "
                                  f"nodes of FEM body {full.name!r}")
             m = np.ones(nodes.size) if support_weights is None else \
                 np.asarray(support_weights, dtype=float)
             if m.shape != nodes.shape or not np.all(m > 0):
-                raise ValueError(f"FemFrame: support_weights must be {nodes.size} positive "
+                raise InputError(f"FemFrame: support_weights must be {nodes.size} positive "
                                  f"numbers, got {support_weights!r}")
             X = x[self.dofs]
             centroid = m @ X / m.sum()
             self.c = m[:, None] * (X - centroid)
             s = np.linalg.svd(X.T @ self.c, compute_uv=False)
             if not s[1] > 1e-10 * s[0]:
-                raise ValueError(f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear: "
+                raise InputError(f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear: "
                                  f"no rotation can be fitted")
             self.planar = not s[2] > 1e-10 * s[0]
             if point is None:

@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from artifem.errors import InputError
 from artifem.multibody.rigid_body import Frame
 from artifem.multibody.rigid_system import point_force_wrenches
 
@@ -37,7 +38,7 @@ class TimedPath:
 
     def __init__(self, element, excitation: Callable[[float], float] | None, name: str):
         if excitation is not None and not hasattr(element, "set_excitation"):
-            raise ValueError(f"path {name!r}: {type(element).__name__} takes no excitation")
+            raise InputError(f"path {name!r}: {type(element).__name__} takes no excitation")
         self.element, self.excitation = element, excitation
         self._t = self._dt = self.result = None
 
@@ -65,7 +66,7 @@ class FramePath:
     def __init__(self, element, frames: Sequence[Frame], *,
                  excitation: Callable[[float], float] | None = None, name: str = "path"):
         if len(frames) < 2:
-            raise ValueError(f"FramePath {name!r}: a path needs at least two frames, "
+            raise InputError(f"FramePath {name!r}: a path needs at least two frames, "
                              f"got {len(frames)}")
         self.element, self.frames, self.name = element, list(frames), name
         self._timed = TimedPath(element, excitation, f"FramePath {name!r}")

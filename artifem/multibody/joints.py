@@ -40,6 +40,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from artifem.errors import InputError
 from artifem.multibody.rigid_body import Frame, RigidBody, cross
 
 __all__ = ["ConstraintRows", "FixedJoint", "Joint", "PlanarJoint", "RevoluteJoint",
@@ -65,7 +66,7 @@ def axis_rotation(axis) -> np.ndarray:
     z = np.asarray(axis, dtype=float)
     norm = np.linalg.norm(z) if z.shape == (3,) else 0.0
     if not (np.isfinite(norm) and norm > 0):
-        raise ValueError(f"axis must be a non-zero 3-vector, got {axis!r}")
+        raise InputError(f"axis must be a non-zero 3-vector, got {axis!r}")
     z = z / norm
     helper = np.eye(3)[np.argmin(np.abs(z))]
     x = cross(helper, z)
@@ -121,9 +122,9 @@ def _check_limits(limits, bounds: tuple[float, float], what: str):
     try:
         lower, upper = (float(v) for v in limits)
     except (TypeError, ValueError):
-        raise ValueError(f"{what}: limits must be (lower, upper), got {limits!r}") from None
+        raise InputError(f"{what}: limits must be (lower, upper), got {limits!r}") from None
     if not (np.isfinite(lower) and np.isfinite(upper) and bounds[0] <= lower < upper <= bounds[1]):
-        raise ValueError(f"{what}: limits need finite {bounds[0]:g} <= lower < upper <= "
+        raise InputError(f"{what}: limits need finite {bounds[0]:g} <= lower < upper <= "
                          f"{bounds[1]:g}, got ({lower:g}, {upper:g})")
     return lower, upper
 
@@ -152,13 +153,13 @@ class Joint:
         what = f"joint {self.name!r}"
         for frame in (self.frame_a, self.frame_b):
             if not isinstance(frame, Frame):
-                raise ValueError(f"{what}: expected Frame objects, got {type(frame).__name__}")
+                raise InputError(f"{what}: expected Frame objects, got {type(frame).__name__}")
         if self.frame_a.body is None and self.frame_b.body is None:
-            raise ValueError(f"{what}: both frames are on the world; one must be on a body")
+            raise InputError(f"{what}: both frames are on the world; one must be on a body")
         if self.frame_a.body is self.frame_b.body:
-            raise ValueError(f"{what}: both frames are on body {self.frame_a.body.name!r}")
+            raise InputError(f"{what}: both frames are on body {self.frame_a.body.name!r}")
         if self.limits is not None and self.LIMIT_BOUNDS is None:
-            raise ValueError(f"{what}: a {type(self).__name__} has no coordinate to limit")
+            raise InputError(f"{what}: a {type(self).__name__} has no coordinate to limit")
         if self.LIMIT_BOUNDS is not None:
             object.__setattr__(self, "limits", _check_limits(self.limits, self.LIMIT_BOUNDS, what))
 

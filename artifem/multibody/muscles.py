@@ -48,6 +48,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from artifem.errors import InputError, SolverError
+
 # ---------------------------------------------------------------------------------------------
 # validation helpers
 # ---------------------------------------------------------------------------------------------
@@ -58,21 +60,21 @@ def _real(owner: str, name: str, value) -> float:
         raise TypeError(f"{owner}: {name} must be a real number, got {value!r}")
     value = float(value)
     if not math.isfinite(value):
-        raise ValueError(f"{owner}: {name} must be finite, got {value}")
+        raise InputError(f"{owner}: {name} must be finite, got {value}")
     return value
 
 
 def _positive(owner: str, name: str, value) -> float:
     value = _real(owner, name, value)
     if value <= 0.0:
-        raise ValueError(f"{owner}: {name} must be > 0, got {value}")
+        raise InputError(f"{owner}: {name} must be > 0, got {value}")
     return value
 
 
 def _nonnegative(owner: str, name: str, value) -> float:
     value = _real(owner, name, value)
     if value < 0.0:
-        raise ValueError(f"{owner}: {name} must be >= 0, got {value}")
+        raise InputError(f"{owner}: {name} must be >= 0, got {value}")
     return value
 
 
@@ -80,19 +82,19 @@ def _curve_param(curve: str, name: str, value, *, lower: float = 0.0) -> float:
     """A curve constant: finite and > lower."""
     value = float(value)
     if not math.isfinite(value) or value <= lower:
-        raise ValueError(f"{curve}: {name} must be finite and > {lower:g}, got {value}")
+        raise InputError(f"{curve}: {name} must be finite and > {lower:g}, got {value}")
     return value
 
 
 def _points(name: str, array, n: int | None = None) -> np.ndarray:
     arr = np.asarray(array, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 2:
-        raise ValueError(f"{name} must be an (n, 3) array with n >= 2 path points "
+        raise InputError(f"{name} must be an (n, 3) array with n >= 2 path points "
                          f"(the two ends and any via points), got shape {arr.shape}")
     if n is not None and arr.shape[0] != n:
-        raise ValueError(f"{name} has {arr.shape[0]} points, the positions have {n}")
+        raise InputError(f"{name} has {arr.shape[0]} points, the positions have {n}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
+        raise InputError(f"{name} must be finite")
     return arr
 
 
@@ -200,7 +202,7 @@ def force_velocity_inverse(force, af: float = 0.25, flen: float = 1.4, *,
     k = _fv_lengthening_slope(af, c1_at_zero)
     f = np.asarray(force, dtype=float)
     if np.any(~np.isfinite(f)) or np.any(f < 0.0) or np.any(f >= flen):
-        raise ValueError(f"force_velocity_inverse: multipliers must lie in [0, flen={flen}), "
+        raise InputError(f"force_velocity_inverse: multipliers must lie in [0, flen={flen}), "
                          f"got range [{np.min(f)}, {np.max(f)}]")
     fs = np.minimum(f, 1.0)
     fl = np.maximum(f, 1.0)
@@ -225,7 +227,7 @@ def tendon_toe_constants(strain_at_one: float = 0.04, k_toe: float = 3.0,
     k = _curve_param("tendon_force_strain", "k_toe", k_toe)
     ft = float(f_toe)
     if not (0.0 < ft < 1.0):
-        raise ValueError(f"tendon_force_strain: f_toe must be in (0, 1), got {f_toe}")
+        raise InputError(f"tendon_force_strain: f_toe must be in (0, 1), got {f_toe}")
     c = ft * k * math.exp(k) / math.expm1(k)
     eps_toe = c * e0 / (1.0 - ft + c)
     return eps_toe, (1.0 - ft) / (e0 - eps_toe)
@@ -281,7 +283,7 @@ class PathGeometry:
         short = np.flatnonzero(seg <= 1e-12 * scale)
         if short.size:
             i = int(short[0])
-            raise ValueError(f"path points {i} and {i + 1} coincide (segment length {seg[i]:.3g}): "
+            raise InputError(f"path points {i} and {i + 1} coincide (segment length {seg[i]:.3g}): "
                              "the force direction is undefined")
         u = d / seg[:, None]
         g = np.zeros((n, 3))
@@ -445,17 +447,17 @@ class ThelenParameters:
             else:
                 object.__setattr__(self, f.name, _nonnegative(owner, f.name, value))
         if not self.pennation_angle < math.pi / 2:
-            raise ValueError(f"{owner}: pennation_angle must be in [0, pi/2) rad, "
+            raise InputError(f"{owner}: pennation_angle must be in [0, pi/2) rad, "
                              f"got {self.pennation_angle} (degrees given?)")
         if not self.pennation_angle <= self.max_pennation_angle < math.pi / 2:
-            raise ValueError(f"{owner}: max_pennation_angle must be in [pennation_angle, pi/2), "
+            raise InputError(f"{owner}: max_pennation_angle must be in [pennation_angle, pi/2), "
                              f"got {self.max_pennation_angle}")
         if self.flen <= 1.0:
-            raise ValueError(f"{owner}: flen must be > 1, got {self.flen}")
+            raise InputError(f"{owner}: flen must be > 1, got {self.flen}")
         if not 0.0 < self.tendon_f_toe < 1.0:
-            raise ValueError(f"{owner}: tendon_f_toe must be in (0, 1), got {self.tendon_f_toe}")
+            raise InputError(f"{owner}: tendon_f_toe must be in (0, 1), got {self.tendon_f_toe}")
         if self.min_activation >= 1.0:
-            raise ValueError(f"{owner}: min_activation must be in [0, 1), got {self.min_activation}")
+            raise InputError(f"{owner}: min_activation must be in [0, 1), got {self.min_activation}")
 
     @property
     def width(self) -> float:
@@ -534,10 +536,10 @@ class ThelenMuscle:
             raise TypeError(f"ThelenMuscle {name!r}: params must be ThelenParameters, "
                             f"got {type(params).__name__}")
         if tendon not in ("rigid", "elastic"):
-            raise ValueError(f"ThelenMuscle {name!r}: tendon must be 'rigid' or 'elastic', "
+            raise InputError(f"ThelenMuscle {name!r}: tendon must be 'rigid' or 'elastic', "
                              f"got {tendon!r}")
         if tendon == "elastic" and params.tendon_slack_length <= 0.0:
-            raise ValueError(f"ThelenMuscle {name!r}: an elastic tendon needs "
+            raise InputError(f"ThelenMuscle {name!r}: an elastic tendon needs "
                              f"tendon_slack_length > 0, got {params.tendon_slack_length}")
         self.params = params
         self.tendon = tendon
@@ -556,7 +558,7 @@ class ThelenMuscle:
     def _check_unit(self, what: str, value) -> float:
         value = _real(f"ThelenMuscle {self.name!r}", what, value)
         if not 0.0 <= value <= 1.0:
-            raise ValueError(f"ThelenMuscle {self.name!r}: {what} must be in [0, 1], got {value}")
+            raise InputError(f"ThelenMuscle {self.name!r}: {what} must be in [0, 1], got {value}")
         return value
 
     @property
@@ -700,8 +702,8 @@ class ThelenMuscle:
             step = lm - r / drm if drm < 0.0 else None
             lm = step if step is not None and lo < step < hi else 0.5 * (lo + hi)
         else:
-            raise RuntimeError(f"ThelenMuscle {self.name!r}: fiber equilibrium did not converge "
-                               f"at path length {length} (residual {r:.3g} N)")
+            raise SolverError(f"ThelenMuscle {self.name!r}: fiber equilibrium did not converge "
+                              f"at path length {length} (residual {r:.3g} N)")
         # T = F_T(L, l_M(L)): dT/dL = dF_T/dL + dF_T/dl_M dl_M/dL with dl_M/dL = -R_L/R_lM,
         # dF_T/dL = R_L and dF_T/dl_M = -R_L d(l_M cos alpha)/dl_M = -R_L l_M/(l_M cos alpha).
         dproj = fiber.length / math.sqrt(fiber.length ** 2 - h * h)
@@ -712,7 +714,7 @@ class ThelenMuscle:
         """Elastic tendon: set the fiber length to the static (v_M = 0) equilibrium at the
         path through ``positions`` with the current activation."""
         if self.tendon != "elastic":
-            raise ValueError(f"ThelenMuscle {self.name!r}: initialize_fiber is for the elastic tendon "
+            raise InputError(f"ThelenMuscle {self.name!r}: initialize_fiber is for the elastic tendon "
                              "(the rigid-tendon fiber follows the path length)")
         length = PathGeometry.of(positions).length
         _, _, fiber = self._solve_fiber(length, None, None)
@@ -732,10 +734,10 @@ class ThelenMuscle:
         if self.tendon == "rigid":
             return self._rigid(length, _real(f"ThelenMuscle {self.name!r}", "length_rate", length_rate))
         if self._fiber_length is None:
-            raise RuntimeError(f"ThelenMuscle {self.name!r}: elastic tendon without a fiber state; "
-                               "call initialize_fiber(positions) first")
+            raise SolverError(f"ThelenMuscle {self.name!r}: elastic tendon without a fiber state; "
+                              "call initialize_fiber(positions) first")
         if dt is None:
-            raise ValueError(f"ThelenMuscle {self.name!r}: the elastic tendon needs the step size dt "
+            raise InputError(f"ThelenMuscle {self.name!r}: the elastic tendon needs the step size dt "
                              "(backward-Euler fiber velocity)")
         dt = _positive(f"ThelenMuscle {self.name!r}", "dt", dt)
         tension, dtdl, fiber = self._solve_fiber(length, self._fiber_length, dt)
@@ -754,5 +756,5 @@ class ThelenMuscle:
         """Accept a step: store the elastic-tendon fiber length of ``result``."""
         if self.tendon == "elastic":
             if result.fiber is None:
-                raise ValueError(f"ThelenMuscle {self.name!r}: commit needs a muscle result")
+                raise InputError(f"ThelenMuscle {self.name!r}: commit needs a muscle result")
             self._fiber_length = result.fiber.length

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
+from artifem.errors import InputError, SolverError
 from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
 
@@ -51,10 +52,10 @@ class FemPointWeights:
 
     def __post_init__(self):
         if self.dofs.shape != self.weights.shape or self.dofs.ndim != 1 or self.dofs.size == 0:
-            raise ValueError("an attached point needs one weight per support dof, and at "
+            raise InputError("an attached point needs one weight per support dof, and at "
                              "least one")
         if abs(float(self.weights.sum()) - 1.0) > 1e-10:
-            raise ValueError(f"attachment weights must sum to 1, got {self.weights.sum():.12g}")
+            raise InputError(f"attachment weights must sum to 1, got {self.weights.sum():.12g}")
 
 
 def _node_positions(body: FemBody) -> np.ndarray:
@@ -78,7 +79,7 @@ def shape_function_weights(body: FemBody, point, *, snap: bool = False,
     loc = locate_points(body, X, snap=True, tol=tol)
     cell, w, distance = int(loc.cells[0]), loc.weights[0], float(loc.distance[0])
     if distance > tol and not snap:
-        raise ValueError(f"point {X[0].tolist()} is outside FEM body {body.name!r} "
+        raise InputError(f"point {X[0].tolist()} is outside FEM body {body.name!r} "
                          f"(distance {distance:.4g} to element "
                          f"{int(body.input_cell_index([cell])[0])}); pass snap=True to "
                          f"attach it to the closest point of that element")
@@ -90,7 +91,7 @@ def nearest_nodes(body: FemBody, point, k: int) -> np.ndarray:
     """Input indices of k nodes near ``point``: the nearest 4 that are not coplanar, then the
     nearest others (a support for :func:`support_weights`)."""
     if k < 4:
-        raise ValueError(f"a support needs at least 4 nodes to reproduce a 3-D point, got {k}")
+        raise InputError(f"a support needs at least 4 nodes to reproduce a 3-D point, got {k}")
     X = np.asarray(point, dtype=float).reshape(3)
     x = _node_positions(body)
     order = np.argsort(np.linalg.norm(x - X, axis=1))
@@ -120,19 +121,19 @@ def support_weights(body: FemBody, point, nodes, *, nonnegative: bool = False) -
     dofs = body.local_dofs(nodes).astype(np.int64)
     if dofs.size != nodes.size:
         missing = [int(n) for n in nodes if n not in body._input_node_to_dof()]
-        raise ValueError(f"support nodes {missing[:10]} are not nodes of FEM body {body.name!r}")
+        raise InputError(f"support nodes {missing[:10]} are not nodes of FEM body {body.name!r}")
     Xj = _node_positions(body)[dofs]
     if nonnegative:
         try:
             w = nonnegative_weights(Xj, X)
         except ValueError as e:
-            raise ValueError(f"FEM body {body.name!r}, support nodes "
+            raise InputError(f"FEM body {body.name!r}, support nodes "
                              f"{[int(n) for n in nodes[:10]]}{'...' if nodes.size > 10 else ''}:"
                              f" {e}") from None
         return FemPointWeights(dofs, w, w @ Xj)
     A = np.vstack([Xj.T, np.ones(len(dofs))])                          # (4, k)
     if np.linalg.matrix_rank(A) < 4:
-        raise ValueError(f"support nodes {[int(n) for n in nodes[:10]]} are coplanar: they "
+        raise InputError(f"support nodes {[int(n) for n in nodes[:10]]} are coplanar: they "
                          f"cannot reproduce an arbitrary point")
     w = A.T @ np.linalg.solve(A @ A.T, np.append(X, 1.0))
     return FemPointWeights(dofs, w, w @ Xj)
@@ -162,8 +163,8 @@ def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
     k = len(Xj)
     feasible = linprog(np.zeros(k), A_eq=A, b_eq=b, bounds=(0.0, None), method="highs")
     if feasible.status not in (0, 2):
-        raise RuntimeError(f"nonnegative_weights: feasibility LP failed for point {X.tolist()} "
-                           f"on {k} nodes: {feasible.message}")
+        raise SolverError(f"nonnegative_weights: feasibility LP failed for point {X.tolist()} "
+                          f"on {k} nodes: {feasible.message}")
     if feasible.status == 2:                                             # infeasible
         # distance of the point to the hull: min |Y^T w| over the simplex
         Y = A[:3]
@@ -173,7 +174,7 @@ def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
                                       "jac": lambda w: np.ones(k)}],
                         method="SLSQP", options={"ftol": 1e-15})
         distance = h * float(np.linalg.norm(Y @ np.clip(near.x, 0.0, None)))
-        raise ValueError(f"point {X.tolist()} is not in the convex hull of its {k} support "
+        raise InputError(f"point {X.tolist()} is not in the convex hull of its {k} support "
                          f"nodes (distance {distance:.4g}): no non-negative weights reproduce "
                          f"it; use more or other nodes, or signed weights")
     # independent rows of A w = b (coplanar nodes make A rank 3; SLSQP needs full rank)
@@ -191,9 +192,9 @@ def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
     lam = np.linalg.lstsq(A[:, support].T, w[support], rcond=None)[0]
     dual = float((A[:, ~support].T @ lam).max(initial=0.0))
     if w.min() < -tol or np.linalg.norm(A @ w - b) > tol or dual > tol:
-        raise RuntimeError(f"nonnegative_weights: no optimal weights found for point "
-                           f"{X.tolist()} on {k} nodes ({qp.message}; min w {w.min():.3g}, "
-                           f"residual {np.linalg.norm(A @ w - b):.3g}, dual {dual:.3g})")
+        raise SolverError(f"nonnegative_weights: no optimal weights found for point "
+                          f"{X.tolist()} on {k} nodes ({qp.message}; min w {w.min():.3g}, "
+                          f"residual {np.linalg.norm(A @ w - b):.3g}, dual {dual:.3g})")
     return np.clip(w, 0.0, None) / np.clip(w, 0.0, None).sum()
 
 

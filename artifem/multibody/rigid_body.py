@@ -42,6 +42,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from artifem.errors import InputError
+
 __all__ = ["BodyState", "Frame", "MassProperties", "RigidBody", "cross", "exp_so3",
            "orthonormalize", "skew"]
 
@@ -84,7 +86,7 @@ def orthonormalize(R: np.ndarray) -> np.ndarray:
 def _vector(value, what: str) -> np.ndarray:
     vec = np.asarray(value, dtype=float)
     if vec.shape != (3,) or not np.all(np.isfinite(vec)):
-        raise ValueError(f"{what}: expected 3 finite numbers, got {value!r}")
+        raise InputError(f"{what}: expected 3 finite numbers, got {value!r}")
     return vec.copy()
 
 
@@ -93,39 +95,39 @@ def _rotation(value, what: str) -> np.ndarray:
         return np.eye(3)
     R = np.asarray(value, dtype=float)
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-        raise ValueError(f"{what}: expected a finite 3 x 3 rotation matrix, got shape {R.shape}")
+        raise InputError(f"{what}: expected a finite 3 x 3 rotation matrix, got shape {R.shape}")
     if np.abs(R.T @ R - np.eye(3)).max() > 1e-8 or np.linalg.det(R) <= 0:
-        raise ValueError(f"{what}: not a rotation (R^T R != 1 or det R <= 0)")
+        raise InputError(f"{what}: not a rotation (R^T R != 1 or det R <= 0)")
     return orthonormalize(R)
 
 
 def _check_surface(vertices: np.ndarray, triangles: np.ndarray, what: str) -> None:
     """A closed, consistently oriented triangle surface, or a ValueError saying what is wrong."""
     if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
-        raise ValueError(f"{what}: vertices must be a finite (n, 3) array, got {vertices.shape}")
+        raise InputError(f"{what}: vertices must be a finite (n, 3) array, got {vertices.shape}")
     if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.shape[0] < 4:
-        raise ValueError(f"{what}: triangles must be an (m >= 4, 3) integer array, "
+        raise InputError(f"{what}: triangles must be an (m >= 4, 3) integer array, "
                          f"got {triangles.shape}")
     if triangles.min() < 0 or triangles.max() >= len(vertices):
-        raise ValueError(f"{what}: triangle indices must be in [0, {len(vertices)})")
+        raise InputError(f"{what}: triangle indices must be in [0, {len(vertices)})")
     repeated = np.flatnonzero((triangles[:, 0] == triangles[:, 1])
                               | (triangles[:, 1] == triangles[:, 2])
                               | (triangles[:, 2] == triangles[:, 0]))
     if repeated.size:
-        raise ValueError(f"{what}: triangles {repeated[:5].tolist()} repeat a vertex")
+        raise InputError(f"{what}: triangles {repeated[:5].tolist()} repeat a vertex")
     n = len(vertices)
     i = triangles.ravel()
     j = np.roll(triangles, -1, axis=1).ravel()
     codes, counts = np.unique(i * n + j, return_counts=True)
     if np.any(counts > 1):
         e = codes[counts > 1][0]
-        raise ValueError(f"{what}: edge ({e // n}, {e % n}) is used twice in the same direction: "
+        raise InputError(f"{what}: edge ({e // n}, {e % n}) is used twice in the same direction: "
                          "the triangles are inconsistently oriented or the surface is "
                          "non-manifold")
     boundary = codes[~np.isin((codes % n) * n + codes // n, codes)]
     if boundary.size:
         e = boundary[0]
-        raise ValueError(f"{what}: the surface is not closed: {boundary.size} boundary edges, "
+        raise InputError(f"{what}: the surface is not closed: {boundary.size} boundary edges, "
                          f"e.g. ({e // n}, {e % n})")
 
 
@@ -139,18 +141,18 @@ class MassProperties:
 
     def __post_init__(self):
         if not (np.isfinite(self.mass) and self.mass > 0):
-            raise ValueError(f"mass must be positive and finite, got {self.mass!r}")
+            raise InputError(f"mass must be positive and finite, got {self.mass!r}")
         object.__setattr__(self, "center", _vector(self.center, "centre of mass"))
         inertia = np.asarray(self.inertia, dtype=float)
         if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
-            raise ValueError(f"inertia must be a finite 3 x 3 matrix, got shape {inertia.shape}")
+            raise InputError(f"inertia must be a finite 3 x 3 matrix, got shape {inertia.shape}")
         if np.abs(inertia - inertia.T).max() > 1e-9 * np.abs(inertia).max():
-            raise ValueError("inertia must be symmetric")
+            raise InputError("inertia must be symmetric")
         inertia = 0.5 * (inertia + inertia.T)
         principal = np.linalg.eigvalsh(inertia)
         tol = 1e-9 * principal[-1]
         if principal[0] <= 0 or principal[0] + principal[1] < principal[2] - tol:
-            raise ValueError(f"inertia has principal moments {principal.tolist()}: they must be "
+            raise InputError(f"inertia has principal moments {principal.tolist()}: they must be "
                              "positive and satisfy the triangle inequality I1 + I2 >= I3")
         object.__setattr__(self, "inertia", inertia)
 
@@ -164,11 +166,11 @@ class MassProperties:
         surface is a ValueError.
         """
         if not (np.isfinite(density) and density > 0):
-            raise ValueError(f"{what}: density must be positive and finite, got {density!r}")
+            raise InputError(f"{what}: density must be positive and finite, got {density!r}")
         vertices = np.asarray(vertices, dtype=float)
         triangles = np.asarray(triangles)
         if not np.issubdtype(triangles.dtype, np.integer):
-            raise ValueError(f"{what}: triangles must be integer vertex indices")
+            raise InputError(f"{what}: triangles must be integer vertex indices")
         _check_surface(vertices, triangles, what)
         c0 = vertices.mean(axis=0)                  # conditioning: translated meshes stay exact
         a, b, c = (vertices[triangles[:, k]] - c0 for k in range(3))
@@ -176,7 +178,7 @@ class MassProperties:
         s = a + b + c
         volume = d.sum() / 6.0
         if not volume > 0:
-            raise ValueError(f"{what}: enclosed volume {volume:.3g} <= 0: the triangles are "
+            raise InputError(f"{what}: enclosed volume {volume:.3g} <= 0: the triangles are "
                              "oriented inward (inverted surface)")
         e = (d @ s) / 24.0 / volume
         C = np.einsum("i,ij,ik->jk", d, a, a) + np.einsum("i,ij,ik->jk", d, b, b) \
@@ -221,11 +223,11 @@ class RigidBody:
         try:
             props = MassProperties(mass, np.zeros(3), inertia)
         except ValueError as exc:
-            raise ValueError(f"{what}: {exc}") from None
+            raise InputError(f"{what}: {exc}") from None
         if motion not in MOTIONS:
-            raise ValueError(f"{what}: motion must be one of {MOTIONS}, got {motion!r}")
+            raise InputError(f"{what}: motion must be one of {MOTIONS}, got {motion!r}")
         if (motion == "prescribed") != (trajectory is not None):
-            raise ValueError(f"{what}: a trajectory is required for, and only for, "
+            raise InputError(f"{what}: a trajectory is required for, and only for, "
                              f"motion='prescribed' (motion={motion!r})")
         self.mass = props.mass
         self.inertia = props.inertia
@@ -237,7 +239,7 @@ class RigidBody:
         self.velocity = _vector(velocity, f"{what}: velocity")
         self.angular_velocity = _vector(angular_velocity, f"{what}: angular velocity")
         if motion == "fixed" and (self.velocity.any() or self.angular_velocity.any()):
-            raise ValueError(f"{what}: a fixed body cannot have a velocity")
+            raise InputError(f"{what}: a fixed body cannot have a velocity")
 
     @classmethod
     def from_surface(cls, name: str, vertices, triangles, density: float,
@@ -250,7 +252,7 @@ class RigidBody:
         props = MassProperties.from_surface(vertices, triangles, density,
                                             what=f"rigid body {name!r}: surface")
         if "position" in kwargs or "rotation" in kwargs:
-            raise ValueError(f"rigid body {name!r}: the pose of a body built from a surface is "
+            raise InputError(f"rigid body {name!r}: the pose of a body built from a surface is "
                              "the surface's (COM, identity rotation); move the surface instead")
         surface = (np.asarray(vertices, dtype=float) - props.center, np.asarray(triangles))
         return cls(name, props.mass, props.inertia, position=props.center, surface=surface,

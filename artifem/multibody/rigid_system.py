@@ -57,6 +57,7 @@ from typing import Iterable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from artifem.errors import InputError, RigidStepFailed, UnknownNameError
 from artifem.multibody.joints import ConstraintRows, Joint
 from artifem.multibody.rigid_body import Frame, RigidBody, skew
 
@@ -137,10 +138,6 @@ def point_force_wrenches(frames: Sequence[Frame], forces, stiffness=None, dampin
     return ([tuple(w) for w in wrenches.values()], [tuple(b) for b in blocks.values()])
 
 
-class RigidStepFailed(RuntimeError):
-    """A rigid step produced a singular or non-finite system."""
-
-
 class RigidSystem:
     """Rigid bodies, joints and force elements advanced by the step of the module docstring.
 
@@ -153,9 +150,9 @@ class RigidSystem:
     def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"gravity must be 3 finite numbers, got {gravity!r}")
+            raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
         if not 0.0 <= stabilization <= 1.0:
-            raise ValueError(f"stabilization must be in [0, 1], got {stabilization!r}")
+            raise InputError(f"stabilization must be in [0, 1], got {stabilization!r}")
         self.gravity = g
         self.stabilization = float(stabilization)
         self.t = 0.0
@@ -172,16 +169,16 @@ class RigidSystem:
         for item in items:
             if isinstance(item, RigidBody):
                 if item.name in {b.name for b in self.bodies}:
-                    raise ValueError(f"a body named {item.name!r} is already in the system")
+                    raise InputError(f"a body named {item.name!r} is already in the system")
                 if item.massless:
-                    raise ValueError(f"rigid body {item.name!r} is massless (a marker): it can "
+                    raise InputError(f"rigid body {item.name!r} is massless (a marker): it can "
                                      "only follow an attachment in a CoupledSystem")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.bodies.append(item)
             elif isinstance(item, Joint):
                 if any(item is j for j in self.joints):
-                    raise ValueError(f"joint {item.name!r} is already in the system")
+                    raise InputError(f"joint {item.name!r} is already in the system")
                 self.joints.append(item)
             elif isinstance(item, ForceElement):
                 self.forces.append(item)
@@ -220,7 +217,7 @@ class RigidSystem:
         (bilateral and limit rows); zeros before the first step.
         """
         if not any(joint is j for j in self.joints):
-            raise KeyError(f"joint {joint.name!r} is not in the system")
+            raise UnknownNameError(f"joint {joint.name!r} is not in the system")
         parts = self._impulses.get(joint, [])
         return (sum((rows.G_a.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h,
                 sum((rows.G_b.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h)
@@ -230,7 +227,7 @@ class RigidSystem:
     def step(self, h: float) -> None:
         """Advance from t to t + h (module docstring)."""
         if not (np.isfinite(h) and h > 0):
-            raise ValueError(f"time step must be positive and finite, got {h!r}")
+            raise InputError(f"time step must be positive and finite, got {h!r}")
         t1 = self.t + h
         prescribed = {b: b.prescribed_state(t1) for b in self.bodies if b.motion == "prescribed"}
         for body, state in prescribed.items():      # known velocities over the step
@@ -287,10 +284,10 @@ class RigidSystem:
         what = f"force element {type(element).__name__}"
         for b in (body, other or body):
             if not isinstance(b, RigidBody) or id(b) not in known:
-                raise ValueError(f"{what} acts on {b!r}, which is not a body of this system")
+                raise InputError(f"{what} acts on {b!r}, which is not a body of this system")
         array = np.asarray(array, dtype=float)
         if array.shape != shape or not np.all(np.isfinite(array)):
-            raise ValueError(f"{what}: expected a finite array of shape {shape} for body "
+            raise InputError(f"{what}: expected a finite array of shape {shape} for body "
                              f"{body.name!r}, got shape {array.shape}")
         return array
 
@@ -302,7 +299,7 @@ class RigidSystem:
         for joint in self.joints:
             for body in joint.bodies:
                 if body is not None and id(body) not in known:
-                    raise ValueError(f"joint {joint.name!r} connects body {body.name!r}, "
+                    raise InputError(f"joint {joint.name!r} connects body {body.name!r}, "
                                      "which is not in the system")
             for kind, rows in (("bilateral", joint.constraint()),
                                ("unilateral", joint.unilateral())):

@@ -83,6 +83,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
+from artifem.errors import InputError
 from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
 from artifem.multibody.point_attachments import FemPointWeights
@@ -151,7 +152,7 @@ class RigidMaster:
     def __init__(self, master: RigidBody | Frame, reference=None):
         if isinstance(master, Frame):
             if master.body is None:
-                raise ValueError("a skin master frame must be attached to a rigid body (a "
+                raise InputError("a skin master frame must be attached to a rigid body (a "
                                  "world frame does not move: leave it out)")
             body, default = master.body, master.position.reshape(1, 3)
         elif isinstance(master, RigidBody):
@@ -162,7 +163,7 @@ class RigidMaster:
         self.name = body.name
         ref = default if reference is None else np.asarray(reference, dtype=float).reshape(-1, 3)
         if ref.size == 0 or not np.all(np.isfinite(ref)):
-            raise ValueError(f"rigid master {self.name!r}: reference points must be finite")
+            raise InputError(f"rigid master {self.name!r}: reference points must be finite")
         self.reference = ref
         self.ndofs = 6
         self.record_rest()
@@ -291,9 +292,9 @@ def skin_weights(distances: np.ndarray, *, weighting: str = "inverse_square",
     """Normalized weights (n, M) from vertex-to-master distances (n, M) (module docstring)."""
     d = np.asarray(distances, dtype=float)
     if d.ndim != 2 or d.shape[1] == 0 or np.any(d < 0) or not np.all(np.isfinite(d)):
-        raise ValueError("distances must be a finite non-negative (n, M >= 1) array")
+        raise InputError("distances must be a finite non-negative (n, M >= 1) array")
     if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
+        raise InputError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
 
     def inverse_square(d):
         zero = d <= zero_distance
@@ -305,7 +306,7 @@ def skin_weights(distances: np.ndarray, *, weighting: str = "inverse_square",
 
     if weighting == "gaussian":
         if sigma is None or not (np.isfinite(sigma) and sigma > 0):
-            raise ValueError(f"gaussian weighting needs sigma > 0, got {sigma!r}")
+            raise InputError(f"gaussian weighting needs sigma > 0, got {sigma!r}")
         w = np.exp(-0.5 * (d / sigma) ** 2)
         dead = w.sum(axis=1) == 0.0
         if dead.any():
@@ -315,7 +316,7 @@ def skin_weights(distances: np.ndarray, *, weighting: str = "inverse_square",
     if max_masters is not None:
         k = int(max_masters)
         if k < 1:
-            raise ValueError(f"max_masters must be >= 1, got {max_masters!r}")
+            raise InputError(f"max_masters must be >= 1, got {max_masters!r}")
         if k < w.shape[1]:
             drop = np.argsort(-w, axis=1, kind="stable")[:, k:]
             np.put_along_axis(w, drop, 0.0, axis=1)
@@ -346,7 +347,7 @@ class SkinMesh:
         self.name = name
         X = np.asarray(vertices, dtype=float)
         if X.ndim != 2 or X.shape[1] != 3 or X.shape[0] == 0 or not np.all(np.isfinite(X)):
-            raise ValueError(f"skin {name!r}: vertices must be a finite (n >= 1, 3) array")
+            raise InputError(f"skin {name!r}: vertices must be a finite (n >= 1, 3) array")
         self.rest = X.copy()
         self.n = X.shape[0]
         if faces is not None:
@@ -354,16 +355,16 @@ class SkinMesh:
             if (faces.ndim != 2 or faces.shape[1] != 3
                     or not np.issubdtype(faces.dtype, np.integer)
                     or faces.min() < 0 or faces.max() >= self.n):
-                raise ValueError(f"skin {name!r}: faces must be (m, 3) vertex indices in "
+                raise InputError(f"skin {name!r}: faces must be (m, 3) vertex indices in "
                                  f"[0, {self.n})")
         self.faces = faces
         if blending not in BLENDINGS:
-            raise ValueError(f"skin {name!r}: blending must be one of {BLENDINGS}, "
+            raise InputError(f"skin {name!r}: blending must be one of {BLENDINGS}, "
                              f"got {blending!r}")
         self.blending = blending
         self.masters = [_as_master(m) for m in masters]
         if not self.masters:
-            raise ValueError(f"skin {name!r}: needs at least one master")
+            raise InputError(f"skin {name!r}: needs at least one master")
         for m in self.masters:
             if isinstance(m, FemMaster):
                 m.embed(X)
@@ -378,7 +379,7 @@ class SkinMesh:
             W = np.asarray(weights, dtype=float)
             if W.shape != (self.n, len(self.masters)) or np.any(W < 0) \
                     or not np.all(np.isfinite(W)) or np.any(W.sum(axis=1) <= 0):
-                raise ValueError(f"skin {name!r}: weights must be finite, >= 0, of shape "
+                raise InputError(f"skin {name!r}: weights must be finite, >= 0, of shape "
                                  f"({self.n}, {len(self.masters)}), each row with a "
                                  f"positive sum")
             self.weights = W / W.sum(axis=1, keepdims=True)
@@ -515,7 +516,7 @@ class SkinMesh:
     def face_area_vectors(self, x: np.ndarray | None = None) -> np.ndarray:
         """area * n per face, (x_1 - x_0) x (x_2 - x_0) / 2, at the current positions."""
         if self.faces is None:
-            raise ValueError(f"skin {self.name!r} has no faces")
+            raise InputError(f"skin {self.name!r} has no faces")
         x = self.positions() if x is None else x
         a, b, c = (x[self.faces[:, k]] for k in range(3))
         return 0.5 * cross(b - a, c - a)
@@ -551,11 +552,11 @@ class SkinPressure:
         if not isinstance(skin, SkinMesh):
             raise TypeError(f"SkinPressure needs a SkinMesh, got {type(skin).__name__}")
         if skin.faces is None:
-            raise ValueError(f"SkinPressure {name!r}: skin {skin.name!r} has no faces")
+            raise InputError(f"SkinPressure {name!r}: skin {skin.name!r} has no faces")
         if not callable(pressure):
             value = float(pressure)
             if not np.isfinite(value):
-                raise ValueError(f"SkinPressure {name!r}: pressure must be finite, "
+                raise InputError(f"SkinPressure {name!r}: pressure must be finite, "
                                  f"got {pressure!r}")
         self.skin = skin
         self.pressure = pressure
@@ -567,7 +568,7 @@ class SkinPressure:
     def pressure_at(self, t: float) -> float:
         p = float(self.pressure(t)) if callable(self.pressure) else float(self.pressure)
         if not np.isfinite(p):
-            raise ValueError(f"SkinPressure {self.name!r}: pressure({t:g}) = {p}")
+            raise InputError(f"SkinPressure {self.name!r}: pressure({t:g}) = {p}")
         return p
 
     def vertex_forces(self, t: float) -> np.ndarray:

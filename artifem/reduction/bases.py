@@ -33,6 +33,8 @@ import numpy as np
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from petsc4py import PETSc
 
+from artifem.errors import InputError, SolverError
+
 __all__ = ["linear_modes", "linear_mode_residuals", "extended_modes", "pod_basis",
            "modal_derivatives", "modal_derivative_basis", "mass_orthonormality_error",
            "mass_matrix", "body_mass"]
@@ -49,7 +51,7 @@ def _mass_apply(mass, X: np.ndarray) -> np.ndarray:
                                 for k in range(X.shape[1])]) if X.shape[1] else np.zeros_like(X)
     m = np.asarray(mass, dtype=float)
     if m.ndim != 1 or m.shape[0] != X.shape[0]:
-        raise ValueError(f"mass must be a 1-D diagonal of length {X.shape[0]} (the rows of U) "
+        raise InputError(f"mass must be a 1-D diagonal of length {X.shape[0]} (the rows of U) "
                          f"or a callable x -> M x; got an array of shape {m.shape}")
     return m * X if X.ndim == 1 else m[:, None] * X
 
@@ -188,7 +190,7 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     M = mass_matrix(body)
     n_free = K.getSize()[0] - body.mesh.comm.allreduce(len(_owned_fixed_rows(body)))
     if r > n_free:
-        raise ValueError(f"linear_modes: r = {r} exceeds the {n_free} free dofs of body "
+        raise InputError(f"linear_modes: r = {r} exceeds the {n_free} free dofs of body "
                          f"{body.name!r}")
     sigma = 0.0 if shift is None else float(shift)
 
@@ -211,8 +213,8 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     eps.solve()
     nconv = eps.getConverged()
     if nconv < r:
-        raise RuntimeError(f"linear_modes: SLEPc converged {nconv} of {r} eigenpairs "
-                           f"(body {body.name!r}); try a smaller r or a shift")
+        raise SolverError(f"linear_modes: SLEPc converged {nconv} of {r} eigenpairs "
+                          f"(body {body.name!r}); try a smaller r or a shift")
     vr, _ = K.createVecs()
     pairs = []
     for k in range(nconv):
@@ -221,7 +223,7 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     eps.destroy()
     pairs.sort(key=lambda p: p[0])
     if not np.all(np.isfinite([p[0] for p in pairs[:r]])):
-        raise RuntimeError("linear_modes: non-finite eigenvalue among the lowest modes")
+        raise SolverError("linear_modes: non-finite eigenvalue among the lowest modes")
     U = np.column_stack([p[1] for p in pairs[:r]])
     U[_owned_fixed_rows(body)] = 0.0
 
@@ -303,10 +305,10 @@ def extended_modes(U: np.ndarray, M_diag_or_mult, *, fixed_dofs=None, tol: float
     """
     U = np.asarray(U, dtype=float)
     if U.ndim != 2 or U.shape[0] % 3:
-        raise ValueError(f"extended_modes: U must be (3n, r) with node-major blocks of 3, "
+        raise InputError(f"extended_modes: U must be (3n, r) with node-major blocks of 3, "
                          f"got shape {U.shape}")
     if not (tol > 0):
-        raise ValueError(f"extended_modes: tol must be > 0, got {tol}")
+        raise InputError(f"extended_modes: tol must be > 0, got {tol}")
     n3, r = U.shape
     cands = np.zeros((n3, 9 * r))
     col = 0
@@ -374,30 +376,30 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     Returns (U (3n, r), singular values of W S, all of them, descending).
     """
     if (r is None) == (energy_tol is None):
-        raise ValueError("pod_basis: give exactly one of r (number of vectors) or energy_tol "
+        raise InputError("pod_basis: give exactly one of r (number of vectors) or energy_tol "
                          f"(discarded energy fraction); got r={r!r}, energy_tol={energy_tol!r}")
     if r is not None:
         r = _check_count(r, "r")
     elif not (0.0 <= energy_tol < 1.0):
-        raise ValueError(f"pod_basis: energy_tol must be in [0, 1), got {energy_tol!r}")
+        raise InputError(f"pod_basis: energy_tol must be in [0, 1), got {energy_tol!r}")
     S = np.asarray(snapshots, dtype=float)
     if S.ndim != 2 or S.shape[1] == 0:
-        raise ValueError(f"pod_basis: snapshots must be a 2-D array (dofs, n_snapshots) with at "
+        raise InputError(f"pod_basis: snapshots must be a 2-D array (dofs, n_snapshots) with at "
                          f"least one column, got shape {S.shape}")
     if not np.all(np.isfinite(S)):
-        raise ValueError("pod_basis: snapshots contain non-finite values")
+        raise InputError("pod_basis: snapshots contain non-finite values")
     parallel = comm is not None and comm.size > 1
 
     if not callable(mass) and not parallel:
         m = np.asarray(mass, dtype=float)
         if m.shape != (S.shape[0],):
-            raise ValueError(f"pod_basis: mass diagonal must have shape ({S.shape[0]},), "
+            raise InputError(f"pod_basis: mass diagonal must have shape ({S.shape[0]},), "
                              f"got {m.shape}")
         if np.any(m < 0) or not np.all(np.isfinite(m)):
-            raise ValueError("pod_basis: mass diagonal must be finite and >= 0")
+            raise InputError("pod_basis: mass diagonal must be finite and >= 0")
         zero = m == 0
         if np.any(S[zero] != 0):
-            raise ValueError("pod_basis: snapshots are nonzero at dofs with zero mass")
+            raise InputError("pod_basis: snapshots are nonzero at dofs with zero mass")
         w = np.sqrt(m)
         Phi, s, _ = np.linalg.svd(w[:, None] * S, full_matrices=False)
         winv = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, w))
@@ -411,7 +413,7 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
 
         def basis(k):
             if k and s[k - 1] <= s[0] * 1e-7:
-                raise ValueError(f"pod_basis: r = {k} exceeds the numerical rank of the "
+                raise InputError(f"pod_basis: r = {k} exceeds the numerical rank of the "
                                  f"snapshots (method of snapshots, sigma_r/sigma_1 = "
                                  f"{s[k - 1] / s[0]:.2e})")
             return S @ (V[:, :k] / s[:k])
@@ -419,22 +421,22 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     energy = s ** 2
     total = float(energy.sum())
     if total == 0.0:
-        raise ValueError("pod_basis: all snapshots are zero")
+        raise InputError("pod_basis: all snapshots are zero")
     if r is None:
         captured = np.cumsum(energy) / total
         r = int(np.searchsorted(captured, 1.0 - energy_tol, side="left")) + 1
         r = min(r, s.size)
     if r > s.size:
-        raise ValueError(f"pod_basis: r = {r} exceeds the number of snapshots / rank bound "
+        raise InputError(f"pod_basis: r = {r} exceeds the number of snapshots / rank bound "
                          f"{s.size}")
     return basis(r), s
 
 
 def _check_count(r, name: str) -> int:
     if isinstance(r, bool) or not isinstance(r, (int, np.integer)):
-        raise ValueError(f"{name} must be a positive integer, got {r!r}")
+        raise InputError(f"{name} must be a positive integer, got {r!r}")
     if r <= 0:
-        raise ValueError(f"{name} must be a positive integer (>= 1), got {r}")
+        raise InputError(f"{name} must be a positive integer (>= 1), got {r}")
     return int(r)
 
 
@@ -464,7 +466,7 @@ def modal_derivatives(body, U: np.ndarray) -> np.ndarray:
     body.compile()
     n_owned = body.V.dofmap.index_map.size_local * 3
     if U.ndim != 2 or U.shape[0] != n_owned:
-        raise ValueError(f"modal_derivatives: U must have shape ({n_owned}, r), got {U.shape}")
+        raise InputError(f"modal_derivatives: U must have shape ({n_owned}, r), got {U.shape}")
     u_saved = body.u.x.array.copy()
     try:
         body.u.x.array[:] = 0.0

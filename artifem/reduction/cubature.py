@@ -32,6 +32,8 @@ import numpy as np
 from scipy.optimize import nnls
 from tqdm import tqdm
 
+from artifem.errors import InputError
+
 __all__ = ["IntegrationPoints", "random_points", "trained_points", "trained_points_path"]
 
 
@@ -65,19 +67,19 @@ class IntegrationPoints:
         idx = np.asarray(self.indices)
         w = np.asarray(self.weights, dtype=float)
         if idx.ndim != 1 or w.ndim != 1:
-            raise ValueError("indices and weights must be 1-D arrays")
+            raise InputError("indices and weights must be 1-D arrays")
         if idx.shape != w.shape:
-            raise ValueError(
+            raise InputError(
                 f"indices ({idx.shape[0]}) and weights ({w.shape[0]}) differ in length")
         if idx.size and not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError("indices must be integers")
+            raise InputError("indices must be integers")
         idx = idx.astype(np.int64)
         if np.unique(idx).size != idx.size:
-            raise ValueError("indices must be distinct")
+            raise InputError("indices must be distinct")
         if np.any(idx < 0):
-            raise ValueError("indices must be non-negative")
+            raise InputError("indices must be non-negative")
         if not np.all(np.isfinite(w)) or np.any(w <= 0.0):
-            raise ValueError("weights must be finite and > 0")
+            raise InputError("weights must be finite and > 0")
         idx = idx.copy()
         w = w.copy()
         idx.setflags(write=False)
@@ -112,18 +114,18 @@ def random_points(volumes, m, rng=None, groups=None) -> IntegrationPoints:
     """
     V = np.asarray(volumes, dtype=float)
     if V.ndim != 1 or V.size == 0:
-        raise ValueError("volumes must be a non-empty 1-D array")
+        raise InputError("volumes must be a non-empty 1-D array")
     if not np.all(np.isfinite(V)) or np.any(V <= 0.0):
-        raise ValueError("volumes must be finite and > 0")
+        raise InputError("volumes must be finite and > 0")
     n = V.size
     if isinstance(m, bool) or not isinstance(m, (int, np.integer)):
-        raise ValueError(f"m must be an integer, got {m!r}")
+        raise InputError(f"m must be an integer, got {m!r}")
     if not 1 <= m <= n:
-        raise ValueError(f"m must be in [1, {n}], got {m}")
+        raise InputError(f"m must be in [1, {n}], got {m}")
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     labels = np.zeros(n, dtype=np.int64) if groups is None else np.asarray(groups)
     if labels.shape != (n,):
-        raise ValueError(f"groups must have one label per point ({n}), got shape {labels.shape}")
+        raise InputError(f"groups must have one label per point ({n}), got shape {labels.shape}")
     names, sizes = np.unique(labels, return_counts=True)
     share = m * sizes / n
     counts = np.floor(share).astype(np.int64)
@@ -149,31 +151,31 @@ def random_points(volumes, m, rng=None, groups=None) -> IntegrationPoints:
 def _check_training(G, b, tol, max_points):
     G = np.asarray(G, dtype=float)
     if G.ndim != 2:
-        raise ValueError(f"G must be a 2-D (T, n) array, got ndim={G.ndim}")
+        raise InputError(f"G must be a 2-D (T, n) array, got ndim={G.ndim}")
     T, n = G.shape
     if T == 0 or n == 0:
-        raise ValueError(f"G must be non-empty, got shape {G.shape}")
+        raise InputError(f"G must be non-empty, got shape {G.shape}")
     if not np.all(np.isfinite(G)):
-        raise ValueError("G contains NaN or inf")
+        raise InputError("G contains NaN or inf")
     if b is None:
         b = G.sum(axis=1)  # G @ 1: full integration
     else:
         b = np.asarray(b, dtype=float)
         if b.ndim != 1 or b.size != T:
-            raise ValueError(f"b must be a 1-D array of length {T} (rows of G), got shape {b.shape}")
+            raise InputError(f"b must be a 1-D array of length {T} (rows of G), got shape {b.shape}")
         if not np.all(np.isfinite(b)):
-            raise ValueError("b contains NaN or inf")
+            raise InputError("b contains NaN or inf")
     if not np.linalg.norm(b) > 0.0:
-        raise ValueError("b is zero: nothing to fit")
+        raise InputError("b is zero: nothing to fit")
     tol = float(tol)
     if not 0.0 < tol < 1.0:
-        raise ValueError(f"tol must be in (0, 1), got {tol}")
+        raise InputError(f"tol must be in (0, 1), got {tol}")
     if max_points is None:
         max_points = n
     if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)):
-        raise ValueError(f"max_points must be an integer, got {max_points!r}")
+        raise InputError(f"max_points must be an integer, got {max_points!r}")
     if max_points < 1:
-        raise ValueError(f"max_points must be >= 1, got {max_points}")
+        raise InputError(f"max_points must be >= 1, got {max_points}")
     return G, b, tol, min(int(max_points), n)
 
 
@@ -307,10 +309,10 @@ def _greedy(G: np.ndarray, b: np.ndarray, tol: float, max_points: int, growth: f
 
 def _points(S, w, rnorm, bnorm, tol, max_points, strict) -> IntegrationPoints:
     if S.size == 0:
-        raise ValueError("trained_points: no element correlates positively with b; "
+        raise InputError("trained_points: no element correlates positively with b; "
                          "b is not in the cone of the columns of G")
     if strict and rnorm > tol * bnorm:
-        raise ValueError(
+        raise InputError(
             f"trained_points: tol={tol:g} not reached with max_points={max_points} "
             f"(relative residual {rnorm / bnorm:.3e} with {S.size} points)")
     order = np.argsort(S)

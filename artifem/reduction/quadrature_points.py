@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import basix
 import numpy as np
 
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 
 __all__ = ["QuadraturePoints", "quadrature_points"]
@@ -64,7 +65,7 @@ def quadrature_points(body: FemBody) -> QuadraturePoints:
         detJ = np.linalg.det(J)
         if np.any(detJ <= 0):
             bad = body.input_cell_index(np.unique(np.nonzero(detJ <= 0)[0]))
-            raise ValueError(f"quadrature_points: det J <= 0 in input elements {bad[:10].tolist()}")
+            raise InputError(f"quadrature_points: det J <= 0 in input elements {bad[:10].tolist()}")
         grad = np.einsum("cqji,jqa->cqai", np.linalg.inv(J), dN)     # J^-T dN/dxi
         nq = pts.shape[0]
         parts.append((np.repeat(np.arange(n_cells), nq), np.full(n_cells * nq, degree),

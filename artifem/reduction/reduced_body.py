@@ -47,8 +47,9 @@ from dolfinx import fem
 from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 
-from artifem.fem_body import ElementInversionError, FemBody
-from artifem.integrators import SemiImplicitEuler, StepFailed
+from artifem.errors import ElementInversionError, InputError, StepFailed
+from artifem.fem_body import FemBody
+from artifem.integrators import SemiImplicitEuler
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
 from artifem.reduction.stress_kernel import PointStresses
@@ -99,23 +100,23 @@ class ReducedFemBody:
         ndofs = bs * n_owned
         U = np.asarray(U, dtype=float)
         if U.ndim != 2 or U.shape[0] != ndofs:
-            raise ValueError(f"ReducedFemBody {self.name!r}: U must have shape ({ndofs}, r), "
+            raise InputError(f"ReducedFemBody {self.name!r}: U must have shape ({ndofs}, r), "
                              f"got {U.shape}")
         if U.shape[1] == 0 or not np.all(np.isfinite(U)):
-            raise ValueError(f"ReducedFemBody {self.name!r}: U must have r >= 1 finite columns")
+            raise InputError(f"ReducedFemBody {self.name!r}: U must have r >= 1 finite columns")
         # Rows at fixed dofs must vanish; round-off (<= 1e-10 max|U|, e.g. from a QR
         # or an eigensolver) is set to exactly zero.
         fixed_rows = (bs * full.fixed_dofs[:, None] + np.arange(bs)).ravel()
         tol = 1e-10 * np.abs(U).max()
         if fixed_rows.size and np.any(np.abs(U[fixed_rows]) > tol):
             bad = np.unique(fixed_rows[np.any(np.abs(U[fixed_rows]) > tol, axis=1)] // bs)
-            raise ValueError(f"ReducedFemBody {self.name!r}: rows of U at fixed dofs must be "
+            raise InputError(f"ReducedFemBody {self.name!r}: rows of U at fixed dofs must be "
                              f"zero; nonzero at {bad.size} fixed node(s), local dofs "
                              f"{bad[:10].tolist()}")
         self.table = quadrature_points(full)
         idx = np.asarray(points.indices, dtype=np.int64)
         if idx.size == 0 or idx.max() >= self.table.size:
-            raise ValueError(f"ReducedFemBody {self.name!r}: integration point indices must be "
+            raise InputError(f"ReducedFemBody {self.name!r}: integration point indices must be "
                              f"a non-empty subset of the {self.table.size} quadrature points "
                              f"of {full.name!r}")
         if fixed_rows.size:
@@ -293,7 +294,7 @@ class ReducedFemBody:
         det F <= 0 at one of the m integration points after the step.
         """
         if not np.isfinite(h) or h <= 0:
-            raise ValueError(f"time step must be > 0, got {h}")
+            raise InputError(f"time step must be > 0, got {h}")
         saved = self.state()
         try:
             SemiImplicitEuler().advance_reduced(self, h)

@@ -35,6 +35,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import linalg as splinalg
 
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 
 __all__ = ["RigidLift", "rigid_lift"]
@@ -99,12 +100,12 @@ def rigid_lift(body: FemBody, nodes, position, rotation) -> RigidLift:
     p0 = np.asarray(position, dtype=float).reshape(3)
     R0 = np.asarray(rotation, dtype=float).reshape(3, 3)
     if not np.allclose(R0.T @ R0, np.eye(3), atol=1e-9) or np.linalg.det(R0) <= 0:
-        raise ValueError("rigid_lift: rotation is not a proper rotation matrix")
+        raise InputError("rigid_lift: rotation is not a proper rotation matrix")
     nodes = body._check_nodes(np.asarray(nodes), "rigid_lift")
     dofs = body.local_dofs(nodes).astype(np.int64)
     fixed = np.intersect1d(dofs, body.fixed_dofs)
     if fixed.size:
-        raise ValueError(f"rigid_lift: {fixed.size} of the carried nodes are fixed in "
+        raise InputError(f"rigid_lift: {fixed.size} of the carried nodes are fixed in "
                          f"{body.name!r}; a node is either fixed or carried")
     n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
     X = body.V.tabulate_dof_coordinates()[dofs]

@@ -33,6 +33,8 @@ from mpi4py import MPI
 from scipy import sparse
 from ufl.algorithms.analysis import extract_constants
 
+from artifem.errors import InputError
+
 __all__ = ["StressKernel", "PointStresses"]
 
 _REFERENCE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -65,7 +67,7 @@ class StressKernel:
 
     def __init__(self, density: Callable, n: int, *, directed: bool):
         if n < 1:
-            raise ValueError(f"StressKernel needs at least one point, got {n}")
+            raise InputError(f"StressKernel needs at least one point, got {n}")
         self.n = int(n)
         self._mesh = _tetrahedra(self.n)
         V = fem.functionspace(self._mesh, ("Lagrange", 1, (3,)))
@@ -116,7 +118,7 @@ class StressKernel:
         """Per-point fiber directions, shape (n, 3)."""
         a0 = np.asarray(a0, dtype=float)
         if self.a0_columns.size == 0 or a0.shape != (self.n, 3):
-            raise ValueError(f"directions must have shape ({self.n}, 3) for a directed kernel")
+            raise InputError(f"directions must have shape ({self.n}, 3) for a directed kernel")
         # Column k of row p holds component (tag % 3) of the direction of point p.
         self.coefficients[:, self.a0_columns] = a0[np.arange(self.n)[:, None],
                                                    self._a0_tags % 3]

@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.system import System
@@ -122,7 +123,7 @@ def record_snapshots(system: System, body: FemBody, *, duration: float, dt: floa
     """Step ``system`` for ``duration`` and keep (u, excitations) of ``body`` every ``every`` steps."""
     steps = int(round(duration / dt))
     if steps < 1 or every < 1:
-        raise ValueError(f"record_snapshots: need duration >= dt and every >= 1, got "
+        raise InputError(f"record_snapshots: need duration >= dt and every >= 1, got "
                          f"duration={duration}, dt={dt}, every={every}")
     n = 3 * body.V.dofmap.index_map.size_local
     u, a = [], []
@@ -160,7 +161,7 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
     excitations = np.atleast_2d(np.asarray(excitations, dtype=float))
     muscles = list(full.muscles.values())
     if excitations.shape != (q.shape[0], len(muscles)):
-        raise ValueError(f"force_training_matrix: excitations must have shape "
+        raise InputError(f"force_training_matrix: excitations must have shape "
                          f"({q.shape[0]}, {len(muscles)}), got {excitations.shape}")
     everything = ReducedFemBody(full, U, all_points(full), name=f"{full.name}_training")
     r = everything.r
@@ -180,7 +181,7 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
         for m, value in zip(muscles, saved):
             m.excitation.value = value
     if not kept.any():
-        raise ValueError("force_training_matrix: every training state inverts an element "
+        raise InputError("force_training_matrix: every training state inverts an element "
                          "once projected on the basis")
     if not kept.all():
         warnings.warn(f"force_training_matrix: {np.count_nonzero(~kept)} of {kept.size} "

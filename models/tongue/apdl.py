@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.errors import InputError, InputFileNotFoundError
+
 #: Commands that change the element selection (or control flow) and that this
 #: reader cannot follow; meeting one is an error, not a silent misreading.
 _UNSUPPORTED_SELECTING = {
@@ -49,7 +51,7 @@ _UNSUPPORTED_SELECTING = {
 def _require(path: str | Path, what: str) -> Path:
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
+        raise InputFileNotFoundError(f"{what} not found: {path}")
     return path
 
 
@@ -81,7 +83,7 @@ def _int(text: str, path: Path, lineno: int, what: str) -> int:
             value = None
         if value is not None and value == int(value):
             return int(value)
-        raise ValueError(f"{path}:{lineno}: {what} must be an integer literal "
+        raise InputError(f"{path}:{lineno}: {what} must be an integer literal "
                          f"(parameters and expressions are not evaluated), got {text!r}") from None
 
 
@@ -98,10 +100,10 @@ def read_muscle_names(path: str | Path) -> list[str]:
             k = _int(m.group(3), path, lineno, "muscleName index")
             value = m.group(4).strip().strip("'\"").strip()
             if k in names:
-                raise ValueError(f"{path}:{lineno}: muscleName({k}) defined twice")
+                raise InputError(f"{path}:{lineno}: muscleName({k}) defined twice")
             names[k] = value
     if names and sorted(names) != list(range(1, len(names) + 1)):
-        raise ValueError(f"{path}: muscleName indices are not 1..{len(names)}: {sorted(names)}")
+        raise InputError(f"{path}: muscleName indices are not 1..{len(names)}: {sorted(names)}")
     return [names[k] for k in sorted(names)]
 
 
@@ -109,20 +111,20 @@ def _esel_ids(fields: list[str], path: Path, lineno: int) -> set[int]:
     """Element ids of ``ESEL,Type,ELEM,,VMIN[,VMAX[,VINC]]``."""
     item = fields[2].upper() if len(fields) > 2 and fields[2] else "ELEM"
     if item != "ELEM":
-        raise ValueError(f"{path}:{lineno}: ESEL by {item!r} is not supported "
+        raise InputError(f"{path}:{lineno}: ESEL by {item!r} is not supported "
                          f"(only ELEM ranges): {','.join(fields)}")
     if len(fields) > 3 and fields[3]:
-        raise ValueError(f"{path}:{lineno}: ESEL component field {fields[3]!r} is not supported")
+        raise InputError(f"{path}:{lineno}: ESEL component field {fields[3]!r} is not supported")
     if len(fields) < 5 or not fields[4]:
-        raise ValueError(f"{path}:{lineno}: ESEL without an element id: {','.join(fields)}")
+        raise InputError(f"{path}:{lineno}: ESEL without an element id: {','.join(fields)}")
     if len(fields) > 7 and any(fields[7:]):
-        raise ValueError(f"{path}:{lineno}: ESEL KABS/extra fields are not supported: "
+        raise InputError(f"{path}:{lineno}: ESEL KABS/extra fields are not supported: "
                          f"{','.join(fields)}")
     first = _int(fields[4], path, lineno, "ESEL VMIN")
     last = _int(fields[5], path, lineno, "ESEL VMAX") if len(fields) > 5 and fields[5] else first
     inc = _int(fields[6], path, lineno, "ESEL VINC") if len(fields) > 6 and fields[6] else 1
     if inc <= 0 or last < first:
-        raise ValueError(f"{path}:{lineno}: ESEL range {first}..{last} step {inc} is empty "
+        raise InputError(f"{path}:{lineno}: ESEL range {first}..{last} step {inc} is empty "
                          f"or reversed")
     return set(range(first, last + 1, inc))
 
@@ -137,7 +139,7 @@ def _parse_components(path: str | Path, all_elements=None):
 
     def need_universe(what: str, lineno: int) -> set[int]:
         if universe is None:
-            raise ValueError(f"{path}:{lineno}: {what} needs the mesh's element ids; "
+            raise InputError(f"{path}:{lineno}: {what} needs the mesh's element ids; "
                              f"pass all_elements=")
         return universe
 
@@ -165,13 +167,13 @@ def _parse_components(path: str | Path, all_elements=None):
                 else:
                     selection -= ids
             else:
-                raise ValueError(f"{path}:{lineno}: ESEL type {kind!r} is not supported "
+                raise InputError(f"{path}:{lineno}: ESEL type {kind!r} is not supported "
                                  f"(S, A, R, U, NONE, ALL, INVE): {stmt}")
         elif cmd == "ALLSEL":
             selection = set(need_universe("ALLSEL", lineno))
         elif cmd == "CM":
             if len(fields) < 2 or not fields[1]:
-                raise ValueError(f"{path}:{lineno}: CM without a component name: {stmt}")
+                raise InputError(f"{path}:{lineno}: CM without a component name: {stmt}")
             entity = fields[2].upper() if len(fields) > 2 and fields[2] else ""
             if entity.startswith("ELEM"):
                 if selection:  # ANSYS does not create empty components
@@ -179,7 +181,7 @@ def _parse_components(path: str | Path, all_elements=None):
             elif entity in ("NODE", "KP", "LINE", "AREA", "VOLU"):
                 pass  # a component of other entities: no effect on elements
             else:
-                raise ValueError(f"{path}:{lineno}: CM entity {entity!r} not understood: {stmt}")
+                raise InputError(f"{path}:{lineno}: CM entity {entity!r} not understood: {stmt}")
         elif cmd == "CMSEL":
             kind = fields[1].upper() if len(fields) > 1 else ""
             if kind == "NONE":
@@ -190,7 +192,7 @@ def _parse_components(path: str | Path, all_elements=None):
                 continue
             name = fields[2] if len(fields) > 2 else ""
             if name not in components:
-                raise ValueError(f"{path}:{lineno}: CMSEL of unknown element component "
+                raise InputError(f"{path}:{lineno}: CMSEL of unknown element component "
                                  f"{name!r}: {stmt}")
             ids = components[name]
             if kind == "S":
@@ -202,13 +204,13 @@ def _parse_components(path: str | Path, all_elements=None):
             elif kind == "U":
                 selection -= ids
             else:
-                raise ValueError(f"{path}:{lineno}: CMSEL type {kind!r} is not supported: {stmt}")
+                raise InputError(f"{path}:{lineno}: CMSEL type {kind!r} is not supported: {stmt}")
         elif cmd == "CMGRP":
             if len(fields) < 3:
-                raise ValueError(f"{path}:{lineno}: CMGRP without members: {stmt}")
+                raise InputError(f"{path}:{lineno}: CMGRP without members: {stmt}")
             groups[fields[1]] = [f for f in fields[2:] if f]
         elif cmd in _UNSUPPORTED_SELECTING:
-            raise ValueError(f"{path}:{lineno}: command {fields[0]} changes elements or the "
+            raise InputError(f"{path}:{lineno}: command {fields[0]} changes elements or the "
                              f"flow of the macro and is not supported by this reader: {stmt}")
         # everything else (/NOPR, *DIM, parameter assignments, ...) does not select elements
     return components, groups
@@ -255,7 +257,7 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
         if not m:
             cmd = _fields(stmt)[0].upper()
             if cmd in _UNSUPPORTED_SELECTING:
-                raise ValueError(f"{path}:{lineno}: command {cmd} is not supported by this "
+                raise InputError(f"{path}:{lineno}: command {cmd} is not supported by this "
                                  f"reader: {stmt}")
             continue  # /NOPR, *DIM, ...
         name, index, value = m.group(1).upper(), m.group(3), m.group(4).strip()
@@ -275,48 +277,48 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
         if target is None:
             continue
         if len(idx) != size:
-            raise ValueError(f"{path}:{lineno}: {name} takes {size} indices, got {len(idx)}")
+            raise InputError(f"{path}:{lineno}: {name} takes {size} indices, got {len(idx)}")
         key = idx if size > 1 else idx[0]
         if key in target:
-            raise ValueError(f"{path}:{lineno}: {name}{index} assigned twice")
+            raise InputError(f"{path}:{lineno}: {name}{index} assigned twice")
         target[key] = _int(value, path, lineno, f"{name}({index})")
 
     muscles = sorted(nb_fibers)
     if not muscles:
-        raise ValueError(f"{path}: no NB_FIBERS(i) entries")
+        raise InputError(f"{path}: no NB_FIBERS(i) entries")
     if muscles != list(range(1, len(muscles) + 1)):
-        raise ValueError(f"{path}: NB_FIBERS defined for muscles {muscles}, not 1..{len(muscles)}")
+        raise InputError(f"{path}: NB_FIBERS defined for muscles {muscles}, not 1..{len(muscles)}")
     if nb_muscles is not None and nb_muscles != len(muscles):
-        raise ValueError(f"{path}: nb_muscles = {nb_muscles} but NB_FIBERS has {len(muscles)}")
+        raise InputError(f"{path}: nb_muscles = {nb_muscles} but NB_FIBERS has {len(muscles)}")
     if file_names:
         labels = [file_names.get(i) for i in muscles]
         if None in labels:
-            raise ValueError(f"{path}: muscleName missing for some of muscles {muscles}")
+            raise InputError(f"{path}: muscleName missing for some of muscles {muscles}")
         if names is not None and list(names) != labels:
-            raise ValueError(f"{path}: its muscleName array {labels} differs from names={names}")
+            raise InputError(f"{path}: its muscleName array {labels} differs from names={names}")
     elif names is None:
-        raise ValueError(f"{path} has no muscleName array: pass names= (e.g. the muscleName "
+        raise InputError(f"{path} has no muscleName array: pass names= (e.g. the muscleName "
                          f"array of CreateMuscles.mac, which ArtiSynth pairs with it by index)")
     else:
         labels = list(names)
         if len(labels) != len(muscles):
-            raise ValueError(f"{path}: {len(muscles)} muscles but {len(labels)} names given")
+            raise InputError(f"{path}: {len(muscles)} muscles but {len(labels)} names given")
     if len(set(labels)) != len(labels):
-        raise ValueError(f"{path}: repeated muscle names {labels}")
+        raise InputError(f"{path}: repeated muscle names {labels}")
 
     result: dict[str, list[np.ndarray]] = {}
     for i, label in zip(muscles, labels):
         fibers = []
         for j in range(1, nb_fibers[i] + 1):
             if (j, i) not in nb_nodes:
-                raise ValueError(f"{path}: NB_NODES_FIBER({j},{i}) missing (muscle {label})")
+                raise InputError(f"{path}: NB_NODES_FIBER({j},{i}) missing (muscle {label})")
             count = nb_nodes[(j, i)]
             missing = [k for k in range(1, count + 1) if (k, j, i) not in fiber]
             if missing:
-                raise ValueError(f"{path}: FIBER({missing[0]},{j},{i}) missing (muscle {label}, "
+                raise InputError(f"{path}: FIBER({missing[0]},{j},{i}) missing (muscle {label}, "
                                  f"fiber {j} has NB_NODES_FIBER = {count})")
             if count < 2:
-                raise ValueError(f"{path}: fiber {j} of muscle {label} has {count} node(s)")
+                raise InputError(f"{path}: fiber {j} of muscle {label} has {count} node(s)")
             fibers.append(np.array([fiber[(k, j, i)] for k in range(1, count + 1)],
                                    dtype=np.int64))
         result[label] = fibers

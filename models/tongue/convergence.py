@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.errors import SolverError
 from artifem.models.tongue.hard_cases import run_built
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
 
@@ -41,8 +42,8 @@ def run_motions(level: int, motions=tuple(MOTIONS), integrator: str = "semi-impl
         result = run_built(tongue, DT, DURATION, record_times=(RAMP_TIME,),
                            progress=f"level {level} {motion}" if progress else None)
         if result["outcome"] != "finished":
-            raise RuntimeError(f"tongue {motion} at level {level} did not finish: "
-                               f"{result.get('error') or result.get('inversion')}")
+            raise SolverError(f"tongue {motion} at level {level} did not finish: "
+                              f"{result.get('error') or result.get('inversion')}")
         result["nodes"] = int(tongue.data.mesh.points.shape[0])
         out[motion] = result
     return out

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from artifem.errors import InputError, UnknownNameError
 from artifem.io.mesh_checks import element_volumes
 from artifem.io.mesh_data import MeshData
 
@@ -61,8 +62,8 @@ def fiber_points(md: MeshData, fibers: dict[str, list[np.ndarray]],
                 pts[inside] = md.points[md.node_rows(ids[inside])]
             for k in np.flatnonzero(~inside):
                 if int(ids[k]) not in extra:
-                    raise KeyError(f"fiber node {int(ids[k])} of {name} is neither a mesh node "
-                                   f"nor in extra_points")
+                    raise UnknownNameError(f"fiber node {int(ids[k])} of {name} is neither a mesh node "
+                                           f"nor in extra_points")
                 pts[k] = extra[int(ids[k])]
             xyz.append(pts)
         out[name] = xyz
@@ -75,13 +76,13 @@ def _segments(fibers_xyz) -> tuple[np.ndarray, np.ndarray]:
     for pts in fibers_xyz:
         pts = np.asarray(pts, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
-            raise ValueError(f"a fiber must be an (n >= 2, 3) array of points, got {pts.shape}")
+            raise InputError(f"a fiber must be an (n >= 2, 3) array of points, got {pts.shape}")
         d = np.diff(pts, axis=0)
         keep = np.linalg.norm(d, axis=1) > 0
         starts.append(pts[:-1][keep])
         vecs.append(d[keep])
     if not starts or sum(len(s) for s in starts) == 0:
-        raise ValueError("no fiber segment of positive length")
+        raise InputError("no fiber segment of positive length")
     return np.concatenate(starts), np.concatenate(vecs)
 
 

@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.errors import ElementInversionError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.fem_body import ElementInversionError
 from artifem.models.tongue.model import (DT, DURATION, MOTIONS, RAMP_TIME, Tongue,
                                          TongueConfig, load_tongue_data)
 
@@ -88,7 +88,7 @@ def case_schedule(case: Case) -> ExcitationSchedule:
 def build_case(name: str, integrator: str = "semi-implicit"):
     """(Tongue at rest and driven by the case's schedule, schedule, dt)."""
     if name not in CASES:
-        raise KeyError(f"unknown hard case {name!r}; choose one of {sorted(CASES)}")
+        raise UnknownNameError(f"unknown hard case {name!r}; choose one of {sorted(CASES)}")
     case = CASES[name]
     tongue = Tongue(TongueConfig(integrator=integrator, **case.config))
     schedule = case_schedule(case)

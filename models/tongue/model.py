@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin
@@ -78,7 +79,7 @@ class TongueConfig:
 
     def __post_init__(self):
         if self.level not in (0, 1):
-            raise ValueError(f"tongue level must be 0 (as shipped) or 1 (2x2x2 split), "
+            raise InputError(f"tongue level must be 0 (as shipped) or 1 (2x2x2 split), "
                              f"got {self.level}")
 
 
@@ -104,7 +105,7 @@ def read_max_forces(path: Path) -> dict[str, float]:
         if not parts:
             continue
         if len(parts) != 2:
-            raise ValueError(f"{path}:{lineno}: expected 'NAME force', got {line!r}")
+            raise InputError(f"{path}:{lineno}: expected 'NAME force', got {line!r}")
         forces[parts[0]] = float(parts[1])
     return forces
 
@@ -125,7 +126,7 @@ def load_tongue_data(level: int = 0, data_dir: Path = DATA) -> TongueData:
     max_stress = {}
     for exciter, members in exciters.items():
         if exciter not in forces:
-            raise ValueError(f"MuscleMaxForce.txt has no force for exciter {exciter!r}")
+            raise InputError(f"MuscleMaxForce.txt has no force for exciter {exciter!r}")
         for bundle in members:
             area = geometry[bundle]["cross_section_inside_m2"]
             max_stress[bundle] = forces[exciter] / len(members) / area
@@ -174,8 +175,8 @@ class Tongue:
 
     def _bundles_of(self, exciter: str) -> list[str]:
         if exciter not in self.data.exciters:
-            raise KeyError(f"unknown muscle {exciter!r}; the tongue's exciters are "
-                           f"{', '.join(self.exciters)}")
+            raise UnknownNameError(f"unknown muscle {exciter!r}; the tongue's exciters are "
+                                   f"{', '.join(self.exciters)}")
         return self.data.exciters[exciter]
 
     def set_excitations(self, excitations: dict[str, float]) -> None:
@@ -211,5 +212,5 @@ class Tongue:
     def motion(name: str) -> ExcitationSchedule:
         """A speech motion of the seed paper: ramp over [0, 0.5] s, then hold."""
         if name not in MOTIONS:
-            raise KeyError(f"unknown motion {name!r}; choose one of {sorted(MOTIONS)}")
+            raise UnknownNameError(f"unknown motion {name!r}; choose one of {sorted(MOTIONS)}")
         return ExcitationSchedule.ramp_and_hold(MOTIONS[name], RAMP_TIME)

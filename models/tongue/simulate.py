@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artifem.arguments import positive_float
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
 from artifem.system import INTEGRATORS
@@ -34,8 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level", type=int, default=0, choices=(0, 1),
                         help="0: mesh as shipped (946 nodes); 1: every hexahedron split 2x2x2")
     parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
-    parser.add_argument("--dt", type=float, default=DT)
-    parser.add_argument("--duration", type=float, default=DURATION)
+    parser.add_argument("--dt", type=positive_float, default=DT)
+    parser.add_argument("--duration", type=positive_float, default=DURATION)
     parser.add_argument("--no-progress", action="store_true")
 
 

@@ -36,10 +36,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from artifem.arguments import positive_int
+from artifem.errors import ElementInversionError, InputError, LinearSolveError, StepFailed
 from artifem.excitation import ExcitationSchedule
-from artifem.fem_body import ElementInversionError
-from artifem.integrators import StepFailed
-from artifem.linear_solver import LinearSolveError
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
 from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
                                      modal_derivative_basis, pod_basis)
@@ -81,17 +80,17 @@ class StudyConfig:
     def __post_init__(self):
         unknown = set(self.bases) - set(BASES)
         if unknown:
-            raise ValueError(f"unknown bases {sorted(unknown)}; use {', '.join(BASES)}")
+            raise InputError(f"unknown bases {sorted(unknown)}; use {', '.join(BASES)}")
         unknown = set(self.samplings) - {"trained", "random"}
         if unknown:
-            raise ValueError(f"unknown samplings {sorted(unknown)}; use trained, random")
+            raise InputError(f"unknown samplings {sorted(unknown)}; use trained, random")
         unknown = set(self.motions) - set(MOTIONS)
         if unknown:
-            raise ValueError(f"unknown motions {sorted(unknown)}; choose from {sorted(MOTIONS)}")
+            raise InputError(f"unknown motions {sorted(unknown)}; choose from {sorted(MOTIONS)}")
         if not self.points or min(self.points) < 1:
-            raise ValueError(f"points must be positive counts, got {self.points}")
+            raise InputError(f"points must be positive counts, got {self.points}")
         if not 0.0 < self.training_excitation <= 1.0:
-            raise ValueError(f"training_excitation must be in (0, 1], got "
+            raise InputError(f"training_excitation must be in (0, 1], got "
                              f"{self.training_excitation}")
 
 
@@ -335,7 +334,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--level", type=int, choices=(0, 1), default=0,
                         help="tongue fidelity: 0 as shipped, 1 split 2x2x2")
-    parser.add_argument("--points", type=int, nargs="+", default=None,
+    parser.add_argument("--points", type=positive_int, nargs="+", default=None,
                         help="integration point counts (default 600 300 200)")
     parser.add_argument("--motions", nargs="+", choices=sorted(MOTIONS), default=None)
     parser.add_argument("--bases", nargs="+", choices=BASES, default=None,

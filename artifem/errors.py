@@ -1,0 +1,70 @@
+"""artifem's exceptions: one base class, two families.
+
+``ArtifemError`` is the base of everything artifem raises on purpose, so a
+script or the command line can tell a model's complaint from a bug:
+
+- ``InputError`` (also a ``ValueError``): bad input, raised before any long work
+  starts; the message says what and where (file and line, body, element,
+  muscle, joint). ``UnknownNameError`` (also a ``KeyError``) names an unknown
+  muscle, motion, joint...; ``MeshError`` a mesh that cannot be used.
+- ``SolverError`` (also a ``RuntimeError``): a step or solve that failed; the
+  message says why in terms of the model (which body, element, joint, time).
+
+This module imports nothing of artifem: every layer may raise these.
+"""
+
+from __future__ import annotations
+
+
+class ArtifemError(Exception):
+    """Base class of every error artifem raises on purpose."""
+
+
+class InputError(ArtifemError, ValueError):
+    """Bad input (a value, a file, a name); the message says what and where."""
+
+
+class UnknownNameError(InputError, KeyError):
+    """A name (muscle, motion, joint, case...) that the model does not have."""
+
+    __str__ = Exception.__str__         # KeyError would quote the message
+
+
+class InputFileNotFoundError(InputError, FileNotFoundError):
+    """An input file that does not exist."""
+
+
+class MeshError(InputError):
+    """A mesh file or mesh that cannot be used; the message says what and where."""
+
+
+class MeshFileNotFoundError(MeshError, FileNotFoundError):
+    """A mesh file that does not exist."""
+
+
+class OutsideMeshError(InputError):
+    """Embedded points lie outside the body (and ``snap`` was not requested)."""
+
+
+class SolverError(ArtifemError, RuntimeError):
+    """A step or a solve failed; the message says why in terms of the model."""
+
+
+class StepFailed(SolverError):
+    """A step could not be completed at this step size."""
+
+
+class CoupledStepFailed(StepFailed):
+    """The coupled step's linear system is singular or its solution non-finite."""
+
+
+class RigidStepFailed(StepFailed):
+    """A rigid step produced a singular or non-finite system."""
+
+
+class LinearSolveError(SolverError):
+    """The KSP did not converge (or the factorization failed) for this matrix."""
+
+
+class ElementInversionError(SolverError):
+    """det F <= 0 at a quadrature point, and the step could not recover."""

@@ -1,0 +1,99 @@
+"""Every command answers its typical bad inputs with one line on stderr and a non-zero
+exit status, before any model is built (no traceback, nothing written)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from artifem.cli import main
+
+
+def schedule(tmp_path, text):
+    path = tmp_path / "schedule.json"
+    path.write_text(text)
+    return str(path)
+
+
+CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directory
+    (["mesh", "info", "{tmp}/nope.node"], "ANSYS node file not found"),
+    (["material", "curves", "tongue", "--out", "{tmp}/c.png", "--max-stretch", "0.5"],
+     "--max-stretch must be > 1"),
+    (["material", "curves", "jelly", "--out", "{tmp}/c.png"], "invalid choice: 'jelly'"),
+    (["simulate", "beam", "--out", "{tmp}/o", "--dt", "-1"], "argument --dt: must be > 0"),
+    (["simulate", "beam", "--out", "{tmp}/o", "--excitation", "2"],
+     "argument --excitation: must be in [0, 1]"),
+    (["simulate", "beam", "--out", "{tmp}/o", "--cells", "8", "0", "2"],
+     "argument --cells: must be a positive integer"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--duration", "0"],
+     "argument --duration: must be > 0"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--schedule", "{tmp}/missing.json"],
+     "excitation schedule file not found"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--schedule",
+      "schedule:" + json.dumps({"times": [0, 0.5], "excitations": {"GGP": [0, 2.0]}})],
+     "values of 'GGP' must be in [0, 1]"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--schedule",
+      "schedule:" + json.dumps({"times": [0, 0.5], "excitations": {"XX": [0, 0.5]}})],
+     "unknown muscle 'XX'"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--schedule", "schedule:{\"GGP\": 1}"],
+     "not an excitation schedule"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--motion", "yawn"], "invalid choice: 'yawn'"),
+    (["simulate", "beam-ellipsoid", "--out", "{tmp}/o", "--dt", "0"], "argument --dt: must be > 0"),
+    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--dt", "-0.01"], "argument --dt: must be > 0"),
+    (["simulate", "styloglossus", "--out", "{tmp}/o", "--tension", "-1"],
+     "argument --tension: must be >= 0"),
+    (["simulate", "airway", "--out", "{tmp}/o", "--pressure", "nan"],
+     "argument --pressure: must be finite"),
+    (["simulate", "airway", "--out", "{tmp}/o", "--motions", "flap"], "invalid choice: 'flap'"),
+    (["simulate", "masseter", "--out", "{tmp}/o", "--excitation", "1.5"],
+     "argument --excitation: must be in [0, 1]"),
+    (["bench", "fom", "--out", "{tmp}/b.json", "--sizes", "7q"], "'7q' is neither one of"),
+    (["bench", "tongue", "--out", "{tmp}/b.json", "--ranks", "0"], "expected positive integers"),
+    (["bench", "scenes", "--out", "{tmp}/b.json", "--scenes", "moon"], "unknown scenes ['moon']"),
+    (["study", "tongue", "--out", "{tmp}/o", "--points", "-3"],
+     "argument --points: must be a positive integer"),
+    (["study", "jaw-tongue", "--out", "{tmp}/o", "--r", "0"],
+     "argument --r: must be a positive integer"),
+    (["simulate", "beam", "--dt", "0.1"], "the following arguments are required: --out"),
+    (["simulate", "pendulum"], "invalid choice: 'pendulum'"),
+]
+
+
+def _argv(tmp_path, argv):
+    out = []
+    for a in argv:
+        if a.startswith("schedule:"):
+            a = schedule(tmp_path, a[len("schedule:"):])
+        out.append(a.replace("{tmp}", str(tmp_path)))
+    return out
+
+
+@pytest.mark.parametrize("argv, fragment", CASES, ids=[" ".join(c[0][:2]) + f" #{i}"
+                                                       for i, c in enumerate(CASES)])
+def test_bad_input_is_one_line_and_a_nonzero_exit(tmp_path, capsys, argv, fragment):
+    try:
+        status = main(_argv(tmp_path, argv))
+    except SystemExit as exc:                     # argparse's own usage errors
+        status = exc.code
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert status != 0
+    assert len(lines) == 1, captured.err
+    assert fragment in lines[0] and "error" in lines[0]
+    assert "Traceback" not in captured.err + captured.out
+    assert not (tmp_path / "o").exists() and not (tmp_path / "b.json").exists()
+
+
+def test_console_script_bad_schedule_has_no_traceback(tmp_path):
+    """The installed command as a user runs it: one line, exit status 2."""
+    exe = Path(sys.executable).parent / "artifem"
+    if not exe.exists():
+        pytest.skip("artifem console script not installed in this environment")
+    path = schedule(tmp_path, json.dumps({"times": [0, 0.5], "excitations": {"GGP": [0, 2]}}))
+    out = subprocess.run([str(exe), "simulate", "tongue", "--schedule", path, "--out",
+                          str(tmp_path / "o")], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [
+        "artifem: error: excitation schedule: values of 'GGP' must be in [0, 1]"]
