@@ -72,8 +72,8 @@ down and forward (tip 3-13 mm) against the same motion without it, widens the or
 by up to 40 % when no muscle resists, and opens the jaw by 0.1-0.2 degrees; its resultants
 (1.9 N on the tongue, 0.06 N on the jaw, 1.9 N on the palate at rest) sum to zero. Steps
 cost 78 ms without the airway's load and 84 ms with the skin and its pressure (G: 5.4 ms,
-skin positions 0.09 ms); with the reduced tongue (20 + 12 columns, 300 points) 5.4 and
-12.5 ms (G: 6.9 ms). The reduced airway follows the full one within 0.1-1.0 mm mean skin
+skin positions 0.09 ms); with the reduced tongue (20 + 12 columns, 300 points) 5.0 and
+6.0 ms, the pressure's loads formed without assembling G (docs/benchmarks/scenes.json). The reduced airway follows the full one within 0.1-1.0 mm mean skin
 error without the air and 0.9-1.3 mm with it (a basis trained without air), jaw angles
 within 0.33 degrees.
 

@@ -127,7 +127,7 @@ def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedTongue:
     mass = body_mass(body)
     key = store.key("jaw-tongue-pod", model=model)
     pod = store.get(key, lambda: dict(zip(("U", "sigma"),
-                                          pod_basis(residual.T, mass, r=config.r))))
+                                          pod_basis(residual, mass, r=config.r))))
     lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
     W = np.hstack([pod["U"], lift.columns])
     key = store.key("jaw-tongue-points", model=model)

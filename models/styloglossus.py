@@ -279,7 +279,7 @@ def train(cache: Path, rc: ReducedConfig = ReducedConfig(), *, data=None,
     mass = body_mass(body)
     model = {"rc": rc.__dict__, "duration": duration, "dt": dt}
     pod = store.get(store.key("styloglossus-pod", **model),
-                    lambda: dict(zip(("U", "sigma"), pod_basis(S.T, mass, r=rc.r))))
+                    lambda: dict(zip(("U", "sigma"), pod_basis(S, mass, r=rc.r))))
 
     def cubature():
         rows = np.unique(np.linspace(0, len(S) - 1, min(len(S), rc.force_snapshots))

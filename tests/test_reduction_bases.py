@@ -227,7 +227,7 @@ def test_pod_recovers_known_subspace():
     B[:6] = 0.0
     B = B / np.sqrt(np.einsum("ij,ij->j", B, m[:, None] * B))
     S = B @ (np.diag([10.0, 1.0, 0.1]) @ rng.normal(size=(3, 40)))
-    U, s = pod_basis(S, m, energy_tol=1e-10)
+    U, s = pod_basis(S.T, m, energy_tol=1e-10)
     assert U.shape == (n, 3)
     assert mass_orthonormality_error(U, m) < 1e-12
     assert np.all(U[:6] == 0.0)
@@ -235,16 +235,16 @@ def test_pod_recovers_known_subspace():
         assert m_projection_residual(U, m, B[:, k]) < 1e-12
     assert s[3] < 1e-12 * s[0]
     # by count: sorted singular values, M-orthonormal, nested
-    U2, s2 = pod_basis(S, m, r=2)
+    U2, s2 = pod_basis(S.T, m, r=2)
     assert U2.shape == (n, 2) and np.all(np.diff(s2) <= 0)
     assert mass_orthonormality_error(U2, m) < 1e-12
     assert np.allclose(s2, s)
     # energy_tol large enough to drop the weakest direction
     frac = s[2] ** 2 / np.sum(s ** 2)
-    assert pod_basis(S, m, energy_tol=2 * frac)[0].shape[1] == 2
-    assert pod_basis(S, m, energy_tol=0.5 * frac)[0].shape[1] == 3
+    assert pod_basis(S.T, m, energy_tol=2 * frac)[0].shape[1] == 2
+    assert pod_basis(S.T, m, energy_tol=0.5 * frac)[0].shape[1] == 3
     # a callable mass (method of snapshots) gives the same subspace
-    Uc, sc = pod_basis(S, lambda x: m * x, energy_tol=1e-10)
+    Uc, sc = pod_basis(S.T, lambda x: m * x, energy_tol=1e-10)
     assert Uc.shape == (n, 3) and np.allclose(sc[:3], s[:3], rtol=1e-8)
     assert mass_orthonormality_error(Uc, m) < 1e-10
     for k in range(3):
@@ -256,30 +256,32 @@ def test_pod_of_linear_modes_and_bad_input(stocky):
     m = body_mass(body)
     rng = np.random.default_rng(3)
     S = U[:, :4] @ rng.normal(size=(4, 12))
-    Up, s = pod_basis(S, m, energy_tol=1e-12)
+    Up, s = pod_basis(S.T, m, energy_tol=1e-12)
     assert Up.shape[1] == 4 and np.all(Up[fixed_rows(body)] == 0.0)
     for k in range(4):
         assert m_projection_residual(Up, m, U[:, k]) < 1e-10
 
     with pytest.raises(ValueError, match="exactly one of r"):
-        pod_basis(S, m)
+        pod_basis(S.T, m)
     with pytest.raises(ValueError, match="exactly one of r"):
-        pod_basis(S, m, r=2, energy_tol=1e-3)
+        pod_basis(S.T, m, r=2, energy_tol=1e-3)
     for r in (0, -1):
         with pytest.raises(ValueError, match="positive integer"):
-            pod_basis(S, m, r=r)
+            pod_basis(S.T, m, r=r)
     with pytest.raises(ValueError, match="energy_tol"):
-        pod_basis(S, m, energy_tol=1.5)
+        pod_basis(S.T, m, energy_tol=1.5)
     with pytest.raises(ValueError, match="exceeds"):
-        pod_basis(S, m, r=13)
-    with pytest.raises(ValueError, match="shape"):
-        pod_basis(S, m[:-3], r=2)
+        pod_basis(S.T, m, r=13)
+    with pytest.raises(ValueError, match=r"snapshots are rows, one per snapshot"):
+        pod_basis(S.T, m[:-3], r=2)
+    with pytest.raises(ValueError, match=r"\(n_snapshots, dofs\) = \(\d+, 12\)"):
+        pod_basis(S, m, r=2)                     # columns: the other convention, refused
     with pytest.raises(ValueError, match="zero mass"):
         bad = S.copy()
         bad[fixed_rows(body)[0]] = 1.0
-        pod_basis(bad, m, r=2)
+        pod_basis(bad.T, m, r=2)
     with pytest.raises(ValueError, match="all snapshots are zero"):
-        pod_basis(np.zeros_like(S), m, r=1)
+        pod_basis(np.zeros_like(S).T, m, r=1)
 
 
 # ---- modal derivatives ------------------------------------------------------------------------

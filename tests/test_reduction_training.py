@@ -274,7 +274,7 @@ def full_internal_residual(body, u, excitation):
 def test_training_forces_are_the_reduced_internal_forces_and_trained_points_fit_them(beam):
     body, snapshots, mass = beam
     reset(body)
-    U, _ = pod_basis(snapshots.displacements.T, mass, r=6)
+    U, _ = pod_basis(snapshots.displacements, mass, r=6)
     q = project(U, mass, snapshots.displacements)
     S, r = q.shape
     assert r == 6
@@ -417,14 +417,14 @@ def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(be
     scale = np.linalg.norm(u_full.reshape(STEPS + 1, -1, 3), axis=2).mean(axis=1).max()
 
     # r = 1, 2, 4 with every point (measured: 0.052, 0.025, 0.0078 m).
-    by_r = [max_mean_error(reduced_run(body, pod_basis(snapshots.displacements.T, mass,
+    by_r = [max_mean_error(reduced_run(body, pod_basis(snapshots.displacements, mass,
                                                        r=r)[0], all_points(body)), u_full)
             for r in (1, 2, 4)]
     assert by_r[0] > by_r[1] > by_r[2] > 0, by_r
     assert by_r[2] < 0.25 * scale         # r = 4: 16% of the mean displacement (measured)
 
     # r = 4 with m = 5, 20 trained points and all 144 (measured: 0.01874, 0.00781, 0.00782 m).
-    U, _ = pod_basis(snapshots.displacements.T, mass, r=4)
+    U, _ = pod_basis(snapshots.displacements, mass, r=4)
     q = project(U, mass, snapshots.displacements)
     G, b = training_forces(body, U, q, snapshots.excitations)
     path = trained_points_path(G, b, sizes=[5, 20], tol=1e-6)
@@ -456,7 +456,7 @@ def test_undamped_trained_reduced_model_never_gains_energy(beam, start):
     _, snapshots, _ = beam
     body = make_body(rayleigh=(0.0, 0.0))
     mass = body_mass(body)
-    U, _ = pod_basis(snapshots.displacements.T, mass, r=6)
+    U, _ = pod_basis(snapshots.displacements, mass, r=6)
     q = project(U, mass, snapshots.displacements)
     G, b = training_forces(body, U, q, snapshots.excitations)
     points = trained_points(G, b, tol=1e-3)

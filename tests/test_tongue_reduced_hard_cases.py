@@ -111,7 +111,7 @@ def reduced_tongue(tongue, basis: str, sampling: str, snapshots: Snapshots | Non
     body.compile()
     mass = body_mass(body)
     if basis == "pod":
-        U, _ = pod_basis(snapshots.displacements.T, mass, r=POD_R)
+        U, _ = pod_basis(snapshots.displacements, mass, r=POD_R)
     else:
         modes, _ = linear_modes(body, LINEAR_MODES)
         U = extended_modes(modes, mass, fixed_dofs=body.fixed_dofs)

@@ -360,7 +360,10 @@ def _m_orthonormalize(X: np.ndarray, mass, tol: float, comm=None, ref=None) -> n
 
 def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
               energy_tol: float | None = None, comm=None) -> tuple[np.ndarray, np.ndarray]:
-    """Mass-weighted POD of displacement snapshots (columns of S, shape (3n, n_s)).
+    """Mass-weighted POD of displacement snapshots, one per row: shape (n_s, 3n).
+
+    (Rows, as everywhere in artifem.reduction: ``Snapshots.displacements``,
+    ``record_snapshots`` and ``project`` too.) Below, S = snapshots^T (3n, n_s).
 
     Minimizes sum_k ||s_k - U U^T M s_k||_M^2 over M-orthonormal U. With the
     lumped mass diagonal m and W = diag(sqrt(m)): W S = Phi Sigma V^T (thin SVD),
@@ -383,9 +386,10 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     elif not (0.0 <= energy_tol < 1.0):
         raise InputError(f"pod_basis: energy_tol must be in [0, 1), got {energy_tol!r}")
     S = np.asarray(snapshots, dtype=float)
-    if S.ndim != 2 or S.shape[1] == 0:
-        raise InputError(f"pod_basis: snapshots must be a 2-D array (dofs, n_snapshots) with at "
-                         f"least one column, got shape {S.shape}")
+    if S.ndim != 2 or S.shape[0] == 0:
+        raise InputError(f"pod_basis: snapshots must be a 2-D array of rows (n_snapshots, dofs) "
+                         f"with at least one row, got shape {S.shape}")
+    S = S.T
     if not np.all(np.isfinite(S)):
         raise InputError("pod_basis: snapshots contain non-finite values")
     parallel = comm is not None and comm.size > 1
@@ -393,8 +397,9 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     if not callable(mass) and not parallel:
         m = np.asarray(mass, dtype=float)
         if m.shape != (S.shape[0],):
-            raise InputError(f"pod_basis: mass diagonal must have shape ({S.shape[0]},), "
-                             f"got {m.shape}")
+            raise InputError(f"pod_basis: snapshots of {S.shape[0]} dofs (rows of shape "
+                             f"(n_snapshots, dofs) = {S.T.shape}) against a mass diagonal of "
+                             f"shape {m.shape}; snapshots are rows, one per snapshot")
         if np.any(m < 0) or not np.all(np.isfinite(m)):
             raise InputError("pod_basis: mass diagonal must be finite and >= 0")
         zero = m == 0

@@ -104,10 +104,18 @@ class ArtifactCache:
 
 @dataclass
 class Snapshots:
-    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states."""
+    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states:
+    one snapshot per row, the convention of every function in artifem.reduction."""
 
     displacements: np.ndarray
     excitations: np.ndarray
+
+    def __post_init__(self):
+        u, a = np.asarray(self.displacements), np.asarray(self.excitations)
+        if u.ndim != 2 or a.ndim != 2 or u.shape[0] != a.shape[0]:
+            raise InputError(f"Snapshots: displacements (n_snapshots, dofs) and excitations "
+                             f"(n_snapshots, muscles) need one row per snapshot, got shapes "
+                             f"{u.shape} and {a.shape}")
 
     @staticmethod
     def concatenate(parts: list[Snapshots]) -> Snapshots:
@@ -141,6 +149,11 @@ def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:
     ``mass`` is the lumped diagonal (M-orthonormal U makes this the M-orthogonal
     projection) or a callable x -> M x.
     """
+    displacements = np.asarray(displacements)
+    if displacements.ndim != 2 or displacements.shape[1] != U.shape[0]:
+        raise InputError(f"project: displacements must be rows (n_snapshots, dofs = "
+                         f"{U.shape[0]}) for a basis of shape {U.shape}, got shape "
+                         f"{displacements.shape}")
     if callable(mass):
         return np.array([U.T @ mass(u) for u in displacements])
     return displacements @ (np.asarray(mass)[:, None] * U)

@@ -142,7 +142,7 @@ class TongueStudy:
         c = self.config
         if name == "trained-pod":
             key = self.cache.key("basis-pod", snapshots=snapshot_keys, r=c.pod_r)
-            data = self.cache.get(key, lambda: {"U": pod_basis(snapshots.displacements.T,
+            data = self.cache.get(key, lambda: {"U": pod_basis(snapshots.displacements,
                                                                self.mass, r=c.pod_r)[0]})
         elif name == "modal-derivatives":
             key = self.cache.key("basis-derivatives", model=self.model_key, modes=c.linear_modes)

@@ -1,0 +1,101 @@
+"""The README's measured figures are the ones in the JSON files the benchmark commands
+write (docs/benchmarks/*.json: ``artifem bench fom|tongue|scenes``). A figure edited
+by hand, or a JSON refreshed without the text, fails here."""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def load(name):
+    return json.loads((ROOT / "docs" / "benchmarks" / name).read_text())
+
+
+def printed(text: str) -> tuple[float, float]:
+    """(value, half a unit of its last printed digit) of '1,136', '61.4' or '**382.1**'."""
+    text = text.strip().strip("*").replace(",", "")
+    decimals = len(text.split(".")[1]) if "." in text else 0
+    return float(text), 0.5 * 10.0 ** -decimals + 1e-9
+
+
+def agrees(text: str, value: float) -> bool:
+    shown, half = printed(text)
+    return abs(shown - value) <= half
+
+
+def table_after(marker: str) -> list[list[str]]:
+    """The cells of the first Markdown table after the line holding ``marker``."""
+    lines = README[README.index(marker):].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+@pytest.mark.parametrize("name, marker, key", [
+    ("fom.json", "(`docs/benchmarks/fom.json`)", "nodes"),
+    ("tongue.json", "`docs/benchmarks/tongue.json`:", "level"),
+])
+def test_step_tables_match_the_benchmark_json(name, marker, key):
+    cases = {(c[key], c["ranks"]): c for c in load(name)["cases"]}
+    rows = table_after(marker)
+    assert len(rows) == len(cases)
+    for row in rows:
+        first = int(printed(row[0])[0])
+        ranks = int(row[2] if key == "level" else row[1])
+        case = cases[(first, ranks)]
+        cols = row[1:] if key == "nodes" else row[2:]
+        if key == "level":
+            assert agrees(row[1], case["nodes"])
+        ms, assembly, solve, its, mb = cols[1:6]
+        assert agrees(ms, case["ms_per_step"]), (row, case["ms_per_step"])
+        assert agrees(assembly, case["assembly_ms"]) and agrees(solve, case["solve_ms"]), row
+        assert abs(printed(its)[0] - case["iterations"]) <= 0.5, row
+        assert agrees(mb, case["peak_mb"]), row
+
+
+def test_scene_step_costs_match_scenes_json():
+    scenes = load("scenes.json")["scenes"]
+    jt, air, mas = scenes["jaw-tongue"]["cases"], scenes["airway"], scenes["masseter"]["cases"]
+    text = re.sub(r"\s+", " ", README[README.index("`artifem bench scenes --out FILE.json` times"):])
+    m = re.search(r"jaw-tongue step takes ([\d.,]+) ms with the full tongue and ([\d.,]+) ms with "
+                  r"the reduced one \(([\d.]+)x\)", text)
+    assert m, "the jaw-tongue sentence changed: update this test with it"
+    assert agrees(m[1], jt["full"]["ms_per_step"]) and agrees(m[2], jt["reduced"]["ms_per_step"])
+    assert agrees(m[3], jt["speedup"])
+    m = re.search(r"airway costs ([\d.,]+) ms per step with the full tongue and ([\d.,]+) ms with "
+                  r"its skin and the 1 kPa pressure; with the reduced tongue ([\d.,]+) and "
+                  r"([\d.,]+) ms \(([\d.]+)x and ([\d.]+)x", text)
+    assert m, "the airway sentence changed: update this test with it"
+    full, red = air["cases"]["full"], air["cases"]["reduced"]
+    for shown, value in zip(m.groups(), [full["ms_per_step_without_airway"],
+                                         full["ms_per_step_with_skin_pressure"],
+                                         red["ms_per_step_without_airway"],
+                                         red["ms_per_step_with_skin_pressure"],
+                                         air["speedup"]["ms_per_step_without_airway"],
+                                         air["speedup"]["ms_per_step_with_skin_pressure"]]):
+        assert agrees(shown, value), (shown, value)
+    m = re.search(r"masseter takes ([\d.,]+) ms conforming, ([\d.,]+) ms conforming with embedded "
+                  r"membranes, ([\d.,]+) ms on the voxel grid with membranes, and ([\d.,]+) ms with "
+                  r"conforming aponeurosis slabs \(([\d.,]+) masters\)", text)
+    assert m, "the masseter sentence changed: update this test with it"
+    for shown, value in zip(m.groups(), [mas["conforming/none"]["ms_per_step"],
+                                         mas["conforming/embedded"]["ms_per_step"],
+                                         mas["embedding/embedded"]["ms_per_step"],
+                                         mas["conforming/slabs"]["ms_per_step"],
+                                         mas["conforming/slabs"]["masters"]]):
+        assert abs(printed(shown)[0] - value) <= max(printed(shown)[1], 0.5), (shown, value)
+
+
+def test_fom_targets_sentence_matches_fom_json():
+    cases = {(c["nodes"], c["ranks"]): c["ms_per_step"] for c in load("fom.json")["cases"]}
+    m = re.search(r"both are met \((\d+) and (\d+) ms\)", README)
+    assert m and agrees(m[1], cases[(3025, 2)]) and agrees(m[2], cases[(13284, 2)])
