@@ -15,6 +15,8 @@ This module imports nothing of artifem: every layer may raise these.
 
 from __future__ import annotations
 
+import numpy as np
+
 
 class ArtifemError(Exception):
     """Base class of every error artifem raises on purpose."""
@@ -45,6 +47,14 @@ class MeshFileNotFoundError(MeshError, FileNotFoundError):
 class OutsideMeshError(InputError):
     """Embedded points lie outside the body (and ``snap`` was not requested)."""
 
+    def __init__(self, name: str, outside: np.ndarray, distance: np.ndarray):
+        self.outside, self.distance = outside, distance
+        worst = int(outside[np.argmax(distance[outside])])
+        super().__init__(
+            f"{outside.size} embedded point(s) lie outside FEM body {name!r}; the worst is "
+            f"point {worst} at distance {distance[worst]:.4g}; pass snap=True to move them to "
+            f"the closest point of the nearest element")
+
 
 class SolverError(ArtifemError, RuntimeError):
     """A step or a solve failed; the message says why in terms of the model."""
@@ -52,10 +62,6 @@ class SolverError(ArtifemError, RuntimeError):
 
 class StepFailed(SolverError):
     """A step could not be completed at this step size."""
-
-
-class CoupledStepFailed(StepFailed):
-    """The coupled step's linear system is singular or its solution non-finite."""
 
 
 class RigidStepFailed(StepFailed):
@@ -67,4 +73,17 @@ class LinearSolveError(SolverError):
 
 
 class ElementInversionError(SolverError):
-    """det F <= 0 at a quadrature point, and the step could not recover."""
+    """det F <= 0 at a quadrature point, and the step could not recover: names the body,
+    the time, the elements (input indices) and the smallest det F."""
+
+    def __init__(self, time: float, elements: np.ndarray, min_det: float, detail: str = "",
+                 body: str = ""):
+        self.time, self.elements, self.min_det = time, np.asarray(elements), min_det
+        self.body = body
+        shown = ", ".join(str(e) for e in self.elements[:20])
+        more = f" (and {len(self.elements) - 20} more)" if len(self.elements) > 20 else ""
+        where = f" of body {body!r}" if body else ""
+        super().__init__(
+            f"element inversion at t = {time:.6g} s: det F = {min_det:.4g} <= 0 in "
+            f"{len(self.elements)} element(s){where} [{shown}{more}] (input element indices)"
+            + (f"; {detail}" if detail else ""))

@@ -179,7 +179,7 @@ class System:
                 bad, min_det = body.inverted_elements()
             body.set_state(saved)
             if bad.size or min_det <= 0:
-                raise ElementInversionError(self.time + dt, bad, min_det, detail)
+                raise ElementInversionError(self.time + dt, bad, min_det, detail, body=body.name)
         raise StepFailed(f"step failed at t = {self.time:.6g} s: {detail}")
 
     def solve_static(self, load_steps: int = 1, **kwargs) -> None:

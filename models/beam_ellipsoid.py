@@ -8,12 +8,12 @@ centre at (L + a, W/2, H/2). Gravity acts on both. Two couplings
 (``build_scene(attach=...)``):
 
 - ``"frame"``, the paper's: the ellipsoid follows a frame on the beam's end face
-  (:class:`~artifem.multibody.coupled.FrameAttachment`), a Procrustes frame over
+  (:class:`~artifem.scene.FrameAttachment`), a Procrustes frame over
   the face's nodes with its origin at their centroid, so the ellipsoid's weight
   and moment reach the face as G^T [f; tau]: the force spread evenly, the moment
   as forces linear across the face. The face stays deformable.
 - ``"face"``: the end-face nodes (x = L) follow the ellipsoid
-  (:class:`~artifem.multibody.coupled.NodeAttachment`), x_i = p + R r_i, which
+  (:class:`~artifem.scene.NodeAttachment`), x_i = p + R r_i, which
   makes the face rigid.
 
 Both are the same coupling for a beam whose cross-section stays plane; they differ
@@ -55,7 +55,8 @@ from artifem.arguments import positive_float
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.multibody.coupled import CoupledSystem, FrameAttachment, NodeAttachment
+from artifem.multibody.attachments import FrameAttachment, NodeAttachment
+from artifem.scene import Scene
 from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.rigid_body import RigidBody
 
@@ -98,7 +99,7 @@ def _beam_mesh(config: BeamEllipsoidConfig, extra_cells: int = 0, extra_length: 
 
 
 def build_scene(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: str = "face"
-                ) -> tuple[CoupledSystem, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
+                ) -> tuple[Scene, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
     """The clamped beam, the ellipsoid and its attachment (module docstring), in one scene."""
     if attach not in ("face", "frame"):
         raise InputError(f"build_scene: attach must be 'face' or 'frame', got {attach!r}")
@@ -107,7 +108,7 @@ def build_scene(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: 
     beam.fix_nodes(beam.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     mass, inertia = ellipsoid_mass_properties(config)
     ellipsoid = RigidBody("ellipsoid", mass, inertia, position=config.center)
-    scene = CoupledSystem(gravity=config.gravity)
+    scene = Scene(gravity=config.gravity)
     scene.add(beam, ellipsoid)
     face = beam.find_nodes(lambda x: np.isclose(x[0], config.length))
     if attach == "face":

@@ -66,7 +66,8 @@ from artifem.arguments import positive_float
 from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data
-from artifem.multibody.coupled import CoupledSystem, FemPoint, LiftAttachment, NodeAttachment
+from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
+from artifem.scene import Scene
 from artifem.multibody.frame_paths import FramePath
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
@@ -237,7 +238,7 @@ def _condyle_centres(vertices: np.ndarray) -> np.ndarray:
 
 @dataclass
 class JawTongueScene:
-    scene: CoupledSystem
+    scene: Scene
     tongue: Tongue
     jaw: RigidBody
     attachment: NodeAttachment | LiftAttachment
@@ -278,7 +279,7 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     alignment["holes_capped"], alignment["triangles_flipped"] = holes, flipped
     vertices = closed_mm @ alignment["linear"].T + alignment["translation"]
     jaw = RigidBody.from_surface("jaw", vertices, closed_tri, config.bone_density)
-    scene = CoupledSystem(gravity=config.gravity)
+    scene = Scene(gravity=config.gravity)
     if reduce is None:
         reduced = None
         attachment = NodeAttachment(tongue.body, jaw_rows, jaw, name="tongue->jaw")

@@ -10,7 +10,7 @@ cannot express with node slaves, so the basis carries the jaw
 
 L the 12 lift columns (exact rigid motion of the attachment nodes, extended
 by the rest tangent), U a trained POD basis that vanishes on the attachment
-and hyoid nodes. In the CoupledSystem g is a slave of the jaw
+and hyoid nodes. In the Scene g is a slave of the jaw
 (:class:`LiftAttachment`); the masters are q and the jaw's twist.
 
 Training (cached on disk by the inputs, :class:`ArtifactCache`): the *full*
@@ -45,7 +45,7 @@ from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.models import jaw_tongue as jt
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME
-from artifem.multibody.coupled import LiftAttachment
+from artifem.multibody.attachments import LiftAttachment
 from artifem.reduction.bases import body_mass, pod_basis
 from artifem.reduction.cubature import IntegrationPoints, trained_points_path
 from artifem.reduction.reduced_body import ReducedFemBody

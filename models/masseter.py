@@ -62,7 +62,7 @@ point-to-segment distance), stored in a quadrature-space Function
 
 Measurement (:func:`simulate`): ``steps`` semi-implicit coupled steps (dt) with the
 excitation ramped linearly from 0 to a (ms per step: the median), then the static
-equilibrium at a (Newton, :meth:`CoupledSystem.solve_static`), then one step at equilibrium
+equilibrium at a (Newton, :meth:`Scene.solve_static`), then one step at equilibrium
 whose weld reaction gives the force the muscle transmits to the jaw,
 F_jaw = -(the weld's force on the jaw) (and the same for the arch: F_jaw + F_arch = 0).
 
@@ -99,7 +99,8 @@ from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.embedding.voxel_fem import VoxelFemBody
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin, NeoHookean
-from artifem.multibody.coupled import CoupledSystem, EmbeddedFemAttachment, NodeAttachment
+from artifem.multibody.attachments import EmbeddedFemAttachment, NodeAttachment
+from artifem.scene import Scene
 from artifem.multibody.joints import FixedJoint
 from artifem.multibody.rigid_body import RigidBody
 
@@ -440,7 +441,7 @@ class MasseterModel:
     config: MasseterConfig
     primary_kind: str
     aponeuroses: str
-    scene: CoupledSystem
+    scene: Scene
     primary: FemBody
     membranes: list
     attachments: list
@@ -528,7 +529,7 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
         info["slab_cells"] = int(slab_cells.size)
     info["build_s"] = time.perf_counter() - t0
 
-    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body)
     membranes, attachments = [], []
     if aponeuroses == "embedded":

@@ -5,8 +5,8 @@ excitation or equal tension, full or reduced tongue, and the resulting stress fi
 Scene. The level-0 ArtiSynth hex tongue (models.tongue: Mooney-Rivlin C10 = 1037 Pa,
 C20 = 486 Pa, kappa = 10370 Pa, element-wise incompressibility penalty 100 C10, Rayleigh
 40 M + 0.03 K, jaw and hyoid attachment nodes fixed; internal muscles unexcited) in a
-:class:`~artifem.multibody.coupled.CoupledSystem` without gravity, and two
-:class:`~artifem.multibody.coupled.PointPath` elements (left, right) from the styloid points of
+:class:`~artifem.scene.Scene` without gravity, and two
+:class:`~artifem.scene.PointPath` elements (left, right) from the styloid points of
 ArtiSynth's HexTongueDemo, (0.14984, +-0.035891, 0.125) m (19 mm behind, 3.3 mm lateral to
 and 11 mm above the tongue's bounding box), to attachment points on the tongue: the centroid
 of the free boundary facet nearest to each styloid point (ArtiSynth's choice not found), on
@@ -80,7 +80,9 @@ from threadpoolctl import threadpool_limits
 from artifem.arguments import nonnegative_float, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
-from artifem.multibody.coupled import CoupledSystem, FemPoint, PointPath
+from artifem.multibody.attachments import FemPoint
+from artifem.multibody.point_paths import PointPath
+from artifem.scene import Scene
 from artifem.multibody.muscles import PathForces, PathGeometry, ThelenMuscle, ThelenParameters
 from artifem.multibody.point_attachments import nearest_nodes, support_weights
 from artifem.reduction.bases import body_mass, pod_basis
@@ -216,7 +218,7 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
     body = tongue.body
     master = body if reduced is None else ReducedFemBody(body, reduced.U, reduced.points,
                                                          name="tongue_reduced")
-    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(master)
     points = {s: p for s, p in attachment_points(body).items() if s in sides}
     paths, fem_points = {}, {}

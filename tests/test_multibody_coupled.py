@@ -1,4 +1,4 @@
-"""FEM and rigid bodies coupled by node attachments and joints in one step (multibody.coupled).
+"""FEM and rigid bodies coupled by node attachments and joints in one step (artifem.scene).
 
 (1) a beam whose end nodes are attached to a fixed bone follows the trajectory
     of the same beam with those nodes fixed (the FEM SemiImplicitEuler step);
@@ -27,7 +27,8 @@ from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.integrators import SemiImplicitEuler, solve_static
 from artifem.linear_solver import LinearSolver
-from artifem.multibody.coupled import CoupledSystem, NodeAttachment, RigidAttachment
+from artifem.multibody.attachments import NodeAttachment, RigidAttachment
+from artifem.scene import Scene
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.rigid_body import BodyState, Frame, RigidBody, exp_so3
 from artifem.multibody.rigid_system import RigidSystem
@@ -63,7 +64,7 @@ def test_beam_attached_to_a_fixed_bone_follows_the_clamped_beam():
     clamped.fix_nodes(end)
     bone = RigidBody("bone", 2.0, np.diag([1.0, 2.0, 3.0]), position=(-0.1, 0.13, 0.07),
                      rotation=exp_so3([0.3, -0.5, 0.8]), motion="fixed")
-    scene = CoupledSystem(gravity=(0.0, 0.0, -G))
+    scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(attached, bone)
     scene.add(NodeAttachment(attached, end, bone))
     solver, step = LinearSolver(MPI.COMM_SELF, "mumps"), SemiImplicitEuler()
@@ -90,7 +91,7 @@ def carried_block_error(h, duration=0.5):
                      trajectory=lambda t: BodyState(p0 + v0 * t, exp_so3(t * w0), v0, w0))
     X = body.V.tabulate_dof_coordinates()
     body.v.x.array[:] = (v0 + np.cross(w0, X - p0)).ravel()
-    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body, bone)                                # places the bone on its trajectory
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[2] < 1e-12), bone))
     worst, attach = 0.0, 0.0
@@ -170,7 +171,7 @@ def test_static_tangent_matches_finite_differences_through_an_attachment_chain()
     bone = RigidBody("bone", 0.5, np.diag([1e-3, 2e-3, 2.5e-3]), position=(-0.03, 0.05, 0.05),
                      rotation=exp_so3([0.3, -0.2, 0.5]))
     tip = RigidBody("tip", 0.2, np.diag([1e-4, 2e-4, 2.5e-4]), position=(-0.1, 0.02, 0.05))
-    scene = CoupledSystem(gravity=(0.0, 0.0, -G))
+    scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(body, bone, tip, RigidAttachment(tip, bone))
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[0] < 1e-12), bone))
     n = scene.master_count()
@@ -215,7 +216,7 @@ def test_free_bone_with_a_block_keeps_momentum_and_gains_no_energy():
                      velocity=v0, angular_velocity=w0)
     X = body.V.tabulate_dof_coordinates()
     body.v.x.array[:] = (v0 + np.cross(w0, X - bone.position)).ravel()
-    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body, bone)
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[0] < 1e-12), bone))
     P0, E0 = scene.momentum(), scene.energy()
@@ -301,7 +302,7 @@ def test_rigid_only_scene_reproduces_the_rigid_system():
         lower.velocity = np.cross(lower.angular_velocity, lower.position - elbow)
         shoulder = RevoluteJoint.at_world(upper, None, (0.0, 0.0, 0.0), HINGE_Y)
         knee = RevoluteJoint.at_world(lower, upper, elbow, HINGE_Y, limits=(-0.6, 0.6))
-        system = RigidSystem((0, 0, -G)) if kind == "rigid" else CoupledSystem((0, 0, -G))
+        system = RigidSystem((0, 0, -G)) if kind == "rigid" else Scene((0, 0, -G))
         system.add(upper, lower, shoulder, knee)
         angles = []
         for _ in range(1500):
@@ -327,7 +328,7 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
     rod_body = RigidBody("rod", 0.05, 0.05 * L_rod ** 2 / 12 * np.diag([1.0, 1.0, 0.01]),
                          position=(0.0, 0.0, -L_rod / 2))
     theta0 = 0.05
-    scene = CoupledSystem(gravity=(0.0, 0.0, -G))
+    scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(block, rod_body, RevoluteJoint.at_world(rod_body, None, (0.0, 0.0, 0.0), HINGE_Y))
     scene.add(NodeAttachment(block, block.find_nodes(lambda x: x[2] > -L_rod - 1e-12), rod_body))
     # the analytic period from the discrete masses (lumped) about the hinge axis y
@@ -375,7 +376,7 @@ def test_bad_attachments_are_clear_errors():
     with pytest.raises(ValueError, match="integer node indices"):
         NodeAttachment(body, [], bone)
 
-    scene = CoupledSystem()
+    scene = Scene()
     other = RigidBody("other", 1.0, np.eye(3), position=(0.3, 0.05, 0.05))
     scene.add(body, bone, other, NodeAttachment(body, face, bone),
               NodeAttachment(body, face[:1], other, name="second"))
@@ -384,13 +385,13 @@ def test_bad_attachments_are_clear_errors():
 
     body, bone, face = scene_parts()
     body.fix_nodes(face[:2])
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, bone, NodeAttachment(body, face, bone))
     with pytest.raises(ValueError, match="are fixed; a node is either fixed or attached"):
         scene.check()
 
     body, bone, face = scene_parts()
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, NodeAttachment(body, face, bone))
     with pytest.raises(ValueError, match="rigid body 'bone' is not in the scene"):
         scene.step(1e-3)
@@ -400,7 +401,7 @@ def test_bad_attachments_are_clear_errors():
                        trajectory=lambda t: BodyState(np.array([1.0, 0, 0]), np.eye(3),
                                                       np.zeros(3), np.zeros(3)))
     attachment = NodeAttachment(body, face, moving)        # before the scene placed it
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, moving, attachment)
     with pytest.raises(ValueError, match="moved after the attachment was made"):
         scene.step(1e-3)
@@ -410,7 +411,7 @@ def test_attachment_cycles_and_bad_rigid_attachments_are_clear_errors():
     a = RigidBody("a", 1.0, np.eye(3))
     b = RigidBody("b", 1.0, np.eye(3), position=(1.0, 0, 0))
     c = RigidBody("c", 1.0, np.eye(3), position=(2.0, 0, 0))
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(a, b, c, RigidAttachment(a, b), RigidAttachment(b, c), RigidAttachment(c, a))
     with pytest.raises(ValueError, match="attachment cycle: a -> b -> c -> a"):
         scene.check()
@@ -419,7 +420,7 @@ def test_attachment_cycles_and_bad_rigid_attachments_are_clear_errors():
     ground = RigidBody("ground", 1.0, np.eye(3), motion="fixed")
     with pytest.raises(ValueError, match="only a dynamic body can follow another"):
         RigidAttachment(ground, a)
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(a, b, c, RigidAttachment(a, b), RigidAttachment(a, c))
     with pytest.raises(ValueError, match="rigid body 'a' is attached twice"):
         scene.check()

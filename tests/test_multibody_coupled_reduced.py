@@ -1,4 +1,4 @@
-"""Reduced FEM bodies in the coupled step (multibody.coupled, reduction.rigid_lift).
+"""Reduced FEM bodies in the coupled step (artifem.scene, reduction.rigid_lift).
 
 (1) the lift columns reproduce any rigid pose of the carried nodes exactly
     (g is linear in (p, R)) and G_g is the derivative of g;
@@ -20,8 +20,9 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.multibody.coupled import CoupledSystem, FemPoint, LiftAttachment, NodeAttachment, \
-    PointPath
+from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
+from artifem.multibody.point_paths import PointPath
+from artifem.scene import Scene
 from artifem.multibody.joints import RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring
 from artifem.multibody.point_attachments import shape_function_weights
@@ -92,7 +93,7 @@ def test_full_basis_reduced_body_on_a_prescribed_bone_matches_the_full_body():
     b_full, b_red = prescribed_bone(), prescribed_bone()
     lift = rigid_lift(lifted, end_nodes(lifted), b_red.position, b_red.rotation)
     reduced = ReducedFemBody(lifted, lifted_basis(lifted, lift), all_points(lifted))
-    s_full, s_red = CoupledSystem(gravity=(0, 0, -G)), CoupledSystem(gravity=(0, 0, -G))
+    s_full, s_red = Scene(gravity=(0, 0, -G)), Scene(gravity=(0, 0, -G))
     s_full.add(full, b_full)
     s_full.add(NodeAttachment(full, end_nodes(full), b_full))
     s_red.add(reduced, b_red)
@@ -113,7 +114,7 @@ def hinged(reduced_basis=None, rayleigh=(0.5, 0.01)):
     body = make_body(rayleigh=rayleigh)
     b = bone()
     hinge = RevoluteJoint.at_world(b, None, (1.2, 0.15, 0.1), axis_rotation((0.0, 0.0, 1.0)))
-    scene = CoupledSystem(gravity=(0, 0, -G))
+    scene = Scene(gravity=(0, 0, -G))
     scene.add(b, hinge)
     if reduced_basis is None:
         scene.add(body, NodeAttachment(body, end_nodes(body), b))
@@ -171,7 +172,7 @@ def test_spring_on_a_reduced_point_matches_the_full_scene_and_does_virtual_work(
 
     def scene_for(reduced: bool):
         body = make_body()
-        scene = CoupledSystem(gravity=(0, 0, -G))
+        scene = Scene(gravity=(0, 0, -G))
         X = np.array([0.8, 0.15, 0.2])
         w = shape_function_weights(body, X)
         if reduced:
@@ -213,7 +214,7 @@ def test_bad_lift_attachments_are_clear_errors():
     with pytest.raises(ValueError, match="fixed"):
         rigid_lift(body, body.find_nodes(lambda x: x[0] < 1e-12), b.position, b.rotation)
     reduced = ReducedFemBody(body, lifted_basis(body, lift, 4), all_points(body))
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(reduced, LiftAttachment(reduced, lift, b))
     with pytest.raises(ValueError, match="not in the scene"):
         scene.check()

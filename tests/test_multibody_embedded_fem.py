@@ -20,7 +20,8 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.multibody.coupled import CoupledSystem, EmbeddedFemAttachment, NodeAttachment
+from artifem.multibody.attachments import EmbeddedFemAttachment, NodeAttachment
+from artifem.scene import Scene
 from artifem.multibody.rigid_body import RigidBody, exp_so3
 from coupled_fd import master_force_difference
 
@@ -45,11 +46,11 @@ def beam(name="beam"):
 def test_embedded_twin_doubles_everything_and_changes_nothing():
     """Measured: max |u_with_twin - u_alone| = 3e-17 m on 0.15 m after 20 steps."""
     alone = beam()
-    scene_alone = CoupledSystem(gravity=(0, 0, -G))
+    scene_alone = Scene(gravity=(0, 0, -G))
     scene_alone.add(alone)
     master = beam()
     twin = box((0, 0, 0), (1.0, 0.2, 0.2), (8, 2, 2), name="twin")
-    scene = CoupledSystem(gravity=(0, 0, -G))
+    scene = Scene(gravity=(0, 0, -G))
     scene.add(master, twin, EmbeddedFemAttachment(twin, master))
     assert scene.master_count() == scene_alone.master_count()
     for _ in range(20):
@@ -72,7 +73,7 @@ def test_non_matching_slave_follows_an_affine_master_field_exactly():
     slave = box((0.13, 0.07, 0.11), (0.81, 0.33, 0.29), (4, 3, 3), name="slab",
                 cell=dmesh.CellType.tetrahedron)
     att = EmbeddedFemAttachment(slave, master)
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(master, slave, att)
     A, c = np.array([[0.1, -0.3, 0.2], [0.05, 0.02, -0.4], [0.3, 0.1, 0.0]]), np.array(
         [0.01, -0.02, 0.03])
@@ -94,7 +95,7 @@ def test_static_tangent_through_an_embedded_chain_matches_finite_differences():
                 cell=dmesh.CellType.tetrahedron)
     b = RigidBody("bone", 0.5, np.diag([1e-3, 2e-3, 2.5e-3]), position=(-0.03, 0.05, 0.05),
                   rotation=exp_so3([0.3, -0.2, 0.5]))
-    scene = CoupledSystem(gravity=(0, 0, -G))
+    scene = Scene(gravity=(0, 0, -G))
     scene.add(master, slave, b, EmbeddedFemAttachment(slave, master))
     scene.add(NodeAttachment(master, master.find_nodes(lambda x: x[0] < 1e-12), b))
     dq0 = 0.005 * rng.standard_normal(scene.master_count())
@@ -128,7 +129,7 @@ def test_load_element_equals_the_fem_nodal_load():
     with_load, with_element = beam(), beam()
     tip = with_load.find_nodes(lambda x: x[0] > 1.0 - 1e-12)
     with_load.add_nodal_load(tip, [0.0, 2.0, -1.0])
-    s1, s2 = CoupledSystem(gravity=(0, 0, -G)), CoupledSystem(gravity=(0, 0, -G))
+    s1, s2 = Scene(gravity=(0, 0, -G)), Scene(gravity=(0, 0, -G))
     s1.add(with_load)
     s2.add(with_element, TipLoad(with_element, tip, [0.0, 2.0, -1.0]))
     s1.solve_static()
@@ -148,7 +149,7 @@ def test_bad_embedding_and_loads_are_clear_errors():
     with pytest.raises(ValueError, match="itself"):
         EmbeddedFemAttachment(master, master)
     slave = box((0.1, 0.05, 0.05), (0.5, 0.15, 0.15), (2, 1, 1), name="slave")
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(master, EmbeddedFemAttachment(slave, master))
     with pytest.raises(ValueError, match="not in the scene"):
         scene.check()
@@ -158,11 +159,11 @@ def test_bad_embedding_and_loads_are_clear_errors():
         scene.check()
     a, b = box((0, 0, 0), (1, 1, 1), (1, 1, 1), name="a"), box((0, 0, 0), (1, 1, 1), (1, 1, 1),
                                                                name="b")
-    loop = CoupledSystem()
+    loop = Scene()
     loop.add(a, b, EmbeddedFemAttachment(a, b), EmbeddedFemAttachment(b, a))
     with pytest.raises(ValueError, match="cycle"):
         loop.check()
-    scene2 = CoupledSystem()
+    scene2 = Scene()
     other = beam("other")
     scene2.add(master, TipLoad(other, [0], [1.0, 0.0, 0.0]))
     with pytest.raises(ValueError, match="not a body of this scene"):

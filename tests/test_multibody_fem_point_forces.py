@@ -1,7 +1,7 @@
-"""Springs and muscles on points of FEM bodies in a CoupledSystem (multibody.coupled.PointPath).
+"""Springs and muscles on points of FEM bodies in a Scene (multibody.point_paths.PointPath).
 
 (1) statics: a spring from a fixed world point to a point of a cantilever (shape-function
-    weights, and a 24-node support): the equilibrium from CoupledSystem.solve_static equals a
+    weights, and a 24-node support): the equilibrium from Scene.solve_static equals a
     FEM-only reference loaded by the equivalent nodal loads w_j f_s, f_s the converged spring
     force taken as a dead load; both solved to Newton tolerance, so they agree to ~1e-9;
 (2) virtual work: G^T f . z = f . (G z) for any z, G z the points' velocities, G the
@@ -21,7 +21,9 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.multibody.coupled import CoupledSystem, FemPoint, PointPath
+from artifem.multibody.attachments import FemPoint
+from artifem.multibody.point_paths import PointPath
+from artifem.scene import Scene
 from artifem.multibody.muscles import AxialSpring
 from artifem.multibody.point_attachments import (nearest_nodes, shape_function_weights,
                                                  support_weights)
@@ -53,7 +55,7 @@ def test_static_equilibrium_matches_the_equivalent_nodal_load(kind):
     body = beam()
     w = weights_of(body, kind)
     path = PointPath(AxialSpring(50.0, rest_length=0.3), [ANCHOR, FemPoint(body, w)])
-    scene = CoupledSystem(gravity=(0, 0, 0))
+    scene = Scene(gravity=(0, 0, 0))
     scene.add(body, path)
     scene.solve_static(load_steps=1, rtol=1e-12)
     f_s = path.evaluate(scene.t).forces[1]
@@ -64,7 +66,7 @@ def test_static_equilibrium_matches_the_equivalent_nodal_load(kind):
     inverse = {d: n for n, d in ref._input_node_to_dof().items()}
     nodes = np.array([inverse[int(d)] for d in w.dofs])
     ref.add_nodal_load(nodes, w.weights[:, None] * f_s[None, :])
-    reference = CoupledSystem(gravity=(0, 0, 0))
+    reference = Scene(gravity=(0, 0, 0))
     reference.add(ref)
     reference.solve_static(rtol=1e-12)
     scale = np.abs(ref.u.x.array).max()
@@ -80,7 +82,7 @@ def test_virtual_work_and_point_map():
     pt = FemPoint(body, weights_of(body, "support24"))
     path = PointPath(AxialSpring(50.0, 0.2, damping=3.0),
                      [ANCHOR, pt, Frame.at_world(frame_body, (1.1, 0.15, -0.4))])
-    scene = CoupledSystem(gravity=(0, 0, 0))
+    scene = Scene(gravity=(0, 0, 0))
     scene.add(body, frame_body, path)
     L = scene._ready()
     body.u.x.array[:] = 0.01 * rng.standard_normal(body.u.x.array.size)
@@ -115,7 +117,7 @@ def test_path_stiffness_and_static_tangent_by_finite_differences():
     pt = FemPoint(body, weights_of(body, "element"))
     hang = PointPath(AxialSpring(80.0, 0.2), [pt, Frame.at_world(bob, (1.15, 0.12, -0.25))])
     pull = PointPath(AxialSpring(50.0, 0.3), [ANCHOR, pt])
-    scene = CoupledSystem(gravity=(0, 0, -9.81))
+    scene = Scene(gravity=(0, 0, -9.81))
     scene.add(body, bob, hang, pull)
     L = scene._ready()
     body.u.x.array[:] = 0.02 * rng.standard_normal(body.u.x.array.size)
@@ -159,7 +161,7 @@ def test_stiff_spring_is_stable_in_the_implicit_step():
     pt = FemPoint(body, weights_of(body, "support24"))
     # the cantilever's tip stiffness is 3 E I / L^3 = 40 N/m; the spring is 1e5 N/m
     path = PointPath(AxialSpring(1e5, rest_length=0.45), [ANCHOR, pt])
-    scene = CoupledSystem(gravity=(0, 0, 0))
+    scene = Scene(gravity=(0, 0, 0))
     scene.add(body, path)
     e0 = scene.energy()
     for _ in range(100):

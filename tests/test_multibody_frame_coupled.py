@@ -1,4 +1,4 @@
-"""Rigid bodies attached to frames on FEM bodies, full and reduced (multibody.coupled
+"""Rigid bodies attached to frames on FEM bodies, full and reduced (artifem.scene
 FrameAttachment; Lloyd et al. 2019, section 3.2, Fig. 11), and joints between frames on
 deformable bodies.
 
@@ -26,7 +26,9 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.multibody.coupled import CoupledSystem, FrameAttachment, NodeAttachment, PointPath
+from artifem.multibody.attachments import FrameAttachment, NodeAttachment
+from artifem.multibody.point_paths import PointPath
+from artifem.scene import Scene
 from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring
@@ -54,7 +56,7 @@ def weight(name="weight", position=(1.15, 0.12, 0.05)):
 
 def loaded_scene(body, method):
     """The beam carrying a weight on a frame near its tip, a spring pulling the weight."""
-    scene = CoupledSystem()
+    scene = Scene()
     w = weight()
     scene.add(body, w)
     scene.add(FrameAttachment(w, tip_frame(body, method), name="tip"))
@@ -158,7 +160,7 @@ def test_full_basis_reduced_beam_carrying_a_frame_body_equals_the_full_scene(met
         U = np.zeros((ndofs(body), free.size))
         U[free, np.arange(free.size)] = 1.0
         master = ReducedFemBody(body, U, all_points(body)) if reduce else body
-        scene = CoupledSystem()
+        scene = Scene()
         w = weight()
         scene.add(master, w, FrameAttachment(w, tip_frame(master, method)))
         for _ in range(15):
@@ -187,7 +189,7 @@ def two_halves(joint):
     """Beam [0, L] clamped at x = 0, cut at L/2; a marker frame on each cut face, joined."""
     a, b = half_beam(0.0, L / 2, 12, "inner"), half_beam(L / 2, L, 12, "outer")
     a.fix_nodes(a.find_nodes(lambda x: np.isclose(x[0], 0.0)))
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(a, b)
     centre = np.array([L / 2, W / 2, H / 2])
     markers = []
@@ -214,7 +216,7 @@ def test_two_halves_welded_by_a_joint_between_frames_bend_like_the_whole_beam():
     assert max(scene.constraint_errors().values()) < 1e-10
     whole = half_beam(0.0, L, 24, "whole")
     whole.fix_nodes(whole.find_nodes(lambda x: np.isclose(x[0], 0.0)))
-    reference = CoupledSystem()
+    reference = Scene()
     reference.add(whole)
     reference.solve_static()
     assert tip(b) == pytest.approx(tip(whole), rel=0.02)
@@ -248,7 +250,7 @@ def test_hinge_between_frames_on_reduced_halves_equals_the_full_scene():
     the full halves to round-off (joints between frames on full and reduced bodies alike)."""
     runs = []
     for reduce in (False, True):
-        scene = CoupledSystem()
+        scene = Scene()
         halves, masters, markers = [], [], []
         for x0, name in ((0.0, "inner"), (L / 2, "outer")):
             msh = dmesh.create_box(MPI.COMM_SELF, [np.array([x0, 0.0, 0.0]),
@@ -285,22 +287,22 @@ def test_bad_frame_attachments_are_clear_errors():
     body = make_body()
     frame = tip_frame(body, "polar")
     marker = RigidBody.marker("loose", position=TIP)
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, marker)
     with pytest.raises(ValueError, match="massless"):
         scene.check()
     w = weight()
     att = FrameAttachment(w, frame)
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, w, att)
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[0] > 0.99), w))
     with pytest.raises(ValueError, match="follows a frame"):
         scene.check()
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(body, w, att, FrameAttachment(w, tip_frame(body, "procrustes"), name="again"))
     with pytest.raises(ValueError, match="attached twice"):
         scene.check()
-    scene = CoupledSystem()
+    scene = Scene()
     scene.add(w, att)
     with pytest.raises(ValueError, match="not in the scene"):
         scene.check()

@@ -309,12 +309,12 @@ def test_skin_pressure_load_element_is_G_transpose_and_does_the_same_work():
 
 def test_skin_pressure_in_a_coupled_step_pushes_a_free_body():
     """An open sheet on a free rigid body: one step gives v = h p A n / m (explicit load)."""
-    from artifem.multibody.coupled import CoupledSystem
+    from artifem.scene import Scene
     from artifem.multibody.skin import SkinPressure
     V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0], [0.0, 2.0, 0.0]])
     F = np.array([[0, 1, 2], [0, 2, 3]])                  # normal +z, area 2
     body = RigidBody("plate", 0.5, np.eye(3), position=[0.5, 1.0, 0.0])
-    scene = CoupledSystem(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body, SkinPressure(SkinMesh(V, F, [body]), 3.0))
     h = 0.01
     scene.step(h)

@@ -262,7 +262,7 @@ class RigidBody:
     def marker(cls, name: str, *, position=(0.0, 0.0, 0.0), rotation=None) -> RigidBody:
         """A massless dynamic body: a coordinate frame that follows an attachment (e.g. a
         frame on an FEM body, for joints and paths). It has no inertia of its own, so it
-        can only be a slave (CoupledSystem checks); free, its step would be singular."""
+        can only be a slave (Scene checks); free, its step would be singular."""
         body = cls(name, 1.0, np.eye(3), position=position, rotation=rotation)
         body.mass, body.inertia = 0.0, np.zeros((3, 3))
         return body

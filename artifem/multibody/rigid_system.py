@@ -172,7 +172,7 @@ class RigidSystem:
                     raise InputError(f"a body named {item.name!r} is already in the system")
                 if item.massless:
                     raise InputError(f"rigid body {item.name!r} is massless (a marker): it can "
-                                     "only follow an attachment in a CoupledSystem")
+                                     "only follow an attachment in a Scene")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.bodies.append(item)

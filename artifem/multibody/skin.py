@@ -73,7 +73,7 @@ per rigid master, nodal forces per FEM master, U^T-projected forces per reduced
 master. A pressure p on the faces (:meth:`SkinMesh.pressure_forces`) gives each
 face the force p * area * n (n along (x_1 - x_0) x (x_2 - x_0), i.e. outward for
 an outward-oriented surface, so p > 0 inflates), a third to each of its vertices.
-:class:`SkinPressure` makes that pressure a load element of a CoupledSystem
+:class:`SkinPressure` makes that pressure a load element of a Scene
 (``master_loads(t)``: f_m = G^T f_v per master, explicit in the step).
 """
 
@@ -531,7 +531,7 @@ class SkinMesh:
 
 
 class SkinPressure:
-    """A uniform pressure p(t) on a skin's faces as a CoupledSystem load element.
+    """A uniform pressure p(t) on a skin's faces as a Scene load element.
 
     Vertex forces f_v = sum over the vertex's faces of p A_f n_f / 3
     (:meth:`SkinMesh.pressure_forces`) go to the masters by virtual work,

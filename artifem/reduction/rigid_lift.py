@@ -18,7 +18,7 @@ f,
 
 K the body's tangent at its current state. A basis [U, L] whose other
 columns U vanish on J then reproduces the carried nodes exactly, and g is a
-function of the bone's pose: in a CoupledSystem the 12 lift coordinates are
+function of the bone's pose: in a Scene the 12 lift coordinates are
 slaves of the body (``LiftAttachment``), with g' = G_g u,
 
     G_g = [[1, 0], [0, -[R_1]x], [0, -[R_2]x], [0, -[R_3]x]]     (12 x 6),

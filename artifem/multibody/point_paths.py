@@ -1,0 +1,66 @@
+"""Springs and muscles through points on FEM bodies, rigid frames and world points."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artifem.errors import InputError
+from artifem.multibody.attachments import FemPoint
+from artifem.multibody.frame_paths import TimedPath
+from artifem.multibody.rigid_body import Frame
+
+
+class PointPath:
+    """A spring or muscle (``AxialSpring``, ``ThelenMuscle``: ``evaluate(x, v, dt)``) through
+    ``points``: :class:`FemPoint` objects, rigid-body or world ``Frame`` objects, or fixed
+    world points (3 numbers). Add it to a :class:`Scene` (artifem.scene.scene docstring: path elements).
+
+    ``excitation(t)``, if given, sets the muscle's excitation at the step's end time; the
+    activation advances once per new time (as ``FramePath``).
+    """
+
+    def __init__(self, element, points, *, excitation=None, name: str = "path"):
+        pts = []
+        for p in points:
+            if isinstance(p, (FemPoint, Frame)):
+                pts.append(p)
+            else:
+                x = np.asarray(p, dtype=float)
+                if x.shape != (3,) or not np.all(np.isfinite(x)):
+                    raise InputError(f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
+                                     f"finite numbers (a fixed world point), got {p!r}")
+                pts.append(Frame(None, x))
+        if len(pts) < 2:
+            raise InputError(f"PointPath {name!r}: a path needs at least two points, "
+                             f"got {len(pts)}")
+        self.element, self.points, self.name = element, pts, name
+        self._timed = TimedPath(element, excitation, f"PointPath {name!r}")
+
+    def __repr__(self) -> str:
+        return f"PointPath({self.name!r}, {len(self.points)} points)"
+
+    @property
+    def conservative(self) -> bool:
+        """True when the element has an energy (springs): statics may use it as a merit."""
+        return hasattr(self.element, "energy")
+
+    def positions(self) -> np.ndarray:
+        return np.array([p.position() if isinstance(p, FemPoint) else p.world_position()
+                         for p in self.points])
+
+    def velocities(self) -> np.ndarray:
+        return np.array([p.velocity() for p in self.points])
+
+    def evaluate(self, t: float):
+        """The element's PathForces at the current positions and velocities, time t."""
+        return self._timed(t, self.positions(), self.velocities())
+
+    def tension(self) -> float:
+        return self._timed.tension()
+
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.positions(), axis=0), axis=1).sum())
+
+    def potential_energy(self) -> float:
+        energy = getattr(self.element, "energy", None)
+        return float(energy(self.positions())) if energy is not None else 0.0

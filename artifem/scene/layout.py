@@ -1,0 +1,834 @@
+"""The scene's coordinates and the pieces of its step (artifem.scene.scene docstring).
+
+:class:`Layout` indexes every coordinate of a :class:`~artifem.scene.Scene` in
+the "all" vector z (FEM nodal velocities, reduced q', rigid twists), sorts
+masters from slaves and known coordinates, and builds what the step needs at
+the current configuration: the prolongation P, the known velocities z_k, the
+bodies' blocks A_all and b_all, the path and load terms, the geometric
+stiffness K_geo, and the joint rows. It also moves the scene (advance,
+displace, place the slaves, save and restore).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from petsc4py import PETSc
+from scipy import sparse
+
+from artifem.errors import InputError
+from artifem.fem_body import FemBody
+from artifem.multibody.attachments import (FemPoint, NodeAttachment, dof_positions, pose_gap,
+                                           skews)
+from artifem.multibody.point_paths import PointPath
+from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.rigid_lift import RigidLift
+
+
+@dataclass
+class _Slaves:
+    """The nodes of one NodeAttachment, as the scene indexes them."""
+
+    attachment: NodeAttachment
+    rows: np.ndarray            # all-space rows (3 per node, node-major)
+
+
+class Layout:
+    """The scene's coordinates: all-space offsets, masters, slaves, roots (artifem.scene.scene docstring)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        fem_bodies, rigid = scene.fem_bodies, scene.rigid_bodies
+        self.fixed = [b.fixed_dofs.copy() for b in fem_bodies]
+        offset = 0
+        self.fem_offset: dict[int, int] = {}
+        self.fem_size: dict[int, int] = {}
+        for body in fem_bodies:
+            n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
+            self.fem_offset[id(body)], self.fem_size[id(body)] = offset, 3 * n
+            offset += 3 * n
+        self.reduced_offset: dict[int, int] = {}
+        for body in scene.reduced_bodies:
+            self.reduced_offset[id(body)] = offset
+            offset += body.r
+        self.rigid_offset: dict[int, int] = {}
+        for body in rigid:
+            self.rigid_offset[id(body)] = offset
+            offset += 6
+        self.n_all = offset
+        self._check_references()
+
+        # Roots of the rigid attachment chains, in dependency order (masters first).
+        chains = {id(b): _chain(b, scene.rigid_attachments, "attachment cycle")
+                  for b in rigid}
+        self.root: dict[int, RigidBody] = {key: c[-1] for key, c in chains.items()}
+        self.rigid_attachments = sorted(scene.rigid_attachments,
+                                        key=lambda a: len(chains[id(a.slave)]))
+        # Embedded bodies, slaves before their masters (deepest first).
+        self.embedded = sorted(scene.embedded_attachments, key=lambda a: -len(_chain(
+            a.slave, scene.embedded_attachments, "embedded attachment cycle")))
+
+        # Masters: free FEM dofs, free reduced coordinates, then the dynamic roots.
+        is_slave_row = np.zeros(self.n_all, dtype=bool)
+        self.slaves: list[_Slaves] = []
+        for att in scene.node_attachments:
+            o = self.fem_offset[id(att.fem)]
+            rows = (o + 3 * att.dofs[:, None] + np.arange(3)).ravel()
+            is_slave_row[rows] = True
+            self.slaves.append(_Slaves(att, rows))
+        for att in self.embedded:
+            o = self.fem_offset[id(att.slave)]
+            is_slave_row[o:o + self.fem_size[id(att.slave)]] = True
+        for att in scene.lift_attachments:
+            is_slave_row[self.reduced_offset[id(att.reduced)] + att.columns] = True
+        framed = {id(att.slave) for att in scene.frame_attachments}
+        master_rows = []
+        for body, fixed in zip(fem_bodies, self.fixed):
+            o = self.fem_offset[id(body)]
+            known = np.zeros(self.fem_size[id(body)], dtype=bool)
+            known[(3 * fixed[:, None] + np.arange(3)).ravel()] = True
+            rows = o + np.flatnonzero(~known)
+            master_rows.append(rows[~is_slave_row[rows]])
+        for body in scene.reduced_bodies:
+            rows = self.reduced_offset[id(body)] + np.arange(body.r)
+            master_rows.append(rows[~is_slave_row[rows]])
+        self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b
+                      and id(b) not in framed]
+        for body in self.roots:
+            master_rows.append(self.rigid_offset[id(body)] + np.arange(6))
+        self.master_rows = np.concatenate(master_rows) if master_rows else np.zeros(0, int)
+        self.n_masters = self.master_rows.size
+        self.master_col = {id(b): int(np.searchsorted(self.master_rows,
+                                                      self.rigid_offset[id(b)]))
+                           for b in self.roots}
+        # (rows sorted: FEM, reduced, then rigid bodies in order, so searchsorted finds them)
+        assert np.all(np.diff(self.master_rows) > 0)
+        self.free_fem = [(body, rows - self.fem_offset[id(body)])
+                         for body, rows in zip(fem_bodies, master_rows)]
+        self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
+                             zip(scene.reduced_bodies, master_rows[len(fem_bodies):])]
+        self._embedding_map = self._embedding_matrix()
+        self._place_lifts()             # lift coordinates from the bodies' poses
+
+    def _embedding_matrix(self) -> sparse.csr_matrix:
+        """Z_e (n_all x n_all): z_slave = W z_master of every embedded body (constant)."""
+        blocks = []
+        for att in self.embedded:
+            o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
+            W = att.W.tocoo()
+            blocks.append((W.data, o_s + W.row, o_m + W.col))
+        if not blocks:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        vals, rows, cols = (np.concatenate(x) for x in zip(*blocks))
+        return sparse.csr_matrix((vals, (rows, cols)), shape=(self.n_all, self.n_all))
+
+    def _lift_matrix(self) -> sparse.csr_matrix:
+        """Z_l (n_all x n_all): g' = G_g(R) u of every lift, at the bodies' current poses."""
+        rows, cols, vals = [], [], []
+        for att in self.scene.lift_attachments:
+            r = self.reduced_offset[id(att.reduced)] + att.columns
+            c = self.rigid_offset[id(att.body)] + np.arange(6)
+            rr, cc = np.meshgrid(r, c, indexing="ij")
+            rows.append(rr.ravel()), cols.append(cc.ravel())
+            vals.append(RigidLift.jacobian(att.body.rotation).ravel())
+        if not rows:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_all, self.n_all))
+
+    def _frame_matrix(self) -> sparse.csr_matrix:
+        """Z_f (n_all x n_all): u_b = J z_nodes of every frame-attached body, at the current
+        configuration (FrameAttachment)."""
+        rows, cols, vals = [], [], []
+        for att in self.scene.frame_attachments:
+            r0 = self.rigid_offset[id(att.slave)] + np.arange(6)
+            o = self._body_offset(att.frame.body)
+            for c, J in att.jacobian():
+                rr, cc = np.meshgrid(r0, o + c, indexing="ij")
+                rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(J.ravel())
+        if not rows:
+            return sparse.csr_matrix((self.n_all, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(self.n_all, self.n_all))
+
+    def _body_offset(self, body) -> int:
+        """The all-space offset of an FEM (blocked dofs) or reduced body (q)."""
+        return self.fem_offset[id(body)] if isinstance(body, FemBody) else \
+            self.reduced_offset[id(body)]
+
+    @staticmethod
+    def _chain(Z: sparse.csr_matrix, X):
+        """X + Z X + Z^2 X + ... (Z nilpotent: derived rows of derived rows, in any order)."""
+        out, term = X.copy(), X
+        for _ in range(Z.shape[0] + 1):
+            term = Z @ term
+            if (term.nnz if sparse.issparse(term) else np.count_nonzero(term)) == 0:
+                return out
+            out = out + term
+        raise AssertionError("attachment chain did not terminate (a cycle?)")
+
+    def _check_references(self) -> None:
+        scene = self.scene
+        fem_ids = {id(b) for b in scene.fem_bodies}
+        rigid_ids = {id(b) for b in scene.rigid_bodies}
+        attached: dict[tuple[int, int], str] = {}
+        for att in scene.node_attachments:
+            what = f"node attachment {att.name!r}"
+            if id(att.fem) not in fem_ids:
+                raise InputError(f"{what}: FEM body {att.fem.name!r} is not in the scene")
+            if id(att.body) not in rigid_ids:
+                raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+            fixed = np.intersect1d(att.dofs, att.fem.fixed_dofs)
+            if fixed.size:
+                inverse = {d: n for n, d in att.fem._node_to_dof.items()}
+                raise InputError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
+                                 f"{att.fem.name!r} are fixed; a node is either fixed or "
+                                 "attached")
+            for node in att.nodes.tolist():
+                key = (id(att.fem), node)
+                if key in attached:
+                    raise InputError(f"node {node} of FEM body {att.fem.name!r} is attached "
+                                     f"twice: by {attached[key]!r} and by {att.name!r}")
+                attached[key] = att.name
+        slaves: dict[int, str] = {}
+        for att in scene.rigid_attachments:
+            what = f"rigid attachment {att.name!r}"
+            for b in (att.slave, att.master):
+                if id(b) not in rigid_ids:
+                    raise InputError(f"{what}: rigid body {b.name!r} is not in the scene")
+            if att.slave.motion != "dynamic":
+                raise InputError(f"{what}: the slave {att.slave.name!r} is {att.slave.motion}")
+            if id(att.slave) in slaves:
+                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
+                                 f"{slaves[id(att.slave)]!r} and by {att.name!r}")
+            slaves[id(att.slave)] = att.name
+        # The offsets were taken when the attachment was made: if a body moved since (a
+        # prescribed body is placed on its trajectory only when it is added to the scene),
+        # the slaves are no longer where the attachment puts them.
+        for att in scene.node_attachments:
+            x = dof_positions(att.fem)[att.dofs]
+            gap = float(np.abs(x - att.positions()).max())
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offsets).max())):
+                raise InputError(
+                    f"node attachment {att.name!r}: the nodes are up to {gap:.3g} from where the "
+                    f"attachment puts them; {att.body.name!r} or {att.fem.name!r} moved after the "
+                    "attachment was made (a prescribed body takes its trajectory's pose when "
+                    "added to the scene: add it before making the attachment)")
+        for att in scene.rigid_attachments:
+            gap = pose_gap(att)
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
+                raise InputError(
+                    f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
+                    f"the attachment gives it; a body moved after the attachment was made")
+        embedded: dict[int, str] = {}
+        for att in scene.embedded_attachments:
+            what = f"embedded attachment {att.name!r}"
+            for b in (att.slave, att.master):
+                if id(b) not in fem_ids:
+                    raise InputError(f"{what}: FEM body {b.name!r} is not in the scene")
+            if att.slave.fixed_dofs.size:
+                raise InputError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
+                                 "its nodes are either fixed or embedded")
+            if any(a.fem is att.slave for a in scene.node_attachments):
+                raise InputError(f"{what}: nodes of {att.slave.name!r} are also attached to a "
+                                 "rigid body")
+            if id(att.slave) in embedded:
+                raise InputError(f"FEM body {att.slave.name!r} is embedded twice: by "
+                                 f"{embedded[id(att.slave)]!r} and by {att.name!r}")
+            embedded[id(att.slave)] = att.name
+        reduced_ids = {id(b) for b in scene.reduced_bodies}
+        lifted: dict[int, list] = {}
+        for att in scene.lift_attachments:
+            what = f"lift attachment {att.name!r}"
+            if id(att.reduced) not in reduced_ids:
+                raise InputError(f"{what}: reduced body {att.reduced.name!r} is not in the scene")
+            if id(att.body) not in rigid_ids:
+                raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
+            for other in lifted.get(id(att.reduced), []):
+                if np.intersect1d(other.columns, att.columns).size:
+                    raise InputError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
+                                     f"are already driven by {other.name!r}")
+            lifted.setdefault(id(att.reduced), []).append(att)
+        framed: dict[int, str] = {}
+        for att in scene.frame_attachments:
+            what = f"frame attachment {att.name!r}"
+            if id(att.slave) not in rigid_ids:
+                raise InputError(f"{what}: rigid body {att.slave.name!r} is not in the scene")
+            if id(att.frame.body) not in fem_ids | reduced_ids:
+                raise InputError(f"{what}: FEM body {att.frame.body.name!r} is not in the scene")
+            if id(att.slave) in framed or id(att.slave) in slaves:
+                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
+                                 f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
+                                 f"and by {att.name!r}")
+            framed[id(att.slave)] = att.name
+            gap = pose_gap(att)
+            if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
+                raise InputError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
+                                 "frame gives it; a body moved after the attachment was made")
+        carried = [(a.name, a.body) for a in scene.node_attachments + scene.lift_attachments] \
+            + [(a.name, a.master) for a in scene.rigid_attachments]
+        for name, body in carried:
+            if id(body) in framed:
+                raise InputError(f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
+                                 f"body ({framed[id(body)]!r}); attach to that FEM body instead")
+        for body in scene.rigid_bodies:
+            if body.massless and body.dynamic and id(body) not in framed.keys() | slaves.keys():
+                raise InputError(f"rigid body {body.name!r} is massless (a marker) but attached "
+                                 "to nothing: its step would be singular")
+        for path in scene.paths:
+            for pt in path.points:
+                if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids | reduced_ids:
+                    raise InputError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
+                                     "the scene")
+                if isinstance(pt, Frame) and pt.body is not None and id(pt.body) not in rigid_ids:
+                    raise InputError(f"path {path.name!r}: rigid body {pt.body.name!r} is not in "
+                                     "the scene")
+        for joint in scene.joints:
+            for body in joint.bodies:
+                if body is not None and id(body) not in rigid_ids:
+                    raise InputError(f"joint {joint.name!r} connects rigid body {body.name!r}, "
+                                     "which is not in the scene")
+
+    # ---- per-step pieces ---------------------------------------------------------------
+
+    def kinematic_targets(self, t1: float) -> dict:
+        """Prescribed roots: (p, R, twist) at t1."""
+        out = {}
+        for body in self.scene.rigid_bodies:
+            if body.motion == "prescribed":
+                s = body.prescribed_state(t1)
+                out[body] = (s.position, s.rotation, np.concatenate([s.velocity,
+                                                                      s.angular_velocity]))
+        return out
+
+    def prolongation(self) -> sparse.csr_matrix:
+        """P (n_all x n_masters) at the current poses (artifem.scene.scene docstring)."""
+        rows = [self.master_rows]
+        cols = [np.arange(self.n_masters)]
+        vals = [np.ones(self.n_masters)]
+
+        def carried(all_rows: np.ndarray, d: np.ndarray, root: RigidBody) -> None:
+            """3 rows per point d (n, 3) relative to the root: [1, -[d]x] on its 6 columns."""
+            c0 = self.master_col[id(root)]
+            n = len(d)
+            G = np.zeros((n, 3, 6))
+            G[:, :, :3] = np.eye(3)
+            G[:, :, 3:] = -skews(d)
+            rows.append(np.repeat(all_rows.reshape(n, 3), 6, axis=1).ravel())
+            cols.append(np.tile(c0 + np.arange(6), 3 * n))
+            vals.append(G.ravel())
+
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root.dynamic:
+                carried(s.rows, s.attachment.positions() - root.position, root)
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root.dynamic:
+                o = self.rigid_offset[id(att.slave)]
+                carried(o + np.arange(3), (att.slave.position - root.position)[None], root)
+                c0 = self.master_col[id(root)]
+                rows.append(o + 3 + np.arange(3))
+                cols.append(c0 + 3 + np.arange(3))
+                vals.append(np.ones(3))
+        P0 = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                       np.concatenate(cols))),
+                               shape=(self.n_all, self.n_masters))
+        # rows derived from others: embedded FEM bodies (W), lift coordinates (G_g) and
+        # frame-attached bodies (J)
+        if self.embedded or self.scene.lift_attachments or self.scene.frame_attachments:
+            Z = self._embedding_map + self._lift_matrix() + self._frame_matrix()
+            return self._chain(Z.tocsr(), P0).tocsr()
+        return P0
+
+    def known_velocities(self, h: float, targets: dict) -> np.ndarray:
+        """z_k: prescribed twists at t1, secant velocities of slave nodes of prescribed roots."""
+        z = np.zeros(self.n_all)
+        for body, (_, _, twist) in targets.items():
+            o = self.rigid_offset[id(body)]
+            z[o:o + 6] = twist
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root in targets:
+                p1, R1, twist = targets[root]
+                d1 = R1 @ root.rotation.T @ (att.slave.position - root.position)
+                o = self.rigid_offset[id(att.slave)]
+                z[o:o + 3] = twist[:3] + np.cross(twist[3:], d1)
+                z[o + 3:o + 6] = twist[3:]
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root in targets:
+                p1, R1, _ = targets[root]
+                x0 = s.attachment.positions()
+                x1 = p1 + (x0 - root.position) @ (R1 @ root.rotation.T).T
+                z[s.rows] = ((x1 - x0) / h).ravel()
+        for att in self.scene.lift_attachments:        # g is linear in (p, R): the secant
+            root = self.root[id(att.body)]
+            if root in targets:
+                p1, R1, _ = targets[root]
+                turn = R1 @ root.rotation.T
+                g1 = att.lift.coordinates(p1 + turn @ (att.body.position - root.position),
+                                          turn @ att.body.rotation)
+                z[self.reduced_offset[id(att.reduced)] + att.columns] = \
+                    (g1 - att.coordinates()) / h
+        if self.embedded or self.scene.frame_attachments:
+            z = self._chain((self._embedding_map + self._frame_matrix()).tocsr(), z)
+        return z
+
+    def _rigid_wrenches(self, t1: float, h: float | None, A, b):
+        """Force elements: wrenches into b (times h, or 1 for statics), Jacobian blocks into
+        A (-h D - h^2 K, or -K for statics); returns the wrench per body id."""
+        scene = self.scene
+        forces = {}
+        known = {id(x) for x in scene.rigid_bodies}
+        scale = 1.0 if h is None else h
+        for element in scene.forces:
+            for body, wrench in element.wrenches(t1):
+                wrench = _checked(element, known, body, wrench, (6,))
+                o = self.rigid_offset[id(body)]
+                b[o:o + 6] += scale * wrench
+                forces[id(body)] = forces.get(id(body), np.zeros(6)) + wrench
+            for bi, bj, K, D in getattr(element, "jacobians", lambda t: ())(t1):
+                K, D = (_checked(element, known, bi, np.zeros((6, 6)) if X is None else X,
+                                 (6, 6), bj) for X in (K, D))
+                i, j = self.rigid_offset[id(bi)], self.rigid_offset[id(bj)]
+                if h is None:
+                    A.append((i, j, -K))
+                else:
+                    A.append((i, j, -h * D - h * h * K))
+                    b[i:i + 6] -= h * D @ bj.twist
+        return forces
+
+    def dynamics(self, h: float, t1: float):
+        """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo)."""
+        scene = self.scene
+        blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
+        for body in scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.assemble(tangent=True)
+            K = _csr(body.K)
+            M = _mass(body)
+            v = body.v.x.array[:n]
+            Mv = M @ v
+            f = -body.R.array[:n]
+            b[o:o + n] = Mv + h * f
+            f_all[o:o + n] = f - body.alpha * Mv - body.beta * (K @ v)
+            blocks.append(((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K).tocsr())
+        for body in scene.reduced_bodies:       # the same, dense r x r (advance_reduced)
+            o, r = self.reduced_offset[id(body)], body.r
+            K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
+            b[o:o + r] = M @ v + h * f
+            f_all[o:o + r] = f - body.alpha * (M @ v) - body.beta * (K @ v)
+            blocks.append(sparse.csr_matrix((1.0 + h * body.alpha) * M
+                                            + (h * body.beta + h * h) * K))
+        rigid_blocks = []
+        for body in scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            if not body.dynamic:
+                rigid_blocks.append(np.zeros((6, 6)))
+                continue
+            M, D, u = body.mass_matrix(), body.gyroscopic_damping(), body.twist
+            f = body.gyroscopic_wrench()
+            f[:3] += body.mass * scene.gravity
+            rigid_blocks.append(M - h * D)
+            b[o:o + 6] += M @ u + h * (f - D @ u)
+            f_all[o:o + 6] += f
+        extra: list = []
+        element_wrenches = self._rigid_wrenches(t1, h, extra, b)
+        for key, wrench in element_wrenches.items():
+            o = self.rigid_offset[key]
+            f_all[o:o + 6] += wrench
+        A = self._stack(blocks, rigid_blocks, extra)
+        if scene.paths:
+            F, K, D = self.path_terms(t1, h)
+            z = self.current_velocities()
+            b += h * F - h * (D @ z)
+            A = (A - h * D - h * h * K).tocsr()
+            f_all += F
+        if scene.loads:
+            F = self.load_vector(t1)
+            b += h * F
+            f_all += F
+        return A, b, f_all
+
+    def load_vector(self, t: float) -> np.ndarray:
+        """The load elements' forces at time t, all-space (LoadElement)."""
+        F = np.zeros(self.n_all)
+        for element in self.scene.loads:
+            for body, f in element.master_loads(t):
+                what = f"load element {type(element).__name__}"
+                if isinstance(body, FemBody) and id(body) in self.fem_offset:
+                    o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+                elif isinstance(body, ReducedFemBody) and id(body) in self.reduced_offset:
+                    o, n = self.reduced_offset[id(body)], body.r
+                elif isinstance(body, RigidBody) and id(body) in self.rigid_offset:
+                    o, n = self.rigid_offset[id(body)], 6
+                else:
+                    raise InputError(f"{what} loads {getattr(body, 'name', body)!r}, which is "
+                                     "not a body of this scene")
+                f = np.asarray(f, dtype=float).ravel()
+                if f.shape != (n,) or not np.all(np.isfinite(f)):
+                    raise InputError(f"{what}: expected {n} finite values for "
+                                     f"{body.name!r}, got shape {f.shape}")
+                F[o:o + n] += f
+        return F
+
+    def current_velocities(self) -> np.ndarray:
+        """z: the FEM nodal velocities and the rigid twists (all-space)."""
+        z = np.zeros(self.n_all)
+        for body in self.scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            z[o:o + n] = body.v.x.array[:n]
+        for body in self.scene.reduced_bodies:
+            o = self.reduced_offset[id(body)]
+            z[o:o + body.r] = body.qdot
+        for body in self.scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            z[o:o + 6] = body.twist
+        return z
+
+    def path_map(self, path: "PointPath") -> sparse.csr_matrix:
+        """G (3n x n_all): x_a' = G z for the path's points (artifem.scene.scene docstring)."""
+        rows, cols, vals = [], [], []
+        for i, pt in enumerate(path.points):
+            if isinstance(pt, FemPoint) and pt.reduced:
+                o = self.reduced_offset[id(pt.fem)]
+                r = pt.G.shape[1]
+                rows.append(np.repeat(3 * i + np.arange(3), r))
+                cols.append(np.tile(o + np.arange(r), 3))
+                vals.append(pt.G.ravel())
+            elif isinstance(pt, FemPoint):
+                o = self.fem_offset[id(pt.fem)]
+                w, d = pt.weights.weights, pt.weights.dofs
+                for c in range(3):
+                    rows.append(np.full(d.size, 3 * i + c))
+                    cols.append(o + 3 * d + c)
+                    vals.append(w)
+            elif isinstance(pt, Frame) and pt.body is not None:
+                o = self.rigid_offset[id(pt.body)]
+                Gi = pt.jacobian()
+                r, c = np.meshgrid(3 * i + np.arange(3), o + np.arange(6), indexing="ij")
+                rows.append(r.ravel()), cols.append(c.ravel()), vals.append(Gi.ravel())
+        n = 3 * len(path.points)
+        if not rows:
+            return sparse.csr_matrix((n, self.n_all))
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(n, self.n_all))
+
+    def path_terms(self, t: float, h: float | None):
+        """All paths at time t: F = G^T f (all-space), K = G^T K_p G + K_r and D = G^T D_p G
+        (n_all x n_all, the derivatives of F by the positions and the velocities)."""
+        scene = self.scene
+        F = np.zeros(self.n_all)
+        K = sparse.csr_matrix((self.n_all, self.n_all))
+        D = sparse.csr_matrix((self.n_all, self.n_all))
+        for path in scene.paths:
+            result = path.evaluate(t)
+            G = self.path_map(path)
+            F += G.T @ result.forces.ravel()
+            K = K + G.T @ sparse.csr_matrix(result.stiffness) @ G
+            D = D + G.T @ sparse.csr_matrix(result.damping) @ G
+            # rigid frames: the levers turn with the body (point_force_wrenches' extra terms)
+            rigid = [(i, pt) for i, pt in enumerate(path.points)
+                     if isinstance(pt, Frame) and pt.body is not None]
+            if rigid:
+                rr, cc, vv = [], [], []
+                for i, pt in rigid:
+                    o = self.rigid_offset[id(pt.body)]
+                    Ki = np.zeros((self.n_all, 6))
+                    Ki[o:o + 6] += pt.wrench_stiffness(result.forces[i])
+                    # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
+                    Dcol = (G.T @ sparse.csr_matrix(result.damping[:, 3 * i:3 * i + 3])).toarray()
+                    Ki[:, 3:] -= Dcol @ skew(pt.body.angular_velocity) @ skew(pt.lever())
+                    nz = np.nonzero(Ki)
+                    rr.append(nz[0]), cc.append(o + nz[1]), vv.append(Ki[nz])
+                K = K + sparse.csr_matrix((np.concatenate(vv), (np.concatenate(rr),
+                                                                np.concatenate(cc))),
+                                          shape=(self.n_all, self.n_all))
+        return F, K.tocsr(), D.tocsr()
+
+    def static_forces(self, t: float, tangent: bool):
+        """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
+        scene = self.scene
+        blocks, f_all = [], np.zeros(self.n_all)
+        for body in scene.fem_bodies:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.assemble(tangent=tangent)
+            f_all[o:o + n] = -body.R.array[:n]
+            if tangent:
+                blocks.append(_csr(body.K))
+        for body in scene.reduced_bodies:
+            o = self.reduced_offset[id(body)]
+            f_all[o:o + body.r] = body.force()
+            if tangent:
+                blocks.append(sparse.csr_matrix(body.tangent()))
+        for body in scene.rigid_bodies:
+            if body.dynamic:
+                o = self.rigid_offset[id(body)]
+                f_all[o:o + 3] += body.mass * scene.gravity
+        extra: list = []
+        self._rigid_wrenches(t, None, extra, f_all)
+        K_path = None
+        if scene.paths:
+            F, K_path, _ = self.path_terms(t, None)
+            f_all += F                           # statics: whole wrenches on rigid rows
+        if scene.loads:
+            f_all += self.load_vector(t)
+        if not tangent:
+            return f_all, None
+        zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
+        K_all = self._stack(blocks, zeros, extra)
+        if K_path is not None:
+            K_all = (K_all - K_path).tocsr()
+        return f_all, K_all
+
+    def _stack(self, fem_blocks, rigid_blocks, extra) -> sparse.csr_matrix:
+        parts = list(fem_blocks)
+        if rigid_blocks:
+            parts.append(sparse.block_diag([sparse.csr_matrix(b) for b in rigid_blocks],
+                                           format="csr"))
+        A = sparse.block_diag(parts, format="csr") if parts else \
+            sparse.csr_matrix((self.n_all, self.n_all))
+        if extra:
+            rows, cols, vals = [], [], []
+            for i, j, X in extra:
+                r, c = np.meshgrid(i + np.arange(6), j + np.arange(6), indexing="ij")
+                rows.append(r.ravel()), cols.append(c.ravel()), vals.append(X.ravel())
+            A = A + sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                              np.concatenate(cols))),
+                                      shape=A.shape)
+        return A.tocsr()
+
+    def geometric_stiffness(self, f_all: np.ndarray, P: sparse.csr_matrix) -> sparse.csr_matrix:
+        """K_geo on the masters (artifem.scene.scene docstring): sum_s [f_s]x [d_s]x on each dynamic root's
+        rotation block, for the applied forces f_all on the slaves (an embedded body's
+        forces first moved to its master's nodes, W^T f_s; a lift as levers R_k)."""
+        K_frames = None
+        if self.scene.frame_attachments:
+            f_all = f_all.copy()
+            rows, cols, vals = [], [], []
+            for att in self.scene.frame_attachments:    # leaves: before the embedded bodies
+                wrench = f_all[self.rigid_offset[id(att.slave)] + np.arange(6)]
+                o = self._body_offset(att.frame.body)
+                for c, J in att.jacobian():
+                    f_all[o + c] += J.T @ wrench
+                c, Kf = att.stiffness(wrench)
+                rr, cc = np.meshgrid(o + c, o + c, indexing="ij")
+                rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(Kf.ravel())
+            K_frames = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                                 np.concatenate(cols))),
+                                         shape=(self.n_all, self.n_all))
+            K_frames = (P.T @ K_frames @ P).tocsr()
+        if self.embedded:
+            f_all = f_all.copy()
+            for att in self.embedded:                   # slaves before their masters
+                o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
+                f_all[o_m:o_m + att.W.shape[1]] += att.W.T @ f_all[o_s:o_s + att.W.shape[0]]
+        K = {}
+        for att in self.scene.lift_attachments:
+            root = self.root[id(att.body)]
+            if root.dynamic:
+                f = f_all[self.reduced_offset[id(att.reduced)] + att.columns].reshape(4, 3)
+                levers = np.vstack([att.body.position - root.position, att.body.rotation.T])
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", skews(f),
+                                                               skews(levers))
+        for s in self.slaves:
+            root = self.root[id(s.attachment.body)]
+            if root.dynamic:
+                f = f_all[s.rows].reshape(-1, 3)
+                d = s.attachment.positions() - root.position
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", skews(f),
+                                                               skews(d))
+        for att in self.rigid_attachments:
+            root = self.root[id(att.slave)]
+            if root.dynamic:
+                o = self.rigid_offset[id(att.slave)]
+                K[id(root)] = K.get(id(root), 0.0) + skew(f_all[o:o + 3]) @ skew(
+                    att.slave.position - root.position)
+        rows, cols, vals = [], [], []
+        for key, block in K.items():
+            c0 = self.master_col[key] + 3
+            r, c = np.meshgrid(c0 + np.arange(3), c0 + np.arange(3), indexing="ij")
+            rows.append(r.ravel()), cols.append(c.ravel()), vals.append(block.ravel())
+        K_roots = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                            np.concatenate(cols))),
+                                    shape=(self.n_masters, self.n_masters)) if rows else \
+            sparse.csr_matrix((self.n_masters, self.n_masters))
+        return K_roots if K_frames is None else (K_roots + K_frames).tocsr()
+
+    def joint_forces(self, parts) -> np.ndarray:
+        """sum G^T lambda over (joint, ConstraintRows, lambda), on the all-space rigid rows."""
+        out = np.zeros(self.n_all)
+        for joint, rows, lam in parts:
+            for body, G in zip(joint.bodies, (rows.G_a, rows.G_b)):
+                if body is not None:
+                    o = self.rigid_offset[id(body)]
+                    out[o:o + 6] += G.T @ lam
+        return out
+
+    def joint_matrix(self, P) -> sparse.csr_matrix:
+        """The bilateral joint rows on the masters, G P (static solve)."""
+        blocks = self.joint_rows(P, np.zeros(self.n_all), 1.0, 0.0)[0]
+        return sparse.vstack([g[2] for g in blocks]).tocsr()
+
+    def joint_rows(self, P, z_k, h, beta):
+        """(joint, rows, G P, c) of the bilateral and of the unilateral rows (artifem.scene.scene docstring)."""
+        out = {"bilateral": [], "unilateral": []}
+        for joint in self.scene.joints:
+            for kind, rows in (("bilateral", joint.constraint()), ("unilateral",
+                                                                    joint.unilateral())):
+                if not len(rows):
+                    continue
+                G = np.zeros((len(rows), self.n_all))
+                for body, G_body in zip(joint.bodies, (rows.G_a, rows.G_b)):
+                    if body is not None:
+                        o = self.rigid_offset[id(body)]
+                        G[:, o:o + 6] += G_body
+                if kind == "bilateral":
+                    c = -beta * rows.phi / h
+                else:                               # reach the limit, never cross it
+                    c = np.where(rows.phi > 0, -rows.phi / h, -beta * rows.phi / h)
+                G = sparse.csr_matrix(G)
+                out[kind].append((joint, rows, (G @ P).tocsr(), c - G @ z_k))
+        return out["bilateral"], out["unilateral"]
+
+    # ---- updates -----------------------------------------------------------------------
+
+    def advance(self, z: np.ndarray, h: float, targets: dict) -> None:
+        """Velocities from z; free FEM dofs, free reduced coordinates and dynamic roots move
+        by h z; prescribed bodies go to their targets; slaves are set from their masters."""
+        for body, free in self.free_fem:
+            o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
+            body.v.x.array[:n] = z[o:o + n]
+            body.u.x.array[free] += h * z[o + free]
+        for att in self.embedded:
+            o, n = self.fem_offset[id(att.slave)], self.fem_size[id(att.slave)]
+            att.slave.v.x.array[:n] = z[o:o + n]
+        for body, free in self.free_reduced:
+            o = self.reduced_offset[id(body)]
+            body.qdot = z[o:o + body.r].copy()
+            body.q[free] += h * z[o + free]
+        for body in self.scene.rigid_bodies:
+            o = self.rigid_offset[id(body)]
+            if body.motion == "prescribed":
+                p1, R1, twist = targets[body]
+                body.position, body.rotation = p1, R1
+                body.set_twist(twist)
+            elif body.dynamic:
+                body.set_twist(z[o:o + 6])
+                if any(body is r for r in self.roots):
+                    body.advance_pose(h)
+        self.place_slaves()
+
+    def place_slaves(self) -> None:
+        for att in self.rigid_attachments:              # dependency order
+            att.slave.position, att.slave.rotation = att.pose()
+        for s in self.slaves:
+            att = s.attachment
+            u = att.fem.u.x.array.reshape(-1, 3)
+            u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
+        for att in reversed(self.embedded):             # masters before their slaves
+            att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
+        self._place_lifts()
+        for att in self.scene.frame_attachments:        # leaves: after every FEM body
+            att.slave.position, att.slave.rotation = att.pose()
+        for body in self.scene.fem_bodies:
+            body.u.x.scatter_forward()
+            body.v.x.scatter_forward()
+
+    def _place_lifts(self) -> None:
+        for att in self.scene.lift_attachments:
+            att.reduced.q[att.columns] = att.coordinates()
+        for body in self.scene.reduced_bodies:
+            body.set_q(body.q)
+
+    def displace(self, dq: np.ndarray) -> None:
+        """Master displacement (static solve, finite differences); see displace_masters."""
+        if dq.shape != (self.n_masters,):
+            raise InputError(f"expected {self.n_masters} master displacements, got {dq.shape}")
+        for body, free in self.free_fem:
+            o = self.fem_offset[id(body)]
+            idx = np.searchsorted(self.master_rows, o + free)
+            body.u.x.array[free] += dq[idx]
+        for body, free in self.free_reduced:
+            o = self.reduced_offset[id(body)]
+            body.q[free] += dq[np.searchsorted(self.master_rows, o + free)]
+        for body in self.roots:
+            c = self.master_col[id(body)]
+            body.position = body.position + dq[c:c + 3]
+            body.rotation = orthonormalize(exp_so3(dq[c + 3:c + 6]) @ body.rotation)
+        self.place_slaves()
+
+    def save(self):
+        return ([b.u.x.array.copy() for b in self.scene.fem_bodies],
+                [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies],
+                [b.q.copy() for b in self.scene.reduced_bodies])
+
+    def restore(self, saved) -> None:
+        for body, u in zip(self.scene.fem_bodies, saved[0]):
+            body.u.x.array[:] = u
+        for body, (p, R) in zip(self.scene.rigid_bodies, saved[1]):
+            body.position, body.rotation = p, R
+        for body, q in zip(self.scene.reduced_bodies, saved[2]):
+            body.set_q(q)
+
+    def master_scale(self) -> float:
+        vals = [np.abs(b.u.x.array).max() for b in self.scene.fem_bodies if b.u.x.array.size]
+        vals += [np.abs(b.q).max() for b in self.scene.reduced_bodies if b.r]
+        vals += [np.abs(b.position).max() for b in self.roots]
+        return max(vals, default=1.0)
+
+    def inverted(self) -> bool:
+        for body in self.scene.reduced_bodies:
+            detF = body.det_F()
+            if detF.size and not np.nanmin(detF) > 0:
+                return True
+        for body in self.scene.fem_bodies:
+            detF = body.det_F()
+            if detF.size and not np.nanmin(detF) > 0:
+                return True
+        return False
+
+
+def _chain(body, attachments, cycle: str) -> list:
+    """[body, its master, its master's master, ..., the root] through ``attachments``
+    (objects with .slave and .master); a cycle is a ValueError starting with ``cycle``."""
+    master_of = {id(a.slave): a.master for a in attachments}
+    chain = [body]
+    while id(chain[-1]) in master_of:
+        b = master_of[id(chain[-1])]
+        if any(b is c for c in chain):
+            raise InputError(f"{cycle}: " + " -> ".join(c.name for c in chain + [b]))
+        chain.append(b)
+    return chain
+
+
+def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
+    """``array`` as a finite float array of ``shape``, on bodies of the scene."""
+    what = f"force element {type(element).__name__}"
+    for b in (body, other or body):
+        if not isinstance(b, RigidBody) or id(b) not in known:
+            raise InputError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
+    array = np.asarray(array, dtype=float)
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise InputError(f"{what}: expected a finite array of shape {shape} for body "
+                         f"{body.name!r}, got shape {array.shape}")
+    return array
+
+
+def _csr(mat: PETSc.Mat) -> sparse.csr_matrix:
+    """A serial PETSc AIJ matrix as scipy CSR (copied)."""
+    indptr, indices, data = mat.getValuesCSR()
+    return sparse.csr_matrix((data.copy(), indices.copy(), indptr.copy()), shape=mat.getSize())
+
+
+def _mass(body: FemBody) -> sparse.csr_matrix:
+    body.compile()
+    if body.M_consistent is not None:
+        return _csr(body.M_consistent)
+    return sparse.diags(body.M_lumped.array.copy(), format="csr")

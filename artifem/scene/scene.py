@@ -1,0 +1,579 @@
+"""FEM bodies and rigid bodies coupled by attachments and joints, advanced in one step.
+
+Lloyd et al. 2019, section 3 (ArtiSynth's MechModel advanced by its
+ConstrainedBackwardEuler): every attachment is x_s = f(x_m) with G = df/dx_m,
+the attached (slave) coordinates leave the solve, forces come back to the
+masters as G^T f_s, and joints are bilateral constraints solved in the same
+linear system. Serial.
+
+Coordinates
+-----------
+The "all" velocity vector z stacks every FEM body's nodal velocities (3 per
+node, the body's local blocked dofs) and every rigid body's twist u = [v; w]
+(rigid_body: COM velocity and angular velocity, world). Each coordinate is
+
+- a *master*: a free FEM dof, or the twist of a dynamic rigid body attached to
+  nothing (a *root*);
+- a *slave*: an FEM node attached to a rigid body (:class:`NodeAttachment`,
+  bones inside soft tissue), or a rigid body welded to another one
+  (:class:`RigidAttachment`);
+- *known*: a fixed FEM dof (velocity 0), a fixed or prescribed rigid body.
+
+Attachments chain (node -> body B -> body A); every slave is rigidly carried
+by the root of its chain (the rigid body at its end that is attached to
+nothing; a cycle is an error). With x_s the slave's position (the node, or a
+slave body's COM) and p, R, u = [v; w] its root's pose and twist,
+
+    node:        v_s = v + w x d_s = G_s u,       G_s = [1, -[d_s]x],        d_s = x_s - p,
+    slave body:  u_s = [[1, -[d_s]x], [0, 1]] u,
+
+so z = P z_m + z_k with the sparse prolongation P (identity on the masters,
+the rows above on the slaves of dynamic roots, zero elsewhere) and z_k the
+known velocities: 0 on fixed dofs and bodies, the trajectory's twist at t + h
+on prescribed bodies, and, on a slave node of a prescribed root, the secant
+(x_s(t + h) - x_s(t)) / h of its exact motion (so that the FEM force
+linearized about x_s(t) sees exactly the displacement the node will have).
+
+The step
+--------
+Each component gives a linear system A_c z+ = b_c for the velocities at the
+end of the step (backward Euler linearized at its start, one solve):
+
+    FEM:    A = (1 + h alpha) M + (h beta + h^2) K,     b = M v + h f,     f = -dPi/du,
+            (``SemiImplicitEuler``, written for v+ = v + dv instead of dv)
+    rigid:  A = M - h D - h^2 K_e,                      b = M u + h (f - D u),
+            (``RigidSystem``: gravity m g, the gyroscopic wrench, force elements; D and
+            K_e the velocity and pose Jacobians of the wrenches)
+
+stacked into A_all, b_all (force elements add their off-diagonal blocks) and
+reduced by P, with the joint rows as Lagrange multipliers:
+
+    [ P^T A_all P - h^2 K_geo    G_m^T ] [ z_m+ ]   [ P^T (b_all - A_all z_k) ]
+    [ G_m                        0     ] [ mu   ] = [ -beta phi / h - G z_k   ],
+
+G the joint rows on the all-space twists (joints.py), G_m = G P, beta the
+Baumgarte stabilization (RigidSystem) and lambda = -mu the joint impulses
+(A z+ - G^T lambda = b, as in RigidSystem). Joint limits are unilateral rows
+solved by an active set (add the most violated limit row, drop the most
+negative multiplier), each trial a new factorization.
+
+K_geo is the attachment's consistent (geometric) stiffness. The master wrench
+of the slave forces, sum_s [f_s; d_s x f_s] (node) or [f_s; d_s x f_s + tau_s]
+(slave body), changes with the root's rotation at fixed f_s because the levers
+d_s turn with it: d(d x f)/dtheta = [f]x [d]x (``Frame.wrench_stiffness``), so
+
+    K_geo(root) = sum_s [[0, 0], [0, [f_s]x [d_s]x]],
+
+f_s the applied force on the slave (an FEM node: -dPi/du - (D v) at the node,
+gravity included; a slave body: m g plus the force part of its force-element
+wrenches). P^T K P alone misses this term of size |f| |d|, and a heavily
+loaded attachment then goes unstable; the dynamic and the static tangent
+include it (tested by finite differences in tests/test_multibody_coupled.py).
+
+Update. z+ = P z_m+ + z_k. Free FEM dofs: u += h v+; dynamic roots:
+p += h v+, R = exp(h [w+]x) R; prescribed bodies take their trajectory's pose
+at t + h; then slave bodies and slave nodes are set *exactly* from their
+master's pose (x_s = p + R r_s, r_s fixed at attachment time: no drift).
+Fixed dofs keep their (prescribed) displacement. The slaves keep the step's
+velocities z+ = P z_m+ (not G at the new pose times u+): P^T M z then carries
+each slave's momentum into the next step, so the linear momentum of a free
+scene (no Rayleigh mass damping, no fixed dofs) is conserved to round-off, and
+the next step, which solves for the velocity in the span of the attachments
+at the new pose, can only remove kinetic energy from that mismatch (M-
+orthogonal projection), an O(h) dissipation like backward Euler's.
+
+Linear solver. The KKT matrix is sparse, indefinite (the zero block) and not
+symmetric (gyroscopic and geometric terms), so it is factored by a direct LU,
+MUMPS through petsc4py (one process, COMM_SELF), every step.
+
+Statics (:meth:`Scene.solve_static`): Newton on the master forces
+F_m = P^T f_all = 0 and phi = 0 with the same tangent without the inertia,
+
+    [ P^T K_all P - K_geo   G_m^T ] [ dq ]   [ F_m  ]
+    [ G_m                   0     ] [ mu ] = [ -phi ],
+
+K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the rigid ones, master
+displacements dq = free FEM du and [dp; dtheta] of each dynamic root
+(p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
+line search on |[F_m; phi]| refuses inverted elements.
+
+Path elements (:class:`PointPath`): a spring or muscle of
+:mod:`artifem.multibody.muscles` through points that are FEM points
+(:class:`FemPoint`: x_a = sum_j w_j x_j, the weights of point_attachments, e.g.
+4 or 24 support nodes), rigid frames, or fixed world points. With G the
+all-space map of the path points (x_a' = G z: [w_j I] on an FEM point's
+nodes, [1, -[r]x] on a frame's body, nothing for a world point), the
+element's point forces f, K = df/dx and D = df/dv enter as
+
+    b += h G^T f - h G^T D G z,     A -= h G^T D G + h^2 (G^T K G + K_r),
+
+K_r the rigid frames' lever terms (``point_force_wrenches``: [f]x [r]x and
+the D [w]x [r]x term), i.e. the same backward-Euler linearization as the
+rigid force elements (A = M - h D - h^2 K); statics adds G^T f to the forces
+and -(G^T K G + K_r) to K_all. The forces also enter f_all, so a path on
+slave nodes adds to their root's K_geo. Excitation schedules and activation
+as in FramePath (advanced once per new time t).
+
+Reduced bodies (:class:`~artifem.reduction.reduced_body.ReducedFemBody`): their
+coordinates q are all-space rows like an FEM body's nodal velocities, with the
+same backward-Euler block, dense r x r: A = (1 + h alpha) M~ + (h beta + h^2) K~,
+b = M~ q' + h f~ (``advance_reduced``). A point on a reduced body
+(:class:`FemPoint` with a reduced body) maps as G = sum_j w_j U_j. Nodes of a
+reduced body ride on a bone through the basis: 12 rigid-lift columns whose
+coordinates g = [p - p_0; vec(R - R_0)] are linear in the pose
+(:mod:`artifem.reduction.rigid_lift`) and slaves of the body
+(:class:`LiftAttachment`): P rows G_g = [[1, 0], [0, -[R_k]x]] on the body's
+twist, z_k the exact secant of g on prescribed bodies, and K_geo the lever term
+sum_k [f_gRk]x [R_k]x (the columns of R turn like node levers).
+
+Embedded FEM bodies (:class:`EmbeddedFemAttachment`): every node of a slave
+body follows the master element containing it, z_s = W z_m, so its P rows are
+W times the master's (P = P_0 + Z P_0 + Z^2 P_0 + ... over the chain of derived
+rows Z, lifts included); its forces reach K_geo as W^T f_s.
+
+Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
+FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
+b += h F, and in the static residual.
+
+Rigid bodies on frames of FEM bodies (:class:`FrameAttachment`, the paper's
+section 3.2 and Fig. 11): a body follows a frame (origin and polar or Procrustes
+rotation, :mod:`~artifem.multibody.frame_attachments`) on a full or reduced body,
+u = J v_nodes; its rows of P are J times the nodes' (derived rows, like the
+embedded ones), and K_geo adds d(J^T [f; tau])/dx. A massless body
+(``RigidBody.marker``) on a frame carries joints: joints between frames on
+deformable bodies. The joints' reactions load such attachments like any force;
+they enter K_geo lagged by one step (or one Newton iteration).
+
+Statics with joints use the exact-penalty merit E + rho |phi|_1 (rho = 2 max |mu|)
+when every force has an energy, and otherwise the force residual left after the
+least-squares joint reactions.
+
+Systems of at most ``DirectSolver.DENSE_MAX`` unknowns (reduced and rigid bodies)
+are solved by a dense LU instead of MUMPS. Not here yet: MPI.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from artifem.errors import InputError, StepFailed, UnknownNameError
+from artifem.fem_body import FemBody
+from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
+                                           LiftAttachment, NodeAttachment, RigidAttachment,
+                                           dof_positions, pose_gap)
+from artifem.multibody.joints import Joint
+from artifem.multibody.loads import LoadElement
+from artifem.multibody.point_paths import PointPath
+from artifem.multibody.rigid_body import RigidBody
+from artifem.multibody.rigid_system import ForceElement
+from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.scene.direct_solver import DirectSolver
+from artifem.scene.layout import Layout
+
+__all__ = ["Scene"]
+
+
+class Scene:
+    """FEM bodies, rigid bodies, attachments, joints and force elements (module docstring).
+
+    Args:
+        gravity: the gravitational acceleration (world), applied to every body:
+            an FEM body's own ``gravity`` constant is set to it when added.
+        stabilization: Baumgarte beta in [0, 1] of the joint rows (RigidSystem).
+        geometric_stiffness: include K_geo in the step and the static tangent (default);
+            False drops it, for comparisons.
+    """
+
+    def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
+                 geometric_stiffness: bool = True):
+        g = np.asarray(gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
+        if not 0.0 <= stabilization <= 1.0:
+            raise InputError(f"stabilization must be in [0, 1], got {stabilization!r}")
+        self._gravity = g
+        self.stabilization = float(stabilization)
+        self.geometric_stiffness = bool(geometric_stiffness)
+        self.t = 0.0
+        self.fem_bodies: list[FemBody] = []
+        self.reduced_bodies: list[ReducedFemBody] = []
+        self.rigid_bodies: list[RigidBody] = []
+        self.node_attachments: list[NodeAttachment] = []
+        self.rigid_attachments: list[RigidAttachment] = []
+        self.embedded_attachments: list[EmbeddedFemAttachment] = []
+        self.lift_attachments: list[LiftAttachment] = []
+        self.frame_attachments: list[FrameAttachment] = []
+        self.joints: list[Joint] = []
+        self.forces: list[ForceElement] = []
+        self.paths: list[PointPath] = []
+        self.loads: list = []
+        self._layout = None
+        self._solver = DirectSolver()
+        self._impulses: dict = {}
+        self._last_h = 1.0
+        self._reactions = None          # the joints' last forces, all-space (for K_geo)
+        self.last_solve: dict = {}
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """g (world); setting it sets every FEM body's gravity constant too."""
+        return self._gravity
+
+    @gravity.setter
+    def gravity(self, value) -> None:
+        g = np.asarray(value, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise InputError(f"gravity must be 3 finite numbers, got {value!r}")
+        self._gravity = g.copy()
+        for body in self._full_bodies():
+            body.gravity.value[:] = g
+
+    def _full_bodies(self) -> list[FemBody]:
+        """The FEM bodies and the full bodies of the reduced ones (gravity, load factor)."""
+        return self.fem_bodies + [b.full for b in self.reduced_bodies]
+
+    # ---- building ------------------------------------------------------------------------
+
+    def add(self, *items) -> None:
+        """Add FEM bodies (full or reduced), rigid bodies, attachments, joints, force and
+        load elements (any order).
+
+        Cross-references (attachments and joints naming bodies of the scene, a
+        node attached twice or also fixed, attachment cycles) are checked at
+        the first step or static solve after a change (:meth:`check`).
+        """
+        for item in items:
+            if isinstance(item, FemBody):
+                if item.mesh.comm.size != 1:
+                    raise NotImplementedError(f"FEM body {item.name!r}: coupled scenes run in "
+                                              "serial only for now")
+                if any(item is b for b in self.fem_bodies):
+                    raise InputError(f"FEM body {item.name!r} is already in the scene")
+                item.gravity.value[:] = self.gravity
+                self.fem_bodies.append(item)
+            elif isinstance(item, ReducedFemBody):
+                if any(item is b for b in self.reduced_bodies):
+                    raise InputError(f"reduced body {item.name!r} is already in the scene")
+                item.full.gravity.value[:] = self.gravity
+                self.reduced_bodies.append(item)
+            elif isinstance(item, RigidBody):
+                if any(item is b for b in self.rigid_bodies):
+                    raise InputError(f"rigid body {item.name!r} is already in the scene")
+                if item.motion == "prescribed":
+                    item.follow_trajectory(self.t)
+                self.rigid_bodies.append(item)
+            elif isinstance(item, (NodeAttachment, RigidAttachment, EmbeddedFemAttachment,
+                                   LiftAttachment, FrameAttachment, Joint, PointPath)):
+                members = {NodeAttachment: self.node_attachments,
+                           RigidAttachment: self.rigid_attachments,
+                           EmbeddedFemAttachment: self.embedded_attachments,
+                           LiftAttachment: self.lift_attachments,
+                           FrameAttachment: self.frame_attachments,
+                           Joint: self.joints, PointPath: self.paths}
+                group = next(g for kind, g in members.items() if isinstance(item, kind))
+                if any(item is other for other in group):
+                    raise InputError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
+                                     f"already in the scene")
+                group.append(item)
+            elif isinstance(item, ForceElement):
+                self.forces.append(item)
+            elif LoadElement.is_load(item):
+                if any(item is other for other in self.loads):
+                    raise InputError(f"load element {item!r} is already in the scene")
+                self.loads.append(item)
+            else:
+                raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
+                                "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
+                                "a force element with wrenches(t) or a load element with "
+                                "master_loads(t)")
+            self._layout = None
+
+    def check(self) -> None:
+        """Validate the scene and index its coordinates (done automatically when needed)."""
+        self._layout = Layout(self)
+
+    def _ready(self) -> "Layout":
+        if self._layout is None:
+            self._layout = Layout(self)
+        # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
+        if any(not np.array_equal(b.fixed_dofs, f)
+               for b, f in zip(self.fem_bodies, self._layout.fixed)):
+            self._layout = Layout(self)
+        return self._layout
+
+    # ---- observation ---------------------------------------------------------------------
+
+    def _moving_bodies(self) -> list[RigidBody]:
+        return [b for b in self.rigid_bodies if b.dynamic]
+
+    def kinetic_energy(self) -> float:
+        """1/2 v^T M v of the FEM bodies plus the rigid kinetic energy of the moving bodies."""
+        return (sum(b.kinetic_energy() for b in self.fem_bodies + self.reduced_bodies)
+                + sum(b.kinetic_energy() for b in self._moving_bodies()))
+
+    def potential_energy(self) -> float:
+        """FEM Pi(u) (strain minus the work of gravity and loads), -m g . p of the moving
+        rigid bodies, and the force elements' potential_energy()."""
+        return (sum(b.potential_energy() for b in self.fem_bodies + self.reduced_bodies)
+                + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
+                + sum(e.potential_energy() for e in self.forces
+                      if hasattr(e, "potential_energy"))
+                + sum(p.potential_energy() for p in self.paths))
+
+    def energy(self) -> float:
+        return self.kinetic_energy() + self.potential_energy()
+
+    def momentum(self) -> np.ndarray:
+        """Linear momentum: sum M v over the FEM nodes plus m v of the moving rigid bodies."""
+        total = np.zeros(3)
+        for body in self.fem_bodies:
+            body.compile()
+            Mv = body.v.x.petsc_vec.duplicate()
+            body.mass_mult(body.v.x.petsc_vec, Mv)
+            total += Mv.array.reshape(-1, 3).sum(axis=0)
+            Mv.destroy()
+        for body in self.reduced_bodies:    # 1_k^T M U q' = (U^T int rho e_k . phi dX) . q'
+            total += body.G.T @ body.qdot
+        return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
+
+    def attachment_errors(self) -> dict[str, float]:
+        """max |x_i - (p + R r_i)| of each node and lift attachment, and the pose error
+        (m and rad) of each frame attachment (round-off after a step)."""
+        out = {a.name: float(np.abs(dof_positions(a.fem)[a.dofs] - a.positions()).max())
+               for a in self.node_attachments}
+        out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
+                    for a in self.lift_attachments})
+        for a in self.frame_attachments:
+            out[a.name] = pose_gap(a)
+        return out
+
+    def constraint_errors(self) -> dict[str, float]:
+        """max |phi| of each joint's bilateral rows (m and rad)."""
+        return {j.name: float(np.abs(j.constraint().phi).max()) for j in self.joints}
+
+    def reaction(self, joint: Joint) -> tuple[np.ndarray, np.ndarray]:
+        """The wrenches the joint applied to its bodies A and B over the last step
+        (G_A^T lambda / h, G_B^T lambda / h, rows at the start of the step)."""
+        if not any(joint is j for j in self.joints):
+            raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
+        parts = self._impulses.get(joint, [])
+        return (sum((rows.G_a.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h,
+                sum((rows.G_b.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h)
+
+    # ---- the step ------------------------------------------------------------------------
+
+    def step(self, h: float) -> None:
+        """Advance from t to t + h (module docstring)."""
+        L, P, z_k, targets, A_m, b_m = self._step_system(h)
+        bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
+        z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
+        z = P @ z_m + z_k
+        L.advance(z, h, targets)
+        self._impulses, self._last_h = impulses, h
+        self._reactions = L.joint_forces((joint, rows, lam / h)
+                                         for joint, parts in impulses.items()
+                                         for rows, lam in parts)
+        self.t += h
+
+    def step_matrix(self, h: float) -> sparse.csr_matrix:
+        """The masters' block P^T A_all P - h^2 K_geo of the next step's KKT matrix (for
+        inspection; prescribed bodies take their twist at t + h, nothing else changes)."""
+        return self._step_system(h)[4]
+
+    def _step_system(self, h: float):
+        """(layout, P, z_k, prescribed targets, A_m, b_m) of the step from t to t + h."""
+        if not (np.isfinite(h) and h > 0):
+            raise InputError(f"time step must be positive and finite, got {h!r}")
+        L = self._ready()
+        t1 = self.t + h
+        targets = L.kinematic_targets(t1)               # prescribed poses and twists at t1
+        for body, (_, _, twist) in targets.items():
+            body.set_twist(twist)
+        P = L.prolongation()
+        z_k = L.known_velocities(h, targets)
+        A, b, f_all = L.dynamics(h, t1)
+        A_m = (P.T @ A @ P).tocsr()
+        if self.geometric_stiffness:
+            A_m = A_m - h * h * L.geometric_stiffness(self._with_reactions(f_all), P)
+        b_m = P.T @ (b - A @ z_k)
+        return L, P, z_k, targets, A_m, b_m
+
+    def _solve(self, A_m, b_m, bilateral, unilateral):
+        """z_m+ and the joint impulses from the KKT system, with an active set for the limits."""
+        n = A_m.shape[0]
+        if n == 0:                                  # everything fixed, prescribed or attached
+            self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
+            return np.zeros(0), {}
+        groups = bilateral + unilateral
+        n_bi = sum(len(g[3]) for g in bilateral)
+        G = sparse.vstack([g[2] for g in groups]).tocsr() if groups else \
+            sparse.csr_matrix((0, n))
+        c = np.concatenate([g[3] for g in groups]) if groups else np.zeros(0)
+        active = np.zeros(len(c), dtype=bool)
+        active[:n_bi] = True
+        limits = np.arange(n_bi, len(c))
+        tol = 1e-10 * max(1.0, np.abs(c).max()) if c.size else 0.0
+        self.last_solve = {"masters": n, "constraint_rows": int(active.sum()), "factorizations": 0}
+        for _ in range(2 * limits.size + 10):
+            on = np.flatnonzero(active)
+            K = sparse.bmat([[A_m, G[on].T], [G[on], None]], format="csr") if on.size else A_m
+            rhs = np.concatenate([b_m, c[on]])
+            x = self._solver.solve(K, rhs, f"t = {self.t:g}")
+            self.last_solve["factorizations"] += 1
+            z_m = x[:n]
+            lam = np.zeros(len(c))
+            lam[on] = -x[n:]
+            if not limits.size:
+                break
+            slack = G[limits] @ z_m - c[limits]             # >= 0 wanted
+            negative = active[limits] & (lam[limits] < -tol)
+            violated = ~active[limits] & (slack < -tol)
+            if negative.any():
+                active[limits[np.argmin(np.where(negative, lam[limits], np.inf))]] = False
+            elif violated.any():
+                active[limits[np.argmin(np.where(violated, slack, np.inf))]] = True
+            else:
+                break
+        else:
+            raise StepFailed(f"t = {self.t:g}: the joint-limit active set did not settle")
+        impulses: dict = {}
+        start = 0
+        for joint, rows, _, c_rows in groups:
+            impulses.setdefault(joint, []).append((rows, lam[start:start + len(c_rows)]))
+            start += len(c_rows)
+        return z_m, impulses
+
+    # ---- statics -------------------------------------------------------------------------
+
+    def master_forces(self) -> np.ndarray:
+        """F_m = P^T f_all: the static generalized forces on the masters (no inertia)."""
+        L = self._ready()
+        return L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
+
+    def static_tangent(self) -> sparse.csr_matrix:
+        """-dF_m/dq_m = P^T K_all P - K_geo at the current configuration (module docstring)."""
+        L = self._ready()
+        f_all, K_all = L.static_forces(self.t, tangent=True)
+        P = L.prolongation()
+        K = (P.T @ K_all @ P).tocsr()
+        if not self.geometric_stiffness:
+            return K
+        return K - L.geometric_stiffness(self._with_reactions(f_all), P)
+
+    def _with_reactions(self, f_all: np.ndarray) -> np.ndarray:
+        """f_all plus the joints' last reaction forces: on a body that follows a frame or
+        another body they load the attachment like any force (lagged by one step or one
+        Newton iteration)."""
+        r = self._reactions
+        return f_all if r is None or r.shape != f_all.shape else f_all + r
+
+    def displace_masters(self, dq) -> None:
+        """Apply a master displacement: free FEM u += dq, dynamic roots p += dp and
+        R = exp([dtheta]x) R; slaves follow their roots' poses exactly."""
+        self._ready().displace(np.asarray(dq, dtype=float))
+
+    def master_count(self) -> int:
+        return self._ready().n_masters
+
+    def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
+                     max_iterations: int = 30) -> list[int]:
+        """Static equilibrium F_m = 0, phi = 0 by Newton (module docstring), the gravity and
+        the FEM loads ramped over ``load_steps`` increments. Velocities are set to zero.
+        Returns the Newton iterations per increment."""
+        L = self._ready()
+        for body in self.fem_bodies:
+            body.v.x.array[:] = 0.0
+        for body in self.reduced_bodies:
+            body.qdot[:] = 0.0
+        for body in self.rigid_bodies:
+            if body.dynamic:
+                body.set_twist(np.zeros(6))
+        g = self.gravity.copy()
+        self._reactions = None
+        counts = []
+        try:
+            for k in range(1, load_steps + 1):
+                self._set_load_factor(k / load_steps, g)
+                counts.append(self._newton(L, rtol, atol, max_iterations, k / load_steps))
+        finally:
+            self._set_load_factor(1.0, g)
+        return counts
+
+    def _set_load_factor(self, factor: float, g: np.ndarray) -> None:
+        """Ramp the loads: the rigid bodies' gravity, and the FEM load factor (which scales
+        the FEM bodies' gravity, body forces and nodal loads)."""
+        self._gravity = factor * g
+        for body in self._full_bodies():
+            body.load_factor.value = factor
+
+    def _residual(self, L) -> tuple[np.ndarray, np.ndarray]:
+        F = L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
+        phi = np.concatenate([j.constraint().phi for j in self.joints]) if self.joints \
+            else np.zeros(0)
+        return F, phi
+
+    def _merit(self, L, F: np.ndarray, phi: np.ndarray) -> float:
+        """|[F_m - G_m^T mu; phi]| with mu the least-squares joint reactions at the current
+        configuration: the forces the joints cannot balance, and the joints' error."""
+        if self.joints:
+            G = L.joint_matrix(L.prolongation()).toarray()
+            F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
+        return float(np.linalg.norm(np.concatenate([F, phi])))
+
+    def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
+        F, phi = self._residual(L)
+        norm = self._merit(L, F, phi)
+        scale = max(norm, atol)
+        for it in range(1, max_iterations + 1):
+            if norm <= max(rtol * scale, atol):
+                return it - 1
+            K = self.static_tangent()
+            P = L.prolongation()
+            G = L.joint_matrix(P) if self.joints else sparse.csr_matrix((0, K.shape[0]))
+            KKT = sparse.bmat([[K, G.T], [G, None]], format="csr") if G.shape[0] else K
+            x = self._solver.solve(KKT, np.concatenate([F, -phi]), "static solve")
+            dq, mu = x[:K.shape[0]], x[K.shape[0]:]
+            if self.joints:             # K dq = F - G^T mu: the joints apply -G^T mu
+                groups = L.joint_rows(P, np.zeros(L.n_all), 1.0, 0.0)[0]
+                cuts = np.cumsum([len(g[1]) for g in groups])[:-1]
+                self._reactions = L.joint_forces((g[0], g[1], m) for g, m in
+                                                 zip(groups, np.split(-mu, cuts)))
+            saved = L.save()
+            # The energy is a merit when it is the whole potential; with joints, the exact
+            # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
+            # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
+            use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
+                and all(p.conservative for p in self.paths)
+            rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
+            energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
+                if use_energy else 0.0
+            slope = -float(F @ dq) - rho * float(np.abs(phi).sum())
+            step = 1.0
+            while step >= 1e-4:
+                L.displace(step * dq)
+                if not L.inverted():
+                    # Energy (Armijo) first: a rotation of a root moves its slaves on arcs
+                    # while the free nodes beside them move on straight lines, so a large
+                    # rotation raises the force residual sharply (stiff elements by the
+                    # attachment), not the energy (integrators._backtrack, same rule).
+                    F_new, phi_new = self._residual(L)
+                    energy = self.potential_energy() + rho * float(np.abs(phi_new).sum()) \
+                        if use_energy else np.inf
+                    trial = self._merit(L, F_new, phi_new)
+                    if np.isfinite(trial) and (
+                            energy <= energy0 + 1e-4 * step * slope
+                            or trial <= (1.0 - 1e-4 * step) * norm):
+                        break
+                L.restore(saved)
+                step *= 0.5
+            else:
+                raise StepFailed(f"static solve: line search failed at load factor "
+                                        f"{factor:g}, Newton iteration {it}")
+            F, phi, norm = F_new, phi_new, trial
+            if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
+                return it
+        if norm <= max(rtol * scale, atol):
+            return max_iterations
+        raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
+                                f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
