@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from artifem.arguments import positive_float
-from artifem.errors import InputError
+from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
@@ -330,12 +330,15 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
 def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duration: float,
              dt: float = 0.01, *, snapshots=(), callback=None) -> dict:
     """Run the tongue motion (a name of MOTIONS, with the paper's ramp, or an exciter
-    schedule) with the scene's jaw; record time, opening angle, tip displacement,
-    attachment and joint errors, ms per step. ``callback(k)`` after step k."""
+    schedule, added to the scene's controllers) with the scene's jaw; record time, opening
+    angle, tip displacement, attachment and joint errors, ms per step. ``callback(k)``
+    after step k. A step the scene cannot complete raises its ElementInversionError or
+    StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
     body = s.tongue.body
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
-    control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
+    if motion:
+        s.scene.add_controller(s.tongue.bundle_schedule(motion).controller(body))
     dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
     tip = FemPoint(s.reduced or body, FemPointWeights(np.array([dof]), np.ones(1),
                                                       body.V.tabulate_dof_coordinates()[dof]))
@@ -349,13 +352,9 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     keep = {int(round(f * n)) for f in snapshots}
     for k in range(1, n + 1):
         t0 = time.perf_counter()
-        if control is not None:
-            control(s.scene, s.scene.t, s.scene.t + dt)
-        s.scene.step(dt)
+        s.scene.step(dt)            # controllers, halving and the det F checks: the Scene's
         rec["ms"].append(1e3 * (time.perf_counter() - t0))
         x_tip = tip.position()
-        if not np.all(np.isfinite(x_tip)):
-            raise FloatingPointError(f"jaw_tongue: non-finite displacement at t = {s.scene.t:g}")
         rec["t"].append(s.scene.t)
         rec["angle"].append(s.opening_angle())
         rec["tip"].append(x_tip - tip0)
@@ -410,19 +409,33 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--motion", default="protrusion", choices=sorted(MOTIONS) + ["none"])
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--motion", default="protrusion", choices=sorted(MOTIONS) + ["none"])
+    source.add_argument("--schedule", type=Path,
+                        help='exciter schedule JSON: {"times": [...], "excitations": '
+                             '{"GGP": [...], ...}} (as simulate tongue)')
     parser.add_argument("--duration", type=positive_float, default=0.6)
     parser.add_argument("--dt", type=positive_float, default=0.01)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.schedule is not None:
+        motion = ExcitationSchedule.from_file(args.schedule)
+        label = args.schedule.stem
+        exciters = load_tongue_data(JawTongueConfig().tongue.level).exciters
+        unknown = sorted(set(motion.values) - set(exciters))
+        if unknown:                              # before any work
+            raise UnknownNameError(f"{args.schedule}: unknown muscles {unknown}; the tongue's "
+                                   f"exciters are {', '.join(sorted(exciters))}")
+    else:
+        motion = None if args.motion == "none" else args.motion
+        label = args.motion
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = JawTongueConfig()
     t0 = time.perf_counter()
     s = build_scene(config)
     build_s = time.perf_counter() - t0
-    motion = None if args.motion == "none" else args.motion
     rec = simulate(s, motion, args.duration, args.dt, snapshots=(1 / 3, 2 / 3, 1.0))
     frames = [(f"t = {t:.2f} s, jaw {np.degrees(a):.1f} deg", u, p, R)
               for (t, u, p, R), a in zip(rec["frames"],
@@ -432,9 +445,11 @@ def run(args: argparse.Namespace) -> int:
     a = s.alignment
     figures = {
         "model": "jaw_tongue",
-        "motion": args.motion, "dt": args.dt, "duration": args.duration,
+        "motion": label, "dt": args.dt, "duration": args.duration,
         "steps": int(len(rec["ms"])),
         "ms_per_step_median": float(np.median(rec["ms"])),
+        "min_det_F": float(s.scene.min_det_F),
+        "halvings": int(s.scene.halvings),
         "build_seconds": build_s,
         "tongue": {"nodes": int(s.tongue.data.mesh.points.shape[0]),
                    "jaw_attachment_nodes": int(s.jaw_rows.size),

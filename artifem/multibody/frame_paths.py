@@ -59,6 +59,17 @@ class TimedPath:
         """The element's tension at the last evaluation (N)."""
         return float(self.result.tension) if self.result is not None else 0.0
 
+    def save_state(self):
+        """Everything a step changes: the last time and result, and the element's own
+        state (excitation, activation, fiber length: its attributes, copied)."""
+        return self._t, self._dt, self.result, dict(vars(self.element))
+
+    def restore_state(self, saved) -> None:
+        """Back to a saved state (a rejected step is undone, then retried)."""
+        self._t, self._dt, self.result, attributes = saved
+        vars(self.element).clear()
+        vars(self.element).update(attributes)
+
 
 class FramePath:
     """A spring or muscle through ``frames`` (at least two), a RigidSystem force element."""
@@ -94,6 +105,12 @@ class FramePath:
     def tension(self) -> float:
         """The element's tension at the last evaluation (N)."""
         return self._timed.tension()
+
+    def save_state(self):
+        return self._timed.save_state()
+
+    def restore_state(self, saved) -> None:
+        self._timed.restore_state(saved)
 
     def potential_energy(self) -> float:
         """The element's stored energy, for elements that have one (springs)."""

@@ -58,6 +58,13 @@ class PointPath:
     def tension(self) -> float:
         return self._timed.tension()
 
+    def save_state(self):
+        """The muscle's time-dependent state (TimedPath.save_state)."""
+        return self._timed.save_state()
+
+    def restore_state(self, saved) -> None:
+        self._timed.restore_state(saved)
+
     def length(self) -> float:
         return float(np.linalg.norm(np.diff(self.positions(), axis=0), axis=1).sum())
 

@@ -289,6 +289,19 @@ class RigidBody:
         self.velocity = np.array(u[:3], dtype=float)
         self.angular_velocity = np.array(u[3:], dtype=float)
 
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A copy of (p, R, u): the pose and the twist (the body interface of a scene)."""
+        return self.position.copy(), self.rotation.copy(), self.twist
+
+    def set_state(self, state) -> None:
+        p, R, u = state
+        self.position, self.rotation = np.array(p, dtype=float), np.array(R, dtype=float)
+        self.set_twist(u)
+
+    def inverted_elements(self) -> tuple[np.ndarray, float]:
+        """A rigid body has no elements to invert: (none, inf) (the body interface)."""
+        return np.zeros(0, dtype=np.int64), np.inf
+
     def inertia_world(self) -> np.ndarray:
         """I_w = R I_b R^T."""
         return self.rotation @ self.inertia @ self.rotation.T

@@ -154,10 +154,14 @@ are solved by a dense LU instead of MUMPS. Not here yet: MPI.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
 from scipy import sparse
 
-from artifem.errors import InputError, StepFailed, UnknownNameError
+from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
+                            UnknownNameError)
 from artifem.fem_body import FemBody
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
@@ -171,7 +175,26 @@ from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.layout import Layout
 
-__all__ = ["Scene"]
+__all__ = ["Scene", "SceneState"]
+
+#: A controller sets inputs (excitations, loads) for the step from t0 to t1.
+Controller = Callable[["Scene", float, float], None]
+
+
+@dataclass(frozen=True)
+class SceneState:
+    """A scene's complete state (:meth:`Scene.save_state`): restore it to go back."""
+
+    t: float
+    bodies: list            # body.state() of every body, in Scene.bodies order
+    elements: list          # save_state() of the force and path elements that have one
+    joints: tuple           # the joints' last impulses, step and reactions
+
+
+@dataclass(frozen=True)
+class _Failure:
+    message: str
+    inverted: list          # (body name, input element indices, min det F)
 
 
 class Scene:
@@ -183,16 +206,23 @@ class Scene:
         stabilization: Baumgarte beta in [0, 1] of the joint rows (RigidSystem).
         geometric_stiffness: include K_geo in the step and the static tangent (default);
             False drops it, for comparisons.
+        max_halvings: how many times a failing step may be halved (:meth:`step`).
     """
 
     def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
-                 geometric_stiffness: bool = True):
+                 geometric_stiffness: bool = True, max_halvings: int = 4):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
         if not 0.0 <= stabilization <= 1.0:
             raise InputError(f"stabilization must be in [0, 1], got {stabilization!r}")
+        if int(max_halvings) != max_halvings or max_halvings < 0:
+            raise InputError(f"max_halvings must be an integer >= 0, got {max_halvings!r}")
         self._gravity = g
+        self.max_halvings = int(max_halvings)
+        self.controllers: list[Controller] = []
+        self.halvings = 0               # step halvings so far
+        self.min_det_F = np.inf         # smallest det F after any accepted step
         self.stabilization = float(stabilization)
         self.geometric_stiffness = bool(geometric_stiffness)
         self.t = 0.0
@@ -363,8 +393,101 @@ class Scene:
 
     # ---- the step ------------------------------------------------------------------------
 
+    def add_controller(self, controller: Controller) -> None:
+        """``controller(scene, t0, t1)`` sets inputs (excitations, loads) before every step
+        from t0 to t1, halved steps included (ArtiSynth's Controller.apply)."""
+        if not callable(controller):
+            raise InputError(f"a controller is a callable (scene, t0, t1), got {controller!r}")
+        self.controllers.append(controller)
+
+    @property
+    def bodies(self) -> list:
+        """Every body of the scene: FEM, reduced and rigid (the body interface: state(),
+        set_state(), inverted_elements(), kinetic_energy())."""
+        return [*self.fem_bodies, *self.reduced_bodies, *self.rigid_bodies]
+
+    def _stateful(self) -> list:
+        """Force and path elements with a time-dependent state (muscle activation, tendon)."""
+        return [e for e in [*self.forces, *self.paths] if hasattr(e, "save_state")]
+
+    def save_state(self) -> SceneState:
+        """The complete state: time, every body's coordinates and velocities, the muscles'
+        activation and tendon state, and the joints' last impulses."""
+        return SceneState(self.t, [b.state() for b in self.bodies],
+                          [e.save_state() for e in self._stateful()],
+                          (self._impulses, self._last_h, self._reactions))
+
+    def restore_state(self, state: SceneState) -> None:
+        """Back to a state saved from this scene (the same components)."""
+        bodies, stateful = self.bodies, self._stateful()
+        if len(state.bodies) != len(bodies) or len(state.elements) != len(stateful):
+            raise InputError("restore_state: the state was saved from a scene with other "
+                             f"components ({len(state.bodies)} bodies, {len(state.elements)} "
+                             f"stateful elements; this scene has {len(bodies)} and "
+                             f"{len(stateful)})")
+        self.t = state.t
+        for body, saved in zip(bodies, state.bodies):
+            body.set_state(saved)
+        for element, saved in zip(stateful, state.elements):
+            element.restore_state(saved)
+        self._impulses, self._last_h, self._reactions = state.joints
+
     def step(self, h: float) -> None:
-        """Advance from t to t + h (module docstring)."""
+        """Advance from t to t + h: the controllers, one linearized step (module docstring),
+        then the health of every body (finite coordinates, det F > 0 at every quadrature
+        point; a reduced body's at its integration points). A failed step (unhealthy, or a
+        singular or failed solve) is undone (:meth:`restore_state`) and retried as two
+        steps of half the size, recursively up to ``max_halvings`` times; beyond that it
+        raises :class:`~artifem.errors.ElementInversionError` (body, time, elements,
+        smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left at the
+        start of the failed step."""
+        if not (np.isfinite(h) and h > 0):
+            raise InputError(f"time step must be positive and finite, got {h!r}")
+        self._advance(h, depth=0)
+
+    def _advance(self, h: float, depth: int) -> None:
+        for controller in self.controllers:
+            controller(self, self.t, self.t + h)
+        saved = self.save_state()
+        try:
+            self._step_once(h)
+            failure = self._health()
+        except (StepFailed, LinearSolveError) as exc:
+            failure = _Failure(str(exc), [])
+        if failure is None:
+            return
+        self.restore_state(saved)
+        if depth >= self.max_halvings:
+            self._raise(failure, h)
+        self.halvings += 1
+        self._advance(h / 2, depth + 1)
+        self._advance(h / 2, depth + 1)
+
+    def _health(self) -> _Failure | None:
+        """None after a sound step; otherwise what went wrong, body by body."""
+        inverted, step_min = [], np.inf
+        for body in self.bodies:
+            if not all(np.all(np.isfinite(a)) for a in body.state()):
+                return _Failure(f"non-finite coordinates or velocities in {body.name!r}", [])
+            bad, min_det = body.inverted_elements()
+            if bad.size or not min_det > 0:
+                inverted.append((body.name, bad, min_det))
+            step_min = min(step_min, min_det)
+        if inverted:
+            return _Failure("inverted elements in " + ", ".join(repr(n) for n, *_ in inverted),
+                            inverted)
+        self.min_det_F = min(self.min_det_F, step_min)
+        return None
+
+    def _raise(self, failure: _Failure, h: float) -> None:
+        detail = f"{failure.message}; step {h:.3g} s after {self.max_halvings} halvings"
+        if failure.inverted:
+            name, bad, min_det = min(failure.inverted, key=lambda x: x[2])
+            raise ElementInversionError(self.t + h, bad, min_det, detail, body=name)
+        raise StepFailed(f"step failed at t = {self.t:.6g} s: {detail}")
+
+    def _step_once(self, h: float) -> None:
+        """One linearized step from t to t + h (module docstring), no checks."""
         L, P, z_k, targets, A_m, b_m = self._step_system(h)
         bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
         z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
