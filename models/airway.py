@@ -802,14 +802,14 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None,
 def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
     """benchmark() of one airway scene built without its pressure load (added midway)."""
     s = a.jt
-    control = s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body)
+    s.scene.add_controller(
+        s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body))
 
     def timed(n):
         ms = []
         for _ in range(n):
             t0 = time.perf_counter()
-            control(s.scene, s.scene.t, s.scene.t + dt)
-            s.scene.step(dt)
+            s.scene.step(dt)                              # the controller included
             ms.append(1e3 * (time.perf_counter() - t0))
         return float(np.median(ms))
 

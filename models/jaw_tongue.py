@@ -337,8 +337,9 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     body = s.tongue.body
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
-    if motion:
-        s.scene.add_controller(s.tongue.bundle_schedule(motion).controller(body))
+    control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
+    if control is not None:
+        s.scene.add_controller(control)         # for this run only (removed at its end)
     dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
     tip = FemPoint(s.reduced or body, FemPointWeights(np.array([dof]), np.ones(1),
                                                       body.V.tabulate_dof_coordinates()[dof]))
@@ -350,23 +351,27 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     frames = []
     n = int(round(duration / dt))
     keep = {int(round(f * n)) for f in snapshots}
-    for k in range(1, n + 1):
-        t0 = time.perf_counter()
-        s.scene.step(dt)            # controllers, halving and the det F checks: the Scene's
-        rec["ms"].append(1e3 * (time.perf_counter() - t0))
-        x_tip = tip.position()
-        rec["t"].append(s.scene.t)
-        rec["angle"].append(s.opening_angle())
-        rec["tip"].append(x_tip - tip0)
-        rec["attachment_error"].append(max(s.scene.attachment_errors().values()))
-        rec["joint_error"].append(max(s.scene.constraint_errors().values()))
-        rec["jaw_nodes_dz"].append(float((s.attachment.positions()[:, 2] - z0).mean()))
-        rec["opener_tension"].append(s.opener.tension() if s.opener else 0.0)
-        if k in keep:
-            frames.append((s.scene.t, s.tongue_displacement(), s.jaw.position.copy(),
-                           s.jaw.rotation.copy()))
-        if callback:
-            callback(k)
+    try:
+        for k in range(1, n + 1):
+            t0 = time.perf_counter()
+            s.scene.step(dt)            # controllers, halving and the det F checks: the Scene's
+            rec["ms"].append(1e3 * (time.perf_counter() - t0))
+            x_tip = tip.position()
+            rec["t"].append(s.scene.t)
+            rec["angle"].append(s.opening_angle())
+            rec["tip"].append(x_tip - tip0)
+            rec["attachment_error"].append(max(s.scene.attachment_errors().values()))
+            rec["joint_error"].append(max(s.scene.constraint_errors().values()))
+            rec["jaw_nodes_dz"].append(float((s.attachment.positions()[:, 2] - z0).mean()))
+            rec["opener_tension"].append(s.opener.tension() if s.opener else 0.0)
+            if k in keep:
+                frames.append((s.scene.t, s.tongue_displacement(), s.jaw.position.copy(),
+                               s.jaw.rotation.copy()))
+            if callback:
+                callback(k)
+    finally:
+        if control is not None:
+            s.scene.controllers.remove(control)
     out = {k: np.array(v) for k, v in rec.items()}
     out["frames"] = frames
     return out
