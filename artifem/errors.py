@@ -64,10 +64,6 @@ class StepFailed(SolverError):
     """A step could not be completed at this step size."""
 
 
-class RigidStepFailed(StepFailed):
-    """A rigid step produced a singular or non-finite system."""
-
-
 class LinearSolveError(SolverError):
     """The KSP did not converge (or the factorization failed) for this matrix."""
 

@@ -6,7 +6,7 @@ import pytest
 from artifem.multibody.frame_paths import FramePath
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
 from artifem.multibody.rigid_body import Frame, RigidBody
-from artifem.multibody.rigid_system import RigidSystem
+from artifem.scene import Scene
 
 G = 9.81
 
@@ -19,7 +19,7 @@ def hanging(mass=2.0, z=-0.5):
 def test_a_mass_on_a_spring_oscillates_at_its_natural_frequency():
     body, top, bottom = hanging(z=-0.6)
     k, L0, m = 400.0, 0.5, 2.0
-    system = RigidSystem(gravity=(0.0, 0.0, 0.0))
+    system = Scene(gravity=(0.0, 0.0, 0.0))
     system.add(body, FramePath(AxialSpring(k, L0), [top, bottom], name="spring"))
     h, z = 1e-4, []
     for _ in range(int(1.5 / h)):
@@ -39,7 +39,7 @@ def test_a_hanging_weight_settles_where_the_muscle_holds_it():
     body, top, bottom = hanging(mass=3.0, z=-0.31)
     body.velocity[:] = 0.0
     path = FramePath(muscle, [top, bottom], excitation=lambda t: 0.5, name="hill")
-    system = RigidSystem(gravity=(0.0, 0.0, -G))
+    system = Scene(gravity=(0.0, 0.0, -G))
     system.add(body, path)
     for _ in range(3000):
         system.step(1e-3)
@@ -54,7 +54,7 @@ def test_stiffer_activation_lifts_the_weight():
     heights = []
     for level in (0.3, 0.8):
         body, top, bottom = hanging(mass=3.0, z=-0.31)
-        system = RigidSystem(gravity=(0.0, 0.0, -G))
+        system = Scene(gravity=(0.0, 0.0, -G))
         system.add(body, FramePath(ThelenMuscle(params), [top, bottom],
                                    excitation=lambda t, u=level: u))
         for _ in range(3000):

@@ -4,8 +4,8 @@ A :class:`FramePath` carries a point-path element of
 :mod:`artifem.multibody.muscles` (``AxialSpring``, ``ThelenMuscle``) whose
 points are the origins of frames on rigid bodies or in the world. At each
 step it evaluates the element at the frames' positions and velocities and
-hands the rigid step the wrenches G^T f and their stiffness and damping
-blocks (:func:`~artifem.multibody.rigid_system.point_force_wrenches`), so the
+hands the scene's step the wrenches G^T f and their stiffness and damping
+blocks (:func:`~artifem.multibody.force_elements.point_force_wrenches`), so the
 element is implicit in the step.
 
 A muscle's excitation may follow a schedule ``excitation(t)``; its activation
@@ -22,7 +22,7 @@ import numpy as np
 
 from artifem.errors import InputError
 from artifem.multibody.rigid_body import Frame
-from artifem.multibody.rigid_system import point_force_wrenches
+from artifem.multibody.force_elements import point_force_wrenches
 
 __all__ = ["FramePath", "TimedPath"]
 
@@ -72,7 +72,7 @@ class TimedPath:
 
 
 class FramePath:
-    """A spring or muscle through ``frames`` (at least two), a RigidSystem force element."""
+    """A spring or muscle through ``frames`` (at least two), a force element of a Scene."""
 
     def __init__(self, element, frames: Sequence[Frame], *,
                  excitation: Callable[[float], float] | None = None, name: str = "path"):

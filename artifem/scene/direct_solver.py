@@ -1,20 +1,33 @@
-"""The scene's direct linear solver for its (indefinite, unsymmetric) KKT systems."""
+"""The scene's direct linear solver: factor a sparse matrix once, solve for many columns.
+
+The step matrix of a coupled scene is unsymmetric (gyroscopic and geometric terms)
+and the static KKT matrix indefinite, so both are factored by LU: MUMPS through
+petsc4py on one process, or LAPACK (scipy) for systems of at most ``DENSE_MAX``
+unknowns (reduced and rigid bodies), where it costs microseconds and building the
+PETSc matrix alone a millisecond. A factorization of the same sparsity pattern as
+the previous one reuses MUMPS' analysis.
+"""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
+import scipy.linalg
 from petsc4py import PETSc
 from scipy import sparse
 
 from artifem.errors import StepFailed
 
+__all__ = ["DirectSolver"]
+
+#: Systems of at most this many unknowns are dense (LAPACK), larger ones sparse (MUMPS).
+DENSE_MAX = 400
+SINGULAR = "a singular system: redundant joints, or a free body with no mass?"
+
 
 class DirectSolver:
-    """x = K^-1 b by a MUMPS LU factorization (petsc4py, one process); systems of at most
-    ``DENSE_MAX`` unknowns (reduced and rigid bodies only) by dense LAPACK LU instead, which
-    costs microseconds where building the PETSc matrix alone costs a millisecond."""
-
-    DENSE_MAX = 400
+    """x = K^-1 b by LU: :meth:`factor` once, then :meth:`apply` to any right-hand sides."""
 
     def __init__(self):
         self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
@@ -24,21 +37,29 @@ class DirectSolver:
         pc.setFactorSolverType("mumps")
         self._mat = None
         self._pattern = None
+        self._dense = None
+        self._what = ""
 
-    def solve(self, K: sparse.csr_matrix, b: np.ndarray, what: str) -> np.ndarray:
-        if K.shape[0] <= self.DENSE_MAX:
-            try:
-                out = np.linalg.solve(K.toarray(), b)
-            except np.linalg.LinAlgError as exc:
-                raise StepFailed(f"{what}: the dense LU failed ({exc}); a singular "
-                                        "system: redundant joints, or a free body with no "
-                                        "mass?") from exc
-            if not np.all(np.isfinite(out)):
-                raise StepFailed(f"{what}: the dense solve gave non-finite values; a "
-                                        "singular system: redundant joints, or a free body "
-                                        "with no mass?")
-            return out
-        K = K.tocsr()
+    def solve(self, K, b: np.ndarray, what: str) -> np.ndarray:
+        """K^-1 b (one factorization)."""
+        return self.factor(K, what).apply(b)
+
+    def factor(self, K, what: str) -> DirectSolver:
+        """LU of K (dense or sparse); StepFailed (naming ``what``) when it is singular."""
+        self._what = what
+        if K.shape[0] <= DENSE_MAX:
+            dense = K.toarray() if sparse.issparse(K) else np.asarray(K, dtype=float)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # checked below
+                lu, piv = scipy.linalg.lu_factor(dense, check_finite=False)
+            pivots = np.abs(np.diag(lu))
+            if not np.all(np.isfinite(lu)) or (pivots.size and pivots.min()
+                                                <= 1e-14 * max(pivots.max(), 1e-300)):
+                raise StepFailed(f"{what}: the dense LU found a zero pivot; {SINGULAR}")
+            self._dense = (lu, piv)
+            return self
+        self._dense = None
+        K = sparse.csr_matrix(K)
         K.sort_indices()
         n = K.shape[0]
         indptr = K.indptr.astype(PETSc.IntType)
@@ -56,21 +77,38 @@ class DirectSolver:
             self._mat.assemble()
             self._pattern = pattern
         self.ksp.setOperators(self._mat)
-        rhs = self._mat.createVecLeft()
-        x = self._mat.createVecRight()
-        rhs.array[:] = b
         try:
-            self.ksp.solve(rhs, x)
+            self.ksp.setUp()
         except PETSc.Error as exc:
-            raise StepFailed(f"{what}: the LU factorization failed ({exc}); a singular "
-                                    "system: redundant joints, or a free body with no mass?") \
+            raise StepFailed(f"{what}: the LU factorization failed ({exc}); {SINGULAR}") \
                 from exc
-        reason = self.ksp.getConvergedReason()
-        out = x.array.copy()
-        rhs.destroy()
-        x.destroy()
-        if reason < 0 or not np.all(np.isfinite(out)):
-            raise StepFailed(f"{what}: the direct solve failed (KSP reason {reason}, "
-                                    "finite: " f"{bool(np.all(np.isfinite(out)))}); a singular "
-                                    "system: redundant joints, or a free body with no mass?")
+        return self
+
+    def apply(self, B: np.ndarray) -> np.ndarray:
+        """K^-1 B for the last factored K; B (n,) or (n, k)."""
+        B = np.asarray(B, dtype=float)
+        if self._dense is not None:
+            out = scipy.linalg.lu_solve(self._dense, B, check_finite=False)
+        else:
+            columns = B.reshape(B.shape[0], -1)
+            out = np.empty_like(columns)
+            rhs, x = self._mat.createVecLeft(), self._mat.createVecRight()
+            try:
+                for k in range(columns.shape[1]):
+                    rhs.array[:] = columns[:, k]
+                    self.ksp.solve(rhs, x)
+                    reason = self.ksp.getConvergedReason()
+                    if reason < 0:
+                        raise StepFailed(f"{self._what}: the direct solve failed (KSP reason "
+                                         f"{reason}); {SINGULAR}")
+                    out[:, k] = x.array
+            except PETSc.Error as exc:
+                raise StepFailed(f"{self._what}: the direct solve failed ({exc}); "
+                                 f"{SINGULAR}") from exc
+            finally:
+                rhs.destroy()
+                x.destroy()
+            out = out.reshape(B.shape)
+        if not np.all(np.isfinite(out)):
+            raise StepFailed(f"{self._what}: the direct solve gave non-finite values; {SINGULAR}")
         return out

@@ -25,6 +25,7 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.rigid_lift import RigidLift
+from artifem.scene.direct_solver import DENSE_MAX
 
 
 @dataclass
@@ -58,6 +59,9 @@ class Layout:
             self.rigid_offset[id(body)] = offset
             offset += 6
         self.n_all = offset
+        #: a small scene (reduced and rigid bodies, tiny FEM bodies) keeps its matrices
+        #: dense: a few small arrays, without scipy.sparse's per-operation overhead
+        self.dense = self.n_all <= DENSE_MAX
         self._check_references()
 
         # Roots of the rigid attachment chains, in dependency order (masters first).
@@ -112,19 +116,55 @@ class Layout:
         self._embedding_map = self._embedding_matrix()
         self._place_lifts()             # lift coordinates from the bodies' poses
 
-    def _embedding_matrix(self) -> sparse.csr_matrix:
+    # ---- matrices in the layout's format (dense when small, CSR otherwise) -------------
+
+    def matrix(self, vals, rows, cols, shape):
+        """The matrix of (value, row, column) triplets, repeated entries summed."""
+        if self.dense:
+            out = np.zeros(shape)
+            np.add.at(out, (np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)),
+                      vals)
+            return out
+        return sparse.csr_matrix((vals, (rows, cols)), shape=shape)
+
+    def triplets(self, parts: list, shape):
+        """:meth:`matrix` of a list of (vals, rows, cols) parts (none: zeros)."""
+        if not parts:
+            return self.zeros(shape)
+        vals, rows, cols = (np.concatenate(x) for x in zip(*parts))
+        return self.matrix(vals, rows, cols, shape)
+
+    def zeros(self, shape):
+        return np.zeros(shape) if self.dense else sparse.csr_matrix(shape)
+
+    def fmt(self, X):
+        """X (dense or sparse) in the layout's format."""
+        if self.dense:
+            return X.toarray() if sparse.issparse(X) else np.asarray(X)
+        return sparse.csr_matrix(X)
+
+    def vstack(self, blocks: list):
+        return np.vstack([self.fmt(b) for b in blocks]) if self.dense else \
+            sparse.vstack(blocks).tocsr()
+
+    def kkt(self, K, G):
+        """[[K, G^T], [G, 0]] (statics)."""
+        if not G.shape[0]:
+            return K
+        if self.dense:
+            return np.block([[K, G.T], [G, np.zeros((G.shape[0], G.shape[0]))]])
+        return sparse.bmat([[K, G.T], [G, None]], format="csr")
+
+    def _embedding_matrix(self):
         """Z_e (n_all x n_all): z_slave = W z_master of every embedded body (constant)."""
         blocks = []
         for att in self.embedded:
             o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
             W = att.W.tocoo()
             blocks.append((W.data, o_s + W.row, o_m + W.col))
-        if not blocks:
-            return sparse.csr_matrix((self.n_all, self.n_all))
-        vals, rows, cols = (np.concatenate(x) for x in zip(*blocks))
-        return sparse.csr_matrix((vals, (rows, cols)), shape=(self.n_all, self.n_all))
+        return self.triplets(blocks, (self.n_all, self.n_all))
 
-    def _lift_matrix(self) -> sparse.csr_matrix:
+    def _lift_matrix(self):
         """Z_l (n_all x n_all): g' = G_g(R) u of every lift, at the bodies' current poses."""
         rows, cols, vals = [], [], []
         for att in self.scene.lift_attachments:
@@ -133,13 +173,9 @@ class Layout:
             rr, cc = np.meshgrid(r, c, indexing="ij")
             rows.append(rr.ravel()), cols.append(cc.ravel())
             vals.append(RigidLift.jacobian(att.body.rotation).ravel())
-        if not rows:
-            return sparse.csr_matrix((self.n_all, self.n_all))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(self.n_all, self.n_all))
+        return self.triplets(list(zip(vals, rows, cols)), (self.n_all, self.n_all))
 
-    def _frame_matrix(self) -> sparse.csr_matrix:
+    def _frame_matrix(self):
         """Z_f (n_all x n_all): u_b = J z_nodes of every frame-attached body, at the current
         configuration (FrameAttachment)."""
         rows, cols, vals = [], [], []
@@ -149,11 +185,7 @@ class Layout:
             for c, J in att.jacobian():
                 rr, cc = np.meshgrid(r0, o + c, indexing="ij")
                 rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(J.ravel())
-        if not rows:
-            return sparse.csr_matrix((self.n_all, self.n_all))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(self.n_all, self.n_all))
+        return self.triplets(list(zip(vals, rows, cols)), (self.n_all, self.n_all))
 
     def _body_offset(self, body) -> int:
         """The all-space offset of an FEM (blocked dofs) or reduced body (q)."""
@@ -161,7 +193,7 @@ class Layout:
             self.reduced_offset[id(body)]
 
     @staticmethod
-    def _chain(Z: sparse.csr_matrix, X):
+    def _chain(Z, X):
         """X + Z X + Z^2 X + ... (Z nilpotent: derived rows of derived rows, in any order)."""
         out, term = X.copy(), X
         for _ in range(Z.shape[0] + 1):
@@ -305,7 +337,7 @@ class Layout:
                                                                       s.angular_velocity]))
         return out
 
-    def prolongation(self) -> sparse.csr_matrix:
+    def prolongation(self):
         """P (n_all x n_masters) at the current poses (artifem.scene.scene docstring)."""
         rows = [self.master_rows]
         cols = [np.arange(self.n_masters)]
@@ -335,14 +367,13 @@ class Layout:
                 rows.append(o + 3 + np.arange(3))
                 cols.append(c0 + 3 + np.arange(3))
                 vals.append(np.ones(3))
-        P0 = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                       np.concatenate(cols))),
-                               shape=(self.n_all, self.n_masters))
+        P0 = self.matrix(np.concatenate(vals), np.concatenate(rows), np.concatenate(cols),
+                         (self.n_all, self.n_masters))
         # rows derived from others: embedded FEM bodies (W), lift coordinates (G_g) and
         # frame-attached bodies (J)
         if self.embedded or self.scene.lift_attachments or self.scene.frame_attachments:
             Z = self._embedding_map + self._lift_matrix() + self._frame_matrix()
-            return self._chain(Z.tocsr(), P0).tocsr()
+            return self.fmt(self._chain(self.fmt(Z), P0))
         return P0
 
     def known_velocities(self, h: float, targets: dict) -> np.ndarray:
@@ -376,7 +407,7 @@ class Layout:
                 z[self.reduced_offset[id(att.reduced)] + att.columns] = \
                     (g1 - att.coordinates()) / h
         if self.embedded or self.scene.frame_attachments:
-            z = self._chain((self._embedding_map + self._frame_matrix()).tocsr(), z)
+            z = self._chain(self.fmt(self._embedding_map + self._frame_matrix()), z)
         return z
 
     def _rigid_wrenches(self, t1: float, h: float | None, A, b):
@@ -423,8 +454,7 @@ class Layout:
             K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
             b[o:o + r] = M @ v + h * f
             f_all[o:o + r] = f - body.alpha * (M @ v) - body.beta * (K @ v)
-            blocks.append(sparse.csr_matrix((1.0 + h * body.alpha) * M
-                                            + (h * body.beta + h * h) * K))
+            blocks.append((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K)
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
@@ -447,7 +477,7 @@ class Layout:
             F, K, D = self.path_terms(t1, h)
             z = self.current_velocities()
             b += h * F - h * (D @ z)
-            A = (A - h * D - h * h * K).tocsr()
+            A = self.fmt(A - h * D - h * h * K)
             f_all += F
         if scene.loads:
             F = self.load_vector(t1)
@@ -491,7 +521,7 @@ class Layout:
             z[o:o + 6] = body.twist
         return z
 
-    def path_map(self, path: "PointPath") -> sparse.csr_matrix:
+    def path_map(self, path: "PointPath"):
         """G (3n x n_all): x_a' = G z for the path's points (artifem.scene.scene docstring)."""
         rows, cols, vals = [], [], []
         for i, pt in enumerate(path.points):
@@ -513,26 +543,21 @@ class Layout:
                 Gi = pt.jacobian()
                 r, c = np.meshgrid(3 * i + np.arange(3), o + np.arange(6), indexing="ij")
                 rows.append(r.ravel()), cols.append(c.ravel()), vals.append(Gi.ravel())
-        n = 3 * len(path.points)
-        if not rows:
-            return sparse.csr_matrix((n, self.n_all))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(n, self.n_all))
+        return self.triplets(list(zip(vals, rows, cols)), (3 * len(path.points), self.n_all))
 
     def path_terms(self, t: float, h: float | None):
         """All paths at time t: F = G^T f (all-space), K = G^T K_p G + K_r and D = G^T D_p G
         (n_all x n_all, the derivatives of F by the positions and the velocities)."""
         scene = self.scene
         F = np.zeros(self.n_all)
-        K = sparse.csr_matrix((self.n_all, self.n_all))
-        D = sparse.csr_matrix((self.n_all, self.n_all))
+        K = self.zeros((self.n_all, self.n_all))
+        D = self.zeros((self.n_all, self.n_all))
         for path in scene.paths:
             result = path.evaluate(t)
             G = self.path_map(path)
             F += G.T @ result.forces.ravel()
-            K = K + G.T @ sparse.csr_matrix(result.stiffness) @ G
-            D = D + G.T @ sparse.csr_matrix(result.damping) @ G
+            K = K + G.T @ self.fmt(result.stiffness) @ G
+            D = D + G.T @ self.fmt(result.damping) @ G
             # rigid frames: the levers turn with the body (point_force_wrenches' extra terms)
             rigid = [(i, pt) for i, pt in enumerate(path.points)
                      if isinstance(pt, Frame) and pt.body is not None]
@@ -543,14 +568,12 @@ class Layout:
                     Ki = np.zeros((self.n_all, 6))
                     Ki[o:o + 6] += pt.wrench_stiffness(result.forces[i])
                     # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
-                    Dcol = (G.T @ sparse.csr_matrix(result.damping[:, 3 * i:3 * i + 3])).toarray()
+                    Dcol = np.asarray(G.T @ result.damping[:, 3 * i:3 * i + 3])
                     Ki[:, 3:] -= Dcol @ skew(pt.body.angular_velocity) @ skew(pt.lever())
                     nz = np.nonzero(Ki)
                     rr.append(nz[0]), cc.append(o + nz[1]), vv.append(Ki[nz])
-                K = K + sparse.csr_matrix((np.concatenate(vv), (np.concatenate(rr),
-                                                                np.concatenate(cc))),
-                                          shape=(self.n_all, self.n_all))
-        return F, K.tocsr(), D.tocsr()
+                K = K + self.triplets(list(zip(vv, rr, cc)), (self.n_all, self.n_all))
+        return F, self.fmt(K), self.fmt(D)
 
     def static_forces(self, t: float, tangent: bool):
         """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
@@ -566,7 +589,7 @@ class Layout:
             o = self.reduced_offset[id(body)]
             f_all[o:o + body.r] = body.force()
             if tangent:
-                blocks.append(sparse.csr_matrix(body.tangent()))
+                blocks.append(body.tangent())
         for body in scene.rigid_bodies:
             if body.dynamic:
                 o = self.rigid_offset[id(body)]
@@ -584,27 +607,28 @@ class Layout:
         zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
         K_all = self._stack(blocks, zeros, extra)
         if K_path is not None:
-            K_all = (K_all - K_path).tocsr()
+            K_all = self.fmt(K_all - K_path)
         return f_all, K_all
 
-    def _stack(self, fem_blocks, rigid_blocks, extra) -> sparse.csr_matrix:
-        parts = list(fem_blocks)
-        if rigid_blocks:
-            parts.append(sparse.block_diag([sparse.csr_matrix(b) for b in rigid_blocks],
-                                           format="csr"))
-        A = sparse.block_diag(parts, format="csr") if parts else \
-            sparse.csr_matrix((self.n_all, self.n_all))
-        if extra:
-            rows, cols, vals = [], [], []
-            for i, j, X in extra:
-                r, c = np.meshgrid(i + np.arange(6), j + np.arange(6), indexing="ij")
-                rows.append(r.ravel()), cols.append(c.ravel()), vals.append(X.ravel())
-            A = A + sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                              np.concatenate(cols))),
-                                      shape=A.shape)
-        return A.tocsr()
+    def _stack(self, fem_blocks, rigid_blocks, extra):
+        """The block-diagonal A_all of the bodies' blocks (in all-space order) plus the
+        force elements' 6 x 6 blocks ``extra`` (i, j, X), built as one COO matrix."""
+        rows, cols, vals, o = [], [], [], 0
+        for block in fem_blocks:            # FEM (sparse) and reduced (dense) bodies
+            coo = sparse.coo_matrix(block)
+            rows.append(o + coo.row), cols.append(o + coo.col), vals.append(coo.data)
+            o += block.shape[0]
+        six = np.arange(6)
+        for block in rigid_blocks:
+            r, c = np.meshgrid(o + six, o + six, indexing="ij")
+            rows.append(r.ravel()), cols.append(c.ravel()), vals.append(np.ravel(block))
+            o += 6
+        for i, j, X in extra:
+            r, c = np.meshgrid(i + six, j + six, indexing="ij")
+            rows.append(r.ravel()), cols.append(c.ravel()), vals.append(X.ravel())
+        return self.triplets(list(zip(vals, rows, cols)), (self.n_all, self.n_all))
 
-    def geometric_stiffness(self, f_all: np.ndarray, P: sparse.csr_matrix) -> sparse.csr_matrix:
+    def geometric_stiffness(self, f_all: np.ndarray, P):
         """K_geo on the masters (artifem.scene.scene docstring): sum_s [f_s]x [d_s]x on each dynamic root's
         rotation block, for the applied forces f_all on the slaves (an embedded body's
         forces first moved to its master's nodes, W^T f_s; a lift as levers R_k)."""
@@ -620,10 +644,8 @@ class Layout:
                 c, Kf = att.stiffness(wrench)
                 rr, cc = np.meshgrid(o + c, o + c, indexing="ij")
                 rows.append(rr.ravel()), cols.append(cc.ravel()), vals.append(Kf.ravel())
-            K_frames = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                                 np.concatenate(cols))),
-                                         shape=(self.n_all, self.n_all))
-            K_frames = (P.T @ K_frames @ P).tocsr()
+            K_frames = self.triplets(list(zip(vals, rows, cols)), (self.n_all, self.n_all))
+            K_frames = self.fmt(P.T @ K_frames @ P)
         if self.embedded:
             f_all = f_all.copy()
             for att in self.embedded:                   # slaves before their masters
@@ -655,11 +677,8 @@ class Layout:
             c0 = self.master_col[key] + 3
             r, c = np.meshgrid(c0 + np.arange(3), c0 + np.arange(3), indexing="ij")
             rows.append(r.ravel()), cols.append(c.ravel()), vals.append(block.ravel())
-        K_roots = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                            np.concatenate(cols))),
-                                    shape=(self.n_masters, self.n_masters)) if rows else \
-            sparse.csr_matrix((self.n_masters, self.n_masters))
-        return K_roots if K_frames is None else (K_roots + K_frames).tocsr()
+        K_roots = self.triplets(list(zip(vals, rows, cols)), (self.n_masters, self.n_masters))
+        return K_roots if K_frames is None else self.fmt(K_roots + K_frames)
 
     def joint_forces(self, parts) -> np.ndarray:
         """sum G^T lambda over (joint, ConstraintRows, lambda), on the all-space rigid rows."""
@@ -671,30 +690,42 @@ class Layout:
                     out[o:o + 6] += G.T @ lam
         return out
 
-    def joint_matrix(self, P) -> sparse.csr_matrix:
+    def joint_matrix(self, P):
         """The bilateral joint rows on the masters, G P (static solve)."""
         blocks = self.joint_rows(P, np.zeros(self.n_all), 1.0, 0.0)[0]
-        return sparse.vstack([g[2] for g in blocks]).tocsr()
+        return self.vstack([g[2] for g in blocks])
 
     def joint_rows(self, P, z_k, h, beta):
-        """(joint, rows, G P, c) of the bilateral and of the unilateral rows (artifem.scene.scene docstring)."""
-        out = {"bilateral": [], "unilateral": []}
+        """(joint, rows, G P, c) of the bilateral and of the unilateral rows (artifem.scene.scene
+        docstring); all joints' rows are mapped by P in one product."""
+        groups, blocks, start = [], [], 0
         for joint in self.scene.joints:
             for kind, rows in (("bilateral", joint.constraint()), ("unilateral",
                                                                     joint.unilateral())):
                 if not len(rows):
                     continue
-                G = np.zeros((len(rows), self.n_all))
-                for body, G_body in zip(joint.bodies, (rows.G_a, rows.G_b)):
-                    if body is not None:
-                        o = self.rigid_offset[id(body)]
-                        G[:, o:o + 6] += G_body
                 if kind == "bilateral":
                     c = -beta * rows.phi / h
                 else:                               # reach the limit, never cross it
                     c = np.where(rows.phi > 0, -rows.phi / h, -beta * rows.phi / h)
-                G = sparse.csr_matrix(G)
-                out[kind].append((joint, rows, (G @ P).tocsr(), c - G @ z_k))
+                for body, G_body in zip(joint.bodies, (rows.G_a, rows.G_b)):
+                    if body is not None:
+                        o = self.rigid_offset[id(body)]
+                        r, k = np.meshgrid(start + np.arange(len(rows)), o + np.arange(6),
+                                           indexing="ij")
+                        blocks.append((G_body.ravel(), r.ravel(), k.ravel()))
+                groups.append((kind, joint, rows, start, c))
+                start += len(rows)
+        if not groups:
+            return [], []
+        vals, r, k = (np.concatenate(x) for x in zip(*blocks)) if blocks else \
+            (np.zeros(0), np.zeros(0, int), np.zeros(0, int))
+        G = self.matrix(vals, r, k, (start, self.n_all))
+        GP, Gz = self.fmt(G @ P), G @ z_k
+        out = {"bilateral": [], "unilateral": []}
+        for kind, joint, rows, s0, c in groups:
+            s1 = s0 + len(rows)
+            out[kind].append((joint, rows, GP[s0:s1], c - Gz[s0:s1]))
         return out["bilateral"], out["unilateral"]
 
     # ---- updates -----------------------------------------------------------------------

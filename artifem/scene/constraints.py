@@ -1,0 +1,82 @@
+"""Velocities under joint rows: bilateral equalities and unilateral limits.
+
+The step's KKT system (artifem.scene.scene docstring; ArtiSynth's constrained
+backward Euler),
+
+    [ A   -G^T ] [ z      ]   [ b ]
+    [ G    0   ] [ lambda ] = [ c ],      lambda the constraint impulses,
+
+is solved through its Schur complement: with a = A^-1 b and W = A^-1 G^T (one
+factorization of A, 1 + rows solves),
+
+    S lambda = c - G a,   S = G W,   z = a + W lambda.
+
+S is small and dense (a few rows per joint). It is solved by least squares on
+the active rows, so redundant rows (closed loops, a joint doubled) get the
+minimum-norm impulses instead of a singular matrix. Limits are unilateral rows
+G_l z >= c_l with lambda_l >= 0 and complementarity, solved by a primal-dual
+active set on the same S (add the most violated row, drop the most negative
+multiplier, repeat): no new factorization per trial.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from artifem.errors import StepFailed
+
+__all__ = ["solve_constrained"]
+
+
+def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: list,
+                      what: str) -> tuple[np.ndarray, np.ndarray, int]:
+    """(z, lambda, active rows) of the system above.
+
+    ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver);
+    ``bilateral`` and ``unilateral`` are lists of (..., G_rows, c_rows) whose last two
+    entries are the rows on z (sparse or dense) and their right-hand sides; lambda
+    is returned in that order (bilateral first).
+    """
+    groups = bilateral + unilateral
+    n = A.shape[0]
+    solver.factor(A, what)
+    if not groups:
+        return solver.apply(b), np.zeros(0), 0
+    blocks = [g[-2] for g in groups]
+    G = sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
+        np.vstack(blocks)
+    c = np.concatenate([g[-1] for g in groups])
+    X = solver.apply(np.column_stack([b, G.T.toarray() if sparse.issparse(G) else G.T]))
+    a, W = X[:, 0], X[:, 1:]
+    S = np.asarray(G @ W)
+    r = c - G @ a
+    n_bi = sum(len(g[-1]) for g in bilateral)
+    limit = np.arange(n_bi, len(c))
+    active = np.zeros(len(c), dtype=bool)
+    active[:n_bi] = True
+    lam = np.zeros(len(c))
+    tol = 1e-10 * max(1.0, np.abs(c).max())
+    for _ in range(2 * limit.size + 10):
+        on = np.flatnonzero(active)
+        lam[:] = 0.0
+        if on.size:
+            lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], r[on], rcond=1e-12)[0]
+        if not limit.size:
+            break
+        slack = S[limit] @ lam - r[limit]           # G_l z - c_l >= 0 wanted
+        negative = active[limit] & (lam[limit] < -tol)
+        violated = ~active[limit] & (slack < -tol)
+        if negative.any():
+            active[limit[np.argmin(np.where(negative, lam[limit], np.inf))]] = False
+        elif violated.any():
+            active[limit[np.argmin(np.where(violated, slack, np.inf))]] = True
+        else:
+            break
+    else:
+        raise StepFailed(f"{what}: the joint-limit active set did not settle")
+    z = a + W @ lam
+    if not np.all(np.isfinite(z)):
+        raise StepFailed(f"{what}: non-finite velocities")
+    assert z.shape == (n,)
+    return z, lam, int(active.sum())
