@@ -6,6 +6,7 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
+from artifem.fem_body import FemBody
 from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3
 from artifem.multibody.skin import RigidMaster, SkinMesh, skin_weights
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
@@ -350,3 +351,65 @@ def test_snapping_to_a_distorted_hexahedron_stays_in_the_element():
         assert e.distance <= np.linalg.norm(x_nodes - X, axis=1).min() + 1e-12
         # no sampled point of the cell is closer than the snapped one (up to the sampling)
         assert e.distance <= np.linalg.norm(on_cell - X, axis=1).min() + 1e-9
+
+
+def _pressed_cantilever(pressure):
+    """A clamped soft beam whose top face carries a skin (20 triangles) under a follower
+    pressure: a load element on an FEM master."""
+    from dolfinx import mesh as dmesh
+    from mpi4py import MPI
+
+    from artifem.forms import NeoHookean
+    from artifem.multibody.skin import SkinPressure
+    from artifem.scene import Scene
+    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+                           [10, 2, 2], dmesh.CellType.hexahedron)
+    beam = FemBody(msh, NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, name="beam",
+                   gravity=(0, 0, 0))
+    beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
+    V = np.array([[a, b, 0.2] for b in np.linspace(0, 0.2, 3) for a in np.linspace(0, 1, 11)])
+    F = np.array([f for j in range(2) for i in range(10)
+                  for f in ([j * 11 + i, j * 11 + i + 1, j * 11 + i + 12],
+                            [j * 11 + i, j * 11 + i + 12, j * 11 + i + 11])])
+    load = SkinPressure(SkinMesh(V, F, [beam]), pressure)
+    scene = Scene(gravity=(0, 0, 0))
+    scene.add(beam, load)
+    return scene, beam, load
+
+
+def test_follower_pressure_tangent_matches_finite_differences():
+    """SkinPressure.master_load_jacobians enters the static tangent: -dF_m/dq by central
+    differences of the master forces, at a bent state."""
+    from coupled_fd import master_force_difference
+    scene, beam, _ = _pressed_cantilever(-50.0)
+    X = beam.V.tabulate_dof_coordinates()
+    beam.u.x.array[2::3] = -0.05 * X[:, 0] ** 2
+    beam.u.x.array[(3 * beam.fixed_dofs[:, None] + np.arange(3)).ravel()] = 0.0
+    dq = np.random.default_rng(7).standard_normal(scene.master_count())
+    K = scene.static_tangent()
+    fd = master_force_difference(scene, dq, 1e-6)
+    assert np.abs(fd + K @ dq).max() < 1e-8 * np.abs(fd).max()
+    scene.loads.clear()                                  # without the load: a different K
+    assert np.abs(fd + scene.static_tangent() @ dq).max() > 1e-4 * np.abs(fd).max()
+
+
+def test_static_solve_with_a_follower_pressure_ramps_and_reaches_equilibrium():
+    """The load element ramps with load_steps and its tangent enters Newton, so the static
+    solve converges (it never did before); the converged state is the equilibrium of the
+    final pressure forces, checked on a twin beam that carries them as dead nodal loads."""
+    from artifem.scene import Scene
+    scene, beam, load = _pressed_cantilever(-60.0)
+    counts = scene.solve_static(load_steps=3, rtol=1e-11)
+    assert len(counts) == 3 and max(counts) <= 12
+    deflection = -beam.u.x.array[2::3].min()
+    assert 0.02 < deflection < 0.2                      # a large, real deflection
+    F = scene._ready().load_vector(scene.t)              # the follower forces at the solution
+    twin = FemBody(beam.mesh, beam.material, 1000.0, name="twin", gravity=(0, 0, 0))
+    twin.fix_nodes(twin.find_nodes(lambda x: x[0] < 1e-12))
+    node_of = {d: n for n, d in twin._input_node_to_dof().items()}
+    nodes = np.array([node_of[d] for d in range(F.size // 3)])
+    twin.add_nodal_load(nodes, F.reshape(-1, 3))
+    reference = Scene(gravity=(0, 0, 0))
+    reference.add(twin)
+    reference.solve_static(load_steps=3, rtol=1e-11)
+    assert np.abs(twin.u.x.array - beam.u.x.array).max() < 1e-7 * deflection

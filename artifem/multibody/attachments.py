@@ -22,21 +22,12 @@ from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.point_attachments import FemPointWeights
-from artifem.multibody.rigid_body import RigidBody, orthonormalize, skew
+from artifem.multibody.rigid_body import RigidBody, orthonormalize, skew, skews
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.rigid_lift import RigidLift
 
 __all__ = ["EmbeddedFemAttachment", "FemPoint", "FrameAttachment", "LiftAttachment",
-           "NodeAttachment", "RigidAttachment", "dof_positions", "pose_gap", "skews"]
-
-
-def skews(d: np.ndarray) -> np.ndarray:
-    """[d_i]x for each row of d (n, 3) -> (n, 3, 3)."""
-    S = np.zeros((len(d), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -d[:, 2], d[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = d[:, 2], -d[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -d[:, 1], d[:, 0]
-    return S
+           "NodeAttachment", "RigidAttachment", "dof_positions", "pose_gap"]
 
 
 def dof_positions(fem: FemBody) -> np.ndarray:

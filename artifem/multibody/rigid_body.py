@@ -56,6 +56,15 @@ def skew(a) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
+def skews(d: np.ndarray) -> np.ndarray:
+    """[d_i]x for each row of d (n, 3) -> (n, 3, 3)."""
+    S = np.zeros((len(d), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -d[:, 2], d[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = d[:, 2], -d[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -d[:, 1], d[:, 0]
+    return S
+
+
 def cross(a, b) -> np.ndarray:
     """a x b over the last axis (broadcasting); np.cross without its per-call overhead."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)

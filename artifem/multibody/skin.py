@@ -87,7 +87,7 @@ from artifem.errors import InputError
 from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
 from artifem.multibody.point_attachments import FemPointWeights
-from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew
+from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew, skews
 from artifem.reduction.reduced_body import ReducedFemBody
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))
@@ -521,6 +521,30 @@ class SkinMesh:
         a, b, c = (x[self.faces[:, k]] for k in range(3))
         return 0.5 * cross(b - a, c - a)
 
+    def pressure_stiffness(self, pressure: float) -> sparse.csr_matrix:
+        """d f_v / d x_v (3n x 3n) of :meth:`pressure_forces` at the current positions: the
+        follower pressure turns and stretches with the faces. With a = (e1 x e2) / 2,
+        e1 = x1 - x0, e2 = x2 - x0: da/dx1 = -[e2]x / 2, da/dx2 = [e1]x / 2 and
+        da/dx0 = -(da/dx1 + da/dx2); each face adds p/3 da/dx_k to its three vertices."""
+        x = self.positions()
+        e1 = x[self.faces[:, 1]] - x[self.faces[:, 0]]
+        e2 = x[self.faces[:, 2]] - x[self.faces[:, 0]]
+        d1, d2 = -0.5 * skews(e2), 0.5 * skews(e1)
+        per_vertex = [-(d1 + d2), d1, d2]           # da/dx_k, (faces, 3, 3)
+        rows, cols, vals = [], [], []
+        r3 = np.arange(3)
+        for v in range(3):                          # the vertex that receives the force
+            for k in range(3):                      # the vertex that moves
+                block = float(pressure) / 3.0 * per_vertex[k]
+                rows.append((3 * self.faces[:, v, None, None] + r3[None, :, None])
+                            .repeat(3, axis=2).ravel())
+                cols.append((3 * self.faces[:, k, None, None] + r3[None, None, :])
+                            .repeat(3, axis=1).ravel())
+                vals.append(block.ravel())
+        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                         np.concatenate(cols))),
+                                 shape=(3 * self.n, 3 * self.n))
+
     def pressure_forces(self, pressure: float) -> np.ndarray:
         """Vertex forces (n, 3) of a uniform pressure: p * area * n per face, a third per vertex."""
         F = float(pressure) * self.face_area_vectors() / 3.0
@@ -574,6 +598,17 @@ class SkinPressure:
     def vertex_forces(self, t: float) -> np.ndarray:
         """f_v (n, 3) at the skin's current positions."""
         return self.skin.pressure_forces(self.pressure_at(t))
+
+    def master_load_jacobians(self, t: float) -> list[tuple[object, object, sparse.csr_matrix]]:
+        """[(body_i, body_j, dF_i/dx_j)]: the derivative of the masters' loads G^T f_v by the
+        masters' coordinates, G^T (df_v/dx_v) G (the follower pressure's stiffness,
+        :meth:`SkinMesh.pressure_stiffness`). The change of G itself as rigid masters turn
+        (their levers, at fixed f_v) is left out: exact for FEM and reduced masters."""
+        G = self.skin.jacobian()
+        K = (G.T @ self.skin.pressure_stiffness(self.pressure_at(t)) @ G).tocsr()
+        bodies = [m.reduced if m.kind == "reduced" else m.body for m in self.skin.masters]
+        return [(bi, bj, K[si, sj]) for bi, si in zip(bodies, self.skin.slices)
+                for bj, sj in zip(bodies, self.skin.slices)]
 
     def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:
         """[(body, G^T f_v restricted to the body's dofs)] for every master of the skin."""

@@ -19,11 +19,10 @@ from scipy import sparse
 
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
-from artifem.multibody.attachments import (FemPoint, NodeAttachment, dof_positions, pose_gap,
-                                           skews)
+from artifem.multibody.attachments import FemPoint, NodeAttachment, dof_positions, pose_gap
 from artifem.multibody.point_paths import PointPath
-from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3, orthonormalize, skew
-from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.multibody.rigid_body import (Frame, RigidBody, exp_so3, orthonormalize, skew,
+                                          skews)
 from artifem.reduction.rigid_lift import RigidLift
 from artifem.scene.direct_solver import DENSE_MAX
 
@@ -479,33 +478,60 @@ class Layout:
             b += h * F - h * (D @ z)
             A = self.fmt(A - h * D - h * h * K)
             f_all += F
-        if scene.loads:
+        if scene.loads:                     # b += h F, A -= h^2 dF/dx (the Jacobians given)
             F = self.load_vector(t1)
             b += h * F
+            A = self.fmt(A - h * h * self.load_jacobian(t1))
             f_all += F
         return A, b, f_all
+
+    def span(self, body) -> tuple[int, int] | None:
+        """(offset, size) of a body's coordinates in the all vector; None if not a body of
+        the scene."""
+        key = id(body)
+        if key in self.fem_offset:
+            return self.fem_offset[key], self.fem_size[key]
+        if key in self.reduced_offset:
+            return self.reduced_offset[key], body.r
+        if key in self.rigid_offset:
+            return self.rigid_offset[key], 6
+        return None
+
+    def _load_span(self, element, body) -> tuple[int, int]:
+        span = self.span(body)
+        if span is None:
+            raise InputError(f"load element {type(element).__name__} loads "
+                             f"{getattr(body, 'name', body)!r}, which is not a body of this "
+                             "scene")
+        return span
 
     def load_vector(self, t: float) -> np.ndarray:
         """The load elements' forces at time t, all-space (LoadElement)."""
         F = np.zeros(self.n_all)
         for element in self.scene.loads:
             for body, f in element.master_loads(t):
-                what = f"load element {type(element).__name__}"
-                if isinstance(body, FemBody) and id(body) in self.fem_offset:
-                    o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
-                elif isinstance(body, ReducedFemBody) and id(body) in self.reduced_offset:
-                    o, n = self.reduced_offset[id(body)], body.r
-                elif isinstance(body, RigidBody) and id(body) in self.rigid_offset:
-                    o, n = self.rigid_offset[id(body)], 6
-                else:
-                    raise InputError(f"{what} loads {getattr(body, 'name', body)!r}, which is "
-                                     "not a body of this scene")
+                o, n = self._load_span(element, body)
                 f = np.asarray(f, dtype=float).ravel()
                 if f.shape != (n,) or not np.all(np.isfinite(f)):
-                    raise InputError(f"{what}: expected {n} finite values for "
-                                     f"{body.name!r}, got shape {f.shape}")
+                    raise InputError(f"load element {type(element).__name__}: expected {n} "
+                                     f"finite values for {body.name!r}, got shape {f.shape}")
                 F[o:o + n] += f
         return F
+
+    def load_jacobian(self, t: float):
+        """dF/dx (n_all x n_all) of the load elements that give ``master_load_jacobians(t)``
+        (e.g. a follower pressure); the others are explicit (LoadElement)."""
+        parts = []
+        for element in self.scene.loads:
+            for bi, bj, K in getattr(element, "master_load_jacobians", lambda t: ())(t):
+                (oi, ni), (oj, nj) = self._load_span(element, bi), self._load_span(element, bj)
+                K = sparse.coo_matrix(K)
+                if K.shape[0] > ni or K.shape[1] > nj:
+                    raise InputError(f"load element {type(element).__name__}: a "
+                                     f"{K.shape} Jacobian block for {bi.name!r}, {bj.name!r} "
+                                     f"({ni} x {nj} coordinates)")
+                parts.append((K.data, oi + K.row, oj + K.col))
+        return self.triplets(parts, (self.n_all, self.n_all))
 
     def current_velocities(self) -> np.ndarray:
         """z: the FEM nodal velocities and the rigid twists (all-space)."""
@@ -601,13 +627,15 @@ class Layout:
             F, K_path, _ = self.path_terms(t, None)
             f_all += F                           # statics: whole wrenches on rigid rows
         if scene.loads:
-            f_all += self.load_vector(t)
+            f_all += scene.load_factor * self.load_vector(t)    # ramped with the other loads
         if not tangent:
             return f_all, None
         zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
         K_all = self._stack(blocks, zeros, extra)
         if K_path is not None:
             K_all = self.fmt(K_all - K_path)
+        if scene.loads:
+            K_all = self.fmt(K_all - scene.load_factor * self.load_jacobian(t))
         return f_all, K_all
 
     def _stack(self, fem_blocks, rigid_blocks, extra):

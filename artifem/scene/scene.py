@@ -241,6 +241,7 @@ class Scene:
         self.halvings = 0               # step halvings so far
         self.min_det_F = np.inf         # smallest det F after any accepted step
         self.stabilization = float(stabilization)
+        self.load_factor = 1.0          # scales the load elements (ramped by solve_static)
         self.geometric_stiffness = bool(geometric_stiffness)
         self.t = 0.0
         self.fem_bodies: list[FemBody] = []
@@ -634,9 +635,10 @@ class Scene:
         return counts
 
     def _set_load_factor(self, factor: float, g: np.ndarray) -> None:
-        """Ramp the loads: the rigid bodies' gravity, and the FEM load factor (which scales
-        the FEM bodies' gravity, body forces and nodal loads)."""
+        """Ramp the loads: the rigid bodies' gravity, the load elements, and the FEM load
+        factor (which scales the FEM bodies' gravity, body forces and nodal loads)."""
         self._gravity = factor * g
+        self.load_factor = factor
         for body in self._full_bodies():
             body.load_factor.value = factor
 
@@ -678,7 +680,7 @@ class Scene:
             # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
             # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
-                and all(p.conservative for p in self.paths)
+                and all(p.conservative for p in self.paths) and not self.loads
             rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
             energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
                 if use_energy else 0.0
