@@ -2,7 +2,7 @@
 
 Form-level prototyping from the shell: tabulates the uniaxial (traction-free
 lateral faces), equibiaxial and simple-shear responses of the UFL energy and
-plots them (see ``artifem.forms.stress_stretch_curves``).
+plots them (see ``artifem.material_response.stress_stretch_curves``).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import numpy as np
 
 from artifem import forms
 from artifem.errors import InputError
+from artifem.material_response import plot_stress_stretch, stress_stretch_curves
 
 #: Materials reachable by name; parameters in Pa.
 MATERIALS = {
@@ -38,9 +39,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--max-stretch must be > 1, got {args.max_stretch}")
     material = MATERIALS[args.material]()
     stretches = np.linspace(1.0 / args.max_stretch, args.max_stretch, 41)
-    curves = forms.stress_stretch_curves(material, stretches)
+    curves = stress_stretch_curves(material, stretches)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    forms.plot_stress_stretch(curves, args.out, title=f"{args.material}: {material}")
+    plot_stress_stretch(curves, args.out, title=f"{args.material}: {material}")
     if args.json:
         data = {mode: {k: np.asarray(v).tolist() for k, v in c.items()} for mode, c in curves.items()}
         args.out.with_suffix(".json").write_text(json.dumps(data, indent=1))

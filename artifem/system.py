@@ -134,9 +134,6 @@ class System:
             failure = str(exc)
         if failure is None:
             self.time += dt
-            for c in self.components:
-                if isinstance(c, ReducedFemBody):
-                    c.time += dt        # its own clock (ReducedFemBody.step advances it too)
             return
         for c, s in zip(self.components, saved):
             c.set_state(s)

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 import artifem  # noqa: F401
-from artifem.forms import (MooneyRivlin, isochoric_invariants, jacobian, plot_stress_stretch,
-                           point_response, stress_stretch_curves)
+from artifem.forms import MooneyRivlin, isochoric_invariants, jacobian
+from artifem.material_response import plot_stress_stretch, point_response, stress_stretch_curves
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/material_prototyping")
 out.mkdir(parents=True, exist_ok=True)

@@ -2,8 +2,9 @@
 
 Materials are frozen dataclasses with ``strain_energy(F, **fields)`` returning
 a UFL scalar; stresses and tangents come from ``ufl.diff`` / ``ufl.derivative``.
-``point_response`` and ``stress_stretch_curves`` evaluate them at homogeneous
-deformations (compiled lazily through artifem.pointwise).
+This package imports nothing of artifem; ``artifem.material_response`` evaluates
+the materials at homogeneous deformations (``point_response``,
+``stress_stretch_curves``).
 """
 
 from .combined import CombinedMaterial, field_names
@@ -13,7 +14,6 @@ from .kinematics import (fiber_stretch, green_lagrange, invariants, isochoric_in
 from .linear_elastic import LinearElastic
 from .mooney_rivlin import MooneyRivlin
 from .neo_hookean import NeoHookean
-from .response import plot_stress_stretch, point_response, stress_stretch_curves
 from .saint_venant_kirchhoff import StVenantKirchhoff
 
 __all__ = [
@@ -31,9 +31,6 @@ __all__ = [
     "isochoric_invariants",
     "jacobian",
     "passive_force_length",
-    "plot_stress_stretch",
-    "point_response",
     "right_cauchy_green",
     "small_strain",
-    "stress_stretch_curves",
 ]

@@ -14,8 +14,8 @@ from scipy.integrate import quad
 import artifem  # noqa: F401  (orders dolfinx_solver before dolfinx)
 from artifem.forms import (BlemkerFiber, CombinedMaterial, LinearElastic, MooneyRivlin, NeoHookean,
                            StVenantKirchhoff, fiber_stretch, green_lagrange, invariants,
-                           isochoric_invariants, jacobian, plot_stress_stretch, point_response,
-                           small_strain, stress_stretch_curves)
+                           isochoric_invariants, jacobian, small_strain)
+from artifem.material_response import plot_stress_stretch, point_response, stress_stretch_curves
 from artifem.pointwise import PointEvaluator, evaluator_for
 
 I3 = np.eye(3)

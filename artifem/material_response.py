@@ -2,11 +2,15 @@
 
 Works for every material in ``artifem.forms`` (and any object with
 ``strain_energy(F, **fields)``); fields such as a0 and excitation are passed
-as numpy values. The compiled evaluator (artifem.pointwise) is imported only
-when needed, so importing ``artifem.forms`` does not load dolfinx.
+as numpy values. The energy is compiled once per material and fields
+(:func:`artifem.pointwise.evaluator_for`, FFCx), so prototyping a material
+needs no mesh. Its own module, not ``artifem.forms``: forms/ holds UFL only and
+imports nothing of artifem.
 """
 
 import numpy as np
+
+from artifem.pointwise import evaluator_for
 
 
 def point_response(material, F, **fields):
@@ -14,8 +18,6 @@ def point_response(material, F, **fields):
 
     psi = W(F), P = dW/dF (first Piola-Kirchhoff), dPdF[i, J, k, L] = dP_iJ/dF_kL.
     """
-    from artifem.pointwise import evaluator_for
-
     return evaluator_for(material, **fields)(F, **fields)
 
 
