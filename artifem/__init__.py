@@ -4,10 +4,67 @@ Implements the techniques of Lloyd et al. 2019, "New Techniques for Combined
 FEM-Multibody Anatomical Simulation": full and reduced FEM bodies, rigid
 bodies, attachments through G = df/dx_m with forces mapped back by G^T, and
 embedded / skin meshes.
+
+The public API without deep imports::
+
+    import artifem as af
+    scene = af.Scene(gravity=(0, 0, -9.81))
+    scene.add(af.FemBody(...), af.RigidBody(...), ...)
+    run = af.simulate(scene, 1.0, 0.01, record={...}, vtx="out/")
+
+Its names are loaded on first use (PEP 562), so ``import artifem`` stays cheap
+and every module may import the package first (the MPI ordering below) without
+loading the layers above it.
 """
+
+import importlib
 
 # The dolfinx-solver wheel must order mpi4py ahead of its compiled modules:
 # this import has to run before dolfinx, petsc4py or slepc4py are imported.
 import dolfinx_solver  # noqa: F401
 
 __version__ = "0.1.0"
+
+#: public name -> the module that defines it
+_PUBLIC = {
+    **dict.fromkeys(["Scene", "SceneState"], "artifem.scene.scene"),
+    **dict.fromkeys(["simulate", "Run"], "artifem.scene.run"),
+    "FemBody": "artifem.fem_body",
+    "ReducedFemBody": "artifem.reduction.reduced_body",
+    **dict.fromkeys(["RigidBody", "Frame"], "artifem.multibody.rigid_body"),
+    **dict.fromkeys(["FixedJoint", "SphericalJoint", "RevoluteJoint", "SliderJoint",
+                     "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
+    **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
+                     "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
+                    "artifem.multibody.attachments"),
+    "FemFrame": "artifem.multibody.frame_attachments",
+    **dict.fromkeys(["shape_function_weights", "support_weights", "nearest_nodes"],
+                    "artifem.multibody.point_attachments"),
+    "PointPath": "artifem.multibody.point_paths",
+    "FramePath": "artifem.multibody.frame_paths",
+    **dict.fromkeys(["AxialSpring", "ThelenMuscle", "ThelenParameters"],
+                    "artifem.multibody.muscles"),
+    **dict.fromkeys(["SkinMesh", "SkinPressure"], "artifem.multibody.skin"),
+    "ExcitationSchedule": "artifem.excitation",
+    **dict.fromkeys(["MooneyRivlin", "NeoHookean", "LinearElastic", "StVenantKirchhoff",
+                     "BlemkerFiber", "CombinedMaterial"], "artifem.forms"),
+    "read_mesh": "artifem.io.readers",
+    "to_dolfinx": "artifem.io.to_dolfinx",
+    **dict.fromkeys(["ArtifemError", "InputError", "SolverError", "StepFailed",
+                     "ElementInversionError"], "artifem.errors"),
+}
+
+__all__ = sorted(_PUBLIC)
+
+
+def __getattr__(name: str):
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'artifem' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_PUBLIC))

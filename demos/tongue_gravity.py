@@ -5,9 +5,10 @@ attachment nodes (as ArtiSynth's stand-alone HexTongueDemo does), and lets the
 tissue (Mooney-Rivlin, C10 = 1037 Pa, C20 = 486 Pa, kappa = 10370 Pa) settle
 for 0.3 s with the semi-implicit integrator. Writes a VTX series and a PNG.
 
-    python demos/tongue_gravity.py [OUT_DIR]
+    python demos/tongue_gravity.py [OUT_DIR]      (ARTIFEM_QUICK=1: 0.05 s)
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from artifem.system import System
 
 DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/tongue_gravity")
+duration = 0.05 if os.environ.get("ARTIFEM_QUICK") else 0.3
 
 # The mesh; FemBody takes file-order node rows. The attachment files hold
 # ArtiSynth's 0-based node numbers (ANSYS id - 1), i.e. rows already.
@@ -39,10 +41,10 @@ body.fix_nodes(attached)
 system = System(integrator="semi-implicit")
 system.add(body)
 tip = int(mesh_data.node_rows([920])[0])          # ArtiSynth's "tip" landmark
-run = simulate(system, body, duration=0.3, dt=0.01, landmarks={"tip": tip},
-               snapshot_times=(0.3,), vtx_path=out / "tongue.bp")
+run = simulate(system, body, duration=duration, dt=0.01, landmarks={"tip": tip},
+               snapshot_times=(duration,), vtx_path=out / "tongue.bp")
 
-render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[0.3])],
+render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[duration])],
               scalars="displacement", scalar_name="displacement (m)", camera="xz",
               show_rest=True)
 print(f"{run.ms_per_step:.1f} ms/step, tip moved {1e3 * run.landmarks['tip'][-1]} mm, "
