@@ -53,3 +53,19 @@ def test_simulate_bad_input_is_a_clear_error():
         af.simulate(scene, 0.1, 0.01, record={"x": 3})
     with pytest.raises(af.InputError, match="write_every"):
         af.simulate(scene, 0.1, 0.01, write_every=0)
+
+
+def test_the_readme_scene_example_runs(tmp_path):
+    """The README's Scene example, as printed (a shorter run, output in tmp_path)."""
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme[readme.index("## Python API"):]
+    code = section[section.index("```python") + len("```python"):]
+    code = code[:code.index("```")]
+    assert "af.simulate(scene, 0.6, 0.005" in code and 'vtx="out/"' in code
+    code = code.replace("af.simulate(scene, 0.6, 0.005", "af.simulate(scene, 0.02, 0.005")
+    code = code.replace('vtx="out/"', f"vtx={str(tmp_path)!r}, progress=False")
+    namespace = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["run"].records["angle"].shape == (5,)
+    assert (tmp_path / "tissue.bp").is_dir()
