@@ -99,3 +99,28 @@ def test_fom_targets_sentence_matches_fom_json():
     cases = {(c["nodes"], c["ranks"]): c["ms_per_step"] for c in load("fom.json")["cases"]}
     m = re.search(r"both are met \((\d+) and (\d+) ms\)", README)
     assert m and agrees(m[1], cases[(3025, 2)]) and agrees(m[2], cases[(13284, 2)])
+
+
+def test_jaw_tongue_reduced_table_matches_its_study_json():
+    """| full | 78-83 |; | reduced | 4.5-4.8 (17x) | 0.82-1.06 mm; jaw angle within 0.15 deg |:
+    ranges over the three motions of docs/jaw_tongue_reduced/jaw_tongue_reduced.json."""
+    study = json.loads((ROOT / "docs" / "jaw_tongue_reduced" / "jaw_tongue_reduced.json")
+                       .read_text())["motions"].values()
+    rows = {r[0].split(" (")[0]: r for r in table_after("DIR`; POD of full jaw-tongue training")}
+
+    def span(text):
+        lo, hi = text.split(" ")[0].split("-")
+        return lo, hi
+
+    full, reduced = [m["full_ms_per_step"] for m in study], [m["reduced_ms_per_step"] for m in study]
+    lo, hi = span(rows["full"][1])
+    assert agrees(lo, min(full)) and agrees(hi, max(full))
+    lo, hi = span(rows["reduced"][1])
+    assert agrees(lo, min(reduced)) and agrees(hi, max(reduced))
+    speedup = re.search(r"\((\d+)x\)", rows["reduced"][1])[1]
+    assert agrees(speedup, sum(f / r for f, r in zip(full, reduced)) / len(full))
+    errors = [m["max_mean_error_mm"] for m in study]
+    lo, hi = re.match(r"([\d.]+)-([\d.]+) mm", rows["reduced"][2]).groups()
+    assert agrees(lo, min(errors)) and agrees(hi, max(errors))
+    angle = float(re.search(r"within ([\d.]+) deg", rows["reduced"][2])[1])
+    assert max(m["max_angle_difference_deg"] for m in study) <= angle
