@@ -3,9 +3,19 @@
 ``rng``: every test that draws random inputs owns its generator, seeded from the
 test's own id, so its inputs never depend on which tests ran before it (the suite
 runs in random order) and a failure is reproduced by running the test alone.
+
+Session fixtures: expensive results that several test modules need with the same
+inputs, computed once per run instead of once per module (issue 13: the suite's time on
+a fresh machine is mostly JIT compilation and full model runs). Each is computed on
+first use, whichever module asks first, and only read afterwards.
+
+- ``quick_jaw_tongue``: the quick reduced jaw-tongue training (test_jaw_tongue_reduced,
+  test_airway).
 """
 
 import zlib
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
@@ -15,3 +25,26 @@ import pytest
 def rng(request) -> np.random.Generator:
     """A generator seeded by the test's node id (stable across runs and orders)."""
     return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+class QuickJawTongue(NamedTuple):
+    config: Any          # jaw_tongue_reduced.ReducedJawTongueConfig
+    model: Any           # jaw_tongue_reduced.ReducedTongue
+    cache: Path          # its ArtifactCache directory (training runs, POD, points)
+
+
+@pytest.fixture(scope="session")
+def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
+    """The quick jaw-tongue reduced training (r = 12 POD + 12 lift columns, 150 trained
+    points, 0.15 s training runs of every exciter), trained once per session into a tmp
+    cache directory. Modules that train through another entry point
+    (``jaw_tongue_reduced.compare``, ``airway.reduced_tongue``, ``airway.benchmark``) pass
+    this ``cache`` and ``config``: the artifacts are keyed by the inputs (the airway's
+    jaw-tongue config is the default one, as here), so they load instead of training again."""
+    import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+    from artifem.models import jaw_tongue_reduced as jtr
+
+    config = jtr.ReducedJawTongueConfig(r=12, points=150, training_duration=0.15,
+                                        snapshot_every=1, force_snapshots=60)
+    cache = tmp_path_factory.mktemp("jaw_tongue_quick") / "cache"
+    return QuickJawTongue(config, jtr.train(config, cache), cache)

@@ -3,7 +3,6 @@
 
 import numpy as np
 import pytest
-from test_jaw_tongue_reduced import QUICK
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models import airway as aw
@@ -189,11 +188,13 @@ def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, full_ru
 
 
 @pytest.fixture(scope="module")
-def reduced(tmp_path_factory):
+def reduced(quick_jaw_tongue):
     """The quick jaw-tongue reduced training of test_jaw_tongue_reduced (r = 12 + 12, 150
-    points), once per module: (model, cache)."""
-    cache = tmp_path_factory.mktemp("airway_reduced") / "cache"
-    return aw.reduced_tongue(aw.AirwayConfig(), cache, QUICK), cache
+    points) through the airway's entry point, in the session's shared training cache (the
+    ``quick_jaw_tongue`` fixture of tests/conftest.py: trained once per run, loaded here):
+    (model, cache, config)."""
+    q = quick_jaw_tongue
+    return aw.reduced_tongue(aw.AirwayConfig(), q.cache, q.config), q.cache, q.config
 
 
 @pytest.fixture(scope="module")
@@ -285,12 +286,13 @@ def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
 
 
 def test_benchmark_reports_positive_times(reduced):
-    out = aw.benchmark(steps=1, reduced=QUICK, cache=reduced[1])
+    _, cache, quick = reduced
+    out = aw.benchmark(steps=1, reduced=quick, cache=cache)
     for case in ("full", "reduced"):
         for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
                     "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
             assert out["cases"][case][key] > 0, (case, key)
-    assert out["cases"]["reduced"]["masters"] == QUICK.r + 6
+    assert out["cases"]["reduced"]["masters"] == quick.r + 6
     assert out["skin_vertices"] > 900 and out["speedup"]["ms_per_step_without_airway"] > 0
 
 

@@ -8,14 +8,15 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models import jaw_tongue_reduced as jtr
 
-QUICK = jtr.ReducedJawTongueConfig(r=12, points=150, training_duration=0.15,
-                                   snapshot_every=1, force_snapshots=60)
-
 
 @pytest.fixture(scope="module")
-def figures(tmp_path_factory):
+def figures(tmp_path_factory, quick_jaw_tongue):
+    """compare() of the quick training (the session fixture ``quick_jaw_tongue`` in
+    tests/conftest.py, shared with test_airway): its cache holds the training, so compare
+    loads it and runs the full and the reduced scene."""
     out = tmp_path_factory.mktemp("jaw_tongue_reduced")
-    return jtr.compare(QUICK, out, motions=("protrusion",), duration=0.15), out
+    return jtr.compare(quick_jaw_tongue.config, out, motions=("protrusion",), duration=0.15,
+                       cache=quick_jaw_tongue.cache), out
 
 
 def test_reduced_jaw_tongue_follows_the_full_scene(figures):
@@ -33,13 +34,12 @@ def test_reduced_jaw_tongue_follows_the_full_scene(figures):
     assert (out / "jaw_tongue_reduced.json").exists()
 
 
-def test_lift_basis_vanishes_on_the_fixed_and_carried_nodes(figures):
-    _, out = figures
-    model = jtr.train(QUICK, out / "cache")                  # cached: no new training
-    s = jtr.build_reduced_scene(model, QUICK)
+def test_lift_basis_vanishes_on_the_fixed_and_carried_nodes(quick_jaw_tongue):
+    quick, model = quick_jaw_tongue.config, quick_jaw_tongue.model
+    s = jtr.build_reduced_scene(model, quick)
     body = s.tongue.body
     carried = (3 * s.attachment.lift.dofs[:, None] + np.arange(3)).ravel()
     fixed = (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
     assert np.abs(model.U[carried]).max() < 1e-12
     assert np.abs(model.U[fixed]).max() == 0.0
-    assert s.scene.master_count() == QUICK.r + 6
+    assert s.scene.master_count() == quick.r + 6
