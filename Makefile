@@ -22,6 +22,10 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(VENV)/bin/artifem demo --out results/demo
 
+# The whole suite, the long studies included (tests marked `slow`: the tongue's
+# level-0/level-1 convergence and hard cases). To skip those while developing:
+#   make test PYTEST_ARGS='-m "not slow"'
+# Any other pytest arguments go the same way, e.g. PYTEST_ARGS='tests/test_airway.py -x'.
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
