@@ -90,25 +90,25 @@ class DirectSolver:
         if self._dense is not None:
             out = scipy.linalg.lu_solve(self._dense, B, check_finite=False)
         else:
-            columns = B.reshape(B.shape[0], -1)
-            out = np.empty_like(columns)
-            rhs, x = self._mat.createVecLeft(), self._mat.createVecRight()
+            columns = np.asfortranarray(B.reshape(B.shape[0], -1))
+            n, k = columns.shape
+            # all right-hand sides in one blocked MUMPS solve (KSPMatSolve)
+            rhs = PETSc.Mat().createDense((n, k), array=columns, comm=PETSc.COMM_SELF)
+            x = PETSc.Mat().createDense((n, k), comm=PETSc.COMM_SELF)
+            x.setUp()
             try:
-                for k in range(columns.shape[1]):
-                    rhs.array[:] = columns[:, k]
-                    self.ksp.solve(rhs, x)
-                    reason = self.ksp.getConvergedReason()
-                    if reason < 0:
-                        raise StepFailed(f"{self._what}: the direct solve failed (KSP reason "
-                                         f"{reason}); {SINGULAR}")
-                    out[:, k] = x.array
+                self.ksp.matSolve(rhs, x)
+                reason = self.ksp.getConvergedReason()
+                if reason < 0:
+                    raise StepFailed(f"{self._what}: the direct solve failed (KSP reason "
+                                     f"{reason}); {SINGULAR}")
+                out = x.getDenseArray().copy().reshape(B.shape)
             except PETSc.Error as exc:
                 raise StepFailed(f"{self._what}: the direct solve failed ({exc}); "
                                  f"{SINGULAR}") from exc
             finally:
                 rhs.destroy()
                 x.destroy()
-            out = out.reshape(B.shape)
         if not np.all(np.isfinite(out)):
             raise StepFailed(f"{self._what}: the direct solve gave non-finite values; {SINGULAR}")
         return out
