@@ -148,7 +148,10 @@ rows Z, lifts included); its forces reach K_geo as W^T f_s.
 
 Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
 FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
-b += h F, and in the static residual.
+b += h F, and in the static residual, ramped by the load factor with the other
+loads. Their Jacobians dF/dx (``master_load_jacobians(t)``, e.g. a follower
+pressure's G^T (df/dx) G) enter the static tangent, so Newton sees them; such a
+load has no potential, so the static line search uses the residual as its merit.
 
 Rigid bodies on frames of FEM bodies (:class:`FrameAttachment`, the paper's
 section 3.2 and Fig. 11): a body follows a frame (origin and polar or Procrustes
