@@ -10,7 +10,9 @@ a fresh machine is mostly JIT compilation and full model runs). Each is computed
 first use, whichever module asks first, and only read afterwards.
 
 - ``quick_jaw_tongue``: the quick reduced jaw-tongue training (test_jaw_tongue_reduced,
-  test_airway).
+  test_airway);
+- ``level1_protrusion``: the level-1 tongue's protrusion run (the ``level_1`` hard case of
+  test_tongue_hard_cases and the level-1 side of test_tongue_convergence).
 """
 
 import zlib
@@ -48,3 +50,26 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
                                         snapshot_every=1, force_snapshots=60)
     cache = tmp_path_factory.mktemp("jaw_tongue_quick") / "cache"
     return QuickJawTongue(config, jtr.train(config, cache), cache)
+
+
+@pytest.fixture(scope="session")
+def level1_protrusion():
+    """(tongue, run_built result) of the hard case ``level_1``: the level-1 tongue,
+    semi-implicit, driven by the protrusion motion, dt = 0.01 s for 1.0 s, landmarks also
+    recorded at the end of the ramp (0.5 s). That is exactly the level-1 run of
+    ``convergence.run_motions(1, ("protrusion",))`` (same TongueConfig, schedule, dt,
+    duration and record times, checked here), so both tests read this one run (about 90 s)
+    instead of computing it twice. Read only: nothing steps or resets the tongue after."""
+    import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+    from artifem.models.tongue.hard_cases import build_case, run_built
+    from artifem.models.tongue.model import DT, RAMP_TIME, Tongue, TongueConfig
+
+    tongue, schedule, dt = build_case("level_1", "semi-implicit")
+    protrusion = Tongue.motion("protrusion")
+    assert tongue.config == TongueConfig(level=1, integrator="semi-implicit")
+    assert dt == DT and tongue.system.time == 0.0
+    assert np.array_equal(schedule.times, protrusion.times)
+    assert schedule.values.keys() == protrusion.values.keys()
+    assert all(np.array_equal(schedule.values[k], protrusion.values[k])
+               for k in protrusion.values)
+    return tongue, run_built(tongue, dt, record_times=(RAMP_TIME,))

@@ -15,6 +15,10 @@ Any other exception (or a NaN) fails. Both integrators and the figures are in
 docs/tongue_hard_cases.md. Durations on this machine (serial): see that page;
 measured: level 1 89 s (100 steps of 6,699 nodes), the level-0 cases 2-9 s each
 (plus about 35 s of form compilation per kappa value on a cold cache).
+
+The level_1 run is the level-1 protrusion of test_tongue_convergence (same tongue,
+schedule, dt and duration): both read the session fixture ``level1_protrusion``
+(tests/conftest.py), so it is computed once per run.
 """
 
 import re
@@ -28,9 +32,12 @@ from artifem.models.tongue.hard_cases import CASES, build_case, run_built
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(CASES))
-def test_hard_case_semi_implicit(name):
-    tongue, _, dt = build_case(name, "semi-implicit")
-    result = run_built(tongue, dt)
+def test_hard_case_semi_implicit(name, request):
+    if name == "level_1":                    # shared with test_tongue_convergence
+        tongue, result = request.getfixturevalue("level1_protrusion")
+    else:
+        tongue, _, dt = build_case(name, "semi-implicit")
+        result = run_built(tongue, dt)
     body = tongue.body
     # Never a silent NaN: whatever happened, the state left behind is finite.
     assert np.all(np.isfinite(body.u.x.array)), "non-finite displacement left in the body"
