@@ -23,7 +23,9 @@ demo: $(STAMP)
 	$(VENV)/bin/artifem demo --out results/demo
 
 # The whole suite, the long studies included (tests marked `slow`: the tongue's
-# level-0/level-1 convergence and hard cases). To skip those while developing:
+# level-0/level-1 convergence and hard cases, the manufactured-solution rates of the
+# quadratic bulk term, the two-rank MPI run; `pytest --collect-only -q -m slow` lists
+# them). To skip those while developing:
 #   make test PYTEST_ARGS='-m "not slow"'
 # Any other pytest arguments go the same way, e.g. PYTEST_ARGS='tests/test_airway.py -x'.
 test: $(STAMP)
