@@ -158,7 +158,6 @@ def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(name, basis
     assert np.all(np.isfinite(reduced.nodal_displacement()))
     bad, det_now = reduced.inverted_elements()
     assert bad.size == 0 and det_now > 0, f"inverted elements left: {bad[:20]}"
-    assert reduced.time == pytest.approx(system.time)
     if error is None:
         assert system.time == pytest.approx(DURATION)
         assert 0 < system.min_det_F < np.inf
