@@ -150,8 +150,10 @@ Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
 FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
 b += h F, and in the static residual, ramped by the load factor with the other
 loads. Their Jacobians dF/dx (``master_load_jacobians(t)``, e.g. a follower
-pressure's G^T (df/dx) G) enter the static tangent, so Newton sees them; such a
-load has no potential, so the static line search uses the residual as its merit.
+pressure's G^T (df/dx) G) enter the static tangent, so Newton sees them. Such a
+load may have no potential: the line search's energy test leaves the load
+elements' work out, and a step that fails it is still taken when it lowers the
+force residual (the same two tests as integrators._backtrack).
 
 Rigid bodies on frames of FEM bodies (:class:`FrameAttachment`, the paper's
 section 3.2 and Fig. 11): a body follows a frame (origin and polar or Procrustes
@@ -683,7 +685,7 @@ class Scene:
             # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
             # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
-                and all(p.conservative for p in self.paths) and not self.loads
+                and all(p.conservative for p in self.paths)
             rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
             energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
                 if use_energy else 0.0
