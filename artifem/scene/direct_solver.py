@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 from petsc4py import PETSc
 from scipy import sparse
+from threadpoolctl import ThreadpoolController
 
 from artifem.errors import StepFailed
 
@@ -23,6 +24,9 @@ __all__ = ["DirectSolver"]
 
 #: Systems of at most this many unknowns are dense (LAPACK), larger ones sparse (MUMPS).
 DENSE_MAX = 400
+#: One BLAS thread for the small dense systems: faster alone (0.9 against 2.8 ms for a
+#: 300 x 300 LU on 2 cores) and 100x faster when another process holds the other core.
+_BLAS = ThreadpoolController()
 SINGULAR = "a singular system: redundant joints, or a free body with no mass?"
 
 
@@ -49,7 +53,8 @@ class DirectSolver:
         self._what = what
         if K.shape[0] <= DENSE_MAX:
             dense = K.toarray() if sparse.issparse(K) else np.asarray(K, dtype=float)
-            with np.errstate(all="ignore"), warnings.catch_warnings():
+            with np.errstate(all="ignore"), warnings.catch_warnings(), \
+                    _BLAS.limit(limits=1, user_api="blas"):
                 warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # checked below
                 lu, piv = scipy.linalg.lu_factor(dense, check_finite=False)
             pivots = np.abs(np.diag(lu))
@@ -88,7 +93,8 @@ class DirectSolver:
         """K^-1 B for the last factored K; B (n,) or (n, k)."""
         B = np.asarray(B, dtype=float)
         if self._dense is not None:
-            out = scipy.linalg.lu_solve(self._dense, B, check_finite=False)
+            with _BLAS.limit(limits=1, user_api="blas"):
+                out = scipy.linalg.lu_solve(self._dense, B, check_finite=False)
         else:
             columns = np.asfortranarray(B.reshape(B.shape[0], -1))
             n, k = columns.shape
