@@ -109,3 +109,13 @@ def test_no_import_cycle():
     for module in sorted(graph):
         if module not in state:
             visit(module)
+
+
+def test_every_package_is_in_the_wheel():
+    """pyproject lists its packages explicitly: a new package left out would be missing
+    from the wheel (the wheel test would find it too, but only in CI)."""
+    import tomllib
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())
+                 ["tool"]["setuptools"]["packages"])
+    packages = {name for name, path in modules().items() if path.name == "__init__.py"}
+    assert packages <= listed, sorted(packages - listed)
