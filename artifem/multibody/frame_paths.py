@@ -24,7 +24,7 @@ from artifem.errors import InputError
 from artifem.multibody.rigid_body import Frame
 from artifem.multibody.force_elements import point_force_wrenches
 
-__all__ = ["FramePath", "TimedPath"]
+__all__ = ["FramePath", "PathElement", "TimedPath"]
 
 
 class TimedPath:
@@ -71,7 +71,29 @@ class TimedPath:
         vars(self.element).update(attributes)
 
 
-class FramePath:
+class PathElement:
+    """What every path (a spring or muscle through points) shares: its TimedPath
+    ``self._timed``, its ``element`` and ``positions()``; tension, energy and the
+    time-dependent state a rejected step restores."""
+
+    def tension(self) -> float:
+        """The element's tension at the last evaluation (N)."""
+        return self._timed.tension()
+
+    def save_state(self):
+        """The muscle's time-dependent state (TimedPath.save_state)."""
+        return self._timed.save_state()
+
+    def restore_state(self, saved) -> None:
+        self._timed.restore_state(saved)
+
+    def potential_energy(self) -> float:
+        """The element's stored energy, for elements that have one (springs)."""
+        energy = getattr(self.element, "energy", None)
+        return float(energy(self.positions())) if energy is not None else 0.0
+
+
+class FramePath(PathElement):
     """A spring or muscle through ``frames`` (at least two), a force element of a Scene."""
 
     def __init__(self, element, frames: Sequence[Frame], *,
@@ -101,18 +123,3 @@ class FramePath:
         _, blocks = point_force_wrenches(self.frames, result.forces, result.stiffness,
                                          result.damping)
         return blocks
-
-    def tension(self) -> float:
-        """The element's tension at the last evaluation (N)."""
-        return self._timed.tension()
-
-    def save_state(self):
-        return self._timed.save_state()
-
-    def restore_state(self, saved) -> None:
-        self._timed.restore_state(saved)
-
-    def potential_energy(self) -> float:
-        """The element's stored energy, for elements that have one (springs)."""
-        energy = getattr(self.element, "energy", None)
-        return float(energy(self.positions())) if energy is not None else 0.0

@@ -6,11 +6,11 @@ import numpy as np
 
 from artifem.errors import InputError
 from artifem.multibody.attachments import FemPoint
-from artifem.multibody.frame_paths import TimedPath
+from artifem.multibody.frame_paths import PathElement, TimedPath
 from artifem.multibody.rigid_body import Frame
 
 
-class PointPath:
+class PointPath(PathElement):
     """A spring or muscle (``AxialSpring``, ``ThelenMuscle``: ``evaluate(x, v, dt)``) through
     ``points``: :class:`FemPoint` objects, rigid-body or world ``Frame`` objects, or fixed
     world points (3 numbers). Add it to a :class:`Scene` (artifem.scene.scene docstring: path elements).
@@ -55,19 +55,5 @@ class PointPath:
         """The element's PathForces at the current positions and velocities, time t."""
         return self._timed(t, self.positions(), self.velocities())
 
-    def tension(self) -> float:
-        return self._timed.tension()
-
-    def save_state(self):
-        """The muscle's time-dependent state (TimedPath.save_state)."""
-        return self._timed.save_state()
-
-    def restore_state(self, saved) -> None:
-        self._timed.restore_state(saved)
-
     def length(self) -> float:
         return float(np.linalg.norm(np.diff(self.positions(), axis=0), axis=1).sum())
-
-    def potential_energy(self) -> float:
-        energy = getattr(self.element, "energy", None)
-        return float(energy(self.positions())) if energy is not None else 0.0
