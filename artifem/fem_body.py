@@ -23,6 +23,7 @@ the same script runs in serial and under ``mpiexec``.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Callable
 
@@ -345,17 +346,25 @@ class FemBody:
 
     def energy_terms(self) -> list[EnergyTerm]:
         """The internal energy as a sum of integrals, one per ingredient (see EnergyTerm)."""
-        terms = [EnergyTerm("material", lambda F, a0: self.material.strain_energy(F),
+        material = with_form_constants(self.material, self.mesh)
+        terms = [EnergyTerm("material", lambda F, a0: material.strain_energy(F),
                             self.quadrature_degree)]
         for m in self.muscles.values():
+            fiber = with_form_constants(m.fiber, self.mesh)
             terms.append(EnergyTerm(f"muscle:{m.name}",
-                                    lambda F, a0, m=m: m.fiber.strain_energy(F, a0, m.excitation),
+                                    lambda F, a0, m=m, f=fiber: f.strain_energy(F, a0, m.excitation),
                                     self.quadrature_degree, m.cells, m.direction))
         if self.incompressibility is not None:
-            kappa = self.incompressibility
+            kappa = fem.Constant(self.mesh, PETSc.ScalarType(self.incompressibility))
             terms.append(EnergyTerm("incompressibility",
                                     lambda F, a0: 0.5 * kappa * (ufl.det(F) - 1) ** 2, 1))
         return terms
+
+    def _density_factor(self):
+        """rho in the forms: a run-time constant when it is a number (with_form_constants)."""
+        if isinstance(self.density, (int, float)):
+            return fem.Constant(self.mesh, PETSc.ScalarType(self.density))
+        return self.density
 
     def potential_energy_form(self):
         """UFL integrand of Pi(u) (see the module docstring)."""
@@ -371,7 +380,7 @@ class FemBody:
             else:
                 dx = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
                 Pi += t.density(F, t.direction) * dx(restricted.index(t) + 1)
-        external = self.density * ufl.dot(self.gravity, self.u)
+        external = self._density_factor() * ufl.dot(self.gravity, self.u)
         if self.body_force is not None:
             external += ufl.dot(self.body_force, self.u)
         dx = ufl.Measure("dx", domain=self.mesh,
@@ -396,10 +405,11 @@ class FemBody:
 
         dxm = ufl.Measure("dx", domain=self.mesh,
                           metadata={"quadrature_degree": MASS_DEGREE[self.cell_name]})
-        mass_form = self.density * ufl.inner(du, v) * dxm
+        rho = self._density_factor()
+        mass_form = rho * ufl.inner(du, v) * dxm
         # Lumped mass: row sums of the consistent mass, M_ii = int rho phi_i dX.
         ones = fem.Constant(self.mesh, np.ones(3, dtype=PETSc.ScalarType))
-        self.M_lumped = fem_petsc.assemble_vector(fem.form(self.density * ufl.dot(ones, v) * dxm))
+        self.M_lumped = fem_petsc.assemble_vector(fem.form(rho * ufl.dot(ones, v) * dxm))
         self.M_lumped.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.M_consistent = None
         self._scaled_mass = None        # work vector of add_mass
@@ -529,6 +539,29 @@ class FemBody:
             if d is not None and d < n_owned:
                 out[k] = arr[d]
         return self.mesh.comm.allreduce(out)
+
+
+def with_form_constants(material, domain: dmesh.Mesh):
+    """A copy of ``material`` whose ``form_constants`` fields are run-time ``fem.Constant`` objects.
+
+    The material declares which parameters enter its energy only as factors
+    (``MooneyRivlin.form_constants``); passed as run-time constants they leave the
+    generated kernels independent of their values, so a model with another
+    stiffness reuses the JIT cache instead of compiling again (a new tongue kappa
+    cost about 35 s of compilation, a reduced tongue one kernel per muscle's
+    max_stress). Zero values stay literal zeros, which UFL folds away (a
+    Mooney-Rivlin with C01 = 0 never evaluates I2bar). Parts of a combined
+    material are converted too; anything else is returned unchanged.
+    """
+    out = copy.copy(material)
+    for name in getattr(material, "form_constants", ()):
+        value = getattr(material, name)
+        if value != 0.0:
+            object.__setattr__(out, name, fem.Constant(domain, PETSc.ScalarType(value)))
+    parts = getattr(material, "parts", None)
+    if isinstance(parts, tuple):
+        object.__setattr__(out, "parts", tuple(with_form_constants(p, domain) for p in parts))
+    return out
 
 
 def _check_excitation(name: str, value: float) -> None:

@@ -5,6 +5,7 @@ causes of nonuniform strains in the biceps brachii", J Biomech 38:657-665.
 """
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import ufl
@@ -110,6 +111,9 @@ class BlemkerFiber:
     P1: float = 0.05
     P2: float = 6.6
     stretch_star: float = 1.4
+    #: Fields that enter the energy only as factors (see MooneyRivlin.form_constants);
+    #: the others shape it (and are evaluated numerically at the rest length).
+    form_constants: ClassVar[tuple[str, ...]] = ("max_stress",)
 
     def __post_init__(self):
         name = type(self).__name__

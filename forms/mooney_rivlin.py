@@ -1,6 +1,7 @@
 """Compressible (uncoupled) Mooney-Rivlin material."""
 
 from dataclasses import KW_ONLY, dataclass
+from typing import ClassVar
 
 import ufl
 
@@ -29,6 +30,9 @@ class MooneyRivlin:
     C20: float = 0.0
     C02: float = 0.0
     bulk: str = "quadratic"
+    #: Fields that enter the energy only as factors (a form compiler may pass them as
+    #: run-time constants instead of literals: one compiled kernel for every value).
+    form_constants: ClassVar[tuple[str, ...]] = ("C10", "C01", "C11", "C20", "C02", "kappa")
 
     def __post_init__(self):
         name = type(self).__name__

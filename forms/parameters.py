@@ -2,6 +2,7 @@
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 
 def require_finite(owner, name, value):
@@ -75,6 +76,8 @@ class LameParameters:
 
     mu: float
     lmbda: float
+    #: Fields that enter the energy only as factors (see MooneyRivlin.form_constants).
+    form_constants: ClassVar[tuple[str, ...]] = ("mu", "lmbda")
 
     def __post_init__(self):
         check_lame(type(self).__name__, self.mu, self.lmbda)

@@ -138,3 +138,25 @@ def test_consistent_and_lumped_mass_give_the_same_momentum(cell):
     expected = rho * np.prod(BOX) * velocity
     np.testing.assert_allclose(momenta["lumped"], expected, rtol=1e-12)
     np.testing.assert_allclose(momenta["consistent"], momenta["lumped"], rtol=1e-12)
+
+
+def test_material_parameters_are_run_time_constants():
+    """Bodies that differ only in kappa and density share their compiled kernels (no new
+    JIT compilation per value), and each still gets its own values: at u = 0 the tangent
+    is K_shear + kappa K_vol, linear in kappa, and the lumped mass scales with rho."""
+    msh, _ = distorted_box("hexahedron")
+    tangents, masses, signatures = [], [], []
+    for k, (kappa, rho) in enumerate([(1.0e4, 900.0), (2.0e4, 1000.0), (3.0e4, 1100.0)]):
+        body = FemBody(msh, MooneyRivlin(1037.0, C20=486.0, kappa=kappa), density=rho,
+                       incompressibility=100.0 * (k + 1))
+        body.compile()
+        body.assemble(tangent=True)
+        form = body._compiled["K"]
+        signatures.append(form.module.ffi.string(form.ufcx_form.signature))
+        tangents.append(body.K.convert("dense").getDenseArray().copy())
+        masses.append(body.M_lumped.array.sum())
+    assert signatures[0] == signatures[1] == signatures[2]
+    step1, step2 = tangents[1] - tangents[0], tangents[2] - tangents[1]
+    assert np.abs(step1).max() > 1e-3 * np.abs(tangents[0]).max()
+    np.testing.assert_allclose(step2, step1, atol=1e-9 * np.abs(tangents[2]).max())
+    np.testing.assert_allclose(np.array(masses) / masses[0], [1.0, 10 / 9, 11 / 9], rtol=1e-12)

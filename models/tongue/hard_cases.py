@@ -222,8 +222,9 @@ NOTES: list[str] = [
     "does not change them (their JSON rows have no `direct_solves` figure).",
     "- Raising kappa (100 C10, 1000 C10) makes the tongue stiffer in volume and smaller "
     "in motion (tip 6.8 -> 5.4 -> 4.1 mm) but not harder to integrate: min det F rises. "
-    "Each new kappa value costs a JIT compilation of the forms (about 35 s, the wall time "
-    "of those rows), since the material constants are compiled into the UFL forms.",
+    "Their rows' wall time included a JIT compilation of the forms per kappa value "
+    "(about 35 s) when they were run; material constants are now run-time constants "
+    "of the forms (`fem_body.with_form_constants`), so a new kappa compiles nothing.",
     "",
 ]
 
@@ -276,9 +277,8 @@ def write_docs(results: list[dict], out: Path) -> None:
               "start of the failed step); min det F is the smallest det F at any quadrature "
               "point after any completed step; halvings counts retried half steps; ms/step is "
               "the median wall time of a (possibly halved) step on this machine (serial); "
-              "wall s is the whole run and includes the JIT compilation of the forms when "
-              "a material constant (kappa) is first used (about 35 s, cached on disk "
-              "afterwards).", ""]
+              "wall s is the whole run and includes any JIT compilation of the forms "
+              "(cached on disk afterwards).", ""]
     lines += ["## Which cases pass", ""]
     for integrator in INTEGRATOR_NAMES:
         mine = [r for r in results if r["integrator"] == integrator]
