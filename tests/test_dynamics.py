@@ -20,7 +20,7 @@ from mpi4py import MPI
 from artifem.errors import ElementInversionError
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, LinearElastic, NeoHookean
-from artifem.system import System
+from artifem.scene import Scene
 
 INTEGRATORS = ["semi-implicit", "implicit"]
 
@@ -45,13 +45,14 @@ def cantilever(material, size=(1.0, 0.3, 0.2), n=(8, 2, 2), density=1000.0, **kw
     return body, input_nodes(msh, np.abs(x[:, 0] - size[0]) < 1e-12)
 
 
-def system_with(body, integrator="semi-implicit", **kwargs) -> System:
+def scene_with(body, integrator="semi-implicit", **kwargs) -> Scene:
     # A direct solver: these tests measure the integrators, not the iterative
     # solvers' tolerance (test_bench and the solver tests cover those).
     kwargs.setdefault("linear_solver", "mumps")
-    system = System(integrator=integrator, **kwargs)
-    system.add(body)
-    return system
+    # The body's own gravity: Scene.add sets the body's gravity to the scene's.
+    scene = Scene(gravity=body.gravity.value.copy(), integrator=integrator, **kwargs)
+    scene.add(body)
+    return scene
 
 
 def first_mode(body: FemBody) -> tuple[float, np.ndarray]:
@@ -90,13 +91,13 @@ def mode_release(integrator: str, steps: int, final_time: float) -> np.ndarray:
     body, tip = cantilever(BEAM_MATERIAL)
     _, mode = first_mode(body)
     body.v.x.array[:] = 0.05 * mode / np.abs(mode).max()
-    system = system_with(body, integrator)
+    scene = scene_with(body, integrator)
     for _ in range(steps):
-        system.step(final_time / steps)
-    assert system.time == pytest.approx(final_time)
+        scene.step(final_time / steps)
+    assert scene.t == pytest.approx(final_time)
     # A smooth 7 mm vibration never needs a smaller step: a halving would
     # silently change the time discretization being measured.
-    assert system.halvings == 0, f"{system.halvings} step halvings at dt = {final_time / steps}"
+    assert scene.halvings == 0, f"{scene.halvings} step halvings at dt = {final_time / steps}"
     return body.displacement_at(tip).mean(axis=0)
 
 
@@ -130,13 +131,13 @@ def test_backward_euler_is_first_order_in_time(integrator):
 
 def energy_history(integrator, rayleigh, steps=60, dt=0.02):
     body, _ = cantilever(BEAM_MATERIAL, rayleigh=rayleigh, gravity=(0.0, 0.0, -9.81))
-    system = system_with(body, integrator)
-    history = [system.energy()]
+    scene = scene_with(body, integrator)
+    history = [(scene.energy(), scene.kinetic_energy())]
     for _ in range(steps):
-        system.step(dt)
-        history.append(system.energy())
-    total = np.array([e["total"] for e in history])
-    kinetic = np.array([e["kinetic"] for e in history])
+        scene.step(dt)
+        history.append((scene.energy(), scene.kinetic_energy()))
+    total = np.array([e[0] for e in history])
+    kinetic = np.array([e[1] for e in history])
     return total, kinetic
 
 
@@ -170,7 +171,7 @@ def test_undamped_implicit_euler_never_gains_energy():
 
 # ---- (c) element inversion -----------------------------------------------------------------
 
-def soft_cube(total_load, integrator="semi-implicit", corner=False, **system_kwargs):
+def soft_cube(total_load, integrator="semi-implicit", corner=False, **scene_kwargs):
     """A soft 1 m cube (E = 1 kPa) clamped at z = 0, pushed down on its top face (or corner)."""
     msh = box((1.0, 1.0, 1.0), (3, 3, 3))
     body = FemBody(msh, NeoHookean.from_young_poisson(1.0e3, 0.3), 100.0, rayleigh=(1.0, 0.0))
@@ -181,26 +182,26 @@ def soft_cube(total_load, integrator="semi-implicit", corner=False, **system_kwa
         top &= (x[:, 0] > 1 - 1e-12) & (x[:, 1] > 1 - 1e-12)
     loaded = input_nodes(msh, top)
     body.add_nodal_load(loaded, [0.0, 0.0, -total_load / len(loaded)])
-    return body, system_with(body, integrator, **system_kwargs)
+    return body, scene_with(body, integrator, **scene_kwargs)
 
 
 def test_inversion_raises_a_clear_error_and_keeps_the_last_good_state():
     """A 3 kN point load on the corner of a 1 kPa cube crushes the corner element
     (measured: fails at t = 0.0125 s after one good half step, det F = -0.36 in
     element 26, the corner cell)."""
-    body, system = soft_cube(3.0e3, corner=True)
+    body, scene = soft_cube(3.0e3, corner=True)
     dt = 0.1
     with pytest.raises(ElementInversionError) as info:
         for _ in range(10):
-            system.step(dt)
+            scene.step(dt)
     err = info.value
     corner_cell = cell_containing(body.mesh, np.array([5 / 6, 5 / 6, 5 / 6]))
     assert err.elements.size > 0 and corner_cell in err.elements.tolist()
     assert err.min_det <= 0
     # The error names the time of the failing (smallest) sub-step: after the
     # last good state plus dt / 2**max_halvings.
-    assert system.time > 0
-    assert err.time == pytest.approx(system.time + dt / 2 ** system.max_halvings)
+    assert scene.t > 0
+    assert err.time == pytest.approx(scene.t + dt / 2 ** scene.max_halvings)
     message = str(err)
     assert f"t = {err.time:.6g}" in message and str(corner_cell) in message and "det F" in message
     # The body is left in the last good state: finite, nothing inverted.
@@ -218,10 +219,10 @@ def test_step_that_inverts_at_full_size_recovers_by_halving():
     with pytest.raises(ElementInversionError):
         strict.step(dt)
 
-    body, system = soft_cube(1.0e3)
-    system.step(dt)
-    assert system.halvings > 0
-    assert system.time == pytest.approx(dt)
+    body, scene = soft_cube(1.0e3)
+    scene.step(dt)
+    assert scene.halvings > 0
+    assert scene.t == pytest.approx(dt)
     bad, min_det = body.inverted_elements()
     assert bad.size == 0 and min_det > 0
     assert body.displacement_at(input_nodes(body.mesh, body.mesh.geometry.x[:, 2] > 1 - 1e-12)
@@ -229,10 +230,10 @@ def test_step_that_inverts_at_full_size_recovers_by_halving():
 
 
 def test_implicit_inversion_is_halved_or_reported_not_a_linear_solver_crash():
-    body, system = soft_cube(1.0e3, integrator="implicit")
+    body, scene = soft_cube(1.0e3, integrator="implicit")
     try:
         for _ in range(4):
-            system.step(0.3)
+            scene.step(0.3)
     except ElementInversionError as err:
         assert err.elements.size > 0 and err.min_det <= 0
     bad, _ = body.inverted_elements()
@@ -255,9 +256,9 @@ def muscle_beam():
 
 def test_excitation_changes_the_motion_without_recompiling():
     body, tip = muscle_beam()
-    system = system_with(body)
+    scene = scene_with(body)
     for _ in range(5):
-        system.step(0.01)
+        scene.step(0.01)
     compiled = body._compiled
     assert compiled is not None
     # Excitation 0, no gravity, fibers at their rest stretch: nothing moves.
@@ -265,7 +266,7 @@ def test_excitation_changes_the_motion_without_recompiling():
 
     body.set_excitation("top", 0.5)
     for _ in range(5):
-        system.step(0.01)
+        scene.step(0.01)
     assert body._compiled is compiled
     assert body.muscles["top"].excitation.value == 0.5
     u_tip = body.displacement_at(tip)
@@ -274,7 +275,7 @@ def test_excitation_changes_the_motion_without_recompiling():
     assert u_tip[:, 0].min() < -1e-5
 
     body.set_excitation("top", 0.0)
-    system.step(0.01)
+    scene.step(0.01)
     assert body._compiled is compiled
 
 
@@ -294,7 +295,7 @@ I_BEAM = H_BEAM**4 / 12
 def tip_deflection(material, n, load):
     body, tip = cantilever(material, size=(L_BEAM, H_BEAM, H_BEAM), n=n)
     body.add_nodal_load(tip, [0.0, 0.0, -load / len(tip)])
-    system_with(body).solve_static()
+    scene_with(body).solve_static()
     return -body.displacement_at(tip)[:, 2].mean()
 
 
@@ -332,8 +333,8 @@ def test_static_neo_hookean_cantilever_under_a_very_small_load():
 def test_implicit_euler_settles_a_stiff_beam_under_gravity():
     body, tip = cantilever(NeoHookean.from_young_poisson(1.0e8, 0.3),
                            rayleigh=(5.0, 0.01), gravity=(0.0, 0.0, -9.81))
-    system = system_with(body, "implicit")
+    scene = scene_with(body, "implicit")
     for _ in range(30):
-        system.step(0.02)
-    assert system.time == pytest.approx(0.6)
+        scene.step(0.02)
+    assert scene.t == pytest.approx(0.6)
     assert body.displacement_at(tip)[:, 2].mean() < 0

@@ -10,7 +10,7 @@ from dolfinx import fem, mesh
 
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
-from artifem.system import System
+from artifem.scene import Scene
 
 MU = 1000.0
 
@@ -34,9 +34,9 @@ def _cantilever(material, incompressibility, load=2e-4):
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     tip = body.find_nodes(lambda x: np.isclose(x[0], 0.1))
     body.add_nodal_load(tip, (0.0, 0.0, -load / len(tip)))
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static(load_steps=2)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static(load_steps=2)
     return body, body.displacement_at([body.nearest_node((0.1, 0.005, 0.005))])[0]
 
 
@@ -47,9 +47,9 @@ def test_affine_field_is_reproduced_with_the_penalty():
     A = np.array([[0.02, 0.01, 0.0], [0.0, -0.01, 0.005], [0.01, 0.0, 0.015]])
     boundary = body.find_nodes(lambda x: np.isclose(x, 0).any(axis=0) | np.isclose(x, 1).any(axis=0))
     body.fix_nodes(boundary, displacement=lambda x: A @ x)
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static()
     X = body.V.tabulate_dof_coordinates()
     assert np.abs(body.u.x.array.reshape(-1, 3) - X @ A.T).max() < 1e-12
 

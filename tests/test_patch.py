@@ -22,7 +22,7 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import LinearElastic, MooneyRivlin, NeoHookean, StVenantKirchhoff
-from artifem.system import System
+from artifem.scene import Scene
 
 BOX = np.array([1.0, 0.6, 0.8])
 N = (4, 3, 3)
@@ -69,9 +69,9 @@ def test_affine_patch_is_reproduced_to_round_off(cell, material):
     body = FemBody(msh, MATERIALS[material], density=1000.0)
     inputs = np.asarray(msh.geometry.input_global_indices)
     body.fix_nodes(inputs[~interior], displacement=affine)
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static(rtol=1e-13)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static(rtol=1e-13)
 
     x = msh.geometry.x
     dofs = body.local_dofs(inputs[interior])
@@ -98,9 +98,9 @@ def test_patch_test_detects_a_wrong_boundary_value(cell):
     inputs = np.asarray(msh.geometry.input_global_indices)
     body.fix_nodes(inputs[~interior],
                    displacement=lambda x: affine(x) + 0.02 * np.sin(3 * x[[1, 2, 0]]))
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static()
     u = body.u.x.array.reshape(-1, 3)[body.local_dofs(inputs[interior])]
     assert np.abs(u - affine(msh.geometry.x[interior].T).T).max() > 1e-4
 

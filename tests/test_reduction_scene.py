@@ -1,7 +1,12 @@
-"""Reduced FEM bodies as System components, with the same integrators and excitations.
+"""Reduced FEM bodies in a Scene, with the same integrators and excitations.
 
-(a) full basis + every cell with weight 1: a reduced body stepped in a System
-    equals the full body stepped in another System (MUMPS) to round-off, with
+Nothing couples the bodies here: each is an island of its own, advanced by the
+scene's integrator (``advance`` with a PETSc solver for a full body,
+``advance_reduced`` for a reduced one). Each scene is built with the gravity of
+its bodies (``Scene.add`` sets a body's gravity to the scene's).
+
+(a) full basis + every cell with weight 1: a reduced body stepped in a Scene
+    equals the full body stepped in another Scene (MUMPS) to round-off, with
     the semi-implicit and the implicit integrator;
 (b) solve_static_reduced with the full basis equals the full static solve;
 (c) a step that inverts is halved, and a failure that halving cannot cure
@@ -9,7 +14,7 @@
 (d) undamped implicit Euler on a small random basis with random positive
     cubature weights never gains energy;
 (e) an excitation controller on the full body drives the reduced body, with
-    the full and the reduced body in the same System.
+    the full and the reduced body in the same Scene.
 """
 
 import numpy as np
@@ -26,7 +31,7 @@ from artifem.forms import NeoHookean
 from artifem.integrators import ImplicitEuler, solve_static_reduced
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
-from artifem.system import System
+from artifem.scene import Scene
 
 from reduced_beam import free_rows, full_basis, make_body, ndofs
 
@@ -51,27 +56,35 @@ def assert_same(reduced, body):
 
 # ---- (a) same trajectory as the full body ---------------------------------------------------
 
+def energies(scene) -> dict[str, float]:
+    return {"kinetic": scene.kinetic_energy(), "potential": scene.potential_energy(),
+            "total": scene.energy()}
+
+
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_full_basis_reduced_body_in_a_system_reproduces_the_full_body(integrator):
+def test_full_basis_reduced_body_in_a_scene_reproduces_the_full_body(integrator):
     body = make_body()
     reduced = full_reduced(body)
-    full_system = System(integrator=integrator, linear_solver="mumps")
-    full_system.add(body)
-    reduced_system = System(integrator=integrator)
-    reduced_system.add(reduced)
-    with pytest.raises(TypeError, match="linear solver"):
-        reduced_system.solver_for(reduced)
+    g = body.gravity.value.copy()
+    full_scene = Scene(gravity=g, integrator=integrator, linear_solver="mumps")
+    full_scene.add(body)
+    reduced_scene = Scene(gravity=g, integrator=integrator)
+    reduced_scene.add(reduced)
+    # Each body is an island of its own (the reduced one is stepped densely by
+    # advance_reduced, without a linear solver).
+    assert full_scene.islands() == ([body], [])
+    assert reduced_scene.islands() == ([reduced], [])
     dt = 0.01
     for _ in range(10):
-        full_system.step(dt)
-        reduced_system.step(dt)
+        full_scene.step(dt)
+        reduced_scene.step(dt)
         assert np.abs(body.u.x.array).max() > 1e-4          # it moves
         assert_same(reduced, body)
-    assert full_system.halvings == reduced_system.halvings == 0
-    assert reduced_system.time == pytest.approx(0.1)
+    assert full_scene.halvings == reduced_scene.halvings == 0
+    assert reduced_scene.t == pytest.approx(0.1)
 
-    # The energy of the reduced component is the full one's.
-    e_full, e_red = full_system.energy(), reduced_system.energy()
+    # The energy of the reduced body is the full one's.
+    e_full, e_red = energies(full_scene), energies(reduced_scene)
     for key in ("kinetic", "potential", "total"):
         assert e_red[key] == pytest.approx(e_full[key], rel=1e-9, abs=1e-12)
     assert e_full["kinetic"] > 0
@@ -82,9 +95,9 @@ def test_full_basis_reduced_body_in_a_system_reproduces_the_full_body(integrator
 def test_reduced_static_solve_equals_the_full_one():
     body = make_body(young=1.0e6)
     reduced = full_reduced(body)
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static(load_steps=2)
+    scene = Scene(gravity=body.gravity.value.copy(), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static(load_steps=2)
     n = ndofs(body)
     u = body.u.x.array[:n]
     assert np.abs(u).max() > 1e-2            # a large, nonlinear deflection
@@ -95,10 +108,10 @@ def test_reduced_static_solve_equals_the_full_one():
                                atol=1e-8 * np.abs(u).max())
     weight = 1000.0 * 0.06 * 9.81                   # |gravity load| (N), the scale of f~
     assert np.linalg.norm(reduced.force()) < 1e-8 * weight
-    # Through the System (already at equilibrium: no Newton step moves it).
-    reduced_system = System()
-    reduced_system.add(reduced)
-    reduced_system.solve_static()
+    # Through a Scene (already at equilibrium: no Newton step moves it).
+    reduced_scene = Scene(gravity=body.gravity.value.copy())
+    reduced_scene.add(reduced)
+    reduced_scene.solve_static()
     np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
                                atol=1e-8 * np.abs(u).max())
 
@@ -140,7 +153,7 @@ def test_a_step_that_inverts_is_halved(integrator):
     semi-implicit step inverts, see test_dynamics; the implicit Newton does not
     converge without inverting); with halving it recovers."""
     _, reduced = soft_cube(1.0e3)
-    strict = System(integrator=integrator, max_halvings=0)
+    strict = Scene(gravity=(0.0, 0.0, 0.0), integrator=integrator, max_halvings=0)
     strict.add(reduced)
     with pytest.raises((ElementInversionError, StepFailed)) as info:
         strict.step(0.3)
@@ -149,14 +162,14 @@ def test_a_step_that_inverts_is_halved(integrator):
         assert info.value.elements.size > 0 and info.value.min_det <= 0
     # Restored: the state at the start of the failed step.
     assert np.all(reduced.q == 0) and np.all(reduced.qdot == 0)
-    assert strict.time == 0
+    assert strict.t == 0
 
     _, reduced = soft_cube(1.0e3)
-    system = System(integrator=integrator)
-    system.add(reduced)
-    system.step(0.3)
-    assert system.halvings > 0
-    assert system.time == pytest.approx(0.3)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=integrator)
+    scene.add(reduced)
+    scene.step(0.3)
+    assert scene.halvings > 0
+    assert scene.t == pytest.approx(0.3)
     bad, min_det = reduced.inverted_elements()
     assert bad.size == 0 and min_det > 0
     assert top_displacement(reduced)[:, 2].max() < -0.1
@@ -166,20 +179,20 @@ def test_unrecoverable_inversion_names_the_elements_and_keeps_a_good_state():
     """3 kN on one corner of the soft cube crushes the corner element (semi-implicit;
     the implicit integrator survives this by halving)."""
     body, reduced = soft_cube(3.0e3, corner=True)
-    system = System()
-    system.add(reduced)
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(reduced)
     dt = 0.1
     with pytest.raises(ElementInversionError) as info:
         for _ in range(10):
-            system.step(dt)
+            scene.step(dt)
     err = info.value
     corner_cell = cell_containing(body.mesh, np.array([5 / 6, 5 / 6, 5 / 6]))
     assert corner_cell in err.elements.tolist() and err.min_det <= 0
     # Sub-steps of the failing step that succeeded stay done: the state is the one
     # at the start of the smallest sub-step that failed (finite, nothing inverted).
-    assert system.halvings >= system.max_halvings
-    assert system.time > 0
-    assert err.time == pytest.approx(system.time + dt / 2 ** system.max_halvings)
+    assert scene.halvings >= scene.max_halvings
+    assert scene.t > 0
+    assert err.time == pytest.approx(scene.t + dt / 2 ** scene.max_halvings)
     assert all(np.all(np.isfinite(a)) for a in reduced.state())
     bad, min_det = reduced.inverted_elements()
     assert bad.size == 0 and min_det > 0
@@ -211,19 +224,18 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
     q0 = rng.standard_normal(r)
     reduced.set_q(0.02 * q0 / np.abs(U @ q0).max())      # 2 cm initial displacement
 
-    system = System(integrator="implicit")
-    system.add(reduced)
-    total, kinetic, jumps = [system.energy()["total"]], [0.0], []
+    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator="implicit")
+    scene.add(reduced)
+    total, kinetic, jumps = [scene.energy()], [0.0], []
     for _ in range(200):
         _, qdot = reduced.state()
-        system.step(0.002)
+        scene.step(0.002)
         dqdot = reduced.qdot - qdot
         jumps.append(0.5 * dqdot @ reduced.M @ dqdot)
-        e = system.energy()
-        total.append(e["total"])
-        kinetic.append(e["kinetic"])
+        total.append(scene.energy())
+        kinetic.append(scene.kinetic_energy())
     total, jumps = np.array(total), np.array(jumps)
-    assert system.halvings == 0
+    assert scene.halvings == 0
     assert total[0] > 0 and max(kinetic) > 0.1 * total[0]      # it vibrates
     change = np.diff(total)
     assert change.max() < 0, f"energy grew by {change.max():.3e}"
@@ -237,22 +249,23 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
 
 def test_excitation_controller_on_the_full_body_drives_the_reduced_body():
     """No loads, excitation 0: nothing moves until the controller ramps the muscle up.
-    The full body and its full-basis reduced twin in one System move alike."""
+    The full body and its full-basis reduced twin in one Scene move alike (each its own
+    island: the twin shares the body's excitation constants, nothing couples them)."""
     body = make_body(excitation=0.0, gravity=(0.0, 0.0, 0.0), loads=False)
     reduced = full_reduced(body, name="twin")
-    system = System(integrator=ImplicitEuler(rtol=1e-12), linear_solver="mumps")
-    system.add(body)
-    system.add(reduced)
-    assert [c.name for c in system.components] == [body.name, "twin"]
-    system.step(0.01)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=ImplicitEuler(rtol=1e-12),
+                  linear_solver="mumps")
+    scene.add(body, reduced)
+    assert [b.name for b in scene.bodies] == [body.name, "twin"]
+    assert scene.islands() == ([body, reduced], [])
+    scene.step(0.01)
     assert np.abs(reduced.q).max() == 0.0 and np.abs(body.u.x.array).max() == 0.0
 
     schedule = ExcitationSchedule.ramp_and_hold({"top": 0.8}, ramp_time=0.05)
-    system.add_controller(schedule.controller(body))
+    scene.add_controller(schedule.controller(body))
     for _ in range(8):
-        system.step(0.01)
+        scene.step(0.01)
         assert_same(reduced, body)
     assert body.muscles["top"].excitation.value == pytest.approx(0.8)
     assert np.abs(reduced.nodal_displacement()).max() > 1e-4
-    e = system.energy()
-    assert e["kinetic"] > 0
+    assert scene.kinetic_energy() > 0
