@@ -4,7 +4,7 @@
     and differ for different ones; save/load round trip; get() computes once and
     then loads; a compute (or a save) that fails leaves no artifact and no
     temporary file, and the next get() computes again (resume semantics).
-(b) Training forces on a muscle-driven hex beam (snapshots recorded in a System
+(b) Training forces on a muscle-driven hex beam (snapshots recorded in a Scene
     driven by an ExcitationSchedule ramp, plus tip-load and gravity runs; mass-
     weighted POD): b of force_training_matrix is U^T R_int at every training
     state -- checked against the all-points ReducedFemBody and, at training
@@ -42,7 +42,7 @@ from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
                                         project, record_snapshots)
-from artifem.system import System
+from artifem.scene import Scene
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
 
@@ -213,12 +213,13 @@ def record_training(body) -> Snapshots:
     parts = []
     for target, load_factor, gravity in TRAINING:
         reset(body, load_factor=load_factor, gravity=gravity)
-        system = System(linear_solver="mumps")
-        system.add(body)
+        # The run's gravity: Scene.add sets the body's gravity to the scene's.
+        scene = Scene(gravity=gravity, linear_solver="mumps")
+        scene.add(body)
         if target is not None:
-            system.add_controller(
+            scene.add_controller(
                 ExcitationSchedule.ramp_and_hold({"top": target}, 0.2).controller(body))
-        parts.append(record_snapshots(system, body, duration=0.4, dt=0.01, every=2,
+        parts.append(record_snapshots(scene, body, duration=0.4, dt=0.01, every=2,
                                       progress=False))
     reset(body)
     return Snapshots.concatenate(parts)
@@ -377,13 +378,13 @@ DT, STEPS = 0.01, 30
 
 def full_run(body):
     reset(body)
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.add_controller(TEST_MOTION.controller(body))
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")    # as reset() left it
+    scene.add(body)
+    scene.add_controller(TEST_MOTION.controller(body))
     n = ndofs(body)
     u = [np.zeros(n)]
     for _ in range(STEPS):
-        system.step(DT)
+        scene.step(DT)
         u.append(body.u.x.array[:n].copy())
     reset(body)
     return np.array(u)
@@ -392,15 +393,15 @@ def full_run(body):
 def reduced_run(body, U, points):
     reset(body)
     reduced = ReducedFemBody(body, U, points)
-    system = System()
-    system.add(reduced)
-    system.add_controller(TEST_MOTION.controller(body))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))              # as reset() left it
+    scene.add(reduced)
+    scene.add_controller(TEST_MOTION.controller(body))
     u = [reduced.nodal_displacement()]
     for _ in range(STEPS):
-        system.step(DT)
+        scene.step(DT)
         u.append(reduced.nodal_displacement())
     reset(body)
-    assert system.halvings == 0
+    assert scene.halvings == 0
     return np.array(u)
 
 
@@ -470,18 +471,16 @@ def test_undamped_trained_reduced_model_never_gains_energy(beam, start):
         # Thrown from rest with the muscle held at 0.3.
         reset(body, excitation=0.3)
         reduced.set_state((np.zeros(6), 20.0 * q[5]))
-    system = System()
-    system.add(reduced)
-    energy = [system.energy()]
+    scene = Scene(gravity=(0.0, 0.0, 0.0))              # no loads
+    scene.add(reduced)
+    energy = [(scene.energy(), scene.kinetic_energy(), scene.potential_energy())]
     for _ in range(300):
-        system.step(0.002)
-        energy.append(system.energy())
-    assert system.halvings == 0
+        scene.step(0.002)
+        energy.append((scene.energy(), scene.kinetic_energy(), scene.potential_energy()))
+    assert scene.halvings == 0
     assert float(body.muscles["top"].excitation.value) == (0.0 if start == "displacement"
                                                            else 0.3)
-    total = np.array([e["total"] for e in energy])
-    kinetic = np.array([e["kinetic"] for e in energy])
-    potential = np.array([e["potential"] for e in energy])
+    total, kinetic, potential = np.array(energy).T
     assert np.all(np.isfinite(total))
     swing = potential.max() - potential.min()
     assert kinetic.max() > 0.2 * swing > 0                      # it vibrates
