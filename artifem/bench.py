@@ -19,7 +19,7 @@ the scene and its options:
   ``reference``.
 
 Every step is semi-implicit backward Euler with dt = 0.01 s through
-``System.step``. Figures per case: the median over the timed steps of the wall
+``Scene.step``. Figures per case: the median over the timed steps of the wall
 time per step (MPI barriers around it), of the time in ``FemBody.assemble``
 (residual and tangent) and in ``LinearSolver.solve``; ``peak_mb`` is the sum
 over ranks of the peak resident memory. Unless already set, OMP_NUM_THREADS

@@ -3,8 +3,8 @@
     mpiexec -n RANKS python -m artifem.bench_worker --scene box --cells NX NY NZ --solver S --steps N
     mpiexec -n RANKS python -m artifem.bench_worker --scene tongue --level L --motion M --solver S
 
-Scenes (one function each, :data:`SCENES`, returning a :class:`Scene`: the
-system, the body and how many steps to skip before timing):
+Scenes (one function each, :data:`SCENES`, returning a :class:`Case`: the
+scene, the body and how many steps to skip before timing):
 
 - ``box``: a Q1 hex box of tongue size clamped at x = 0 (tongue
   Mooney-Rivlin, density 1040, Rayleigh (40, 0.03), gravity, a Blemker-fiber
@@ -16,10 +16,10 @@ system, the body and how many steps to skip before timing):
 
 The case takes ``--warmup`` untimed steps (default: the scene's) and then
 ``--steps`` timed semi-implicit steps of dt = 0.01 s through
-:meth:`System.step` (inversion check and controllers included), and prints
+:meth:`Scene.step` (inversion check and controllers included), and prints
 one line ``BENCH_RESULT {json}`` on rank 0.
 
-Per step it measures the wall time of ``System.step`` (MPI barriers before
+Per step it measures the wall time of ``Scene.step`` (MPI barriers before
 and after), and inside it the time spent in ``FemBody.assemble`` (R and K) and
 in ``LinearSolver.solve``, each the maximum over ranks. ``peak_mb`` is the sum
 over ranks of the peak resident set size of the process.
@@ -45,7 +45,7 @@ from artifem.errors import SolverError
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin
 from artifem.linear_solver import METHODS
-from artifem.system import System
+from artifem.scene import Scene
 
 #: Box extent in metres (tongue scale); clamped at x = 0, fibers along x.
 BOX = (0.08, 0.035, 0.035)
@@ -82,26 +82,26 @@ def build(comm, cells, box=BOX, excitation=EXCITATION) -> FemBody:
     return body
 
 
-class Scene(NamedTuple):
-    """What a case times: ``system.step(DT)`` moving ``body``."""
+class Case(NamedTuple):
+    """What a case times: ``scene.step(DT)`` moving ``body``."""
 
-    system: System
+    scene: Scene
     body: FemBody
     warmup: int                 # steps to skip before timing, unless --warmup says otherwise
     probe: int                  # input node whose final displacement is reported
     info: dict                  # scene fields for the JSON
 
 
-def box_scene(comm, solver: str, cells) -> Scene:
+def box_scene(comm, solver: str, cells) -> Case:
     """The clamped box of :func:`build`; probe: the node at (L, W, H)."""
     body = build(comm, cells)
-    system = System(linear_solver=solver)
-    system.add(body)
+    scene = Scene(gravity=GRAVITY, linear_solver=solver)
+    scene.add(body)
     n_nodes = body.mesh.geometry.index_map().size_global
-    return Scene(system, body, 2, n_nodes - 1, {"cells": list(cells), "box_m": list(BOX)})
+    return Case(scene, body, 2, n_nodes - 1, {"cells": list(cells), "box_m": list(BOX)})
 
 
-def tongue_scene(comm, solver: str, level: int, motion: str) -> Scene:
+def tongue_scene(comm, solver: str, level: int, motion: str) -> Case:
     """The ArtiSynth tongue at ``level`` running ``motion``; probe: the tip landmark."""
     from artifem.models.tongue.model import DT as TONGUE_DT
     from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, TongueConfig
@@ -111,12 +111,12 @@ def tongue_scene(comm, solver: str, level: int, motion: str) -> Scene:
     tongue = Tongue(TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver),
                     comm=comm)
     tongue.drive(Tongue.motion(motion))
-    return Scene(tongue.system, tongue.body, 5, tongue.data.landmarks["tip"],
+    return Case(tongue.scene, tongue.body, 5, tongue.data.landmarks["tip"],
                  {"level": level, "motion": motion, "peak_excitations": MOTIONS[motion],
                   "ramp_s": RAMP_TIME})
 
 
-#: scene name -> function(comm, solver, **scene options) -> Scene
+#: scene name -> function(comm, solver, **scene options) -> Case
 SCENES = {"box": box_scene, "tongue": tongue_scene}
 
 
@@ -152,12 +152,12 @@ def gather_displacement(body: FemBody) -> np.ndarray | None:
     return out
 
 
-def run_case(comm, scene: Scene, solver: str, steps: int, warmup: int | None = None,
+def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = None,
              dump: str | None = None) -> dict | None:
-    """Time ``steps`` steps of ``scene`` after ``warmup`` (default: the scene's) untimed ones."""
-    system, body = scene.system, scene.body
-    warmup = scene.warmup if warmup is None else warmup
-    linear = system.solver_for(body)
+    """Time ``steps`` steps of ``case`` after ``warmup`` (default: the case's) untimed ones."""
+    scene, body = case.scene, case.body
+    warmup = case.warmup if warmup is None else warmup
+    linear = scene.linear_solver_for(body)
     assemble = body.assemble = _Timed(body.assemble)
     solve = linear.solve = _Timed(linear.solve)
 
@@ -165,24 +165,24 @@ def run_case(comm, scene: Scene, solver: str, steps: int, warmup: int | None = N
     t_start = None
     for k in range(warmup + steps):
         if k == warmup:
-            t_start = system.time
+            t_start = scene.t
         assemble.total = solve.total = 0.0
-        halvings = system.halvings
+        halvings = scene.halvings
         comm.Barrier()
         t0 = time.perf_counter()
-        system.step(DT)
+        scene.step(DT)
         comm.Barrier()
         wall = time.perf_counter() - t0
         if k >= warmup:
             rows.append((wall, comm.allreduce(assemble.total, op=MPI.MAX),
                          comm.allreduce(solve.total, op=MPI.MAX), linear.iterations,
-                         system.halvings - halvings))
+                         scene.halvings - halvings))
 
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # KiB on Linux
     peak_mb = comm.allreduce(rss_mb, op=MPI.SUM)
     n_nodes = body.mesh.geometry.index_map().size_global
     n_cells = body.mesh.topology.index_map(3).size_global
-    probe = body.displacement_at([scene.probe])[0]
+    probe = body.displacement_at([case.probe])[0]
     u_dump = gather_displacement(body) if dump else None
     if comm.rank != 0:
         return None
@@ -191,7 +191,7 @@ def run_case(comm, scene: Scene, solver: str, steps: int, warmup: int | None = N
     a = np.asarray(rows, dtype=float)
     ms = 1e3 * a[:, :3]
     return {
-        "nodes": int(n_nodes), "elements": int(n_cells), **scene.info,
+        "nodes": int(n_nodes), "elements": int(n_cells), **case.info,
         "ranks": comm.size, "solver": solver,
         "ms_per_step": float(np.median(ms[:, 0])),
         "assembly_ms": float(np.median(ms[:, 1])),
@@ -203,7 +203,7 @@ def run_case(comm, scene: Scene, solver: str, steps: int, warmup: int | None = N
         "max_iterations": int(a[:, 3].max()),
         "peak_mb": float(peak_mb),
         "steps": steps, "warmup_steps": warmup, "dt": DT,
-        "timed_window_s": [round(t_start, 10), round(system.time, 10)],
+        "timed_window_s": [round(t_start, 10), round(scene.t, 10)],
         "halvings": int(a[:, 4].sum()),
         "preconditioner_setups": int(linear.setups),
         "iterations_per_step": [int(i) for i in a[:, 3]],
@@ -232,8 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         options = {"level": args.level, "motion": args.motion}
     comm = MPI.COMM_WORLD
-    scene = SCENES[args.scene](comm, args.solver, **options)
-    result = run_case(comm, scene, args.solver, args.steps, args.warmup, args.dump)
+    case = SCENES[args.scene](comm, args.solver, **options)
+    result = run_case(comm, case, args.solver, args.steps, args.warmup, args.dump)
     if comm.rank == 0:
         import dolfinx
         from petsc4py import PETSc

@@ -61,7 +61,7 @@ class ExcitationSchedule:
         return {name: float(np.interp(t, self.times, vals)) for name, vals in self.values.items()}
 
     def controller(self, body):
-        """A System controller that sets ``body``'s muscle excitations at each step's end time."""
+        """A scene controller that sets ``body``'s muscle excitations at each step's end time."""
         unknown = sorted(set(self.values) - set(body.muscles))
         if unknown:
             raise UnknownNameError(f"excitation schedule names unknown muscles {unknown}; "

@@ -46,7 +46,7 @@ from dolfinx.la.petsc import create_vector_wrap
 from artifem.errors import InputError, LinearSolveError
 
 METHODS = ("mumps", "cg-gamg", "cg-gamg-lagged", "cg-mumps-lagged", "cg-hypre")
-#: The default of :class:`~artifem.system.System`.
+#: The default of :class:`~artifem.scene.Scene` for the FEM bodies it steps on their own.
 DEFAULT_METHOD = "cg-gamg-lagged"
 #: Relative residual of the iterative methods (see :class:`LinearSolver`).
 DEFAULT_RTOL = 1e-7

@@ -14,14 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-import artifem  # noqa: F401  (before dolfinx: orders MPI first)
+import artifem as af                    # first: orders MPI ahead of dolfinx
 from artifem.fem_body import FemBody
 from artifem.forms import MooneyRivlin
 from artifem.io.readers import read_mesh
 from artifem.io.to_dolfinx import to_dolfinx
 from artifem.render import render_bodies
-from artifem.simulation import simulate
-from artifem.system import System
 
 DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/tongue_gravity")
@@ -38,14 +36,14 @@ body = FemBody(domain, MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.
                gravity=(0.0, 0.0, -9.81), name="tongue")
 body.fix_nodes(attached)
 
-system = System(integrator="semi-implicit")
-system.add(body)
+scene = af.Scene(gravity=(0.0, 0.0, -9.81))
+scene.add(body)
 tip = int(mesh_data.node_rows([920])[0])          # ArtiSynth's "tip" landmark
-run = simulate(system, body, duration=duration, dt=0.01, landmarks={"tip": tip},
-               snapshot_times=(duration,), vtx_path=out / "tongue.bp")
+run = af.simulate(scene, duration, 0.01, record={"tip": lambda s: body.displacement_at([tip])[0]},
+                  keep=(duration,), vtx=out)
 
-render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[duration])],
+render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[duration]["tongue"])],
               scalars="displacement", scalar_name="displacement (m)", camera="xz",
               show_rest=True)
-print(f"{run.ms_per_step:.1f} ms/step, tip moved {1e3 * run.landmarks['tip'][-1]} mm, "
+print(f"{run.ms_per_step:.1f} ms/step, tip moved {1e3 * run.records['tip'][-1]} mm, "
       f"min det F {run.min_det_F:.3f}; wrote {out}/")

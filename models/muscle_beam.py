@@ -7,7 +7,7 @@ fibers along x (Blemker fiber energy); ramping its excitation from 0 to the
 target over 0.5 s and holding it until 1 s shortens the top and curls the free
 end upward, the way a tongue's longitudinal muscles curl its tip.
 
-``artifem simulate beam --out DIR`` writes DIR/displacement.bp (VTX),
+``artifem simulate beam --out DIR`` writes DIR/beam.bp (VTX),
 DIR/beam.png (rest, t = 0.5 s, t = 1.0 s), DIR/tip.png and DIR/simulate.json.
 """
 
@@ -29,7 +29,7 @@ from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
 from artifem.linear_solver import DEFAULT_METHOD
 from artifem.forms import BlemkerFiber, MooneyRivlin
-from artifem.system import INTEGRATORS, System
+from artifem.scene import INTEGRATORS, Scene
 
 LENGTH, WIDTH, HEIGHT = 0.060, 0.015, 0.015
 
@@ -47,8 +47,8 @@ class BeamConfig:
     linear_solver: str = DEFAULT_METHOD
 
 
-def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[System, FemBody]:
-    """The system with the clamped, muscle-driven beam (excitation schedule attached)."""
+def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[Scene, FemBody]:
+    """The scene with the clamped, muscle-driven beam (excitation schedule attached)."""
     cell = getattr(dmesh.CellType, config.cell_type)
     domain = dmesh.create_box(comm, [[0, 0, 0], [LENGTH, WIDTH, HEIGHT]], list(config.cells), cell)
     body = FemBody(domain, MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.03),
@@ -56,11 +56,12 @@ def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[System, FemBody
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     top = body.find_cells(lambda x: x[2] > 0.5 * HEIGHT)
     body.add_muscle("top", top, (1.0, 0.0, 0.0), BlemkerFiber(max_stress=config.max_stress))
-    system = System(integrator=config.integrator, linear_solver=config.linear_solver)
-    system.add(body)
+    scene = Scene(gravity=(0.0, 0.0, -9.81), integrator=config.integrator,
+                  linear_solver=config.linear_solver)
+    scene.add(body)
     schedule = ExcitationSchedule.ramp_and_hold({"top": config.excitation}, config.ramp_time)
-    system.add_controller(schedule.controller(body))
-    return system, body
+    scene.add_controller(schedule.controller(body))
+    return scene, body
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,26 +76,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
-    from artifem.simulation import simulate
+    from artifem.scene import simulate
 
     config = BeamConfig(cells=tuple(args.cells), excitation=args.excitation, dt=args.dt,
                         duration=args.duration, integrator=args.integrator)
-    system, body = build_beam(config)
+    scene, body = build_beam(config)
     out = Path(args.out)
     comm = body.mesh.comm
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     tip = body.nearest_node((LENGTH, 0.5 * WIDTH, 0.5 * HEIGHT))
     shown = (0.0, 0.5 * config.duration, config.duration)
-    traj = simulate(system, body, duration=config.duration, dt=config.dt,
-                    landmarks={"tip": tip}, snapshot_times=shown,
-                    vtx_path=out / "displacement.bp", progress=not args.no_progress,
-                    label="muscle beam")
-    render_bodies(out / "beam.png", [(body.mesh, traj.snapshots[t]) for t in shown],
+    traj = simulate(scene, config.duration, config.dt,
+                    record={"tip": lambda s: body.displacement_at([tip])[0]}, keep=shown,
+                    vtx=out, progress=not args.no_progress, label="muscle beam")
+    render_bodies(out / "beam.png", [(body.mesh, traj.snapshots[t][body.name]) for t in shown],
                   scalars="displacement", titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
                   scalar_name="displacement (m)", camera="xz", show_rest=True,
                   window_size=(1500, 500))
-    tip_mm = 1e3 * traj.landmarks["tip"]
+    tip_mm = 1e3 * traj.records["tip"]
     n_cells = body.mesh.topology.index_map(3).size_global
     figures = {
         "model": "muscle_beam",

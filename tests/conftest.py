@@ -67,7 +67,7 @@ def level1_protrusion():
     tongue, schedule, dt = build_case("level_1", "semi-implicit")
     protrusion = Tongue.motion("protrusion")
     assert tongue.config == TongueConfig(level=1, integrator="semi-implicit")
-    assert dt == DT and tongue.system.time == 0.0
+    assert dt == DT and tongue.scene.t == 0.0
     assert np.array_equal(schedule.times, protrusion.times)
     assert schedule.values.keys() == protrusion.values.keys()
     assert all(np.array_equal(schedule.values[k], protrusion.values[k])

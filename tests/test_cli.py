@@ -46,7 +46,7 @@ def test_simulate_beam_writes_results(tmp_path):
     assert np.all(np.isfinite(tip)) and np.linalg.norm(tip) > 0.1  # the beam moved
     assert (out / "beam.png").stat().st_size > 10_000
     assert (out / "tip.png").stat().st_size > 5_000
-    assert (out / "displacement.bp").exists()
+    assert (out / "beam.bp").exists()
 
 
 def test_material_curves_command(tmp_path):

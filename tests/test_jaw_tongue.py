@@ -72,10 +72,10 @@ def test_welded_jaw_matches_the_plain_tongue(data):
     s = jt.build_scene(config, data=data)
     jt.simulate(s, "protrusion", 0.1, DT)
     plain = Tongue(TongueConfig(level=0, linear_solver="mumps"), data=data)
-    plain.body.gravity.value[:] = config.gravity
+    plain.scene.gravity = config.gravity
     plain.drive(Tongue.motion("protrusion"))
     for _ in range(10):
-        plain.system.step(DT)
+        plain.scene.step(DT)
     rows = np.arange(data.mesh.points.shape[0])
     u_plain = plain.body.displacement_at(rows)
     u_jaw = s.tongue.body.displacement_at(rows)

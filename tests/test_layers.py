@@ -24,8 +24,7 @@ LAYERS = {
     # 4: couplings
     "artifem.multibody": 4, "artifem.embedding": 4,
     # 5: the step
-    "artifem.scene": 5, "artifem.system": 5, "artifem.integrators": 5,
-    "artifem.simulation": 5,
+    "artifem.scene": 5, "artifem.integrators": 5,
     # 6: the reductor
     "artifem.reduction": 6,
     # 7: models and commands

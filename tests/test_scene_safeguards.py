@@ -41,6 +41,7 @@ class Glitch:
     def __init__(self, body: FemBody):
         self.body, self.calls = body, 0
         self.dof = int(body.local_dofs(body.find_nodes(lambda x: np.isclose(x[0], 1.0)))[0])
+        self.bodies = (body,)
 
     def master_loads(self, t):
         self.calls += 1
@@ -134,6 +135,8 @@ def test_unrecoverable_inversion_names_body_time_elements_and_keeps_the_last_goo
     good = snapshot(scene, beam, bone, muscle)
 
     class Crush:                                 # every step inverts, whatever its size
+        bodies = (beam,)
+
         def master_loads(self, t):
             f = np.zeros(beam.v.x.array.size)
             f[2::3] = -1e12
@@ -156,6 +159,8 @@ def test_a_solver_failure_is_retried_then_reported():
     scene.max_halvings = 1
 
     class Broken:
+        bodies = (beam,)
+
         def master_loads(self, t):
             raise StepFailed("the load could not be evaluated")
 

@@ -9,7 +9,7 @@ from artifem.cli import main
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import (DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data,
                                          read_max_forces)
-from artifem.simulation import simulate
+from artifem.scene import simulate
 
 EXCITERS = ["GGA", "GGM", "GGP", "GH", "HG", "IL", "MH", "SL", "STY", "TRANS", "VERT"]
 
@@ -26,10 +26,10 @@ def motions(tongue):
     for name in MOTIONS:
         tongue.reset()
         tongue.drive(Tongue.motion(name))
-        traj = simulate(tongue.system, tongue.body, duration=1.0, dt=0.01,
-                        landmarks=tongue.data.landmarks, progress=False)
+        traj = simulate(tongue.scene, 1.0, 0.01, record=tongue.landmark_records(),
+                        progress=False)
         assert traj.halvings == 0 and traj.min_det_F > 0.2
-        out[name] = {k: 1e3 * v[-1] for k, v in traj.landmarks.items()}
+        out[name] = {k: 1e3 * v[-1] for k, v in traj.records.items()}
     return out
 
 

@@ -75,6 +75,11 @@ class NodeAttachment:
         x = dof_positions(fem)[self.dofs]
         self.offsets = (x - body.position) @ body.rotation        # r_i = R^T (x_i - p), rows
 
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies this attachment couples."""
+        return (self.fem, self.body)
+
     def __repr__(self) -> str:
         return f"NodeAttachment({self.name!r}, {self.nodes.size} nodes)"
 
@@ -137,6 +142,11 @@ class RigidAttachment:
         self.offset = master.rotation.T @ (slave.position - master.position)
         self.relative_rotation = master.rotation.T @ slave.rotation
 
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies this attachment couples."""
+        return (self.slave, self.master)
+
     def __repr__(self) -> str:
         return f"RigidAttachment({self.name!r})"
 
@@ -185,6 +195,11 @@ class FrameAttachment:
         R_f = frame.rotation()
         self.offset = R_f.T @ (slave.position - frame.position())
         self.relative_rotation = R_f.T @ slave.rotation
+
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies this attachment couples."""
+        return (self.slave, self.frame.body)
 
     def __repr__(self) -> str:
         return f"FrameAttachment({self.name!r}, {self.frame.method})"
@@ -268,6 +283,11 @@ class EmbeddedFemAttachment:
         x_m = dof_positions(master).ravel()
         self.offset = dof_positions(slave).ravel() - self.W @ x_m[:self.W.shape[1]]
 
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies this attachment couples."""
+        return (self.slave, self.master)
+
     def __repr__(self) -> str:
         return f"EmbeddedFemAttachment({self.name!r}, {self.W.shape[0] // 3} nodes)"
 
@@ -325,6 +345,11 @@ class LiftAttachment:
         self.reduced, self.lift, self.body = reduced, lift, body
         self.columns = np.arange(self.first, self.first + 12)
         self._rest = reduced.full.V.tabulate_dof_coordinates()[lift.dofs]
+
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies this attachment couples."""
+        return (self.reduced, self.body)
 
     def __repr__(self) -> str:
         return f"LiftAttachment({self.name!r}, {self.lift.nodes.size} nodes)"

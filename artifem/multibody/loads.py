@@ -7,12 +7,16 @@ class LoadElement:
     """What :class:`Scene` accepts as an explicit load: an object with
 
         master_loads(t) -> iterable of (body, array)
+        bodies -> tuple of the bodies it may load
 
     per body of the scene: an FEM body (nodal forces in its blocked dof layout,
     the length of ``body.v.x.array``), a rigid body (the wrench [f; tau about the
     COM], world) or a reduced body (its generalized force, r). Loads enter the
     step explicitly (b += h f) and the static residual; e.g. a pressure on a skin
-    mapped to its masters by G^T (virtual work).
+    mapped to its masters by G^T (virtual work). ``bodies`` couples them: a
+    deformable body that no attachment, path or load names is stepped on its own
+    (its own solver, in parallel under MPI), so a load must name every body it
+    loads.
     """
 
     @staticmethod

@@ -36,6 +36,12 @@ class PointPath(PathElement):
         self.element, self.points, self.name = element, pts, name
         self._timed = TimedPath(element, excitation, f"PointPath {name!r}")
 
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies its points are on (FEM, reduced or rigid; world points: none)."""
+        return tuple(p.fem if isinstance(p, FemPoint) else p.body for p in self.points
+                     if isinstance(p, FemPoint) or p.body is not None)
+
     def __repr__(self) -> str:
         return f"PointPath({self.name!r}, {len(self.points)} points)"
 

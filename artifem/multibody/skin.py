@@ -149,6 +149,11 @@ class RigidMaster:
 
     kind = "rigid"
 
+    @property
+    def scene_body(self):
+        """The body of the scene its forces act on: the rigid body."""
+        return self.body
+
     def __init__(self, master: RigidBody | Frame, reference=None):
         if isinstance(master, Frame):
             if master.body is None:
@@ -203,6 +208,11 @@ class FemMaster:
 
     kind = "fem"
 
+    @property
+    def scene_body(self):
+        """The body of the scene its forces act on: the FEM body."""
+        return self.body
+
     def __init__(self, body: FemBody):
         if body.mesh.comm.size != 1:
             raise NotImplementedError("skin meshes over FEM bodies run in serial only for now")
@@ -242,6 +252,11 @@ class ReducedMaster(FemMaster):
     """A reduced FEM master: f = sum_j N_j (u_bar_j + U_j q); dofs qdot."""
 
     kind = "reduced"
+
+    @property
+    def scene_body(self):
+        """The body of the scene its forces act on: the reduced body (not its full body)."""
+        return self.reduced
 
     def __init__(self, reduced: ReducedFemBody):
         self.reduced = reduced
@@ -585,6 +600,11 @@ class SkinPressure:
         self.skin = skin
         self.pressure = pressure
         self.name = name
+
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies its forces act on: the skin's masters."""
+        return tuple(m.scene_body for m in self.skin.masters)
 
     def __repr__(self) -> str:
         return f"SkinPressure({self.name!r}, skin={self.skin.name!r})"

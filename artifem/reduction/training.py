@@ -38,7 +38,7 @@ from tqdm import tqdm
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
-from artifem.system import System
+from artifem.scene import Scene, simulate
 
 __all__ = ["ArtifactCache", "Snapshots", "record_snapshots", "project",
            "force_training_matrix"]
@@ -126,21 +126,19 @@ class Snapshots:
         return {"displacements": self.displacements, "excitations": self.excitations}
 
 
-def record_snapshots(system: System, body: FemBody, *, duration: float, dt: float,
+def record_snapshots(scene: Scene, body: FemBody, *, duration: float, dt: float,
                      every: int, label: str = "training", progress: bool = True) -> Snapshots:
-    """Step ``system`` for ``duration`` and keep (u, excitations) of ``body`` every ``every`` steps."""
+    """Step ``scene`` for ``duration`` and keep (u, excitations) of ``body`` every ``every`` steps."""
     steps = int(round(duration / dt))
     if steps < 1 or every < 1:
         raise InputError(f"record_snapshots: need duration >= dt and every >= 1, got "
                          f"duration={duration}, dt={dt}, every={every}")
     n = 3 * body.V.dofmap.index_map.size_local
-    u, a = [], []
-    for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not progress):
-        system.step(dt)
-        if k % every == 0:
-            u.append(body.u.x.array[:n].copy())
-            a.append([float(m.excitation.value) for m in body.muscles.values()])
-    return Snapshots(np.array(u), np.array(a).reshape(len(u), len(body.muscles)))
+    run = simulate(scene, duration, dt, progress=progress, label=label, record={
+        "u": lambda s: body.u.x.array[:n].copy(),
+        "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]})
+    u, a = run.records["u"][every::every], run.records["a"][every::every]
+    return Snapshots(u, a.reshape(len(u), len(body.muscles)))
 
 
 def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:

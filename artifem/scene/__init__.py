@@ -1,5 +1,6 @@
 """The scene: every component of a model and the one step that advances them."""
 
-from artifem.scene.scene import Scene
+from artifem.scene.run import Run, simulate
+from artifem.scene.scene import INTEGRATORS, Scene
 
-__all__ = ["Scene"]
+__all__ = ["INTEGRATORS", "Run", "Scene", "simulate"]

@@ -36,11 +36,25 @@ class _Slaves:
 
 
 class Layout:
-    """The scene's coordinates: all-space offsets, masters, slaves, roots (artifem.scene.scene docstring)."""
+    """The coordinates of a scene's coupled island: all-space offsets, masters, slaves,
+    roots (artifem.scene.scene docstring).
 
-    def __init__(self, scene):
+    Args:
+        scene: the scene (its rigid bodies, attachments, joints, paths, loads).
+        fem_bodies, reduced_bodies: the deformable bodies of the island (those that an
+            attachment, path or load couples; the scene steps the others on their own).
+    """
+
+    def __init__(self, scene, fem_bodies: list, reduced_bodies: list):
         self.scene = scene
-        fem_bodies, rigid = scene.fem_bodies, scene.rigid_bodies
+        self.fem_bodies, self.reduced_bodies = list(fem_bodies), list(reduced_bodies)
+        rigid = scene.rigid_bodies
+        for body in self.fem_bodies:
+            if body.mesh.comm.size != 1:
+                raise NotImplementedError(
+                    f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
+                    "coupled to other bodies (attachments, paths or loads): coupled islands "
+                    "run in serial only for now; a body that nothing couples runs in parallel")
         self.fixed = [b.fixed_dofs.copy() for b in fem_bodies]
         offset = 0
         self.fem_offset: dict[int, int] = {}
@@ -50,7 +64,7 @@ class Layout:
             self.fem_offset[id(body)], self.fem_size[id(body)] = offset, 3 * n
             offset += 3 * n
         self.reduced_offset: dict[int, int] = {}
-        for body in scene.reduced_bodies:
+        for body in self.reduced_bodies:
             self.reduced_offset[id(body)] = offset
             offset += body.r
         self.rigid_offset: dict[int, int] = {}
@@ -94,7 +108,7 @@ class Layout:
             known[(3 * fixed[:, None] + np.arange(3)).ravel()] = True
             rows = o + np.flatnonzero(~known)
             master_rows.append(rows[~is_slave_row[rows]])
-        for body in scene.reduced_bodies:
+        for body in self.reduced_bodies:
             rows = self.reduced_offset[id(body)] + np.arange(body.r)
             master_rows.append(rows[~is_slave_row[rows]])
         self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b
@@ -111,7 +125,7 @@ class Layout:
         self.free_fem = [(body, rows - self.fem_offset[id(body)])
                          for body, rows in zip(fem_bodies, master_rows)]
         self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
-                             zip(scene.reduced_bodies, master_rows[len(fem_bodies):])]
+                             zip(self.reduced_bodies, master_rows[len(fem_bodies):])]
         self._embedding_map = self._embedding_matrix()
         self._place_lifts()             # lift coordinates from the bodies' poses
 
@@ -437,7 +451,7 @@ class Layout:
         """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo)."""
         scene = self.scene
         blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
-        for body in scene.fem_bodies:
+        for body in self.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             body.assemble(tangent=True)
             K = _csr(body.K)
@@ -448,7 +462,7 @@ class Layout:
             b[o:o + n] = Mv + h * f
             f_all[o:o + n] = f - body.alpha * Mv - body.beta * (K @ v)
             blocks.append(((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K).tocsr())
-        for body in scene.reduced_bodies:       # the same, dense r x r (advance_reduced)
+        for body in self.reduced_bodies:       # the same, dense r x r (advance_reduced)
             o, r = self.reduced_offset[id(body)], body.r
             K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
             b[o:o + r] = M @ v + h * f
@@ -501,7 +515,7 @@ class Layout:
         if span is None:
             raise InputError(f"load element {type(element).__name__} loads "
                              f"{getattr(body, 'name', body)!r}, which is not a body of this "
-                             "scene")
+                             "scene or not among the element's ``bodies``")
         return span
 
     def load_vector(self, t: float) -> np.ndarray:
@@ -535,10 +549,10 @@ class Layout:
     def current_velocities(self) -> np.ndarray:
         """z: the FEM nodal velocities and the rigid twists (all-space)."""
         z = np.zeros(self.n_all)
-        for body in self.scene.fem_bodies:
+        for body in self.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             z[o:o + n] = body.v.x.array[:n]
-        for body in self.scene.reduced_bodies:
+        for body in self.reduced_bodies:
             o = self.reduced_offset[id(body)]
             z[o:o + body.r] = body.qdot
         for body in self.scene.rigid_bodies:
@@ -604,13 +618,13 @@ class Layout:
         """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
         scene = self.scene
         blocks, f_all = [], np.zeros(self.n_all)
-        for body in scene.fem_bodies:
+        for body in self.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             body.assemble(tangent=tangent)
             f_all[o:o + n] = -body.R.array[:n]
             if tangent:
                 blocks.append(_csr(body.K))
-        for body in scene.reduced_bodies:
+        for body in self.reduced_bodies:
             o = self.reduced_offset[id(body)]
             f_all[o:o + body.r] = body.force()
             if tangent:
@@ -795,14 +809,14 @@ class Layout:
         self._place_lifts()
         for att in self.scene.frame_attachments:        # leaves: after every FEM body
             att.slave.position, att.slave.rotation = att.pose()
-        for body in self.scene.fem_bodies:
+        for body in self.fem_bodies:
             body.u.x.scatter_forward()
             body.v.x.scatter_forward()
 
     def _place_lifts(self) -> None:
         for att in self.scene.lift_attachments:
             att.reduced.q[att.columns] = att.coordinates()
-        for body in self.scene.reduced_bodies:
+        for body in self.reduced_bodies:
             body.set_q(body.q)
 
     def displace(self, dq: np.ndarray) -> None:
@@ -823,30 +837,30 @@ class Layout:
         self.place_slaves()
 
     def save(self):
-        return ([b.u.x.array.copy() for b in self.scene.fem_bodies],
+        return ([b.u.x.array.copy() for b in self.fem_bodies],
                 [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies],
-                [b.q.copy() for b in self.scene.reduced_bodies])
+                [b.q.copy() for b in self.reduced_bodies])
 
     def restore(self, saved) -> None:
-        for body, u in zip(self.scene.fem_bodies, saved[0]):
+        for body, u in zip(self.fem_bodies, saved[0]):
             body.u.x.array[:] = u
         for body, (p, R) in zip(self.scene.rigid_bodies, saved[1]):
             body.position, body.rotation = p, R
-        for body, q in zip(self.scene.reduced_bodies, saved[2]):
+        for body, q in zip(self.reduced_bodies, saved[2]):
             body.set_q(q)
 
     def master_scale(self) -> float:
-        vals = [np.abs(b.u.x.array).max() for b in self.scene.fem_bodies if b.u.x.array.size]
-        vals += [np.abs(b.q).max() for b in self.scene.reduced_bodies if b.r]
+        vals = [np.abs(b.u.x.array).max() for b in self.fem_bodies if b.u.x.array.size]
+        vals += [np.abs(b.q).max() for b in self.reduced_bodies if b.r]
         vals += [np.abs(b.position).max() for b in self.roots]
         return max(vals, default=1.0)
 
     def inverted(self) -> bool:
-        for body in self.scene.reduced_bodies:
+        for body in self.reduced_bodies:
             detF = body.det_F()
             if detF.size and not np.nanmin(detF) > 0:
                 return True
-        for body in self.scene.fem_bodies:
+        for body in self.fem_bodies:
             detF = body.det_F()
             if detF.size and not np.nanmin(detF) > 0:
                 return True

@@ -4,19 +4,24 @@ writes ParaView series, and reports speed and robustness.
     run = simulate(scene, 1.0, 0.01, record={"tip": lambda s: tip.position()},
                    vtx="out/")
     run.records["tip"], run.ms_per_step, run.halvings, run.min_det_F
+
+Under ``mpiexec`` (FEM bodies on several ranks) every rank calls it; the step times
+are measured between barriers and the progress bar is shown on rank 0.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from artifem.errors import InputError
+from dolfinx import fem
+
+from artifem.errors import InputError, SolverError
 from artifem.io.results import ResultWriter
 
 __all__ = ["Run", "simulate"]
@@ -32,6 +37,10 @@ class Run:
     step_ms: np.ndarray
     halvings: int
     min_det_F: float
+    #: time -> {FEM body name: a copy of its displacement} at the ``keep`` times
+    snapshots: dict = field(default_factory=dict)
+    #: the step failure that ended the run early (``on_failure="stop"``), else None
+    failure: Exception | None = None
 
     @property
     def ms_per_step(self) -> float:
@@ -41,7 +50,8 @@ class Run:
 
 def simulate(scene, duration: float, dt: float, *,
              record: dict[str, Callable] | None = None, vtx: str | Path | None = None,
-             write_every: int = 1, progress: bool = True, label: str = "simulate") -> Run:
+             write_every: int = 1, keep=(), on_failure: str = "raise", progress: bool = True,
+             label: str = "simulate", leave: bool = True) -> Run:
     """Step ``scene`` from its current time for ``duration`` seconds in steps of ``dt``.
 
     Args:
@@ -50,12 +60,19 @@ def simulate(scene, duration: float, dt: float, *,
         vtx: a directory: every FEM body's displacement is written as a VTX (.bp) series
             ``<dir>/<body name>.bp`` (a reduced body's through its full body, rebuilt
             only for the output), every ``write_every`` steps.
-    Raises the scene's ElementInversionError or StepFailed when a step cannot be completed
-    even after halving (the series written so far are closed and kept).
+        keep: times at which a copy of every FEM body's displacement is kept
+            (``Run.snapshots``, e.g. for renders).
+        on_failure: ``"raise"``: a step that fails even after halving raises the scene's
+            ElementInversionError or StepFailed (the series written so far are closed and
+            kept); ``"stop"``: the run ends there and returns what it recorded up to the
+            last completed step, the exception in ``Run.failure`` (hard cases, studies).
+        leave: keep the progress bar on screen when done.
     """
     if not (np.isfinite(duration) and duration > 0 and np.isfinite(dt) and dt > 0):
         raise InputError(f"simulate: duration and dt must be finite and > 0, got {duration}, "
                          f"{dt}")
+    if on_failure not in ("raise", "stop"):
+        raise InputError(f"simulate: on_failure must be 'raise' or 'stop', got {on_failure!r}")
     if int(write_every) != write_every or write_every < 1:
         raise InputError(f"simulate: write_every must be a positive integer, got {write_every}")
     record = dict(record or {})
@@ -77,22 +94,50 @@ def simulate(scene, duration: float, dt: float, *,
                 reduced.to_full()
             writer.write(scene.t)
 
+    wanted = sorted(float(t) for t in keep)
+    snapshots: dict = {}
+
+    def keep_snapshots():
+        for t in wanted:
+            if t not in snapshots and abs(t - scene.t) < 0.5 * dt:
+                snapshots[t] = {body.name: _copy(body.u) for body in scene.fem_bodies}
+
+    comm = scene.comm
     values = {name: [np.asarray(f(scene), dtype=float)] for name, f in record.items()}
-    times, step_ms = [scene.t], []
+    times, step_ms, failure = [scene.t], [], None
     try:
         write()
-        for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not progress):
+        keep_snapshots()
+        show = progress and comm.rank == 0
+        for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not show,
+                      leave=leave):
+            comm.Barrier()
             tic = time.perf_counter()
-            scene.step(dt)
+            try:
+                scene.step(dt)
+            except SolverError as exc:
+                if on_failure == "raise":
+                    raise
+                failure = exc
+                break
+            comm.Barrier()
             step_ms.append(1e3 * (time.perf_counter() - tic))
             scene.t = t0 + k * dt                   # no drift from repeated addition
             times.append(scene.t)
             for name, f in record.items():
                 values[name].append(np.asarray(f(scene), dtype=float))
+            keep_snapshots()
             if k % write_every == 0:
                 write()
     finally:
         for _, writer in writers:
             writer.close()
     return Run(np.array(times), {name: np.array(v) for name, v in values.items()},
-               np.array(step_ms), int(scene.halvings), float(scene.min_det_F))
+               np.array(step_ms), int(scene.halvings), float(scene.min_det_F), snapshots,
+               failure)
+
+
+def _copy(u: fem.Function) -> fem.Function:
+    out = fem.Function(u.function_space, name=u.name)
+    out.x.array[:] = u.x.array
+    return out

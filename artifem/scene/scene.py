@@ -169,7 +169,23 @@ when every force has an energy, and otherwise the force residual left after the
 least-squares joint reactions.
 
 Scenes of at most ``DENSE_MAX`` (direct_solver) coordinates (reduced and rigid bodies)
-are solved by a dense LU instead of MUMPS. Not here yet: MPI.
+are solved by a dense LU instead of MUMPS.
+
+Islands
+-------
+Bodies interact within a step only through attachments, paths, loads and joints.
+A deformable body that none of them names (``item.bodies``) is an island of its
+own and is advanced by the scene's integrator with its own solver: a full FEM
+body by ``integrator.advance(body, h, solver)`` with a PETSc
+:class:`~artifem.linear_solver.LinearSolver` (CG with algebraic multigrid by
+default; distributed under ``mpiexec``), a reduced body by
+``integrator.advance_reduced(body, h)``; semi-implicit (the equations above,
+the same step) or implicit (Newton with a line search, ``ImplicitEuler``).
+Everything else (rigid bodies and the deformable bodies coupled to anything)
+forms the coupled island of the layout above: serial, semi-implicit. Statics
+likewise: ``integrators.solve_static`` per body on its own, the Newton above for
+the coupled island. Controllers, the health check, halving and
+``save_state``/``restore_state`` cover every island at once.
 """
 
 from __future__ import annotations
@@ -178,11 +194,14 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from mpi4py import MPI
 from scipy import sparse
 
 from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
                             UnknownNameError)
 from artifem.fem_body import FemBody
+from artifem.integrators import ImplicitEuler, SemiImplicitEuler, solve_static, solve_static_reduced
+from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
                                            dof_positions, pose_gap)
@@ -200,6 +219,8 @@ __all__ = ["Scene", "SceneState"]
 
 #: A controller sets inputs (excitations, loads) for the step from t0 to t1.
 Controller = Callable[["Scene", float, float], None]
+
+INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 
 
 @dataclass(frozen=True)
@@ -229,10 +250,17 @@ class Scene:
         geometric_stiffness: include K_geo in the step and the static tangent (default);
             False drops it, for comparisons.
         max_halvings: how many times a failing step may be halved (:meth:`step`).
+        integrator: how the bodies that nothing couples are stepped (islands, module
+            docstring): ``"semi-implicit"`` (ArtiSynth's default, the same equations as
+            the coupled step), ``"implicit"`` (Newton with a line search), or an object
+            with ``advance(body, h, solver)`` and ``advance_reduced(body, h)``.
+        linear_solver: the :class:`~artifem.linear_solver.LinearSolver` method of those
+            FEM bodies (PETSc: CG with algebraic multigrid by default, or ``"mumps"``).
     """
 
     def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
-                 geometric_stiffness: bool = True, max_halvings: int = 4):
+                 geometric_stiffness: bool = True, max_halvings: int = 4,
+                 integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
@@ -240,6 +268,21 @@ class Scene:
             raise InputError(f"stabilization must be in [0, 1], got {stabilization!r}")
         if int(max_halvings) != max_halvings or max_halvings < 0:
             raise InputError(f"max_halvings must be an integer >= 0, got {max_halvings!r}")
+        if isinstance(integrator, str):
+            if integrator not in INTEGRATORS:
+                raise InputError(f"unknown integrator {integrator!r}; choose one of "
+                                 f"{sorted(INTEGRATORS)}")
+            integrator = INTEGRATORS[integrator]()
+        for method in ("advance", "advance_reduced"):
+            if not callable(getattr(integrator, method, None)):
+                raise InputError(f"integrator {integrator!r} has no {method}() method")
+        if linear_solver not in METHODS:
+            raise InputError(f"unknown linear solver {linear_solver!r}; choose one of {METHODS}")
+        self.integrator = integrator
+        self.linear_solver = linear_solver
+        self._linear_solvers: dict[int, LinearSolver] = {}
+        self._comm = MPI.COMM_SELF      # the FEM bodies' communicator (one for the scene)
+        self._islands = None            # (free FEM, free reduced, coupled FEM, coupled reduced)
         self._gravity = g
         self.max_halvings = int(max_halvings)
         self.controllers: list[Controller] = []
@@ -267,6 +310,11 @@ class Scene:
         self._last_h = 1.0
         self._reactions = None          # the joints' last forces, all-space (for K_geo)
         self.last_solve: dict = {}
+
+    @property
+    def comm(self) -> MPI.Comm:
+        """The MPI communicator of the scene's FEM bodies (COMM_SELF without any)."""
+        return self._comm
 
     @property
     def gravity(self) -> np.ndarray:
@@ -298,11 +346,13 @@ class Scene:
         """
         for item in items:
             if isinstance(item, FemBody):
-                if item.mesh.comm.size != 1:
-                    raise NotImplementedError(f"FEM body {item.name!r}: coupled scenes run in "
-                                              "serial only for now")
                 if any(item is b for b in self.fem_bodies):
                     raise InputError(f"FEM body {item.name!r} is already in the scene")
+                comm = item.mesh.comm
+                if self.fem_bodies and comm.size != self._comm.size:
+                    raise InputError(f"FEM body {item.name!r} runs on {comm.size} MPI ranks, "
+                                     f"the scene's other FEM bodies on {self._comm.size}")
+                self._comm = comm
                 item.gravity.value[:] = self.gravity
                 self.fem_bodies.append(item)
             elif isinstance(item, ReducedFemBody):
@@ -334,6 +384,9 @@ class Scene:
             elif LoadElement.is_load(item):
                 if any(item is other for other in self.loads):
                     raise InputError(f"load element {item!r} is already in the scene")
+                if not isinstance(getattr(item, "bodies", None), (tuple, list)):
+                    raise InputError(f"load element {item!r} has no ``bodies`` (the tuple of "
+                                     "bodies it loads; LoadElement)")
                 self.loads.append(item)
             else:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
@@ -344,16 +397,52 @@ class Scene:
 
     def check(self) -> None:
         """Validate the scene and index its coordinates (done automatically when needed)."""
-        self._layout = Layout(self)
+        self._layout = None
+        self._ready()
+
+    def islands(self) -> tuple[list, list]:
+        """(bodies stepped on their own, bodies of the coupled island): a deformable body
+        that no attachment, path or load names is its own island (module docstring)."""
+        self._ready()
+        free_fem, free_reduced, fem, reduced = self._islands
+        return [*free_fem, *free_reduced], [*fem, *reduced, *self.rigid_bodies]
 
     def _ready(self) -> "Layout":
         if self._layout is None:
-            self._layout = Layout(self)
+            coupled = {id(b) for item in [*self.node_attachments, *self.rigid_attachments,
+                                          *self.embedded_attachments, *self.lift_attachments,
+                                          *self.frame_attachments, *self.paths, *self.loads]
+                       for b in item.bodies}
+            known = {id(b) for b in self.bodies}
+            for item in [*self.paths, *self.loads]:
+                for body in item.bodies:
+                    if id(body) not in known:
+                        raise InputError(f"{item!r} acts on {getattr(body, 'name', body)!r}, "
+                                         "which is not a body of this scene")
+            self._islands = ([b for b in self.fem_bodies if id(b) not in coupled],
+                             [b for b in self.reduced_bodies if id(b) not in coupled],
+                             [b for b in self.fem_bodies if id(b) in coupled],
+                             [b for b in self.reduced_bodies if id(b) in coupled])
+            self._layout = Layout(self, self._islands[2], self._islands[3])
+            if self._layout.n_all and not isinstance(self.integrator, SemiImplicitEuler):
+                raise NotImplementedError(
+                    f"integrator {type(self.integrator).__name__}: bodies coupled by "
+                    "attachments, paths, loads or joints are stepped semi-implicitly only "
+                    "for now (Scene(integrator='semi-implicit')); bodies on their own take "
+                    "any integrator")
         # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
-        if any(not np.array_equal(b.fixed_dofs, f)
-               for b, f in zip(self.fem_bodies, self._layout.fixed)):
-            self._layout = Layout(self)
+        elif any(not np.array_equal(b.fixed_dofs, f)
+                 for b, f in zip(self._layout.fem_bodies, self._layout.fixed)):
+            self._layout = None
+            return self._ready()
         return self._layout
+
+    def linear_solver_for(self, body: FemBody) -> LinearSolver:
+        """The PETSc solver of an FEM body stepped on its own (one per body, reused)."""
+        if id(body) not in self._linear_solvers:
+            self._linear_solvers[id(body)] = LinearSolver(body.mesh.comm, self.linear_solver,
+                                                          V=body.V)
+        return self._linear_solvers[id(body)]
 
     # ---- observation ---------------------------------------------------------------------
 
@@ -509,8 +598,9 @@ class Scene:
     def _health(self) -> _Failure | None:
         """None after a sound step; otherwise what went wrong, body by body."""
         inverted, step_min = [], np.inf
-        for body in self.bodies:
-            if not all(np.all(np.isfinite(a)) for a in body.state()):
+        for body in self.bodies:            # the same order on every rank (collective)
+            finite = all(bool(np.all(np.isfinite(a))) for a in body.state())
+            if not self._comm.allreduce(finite, op=MPI.LAND):
                 return _Failure(f"non-finite coordinates or velocities in {body.name!r}", [])
             bad, min_det = body.inverted_elements()
             if bad.size or not min_det > 0:
@@ -530,7 +620,20 @@ class Scene:
         raise StepFailed(f"step failed at t = {self.t:.6g} s: {detail}")
 
     def _step_once(self, h: float) -> None:
-        """One linearized step from t to t + h (module docstring), no checks."""
+        """One step from t to t + h (module docstring), no checks: the bodies on their own
+        by the integrator, the coupled island by one linearized solve."""
+        L = self._ready()
+        free_fem, free_reduced = self._islands[:2]
+        for body in free_fem:
+            self.integrator.advance(body, h, self.linear_solver_for(body))
+        for body in free_reduced:
+            self.integrator.advance_reduced(body, h)
+        if L.n_all:
+            self._step_island(h)
+        self.t += h
+
+    def _step_island(self, h: float) -> None:
+        """The coupled island's linearized step (module docstring)."""
         L, P, z_k, targets, A_m, b_m = self._step_system(h)
         bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
         z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
@@ -540,11 +643,11 @@ class Scene:
         self._reactions = L.joint_forces((joint, rows, lam / h)
                                          for joint, parts in impulses.items()
                                          for rows, lam in parts)
-        self.t += h
 
     def step_matrix(self, h: float) -> sparse.csr_matrix:
-        """The masters' block P^T A_all P - h^2 K_geo of the next step's KKT matrix (for
-        inspection; prescribed bodies take their twist at t + h, nothing else changes)."""
+        """The masters' block P^T A_all P - h^2 K_geo of the coupled island's next KKT
+        matrix (for inspection; prescribed bodies take their twist at t + h, nothing else
+        changes)."""
         return sparse.csr_matrix(self._step_system(h)[4])
 
     def _step_system(self, h: float):
@@ -586,7 +689,8 @@ class Scene:
     # ---- statics -------------------------------------------------------------------------
 
     def master_forces(self) -> np.ndarray:
-        """F_m = P^T f_all: the static generalized forces on the masters (no inertia)."""
+        """F_m = P^T f_all: the static generalized forces on the coupled island's masters
+        (no inertia)."""
         L = self._ready()
         return L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
 
@@ -616,14 +720,35 @@ class Scene:
         return self._ready().n_masters
 
     def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
-                     max_iterations: int = 30) -> list[int]:
-        """Static equilibrium F_m = 0, phi = 0 by Newton (module docstring), the gravity and
-        the FEM loads ramped over ``load_steps`` increments. Velocities are set to zero.
-        Returns the Newton iterations per increment."""
+                     max_iterations: int = 30, progress=None) -> list[int]:
+        """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
+        increments: each body on its own (``integrators.solve_static``, its PETSc solver;
+        ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
+        docstring). Velocities are set to zero. Returns the largest Newton iteration count
+        of each increment over the islands. ``progress`` (e.g. tqdm) is updated once per
+        increment of each island."""
         L = self._ready()
-        for body in self.fem_bodies:
+        free_fem, free_reduced = self._islands[:2]
+        counts = [0] * load_steps
+        options = dict(load_steps=load_steps, rtol=rtol, atol=atol,
+                       max_iterations=max_iterations, progress=progress)
+        for body in free_fem:
             body.v.x.array[:] = 0.0
-        for body in self.reduced_bodies:
+            counts = np.maximum(counts, solve_static(body, self.linear_solver_for(body),
+                                                     **options)).tolist()
+        for body in free_reduced:
+            body.qdot[:] = 0.0
+            counts = np.maximum(counts, solve_static_reduced(body, **options)).tolist()
+        if L.n_all:
+            counts = np.maximum(counts, self._solve_island_static(
+                L, load_steps, rtol, atol, max_iterations, progress)).tolist()
+        return [int(c) for c in counts]
+
+    def _solve_island_static(self, L, load_steps, rtol, atol, max_iterations, progress):
+        """The coupled island's static Newton (module docstring: statics)."""
+        for body in L.fem_bodies:
+            body.v.x.array[:] = 0.0
+        for body in L.reduced_bodies:
             body.qdot[:] = 0.0
         for body in self.rigid_bodies:
             if body.dynamic:
@@ -635,6 +760,8 @@ class Scene:
             for k in range(1, load_steps + 1):
                 self._set_load_factor(k / load_steps, g)
                 counts.append(self._newton(L, rtol, atol, max_iterations, k / load_steps))
+                if progress is not None:
+                    progress.update(1)
         finally:
             self._set_load_factor(1.0, g)
         return counts

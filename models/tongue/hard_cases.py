@@ -17,7 +17,7 @@ Each case is a variation of the protrusion motion (level 0, dt = 0.01 s,
 - ``level_1``: protrusion on the 2x2x2-split mesh (6,699 nodes).
 
 A run either finishes (no inverted element, every value finite) or the
-system gives up after its step halvings with
+scene gives up after its step halvings with
 :class:`~artifem.fem_body.ElementInversionError` (time, elements, det F),
 leaving the body at the start of the failed step. Anything else (a NaN, a
 non-convergence reported as another exception) is a failure of the library.
@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from artifem.errors import ElementInversionError, UnknownNameError
+from artifem.scene import simulate
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import (DT, DURATION, MOTIONS, RAMP_TIME, Tongue,
                                          TongueConfig, load_tongue_data)
@@ -107,35 +108,20 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
     ms per step, the wall time, whether the state is finite afterwards and, on
     an inversion error, its time, element count, det F and message.
     """
-    system, body = tongue.system, tongue.body
+    scene, body = tongue.scene, tongue.body
     nodes = list(tongue.data.landmarks.values())
     names = list(tongue.data.landmarks)
     steps = int(round(duration / dt))
-    t_start = system.time
-    step_ms, recorded = [], {}
-    outcome, error = "finished", None
     wall = time.perf_counter()
-    last_print = wall
-    for k in range(1, steps + 1):
-        tic = time.perf_counter()
-        try:
-            system.step(dt)
-        except ElementInversionError as exc:
-            outcome, error = "inversion error", exc
-            break
-        except Exception as exc:                 # reported, not hidden: a library failure
-            outcome, error = type(exc).__name__, exc
-            break
-        step_ms.append(1e3 * (time.perf_counter() - tic))
-        system.time = t_start + k * dt
-        for t in record_times:
-            if abs(system.time - t) < 0.5 * dt:
-                recorded[float(t)] = body.displacement_at(nodes)
-        if progress and time.perf_counter() - last_print > 30:
-            last_print = time.perf_counter()
-            print(f"  {progress}: t = {system.time:.3f} s, {np.median(step_ms):.0f} ms/step, "
-                  f"halvings {system.halvings}", flush=True)
+    run = simulate(scene, duration, dt, on_failure="stop", progress=progress is not None,
+                   label=progress or "",
+                   record={"landmarks": lambda s: body.displacement_at(nodes)})
     wall = time.perf_counter() - wall
+    error, step_ms = run.failure, run.step_ms
+    outcome = ("finished" if error is None else "inversion error"
+               if isinstance(error, ElementInversionError) else type(error).__name__)
+    recorded = {float(t): run.records["landmarks"][k] for t in record_times
+                for k in np.flatnonzero(np.abs(run.times - t) < 0.5 * dt)[:1] if k > 0}
     final = body.displacement_at(nodes)
     finite = bool(np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array)))
     bad, det_now = body.inverted_elements()
@@ -145,21 +131,21 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
 
     result = {
         "outcome": outcome,
-        "t_reached": float(system.time),
+        "t_reached": float(scene.t),
         "steps_done": len(step_ms),
         "steps": steps,
         "dt": dt,
-        "min_det_F": float(system.min_det_F),
-        "halvings": int(system.halvings),
+        "min_det_F": float(run.min_det_F),
+        "halvings": int(run.halvings),
         "landmarks_mm": mm(final),
         "landmarks_mm_at": {f"{t:g}": mm(d) for t, d in recorded.items()},
-        "ms_per_step": float(np.median(step_ms)) if step_ms else float("nan"),
+        "ms_per_step": run.ms_per_step,
         "wall_s": round(wall, 2),
         "state_finite": finite,
         "inverted_now": int(len(bad)),
         "det_F_now": float(det_now),
         # iterative solves that failed and were redone by MUMPS LDL^T (indefinite matrix)
-        "direct_solves": int(getattr(system.solver_for(body), "direct_solves", 0)),
+        "direct_solves": int(getattr(scene.linear_solver_for(body), "direct_solves", 0)),
     }
     if isinstance(error, ElementInversionError):
         result["inversion"] = {"time": float(error.time), "elements": int(len(error.elements)),

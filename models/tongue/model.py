@@ -49,7 +49,7 @@ from artifem.io.to_dolfinx import to_dolfinx
 from artifem.linear_solver import DEFAULT_METHOD
 from artifem.models.tongue.apdl import read_fibers, read_muscle_elements, read_muscle_groups
 from artifem.models.tongue.fibers import bundle_geometry, element_directions, fiber_points
-from artifem.system import System
+from artifem.scene import Scene
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "artisynth-tongue"
 
@@ -147,7 +147,8 @@ def load_tongue_data(level: int = 0, data_dir: Path = DATA) -> TongueData:
 
 
 class Tongue:
-    """The tongue FEM body in its system, with exciters and motions.
+    """The tongue FEM body in its scene (no gravity, as ArtiSynth's tongue), with exciters
+    and motions.
 
     >>> tongue = Tongue(TongueConfig(level=0))
     >>> tongue.set_excitations({"GGP": 0.4, "TRANS": 0.4})
@@ -166,8 +167,9 @@ class Tongue:
         for name, rows in self.data.bundles.items():
             self.body.add_muscle(name, rows, self.data.directions[name],
                                  BlemkerFiber(max_stress=self.data.max_stress[name]))
-        self.system = System(integrator=config.integrator, linear_solver=config.linear_solver)
-        self.system.add(self.body)
+        self.scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=config.integrator,
+                           linear_solver=config.linear_solver)
+        self.scene.add(self.body)
 
     @property
     def exciters(self) -> list[str]:
@@ -178,6 +180,12 @@ class Tongue:
             raise UnknownNameError(f"unknown muscle {exciter!r}; the tongue's exciters are "
                                    f"{', '.join(self.exciters)}")
         return self.data.exciters[exciter]
+
+    def landmark_records(self) -> dict:
+        """name -> f(scene): the landmark's displacement (m), for ``simulate(record=...)``."""
+        body = self.body
+        return {name: (lambda scene, n=node: body.displacement_at([n])[0])
+                for name, node in self.data.landmarks.items()}
 
     def set_excitations(self, excitations: dict[str, float]) -> None:
         """Set exciters (both bundles of a bilateral muscle) to the given levels."""
@@ -199,14 +207,14 @@ class Tongue:
         self.body.v.x.array[:] = 0.0
         for name in self.body.muscles:
             self.body.set_excitation(name, 0.0)
-        self.system.time = 0.0
-        self.system.min_det_F = np.inf
-        self.system.halvings = 0
+        self.scene.t = 0.0
+        self.scene.min_det_F = np.inf
+        self.scene.halvings = 0
 
     def drive(self, schedule: ExcitationSchedule) -> None:
         """Apply an exciter schedule at every step (replacing earlier ones)."""
-        self.system.controllers.clear()
-        self.system.add_controller(self.bundle_schedule(schedule).controller(self.body))
+        self.scene.controllers.clear()
+        self.scene.add_controller(self.bundle_schedule(schedule).controller(self.body))
 
     @staticmethod
     def motion(name: str) -> ExcitationSchedule:

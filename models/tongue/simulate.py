@@ -22,7 +22,7 @@ import numpy as np
 from artifem.arguments import positive_float
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
-from artifem.system import INTEGRATORS
+from artifem.scene import INTEGRATORS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
-    from artifem.simulation import simulate
+    from artifem.scene import simulate
 
     tongue = Tongue(TongueConfig(level=args.level, integrator=args.integrator))
     if args.schedule is not None:
@@ -61,12 +61,12 @@ def run(args: argparse.Namespace) -> int:
             out.mkdir(parents=True, exist_ok=True)
         tongue.reset()
         tongue.drive(schedule)
-        traj = simulate(tongue.system, body, duration=args.duration, dt=args.dt,
-                        landmarks=tongue.data.landmarks, snapshot_times=shown,
-                        vtx_path=out / "tongue.bp", progress=not args.no_progress,
+        traj = simulate(tongue.scene, args.duration, args.dt, record=tongue.landmark_records(),
+                        keep=shown, vtx=out, progress=not args.no_progress,
                         label=f"tongue {name}")
-        final[name] = traj.snapshots[shown[-1]]
-        render_bodies(out / "tongue.png", [(body.mesh, traj.snapshots[t]) for t in shown],
+        final[name] = traj.snapshots[shown[-1]][body.name]
+        render_bodies(out / "tongue.png",
+                      [(body.mesh, traj.snapshots[t][body.name]) for t in shown],
                       scalars="displacement", scalar_name="displacement (m)",
                       titles=["rest"] + [f"{name}, t = {t:g} s" for t in shown[1:]],
                       camera="xz", show_rest=True, window_size=(1800, 600))
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
 def _figures(tongue: Tongue, traj, motion: str, args, shown) -> dict:
     def mm(name, t):
         k = int(np.argmin(abs(traj.times - t)))
-        return np.round(1e3 * traj.landmarks[name][k], 3).tolist()
+        return np.round(1e3 * traj.records[name][k], 3).tolist()
 
     body = tongue.body
     return {
@@ -106,7 +106,7 @@ def _figures(tongue: Tongue, traj, motion: str, args, shown) -> dict:
         "ms_per_step": traj.ms_per_step,
         "min_det_F": traj.min_det_F,
         "halvings": traj.halvings,
-        "landmarks": {name: mm(name, shown[-1]) for name in traj.landmarks},
-        "landmarks_at_ramp_end": {name: mm(name, shown[1]) for name in traj.landmarks},
+        "landmarks": {name: mm(name, shown[-1]) for name in traj.records},
+        "landmarks_at_ramp_end": {name: mm(name, shown[1]) for name in traj.records},
         "units": {"landmarks": "mm, displacement from rest", "ms_per_step": "median wall ms"},
     }

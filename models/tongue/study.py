@@ -15,7 +15,7 @@ In one process, on one tongue:
    on the snapshots' reduced forces, one greedy path per basis) or *random*
    (uniform per quadrature rule, volume kept);
 4. the full model runs each speech motion (1 s, dt = 10 ms), then every
-   reduced configuration runs it in a System with the same integrator and
+   reduced configuration runs it in a Scene with the same integrator and
    the same excitation controller; the error at a step is the mean over the
    nodes of |x_reduced - x_full|.
 
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -37,7 +36,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from artifem.arguments import positive_int
-from artifem.errors import ElementInversionError, InputError, LinearSolveError, StepFailed
+from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
 from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
@@ -47,7 +46,7 @@ from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
                                         project, record_snapshots)
-from artifem.system import System
+from artifem.scene import Scene, simulate
 
 TARGETS = {"ms_per_step": 1.0, "speedup": 100.0, "max_error_mm": 1.0}
 #: Bases the study can build (the paper's two, and linear modes with modal derivatives).
@@ -128,7 +127,7 @@ class TongueStudy:
                 self.tongue.reset()
                 self.tongue.drive(ExcitationSchedule.ramp_and_hold(
                     {exciter: c.training_excitation}, RAMP_TIME))
-                return record_snapshots(self.tongue.system, self.body,
+                return record_snapshots(self.tongue.scene, self.body,
                                         duration=c.training_duration, dt=c.dt,
                                         every=c.snapshot_every,
                                         label=f"training {exciter}").as_arrays()
@@ -190,40 +189,27 @@ class TongueStudy:
         self.tongue.reset()
         self.tongue.drive(Tongue.motion(motion))
         n = 3 * self.body.V.dofmap.index_map.size_local
-        steps = int(round(c.duration / c.dt))
-        u = np.zeros((steps + 1, n))
-        ms = []
-        for k in tqdm(range(1, steps + 1), desc=f"full {motion}", unit="step"):
-            tic = time.perf_counter()
-            self.tongue.system.step(c.dt)
-            ms.append(1e3 * (time.perf_counter() - tic))
-            u[k] = self.body.u.x.array[:n]
-        return {"u": u, "ms_per_step": float(np.median(ms))}
+        run = simulate(self.tongue.scene, c.duration, c.dt, label=f"full {motion}",
+                       record={"u": lambda s: self.body.u.x.array[:n].copy()})
+        return {"u": run.records["u"], "ms_per_step": run.ms_per_step}
 
     def reduced_run(self, reduced: ReducedFemBody, motion: str, full: dict, run_id: str) -> dict:
         """A reduced configuration through a motion, its error against the full run."""
         c = self.config
         self.tongue.reset()
         reduced.set_state((np.zeros(reduced.r), np.zeros(reduced.r)))
-        reduced.time = 0.0
-        system = System(integrator=self.tongue.config.integrator)
-        system.add(reduced)
-        system.add_controller(self._controller(motion))
+        scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=self.tongue.config.integrator)
+        scene.add(reduced)
+        scene.add_controller(self._controller(motion))
         steps = full["u"].shape[0] - 1
-        q = np.full((steps + 1, reduced.r), np.nan)
-        q[0] = reduced.q
-        ms, failure = [], None
         # r x r and m x 9 x 9 algebra: BLAS threads only add synchronization.
         with threadpool_limits(limits=1, user_api="blas"):
-            for k in tqdm(range(1, steps + 1), desc=run_id, unit="step", leave=False):
-                tic = time.perf_counter()
-                try:
-                    system.step(c.dt)
-                except (ElementInversionError, StepFailed, LinearSolveError) as exc:
-                    failure = str(exc)
-                    break
-                ms.append(1e3 * (time.perf_counter() - tic))
-                q[k] = reduced.q
+            run = simulate(scene, steps * c.dt, c.dt, record={"q": lambda s: reduced.q.copy()},
+                           on_failure="stop", label=run_id, leave=False)
+        q = np.full((steps + 1, reduced.r), np.nan)
+        q[:len(run.records["q"])] = run.records["q"]
+        ms = run.step_ms.tolist()
+        failure = None if run.failure is None else str(run.failure)
         u_red = q @ reduced.U.T + reduced.u_bar                  # (steps + 1, ndofs)
         node_error = 1e3 * np.linalg.norm((u_red - full["u"]).reshape(steps + 1, -1, 3), axis=2)
         mean_error = node_error.mean(axis=1)
