@@ -7,7 +7,7 @@ chosen on the unit cube; the body force that makes it an equilibrium,
 
 is built symbolically in UFL from the material's own strain energy (ufl.variable
 + ufl.diff), every boundary node is fixed at its exact displacement and the
-static problem is solved by FemBody + System.solve_static. Errors are integrated
+static problem is solved by FemBody + Scene.solve_static. Errors are integrated
 against the UFL expression of u_e with a degree-6 quadrature (far above the
 discretization order, so the measured error is the discretization error).
 
@@ -42,7 +42,7 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import MooneyRivlin, NeoHookean
-from artifem.system import System
+from artifem.scene import Scene
 
 AMPLITUDE = 0.05
 MESHES = (4, 8, 16)
@@ -80,9 +80,9 @@ def manufactured_errors(cell: str, n: int, material) -> tuple[float, float]:
     body.set_body_force(-ufl.div(P_e))
     body.fix_nodes(boundary_input_nodes(msh),
                    displacement=lambda x: np.array(exact_displacement(x, np)))
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static()
 
     dx = ufl.Measure("dx", domain=msh, metadata={"quadrature_degree": ERROR_DEGREE})
     e = body.u - u_e
@@ -134,9 +134,9 @@ def test_manufactured_solution_is_not_trivially_satisfied():
     body = FemBody(msh, NEO, density=1.0)
     body.fix_nodes(boundary_input_nodes(msh),
                    displacement=lambda x: np.array(exact_displacement(x, np)))
-    system = System(linear_solver="mumps")
-    system.add(body)
-    system.solve_static()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    scene.solve_static()
     X = ufl.SpatialCoordinate(msh)
     e = body.u - ufl.as_vector(exact_displacement(X, ufl))
     dx = ufl.Measure("dx", domain=msh, metadata={"quadrature_degree": ERROR_DEGREE})

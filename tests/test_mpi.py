@@ -1,7 +1,8 @@
 """A 2-rank MPI run of an FEM body equals the serial run.
 
 The same script (box beam, neo-Hookean bulk, a muscle in its upper half,
-gravity; 10 semi-implicit steps then 3 implicit steps) runs serially and under
+gravity; 10 semi-implicit steps then 3 implicit steps, each in a Scene where the
+body is an island of its own, its PETSc solver distributed) runs serially and under
 ``mpiexec -n 2``; node and cell arguments are input indices, so the script is
 identical on any number of ranks. Displacements of a few input nodes and the
 total energy must agree to 1e-8 relative (a direct solver on both sides; the
@@ -28,7 +29,7 @@ SCRIPT = textwrap.dedent('''
 
     from artifem.fem_body import FemBody
     from artifem.forms import BlemkerFiber, NeoHookean
-    from artifem.system import System
+    from artifem.scene import Scene
 
     comm = MPI.COMM_WORLD
     L, W, H = 1.0, 0.3, 0.2
@@ -54,13 +55,16 @@ SCRIPT = textwrap.dedent('''
     mid = gather_inputs((np.abs(x[:, 0] - L / 2) < 1e-12) & (np.abs(x[:, 2] - H) < 1e-12))
     probes = np.concatenate([tip, mid])
 
-    semi = System(integrator="semi-implicit", linear_solver="mumps")
+    # The body's gravity (Scene.add sets the body's gravity to the scene's).
+    semi = Scene(gravity=(0.0, 0.0, -9.81), integrator="semi-implicit", linear_solver="mumps")
     semi.add(body)
+    islands = semi.islands()
+    assert islands == ([body], []), islands     # stepped on its own: distributed
     for _ in range(10):
         semi.step(0.01)
     after_semi = body.displacement_at(probes)
-    energy_semi = semi.energy()["total"]
-    implicit = System(integrator="implicit", linear_solver="mumps")
+    energy_semi = semi.energy()
+    implicit = Scene(gravity=(0.0, 0.0, -9.81), integrator="implicit", linear_solver="mumps")
     implicit.add(body)
     for _ in range(3):
         implicit.step(0.01)
@@ -70,7 +74,8 @@ SCRIPT = textwrap.dedent('''
         "after_semi": after_semi.tolist(),
         "energy_semi": energy_semi,
         "after_implicit": body.displacement_at(probes).tolist(),
-        "energy_implicit": implicit.energy()["total"],
+        "energy_implicit": implicit.energy(),
+        "time": semi.t + implicit.t,
         "halvings": semi.halvings + implicit.halvings,
         "cells_in_muscle": int(cells.size),
     }
@@ -101,6 +106,7 @@ def test_two_ranks_equal_serial(tmp_path):
     assert serial["probes"] == parallel["probes"] and len(serial["probes"]) >= 8
     assert serial["cells_in_muscle"] == parallel["cells_in_muscle"] == 24
     assert serial["halvings"] == parallel["halvings"]
+    assert serial["time"] == pytest.approx(0.13) and parallel["time"] == pytest.approx(0.13)
     for key in ("after_semi", "after_implicit"):
         a, b = np.array(serial[key]), np.array(parallel[key])
         # Something happened: the beam sags and the muscle pulls the tip back.
