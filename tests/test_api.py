@@ -69,3 +69,24 @@ def test_the_readme_scene_example_runs(tmp_path):
     exec(compile(code, "README.md", "exec"), namespace)
     assert namespace["run"].records["angle"].shape == (5,)
     assert (tmp_path / "tissue.bp").is_dir()
+
+
+def test_the_readme_fem_scene_example_runs(tmp_path, monkeypatch):
+    """The README's one-body scene (the tongue, stepped on its own), as printed, shorter."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    section = (root / "README.md").read_text()
+    section = section[section.index("## Python API"):]
+    section = section[section.index("```", section.index("```python") + 9) + 3:]
+    code = section[section.index("```python") + len("```python"):]
+    code = code[:code.index("```")]
+    assert "af.simulate(scene, 1.0, 0.01" in code and 'vtx="out/"' in code
+    code = code.replace("af.simulate(scene, 1.0, 0.01", "af.simulate(scene, 0.02, 0.01")
+    code = code.replace('vtx="out/"', f"vtx={str(tmp_path)!r}, progress=False")
+    monkeypatch.chdir(root)
+    namespace = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    scene, run = namespace["scene"], namespace["run"]
+    assert scene.islands() == ([namespace["body"]], [])
+    assert run.records["tip"].shape == (3, 3) and np.abs(run.records["tip"][-1]).max() > 0
+    assert (tmp_path / "tongue.bp").is_dir()

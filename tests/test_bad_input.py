@@ -157,13 +157,11 @@ def test_time_step_must_be_positive_and_finite(body, dt):
 def test_the_same_body_added_twice(body):
     scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body)
-    with pytest.raises(InputError, match=r"FEM body 'cube' is already in the scene"):
+    with pytest.raises(InputError, match=r"a body named 'cube' is already in the scene"):
         scene.add(body)
     assert scene.bodies == [body]
 
 
-@pytest.mark.xfail(reason="Scene.add checks FEM bodies by identity only: a second FEM body "
-                          "with the same name is accepted (error messages name bodies)")
 def test_duplicate_body_name(msh, body):
     scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body)

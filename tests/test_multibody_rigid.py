@@ -712,7 +712,7 @@ def test_bad_systems_are_clear_errors():
     system.add(jaw, RevoluteJoint.at_world(jaw, skull, (0.0, 0.0, 0.0), name="tmj"))
     with pytest.raises(ValueError, match="'tmj' connects rigid body 'skull', which is not in"):
         system.step(1e-3)
-    with pytest.raises(ValueError, match="a rigid body named 'jaw' is already in the scene"):
+    with pytest.raises(ValueError, match="a body named 'jaw' is already in the scene"):
         system.add(RigidBody("jaw", 1.0, np.eye(3)))
     with pytest.raises(TypeError, match="cannot add str"):
         system.add("muscle")

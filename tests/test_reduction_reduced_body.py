@@ -18,7 +18,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from dolfinx import fem
 from mpi4py import MPI
 
-from artifem.errors import ElementInversionError, StepFailed
+from artifem.errors import ElementInversionError
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
@@ -164,12 +164,6 @@ def test_basis_rows_at_fixed_dofs_must_be_zero():
         ReducedFemBody(body, U[:-1], all_points(body))
 
 
-@pytest.mark.xfail(
-    strict=True, raises=StepFailed,
-    reason="Scene regression (System did this): when the last halving fails in the solve "
-           "(here: non-finite reduced solution from an already inverted state), Scene raises "
-           "StepFailed without looking for inverted elements; System re-took the step and "
-           "raised ElementInversionError naming them. Remove this mark once Scene does.")
 def test_inversion_is_reported_with_input_cell_indices():
     body = make_body()
     U = full_basis(body)

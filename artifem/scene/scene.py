@@ -345,9 +345,12 @@ class Scene:
         the first step or static solve after a change (:meth:`check`).
         """
         for item in items:
+            if isinstance(item, (FemBody, ReducedFemBody, RigidBody)) and any(
+                    item.name == b.name for b in self.bodies):
+                raise InputError(f"a body named {item.name!r} is already in the scene (bodies "
+                                 "are named in errors, records and output files: give each "
+                                 "its own name)")
             if isinstance(item, FemBody):
-                if any(item is b for b in self.fem_bodies):
-                    raise InputError(f"FEM body {item.name!r} is already in the scene")
                 comm = item.mesh.comm
                 if self.fem_bodies and comm.size != self._comm.size:
                     raise InputError(f"FEM body {item.name!r} runs on {comm.size} MPI ranks, "
@@ -356,13 +359,9 @@ class Scene:
                 item.gravity.value[:] = self.gravity
                 self.fem_bodies.append(item)
             elif isinstance(item, ReducedFemBody):
-                if any(item is b for b in self.reduced_bodies):
-                    raise InputError(f"reduced body {item.name!r} is already in the scene")
                 item.full.gravity.value[:] = self.gravity
                 self.reduced_bodies.append(item)
             elif isinstance(item, RigidBody):
-                if any(item.name == b.name for b in self.rigid_bodies):
-                    raise InputError(f"a rigid body named {item.name!r} is already in the scene")
                 if item.motion == "prescribed":
                     item.follow_trajectory(self.t)
                 self.rigid_bodies.append(item)
@@ -585,7 +584,7 @@ class Scene:
             self._step_once(h)
             failure = self._health()
         except (StepFailed, LinearSolveError) as exc:
-            failure = _Failure(str(exc), [])
+            failure = _Failure(str(exc), self._inverted())
         if failure is None:
             return
         self.restore_state(saved)
@@ -594,6 +593,15 @@ class Scene:
         self.halvings += 1
         self._advance(h / 2, depth + 1)
         self._advance(h / 2, depth + 1)
+
+    def _inverted(self) -> list:
+        """(body name, inverted elements, min det F) of every body with det F <= 0 now."""
+        out = []
+        for body in self.bodies:
+            bad, min_det = body.inverted_elements()
+            if bad.size or not min_det > 0:
+                out.append((body.name, bad, min_det))
+        return out
 
     def _health(self) -> _Failure | None:
         """None after a sound step; otherwise what went wrong, body by body."""
