@@ -498,6 +498,16 @@ class Layout:
             f_all += F
         return A, b, f_all
 
+    def mass_matrix(self):
+        """M_all: the bodies' mass blocks at the current configuration (FEM lumped or
+        consistent M, reduced M~, rigid [[m 1, 0], [0, I_world]]; zero for bodies that do
+        not move by dynamics)."""
+        blocks = [_mass(body) for body in self.fem_bodies]
+        blocks += [body.M for body in self.reduced_bodies]
+        rigid = [body.mass_matrix() if body.dynamic else np.zeros((6, 6))
+                 for body in self.scene.rigid_bodies]
+        return self._stack(blocks, rigid, [])
+
     def span(self, body) -> tuple[int, int] | None:
         """(offset, size) of a body's coordinates in the all vector; None if not a body of
         the scene."""

@@ -182,7 +182,9 @@ default; distributed under ``mpiexec``), a reduced body by
 ``integrator.advance_reduced(body, h)``; semi-implicit (the equations above,
 the same step) or implicit (Newton with a line search, ``ImplicitEuler``).
 Everything else (rigid bodies and the deformable bodies coupled to anything)
-forms the coupled island of the layout above: serial, semi-implicit. Statics
+forms the coupled island of the layout above: serial; semi-implicit as above, or
+implicit (:mod:`artifem.scene.implicit_step`: the same equations solved by
+Newton, joints and limits included). Statics
 likewise: ``integrators.solve_static`` per body on its own, the Newton above for
 the coupled island. Controllers, the health check, halving and
 ``save_state``/``restore_state`` cover every island at once.
@@ -213,6 +215,7 @@ from artifem.multibody.force_elements import ForceElement
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.scene.constraints import solve_constrained
 from artifem.scene.direct_solver import DirectSolver
+from artifem.scene.implicit_step import implicit_step
 from artifem.scene.layout import Layout
 
 __all__ = ["Scene", "SceneState"]
@@ -423,12 +426,11 @@ class Scene:
                              [b for b in self.fem_bodies if id(b) in coupled],
                              [b for b in self.reduced_bodies if id(b) in coupled])
             self._layout = Layout(self, self._islands[2], self._islands[3])
-            if self._layout.n_all and not isinstance(self.integrator, SemiImplicitEuler):
-                raise NotImplementedError(
-                    f"integrator {type(self.integrator).__name__}: bodies coupled by "
-                    "attachments, paths, loads or joints are stepped semi-implicitly only "
-                    "for now (Scene(integrator='semi-implicit')); bodies on their own take "
-                    "any integrator")
+            if self._layout.n_all and getattr(self.integrator, "name", None) not in INTEGRATORS:
+                raise InputError(
+                    f"integrator {type(self.integrator).__name__}: the coupled island "
+                    f"(attachments, paths, loads, joints, rigid bodies) is stepped by one of "
+                    f"{sorted(INTEGRATORS)}; a custom integrator steps bodies on their own only")
         # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
         elif any(not np.array_equal(b.fixed_dofs, f)
                  for b, f in zip(self._layout.fem_bodies, self._layout.fixed)):
@@ -636,7 +638,13 @@ class Scene:
             self.integrator.advance(body, h, self.linear_solver_for(body))
         for body in free_reduced:
             self.integrator.advance_reduced(body, h)
-        if L.n_all:
+        if L.n_all and self.integrator.name == "implicit":
+            impulses, merits = implicit_step(self, L, h, self.integrator.rtol,
+                                             self.integrator.atol, self.integrator.max_iterations)
+            self._record_impulses(L, impulses, h)
+            self.last_solve = {"masters": L.n_masters, "newton_iterations": len(merits) - 1,
+                               "merits": merits}
+        elif L.n_all:
             self._step_island(h)
         self.t += h
 
@@ -647,6 +655,10 @@ class Scene:
         z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
         z = P @ z_m + z_k
         L.advance(z, h, targets)
+        self._record_impulses(L, impulses, h)
+
+    def _record_impulses(self, L, impulses: dict, h: float) -> None:
+        """Keep the joints' impulses of the step (reactions, and K_geo's lagged loads)."""
         self._impulses, self._last_h = impulses, h
         self._reactions = L.joint_forces((joint, rows, lam / h)
                                          for joint, parts in impulses.items()
