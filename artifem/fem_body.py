@@ -4,10 +4,15 @@ The body's potential energy is
 
     Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, a_m) dX
             + sum_e V_e kappa_inc/2 (J(X_e) - 1)^2
-            - lambda * (int rho g . u dX + int b . u dX + f_nodal . u),
+            - lambda * (int rho g . u dX + int b . u dX + f_nodal . u + int t . u dA),
 
 with F = I + grad u, psi the bulk material, psi_m the fiber energy of muscle m
-(direction field a0_m, excitation a_m) and lambda a load factor. The optional
+(direction field a0_m, excitation a_m), t the dead tractions on boundary facets
+and lambda a load factor. A follower pressure p (:mod:`artifem.surface_loads`)
+adds its virtual work to the residual, R += lambda int p cof(F) N . v dA; it has
+no potential in general, so ``potential_energy()`` leaves it out
+(``conservative`` is then False), unless it is declared closed: then its
+potential -lambda p V (V the enclosed volume) is part of Pi. The optional
 kappa_inc term is an element-wise incompressibility penalty: J at the element
 centre (one-point rule), which for hexahedra approximates the element's mean
 dilatation, so it penalizes volume change per element without locking the
@@ -38,6 +43,8 @@ from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
 from artifem.errors import InputError, UnknownNameError
+from artifem.surface_loads import (SurfaceLoad, check_closed, make_load, select_facets,
+                                   surface_measure)
 
 #: Default quadrature degree of the energy per cell type: 2x2x2 Gauss for Q1
 #: hexahedra (UFL's automatic degree is 14-20 for Mooney-Rivlin on Q1: over a thousand
@@ -127,7 +134,12 @@ class FemBody:
         self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
         self.body_force = None          # UFL vector expression per reference volume
         self.muscles: dict[str, Muscle] = {}
+        self.surface_loads: dict[str, SurfaceLoad] = {}
+        self._surface_ds = (None,)      # (loads, ds measure, subdomain ids) of _surface_terms
+        n_blocks = self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts
+        self._fixed_mask = np.zeros((n_blocks, 3), dtype=bool)   # fixed components per node
         self._fixed_dofs = np.zeros(0, dtype=np.int32)
+        self._partial = False           # some node fixed in some components only
         self._fixed_values = fem.Function(self.V)   # prescribed displacement of fixed dofs
         self.nodal_load = fem_petsc.create_vector(self.V)
         self.nodal_load.zeroEntries()
@@ -136,15 +148,16 @@ class FemBody:
 
     # ---- model definition -------------------------------------------------
 
+    def _geometry_node_dofs(self) -> np.ndarray:
+        """Local block dof of every local geometry node."""
+        node_dofs = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int32)
+        node_dofs[self.mesh.geometry.dofmaps[0].reshape(-1)] = self.V.dofmap.list.reshape(-1)
+        return node_dofs
+
     def _input_node_to_dof(self) -> dict[int, int]:
         """Map input node index -> local block dof (owned and ghost)."""
-        x_dofmap = self.mesh.geometry.dofmaps[0]
-        dofs = self.V.dofmap.list
-        geom_nodes = x_dofmap.reshape(-1)
-        node_dofs = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int32)
-        node_dofs[geom_nodes] = dofs.reshape(-1)
         inputs = self.mesh.geometry.input_global_indices
-        return dict(zip(inputs.tolist(), node_dofs.tolist()))
+        return dict(zip(inputs.tolist(), self._geometry_node_dofs().tolist()))
 
     def local_dofs(self, nodes) -> np.ndarray:
         """Local block dofs of the given input node indices present on this rank."""
@@ -188,27 +201,66 @@ class FemBody:
                              f"[0, {n_total}): {bad[:10].tolist()}")
         return nodes
 
-    def fix_nodes(self, nodes, displacement=None) -> None:
+    def fix_nodes(self, nodes, displacement=None, components=None) -> None:
         """Fix input nodes (zero velocity); optionally prescribe their displacement.
 
         ``displacement`` is None (keep 0) or a callable x -> u(x) evaluated at the
-        nodes' reference coordinates, x of shape (3, npoints).
+        nodes' reference coordinates, x of shape (3, npoints). ``components``
+        (e.g. ``(0,)`` for a symmetry plane x = const) fixes only those
+        displacement components, the others stay free; None fixes all three.
+        Nodes fixed in some components only are handled by the body's own
+        solvers (:mod:`artifem.integrators`) and reduced bodies, through
+        :attr:`fixed_components`; callers that take whole fixed nodes
+        (:attr:`fixed_dofs`: the Scene today) refuse them.
         """
         nodes = self._check_nodes(nodes, "fix_nodes")
+        comps = [0, 1, 2]
+        if components is not None:
+            raw = np.atleast_1d(np.asarray(components, dtype=object)).ravel().tolist()
+            if not raw or any(isinstance(c, bool) or not isinstance(c, (int, np.integer))
+                              or not 0 <= c <= 2 for c in raw) or len(set(raw)) != len(raw):
+                raise InputError(f"FemBody {self.name!r}: fix_nodes: components must be "
+                                 f"distinct indices in {{0, 1, 2}} (x, y, z), got {components!r}")
+            comps = sorted(int(c) for c in raw)
         dofs = self.local_dofs(nodes)
-        self._fixed_dofs = np.unique(np.concatenate([self._fixed_dofs, dofs])).astype(np.int32)
+        for c in comps:
+            self._fixed_mask[dofs, c] = True
+        self._fixed_dofs = np.flatnonzero(self._fixed_mask.all(axis=1)).astype(np.int32)
+        self._partial = bool(np.any(self._fixed_mask.any(axis=1) & ~self._fixed_mask.all(axis=1)))
         if displacement is not None:
             x = self.V.tabulate_dof_coordinates()[dofs]
             vals = np.asarray(displacement(x.T), dtype=float).reshape(3, -1).T
             arr = self._fixed_values.x.array.reshape(-1, 3)
-            arr[dofs] = vals
-            self.u.x.array.reshape(-1, 3)[dofs] = vals
-        self.v.x.array.reshape(-1, 3)[dofs] = 0.0
+            arr[np.ix_(dofs, comps)] = vals[:, comps]
+            self.u.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = vals[:, comps]
+        self.v.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = 0.0
         self._compiled = None
+
+    def _partly_fixed(self) -> bool:
+        """True when some node is fixed in some components only."""
+        return self._partial
 
     @property
     def fixed_dofs(self) -> np.ndarray:
+        """Local block dofs (nodes) fixed in all three components.
+
+        Raises InputError when some node is fixed in some components only: the
+        caller would take it as free (use :attr:`fixed_components`).
+        """
+        if self._partly_fixed():
+            partial = np.flatnonzero(self._fixed_mask.any(axis=1) & ~self._fixed_mask.all(axis=1))
+            raise InputError(
+                f"FemBody {self.name!r}: {partial.size} node(s) are fixed in some components "
+                "only (fix_nodes(..., components=...)); this caller takes whole fixed nodes "
+                "(fixed_dofs) and would leave them free. The body's own solvers "
+                "(artifem.integrators) and reduced bodies support them (fixed_components); "
+                "the Scene does not yet")
         return self._fixed_dofs
+
+    @property
+    def fixed_components(self) -> np.ndarray:
+        """Local scalar dofs fixed, 3 * node + component (sorted): every fixed component."""
+        return np.flatnonzero(self._fixed_mask.ravel()).astype(np.int32)
 
     def add_nodal_load(self, nodes, force) -> None:
         """Add a constant force (N, shape (3,) or (len(nodes), 3)) at input nodes."""
@@ -221,6 +273,81 @@ class FemBody:
                 d = self._node_to_dof.get(n)
                 if d is not None and d < n_owned:     # owned copy only: no double count
                     arr[d] += f
+
+    def add_pressure(self, pressure: float, *, where=None, tags=None, values=None,
+                     surface=None, tol: float | None = None, name: str | None = None,
+                     quadrature_degree: int | None = None, closed: bool = False,
+                     center=(0.0, 0.0, 0.0)) -> SurfaceLoad:
+        """A follower pressure p (Pa; > 0 pushes into the body) on boundary facets.
+
+        It acts on the deformed faces (virtual work -lambda int p J F^-T N . v dA),
+        with its consistent tangent; it has no potential in general (module
+        docstring of :mod:`artifem.surface_loads`). ``closed=True`` declares that
+        the faces bound a volume (closed, or their border fixed or in symmetry
+        planes x_k = center_k with u_k fixed; checked when the body compiles):
+        then its potential -lambda p V enters ``potential_energy()``.
+        Facets by exactly one of ``where`` (predicate on x of shape (3, n)),
+        ``tags`` + ``values`` (facet MeshTags) or ``surface`` ((vertices, faces),
+        matched to boundary facets within ``tol``): see
+        :func:`artifem.surface_loads.select_facets`. Set it later with
+        ``load.set(p)``; it is multiplied by the load factor.
+        """
+        return self._add_surface_load("pressure", pressure, where, tags, values, surface, tol,
+                                      name, quadrature_degree, closed, center)
+
+    def add_traction(self, traction, *, where=None, tags=None, values=None, surface=None,
+                     tol: float | None = None, name: str | None = None,
+                     quadrature_degree: int | None = None) -> SurfaceLoad:
+        """A dead traction t (3 numbers, Pa per reference area, fixed direction) on
+        boundary facets: potential -lambda int t . u dA. Facets and ``set`` as in
+        :meth:`add_pressure`."""
+        return self._add_surface_load("traction", traction, where, tags, values, surface, tol,
+                                      name, quadrature_degree)
+
+    def _add_surface_load(self, kind, value, where, tags, values, surface, tol, name,
+                          degree, closed=False, center=(0.0, 0.0, 0.0)) -> SurfaceLoad:
+        if name is None:
+            name = f"{kind}{sum(1 for s in self.surface_loads.values() if s.kind == kind)}"
+        if name in self.surface_loads:
+            raise InputError(f"FemBody {self.name!r}: surface load {name!r} already defined")
+        what = f"FemBody {self.name!r}: surface load {name!r}"
+        facets = select_facets(self.mesh, where=where, tags=tags, values=values,
+                               surface=surface, tol=tol, what=what)
+        load = make_load(self.mesh, kind, name, facets, value, degree, self.name, closed, center)
+        self.surface_loads[name] = load
+        self._compiled = None
+        return load
+
+    @property
+    def conservative(self) -> bool:
+        """True when ``potential_energy()`` is the whole potential of the body's forces
+        (no follower pressure other than closed ones)."""
+        return all(load.conservative for load in self.surface_loads.values())
+
+    def _surface_terms(self):
+        """(dead traction potential, closed pressures' potential, follower virtual work)
+        as UFL forms (None when absent)."""
+        loads = list(self.surface_loads.values())
+        if not loads:
+            return None, None, None
+        key = tuple(id(load) for load in loads)
+        if self._surface_ds[0] != key:   # one facet tagging per set of loads
+            self._surface_ds = (key, *surface_measure(self.mesh, loads))
+        _, ds, ids = self._surface_ds
+        dead, closed, work = None, None, None
+        for load, sub in zip(loads, ids):
+            measure = ds(sub, metadata={"quadrature_degree": load.degree})
+            if load.follower:
+                term = load.virtual_work(self.u, ufl.TestFunction(self.V), self.load_factor,
+                                         measure)
+                work = term if work is None else work + term
+                if load.closed:
+                    term = load.potential(self.u, self.load_factor, measure)
+                    closed = term if closed is None else closed + term
+            else:
+                term = load.potential(self.u, self.load_factor, measure)
+                dead = term if dead is None else dead + term
+        return dead, closed, work
 
     def set_body_force(self, b) -> None:
         """Body force per reference volume (UFL vector expression), scaled by the load factor."""
@@ -366,8 +493,10 @@ class FemBody:
             return fem.Constant(self.mesh, PETSc.ScalarType(self.density))
         return self.density
 
-    def potential_energy_form(self):
-        """UFL integrand of Pi(u) (see the module docstring)."""
+    def potential_energy_form(self, closed_pressures: bool = True):
+        """UFL integrand of Pi(u) (see the module docstring); ``closed_pressures=False``
+        leaves out the closed pressures' potential (the residual takes their virtual
+        work instead)."""
         F = self.kinematics()
         terms = self.energy_terms()
         restricted = [t for t in terms if t.cells is not None]
@@ -386,20 +515,39 @@ class FemBody:
         dx = ufl.Measure("dx", domain=self.mesh,
                          metadata={"quadrature_degree": self.quadrature_degree})
         Pi -= self.load_factor * external * dx
+        dead, closed, _ = self._surface_terms()
+        if dead is not None:
+            Pi += dead
+        if closed is not None and closed_pressures:
+            Pi += closed
         return Pi
 
     def compile(self) -> None:
         """Compile residual, tangent, energy, mass and det F evaluation (once)."""
         if self._compiled is not None:
             return
-        Pi = self.potential_energy_form()
+        for load in self.surface_loads.values():
+            if load.closed:
+                check_closed(self.mesh, load, self._geometry_node_dofs(), self._fixed_mask,
+                             self._fixed_values.x.array.reshape(-1, 3))
+        Pi = self.potential_energy_form(closed_pressures=False)
         v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         R = ufl.derivative(Pi, self.u, v)
+        _, closed, follower = self._surface_terms()
+        if follower is not None:
+            R -= follower                   # R = dPi/du - delta W_follower
+            if closed is not None:
+                Pi += closed
         K = ufl.derivative(R, self.u, du)
         c = {}
         c["R"], c["K"], c["Pi"] = fem.form(R), fem.form(K), fem.form(Pi)
         zero = np.zeros(3, dtype=PETSc.ScalarType)
-        self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
+        if self._partly_fixed():            # one condition per component
+            self.bcs = [fem.dirichletbc(PETSc.ScalarType(0.0),
+                                        (3 * np.flatnonzero(self._fixed_mask[:, k]) + k)
+                                        .astype(np.int32), self.V.sub(k)) for k in range(3)]
+        else:
+            self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
         self.K = fem_petsc.create_matrix(c["K"])
         self.R = fem_petsc.create_vector(self.V)
 
@@ -448,6 +596,10 @@ class FemBody:
     def zero_fixed(self, vec: PETSc.Vec) -> None:
         """Zero the owned entries of fixed dofs in a blocked vector."""
         n_owned = self.V.dofmap.index_map.size_local
+        if self._partly_fixed():
+            fixed = self.fixed_components
+            vec.array[fixed[fixed < 3 * n_owned]] = 0.0
+            return
         fixed = self._fixed_dofs[self._fixed_dofs < n_owned]
         arr = vec.array.reshape(-1, 3)
         arr[fixed] = 0.0
@@ -487,7 +639,9 @@ class FemBody:
         return all_bad, gmin
 
     def potential_energy(self) -> float:
-        """Pi(u) (strain and fiber energy minus the work of the loads)."""
+        """Pi(u) (strain and fiber energy minus the work of the loads). An open follower
+        pressure has no potential and is left out (``conservative`` is False); a closed
+        one enters as -lambda p V (:mod:`artifem.surface_loads`)."""
         self.compile()
         local = fem.assemble_scalar(self._compiled["Pi"])
         Pi = self.mesh.comm.allreduce(local)
