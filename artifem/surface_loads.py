@@ -63,13 +63,15 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
+from scipy import sparse
 from scipy.spatial import cKDTree
 
 from dolfinx import fem, mesh as dmesh
+from dolfinx.fem import petsc as fem_petsc
 
 from artifem.errors import InputError
 
-__all__ = ["SurfaceLoad", "select_facets", "surface_measure", "FACET_DEGREE"]
+__all__ = ["SurfaceLoad", "SurfacePatch", "select_facets", "surface_measure", "FACET_DEGREE"]
 
 #: Default quadrature degree of the facet integrals per cell type: 2 x 2 Gauss on the
 #: bilinear faces of Q1 hexahedra and prisms; on a P1 tetrahedron cof(F) and N are
@@ -383,3 +385,100 @@ def surface_measure(domain: dmesh.Mesh, loads) -> tuple[ufl.Measure, list[tuple[
     tags = dmesh.meshtags(domain, fdim, facet_ids, values)
     ids = [tuple(tag_of[key] for key in keys if i in key) for i in range(len(loads))]
     return ufl.Measure("ds", domain=domain, subdomain_data=tags), ids
+
+
+# ---- the loads on the cells next to their facets (reduced bodies) --------------------------
+
+class SurfacePatch:
+    """Surface loads of a body evaluated on the cells next to their facets only.
+
+    A submesh of those cells carries a copy of each load (its facets and
+    values), so the residual R_s, tangent K_s and potential Pi_s of the loads
+    cost O(cells next to the loaded facets), never O(mesh): what a reduced body
+    needs, with u = u_bar + U q rebuilt on the patch's dofs only. The loads'
+    values and the load factor are copied from the body's constants at every
+    evaluation (a controller's ``load.set`` acts here too). Serial.
+
+    Attributes:
+        dofs: the body's local scalar dofs (3 * block + component) of the patch's
+            dofs, in the patch's order.
+    """
+
+    def __init__(self, V: fem.FunctionSpace, loads, load_factor: fem.Constant):
+        domain = V.mesh
+        tdim = domain.topology.dim
+        fdim = tdim - 1
+        domain.topology.create_connectivity(fdim, tdim)
+        f2c = domain.topology.connectivity(fdim, tdim)
+        facets = np.unique(np.concatenate([load.facets for load in loads]))
+        cells = np.unique(np.concatenate([f2c.links(f) for f in facets.tolist()])
+                          ).astype(np.int32)
+        sub, cell_map, vertex_map, _ = dmesh.create_submesh(domain, tdim, cells)
+        self.mesh = sub
+        self.V = fem.functionspace(sub, ("Lagrange", 1, (3,)))
+        n_sub = sub.topology.index_map(tdim).size_local + sub.topology.index_map(tdim).num_ghosts
+        parent = cell_map.sub_topology_to_topology(np.arange(n_sub, dtype=np.int32), False)
+        blocks = np.empty(self.V.dofmap.index_map.size_local
+                          + self.V.dofmap.index_map.num_ghosts, dtype=np.int64)
+        blocks[self.V.dofmap.list.reshape(-1)] = V.dofmap.list[parent].reshape(-1)
+        self.dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
+        self.loads = list(loads)
+        self._load_factor = load_factor
+        self._lf = fem.Constant(sub, PETSc.ScalarType(0.0))
+        sub.topology.create_connectivity(fdim, tdim)
+        copies = []
+        for load in self.loads:
+            tags = dmesh.meshtags(domain, fdim, load.facets, np.ones_like(load.facets))
+            moved = dmesh.transfer_meshtags_to_submesh(tags, sub, vertex_map, cell_map)
+            center = load.center.value if load.center is not None else (0.0, 0.0, 0.0)
+            copies.append(make_load(sub, load.kind, load.name,
+                                    np.sort(moved.indices[moved.values == 1]), load.get(),
+                                    load.degree, load.owner, load.closed, center))
+        self._copies = copies
+        self.u = fem.Function(self.V)
+        ds, ids = surface_measure(sub, copies)
+        v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        R, Pi = 0, None
+        for load, sub_ids in zip(copies, ids):
+            measure = ds(sub_ids, metadata={"quadrature_degree": load.degree})
+            R -= load.virtual_work(self.u, v, self._lf, measure)
+            term = load.potential(self.u, self._lf, measure)
+            if term is not None:
+                Pi = term if Pi is None else Pi + term
+        self._R = fem.form(R)
+        self._K = fem.form(ufl.derivative(R, self.u, du))
+        self._Pi = fem.form(Pi) if Pi is not None else None
+        self._vec = fem_petsc.create_vector(self.V)
+        self._mat = fem_petsc.create_matrix(self._K)
+
+    def _set(self, u: np.ndarray) -> None:
+        """u: the body's displacement at :attr:`dofs`; values and load factor synced."""
+        self.u.x.array[:] = u
+        self._lf.value = self._load_factor.value
+        for load, copy in zip(self.loads, self._copies):
+            copy.value.value = load.value.value
+
+    def residual(self, u: np.ndarray) -> np.ndarray:
+        """R_s = -(virtual work of the loads) at the patch's dofs."""
+        self._set(u)
+        with self._vec.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(self._vec, self._R)
+        self._vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return self._vec.array.copy()
+
+    def tangent(self, u: np.ndarray):
+        """K_s = dR_s/du (scipy CSR, unsymmetric for open pressures)."""
+        self._set(u)
+        self._mat.zeroEntries()
+        fem_petsc.assemble_matrix(self._mat, self._K)
+        self._mat.assemble()
+        ai, aj, av = self._mat.getValuesCSR()
+        return sparse.csr_matrix((av, aj, ai), shape=self._mat.getSize())
+
+    def potential(self, u: np.ndarray) -> float:
+        """The loads' potential (dead tractions, closed pressures; 0 without)."""
+        if self._Pi is None:
+            return 0.0
+        self._set(u)
+        return float(fem.assemble_scalar(self._Pi))

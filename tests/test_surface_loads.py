@@ -563,3 +563,78 @@ def test_component_wise_fixes():
     for bad in ((3,), (0, 0), (), ("x",), (True,)):
         with pytest.raises(af.InputError, match="components must be distinct indices"):
             whole.fix_nodes(plane, components=bad)
+
+
+# ---- reduced bodies --------------------------------------------------------------------------
+
+def basis(body, r=None, rng=None) -> np.ndarray:
+    """The complete basis of the free dofs (r None), or r random columns; zero fixed rows."""
+    n = 3 * body.V.dofmap.index_map.size_local
+    free = np.setdiff1d(np.arange(n), body.fixed_components)
+    if r is None:
+        U = np.zeros((n, free.size))
+        U[free, np.arange(free.size)] = 1.0
+        return U
+    U = np.zeros((n, r))
+    U[free] = rng.standard_normal((free.size, r))
+    return U
+
+
+def full_force_and_tangent(body, u):
+    n = u.size
+    body.u.x.array[:n] = u
+    body.assemble(tangent=True)
+    return -body.R.array[:n].copy(), tangent(body)[:n, :n]
+
+
+def test_reduced_body_feels_the_surface_loads_of_its_full_body(rng):
+    """f~ = U^T f(u_bar + U q) and K~ = U^T K U (to 1e-13) for a random basis, with an
+    open follower pressure (assembled on the 20 cells next to the top face, not the 40 of
+    the mesh) and a dead traction, after the loads were set and the load factor changed;
+    with the complete basis the static solution is the full one to 1e-10."""
+    from artifem.integrators import solve_static_reduced
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+
+    beam = cantilever()
+    pressure = beam.add_pressure(100.0, where=top)
+    traction = beam.add_traction((5.0, 0.0, -20.0), where=lambda x: np.isclose(x[0], 1.0))
+    U = 0.1 * basis(beam, 7, rng)
+    reduced = ReducedFemBody(beam, U, all_points(beam))
+    assert reduced._patch.mesh.topology.index_map(3).size_local == 20
+    pressure.set(150.0)
+    traction.set((5.0, 2.0, -30.0))
+    beam.load_factor.value = 0.7
+    q = 0.1 * rng.standard_normal(7)
+    reduced.set_q(q)
+    f, K = full_force_and_tangent(beam, U @ q)
+    np.testing.assert_allclose(reduced.force(), U.T @ f, rtol=0,
+                               atol=1e-13 * np.abs(U.T @ f).max())
+    np.testing.assert_allclose(reduced.tangent(), U.T @ K @ U, rtol=0,
+                               atol=1e-13 * np.abs(U.T @ K @ U).max())
+    # the complete basis: the same static solution
+    beam.u.x.array[:] = 0.0
+    complete = ReducedFemBody(beam, basis(beam), all_points(beam))
+    solve_static_reduced(complete, load_steps=12)
+    solve_static(beam, LU(), load_steps=12)
+    u = beam.u.x.array[:complete.U.shape[0]]
+    assert np.abs(complete.nodal_displacement() - u).max() < 1e-10 * np.abs(u).max()
+
+
+def test_reduced_body_keeps_the_closed_pressure_potential(rng):
+    """The octant with component-wise symmetry planes and a closed pressure, complete
+    basis: Pi~(q) is the full body's Pi(U q) (the same -p V), and f~ = U^T f."""
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+
+    body = af.FemBody(octant_shell(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
+                      gravity=(0, 0, 0))
+    symmetry_planes(body)
+    body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9, closed=True)
+    U = basis(body)
+    reduced = ReducedFemBody(body, U, all_points(body))
+    q = 0.02 * rng.standard_normal(U.shape[1])
+    reduced.set_q(q)
+    body.u.x.array[:U.shape[0]] = U @ q
+    assert abs(reduced.potential_energy() - body.potential_energy()) < \
+        1e-12 * abs(body.potential_energy())
+    f, _ = full_force_and_tangent(body, U @ q)
+    np.testing.assert_allclose(reduced.force(), U.T @ f, rtol=0, atol=1e-12 * np.abs(f).max())

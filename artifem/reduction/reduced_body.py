@@ -27,7 +27,18 @@ A = dP/dF at the m points. Then
 O(m r^2) per evaluation, never O(n). The external loads are linear in u, so
 their reduced force is exact and precomputed on the full model:
 f~_ext = lambda (U^T int rho g . phi dX + U^T (int b . phi dX + f_nodal)), the
-gravity part per component so that changing ``full.gravity`` acts here too.
+gravity part per component so that changing ``full.gravity`` acts here too; a
+dead traction t of the full body (:mod:`artifem.surface_loads`) adds
+lambda U^T int phi dA t, per component, with t read at every evaluation.
+
+Follower pressures of the full body are not linear in u: they are assembled on
+a :class:`~artifem.surface_loads.SurfacePatch`, the cells next to their facets
+only, at u_s = u_bar_s + U_s q (U_s the basis rows of the patch's dofs):
+
+    f~_p = -U_s^T R_s(u_s),   K~_p = U_s^T K_s(u_s) U_s,
+
+O(patch r^2) per evaluation (unsymmetric for an open pressure); a closed
+pressure's potential -lambda p V enters Pi~.
 
 Dynamics: a reduced body is a System component like a full one; the
 integrators of :mod:`artifem.integrators` advance it with dense r x r
@@ -43,7 +54,7 @@ from __future__ import annotations
 
 import numpy as np
 import ufl
-from dolfinx import fem
+from dolfinx import fem, mesh as dmesh
 from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 
@@ -52,6 +63,7 @@ from artifem.fem_body import FemBody
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
 from artifem.reduction.stress_kernel import PointStresses
+from artifem.surface_loads import SurfacePatch
 
 __all__ = ["ReducedFemBody", "all_points"]
 
@@ -105,7 +117,7 @@ class ReducedFemBody:
             raise InputError(f"ReducedFemBody {self.name!r}: U must have r >= 1 finite columns")
         # Rows at fixed dofs must vanish; round-off (<= 1e-10 max|U|, e.g. from a QR
         # or an eigensolver) is set to exactly zero.
-        fixed_rows = (bs * full.fixed_dofs[:, None] + np.arange(bs)).ravel()
+        fixed_rows = full.fixed_components         # every fixed component
         tol = 1e-10 * np.abs(U).max()
         if fixed_rows.size and np.any(np.abs(U[fixed_rows]) > tol):
             bad = np.unique(fixed_rows[np.any(np.abs(U[fixed_rows]) > tol, axis=1)] // bs)
@@ -158,6 +170,30 @@ class ReducedFemBody:
             f_const += vec.array[:ndofs]
             vec.destroy()
         self.f_const = U.T @ f_const
+        # dead tractions: U^T int e_k . phi dA per load (r x 3), times t at evaluation
+        self._tractions = []
+        pressures = []
+        for load in full.surface_loads.values():
+            if load.follower:
+                pressures.append(load)
+                continue
+            tags = dmesh.meshtags(full.mesh, full.mesh.topology.dim - 1, load.facets,
+                                  np.ones_like(load.facets))
+            ds = ufl.Measure("ds", domain=full.mesh, subdomain_data=tags,
+                             metadata={"quadrature_degree": load.degree})(1)
+            T = np.zeros((self.r, 3))
+            for k in range(3):
+                vec = fem_petsc.assemble_vector(fem.form(v[k] * ds))
+                T[:, k] = U.T @ vec.array[:ndofs]
+                vec.destroy()
+            self._tractions.append((load, T))
+        # follower pressures: assembled on the cells next to their facets (module docstring)
+        self._patch = None
+        if pressures:
+            self._patch = SurfacePatch(full.V, pressures, full.load_factor)
+            self._U_patch = U[self._patch.dofs]
+            self._u_bar_patch = self.u_bar[self._patch.dofs]
+        self._pressure_cache: dict = {}
 
         # ---- online: the m points, their D_p and one stress kernel per energy term ----
         self.point_index = idx
@@ -216,9 +252,32 @@ class ReducedFemBody:
         return self._stress
 
     def external_force(self) -> np.ndarray:
-        """f~_ext = lambda (G g + U^T (b, f_nodal)) (constant in q)."""
+        """f~_ext = lambda (G g + U^T (b, f_nodal) + sum_t T_t t) (constant in q)."""
         lf = float(self.full.load_factor.value)
-        return lf * (self.G @ np.asarray(self.full.gravity.value, dtype=float) + self.f_const)
+        f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + self.f_const
+        for load, T in self._tractions:
+            f = f + T @ np.asarray(load.value.value, dtype=float)
+        return lf * f
+
+    def _pressure(self, what: str):
+        """The follower pressures' f~_p ("force") or K~_p ("tangent") at the current q
+        (module docstring); cached until q, a pressure or the load factor changes."""
+        patch = self._patch
+        key = (self.q.tobytes(), float(self.full.load_factor.value),
+               tuple(float(load.value.value) for load in patch.loads))
+        if self._pressure_cache.get("key") != key:
+            self._pressure_cache = {"key": key}
+        cache = self._pressure_cache
+        if what not in cache:
+            u = self._u_bar_patch + self._U_patch @ self.q
+            Us = self._U_patch
+            if what == "force":
+                cache[what] = -Us.T @ patch.residual(u)
+            elif what == "tangent":
+                cache[what] = Us.T @ (patch.tangent(u) @ Us)
+            else:
+                cache[what] = patch.potential(u)
+        return cache[what]
 
     def point_forces(self) -> np.ndarray:
         """Each point's unweighted internal force V_p D_p^T vec(P_p), shape (m, r).
@@ -236,22 +295,27 @@ class ReducedFemBody:
         return self.D.reshape(-1, self.r).T @ (self.weights[:, None] * P).reshape(-1)
 
     def force(self) -> np.ndarray:
-        """f~(q) = -dPi~_int/dq + f~_ext."""
-        return -self.internal_residual() + self.external_force()
+        """f~(q) = -dPi~_int/dq + f~_ext (+ f~_p of the follower pressures)."""
+        f = -self.internal_residual() + self.external_force()
+        return f if self._patch is None else f + self._pressure("force")
 
     def tangent(self) -> np.ndarray:
-        """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric)."""
+        """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric) (+ K~_p of the
+        follower pressures, unsymmetric for an open one)."""
         _, _, A = self._evaluate()
         # blockdiag(w_p A_p) as a BSR matrix: one compiled pass over the 9x9 blocks.
         self._blocks.data[:] = A * self.weights[:, None, None]
         D = self.D.reshape(-1, self.r)
         K = D.T @ (self._blocks @ D)
-        return 0.5 * (K + K.T)
+        K = 0.5 * (K + K.T)
+        return K if self._patch is None else K + self._pressure("tangent")
 
     def potential_energy(self) -> float:
-        """Pi~(q) = sum_p w_p V_p psi(F_p) - q^T f~_ext (up to the constant u_bar work)."""
+        """Pi~(q) = sum_p w_p V_p psi(F_p) - q^T f~_ext (up to the constant u_bar work),
+        plus a closed pressure's -lambda p V (an open one has no potential)."""
         psi, _, _ = self._evaluate()
-        return float(self.weights @ psi) - float(self.q @ self.external_force())
+        Pi = float(self.weights @ psi) - float(self.q @ self.external_force())
+        return Pi if self._patch is None else Pi + self._pressure("potential")
 
     def kinetic_energy(self) -> float:
         return 0.5 * float(self.qdot @ self.M @ self.qdot)
