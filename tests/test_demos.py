@@ -18,6 +18,7 @@ OUTPUTS = {
     "reduced_body_in_joints.py": ["reduced_beam.png", "beam_modes.bp"],
     "skin_pressure.py": ["skin_pressure.png", "block.bp"],
     "static_pressure.py": ["static_pressure.png"],
+    "inflated_sphere.py": ["pressure_stretch.png", "inflated_sphere.png", "inflated_sphere.json"],
 }
 
 
