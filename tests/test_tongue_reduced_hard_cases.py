@@ -3,7 +3,7 @@ inversion error, never NaN.
 
 Each case of models/tongue/hard_cases.py is built with ``build_case`` (its tongue,
 schedule and dt), and a ReducedFemBody of the case's own tongue body runs it in a
-System with the case's schedule controller
+Scene (no gravity, as the tongue's own scene) with the case's schedule controller
 (``tongue.bundle_schedule(schedule).controller(tongue.body)``), semi-implicit, for
 the case's full duration (1.0 s: a reduced step costs about 1 ms, so nothing is
 shortened). A run passes when every completed step leaves finite q, q' and either
@@ -54,7 +54,7 @@ from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
                                         project, record_snapshots)
-from artifem.system import System
+from artifem.scene import Scene
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
 
@@ -87,7 +87,7 @@ def training(tmp_path_factory) -> Snapshots:
             tongue.reset()
             tongue.drive(ExcitationSchedule.ramp_and_hold({exciter: TRAINING["excitation"]},
                                                           TRAINING["ramp"]))
-            return record_snapshots(tongue.system, body, duration=TRAINING["duration"],
+            return record_snapshots(tongue.scene, body, duration=TRAINING["duration"],
                                     dt=TRAINING["dt"], every=TRAINING["every"],
                                     progress=False).as_arrays()
         data = cache.get(key, run)
@@ -135,21 +135,21 @@ def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(name, basis
     tongue, schedule, dt = build_case(name, "semi-implicit")
     reduced = reduced_tongue(tongue, basis, sampling, snapshots)
     body = tongue.body
-    system = System(integrator=tongue.config.integrator)
-    system.add(reduced)
-    system.add_controller(tongue.bundle_schedule(schedule).controller(body))
+    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=tongue.config.integrator)
+    scene.add(reduced)
+    scene.add_controller(tongue.bundle_schedule(schedule).controller(body))
 
     steps = int(round(DURATION / dt))
     error, largest = None, 0.0
     for _ in range(steps):
         try:
-            system.step(dt)
+            scene.step(dt)
         except ElementInversionError as exc:
             error = exc
             break
         q, qdot = reduced.state()
         assert np.all(np.isfinite(q)) and np.all(np.isfinite(qdot)), (
-            f"non-finite state at t = {system.time:.3f} s")
+            f"non-finite state at t = {scene.t:.3f} s")
         largest = max(largest, float(np.abs(reduced.nodal_displacement()).max()))
 
     # Whatever happened, the state left behind is finite and uninverted.
@@ -159,16 +159,16 @@ def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(name, basis
     bad, det_now = reduced.inverted_elements()
     assert bad.size == 0 and det_now > 0, f"inverted elements left: {bad[:20]}"
     if error is None:
-        assert system.time == pytest.approx(DURATION)
-        assert 0 < system.min_det_F < np.inf
-        assert system.min_det_F <= det_now
+        assert scene.t == pytest.approx(DURATION)
+        assert 0 < scene.min_det_F < np.inf
+        assert scene.min_det_F <= det_now
         # The controller drove the reduced body (measured: largest |u| 1.2 mm for
         # kappa_1000C10 with trained points, else 3.9 to 23 mm).
         assert largest > 5e-4
-        expected = tongue.bundle_schedule(schedule).at(system.time)
+        expected = tongue.bundle_schedule(schedule).at(scene.t)
         for bundle, value in expected.items():
             assert float(body.muscles[bundle].excitation.value) == pytest.approx(value)
     else:
         assert error.min_det <= 0 or error.elements.size >= 1, str(error)
         assert "element inversion at t =" in str(error)
-        assert system.time < DURATION and error.time > system.time
+        assert scene.t < DURATION and error.time > scene.t
