@@ -347,7 +347,7 @@ def _surface_facets(domain, surface, exterior, tol, what) -> np.ndarray:
             k = candidates.pop()
             matched[i] = True
             covered.setdefault(k, set()).update(nodes)
-    matched = domain.comm.allreduce(matched, op=MPI.LOR)
+    matched = np.asarray(domain.comm.allreduce(matched.astype(np.int64), op=MPI.SUM)) > 0
     if not matched.all():
         bad = np.flatnonzero(~matched)
         raise InputError(f"{what}: {bad.size} of {len(faces)} surface face(s) match no boundary "

@@ -149,8 +149,8 @@ def test_inflated_sphere_matches_the_incompressible_solution():
     planes, kappa_inc = 1000 mu: the error of la - 1 falls as h^2 (measured 3.2 % on
     4 x 4 x 4 and 1.4 % on 6 x 6 x 6 hexahedra per patch) and the Richardson extrapolation
     of the two meshes is within 0.1 % of the closed form (measured 0.04 %). A dead load
-    (the reference normal and area: 1.66 times too little force at la = 1.29) or a Nanson
-    term without J F^-T misses it by tens of percent."""
+    (the reference normal and area) gives la = 1.172, 41 % short, and the transposed
+    cofactor fails too; a Nanson term without J is the bar test's to catch (here J ~ 1)."""
     mu, A, B, p = 1.0, 1.0, 2.0, 0.6
     exact = brentq(lambda la: inflation_pressure(la, mu, A, B) - p, 1.0, 1.6)
     exact_b = (1.0 + (exact**3 - 1.0) * (A / B) ** 3) ** (1.0 / 3.0)
