@@ -57,8 +57,6 @@ class NodeAttachment:
             raise TypeError(f"NodeAttachment: expected a RigidBody, got {type(body).__name__}")
         self.name = name or f"{fem.name}->{body.name}"
         what = f"node attachment {self.name!r}"
-        if fem.mesh.comm.size != 1:
-            raise NotImplementedError(f"{what}: coupled scenes run in serial only for now")
         nodes = np.asarray(nodes)
         if nodes.size == 0 or not np.issubdtype(nodes.dtype, np.integer):
             raise InputError(f"{what}: nodes must be a non-empty array of integer node indices")
@@ -71,7 +69,7 @@ class NodeAttachment:
             raise InputError(f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed "
                              "more than once")
         self.fem, self.body, self.nodes = fem, body, nodes
-        self.dofs = fem.local_dofs(nodes).astype(np.int64)
+        self.dofs = fem.local_dofs(nodes).astype(np.int64)     # this rank's (owned, ghost)
         x = dof_positions(fem)[self.dofs]
         self.offsets = (x - body.position) @ body.rotation        # r_i = R^T (x_i - p), rows
 
@@ -93,7 +91,7 @@ class NodeAttachment:
 
     def jacobian(self) -> np.ndarray:
         """G (3n x 6), rows [1, -[R r_i]x] per node: v = G u."""
-        n = self.nodes.size
+        n = len(self.offsets)                # the nodes on this rank
         G = np.zeros((n, 3, 6))
         G[:, :, :3] = np.eye(3)
         G[:, :, 3:] = -skews(self.levers())

@@ -40,7 +40,7 @@ only, at u_s = u_bar_s + U_s q (U_s the basis rows of the patch's dofs):
 O(patch r^2) per evaluation (unsymmetric for an open pressure); a closed
 pressure's potential -lambda p V enters Pi~.
 
-Dynamics: a reduced body is a System component like a full one; the
+Dynamics: a reduced body is a Scene body like a full one; the
 integrators of :mod:`artifem.integrators` advance it with dense r x r
 matrices, M~ = U^T M U and D~ = alpha M~ + beta K~ (``advance_reduced``).
 

@@ -182,9 +182,13 @@ default; distributed under ``mpiexec``), a reduced body by
 ``integrator.advance_reduced(body, h)``; semi-implicit (the equations above,
 the same step) or implicit (Newton with a line search, ``ImplicitEuler``).
 Everything else (rigid bodies and the deformable bodies coupled to anything)
-forms the coupled island of the layout above: serial; semi-implicit as above, or
+forms the coupled island of the layout above, semi-implicit as above, or
 implicit (:mod:`artifem.scene.implicit_step`: the same equations solved by
-Newton, joints and limits included). Statics
+Newton, joints and limits included). Its linear system is solved directly (one
+LU of the KKT matrix, serial) or, for FEM bodies carried by rigid bodies, with
+the FEM blocks distributed and the rigid coordinates eliminated by a Schur
+complement (:mod:`artifem.scene.schur_island`, ``island_solver="schur"``, the
+default under ``mpiexec``). Statics
 likewise: ``integrators.solve_static`` per body on its own, the Newton above for
 the coupled island. Controllers, the health check, halving and
 ``save_state``/``restore_state`` cover every island at once.
@@ -216,6 +220,7 @@ from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.scene.constraints import solve_constrained
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
+from artifem.scene.schur_island import SchurIsland
 from artifem.scene.layout import Layout
 
 __all__ = ["Scene", "SceneState"]
@@ -259,11 +264,17 @@ class Scene:
             with ``advance(body, h, solver)`` and ``advance_reduced(body, h)``.
         linear_solver: the :class:`~artifem.linear_solver.LinearSolver` method of those
             FEM bodies (PETSc: CG with algebraic multigrid by default, or ``"mumps"``).
+        island_solver: how the coupled island's linear system is solved: ``"direct"``
+            (one sparse or dense LU of the whole KKT system, serial) or ``"schur"`` (FEM
+            blocks distributed, solved by ``linear_solver``, the rigid coordinates by a
+            Schur complement: :mod:`artifem.scene.schur_island`); default: ``"schur"``
+            when the FEM bodies run on several MPI ranks, else ``"direct"``.
     """
 
     def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
                  geometric_stiffness: bool = True, max_halvings: int = 4,
-                 integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD):
+                 integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD,
+                 island_solver: str | None = None):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
@@ -281,8 +292,12 @@ class Scene:
                 raise InputError(f"integrator {integrator!r} has no {method}() method")
         if linear_solver not in METHODS:
             raise InputError(f"unknown linear solver {linear_solver!r}; choose one of {METHODS}")
+        if island_solver not in (None, "direct", "schur"):
+            raise InputError(f"island_solver must be 'direct' or 'schur', got {island_solver!r}")
         self.integrator = integrator
         self.linear_solver = linear_solver
+        self.island_solver = island_solver
+        self._schur = None              # the SchurIsland stepping the coupled island, if any
         self._linear_solvers: dict[int, LinearSolver] = {}
         self._comm = MPI.COMM_SELF      # the FEM bodies' communicator (one for the scene)
         self._islands = None            # (free FEM, free reduced, coupled FEM, coupled reduced)
@@ -425,7 +440,18 @@ class Scene:
                              [b for b in self.reduced_bodies if id(b) not in coupled],
                              [b for b in self.fem_bodies if id(b) in coupled],
                              [b for b in self.reduced_bodies if id(b) in coupled])
-            self._layout = Layout(self, self._islands[2], self._islands[3])
+            schur = self.island_solver == "schur" or (self.island_solver is None
+                                                      and self._comm.size > 1)
+            if schur and self._islands[2]:
+                self._schur = SchurIsland(self, self._islands[2])
+                self._layout = self._schur.rigid
+                if self.integrator.name != "semi-implicit":
+                    raise InputError("the distributed (Schur) island steps semi-implicitly "
+                                     "only for now: Scene(integrator='semi-implicit'), or the "
+                                     "implicit integrator in serial with island_solver='direct'")
+            else:
+                self._schur = None
+                self._layout = Layout(self, self._islands[2], self._islands[3])
             if self._layout.n_all and getattr(self.integrator, "name", None) not in INTEGRATORS:
                 raise InputError(
                     f"integrator {type(self.integrator).__name__}: the coupled island "
@@ -437,6 +463,14 @@ class Scene:
             self._layout = None
             return self._ready()
         return self._layout
+
+    def _direct_layout(self, what: str) -> "Layout":
+        """The coupled island's layout for an operation of the direct island solver."""
+        L = self._ready()
+        if self._schur is not None:
+            raise InputError(f"{what}: not available with the distributed (Schur) island yet "
+                             "(island_solver='direct', serial)")
+        return L
 
     def linear_solver_for(self, body: FemBody) -> LinearSolver:
         """The PETSc solver of an FEM body stepped on its own (one per body, reused)."""
@@ -638,7 +672,9 @@ class Scene:
             self.integrator.advance(body, h, self.linear_solver_for(body))
         for body in free_reduced:
             self.integrator.advance_reduced(body, h)
-        if L.n_all and self.integrator.name == "implicit":
+        if self._schur is not None:
+            self._record_impulses(L, self._schur.step(h), h)
+        elif L.n_all and self.integrator.name == "implicit":
             impulses, merits = implicit_step(self, L, h, self.integrator.rtol,
                                              self.integrator.atol, self.integrator.max_iterations)
             self._record_impulses(L, impulses, h)
@@ -674,7 +710,7 @@ class Scene:
         """(layout, P, z_k, prescribed targets, A_m, b_m) of the step from t to t + h."""
         if not (np.isfinite(h) and h > 0):
             raise InputError(f"time step must be positive and finite, got {h!r}")
-        L = self._ready()
+        L = self._direct_layout("step_matrix")
         t1 = self.t + h
         targets = L.kinematic_targets(t1)               # prescribed poses and twists at t1
         for body, (_, _, twist) in targets.items():
@@ -711,12 +747,12 @@ class Scene:
     def master_forces(self) -> np.ndarray:
         """F_m = P^T f_all: the static generalized forces on the coupled island's masters
         (no inertia)."""
-        L = self._ready()
+        L = self._direct_layout("master_forces")
         return L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
 
     def static_tangent(self) -> sparse.csr_matrix:
         """-dF_m/dq_m = P^T K_all P - K_geo at the current configuration (module docstring)."""
-        L = self._ready()
+        L = self._direct_layout("static_tangent")
         f_all, K_all = L.static_forces(self.t, tangent=True)
         P = L.prolongation()
         K = L.fmt(P.T @ K_all @ P)
@@ -734,10 +770,10 @@ class Scene:
     def displace_masters(self, dq) -> None:
         """Apply a master displacement: free FEM u += dq, dynamic roots p += dp and
         R = exp([dtheta]x) R; slaves follow their roots' poses exactly."""
-        self._ready().displace(np.asarray(dq, dtype=float))
+        self._direct_layout("displace_masters").displace(np.asarray(dq, dtype=float))
 
     def master_count(self) -> int:
-        return self._ready().n_masters
+        return self._direct_layout("master_count").n_masters
 
     def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
                      max_iterations: int = 30, progress=None) -> list[int]:
@@ -760,6 +796,7 @@ class Scene:
             body.qdot[:] = 0.0
             counts = np.maximum(counts, solve_static_reduced(body, **options)).tolist()
         if L.n_all:
+            L = self._direct_layout("solve_static")
             counts = np.maximum(counts, self._solve_island_static(
                 L, load_steps, rtol, atol, max_iterations, progress)).tolist()
         return [int(c) for c in counts]
