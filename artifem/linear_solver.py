@@ -80,8 +80,9 @@ def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
 MUMPS_ICNTL = {7: 5}
 
 
-def _set_mumps_cholesky(pc: PETSc.PC) -> None:
-    pc.setType("cholesky")
+def _set_mumps(pc: PETSc.PC, symmetric: bool) -> None:
+    """MUMPS LDL^T (symmetric) or LU."""
+    pc.setType("cholesky" if symmetric else "lu")
     pc.setFactorSolverType("mumps")
 
 
@@ -109,6 +110,10 @@ class LinearSolver:
             about 4 more CG iterations than 1e-6. Pass ``"mumps"`` when a
             comparison needs agreement to round-off.
         warm_start: start CG from the A-optimal multiple of the previous solution.
+        symmetric: the matrices are symmetric (CG, MUMPS LDL^T); False for a tangent
+            that is not (a follower pressure on faces with a free border:
+            ``FemBody.conservative``): GMRES, right-preconditioned so that ``rtol`` is
+            still the unpreconditioned residual, and MUMPS LU.
         lag_growth, lag_extra, lag_max_solves: a lagged preconditioner is rebuilt
             after a solve that needed more than ``lag_growth`` times (plus
             ``lag_extra``) the iterations of the first solve after the last
@@ -117,7 +122,8 @@ class LinearSolver:
 
     def __init__(self, comm, method: str = DEFAULT_METHOD, V: fem.FunctionSpace | None = None,
                  rtol: float = DEFAULT_RTOL, *, warm_start: bool = True,
-                 lag_growth: float = 1.5, lag_extra: int = 2, lag_max_solves: int = 50):
+                 lag_growth: float = 1.5, lag_extra: int = 2, lag_max_solves: int = 50,
+                 symmetric: bool = True):
         if method not in METHODS:
             raise InputError(f"unknown linear solver {method!r}; choose one of {METHODS}")
         if method == "cg-hypre" and not PETSc.Sys.hasExternalPackage("hypre"):
@@ -126,7 +132,7 @@ class LinearSolver:
                              "use 'cg-gamg-lagged', 'cg-gamg' or 'mumps'")
         if not (0.0 < rtol < 1.0):
             raise InputError(f"rtol must be in (0, 1), got {rtol}")
-        self.method, self.rtol = method, rtol
+        self.method, self.rtol, self.symmetric = method, rtol, bool(symmetric)
         self.iterative = method != "mumps"
         self.lagged = method.endswith("-lagged")
         self.warm_start = warm_start and self.iterative
@@ -136,9 +142,13 @@ class LinearSolver:
         self._near_nullspace = None
         if method == "mumps":
             self.ksp.setType("preonly")
-            _set_mumps_cholesky(pc)
+            _set_mumps(pc, self.symmetric)
         else:
-            self.ksp.setType("cg")
+            if self.symmetric:
+                self.ksp.setType("cg")
+            else:
+                self.ksp.setType("gmres")
+                self.ksp.setPCSide(PETSc.PC.Side.RIGHT)
             self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
             self.ksp.setTolerances(rtol=rtol, atol=0.0, max_it=2000)
             if method in ("cg-gamg", "cg-gamg-lagged"):
@@ -156,7 +166,7 @@ class LinearSolver:
                 if V is not None:
                     self._near_nullspace = rigid_body_modes(V)
             elif method == "cg-mumps-lagged":
-                _set_mumps_cholesky(pc)
+                _set_mumps(pc, self.symmetric)
             else:
                 pc.setType("hypre")
                 pc.setHYPREType("boomeramg")
@@ -204,14 +214,14 @@ class LinearSolver:
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """Solve A x = b; A's values may change between calls, not its pattern."""
         if A is not self._operator:
-            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-            A.setOption(PETSc.Mat.Option.SYMMETRY_ETERNAL, True)
+            A.setOption(PETSc.Mat.Option.SYMMETRIC, self.symmetric)
+            A.setOption(PETSc.Mat.Option.SYMMETRY_ETERNAL, self.symmetric)
             if self._near_nullspace is not None:
                 A.setNearNullSpace(self._near_nullspace)
             self._operator = A
             self._rebuild = True
             self.ksp.setOperators(A)
-            if self.ksp.getPC().getType() == "cholesky":
+            if self.ksp.getPC().getType() in ("cholesky", "lu"):
                 _configure_mumps(self.ksp.getPC())
         self.ksp.setOperators(A)
         rebuild = self._rebuild or not self.lagged
@@ -240,11 +250,11 @@ class LinearSolver:
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def _direct_solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
-        """MUMPS LDL^T with pivoting (symmetric indefinite), created on first use."""
+        """MUMPS LDL^T with pivoting (symmetric indefinite) or LU, created on first use."""
         if self._direct is None:
             self._direct = PETSc.KSP().create(A.getComm())
             self._direct.setType("preonly")
-            _set_mumps_cholesky(self._direct.getPC())
+            _set_mumps(self._direct.getPC(), self.symmetric)
             self._direct.setOperators(A)
             _configure_mumps(self._direct.getPC())
         self._direct.setOperators(A)

@@ -51,3 +51,28 @@ def test_indefinite_matrix_falls_back_to_mumps():
     solver.solve(A, b, x)
     assert solver.direct_solves == 1
     assert np.abs(x.array - x_true.array).max() < 1e-10
+
+
+@pytest.mark.parametrize("method", ["mumps", "cg-gamg", "cg-gamg-lagged", "cg-mumps-lagged"])
+def test_unsymmetric_matrix_with_symmetric_false(method):
+    """An unsymmetric matrix (a follower load's tangent): GMRES or MUMPS LU solve it; the
+    symmetric configuration (LDL^T reads one triangle) does not."""
+    n = 50
+    A = PETSc.Mat().createAIJ([n, n], nnz=3, comm=MPI.COMM_SELF)
+    for i, d in enumerate(np.linspace(1.0, 3.0, n)):
+        A.setValue(i, i, d)
+        if i + 1 < n:
+            A.setValue(i, i + 1, -0.4)
+            A.setValue(i + 1, i, 0.2)
+    A.assemble()
+    x_true = A.createVecRight()
+    x_true.setArray(np.sin(np.arange(n)))
+    b = A.createVecLeft()
+    A.mult(x_true, b)
+    x = A.createVecRight()
+    LinearSolver(MPI.COMM_SELF, method, rtol=1e-10, symmetric=False).solve(A, b, x)
+    assert np.abs(x.array - x_true.array).max() < 1e-8
+    if method == "mumps":
+        wrong = A.createVecRight()
+        LinearSolver(MPI.COMM_SELF, method).solve(A, b, wrong)
+        assert np.abs(wrong.array - x_true.array).max() > 1e-3

@@ -55,7 +55,7 @@ class Layout:
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
                     "coupled to other bodies (attachments, paths or loads): coupled islands "
                     "run in serial only for now; a body that nothing couples runs in parallel")
-        self.fixed = [b.fixed_dofs.copy() for b in fem_bodies]
+        self.fixed = [b.fixed_components.copy() for b in fem_bodies]   # 3 node + component
         offset = 0
         self.fem_offset: dict[int, int] = {}
         self.fem_size: dict[int, int] = {}
@@ -105,7 +105,7 @@ class Layout:
         for body, fixed in zip(fem_bodies, self.fixed):
             o = self.fem_offset[id(body)]
             known = np.zeros(self.fem_size[id(body)], dtype=bool)
-            known[(3 * fixed[:, None] + np.arange(3)).ravel()] = True
+            known[fixed] = True
             rows = o + np.flatnonzero(~known)
             master_rows.append(rows[~is_slave_row[rows]])
         for body in self.reduced_bodies:
@@ -227,7 +227,7 @@ class Layout:
                 raise InputError(f"{what}: FEM body {att.fem.name!r} is not in the scene")
             if id(att.body) not in rigid_ids:
                 raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
-            fixed = np.intersect1d(att.dofs, att.fem.fixed_dofs)
+            fixed = np.intersect1d(att.dofs, att.fem.fixed_components // 3)
             if fixed.size:
                 inverse = {d: n for n, d in att.fem._node_to_dof.items()}
                 raise InputError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
@@ -275,7 +275,7 @@ class Layout:
             for b in (att.slave, att.master):
                 if id(b) not in fem_ids:
                     raise InputError(f"{what}: FEM body {b.name!r} is not in the scene")
-            if att.slave.fixed_dofs.size:
+            if att.slave.fixed_components.size:
                 raise InputError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
                                  "its nodes are either fixed or embedded")
             if any(a.fem is att.slave for a in scene.node_attachments):

@@ -298,7 +298,7 @@ class Scene:
         self.linear_solver = linear_solver
         self.island_solver = island_solver
         self._schur = None              # the SchurIsland stepping the coupled island, if any
-        self._linear_solvers: dict[int, LinearSolver] = {}
+        self._linear_solvers: dict[tuple, LinearSolver] = {}
         self._comm = MPI.COMM_SELF      # the FEM bodies' communicator (one for the scene)
         self._islands = None            # (free FEM, free reduced, coupled FEM, coupled reduced)
         self._gravity = g
@@ -458,7 +458,7 @@ class Scene:
                     f"(attachments, paths, loads, joints, rigid bodies) is stepped by one of "
                     f"{sorted(INTEGRATORS)}; a custom integrator steps bodies on their own only")
         # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
-        elif any(not np.array_equal(b.fixed_dofs, f)
+        elif any(not np.array_equal(b.fixed_components, f)
                  for b, f in zip(self._layout.fem_bodies, self._layout.fixed)):
             self._layout = None
             return self._ready()
@@ -474,10 +474,12 @@ class Scene:
 
     def linear_solver_for(self, body: FemBody) -> LinearSolver:
         """The PETSc solver of an FEM body stepped on its own (one per body, reused)."""
-        if id(body) not in self._linear_solvers:
-            self._linear_solvers[id(body)] = LinearSolver(body.mesh.comm, self.linear_solver,
-                                                          V=body.V)
-        return self._linear_solvers[id(body)]
+        # A follower pressure on faces with a free border makes the tangent unsymmetric.
+        key = (id(body), body.conservative)
+        if key not in self._linear_solvers:
+            self._linear_solvers[key] = LinearSolver(body.mesh.comm, self.linear_solver,
+                                                     V=body.V, symmetric=body.conservative)
+        return self._linear_solvers[key]
 
     # ---- observation ---------------------------------------------------------------------
 
@@ -869,7 +871,8 @@ class Scene:
             # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
             # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
-                and all(p.conservative for p in self.paths)
+                and all(p.conservative for p in self.paths) \
+                and all(b.conservative for b in L.fem_bodies)
             rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
             energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
                 if use_energy else 0.0
