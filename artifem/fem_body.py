@@ -100,6 +100,9 @@ class FemBody:
         name: component name in a system.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "fem_bodies"
+
     def __init__(self, domain: dmesh.Mesh, material, density: float, *,
                  mass: str = "lumped", rayleigh: tuple[float, float] = (0.0, 0.0),
                  gravity=(0.0, 0.0, 0.0), quadrature_degree: int | None = None,

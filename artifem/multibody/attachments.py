@@ -50,6 +50,9 @@ class NodeAttachment:
     nodes act on the body as the wrench G^T f = [sum f_i; sum R r_i x f_i].
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "node_attachments"
+
     def __init__(self, fem: FemBody, nodes, body: RigidBody, *, name: str = ""):
         if not isinstance(fem, FemBody):
             raise TypeError(f"NodeAttachment: expected a FemBody, got {type(fem).__name__}")
@@ -124,6 +127,9 @@ class RigidAttachment:
     Attachments chain; a cycle is an error of the scene.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "rigid_attachments"
+
     def __init__(self, slave: RigidBody, master: RigidBody, *, name: str = ""):
         for b in (slave, master):
             if not isinstance(b, RigidBody):
@@ -176,6 +182,9 @@ class FrameAttachment:
     (joints between frames on deformable bodies) and paths. Nothing may be attached to
     the body itself (attach to the FEM body instead).
     """
+
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "frame_attachments"
 
     def __init__(self, slave: RigidBody, frame: FemFrame, *, name: str = ""):
         if not isinstance(slave, RigidBody):
@@ -258,6 +267,9 @@ class EmbeddedFemAttachment:
     error of the scene. The slave may have no fixed dofs.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "embedded_attachments"
+
     def __init__(self, slave: FemBody, master: FemBody, *, snap: bool = False,
                  name: str = ""):
         for b in (slave, master):
@@ -312,6 +324,9 @@ class LiftAttachment:
     lever stiffness is sum_k [f_gRk]x [R_k]x (the columns R_k turn with the body
     like a node's lever), plus [f_gp]x [p - p_root]x on a body carried by another.
     """
+
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "lift_attachments"
 
     def __init__(self, reduced: ReducedFemBody, lift: RigidLift, body: RigidBody, *,
                  name: str = ""):

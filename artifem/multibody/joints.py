@@ -138,6 +138,9 @@ class Joint:
     them, adds unilateral rows on its coordinate.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "joints"
+
     frame_a: Frame
     frame_b: Frame
     name: str = ""

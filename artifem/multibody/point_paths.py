@@ -19,6 +19,9 @@ class PointPath(PathElement):
     activation advances once per new time (as ``FramePath``).
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "paths"
+
     def __init__(self, element, points, *, excitation=None, name: str = "path"):
         pts = []
         for p in points:

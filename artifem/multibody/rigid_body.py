@@ -223,6 +223,9 @@ class RigidBody:
         surface: optional (vertices in body coordinates, triangles) for output.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "rigid_bodies"
+
     def __init__(self, name: str, mass: float, inertia, *, position=(0.0, 0.0, 0.0),
                  rotation=None, velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0),
                  motion: str = "dynamic", trajectory: Trajectory | None = None,

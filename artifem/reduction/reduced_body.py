@@ -98,6 +98,9 @@ class ReducedFemBody:
         name: component name.
     """
 
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "reduced_bodies"
+
     def __init__(self, full: FemBody, U: np.ndarray, points: IntegrationPoints, *,
                  name: str | None = None):
         if full.mesh.comm.size != 1:
@@ -232,6 +235,11 @@ class ReducedFemBody:
     def m(self) -> int:
         """Number of integration points."""
         return int(self.point_index.size)
+
+    @property
+    def gravity(self):
+        """The full body's gravity constant (g; read live by the external force)."""
+        return self.full.gravity
 
     def set_q(self, q) -> None:
         """Set the reduced coordinates and evaluate F at the integration points."""

@@ -202,8 +202,7 @@ class Layout:
 
     def _body_offset(self, body) -> int:
         """The all-space offset of an FEM (blocked dofs) or reduced body (q)."""
-        return self.fem_offset[id(body)] if isinstance(body, FemBody) else \
-            self.reduced_offset[id(body)]
+        return self.fem_offset.get(id(body), self.reduced_offset.get(id(body)))
 
     @staticmethod
     def _chain(Z, X):
@@ -894,7 +893,7 @@ def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
     """``array`` as a finite float array of ``shape``, on bodies of the scene."""
     what = f"force element {type(element).__name__}"
     for b in (body, other or body):
-        if not isinstance(b, RigidBody) or id(b) not in known:
+        if id(b) not in known:
             raise InputError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
     array = np.asarray(array, dtype=float)
     if array.shape != shape or not np.all(np.isfinite(array)):

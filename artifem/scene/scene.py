@@ -229,6 +229,11 @@ __all__ = ["Scene", "SceneState"]
 Controller = Callable[["Scene", float, float], None]
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
+#: The scene's lists of bodies, and of every component (``scene_group`` of each class).
+BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
+COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
+                                  "embedded_attachments", "lift_attachments",
+                                  "frame_attachments", "joints", "paths", "forces", "loads")
 
 
 @dataclass(frozen=True)
@@ -363,53 +368,40 @@ class Scene:
         the first step or static solve after a change (:meth:`check`).
         """
         for item in items:
-            if isinstance(item, (FemBody, ReducedFemBody, RigidBody)) and any(
-                    item.name == b.name for b in self.bodies):
-                raise InputError(f"a body named {item.name!r} is already in the scene (bodies "
-                                 "are named in errors, records and output files: give each "
-                                 "its own name)")
-            if isinstance(item, FemBody):
-                comm = item.mesh.comm
-                if self.fem_bodies and comm.size != self._comm.size:
-                    raise InputError(f"FEM body {item.name!r} runs on {comm.size} MPI ranks, "
-                                     f"the scene's other FEM bodies on {self._comm.size}")
-                self._comm = comm
-                item.gravity.value[:] = self.gravity
-                self.fem_bodies.append(item)
-            elif isinstance(item, ReducedFemBody):
-                item.full.gravity.value[:] = self.gravity
-                self.reduced_bodies.append(item)
-            elif isinstance(item, RigidBody):
-                if item.motion == "prescribed":
-                    item.follow_trajectory(self.t)
-                self.rigid_bodies.append(item)
-            elif isinstance(item, (NodeAttachment, RigidAttachment, EmbeddedFemAttachment,
-                                   LiftAttachment, FrameAttachment, Joint, PointPath)):
-                members = {NodeAttachment: self.node_attachments,
-                           RigidAttachment: self.rigid_attachments,
-                           EmbeddedFemAttachment: self.embedded_attachments,
-                           LiftAttachment: self.lift_attachments,
-                           FrameAttachment: self.frame_attachments,
-                           Joint: self.joints, PointPath: self.paths}
-                group = next(g for kind, g in members.items() if isinstance(item, kind))
-                if any(item is other for other in group):
-                    raise InputError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
-                                     f"already in the scene")
-                group.append(item)
-            elif isinstance(item, ForceElement):
-                self.forces.append(item)
-            elif LoadElement.is_load(item):
-                if any(item is other for other in self.loads):
-                    raise InputError(f"load element {item!r} is already in the scene")
-                if not isinstance(getattr(item, "bodies", None), (tuple, list)):
-                    raise InputError(f"load element {item!r} has no ``bodies`` (the tuple of "
-                                     "bodies it loads; LoadElement)")
-                self.loads.append(item)
-            else:
+            # Each component declares its list (scene_group); force and load elements are
+            # recognized by their protocols (wrenches(t), master_loads(t)).
+            group = getattr(item, "scene_group", None)
+            if group is None and isinstance(item, ForceElement):
+                group = "forces"
+            elif group is None and LoadElement.is_load(item):
+                group = "loads"
+            if group not in COMPONENT_GROUPS:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
                                 "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a force element with wrenches(t) or a load element with "
-                                "master_loads(t)")
+                                "a path, a force element with wrenches(t) or a load element "
+                                "with master_loads(t)")
+            members = getattr(self, group)
+            name = getattr(item, "name", "")
+            if group in BODY_GROUPS and any(name == b.name for b in self.bodies):
+                raise InputError(f"a body named {name!r} is already in the scene (bodies "
+                                 "are named in errors, records and output files: give each "
+                                 "its own name)")
+            if any(item is other for other in members):
+                raise InputError(f"{type(item).__name__} {name!r} is already in the scene")
+            if group == "fem_bodies":
+                comm = item.mesh.comm
+                if self.fem_bodies and comm.size != self._comm.size:
+                    raise InputError(f"FEM body {name!r} runs on {comm.size} MPI ranks, "
+                                     f"the scene's other FEM bodies on {self._comm.size}")
+                self._comm = comm
+            if group in ("fem_bodies", "reduced_bodies"):
+                item.gravity.value[:] = self.gravity
+            if group == "rigid_bodies" and item.motion == "prescribed":
+                item.follow_trajectory(self.t)
+            if group == "loads" and not isinstance(getattr(item, "bodies", None), (tuple, list)):
+                raise InputError(f"load element {item!r} has no ``bodies`` (the tuple of "
+                                 "bodies it loads; LoadElement)")
+            members.append(item)
             self._layout = None
 
     def check(self) -> None:
