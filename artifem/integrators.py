@@ -83,49 +83,70 @@ def _has_inversion(body: FemBody) -> bool:
     return body.mesh.comm.allreduce(local, op=MPI.LOR)
 
 
+def step_system(body: FemBody, h: float) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
+    """The semi-implicit step of an FEM body at its current state, A v+ = b (the one place
+    it is formed: this integrator, the coupled island's direct and Schur solves):
+
+        A = (1 + h alpha) M + (h beta + h^2) K,    b = M v + h f,    f = -R,
+
+    and the applied force f - D v (Rayleigh damping D = alpha M + beta K; the slaves'
+    loads in K_geo). A is ``body.K`` scaled in place: valid until the body is assembled
+    again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
+    """
+    body.assemble(tangent=True)
+    v = body.v.x.petsc_vec
+    b, d = v.duplicate(), v.duplicate()
+    body.mass_mult(v, b)                    # b = M v, then + h f
+    d.set(0.0)
+    if body.beta:
+        body.K.mult(v, d)
+        d.scale(body.beta)
+    d.axpy(body.alpha, b)
+    d.axpy(1.0, body.R)
+    d.scale(-1.0)                           # f - D v = -R - D v
+    b.axpy(-h, body.R)
+    body.K.scale(h * body.beta + h * h)     # K becomes the step matrix A
+    body.add_mass(body.K, 1.0 + h * body.alpha)
+    return body.K, b, d
+
+
+def reduced_step_system(body: ReducedFemBody, h: float):
+    """:func:`step_system` in reduced coordinates (dense r x r): (A, b, f~ - D~ q') with
+    A = (1 + h alpha) M~ + (h beta + h^2) K~, b = M~ q' + h f~."""
+    K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
+    Mv = M @ v
+    return ((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K, Mv + h * f,
+            f - body.alpha * Mv - body.beta * (K @ v))
+
+
 class SemiImplicitEuler:
     """Linearized backward Euler: one linear solve per step (see module docstring)."""
 
     name = "semi-implicit"
 
     def advance(self, body: FemBody, h: float, solver: LinearSolver) -> None:
-        body.assemble(tangent=True)
-        K, R = body.K, body.R
+        """A dv = b - A v (:func:`step_system`; the increment, so that an iterative
+        solver's tolerance bounds the change, not the velocity), v += dv, u += h v."""
+        A, b, applied = step_system(body, h)
         v, u = body.v.x.petsc_vec, body.u.x.petsc_vec
-        c = h * body.beta + h * h
-        b = R.copy()
-        b.scale(-h)
-        w = v.duplicate()
-        K.mult(v, w)
-        b.axpy(-c, w)
-        if body.alpha:
-            body.mass_mult(v, w)
-            b.axpy(-h * body.alpha, w)
+        dv = v.duplicate()
+        A.mult(v, dv)
+        b.axpy(-1.0, dv)
         body.zero_fixed(b)
-        K.scale(c)                      # K becomes the step matrix A (reassembled next step)
-        body.add_mass(K, 1.0 + h * body.alpha)
-        dv = w
-        solver.solve(K, b, dv)
+        solver.solve(A, b, dv)
         body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
         v.axpy(1.0, dv)
         u.axpy(h, v)
         _update_ghosts(u, v)
-        b.destroy()
-        dv.destroy()
+        for vec in (b, applied, dv):
+            vec.destroy()
 
     def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
-        """The same step in reduced coordinates (dense r x r):
-
-            (M~ + h D~ + h^2 K~) dq' = h f~ - h D~ q' - h^2 K~ q',   D~ = alpha M~ + beta K~,
-            q' += dq',   q += h q'.
-        """
-        K, f = body.tangent(), body.force()
+        """The same step in reduced coordinates (dense r x r, :func:`reduced_step_system`):
+        A dq' = b - A q', q' += dq', q += h q'."""
+        A, b, _ = reduced_step_system(body, h)
         q, qdot = body.state()
-        M = body.M
-        c = h * body.beta + h * h
-        b = h * f - c * (K @ qdot) - h * body.alpha * (M @ qdot)
-        A = c * K + (1.0 + h * body.alpha) * M
-        qdot = qdot + _dense_solve(A, b, "semi-implicit Euler (reduced)")
+        qdot = qdot + _dense_solve(A, b - A @ qdot, "semi-implicit Euler (reduced)")
         body.set_state((q + h * qdot, qdot))
 
 

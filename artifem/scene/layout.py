@@ -19,6 +19,7 @@ from scipy import sparse
 
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
+from artifem.integrators import reduced_step_system, step_system
 from artifem.multibody.attachments import FemPoint, NodeAttachment, dof_positions, pose_gap
 from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import (Frame, RigidBody, exp_so3, orthonormalize, skew,
@@ -450,23 +451,18 @@ class Layout:
         """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo)."""
         scene = self.scene
         blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
-        for body in self.fem_bodies:
+        for body in self.fem_bodies:            # integrators.step_system: A, b, f - D v
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
-            body.assemble(tangent=True)
-            K = _csr(body.K)
-            M = _mass(body)
-            v = body.v.x.array[:n]
-            Mv = M @ v
-            f = -body.R.array[:n]
-            b[o:o + n] = Mv + h * f
-            f_all[o:o + n] = f - body.alpha * Mv - body.beta * (K @ v)
-            blocks.append(((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K).tocsr())
-        for body in self.reduced_bodies:       # the same, dense r x r (advance_reduced)
+            A_body, b_body, applied = step_system(body, h)
+            b[o:o + n] = b_body.array[:n]
+            f_all[o:o + n] = applied.array[:n]
+            blocks.append(_csr(A_body))
+            b_body.destroy()
+            applied.destroy()
+        for body in self.reduced_bodies:       # the same, dense r x r
             o, r = self.reduced_offset[id(body)], body.r
-            K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
-            b[o:o + r] = M @ v + h * f
-            f_all[o:o + r] = f - body.alpha * (M @ v) - body.beta * (K @ v)
-            blocks.append((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K)
+            A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h)
+            blocks.append(A_body)
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]

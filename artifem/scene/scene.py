@@ -40,7 +40,7 @@ Each component gives a linear system A_c z+ = b_c for the velocities at the
 end of the step (backward Euler linearized at its start, one solve):
 
     FEM:    A = (1 + h alpha) M + (h beta + h^2) K,     b = M v + h f,     f = -dPi/du,
-            (``SemiImplicitEuler``, written for v+ = v + dv instead of dv)
+            (``integrators.step_system``, which SemiImplicitEuler solves for dv = v+ - v)
     rigid:  A = M - h D - h^2 K_e,                      b = M u + h (f - D u),
             (gravity m g, the gyroscopic wrench, force elements; D and K_e the
             velocity and pose Jacobians of the wrenches, the gyroscopic one in D;

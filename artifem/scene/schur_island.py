@@ -5,8 +5,8 @@ the free FEM dofs v_f of each body and the twists u of the rigid roots (few:
 6 per root). An FEM node attached to a rigid body moves with it, v_s = G_s u, so
 the FEM velocity is z = v_f + W u, W's columns w_j the nodal velocities of a
 unit twist j (the rows of P on the FEM dofs). With A = (1 + h alpha) M +
-(h beta + h^2) K and b = M v + h f of a body (its semi-implicit step), the
-master equations are
+(h beta + h^2) K and b = M v + h f of a body (its semi-implicit step,
+``integrators.step_system``), the master equations are
 
     A_ff v_f + (A W)_f u                        = b_f,
     W^T A (v_f + W u) + A_r u - G_m^T lambda    = W^T b + b_r,         G_m u = c,
@@ -43,6 +43,7 @@ from petsc4py import PETSc
 from scipy import sparse
 
 from artifem.errors import InputError
+from artifem.integrators import step_system
 from artifem.multibody.attachments import dof_positions
 from artifem.multibody.rigid_body import skews
 from artifem.scene.constraints import solve_constrained
@@ -142,18 +143,9 @@ class SchurIsland:
         scene, R = self.scene, self.rigid
         n_m = P.shape[1]
         n_owned = body.V.dofmap.index_map.size_local
-        body.assemble(tangent=True)
+        A, b, applied = step_system(body, h)       # A: body.K, until the next assembly
         v = body.v.x.petsc_vec
-        # applied force f = -R - D v (for K_geo), and A, b of the semi-implicit step
-        Kv, Mv = v.duplicate(), v.duplicate()
-        body.K.mult(v, Kv)
-        body.mass_mult(v, Mv)
-        f_applied = -body.R.array - body.alpha * Mv.array - body.beta * Kv.array
-        A = body.K.copy()
-        A.scale(h * body.beta + h * h)
-        body.add_mass(A, 1.0 + h * body.alpha)
-        b = Mv.copy()
-        b.axpy(-h, body.R)
+        f_applied = applied.array.copy()            # f - D v, for K_geo
         # W: the nodal velocities of unit master twists, on the owned attached dofs
         W_local = np.zeros((3 * n_owned, n_m))
         non_free = np.zeros(3 * n_owned, dtype=bool)
@@ -187,8 +179,8 @@ class SchurIsland:
         v0 = v.copy()
         v0.array[non_free] = 0.0
         r = b.copy()
-        A.mult(v0, Kv)
-        r.axpy(-1.0, Kv)
+        A.mult(v0, applied)
+        r.axpy(-1.0, applied)
         r.array[non_free] = 0.0
         y = v.duplicate()
         solver.solve(A_ff, r, y)
@@ -214,9 +206,8 @@ class SchurIsland:
         S = np.array([[Ws[i].dot(Ys[j]) - Ys[i].dot(Zs[j]) for j in range(n_m)]
                       for i in range(n_m)])
         rhs = np.array([Ws[i].dot(b) - Ys[i].dot(y) for i in range(n_m)])
-        for vec in (Kv, Mv, ones, r, v0, *Ys):
+        for vec in (applied, ones, r, v0, *Ys):
             vec.destroy()
-        A.destroy()
         b.destroy()
         return {"body": body, "S": S, "rhs": rhs, "K_geo": K_geo, "y": y, "W": Ws, "Z": Zs,
                 "solves": 1 + sum(1 for Z in Zs if Z.norm() > 0.0)}
