@@ -103,6 +103,7 @@ from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, r
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
+from artifem.scene import simulate as simulate_scene
 
 __all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark",
            "build_scene", "compare", "read_sections", "reduced_table", "reduced_tongue",
@@ -437,30 +438,26 @@ def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
 
 
 def simulate(a: AirwayScene, motion: str | None, duration: float, dt: float = 0.01, *,
-             snapshots=()) -> dict:
+             snapshots=(), progress: bool = False, label: str = "airway") -> dict:
     """Run a tongue motion (or none) in the airway scene: jaw_tongue.simulate's record plus,
     per step (outside the step timing), the skin's positions ``skin`` (steps + 1, n, 3), the
     section areas, the skin's distance to the tongue, the top landmark and the pressure;
     ``skin_frames``: the skin at the snapshots."""
     top = int(a.jt.tongue.body.local_dofs([a.jt.tongue.data.landmarks["top"]])[0])
-    x0 = a.skin.positions()
-    gap0 = a.surface.signed_distance(x0[a.tongue_vertices])
-    rec = {"skin": [x0], "areas": [a.sections.areas(x0)], "gap_drift": [0.0],
-           "top": [np.zeros(3)],
-           "pressure": [a.pressure.pressure_at(0.0) if a.pressure_on else 0.0]}
+    gap0 = a.surface.signed_distance(a.skin.positions()[a.tongue_vertices])
 
-    def observe(k):
-        x = a.skin.positions()
-        rec["skin"].append(x)
-        rec["areas"].append(a.sections.areas(x))
-        gap = a.surface.signed_distance(x[a.tongue_vertices])
-        rec["gap_drift"].append(float(np.abs(gap - gap0).max()))
-        rec["top"].append(a.jt.tongue_displacement().reshape(-1, 3)[top])
-        rec["pressure"].append(a.pressure.pressure_at(a.scene.t) if a.pressure_on else 0.0)
+    def gap_drift(scene):
+        gap = a.surface.signed_distance(a.skin.positions()[a.tongue_vertices])
+        return float(np.abs(gap - gap0).max())
 
-    out = jt.simulate(a.jt, motion, duration, dt, snapshots=snapshots, callback=observe)
-    for key, values in rec.items():
-        out[key] = np.array(values)
+    out = jt.simulate(a.jt, motion, duration, dt, snapshots=snapshots, progress=progress,
+                      label=label, record={
+                          "skin": lambda scene: a.skin.positions(),
+                          "gap_drift": gap_drift,
+                          "pressure": lambda scene: (a.pressure.pressure_at(scene.t)
+                                                     if a.pressure_on else 0.0)})
+    out["areas"] = np.array([a.sections.areas(x) for x in out["skin"]])
+    out["top"] = out["u"].reshape(len(out["u"]), -1, 3)[:, top]
     out["skin_frames"] = [out["skin"][int(round(t / dt))] for t, *_ in out["frames"]]
     return out
 
@@ -663,8 +660,9 @@ def report(args: argparse.Namespace) -> dict:
     for motion in [None] + list(args.motions):
         for on in (True, False):
             a = rest if motion is None and on else build_scene(config, pressure=on, data=data)
-            rec = simulate(a, motion, args.duration, args.dt, snapshots=(1.0,))
             key = f"{motion or 'none'}/{'pressure' if on else 'no_pressure'}"
+            rec = simulate(a, motion, args.duration, args.dt, snapshots=(1.0,), progress=True,
+                           label=key)
             runs[key] = (a, rec)
             print(f"{key}: {np.median(rec['ms']):.0f} ms/step, min interior area "
                   f"{1e6 * rec['areas'][-1, a.sections.interior].min():.1f} mm^2", flush=True)
@@ -749,7 +747,7 @@ def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
         a = build_scene(config, pressure=p == "pressure", data=data, reduced=model)
         with threadpool_limits(limits=1, user_api="blas"):         # r x r algebra
             rec = simulate(a, None if motion == "none" else motion, args.duration, args.dt,
-                           snapshots=(1.0,))
+                           snapshots=(1.0,), progress=True, label=f"{key} reduced")
         comparison[key] = c = compare(full_scene, full, rec)
         print(f"{key} reduced: {c['ms_per_step']['reduced']:.1f} ms/step "
               f"(full {c['ms_per_step']['full']:.1f}), skin error mean "
@@ -805,13 +803,8 @@ def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
     s.scene.add_controller(
         s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body))
 
-    def timed(n):
-        ms = []
-        for _ in range(n):
-            t0 = time.perf_counter()
-            s.scene.step(dt)                              # the controller included
-            ms.append(1e3 * (time.perf_counter() - t0))
-        return float(np.median(ms))
+    def timed(n):                                         # the controller included
+        return simulate_scene(s.scene, n * dt, dt, progress=False).ms_per_step
 
     timed(1)                                              # factorization set-up, compile
     plain = timed(steps)

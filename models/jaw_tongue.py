@@ -67,7 +67,7 @@ from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
-from artifem.scene import Scene
+from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.frame_paths import FramePath
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
@@ -328,52 +328,51 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
 
 
 def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duration: float,
-             dt: float = 0.01, *, snapshots=(), callback=None) -> dict:
+             dt: float = 0.01, *, snapshots=(), record=None, progress: bool = False,
+             label: str = "jaw-tongue") -> dict:
     """Run the tongue motion (a name of MOTIONS, with the paper's ramp, or an exciter
-    schedule, added to the scene's controllers) with the scene's jaw; record time, opening
-    angle, tip displacement, attachment and joint errors, ms per step. ``callback(k)``
-    after step k. A step the scene cannot complete raises its ElementInversionError or
+    schedule, added to the scene's controllers) with the scene's jaw through
+    :func:`artifem.scene.simulate`; record, at the start and after every step: time ``t``,
+    opening ``angle``, ``tip`` displacement, ``attachment_error`` and ``joint_error``,
+    ``jaw_nodes_dz``, ``opener_tension``, the tongue displacement ``u`` (steps + 1, n) and the
+    jaw pose ``jaw_position``, ``jaw_rotation``; ``ms``: wall time of each step. ``record``:
+    more name -> f(scene) recorded the same way (outside the step timing), added to the
+    result. ``frames``: (t, u, p, R) after the steps nearest the ``snapshots`` fractions of
+    the run. A step the scene cannot complete raises its ElementInversionError or
     StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
     body = s.tongue.body
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
     control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
-    if control is not None:
-        s.scene.add_controller(control)         # for this run only (removed at its end)
     dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
     tip = FemPoint(s.reduced or body, FemPointWeights(np.array([dof]), np.ones(1),
                                                       body.V.tabulate_dof_coordinates()[dof]))
     tip0 = tip.weights.rest_position
-    rec = {"t": [0.0], "angle": [s.opening_angle()], "tip": [np.zeros(3)],
-           "attachment_error": [0.0], "joint_error": [0.0], "ms": [], "jaw_nodes_dz": [0.0],
-           "opener_tension": [0.0]}
     z0 = s.attachment.positions()[:, 2].copy()
-    frames = []
-    n = int(round(duration / dt))
-    keep = {int(round(f * n)) for f in snapshots}
-    try:
-        for k in range(1, n + 1):
-            t0 = time.perf_counter()
-            s.scene.step(dt)            # controllers, halving and the det F checks: the Scene's
-            rec["ms"].append(1e3 * (time.perf_counter() - t0))
-            x_tip = tip.position()
-            rec["t"].append(s.scene.t)
-            rec["angle"].append(s.opening_angle())
-            rec["tip"].append(x_tip - tip0)
-            rec["attachment_error"].append(max(s.scene.attachment_errors().values()))
-            rec["joint_error"].append(max(s.scene.constraint_errors().values()))
-            rec["jaw_nodes_dz"].append(float((s.attachment.positions()[:, 2] - z0).mean()))
-            rec["opener_tension"].append(s.opener.tension() if s.opener else 0.0)
-            if k in keep:
-                frames.append((s.scene.t, s.tongue_displacement(), s.jaw.position.copy(),
-                               s.jaw.rotation.copy()))
-            if callback:
-                callback(k)
+    quantities = {
+        "angle": lambda scene: s.opening_angle(),
+        "tip": lambda scene: tip.position() - tip0,
+        "attachment_error": lambda scene: max(scene.attachment_errors().values()),
+        "joint_error": lambda scene: max(scene.constraint_errors().values()),
+        "jaw_nodes_dz": lambda scene: float((s.attachment.positions()[:, 2] - z0).mean()),
+        "opener_tension": lambda scene: s.opener.tension() if s.opener else 0.0,
+        "u": lambda scene: s.tongue_displacement(),
+        "jaw_position": lambda scene: s.jaw.position.copy(),
+        "jaw_rotation": lambda scene: s.jaw.rotation.copy(),
+        **(record or {})}
+    if control is not None:
+        s.scene.add_controller(control)         # for this run only (removed at its end)
+    try:                                        # controllers, halving, det F: the Scene's
+        run = simulate_scene(s.scene, duration, dt, record=quantities, progress=progress,
+                             label=label, leave=False)
     finally:
         if control is not None:
             s.scene.controllers.remove(control)
-    out = {k: np.array(v) for k, v in rec.items()}
-    out["frames"] = frames
+    out = {"t": run.times, "ms": run.step_ms, **run.records}
+    n = int(round(duration / dt))
+    out["frames"] = [(float(run.times[k]), out["u"][k], out["jaw_position"][k],
+                      out["jaw_rotation"][k])
+                     for k in sorted({int(round(f * n)) for f in snapshots}) if 1 <= k <= n]
     return out
 
 
@@ -441,7 +440,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     s = build_scene(config)
     build_s = time.perf_counter() - t0
-    rec = simulate(s, motion, args.duration, args.dt, snapshots=(1 / 3, 2 / 3, 1.0))
+    rec = simulate(s, motion, args.duration, args.dt, snapshots=(1 / 3, 2 / 3, 1.0),
+                   progress=True, label=f"jaw-tongue {label}")
     frames = [(f"t = {t:.2f} s, jaw {np.degrees(a):.1f} deg", u, p, R)
               for (t, u, p, R), a in zip(rec["frames"],
                                          [rec["angle"][int(round(t / args.dt))]

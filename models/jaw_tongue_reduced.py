@@ -94,18 +94,18 @@ def _training_run(config: ReducedJawTongueConfig, exciter: str) -> dict[str, np.
     body = s.tongue.body
     lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
     n = 3 * body.V.dofmap.index_map.size_local
-    u, g, a = [], [], []
-
-    def keep(k):
-        if k % config.snapshot_every == 0:
-            gk = lift.coordinates(s.jaw.position, s.jaw.rotation)
-            u.append(body.u.x.array[:n] - lift.columns[:n] @ gk)
-            g.append(gk)
-            a.append([float(m.excitation.value) for m in body.muscles.values()])
     schedule = ExcitationSchedule.ramp_and_hold({exciter: config.training_excitation},
                                                 RAMP_TIME)
-    jt.simulate(s, schedule, config.training_duration, config.dt, callback=keep)
-    return {"residual": np.array(u), "lift": np.array(g), "excitations": np.array(a)}
+    rec = jt.simulate(s, schedule, config.training_duration, config.dt, record={
+        "excitations": lambda scene: [float(m.excitation.value)
+                                      for m in body.muscles.values()]})
+    u, g = [], []
+    for k in range(config.snapshot_every, len(rec["t"]), config.snapshot_every):
+        gk = lift.coordinates(rec["jaw_position"][k], rec["jaw_rotation"][k])
+        u.append(rec["u"][k][:n] - lift.columns[:n] @ gk)
+        g.append(gk)
+    return {"residual": np.array(u), "lift": np.array(g),
+            "excitations": rec["excitations"][config.snapshot_every::config.snapshot_every]}
 
 
 def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedTongue:
@@ -153,16 +153,10 @@ def build_reduced_scene(model: ReducedTongue, config: ReducedJawTongueConfig
 
 
 def _run(s: jt.JawTongueScene, motion: str, duration: float, dt: float) -> dict:
-    """simulate() with the tongue displacement and the jaw pose kept at every step (outside
-    the timing)."""
-    u, poses = [], []
-
-    def keep(k=0):
-        u.append(s.tongue_displacement())
-        poses.append((s.jaw.position.copy(), s.jaw.rotation.copy()))
-    keep()
-    rec = jt.simulate(s, motion, duration, dt, callback=keep)
-    rec["u"], rec["poses"] = np.array(u), poses
+    """simulate() with the jaw pose at every step as ``poses`` (p, R) (its tongue
+    displacement ``u`` and the pose are recorded outside the timing)."""
+    rec = jt.simulate(s, motion, duration, dt)
+    rec["poses"] = list(zip(rec["jaw_position"], rec["jaw_rotation"]))
     return rec
 
 
