@@ -95,18 +95,19 @@ from scipy.spatial import cKDTree
 
 from artifem.arguments import fraction, positive_int
 from artifem.errors import InputError, SolverError
+from artifem.excitation import ExcitationSchedule
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.embedding.voxel_fem import VoxelFemBody
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin, NeoHookean
 from artifem.multibody.attachments import EmbeddedFemAttachment, NodeAttachment
-from artifem.scene import Scene
+from artifem.scene import Run, Scene, simulate as simulate_scene
 from artifem.multibody.joints import FixedJoint
 from artifem.multibody.rigid_body import RigidBody
 
 __all__ = ["MasseterConfig", "MasseterShape", "MasseterModel", "fascicles", "fiber_directions",
-           "membrane_mesh", "block_mesh", "build_model", "dof_counts", "jaw_forces", "simulate",
-           "benchmark", "render",
+           "membrane_mesh", "block_mesh", "build_model", "dof_counts", "jaw_forces", "ramp",
+           "simulate", "benchmark", "render",
            "add_arguments", "run", "report", "MODELS", "COARSE"]
 
 #: (primary, aponeuroses) of the compared models.
@@ -594,6 +595,23 @@ def jaw_forces(model: MasseterModel, h: float) -> dict:
             "force_balance_N": float(np.linalg.norm(f_jaw + f_arch))}
 
 
+def ramp(model: MasseterModel, excitation: float, steps: int) -> Run:
+    """``steps`` coupled steps of ``config.dt`` from the scene's time, the excitation ramped
+    linearly from 0 to ``excitation`` over them (a controller: ``excitation * k / steps``
+    at the end of step k, then held), timed by :func:`artifem.scene.simulate`."""
+    dt, t = model.config.dt, model.scene.t
+    schedule = ExcitationSchedule(np.array([t, t + steps * dt]),
+                                  {"masseter": np.array([0.0, excitation])})
+    control = schedule.controller(model.primary)
+    model.scene.add_controller(control)         # for this ramp only
+    try:
+        run = simulate_scene(model.scene, steps * dt, dt, progress=False)
+    finally:
+        model.scene.controllers.remove(control)
+    model.primary.set_excitation("masseter", excitation)    # held (no round-off in t)
+    return run
+
+
 def simulate(model: MasseterModel, *, excitation: float | None = None,
              steps: int | None = None) -> dict:
     """Ramp the excitation over ``steps`` coupled steps (timed), solve the statics at the
@@ -603,18 +621,12 @@ def simulate(model: MasseterModel, *, excitation: float | None = None,
     n = c.steps if steps is None else steps
     if not 0.0 <= a <= 1.0:
         raise InputError(f"masseter: excitation must be in [0, 1], got {a!r}")
-    times = []
-    for k in range(1, n + 1):
-        model.primary.set_excitation("masseter", a * k / n)
-        t0 = time.perf_counter()
-        model.scene.step(c.dt)
-        times.append(time.perf_counter() - t0)
+    run = ramp(model, a, n)
     t0 = time.perf_counter()
     iterations = model.scene.solve_static()
     static_s = time.perf_counter() - t0
     out = {"model": model.label, "excitation": a, "steps": n, "dt": c.dt,
-           "ms_per_step": 1e3 * float(np.median(times)),
-           "ms_per_step_all": [1e3 * t for t in times],
+           "ms_per_step": run.ms_per_step, "ms_per_step_all": run.step_ms.tolist(),
            "static_newton_iterations": iterations, "static_s": static_s,
            **dof_counts(model), **jaw_forces(model, c.dt)}
     u = model.primary.u.x.array.reshape(-1, 3)
@@ -632,13 +644,8 @@ def benchmark(steps: int = 5, config: MasseterConfig | None = None) -> dict:
     cases = {}
     for primary, apo in MODELS:
         model = build_model(config, primary, apo)
-        times = []
-        for k in range(1, steps + 1):
-            model.primary.set_excitation("masseter", config.excitation * k / steps)
-            t0 = time.perf_counter()
-            model.scene.step(config.dt)
-            times.append(time.perf_counter() - t0)
-        cases[f"{primary}/{apo}"] = {"ms_per_step": 1e3 * float(np.median(times)),
+        cases[f"{primary}/{apo}"] = {"ms_per_step": ramp(model, config.excitation,
+                                                         steps).ms_per_step,
                                      **dof_counts(model)}
     return {"benchmark": "masseter", "steps": steps, "dt": config.dt, "cases": cases,
             "geometry": "synthetic"}
