@@ -82,7 +82,7 @@ from artifem.errors import InputError
 from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.attachments import FemPoint
 from artifem.multibody.point_paths import PointPath
-from artifem.scene import Scene
+from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.muscles import PathForces, PathGeometry, ThelenMuscle, ThelenParameters
 from artifem.multibody.point_attachments import nearest_nodes, support_weights
 from artifem.reduction.bases import body_mass, pod_basis
@@ -234,15 +234,13 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
     start = {s: fp.position().copy() for s, fp in fem_points.items()}
     n = int(round(duration / dt))
     n_dofs = 3 * body.V.dofmap.index_map.size_local
-    ms, snapshots = [], []
+    record = {}
+    if snapshot_every:
+        record["u"] = (lambda s: body.u.x.array[:n_dofs].copy()) if reduced is None else \
+            (lambda s: master.nodal_displacement()[:n_dofs])
     with threadpool_limits(limits=1, user_api="blas"):
-        for k in range(1, n + 1):
-            t0 = time.perf_counter()
-            scene.step(dt)
-            ms.append(1e3 * (time.perf_counter() - t0))
-            if snapshot_every and k % snapshot_every == 0:
-                snapshots.append(body.u.x.array[:n_dofs].copy() if reduced is None
-                                 else master.nodal_displacement()[:n_dofs])
+        run = simulate_scene(scene, n * dt, dt, record=record, progress=False)
+    snapshots = run.records["u"][snapshot_every::snapshot_every] if snapshot_every else []
     if reduced is not None:
         master.to_full()                                  # u = U q on the full mesh, observed
     vm = von_mises_dg0(body, config)
@@ -256,7 +254,7 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
             "attachment_displacement_m": {s: (fem_points[s].position() - start[s]).tolist()
                                           for s in points},
             "tension_N": {s: paths[s].tension() for s in points},
-            "ms_per_step": float(np.median(ms)), "steps": n, "dt": dt, "radius_m": radius,
+            "ms_per_step": run.ms_per_step, "steps": n, "dt": dt, "radius_m": radius,
             "min_det_F": float(np.nanmin(body.det_F())),
             "_body": body, "_vm": vm, "_snapshots": np.array(snapshots),
             "_support_dofs": {s: fp.weights.dofs for s, fp in fem_points.items()}}
