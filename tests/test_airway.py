@@ -160,12 +160,14 @@ def test_closed_skin_on_rigid_masters_only_gets_no_net_wrench(scene):
 
 
 @pytest.fixture(scope="module")
-def full_runs(scene, data):
-    """STEPS of protrusion of the full airway with (the ``scene`` fixture) and without the
-    air pressure (ramped to 500 Pa at the end)."""
-    off = aw.build_scene(aw.AirwayConfig(), pressure=False, data=data)
+def full_runs(data):
+    """STEPS of protrusion of the full airway with and without the air pressure (ramped to
+    500 Pa at the end), each on a scene of its own: the ``scene`` fixture stays at rest
+    for the other tests, whatever their order."""
+    scenes = {"on": aw.build_scene(aw.AirwayConfig(), data=data),
+              "off": aw.build_scene(aw.AirwayConfig(), pressure=False, data=data)}
     return {name: aw.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
-            for name, a in (("on", scene), ("off", off))}
+            for name, a in scenes.items()}
 
 
 def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, full_runs):
