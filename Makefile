@@ -28,6 +28,8 @@ demo: $(STAMP)
 # them). To skip those while developing:
 #   make test PYTEST_ARGS='-m "not slow"'
 # Any other pytest arguments go the same way, e.g. PYTEST_ARGS='tests/test_airway.py -x'.
+# Tests run in random order (pytest-randomly, seed printed first); replay one with
+#   make test PYTEST_ARGS='--randomly-seed=N'   or keep the file order: '-p no:randomly'.
 test: $(STAMP)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
