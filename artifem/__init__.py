@@ -51,6 +51,7 @@ _PUBLIC = {
                      "BlemkerFiber", "CombinedMaterial"], "artifem.forms"),
     "read_mesh": "artifem.io.readers",
     "to_dolfinx": "artifem.io.to_dolfinx",
+    "spherical_shell_octant": "artifem.io.shell_mesh",
     **dict.fromkeys(["ArtifemError", "InputError", "SolverError", "StepFailed",
                      "ElementInversionError"], "artifem.errors"),
 }

@@ -29,10 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import artifem as af                    # first: orders MPI ahead of dolfinx
-import basix.ufl
 import matplotlib
-from dolfinx import mesh as dmesh
-from mpi4py import MPI
 from scipy.optimize import brentq, minimize_scalar
 
 from artifem.render import render_bodies
@@ -46,42 +43,13 @@ A, B, MU = 1.0, 2.0, 1.0                # radii (m) and shear modulus (Pa): the 
 n = 3 if quick else 6                   # hexahedra per patch side and through the wall
 
 
-def octant_shell(n):
-    """Hexahedra of the octant shell: n x n quads on each of the three faces of the cube
-    corner (equal-angle map onto the sphere), n layers from A to B."""
-    index, grid = {}, []
-    for ijk in np.ndindex(n + 1, n + 1, n + 1):
-        if max(ijk) == n:
-            index[ijk] = len(grid)
-            grid.append(ijk)
-    g = np.tan(0.25 * np.pi * np.array(grid, dtype=float) / n)
-    directions = g / np.linalg.norm(g, axis=1)[:, None]
-    quads = []
-    for axis in range(3):
-        a, b = [k for k in range(3) if k != axis]
-        for s, t in np.ndindex(n, n):
-            corner = [[0, 0, 0] for _ in range(4)]
-            for c, (ds, dt) in zip(corner, ((0, 0), (1, 0), (0, 1), (1, 1))):
-                c[axis], c[a], c[b] = n, s + ds, t + dt
-            quads.append([index[tuple(c)] for c in corner])
-    x = ((A + (B - A) * np.arange(n + 1) / n)[:, None, None] * directions[None]).reshape(-1, 3)
-    cells = []
-    for layer in range(n):
-        for q in quads:
-            c = [layer * len(grid) + k for k in q] + [(layer + 1) * len(grid) + k for k in q]
-            if np.cross(x[c[1]] - x[c[0]], x[c[2]] - x[c[0]]) @ (x[c[4]] - x[c[0]]) < 0:
-                c = [c[0], c[2], c[1], c[3], c[4], c[6], c[5], c[7]]      # right-handed
-            cells.append(c)
-    element = basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,))
-    return dmesh.create_mesh(MPI.COMM_SELF, np.array(cells, dtype=np.int64), element, x)
-
-
 def pressure_of(la):
     lb = (1.0 + (la**3 - 1.0) * (A / B) ** 3) ** (1.0 / 3.0)
     return 2 * MU * (1 / lb - 1 / la) + 0.5 * MU * (lb**-4 - la**-4)
 
 
-sphere = af.FemBody(octant_shell(n), af.MooneyRivlin(C10=MU / 2, kappa=MU), 1000.0,
+sphere = af.FemBody(af.spherical_shell_octant(A, B, n, n),
+                    af.MooneyRivlin(C10=MU / 2, kappa=MU), 1000.0,
                     incompressibility=1e3 * MU, name="sphere")
 for k in range(3):                      # symmetry planes: only the normal component is fixed
     sphere.fix_nodes(sphere.find_nodes(lambda x, k=k: np.abs(x[k]) < 1e-9), components=(k,))

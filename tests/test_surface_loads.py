@@ -8,7 +8,6 @@ import pytest
 import ufl
 
 import artifem as af
-import basix.ufl
 from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
@@ -42,39 +41,6 @@ class LU:
 
 
 # ---- meshes and bodies --------------------------------------------------------------------
-
-def octant_shell(A: float, B: float, n: int, m: int) -> dmesh.Mesh:
-    """Q1 hexahedra filling the shell octant A <= |X| <= B, X >= 0: three cube-sphere
-    patches of n x n quads (equal-angle map of the cube corner's faces), m layers."""
-    index, grid = {}, []
-    for ijk in np.ndindex(n + 1, n + 1, n + 1):
-        if max(ijk) == n:
-            index[ijk] = len(grid)
-            grid.append(ijk)
-    g = np.tan(0.25 * np.pi * np.array(grid, dtype=float) / n)
-    directions = g / np.linalg.norm(g, axis=1)[:, None]
-    quads = []
-    for axis in range(3):
-        a, b = [k for k in range(3) if k != axis]
-        for s, t in np.ndindex(n, n):
-            def node(ds, dt):
-                key = [0, 0, 0]
-                key[axis], key[a], key[b] = n, s + ds, t + dt
-                return index[tuple(key)]
-            quads.append((node(0, 0), node(1, 0), node(0, 1), node(1, 1)))
-    ns = len(grid)
-    radii = A + (B - A) * np.arange(m + 1) / m
-    x = (radii[:, None, None] * directions[None]).reshape(-1, 3)
-    cells = []
-    for layer in range(m):
-        for q in quads:
-            c = [layer * ns + k for k in q] + [(layer + 1) * ns + k for k in q]
-            if np.cross(x[c[1]] - x[c[0]], x[c[2]] - x[c[0]]) @ (x[c[4]] - x[c[0]]) < 0:
-                c = [c[0], c[2], c[1], c[3], c[4], c[6], c[5], c[7]]
-            cells.append(c)
-    element = basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,))
-    return dmesh.create_mesh(MPI.COMM_SELF, np.array(cells, dtype=np.int64), element, x)
-
 
 def symmetry_planes(body, planes=(0, 1, 2)) -> None:
     """u_k = 0 on the plane X_k = 0 (only that component)."""
@@ -130,7 +96,7 @@ def inflation_pressure(la: float, mu: float, A: float, B: float) -> float:
 def inflate(n: int, p: float, mu: float = 1.0, A: float = 1.0, B: float = 2.0,
             closed: bool = True, load_steps: int = 3):
     """The octant (n x n x n hexahedra per patch) under internal pressure p: la, lb, body."""
-    body = af.FemBody(octant_shell(A, B, n, n), af.MooneyRivlin(C10=mu / 2, kappa=mu), 1.0,
+    body = af.FemBody(af.spherical_shell_octant(A, B, n, n), af.MooneyRivlin(C10=mu / 2, kappa=mu), 1.0,
                       incompressibility=1e3 * mu, gravity=(0, 0, 0), name="sphere")
     symmetry_planes(body)
     body.add_pressure(p, where=lambda x: np.linalg.norm(x, axis=0) < A + 1e-9, closed=closed)
@@ -170,7 +136,7 @@ def test_closed_pressure_potential_is_consistent_and_its_tangent_symmetric(rng):
     symmetric on the free dofs (so LinearSolver's Cholesky is exact for it). A pressure
     on a face with a free border (the cantilever's top) has no potential: its tangent is
     unsymmetric."""
-    body = af.FemBody(octant_shell(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
+    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
                       gravity=(0, 0, 0))
     symmetry_planes(body)
     load = body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9,
@@ -258,7 +224,7 @@ def test_newton_converges_quadratically_under_a_follower_pressure():
 def test_the_sphere_converges_quadratically_with_the_closed_pressure():
     """The same on the nearly incompressible sphere, with LinearSolver's Cholesky (the
     closed pressure's tangent is symmetric): measured ratios 1.5e-3, 0.16, 3.8."""
-    body = af.FemBody(octant_shell(1.0, 2.0, 3, 3), af.MooneyRivlin(C10=0.5, kappa=1.0), 1.0,
+    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 3, 3), af.MooneyRivlin(C10=0.5, kappa=1.0), 1.0,
                       incompressibility=1e3, gravity=(0, 0, 0))
     symmetry_planes(body)
     load = body.add_pressure(0.5, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9,
@@ -629,7 +595,7 @@ def test_reduced_body_keeps_the_closed_pressure_potential(rng):
     basis: Pi~(q) is the full body's Pi(U q) (the same -p V), and f~ = U^T f."""
     from artifem.reduction.reduced_body import ReducedFemBody, all_points
 
-    body = af.FemBody(octant_shell(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
+    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
                       gravity=(0, 0, 0))
     symmetry_planes(body)
     body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9, closed=True)

@@ -80,3 +80,14 @@ def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: lis
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
     return z, lam, int(active.sum())
+
+
+def impulses_by_joint(bilateral: list, unilateral: list, lam: np.ndarray) -> dict:
+    """joint -> [(rows, impulses)]: lambda of :func:`solve_constrained` split by the
+    (joint, rows, G, c) groups it was solved with (bilateral first)."""
+    out: dict = {}
+    start = 0
+    for joint, rows, _, c in bilateral + unilateral:
+        out.setdefault(joint, []).append((rows, lam[start:start + len(c)]))
+        start += len(c)
+    return out

@@ -41,7 +41,7 @@ import numpy as np
 from scipy import sparse
 
 from artifem.errors import StepFailed
-from artifem.scene.constraints import solve_constrained
+from artifem.scene.constraints import impulses_by_joint, solve_constrained
 
 __all__ = ["implicit_step"]
 
@@ -105,7 +105,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     where = f"implicit step at t = {scene.t:g}"
     for it in range(1, max_iterations + 1):
         if norm <= rtol * norm0 or norm <= atol:
-            return _impulses(bilateral, unilateral, lam), history
+            return impulses_by_joint(bilateral, unilateral, lam), history
         J = L.fmt(P.T @ A @ P)
         if scene.geometric_stiffness:
             J = J - h * h * L.geometric_stiffness(scene._with_reactions(f_all), P)
@@ -132,18 +132,9 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
         lam, norm = lam_new, norm_trial
         history.append(norm)
         if step == 1.0 and np.abs(dz).max() <= 1e-14 * max(np.abs(z_m).max(), 1e-300):
-            return _impulses(bilateral, unilateral, lam), history
+            return impulses_by_joint(bilateral, unilateral, lam), history
     if norm <= rtol * norm0 or norm <= atol:
-        return _impulses(bilateral, unilateral, lam), history
+        return impulses_by_joint(bilateral, unilateral, lam), history
     raise StepFailed(f"{where}: Newton did not converge in {max_iterations} iterations "
                      f"(merit {norm:.3e}, first {norm0:.3e})")
 
-
-def _impulses(bilateral, unilateral, lam) -> dict:
-    """joint -> [(rows, impulses)], as the semi-implicit step records them."""
-    out: dict = {}
-    start = 0
-    for joint, rows, _, c in bilateral + unilateral:
-        out.setdefault(joint, []).append((rows, lam[start:start + len(c)]))
-        start += len(c)
-    return out

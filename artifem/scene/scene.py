@@ -217,7 +217,7 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.force_elements import ForceElement
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.scene.constraints import solve_constrained
+from artifem.scene.constraints import impulses_by_joint, solve_constrained
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
 from artifem.scene.schur_island import SchurIsland
@@ -729,12 +729,7 @@ class Scene:
         z_m, lam, active = solve_constrained(self._solver, A_m, b_m, bilateral, unilateral,
                                              f"t = {self.t:g}")
         self.last_solve = {"masters": n, "constraint_rows": active, "factorizations": 1}
-        impulses: dict = {}
-        start = 0
-        for joint, rows, _, c_rows in bilateral + unilateral:
-            impulses.setdefault(joint, []).append((rows, lam[start:start + len(c_rows)]))
-            start += len(c_rows)
-        return z_m, impulses
+        return z_m, impulses_by_joint(bilateral, unilateral, lam)
 
     # ---- statics -------------------------------------------------------------------------
 

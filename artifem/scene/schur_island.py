@@ -46,7 +46,7 @@ from artifem.errors import InputError
 from artifem.integrators import step_system
 from artifem.multibody.attachments import dof_positions
 from artifem.multibody.rigid_body import skews
-from artifem.scene.constraints import solve_constrained
+from artifem.scene.constraints import impulses_by_joint, solve_constrained
 from artifem.scene.layout import Layout
 
 __all__ = ["SchurIsland"]
@@ -130,12 +130,7 @@ class SchurIsland:
         R.advance(P @ u_m + z_k, h, targets)
         for part in parts:
             self._advance_fem(part, u_m, h)
-        impulses: dict = {}
-        start = 0
-        for joint, rows, _, c in bilateral + unilateral:
-            impulses.setdefault(joint, []).append((rows, lam[start:start + len(c)]))
-            start += len(c)
-        return impulses
+        return impulses_by_joint(bilateral, unilateral, lam)
 
     def _fem_part(self, body, h: float, P: np.ndarray) -> dict:
         """One body's contributions to S and the right-hand side, and what its update
