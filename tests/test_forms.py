@@ -175,6 +175,19 @@ def test_blemker_nominal_fiber_stress_on_every_branch(l):
     np.testing.assert_allclose(np.delete(P.ravel(), 0), 0.0, atol=1e-8)
 
 
+@pytest.mark.parametrize("l", [0.3, 0.5, 0.8, 1.2, 1.45, 1.55, 1.7])
+def test_blemker_energy_is_the_integral_of_the_fiber_stress_on_every_branch(l):
+    """W(lambda) = int_1^lambda max_stress (a f_L(s/c) + f_P(s/c)) ds by quadrature, beyond
+    l = 1.4 and 1.6 too (the closed-form antiderivative's constants at the breakpoints)."""
+    excitation = 0.6
+    lam = FIBER.optimal_stretch * l
+    F = np.diag([lam, lam**-0.5, lam**-0.5])
+    psi, _, _ = point_response(FIBER, F, a0=E1, excitation=excitation)
+    psi_exact, _ = fiber_closed_form(FIBER, F, E1, excitation)
+    assert abs(psi_exact) > 1e2                      # a real energy on every branch
+    assert psi == pytest.approx(psi_exact, rel=1e-9)
+
+
 def test_blemker_passive_curve_is_C1_at_stretch_star():
     from artifem.forms import passive_force_length
 
