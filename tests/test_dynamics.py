@@ -2,7 +2,8 @@
 
 (a) first-order time convergence of backward Euler (semi-implicit and implicit);
 (b) energy: with Rayleigh damping the total energy never grows, and undamped
-    implicit Euler never gains energy either (backward Euler is dissipative);
+    implicit Euler never gains energy either (backward Euler is dissipative); the
+    implicit Newton's line search is an Armijo backtracking (a unit test);
 (c) element inversion: a clear ElementInversionError with the last good state
     kept, and a step that inverts at full size but recovers by halving;
 (d) muscle excitations change between steps without recompiling the forms;
@@ -167,6 +168,42 @@ def test_undamped_implicit_euler_never_gains_energy():
     # Numerical dissipation only: much less than with Rayleigh damping.
     damped, _ = energy_history("implicit", rayleigh=(2.0, 0.01))
     assert total[-1] > damped[-1]
+
+
+def test_backtracking_refuses_a_full_step_that_raises_the_merit_slightly():
+    """ImplicitEuler's line search (integrators._backtrack) on the 1-D model merit
+    E(s) = E0 + g s + c s^2 (g = dE/ds(0) = -1, residual |dE/ds| = |g + 2 c s|), with c
+    such that the full step raises E by 5e-5 < 1e-4 |g|: Armijo (E(s) <= E0 + 1e-4 s g)
+    refuses s = 1, and so does the residual test (|r(1)| > |r(0)|); s = 1/2 decreases E
+    by 0.25 and is taken. A step whose configuration inverts is halved; a merit and a
+    residual that never decrease give None."""
+    from artifem.integrators import _backtrack
+
+    E0, g = 3.0, -1.0
+    c = -(1.0 + 0.5e-4) * g
+    s_now = []
+
+    def merit():
+        return E0 + g * s_now[-1] + c * s_now[-1] ** 2
+
+    def residual():
+        return abs(g + 2.0 * c * s_now[-1])
+
+    s_now.append(1.0)
+    assert 0.0 < merit() - E0 < 1e-4 * abs(g) and residual() > abs(g)    # the case meant
+    s_now.clear()
+    step = _backtrack(s_now.append, lambda: False, merit, E0, g, residual, abs(g))
+    assert step == 0.5 and s_now == [1.0, 0.5]
+    assert merit() < E0 - 0.2
+    # an inverted trial is never taken, whatever its merit
+    s_now.clear()
+    step = _backtrack(s_now.append, lambda: s_now[-1] > 0.3, merit, E0, g, residual, abs(g))
+    assert step == 0.25 and s_now == [1.0, 0.5, 0.25]
+    # no decrease anywhere: the search gives up below min_step
+    s_now.clear()
+    assert _backtrack(s_now.append, lambda: False, lambda: E0 + 1.0, E0, g,
+                      lambda: 2.0, abs(g), min_step=0.1) is None
+    assert s_now == [1.0, 0.5, 0.25, 0.125]
 
 
 # ---- (c) element inversion -----------------------------------------------------------------
