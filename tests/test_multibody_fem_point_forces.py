@@ -4,8 +4,9 @@
     weights, and a 24-node support): the equilibrium from Scene.solve_static equals a
     FEM-only reference loaded by the equivalent nodal loads w_j f_s, f_s the converged spring
     force taken as a dead load; both solved to Newton tolerance, so they agree to ~1e-9;
-(2) virtual work: G^T f . z = f . (G z) for any z, G z the points' velocities, G the
-    (exact, linear) derivative of the point positions;
+(2) the point map G and the path force against references that do not use G: G is a
+    central difference of the points' positions, the force minus one of the spring's energy
+    (and its damping part c Ldot times one of the path length), G z the points' velocities;
 (3) stiffness: the assembled path stiffness G^T K G (+ lever terms of rigid frames) and the
     scene's static tangent match central finite differences of the assembled forces, also for
     a spring between the beam and a free rigid body;
@@ -27,7 +28,7 @@ from artifem.scene import Scene
 from artifem.multibody.muscles import AxialSpring
 from artifem.multibody.point_attachments import (nearest_nodes, shape_function_weights,
                                                  support_weights)
-from artifem.multibody.rigid_body import Frame, RigidBody
+from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
@@ -75,38 +76,80 @@ def test_static_equilibrium_matches_the_equivalent_nodal_load(kind):
     assert np.linalg.norm(scene.master_forces()) < 1e-8 * np.linalg.norm(f_s)
 
 
-def test_virtual_work_and_point_map():
+def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_gradient():
+    """Against references that do not use G (Layout.path_map, all-space):
+
+    (a) G P dq (P the prolongation) is the change of the path's point positions under a
+        master displacement dq (the beam's free dofs and the bob's pose, Layout.displace):
+        a central difference of FemPoint.position() and Frame.world_position() (the FEM
+        point is linear in u; the frame turns by exp_so3: O(eps^2));
+    (b) at rest, the path force P^T F (Layout.path_terms) is minus the gradient of the
+        spring's energy k (L - L0)^2 / 2: a central difference of the energy of the
+        displaced path;
+    (c) moving, G z is the points' own velocities (the FEM point's weights on v, v + w x r
+        of the frame), and the force changes by the damping -c Ldot dL/dx: its work along
+        dq against c Ldot times a central difference of the path length.
+    (G^T f . z = f . G z, the check this replaces, holds for any matrix G.)"""
     rng = np.random.default_rng(0)
     body = beam()
-    frame_body = RigidBody("bob", 1.0, np.diag([0.1, 0.2, 0.3]), position=(1.2, 0.1, -0.5))
+    bob = RigidBody("bob", 1.0, np.diag([0.1, 0.2, 0.3]), position=(1.2, 0.1, -0.5))
     pt = FemPoint(body, weights_of(body, "support24"))
-    path = PointPath(AxialSpring(50.0, 0.2, damping=3.0),
-                     [ANCHOR, pt, Frame.at_world(frame_body, (1.1, 0.15, -0.4))])
+    k, rest, c = 50.0, 0.2, 3.0
+    path = PointPath(AxialSpring(k, rest, damping=c),
+                     [ANCHOR, pt, Frame.at_world(bob, (1.1, 0.15, -0.4))])
     scene = Scene(gravity=(0, 0, 0))
-    scene.add(body, frame_body, path)
+    scene.add(body, bob, path)
     L = scene._ready()
     body.u.x.array[:] = 0.01 * rng.standard_normal(body.u.x.array.size)
     body.u.x.array.reshape(-1, 3)[body.fixed_dofs] = 0.0
+    bob.rotation = exp_so3(rng.standard_normal(3))        # the frame's lever turns with it
+    G, P = L.path_map(path), L.prolongation()
+    n = scene.master_count()
+    assert n == body.u.x.array.size - 3 * body.fixed_dofs.size + 6
+    here = L.save()
+
+    def along(dq, what, eps=1e-6):
+        """(what(q + eps dq) - what(q - eps dq)) / (2 eps)."""
+        values = []
+        for sign in (1.0, -1.0):
+            scene.displace_masters(sign * eps * dq)
+            values.append(np.asarray(what()))
+            L.restore(here)
+            L.place_slaves()
+        return (values[0] - values[1]) / (2 * eps)
+
+    def energy():
+        return 0.5 * k * (path.length() - rest) ** 2
+
+    F_rest = L.path_terms(scene.t, None)[0]
+    directions = []
+    for rigid in (1.0, 0.0):                             # all masters, then the beam alone
+        dq = rng.standard_normal(n)
+        dq[-6:] *= rigid
+        directions.append(dq)
+        fd = along(dq, path.positions)
+        assert np.abs(fd.ravel() - G @ (P @ dq)).max() < 1e-7 * np.abs(fd).max()
+        dE = along(dq, energy)
+        assert abs(dE) > 1e-3
+        assert abs(-(P.T @ F_rest) @ dq - dE) < 1e-7 * abs(dE)
+    # moving: G z against the points' velocities, the damping force against dL/dq
     body.v.x.array[:] = rng.standard_normal(body.v.x.array.size)
     body.v.x.array.reshape(-1, 3)[body.fixed_dofs] = 0.0
-    frame_body.set_twist(rng.standard_normal(6))
-    G = L.path_map(path)
-    z = L.current_velocities()
-    assert np.allclose(G @ z, path.velocities().ravel(), rtol=0, atol=1e-13)
-    F, _, _ = L.path_terms(scene.t, None)
-    f = path.evaluate(scene.t).forces
-    for _ in range(3):
-        zr = rng.standard_normal(L.n_all)
-        assert abs(F @ zr - f.ravel() @ (G @ zr)) < 1e-12 * np.abs(f).sum() * np.abs(zr).max()
-    assert abs(F @ z - f.ravel() @ path.velocities().ravel()) < 1e-12 * np.abs(F @ z) + 1e-14
-    # G is the derivative of the FEM point's position (linear: exact)
-    x0 = pt.position()
-    du = rng.standard_normal(body.u.x.array.size)
-    body.u.x.array[:] += 1e-3 * du
-    o = L.fem_offset[id(body)]
-    dz = np.zeros(L.n_all)
-    dz[o:o + du.size] = du
-    assert np.allclose((pt.position() - x0) / 1e-3, (G @ dz)[3:6], atol=1e-10)
+    bob.set_twist(rng.standard_normal(6))
+    z, xdot = L.current_velocities(), path.velocities()
+    assert np.abs(xdot[1]).max() > 0.1 and np.abs(xdot[2]).max() > 0.1
+    assert np.abs(G @ z - xdot.ravel()).max() < 1e-13 * np.abs(xdot).max()
+
+    def polyline(x):
+        return np.linalg.norm(np.diff(x, axis=0), axis=1).sum()
+
+    x, eps = path.positions(), 1e-7
+    length_rate = (polyline(x + eps * xdot) - polyline(x - eps * xdot)) / (2 * eps)
+    assert abs(length_rate) > 0.1
+    F_moving = L.path_terms(scene.t, None)[0]
+    for dq in directions:
+        work = (P.T @ (F_moving - F_rest)) @ dq
+        assert abs(work + c * length_rate * along(dq, path.length)) < 1e-6 * abs(work)
 
 
 def test_path_stiffness_and_static_tangent_by_finite_differences():
