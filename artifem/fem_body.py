@@ -43,6 +43,7 @@ from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
 from artifem.errors import InputError, UnknownNameError
+from artifem.incompressibility import Incompressible, VolumeConstraint
 from artifem.surface_loads import (SurfaceLoad, check_closed, make_load, select_facets,
                                    surface_measure)
 
@@ -96,7 +97,9 @@ class FemBody:
         rayleigh: (alpha, beta) of D = alpha M + beta K.
         gravity: acceleration vector (m/s^2).
         quadrature_degree: degree of the energy integrals (default per cell type).
-        incompressibility: kappa_inc (Pa) of the element-wise volume penalty, or None.
+        incompressibility: kappa_inc (Pa) of the soft element-wise volume penalty, or
+            :class:`~artifem.incompressibility.Incompressible` for the hard constraint
+            (every element keeps its volume), or None.
         name: component name in a system.
     """
 
@@ -106,7 +109,7 @@ class FemBody:
     def __init__(self, domain: dmesh.Mesh, material, density: float, *,
                  mass: str = "lumped", rayleigh: tuple[float, float] = (0.0, 0.0),
                  gravity=(0.0, 0.0, 0.0), quadrature_degree: int | None = None,
-                 incompressibility: float | None = None, name: str = "fem"):
+                 incompressibility: float | Incompressible | None = None, name: str = "fem"):
         cell_name = domain.topology.cell_name()
         if cell_name not in ENERGY_DEGREE:
             raise InputError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
@@ -115,8 +118,9 @@ class FemBody:
             raise InputError(f"FemBody {name!r}: density must be > 0, got {density}")
         if mass not in ("lumped", "consistent"):
             raise InputError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
-        if incompressibility is not None and not (np.isfinite(incompressibility)
-                                                   and incompressibility > 0):
+        hard = isinstance(incompressibility, Incompressible)
+        if incompressibility is not None and not hard and not (
+                np.isfinite(incompressibility) and incompressibility > 0):
             raise InputError(f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
                              f"None, got {incompressibility}")
         alpha, beta = rayleigh
@@ -128,7 +132,8 @@ class FemBody:
         self.alpha, self.beta = float(alpha), float(beta)
         self.cell_name = cell_name
         self.quadrature_degree = quadrature_degree or ENERGY_DEGREE[cell_name]
-        self.incompressibility = incompressibility
+        #: kappa_inc of the soft penalty (an energy term), or None
+        self.incompressibility = None if hard else incompressibility
 
         self.V = fem.functionspace(domain, ("Lagrange", 1, (3,)))
         self.u = fem.Function(self.V, name="displacement")
@@ -147,6 +152,8 @@ class FemBody:
         self.nodal_load = fem_petsc.create_vector(self.V)
         self.nodal_load.zeroEntries()
         self._node_to_dof = self._input_node_to_dof()
+        #: the hard incompressibility (pressure field, multipliers), or None
+        self.volume_constraint = VolumeConstraint(self, incompressibility) if hard else None
         self._compiled = None
 
     # ---- model definition -------------------------------------------------
@@ -536,6 +543,9 @@ class FemBody:
         Pi = self.potential_energy_form(closed_pressures=False)
         v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         R = ufl.derivative(Pi, self.u, v)
+        vc = self.volume_constraint
+        if vc is not None:              # -G^T pi (and its geometric tangent), pi held fixed
+            R += ufl.derivative(vc.residual_term(self.kinematics()) * vc.measure(), self.u, v)
         _, closed, follower = self._surface_terms()
         if follower is not None:
             R -= follower                   # R = dPi/du - delta W_follower
@@ -553,6 +563,12 @@ class FemBody:
             self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
         self.K = fem_petsc.create_matrix(c["K"])
         self.R = fem_petsc.create_vector(self.V)
+        if vc is not None:
+            vc.compile()
+            vc.assemble(tangent=True)   # room in K for G^T D G (nodal pressures: 2-ring)
+            self.K.assemble()
+            self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            self.K.zeroEntries()
 
         dxm = ufl.Measure("dx", domain=self.mesh,
                           metadata={"quadrature_degree": MASS_DEGREE[self.cell_name]})
@@ -586,10 +602,15 @@ class FemBody:
         """
         self.compile()
         c = self._compiled
+        vc = self.volume_constraint
+        if vc is not None:
+            vc.assemble(tangent)
         if tangent:
             self.K.zeroEntries()
             fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)
             self.K.assemble()
+            if vc is not None:
+                self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         with self.R.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.R, c["R"])
@@ -648,6 +669,9 @@ class FemBody:
         self.compile()
         local = fem.assemble_scalar(self._compiled["Pi"])
         Pi = self.mesh.comm.allreduce(local)
+        if self.volume_constraint is not None:
+            self.volume_constraint.assemble(tangent=False)
+            Pi += self.volume_constraint.energy()
         with self.nodal_load.localForm() as f, self.u.x.petsc_vec.localForm() as u:
             n = self.V.dofmap.index_map.size_local * 3
             work = float(np.dot(f.array[:n], u.array[:n]))
@@ -668,14 +692,19 @@ class FemBody:
 
     # ---- state -------------------------------------------------------------
 
-    def state(self) -> tuple[np.ndarray, np.ndarray]:
-        """A copy of (u, v) local arrays (owned and ghost)."""
+    def state(self) -> tuple[np.ndarray, ...]:
+        """A copy of (u, v) local arrays (owned and ghost), and the multipliers p of the
+        hard incompressibility when there is one."""
+        if self.volume_constraint is not None:
+            return (self.u.x.array.copy(), self.v.x.array.copy(),
+                    self.volume_constraint.p.x.array.copy())
         return self.u.x.array.copy(), self.v.x.array.copy()
 
     def set_state(self, state) -> None:
-        u, v = state
-        self.u.x.array[:] = u
-        self.v.x.array[:] = v
+        self.u.x.array[:] = state[0]
+        self.v.x.array[:] = state[1]
+        if self.volume_constraint is not None:
+            self.volume_constraint.p.x.array[:] = state[2]
 
     def nodal_positions(self) -> np.ndarray:
         """Current positions X + u of the local geometry nodes, shape (nodes, 3)."""

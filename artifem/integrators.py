@@ -135,6 +135,8 @@ class SemiImplicitEuler:
         body.zero_fixed(b)
         solver.solve(A, b, dv)
         body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
+        if body.volume_constraint is not None:
+            _hold_volumes(body, h, A, b, dv, solver)
         v.axpy(1.0, dv)
         u.axpy(h, v)
         _update_ghosts(u, v)
@@ -148,6 +150,33 @@ class SemiImplicitEuler:
         q, qdot = body.state()
         qdot = qdot + _dense_solve(A, b - A @ qdot, "semi-implicit Euler (reduced)")
         body.set_state((q + h * qdot, qdot))
+
+
+def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, b: PETSc.Vec, dv: PETSc.Vec,
+                  solver: LinearSolver) -> None:
+    """Uzawa on the linearized volume constraint of a semi-implicit step (the step matrix
+    kept): while max |g + h G v+| / V > tol, p -= kappa c / V, b += h G^T dp, solve again
+    (:mod:`artifem.incompressibility`). ``b`` is the right-hand side of the increment
+    dv = v+ - v, updated in place."""
+    vc = body.volume_constraint
+    v_new, df = dv.duplicate(), dv.duplicate()
+    try:
+        for vc.updates in range(1, vc.spec.max_updates + 1):
+            body.v.x.petsc_vec.copy(v_new)
+            v_new.axpy(1.0, dv)
+            violation = vc.linearized_update(v_new, h, df)
+            if violation <= vc.spec.tol:
+                return
+            b.axpy(h, df)
+            body.zero_fixed(b)
+            solver.solve(A, b, dv)
+            body.zero_fixed(dv)
+        raise StepFailed(f"FemBody {body.name!r}: element volumes still off by {violation:.2e} "
+                         f"(tolerance {vc.spec.tol:g}) after {vc.spec.max_updates} pressure "
+                         "updates")
+    finally:
+        v_new.destroy()
+        df.destroy()
 
 
 class ImplicitEuler:
@@ -212,13 +241,18 @@ class ImplicitEuler:
         set_velocity(v0.array)          # initial guess v = v_k, so u = u_k + h v_k ...
         if _has_inversion(body):
             set_velocity(0.0 * v0.array)    # ... unless that inverts: then u = u_k
-        norm = residual(tangent=True)
-        norm0 = max(norm, self.atol)
-        try:
+
+        scale = []                      # |r| at the start of the step: the reference of rtol
+
+        def newton() -> int:
+            """Newton from the current v to r(v) = 0; the iteration count."""
+            norm = residual(tangent=True)
+            if not scale:
+                scale.append(max(norm, self.atol))
+            norm0 = scale[0]
             for it in range(1, self.max_iterations + 1):
                 if norm <= self.rtol * norm0 or norm <= self.atol:
-                    self.iterations = it - 1
-                    return
+                    return it - 1
                 A = body.K
                 A.scale(h * h)
                 if K0 is not None:
@@ -237,13 +271,16 @@ class ImplicitEuler:
                     raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
                 norm = residual(tangent=True)
                 if step == 1.0 and _at_round_off(dv, v):
-                    self.iterations = it
-                    return
+                    return it
             if norm <= self.rtol * norm0 or norm <= self.atol:     # the last iteration converged
-                self.iterations = self.max_iterations
-                return
+                return self.max_iterations
             raise StepFailed(f"implicit Euler: Newton did not converge in {self.max_iterations} "
                              f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})")
+
+        try:
+            self.iterations = newton()
+            if body.volume_constraint is not None:      # Uzawa around Newton
+                self.iterations += _hold_volumes_newton(body, newton)
         finally:
             for vec in (u0, v0, r, w, dv):
                 vec.destroy()
@@ -312,6 +349,21 @@ class ImplicitEuler:
                          f"|r0| = {norm0:.3e})")
 
 
+def _hold_volumes_newton(body: FemBody, newton) -> int:
+    """Uzawa on the volume constraint around a Newton solve that has just converged (its
+    last residual assembled g at the solution): while max |g| / V > tol, p <- pi and
+    Newton again from there. The Newton iterations it took."""
+    vc = body.volume_constraint
+    iterations = 0
+    for vc.updates in range(1, vc.spec.max_updates + 1):
+        violation = vc.update()
+        if violation <= vc.spec.tol:
+            return iterations
+        iterations += newton()
+    raise StepFailed(f"FemBody {body.name!r}: element volumes still off by {vc.violation():.2e} "
+                     f"(tolerance {vc.spec.tol:g}) after {vc.spec.max_updates} pressure updates")
+
+
 def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
                residual_norm, norm0: float, min_step: float = 1e-4) -> float | None:
     """Backtracking line search: the largest s in {1, 1/2, ...} with no inverted element
@@ -365,15 +417,33 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
         body.zero_fixed(r)
         return r.norm()
 
+    vc = body.volume_constraint
     counts = []
     for k in range(1, load_steps + 1):
         body.load_factor.value = k / load_steps
         norm = residual()
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
-        it = 0
-        while norm > max(rtol * scale, atol):
+        it = newton_it = 0
+        if vc is not None:
+            vc.updates = 0
+        while True:
+            if norm <= max(rtol * scale, atol):     # Newton converged; Uzawa around it
+                if vc is None:
+                    break
+                if vc.update() <= vc.spec.tol:
+                    break
+                vc.updates += 1
+                if vc.updates > vc.spec.max_updates:
+                    raise StepFailed(f"static solve: FemBody {body.name!r}: element volumes "
+                                     f"still off by {vc.violation():.2e} (tolerance "
+                                     f"{vc.spec.tol:g}) after {vc.spec.max_updates} pressure "
+                                     f"updates at load factor {k / load_steps:g}")
+                norm = residual()
+                newton_it = 0
+                continue
             it += 1
-            if it > max_iterations:
+            newton_it += 1
+            if newton_it > max_iterations:
                 raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                                  f"iterations at load factor {k / load_steps:g} (|R| = {norm:.3e})")
             r.scale(-1.0)
@@ -394,7 +464,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
                                  f"{k / load_steps:g}, Newton iteration {it}")
             norm = residual()
             if step == 1.0 and _at_round_off(du, u):
-                break
+                norm = 0.0              # at round-off: converged
         counts.append(it)
         if progress is not None:
             progress.update(1)
