@@ -4,7 +4,7 @@
     trajectory equals the full one (Scene, MUMPS) to round-off, and so does the
     reduced implicit Euler with Rayleigh damping (same Newton iteration counts);
 (b) U^T f consistency: f~(q) = U^T f(U q) and K~(q) = U^T K(U q) U for a
-    general basis, all cells, weights 1;
+    general basis, all cells, weights 1; Pi~ is the potential of f~ (loads included);
 (c) the points of a subset of cells with weights w equal the full-mesh assembly of the
     w-weighted (DG0) energy;
 (d) muscles: the full body's excitation Constant drives the reduced force;
@@ -112,6 +112,30 @@ def test_reduced_force_and_tangent_are_projections_of_the_full_ones():
     # Mass: U^T M U with the lumped mass.
     m = body.M_lumped.array[:ndofs(body)]
     np.testing.assert_allclose(reduced.M, U.T @ (m[:, None] * U), rtol=1e-13)
+
+
+def test_reduced_potential_is_the_potential_of_the_reduced_force():
+    """dPi~/dq = -f~(q) by central differences along random directions, with gravity, the
+    body force, the tip load and an active muscle on (the loads f~_ext are a visible part
+    of f~: their work -q . f~_ext enters Pi~ with its sign)."""
+    rng = np.random.default_rng(11)
+    body = make_body()
+    U = random_basis(body, 6, seed=12)
+    reduced = ReducedFemBody(body, U, all_points(body))
+    q = 1e-4 * rng.standard_normal(6)       # small: the internal force does not swamp the loads
+    reduced.set_q(q)
+    f = reduced.force()
+    assert np.linalg.norm(reduced.external_force()) > 0.2 * np.linalg.norm(f)
+    eps = 1e-6
+    for _ in range(3):
+        dq = rng.standard_normal(6)
+        dq /= np.linalg.norm(dq)
+        reduced.set_q(q + eps * dq)
+        plus = reduced.potential_energy()
+        reduced.set_q(q - eps * dq)
+        minus = reduced.potential_energy()
+        slope = (plus - minus) / (2 * eps)
+        assert slope == pytest.approx(-(f @ dq), rel=1e-6, abs=1e-8 * np.abs(f).max())
 
 
 # ---- (c) subset of cells with weights -------------------------------------------------------
