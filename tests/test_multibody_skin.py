@@ -130,6 +130,24 @@ def test_weights_sum_to_one_and_the_closer_master_dominates():
         SkinMesh(V, None, [a, b], weighting="gaussian")
 
 
+@pytest.mark.parametrize("blending", BLENDINGS)
+def test_given_weights_are_renormalized_and_a_common_motion_is_followed(blending):
+    """weights= rows that do not sum to 1 (here 2 to 7) are scaled to sum 1, in their
+    proportions; so a rigid motion shared by both masters moves the skin rigidly."""
+    rng = np.random.default_rng(21)
+    V, F = cylinder(n_theta=8, n_z=4)
+    a, b = rigid("a", [0.0, 0.0, 0.0]), rigid("b", [0.0, 0.0, 4.0])
+    given = rng.uniform(1.0, 3.5, size=(len(V), 2))
+    skin = SkinMesh(V, F, [a, b], weights=given, blending=blending)
+    np.testing.assert_allclose(skin.weights.sum(axis=1), 1.0, atol=1e-15)
+    np.testing.assert_allclose(skin.weights, given / given.sum(axis=1, keepdims=True), rtol=1e-15)
+    np.testing.assert_allclose(skin.positions(), V, atol=1e-14)
+    R, t = random_rigid_motion(rng)
+    for body in (a, b):
+        body.position, body.rotation = R @ body.position + t, R @ body.rotation
+    np.testing.assert_allclose(skin.positions(), V @ R.T + t, atol=1e-12)
+
+
 def fd_velocity(skin, bodies, twists, fem=None, vfem=None, h=1e-6):
     """Central differences of the skin positions along the masters' velocities."""
     saved = [(b.position.copy(), b.rotation.copy()) for b in bodies]
