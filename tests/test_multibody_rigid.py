@@ -22,6 +22,7 @@ from artifem.multibody.joints import (FixedJoint, PlanarJoint, RevoluteJoint, Sl
                                       SphericalJoint, axis_rotation)
 from artifem.multibody.rigid_body import BodyState, Frame, MassProperties, RigidBody, exp_so3
 from artifem.errors import StepFailed
+from artifem.multibody.attachments import RigidAttachment
 from artifem.multibody.force_elements import point_force_wrenches
 from artifem.scene import Scene
 
@@ -545,6 +546,33 @@ def test_body_welded_to_a_prescribed_turntable_follows_it():
                                rtol=0, atol=1e-2 * m * omega ** 2 * r)
 
 
+def test_body_carried_by_a_prescribed_body_moves_with_its_twist():
+    """A RigidAttachment on a prescribed body that turns and translates: after each step the
+    carried body sits at p + R d_b and moves with the rigid-body field, v_s = v + w x
+    (p_s - p), w_s = w (the trajectory's twist at the step's end)."""
+    rng = np.random.default_rng(31)
+    w, v0, p0 = rng.standard_normal(3), rng.standard_normal(3), rng.standard_normal(3)
+    R0 = exp_so3(rng.standard_normal(3))
+
+    def trajectory(t):
+        return BodyState(p0 + v0 * t, exp_so3(w * t) @ R0, v0, w)
+    bone = RigidBody("bone", 1.0, np.eye(3), position=p0, rotation=R0, motion="prescribed",
+                     trajectory=trajectory)
+    offset = np.array([0.3, -0.2, 0.5])
+    carried = RigidBody("carried", 0.5, 0.01 * np.eye(3), position=p0 + R0 @ offset,
+                        rotation=R0)
+    system = Scene(GRAVITY)
+    system.add(bone, carried, RigidAttachment(carried, bone))
+    for _ in range(3):
+        system.step(0.01)
+        p, R, _, _ = trajectory(system.t)
+        np.testing.assert_allclose(bone.position, p, atol=1e-14)
+        np.testing.assert_allclose(carried.position, p + R @ offset, atol=1e-14)
+        np.testing.assert_allclose(carried.velocity, v0 + np.cross(w, carried.position - p),
+                                   atol=1e-13)
+        np.testing.assert_allclose(carried.angular_velocity, w, atol=1e-14)
+
+
 def test_revolute_limits_stop_the_swing():
     """A rod swung hard against limits (-0.5, 0.4) rad never passes them; at rest on the
     upper limit of a rod hinged horizontally, the limit carries the torque m g d."""
@@ -587,6 +615,27 @@ def test_slider_limit_holds_the_weight():
     assert min(distances) > -0.3 - 1e-9
     assert slider.distance() == pytest.approx(-0.3, abs=1e-9)
     np.testing.assert_allclose(system.reaction(slider)[0][:3], [0, 0, 2.0 * G], atol=1e-8)
+
+
+def test_slider_limit_with_partial_stabilization():
+    """Limit rows with Baumgarte beta = 0.5: G u+ >= -phi / h while the limit is not reached
+    (a block thrown at it stops exactly on it in the step that would cross it) and
+    G u+ >= -beta phi / h once crossed (a block started 1 cm past it, still moving into
+    it, recovers half of the violation in one step; the slider's coordinate is linear in
+    the position, so phi+ = phi + h G u+ exactly)."""
+    h, beta = 1e-3, 0.5
+
+    def block_on_slider(lower, velocity):
+        block = RigidBody("block", 2.0, 0.1 * np.eye(3), position=(0.0, 0.0, 1.0),
+                          velocity=(0.0, 0.0, velocity))
+        slider = SliderJoint.at_world(block, None, (0.0, 0.0, 1.0), limits=(lower, 1.0))
+        system = Scene(GRAVITY, stabilization=beta)
+        system.add(block, slider)
+        system.step(h)
+        return slider.distance() - lower
+
+    assert block_on_slider(-1e-3, -2.0) == pytest.approx(0.0, abs=1e-12)   # 1 mm away, 2 mm/step
+    assert block_on_slider(0.01, -1.0) == pytest.approx(-0.5 * 0.01, rel=1e-9)
 
 
 def test_point_force_jacobians_match_finite_differences():
