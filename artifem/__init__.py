@@ -30,6 +30,7 @@ _PUBLIC = {
     **dict.fromkeys(["Scene", "SceneState"], "artifem.scene.scene"),
     **dict.fromkeys(["simulate", "Run"], "artifem.scene.run"),
     "FemBody": "artifem.fem_body",
+    "Incompressible": "artifem.incompressibility",
     "SurfaceLoad": "artifem.surface_loads",
     "ReducedFemBody": "artifem.reduction.reduced_body",
     **dict.fromkeys(["RigidBody", "Frame"], "artifem.multibody.rigid_body"),

@@ -11,6 +11,7 @@ from dolfinx import fem, mesh
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.incompressibility import Incompressible
+from artifem.reduction.cubature import IntegrationPoints
 from artifem.scene import Scene
 
 MU = 1000.0
@@ -277,3 +278,19 @@ def test_inflated_sphere_converges_to_the_incompressible_solution_and_its_pressu
     assert -0.02 < e6 < 0 and 1.9 < e4 / e6 < 2.6, (e4, e6)
     assert abs((36 * la_h[1] - 16 * la_h[0]) / 20 - exact) < 1e-3 * (exact - 1)
     assert errors[1] < 0.006 and errors[0] / errors[1] > 1.8, errors
+
+
+def test_a_coupled_or_reduced_hard_body_is_refused_with_a_clear_error():
+    """Until the coupled island and the reduced body update the pressures, they refuse a
+    body with the hard constraint (rather than hold its volumes silently as a penalty)."""
+    body = FemBody(_box((2, 1, 1)), NeoHookean(MU, MU), 1000.0,
+                   incompressibility=Incompressible(kappa=10 * MU))
+    with pytest.raises(ValueError, match="hard incompressibility"):
+        af.ReducedFemBody(body, np.ones((body.u.x.array.size, 1)),
+                          IntegrationPoints(np.array([0]), np.array([1.0]), "random"))
+    bone = af.RigidBody("bone", 1.0, 1e-3 * np.eye(3))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(body, bone, af.NodeAttachment(body, body.find_nodes(lambda x: np.isclose(x[0], 0)),
+                                            bone))
+    with pytest.raises(ValueError, match="hard incompressibility"):
+        scene.step(1e-3)

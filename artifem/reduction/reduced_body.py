@@ -107,6 +107,11 @@ class ReducedFemBody:
             raise NotImplementedError("ReducedFemBody runs in serial only for now")
         self.full, self.points = full, points
         self.name = name or f"{full.name}_reduced"
+        if full.volume_constraint is not None:
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: {full.name!r} has the hard incompressibility "
+                "(Incompressible), which reduced bodies do not honour yet; build the full "
+                "body with the element penalty (incompressibility=kappa_inc) to reduce it")
         self.alpha, self.beta = full.alpha, full.beta
         full.compile()
         bs = 3

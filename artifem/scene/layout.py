@@ -51,6 +51,12 @@ class Layout:
         self.fem_bodies, self.reduced_bodies = list(fem_bodies), list(reduced_bodies)
         rigid = scene.rigid_bodies
         for body in self.fem_bodies:
+            if body.volume_constraint is not None:
+                raise InputError(
+                    f"FEM body {body.name!r} has the hard incompressibility (Incompressible) "
+                    "and is coupled to other bodies (attachments, paths or loads): the coupled "
+                    "island does not update its pressures yet; use the element penalty "
+                    "(incompressibility=kappa_inc) there, or leave the body uncoupled")
             if body.mesh.comm.size != 1:
                 raise NotImplementedError(
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "

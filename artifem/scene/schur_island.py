@@ -74,6 +74,8 @@ class SchurIsland:
                        "lift attachments": scene.lift_attachments,
                        "frame attachments": scene.frame_attachments,
                        "point paths": scene.paths, "load elements": scene.loads}
+        unsupported["bodies with the hard incompressibility"] = [
+            b for b in fem_bodies if b.volume_constraint is not None]
         found = [what for what, items in unsupported.items() if items]
         if found:
             raise InputError(f"the distributed (Schur) island takes FEM bodies, rigid bodies, "
