@@ -39,7 +39,7 @@ def test_a_user_scene_in_fifteen_lines(tmp_path):
     assert np.all(np.diff(run.records["com"][:, 2]) < 0)          # it falls
     # Baumgarte-stabilized: the joint error stays O(h^2 |v|^2 / r) ~ 1e-4 m, not growing
     assert max(scene.constraint_errors().values()) < 1e-3
-    assert run.step_ms.shape == (5,) and run.ms_per_step > 0
+    assert run.step_ms.shape == (5,)                              # one wall time per step
     assert run.halvings == 0 and 0 < run.min_det_F < 1.5
     assert (tmp_path / "block.bp").is_dir()
 

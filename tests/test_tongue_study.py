@@ -42,7 +42,7 @@ def test_study_json_has_every_configuration(quick_study):
         assert not r["failed"], r
         assert 0 < r["mean_error_mm"] <= r["max_error_mm"] <= r["max_node_error_mm"]
         assert r["max_error_mm"] < 5.0, r          # a 60 mm tongue moving ~10 mm
-        assert r["ms_per_step"] > 0, r             # speed targets: the study JSON, not here
+        # speed: reported (targets in the study JSON), not asserted; the ratio is the right way up
         assert r["speedup"] == pytest.approx(full_ms / r["ms_per_step"])
     pod = [r for r in runs if r["basis"] == "trained-pod" and r["sampling"] == "trained"]
     assert min(r["max_error_mm"] for r in pod) < 2.0
