@@ -677,6 +677,15 @@ class FemBody:
             work = float(np.dot(f.array[:n], u.array[:n]))
         return Pi - self.load_factor.value * self.mesh.comm.allreduce(work)
 
+    def volume(self) -> float:
+        """The current volume int J dX (the energy's quadrature: exact for Q1 hexahedra)."""
+        self.compile()
+        if "volume" not in self._compiled:
+            dx = ufl.Measure("dx", domain=self.mesh,
+                             metadata={"quadrature_degree": self.quadrature_degree})
+            self._compiled["volume"] = fem.form(ufl.det(self.kinematics()) * dx)
+        return self.mesh.comm.allreduce(fem.assemble_scalar(self._compiled["volume"]))
+
     def kinetic_energy(self) -> float:
         """T = 1/2 v^T M v."""
         self.compile()

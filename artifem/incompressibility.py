@@ -13,10 +13,11 @@ gains -p I) by the augmented energy added to the body's potential,
 
 whose force is f = G^T pi with G = dg/du and pi_i = p_i - kappa g_i / V_i (the
 current pressure), and whose tangent is K = kappa G^T V^-1 G - sum_i pi_i d^2 g_i.
-The multipliers are updated (Uzawa, p <- pi) until max_i |g_i| / V_i <= ``tol``:
-within a semi-implicit step on the linearized constraint g + h G v+ (the step matrix
-kept, only its right-hand side changes by h G^T dp), in the implicit and static
-Newton solves on g(u) itself (an outer loop around Newton). kappa only sets how fast
+The multipliers are updated until max_i |g_i| / V_i <= ``tol``: within a semi-implicit
+step on the linearized constraint g + h G v+ (conjugate gradients on the pressure's
+Schur complement, the step matrix kept: :meth:`VolumeConstraint.hold_linearized`), in
+the implicit and static Newton solves on g(u) itself (Uzawa, p <- pi, an outer loop
+around Newton). kappa only sets how fast
 that converges (and how well the step matrix is conditioned): the answer does not
 depend on it, unlike a penalty's, whose volume error is pressure / kappa.
 
@@ -175,24 +176,63 @@ class VolumeConstraint:
         self.p.x.array[:] = self.pressure.x.array
         return viol
 
-    def linearized_update(self, v: PETSc.Vec, h: float, force_change: PETSc.Vec) -> float:
-        """Uzawa on the linearized constraint c = g + h G v of a semi-implicit step: the
-        violation max |c_i| / V_i, then p <- p - kappa c / V and ``force_change`` = G^T dp
-        (the change of the body's force f = -R). G and g as last assembled."""
-        n = self.n_owned
+    def hold_linearized(self, v: PETSc.Vec, dv: PETSc.Vec, h: float, solve) -> int:
+        """The semi-implicit step's constraint c = g + h G (v + dv) = 0, to ``tol``: dp and a
+        velocity change h A^-1 G^T dp solve the pressure's Schur complement system
+
+            S dp = -c,    S = h^2 G A^-1 G^T,
+
+        by conjugate gradients preconditioned by the augmentation's diag(kappa / V_i)
+        (its Richardson iteration is the plain Uzawa update p -= kappa c / V, which stalls
+        on the near-dependent rows of Q1/P0 by the fixed nodes: 50 updates were not enough
+        on the tongue). One solve with the step matrix A (``solve(rhs, x)``: A x = rhs, fixed
+        rows zero) per iteration. S is symmetric when A is; for a non-conservative body
+        (follower pressures) CG still reduces c in practice, and a step that does not reach
+        ``tol`` in ``max_updates`` iterations fails (and is halved). p, ``pressure`` and ``dv``
+        are updated; returns the iteration count."""
+        n, comm = self.n_owned, self.body.mesh.comm
         c = self.g.duplicate()
-        self.G.mult(v, c)
-        cl = self.g.array[:n] + h * c.array[:n]
-        viol = self.violation(cl)
-        dp = c                                   # reuse the vector: dp = -kappa c / V
-        dp.array[:n] = -self.kappa * cl / self.volume
-        self.p.x.array[:n] += dp.array[:n]
-        self.p.x.scatter_forward()
-        self.pressure.x.array[:n] += dp.array[:n]
-        self.pressure.x.scatter_forward()
-        self.G.multTranspose(dp, force_change)
-        dp.destroy()
-        return viol
+        v_new = v.copy()
+        v_new.axpy(1.0, dv)
+        self.G.mult(v_new, c)
+        r = -(self.g.array[:n] + h * c.array[:n])           # residual of S x = -c0, x = 0
+        x = np.zeros(n)
+        w, y = v.duplicate(), v.duplicate()
+        weight = self.kappa / self.volume
+        z = weight * r
+        d = z.copy()
+        rz = comm.allreduce(float(r @ z))
+        iterations = 0
+        try:
+            while self.violation(-r) > self.spec.tol:
+                iterations += 1
+                if iterations > self.spec.max_updates:
+                    return -1
+                c.array[:n] = d
+                self.G.multTranspose(c, w)                   # w = h G^T d
+                w.scale(h)
+                solve(w, y)                                  # y = A^-1 h G^T d
+                self.G.mult(y, c)
+                Sd = h * c.array[:n]
+                dSd = comm.allreduce(float(d @ Sd))
+                if not dSd > 0:
+                    return -1
+                alpha = rz / dSd
+                x += alpha * d
+                dv.axpy(alpha, y)
+                r -= alpha * Sd
+                z = weight * r
+                rz, rz_old = comm.allreduce(float(r @ z)), rz
+                d = z + (rz / rz_old) * d
+            return iterations
+        finally:
+            self.p.x.array[:n] += x
+            self.p.x.scatter_forward()
+            self.pressure.x.array[:n] += x
+            self.pressure.x.scatter_forward()
+            self.updates = iterations
+            for vec in (c, v_new, w, y):
+                vec.destroy()
 
     def pressure_range(self) -> tuple[float, float]:
         """(min, max) of pi over every rank."""

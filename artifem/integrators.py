@@ -136,7 +136,7 @@ class SemiImplicitEuler:
         solver.solve(A, b, dv)
         body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
         if body.volume_constraint is not None:
-            _hold_volumes(body, h, A, b, dv, solver)
+            _hold_volumes(body, h, A, dv, solver)
         v.axpy(1.0, dv)
         u.axpy(h, v)
         _update_ghosts(u, v)
@@ -152,31 +152,21 @@ class SemiImplicitEuler:
         body.set_state((q + h * qdot, qdot))
 
 
-def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, b: PETSc.Vec, dv: PETSc.Vec,
+def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
                   solver: LinearSolver) -> None:
-    """Uzawa on the linearized volume constraint of a semi-implicit step (the step matrix
-    kept): while max |g + h G v+| / V > tol, p -= kappa c / V, b += h G^T dp, solve again
-    (:mod:`artifem.incompressibility`). ``b`` is the right-hand side of the increment
-    dv = v+ - v, updated in place."""
+    """The semi-implicit step's linearized volume constraint (the step matrix A kept):
+    :meth:`~artifem.incompressibility.VolumeConstraint.hold_linearized` corrects dv and
+    the pressures; StepFailed when it does not reach the tolerance."""
     vc = body.volume_constraint
-    v_new, df = dv.duplicate(), dv.duplicate()
-    try:
-        for vc.updates in range(1, vc.spec.max_updates + 1):
-            body.v.x.petsc_vec.copy(v_new)
-            v_new.axpy(1.0, dv)
-            violation = vc.linearized_update(v_new, h, df)
-            if violation <= vc.spec.tol:
-                return
-            b.axpy(h, df)
-            body.zero_fixed(b)
-            solver.solve(A, b, dv)
-            body.zero_fixed(dv)
-        raise StepFailed(f"FemBody {body.name!r}: element volumes still off by {violation:.2e} "
-                         f"(tolerance {vc.spec.tol:g}) after {vc.spec.max_updates} pressure "
-                         "updates")
-    finally:
-        v_new.destroy()
-        df.destroy()
+
+    def solve(rhs: PETSc.Vec, x: PETSc.Vec) -> None:
+        body.zero_fixed(rhs)
+        solver.solve(A, rhs, x)
+        body.zero_fixed(x)
+
+    if vc.hold_linearized(body.v.x.petsc_vec, dv, h, solve) < 0:
+        raise StepFailed(f"FemBody {body.name!r}: element volumes still off by more than "
+                         f"{vc.spec.tol:g} after {vc.spec.max_updates} pressure iterations")
 
 
 class ImplicitEuler:
