@@ -16,7 +16,10 @@ potential -lambda p V (V the enclosed volume) is part of Pi. The optional
 kappa_inc term is an element-wise incompressibility penalty: J at the element
 centre (one-point rule), which for hexahedra approximates the element's mean
 dilatation, so it penalizes volume change per element without locking the
-bending modes (ArtiSynth's soft "element" incompressibility). The
+bending modes (ArtiSynth's soft "element" incompressibility). The hard
+alternative, ``incompressibility=Incompressible(...)``, keeps every element's
+volume (:mod:`artifem.incompressibility`: an augmented Lagrangian with its
+pressure field, assembled as forms of its own beside these). The
 internal-plus-external force is f = -dPi/du, the tangent K = d^2 Pi/du^2,
 both derived by ``ufl.derivative`` from the UFL energies of ``artifem.forms``.
 Mass is lumped (row sums of the consistent mass, ArtiSynth's default) or
@@ -544,8 +547,6 @@ class FemBody:
         v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         R = ufl.derivative(Pi, self.u, v)
         vc = self.volume_constraint
-        if vc is not None:              # -G^T pi (and its geometric tangent), pi held fixed
-            R += ufl.derivative(vc.residual_term(self.kinematics()) * vc.measure(), self.u, v)
         _, closed, follower = self._surface_terms()
         if follower is not None:
             R -= follower                   # R = dPi/du - delta W_follower
@@ -563,7 +564,9 @@ class FemBody:
             self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
         self.K = fem_petsc.create_matrix(c["K"])
         self.R = fem_petsc.create_vector(self.V)
-        if vc is not None:
+        if vc is not None:              # forms of their own: the body's JIT cache is shared
+            R_inc = ufl.derivative(vc.residual_term(self.kinematics()) * vc.measure(), self.u, v)
+            c["R_inc"], c["K_inc"] = fem.form(R_inc), fem.form(ufl.derivative(R_inc, self.u, du))
             vc.compile()
             vc.assemble(tangent=True)   # room in K for G^T D G (nodal pressures: 2-ring)
             self.K.assemble()
@@ -609,11 +612,15 @@ class FemBody:
             self.K.zeroEntries()
             fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)
             self.K.assemble()
-            if vc is not None:
+            if vc is not None:          # -sum pi_i d^2 g_i, then G^T D G
+                fem_petsc.assemble_matrix(self.K, c["K_inc"], bcs=self.bcs, diag=diag)
+                self.K.assemble()
                 self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         with self.R.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.R, c["R"])
+        if vc is not None:
+            fem_petsc.assemble_vector(self.R, c["R_inc"])          # -G^T pi
         self.R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.R.axpy(-self.load_factor.value, self.nodal_load)
 

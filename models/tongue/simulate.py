@@ -1,13 +1,16 @@
 """``artifem simulate tongue``: a speech motion of the tongue, rendered and measured.
 
-    artifem simulate tongue --motion protrusion [--level 1] [--integrator implicit] --out DIR
+    artifem simulate tongue --motion protrusion [--level 1] [--integrator implicit]
+                            [--incompressibility hard] --out DIR
     artifem simulate tongue --motion all --out DIR      (the seed paper's Fig. 2 analog)
     artifem simulate tongue --schedule FILE.json --out DIR
 
 Per motion it writes DIR/<motion>/tongue.bp (VTX, ParaView), DIR/<motion>/
 tongue.png (rest, t = 0.5 s, t = 1.0 s) and DIR/<motion>/simulate.json with
-nodes, elements, steps, ms_per_step, min_det_F and the displacement of the
-tip, top and base landmarks in millimetres. ``--motion all`` adds
+nodes, elements, steps, ms_per_step, min_det_F, the volume change V / V0 - 1
+(at the end and its largest magnitude), the element pressure range (hard
+incompressibility) and the displacement of the tip, top and base landmarks in
+millimetres. ``--motion all`` adds
 DIR/motions.png: rest, protrusion, retroflexion and retraction side by side.
 """
 
@@ -21,7 +24,8 @@ import numpy as np
 
 from artifem.arguments import positive_float
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
+from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, RAMP_TIME, Tongue,
+                                         TongueConfig)
 from artifem.scene import INTEGRATORS
 
 
@@ -35,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level", type=int, default=0, choices=(0, 1),
                         help="0: mesh as shipped (946 nodes); 1: every hexahedron split 2x2x2")
     parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
+    parser.add_argument("--incompressibility", default="penalty", choices=("penalty", "hard"),
+                        help="element-wise penalty 100 C10, or element volumes held to 1e-4 "
+                             "(augmented Lagrangian)")
     parser.add_argument("--dt", type=positive_float, default=DT)
     parser.add_argument("--duration", type=positive_float, default=DURATION)
     parser.add_argument("--no-progress", action="store_true")
@@ -44,7 +51,10 @@ def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
     from artifem.scene import simulate
 
-    tongue = Tongue(TongueConfig(level=args.level, integrator=args.integrator))
+    defaults = TongueConfig()
+    tongue = Tongue(TongueConfig(
+        level=args.level, integrator=args.integrator,
+        incompressibility=HARD if args.incompressibility == "hard" else defaults.incompressibility))
     if args.schedule is not None:
         runs = {args.schedule.stem: ExcitationSchedule.from_file(args.schedule)}
     else:
@@ -61,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
             out.mkdir(parents=True, exist_ok=True)
         tongue.reset()
         tongue.drive(schedule)
-        traj = simulate(tongue.scene, args.duration, args.dt, record=tongue.landmark_records(),
+        rest_volume = body.volume()
+        record = tongue.landmark_records()
+        record["volume_change"] = lambda scene: body.volume() / rest_volume - 1.0
+        traj = simulate(tongue.scene, args.duration, args.dt, record=record,
                         keep=shown, vtx=out, progress=not args.no_progress,
                         label=f"tongue {name}")
         final[name] = traj.snapshots[shown[-1]][body.name]
@@ -92,6 +105,8 @@ def _figures(tongue: Tongue, traj, motion: str, args, shown) -> dict:
         return np.round(1e3 * traj.records[name][k], 3).tolist()
 
     body = tongue.body
+    volume = np.asarray(traj.records.pop("volume_change"), dtype=float)
+    vc = body.volume_constraint
     return {
         "model": "artisynth_hex_tongue",
         "motion": motion,
@@ -106,7 +121,13 @@ def _figures(tongue: Tongue, traj, motion: str, args, shown) -> dict:
         "ms_per_step": traj.ms_per_step,
         "min_det_F": traj.min_det_F,
         "halvings": traj.halvings,
+        "incompressibility": args.incompressibility,
+        "volume_change": float(volume[-1]),
+        "max_volume_change": float(np.abs(volume).max()),
+        "pressure_range_Pa": list(vc.pressure_range()) if vc is not None else None,
         "landmarks": {name: mm(name, shown[-1]) for name in traj.records},
         "landmarks_at_ramp_end": {name: mm(name, shown[1]) for name in traj.records},
-        "units": {"landmarks": "mm, displacement from rest", "ms_per_step": "median wall ms"},
+        "units": {"landmarks": "mm, displacement from rest", "ms_per_step": "median wall ms",
+                  "volume_change": "V / V0 - 1 at the end; max_volume_change: max |V / V0 - 1|",
+                  "pressure_range_Pa": "element pressures (> 0 in compression), hard only"},
     }
