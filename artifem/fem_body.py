@@ -566,7 +566,10 @@ class FemBody:
         self.R = fem_petsc.create_vector(self.V)
         if vc is not None:              # forms of their own: the body's JIT cache is shared
             R_inc = ufl.derivative(vc.residual_term(self.kinematics()) * vc.measure(), self.u, v)
-            c["R_inc"], c["K_inc"] = fem.form(R_inc), fem.form(ufl.derivative(R_inc, self.u, du))
+            geometric = ufl.derivative(vc.geometric_term(self.kinematics()) * vc.measure(),
+                                       self.u, v)
+            c["R_inc"], c["K_inc"] = fem.form(R_inc), fem.form(ufl.derivative(geometric,
+                                                                             self.u, du))
             vc.compile()
             vc.assemble(tangent=True)   # room in K for G^T D G (nodal pressures: 2-ring)
             self.K.assemble()
@@ -597,17 +600,22 @@ class FemBody:
 
     # ---- evaluation --------------------------------------------------------
 
-    def assemble(self, tangent: bool = True, diag: float = 0.0) -> None:
+    def assemble(self, tangent: bool = True, diag: float = 0.0,
+                 linearized: bool = False) -> None:
         """Assemble R = dPi/du (into self.R, nodal loads included) and K (into self.K).
 
         The force on the body is f = -R. Fixed rows/columns of K are zeroed with
         ``diag`` on the diagonal (0 when a mass term is added, 1 for statics).
+        ``linearized`` (a semi-implicit step) takes the hard incompressibility's
+        geometric tangent with its multipliers p rather than the current pressures
+        (:meth:`artifem.incompressibility.VolumeConstraint.assemble`); K is then not
+        exactly dR/du where the constraint has drifted.
         """
         self.compile()
         c = self._compiled
         vc = self.volume_constraint
         if vc is not None:
-            vc.assemble(tangent)
+            vc.assemble(tangent, linearized)
         if tangent:
             self.K.zeroEntries()
             fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)

@@ -86,9 +86,14 @@ class VolumeConstraint:
             raise InputError(f"FemBody {body.name!r}: hard incompressibility on "
                              f"{body.cell_name!r} cells is not supported")
         self.Q = fem.functionspace(body.mesh, family)
-        #: pi, the current pressure (Pa, > 0 in compression) per pressure dof
-        self.pressure = fem.Function(self.Q, name="pressure")
-        self.p = fem.Function(self.Q, name="multiplier")     # the multipliers p
+        #: pi = p - kappa g / V, the augmented energy's current pressure (its force G^T pi)
+        self.pressure = fem.Function(self.Q, name="augmented pressure")
+        #: the multipliers p: the pressures (Pa, > 0 in compression) that hold the volumes,
+        #: the field to look at (equal to pi once g = 0)
+        self.p = fem.Function(self.Q, name="pressure")
+        #: the pressure of the geometric tangent -sum_i pi_i d^2 g_i: pi (the exact
+        #: tangent, Newton), or p in a linearized step (see :meth:`assemble`)
+        self.geometric = fem.Function(self.Q)
         imap = self.Q.dofmap.index_map
         self.n_owned = imap.size_local
         self.updates = 0                # multiplier updates in the last step
@@ -97,9 +102,13 @@ class VolumeConstraint:
     # ---- forms -------------------------------------------------------------
 
     def residual_term(self, F):
-        """UFL integrand -pi J of the body's residual energy: its derivative is -G^T pi,
-        its second derivative -sum pi_i d^2 g_i (pi held fixed, see the module docstring)."""
+        """UFL integrand -pi J whose derivative is the body's residual term -G^T pi
+        (pi held fixed, see the module docstring)."""
         return -self.pressure * ufl.det(F)
+
+    def geometric_term(self, F):
+        """UFL integrand -pi_g J whose second derivative is the geometric tangent."""
+        return -self.geometric * ufl.det(F)
 
     def measure(self):
         return ufl.Measure("dx", domain=self.body.mesh,
@@ -134,9 +143,15 @@ class VolumeConstraint:
 
     # ---- evaluation --------------------------------------------------------
 
-    def assemble(self, tangent: bool) -> None:
+    def assemble(self, tangent: bool, linearized: bool = False) -> None:
         """g and G at the body's current u; pi = p - kappa g / V into ``pressure``;
-        with ``tangent``, G^T D G too (D = diag kappa / V_i). Before the body's forms."""
+        with ``tangent``, G^T D G too (D = diag kappa / V_i). Before the body's forms.
+
+        ``linearized`` (a semi-implicit step): the geometric tangent takes the
+        multipliers p instead of pi. Both are the constraint force's own multiplier once
+        g = 0; at the start of a semi-implicit step g is the last step's O(h^2) drift,
+        and pi = p - kappa g / V would make the step depend on kappa (the step's
+        constraint force is G^T (p + dp) whatever kappa: module docstring)."""
         if self._compiled is None:
             self.compile()
         c = self._compiled
@@ -147,6 +162,8 @@ class VolumeConstraint:
         n = self.n_owned
         self.pressure.x.array[:n] = self.p.x.array[:n] - self.kappa * self.g.array[:n] / self.volume
         self.pressure.x.scatter_forward()
+        source = self.p if linearized else self.pressure
+        self.geometric.x.array[:] = source.x.array
         if tangent:
             self.G.zeroEntries()
             fem_petsc.assemble_matrix(self.G, c["G"], bcs=self.body.bcs)
@@ -176,67 +193,89 @@ class VolumeConstraint:
         self.p.x.array[:] = self.pressure.x.array
         return viol
 
-    def hold_linearized(self, v: PETSc.Vec, dv: PETSc.Vec, h: float, solve) -> int:
-        """The semi-implicit step's constraint c = g + h G (v + dv) = 0, to ``tol``: dp and a
-        velocity change h A^-1 G^T dp solve the pressure's Schur complement system
-
-            S dp = -c,    S = h^2 G A^-1 G^T,
-
-        by conjugate gradients preconditioned by the augmentation's diag(kappa / V_i)
-        (its Richardson iteration is the plain Uzawa update p -= kappa c / V, which stalls
-        on the near-dependent rows of Q1/P0 by the fixed nodes: 50 updates were not enough
-        on the tongue). One solve with the step matrix A (``solve(rhs, x)``: A x = rhs, fixed
-        rows zero) per iteration. S is symmetric when A is; for a non-conservative body
-        (follower pressures) CG still reduces c in practice, and a step that does not reach
-        ``tol`` in ``max_updates`` iterations fails (and is halved). p, ``pressure`` and ``dv``
-        are updated; returns the iteration count."""
-        n, comm = self.n_owned, self.body.mesh.comm
+    def linearized(self, v: PETSc.Vec, h: float) -> np.ndarray:
+        """c = g + h G v (owned rows): the constraint at the end of a semi-implicit step
+        with velocity v (g and G as last assembled)."""
         c = self.g.duplicate()
-        v_new = v.copy()
-        v_new.axpy(1.0, dv)
-        self.G.mult(v_new, c)
-        r = -(self.g.array[:n] + h * c.array[:n])           # residual of S x = -c0, x = 0
-        x = np.zeros(n)
-        w, y = v.duplicate(), v.duplicate()
-        weight = self.kappa / self.volume
-        z = weight * r
-        d = z.copy()
-        rz = comm.allreduce(float(r @ z))
-        iterations = 0
-        try:
-            while self.violation(-r) > self.spec.tol:
-                iterations += 1
-                if iterations > self.spec.max_updates:
-                    return -1
-                c.array[:n] = d
-                self.G.multTranspose(c, w)                   # w = h G^T d
-                w.scale(h)
-                solve(w, y)                                  # y = A^-1 h G^T d
-                self.G.mult(y, c)
-                Sd = h * c.array[:n]
-                dSd = comm.allreduce(float(d @ Sd))
-                if not dSd > 0:
-                    return -1
-                alpha = rz / dSd
-                x += alpha * d
-                dv.axpy(alpha, y)
-                r -= alpha * Sd
-                z = weight * r
-                rz, rz_old = comm.allreduce(float(r @ z)), rz
-                d = z + (rz / rz_old) * d
-            return iterations
-        finally:
-            self.p.x.array[:n] += x
-            self.p.x.scatter_forward()
-            self.pressure.x.array[:n] += x
-            self.pressure.x.scatter_forward()
-            self.updates = iterations
-            for vec in (c, v_new, w, y):
-                vec.destroy()
+        self.G.mult(v, c)
+        out = self.g.array[:self.n_owned] + h * c.array[:self.n_owned]
+        c.destroy()
+        return out
+
+    def force_of(self, dp: np.ndarray, h: float, out: PETSc.Vec) -> None:
+        """out = h G^T dp: the change of h f when the pressures change by dp."""
+        d = self.g.duplicate()
+        d.array[:self.n_owned] = dp
+        self.G.multTranspose(d, out)
+        out.scale(h)
+        d.destroy()
+
+    def rate_of(self, y: PETSc.Vec, h: float) -> np.ndarray:
+        """h G y (owned rows): the change of c when the velocity changes by y."""
+        c = self.g.duplicate()
+        self.G.mult(y, c)
+        out = h * c.array[:self.n_owned]
+        c.destroy()
+        return out
+
+    def add_to_pressures(self, dp: np.ndarray) -> None:
+        n = self.n_owned
+        for f in (self.p, self.pressure):
+            f.x.array[:n] += dp
+            f.x.scatter_forward()
 
     def pressure_range(self) -> tuple[float, float]:
-        """(min, max) of pi over every rank."""
-        a = self.pressure.x.array[:self.n_owned]
+        """(min, max) of the pressures p over every rank."""
+        a = self.p.x.array[:self.n_owned]
         comm = self.body.mesh.comm
         return (comm.allreduce(float(a.min()) if a.size else np.inf, op=MPI.MIN),
                 comm.allreduce(float(a.max()) if a.size else -np.inf, op=MPI.MAX))
+
+
+def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], respond,
+                    accept, comm) -> int:
+    """The linearized constraints of a semi-implicit step, c = c0 + S dp = 0 to each one's
+    ``tol``, for the pressure changes dp of one or more bodies stepped together:
+
+        S dp = -c0,    S = h^2 G A^-1 G^T  (A the step matrix, with whatever couples them),
+
+    by conjugate gradients preconditioned by the augmentation's diag(kappa / V_i) (its
+    Richardson iteration is the plain Uzawa update p -= kappa c / V, which stalls on the
+    near-dependent rows of Q1/P0 next to fixed nodes: 50 updates were not enough on the
+    tongue; CG takes a median 1-2). ``respond(d)`` (a list, one array per constraint)
+    solves once with the step matrix for the force change h G^T d and returns S d;
+    ``accept(alpha)`` adds alpha times that last velocity response to the step's
+    velocities. S is symmetric when A is; for a non-conservative body (follower
+    pressures) CG still reduces c in practice. The pressures are updated. Returns the
+    iterations, or -1 when ``max_updates`` of some constraint is reached first.
+    """
+    weight = [vc.kappa / vc.volume for vc in constraints]
+    r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
+    x = [np.zeros_like(c) for c in c0]
+    z = [w * ri for w, ri in zip(weight, r)]
+    d = [zi.copy() for zi in z]
+    rz = comm.allreduce(sum(float(ri @ zi) for ri, zi in zip(r, z)))
+    limit = min(vc.spec.max_updates for vc in constraints)
+    iterations = 0
+    try:
+        while any(vc.violation(-ri) > vc.spec.tol for vc, ri in zip(constraints, r)):
+            iterations += 1
+            if iterations > limit:
+                return -1
+            Sd = respond(d)
+            dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
+            if not dSd > 0:
+                return -1
+            alpha = rz / dSd
+            accept(alpha)
+            for k in range(len(constraints)):
+                x[k] += alpha * d[k]
+                r[k] -= alpha * Sd[k]
+                z[k] = weight[k] * r[k]
+            rz, rz_old = comm.allreduce(sum(float(ri @ zi) for ri, zi in zip(r, z))), rz
+            d = [zi + (rz / rz_old) * di for zi, di in zip(z, d)]
+        return iterations
+    finally:
+        for vc, xk in zip(constraints, x):
+            vc.add_to_pressures(xk)
+            vc.updates = iterations

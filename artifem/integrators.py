@@ -41,6 +41,7 @@ from petsc4py import PETSc
 
 from artifem.errors import StepFailed
 from artifem.fem_body import FemBody
+from artifem.incompressibility import hold_linearized
 from artifem.linear_solver import LinearSolver
 
 if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
@@ -83,7 +84,8 @@ def _has_inversion(body: FemBody) -> bool:
     return body.mesh.comm.allreduce(local, op=MPI.LOR)
 
 
-def step_system(body: FemBody, h: float) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
+def step_system(body: FemBody, h: float,
+                linearized: bool = True) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
     """The semi-implicit step of an FEM body at its current state, A v+ = b (the one place
     it is formed: this integrator, the coupled island's direct and Schur solves):
 
@@ -92,8 +94,10 @@ def step_system(body: FemBody, h: float) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Ve
     and the applied force f - D v (Rayleigh damping D = alpha M + beta K; the slaves'
     loads in K_geo). A is ``body.K`` scaled in place: valid until the body is assembled
     again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
+    ``linearized=False`` (Newton's Jacobian at a trial state) takes the exact tangent of
+    a hard-incompressible body (``FemBody.assemble``).
     """
-    body.assemble(tangent=True)
+    body.assemble(tangent=True, linearized=linearized)
     v = body.v.x.petsc_vec
     b, d = v.duplicate(), v.duplicate()
     body.mass_mult(v, b)                    # b = M v, then + h f
@@ -155,18 +159,28 @@ class SemiImplicitEuler:
 def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
                   solver: LinearSolver) -> None:
     """The semi-implicit step's linearized volume constraint (the step matrix A kept):
-    :meth:`~artifem.incompressibility.VolumeConstraint.hold_linearized` corrects dv and
-    the pressures; StepFailed when it does not reach the tolerance."""
+    :func:`~artifem.incompressibility.hold_linearized` corrects dv and the pressures;
+    StepFailed when it does not reach the tolerance."""
     vc = body.volume_constraint
+    v_new, w, y = dv.duplicate(), dv.duplicate(), dv.duplicate()
+    body.v.x.petsc_vec.copy(v_new)
+    v_new.axpy(1.0, dv)
 
-    def solve(rhs: PETSc.Vec, x: PETSc.Vec) -> None:
-        body.zero_fixed(rhs)
-        solver.solve(A, rhs, x)
-        body.zero_fixed(x)
+    def respond(d):
+        vc.force_of(d[0], h, w)
+        body.zero_fixed(w)
+        solver.solve(A, w, y)
+        body.zero_fixed(y)
+        return [vc.rate_of(y, h)]
 
-    if vc.hold_linearized(body.v.x.petsc_vec, dv, h, solve) < 0:
-        raise StepFailed(f"FemBody {body.name!r}: element volumes still off by more than "
-                         f"{vc.spec.tol:g} after {vc.spec.max_updates} pressure iterations")
+    try:
+        if hold_linearized([vc], [vc.linearized(v_new, h)], respond,
+                           lambda alpha: dv.axpy(alpha, y), body.mesh.comm) < 0:
+            raise StepFailed(f"FemBody {body.name!r}: element volumes still off by more than "
+                             f"{vc.spec.tol:g} after {vc.spec.max_updates} pressure iterations")
+    finally:
+        for vec in (v_new, w, y):
+            vec.destroy()
 
 
 class ImplicitEuler:

@@ -30,19 +30,27 @@ __all__ = ["solve_constrained"]
 
 
 def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: list,
-                      what: str) -> tuple[np.ndarray, np.ndarray, int]:
+                      what: str, resolver: bool = False):
     """(z, lambda, active rows) of the system above.
 
     ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver);
     ``bilateral`` and ``unilateral`` are lists of (..., G_rows, c_rows) whose last two
     entries are the rows on z (sparse or dense) and their right-hand sides; lambda
-    is returned in that order (bilateral first).
+    is returned in that order (bilateral first). With ``resolver``, a fourth item:
+    ``resolve(b) -> (z, lambda)``, the same system for another right-hand side with
+    c = 0 and the active rows kept (the factorization reused; the pressure iterations
+    of :func:`artifem.incompressibility.hold_linearized`).
     """
     groups = bilateral + unilateral
     n = A.shape[0]
     solver.factor(A, what)
     if not groups:
-        return solver.apply(b), np.zeros(0), 0
+        z = solver.apply(b)
+
+        def resolve(rhs):
+            return solver.apply(rhs), np.zeros(0)
+
+        return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
     blocks = [g[-2] for g in groups]
     G = sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
         np.vstack(blocks)
@@ -79,7 +87,18 @@ def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: lis
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
-    return z, lam, int(active.sum())
+    if not resolver:
+        return z, lam, int(active.sum())
+    on = np.flatnonzero(active)
+
+    def resolve(rhs):
+        a = solver.apply(rhs)
+        mu = np.zeros(len(c))
+        if on.size:
+            mu[on] = np.linalg.lstsq(S[np.ix_(on, on)], -(G @ a)[on], rcond=1e-12)[0]
+        return a + W @ mu, mu
+
+    return z, lam, int(active.sum()), resolve
 
 
 def impulses_by_joint(bilateral: list, unilateral: list, lam: np.ndarray) -> dict:

@@ -74,7 +74,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
 
     def residual(z_m):
         """(r_m, A_all, f_all, joint rows) at the trial state of z_m (placed)."""
-        A, _, f_all = L.dynamics(h, t1)
+        A, _, f_all = L.dynamics(h, t1, linearized=False)
         r = P.T @ (M0 @ (P @ z_m + z_k) - Mz0 - h * f_all)
         bilateral, unilateral = L.joint_rows(P, np.zeros(L.n_all), h, 1.0)
         return np.asarray(r).ravel(), A, f_all, bilateral, unilateral
@@ -103,38 +103,55 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     norm0 = max(norm, atol)
     history = [norm]
     where = f"implicit step at t = {scene.t:g}"
-    for it in range(1, max_iterations + 1):
-        if norm <= rtol * norm0 or norm <= atol:
+    constrained = [vc for _, vc in L.volume_constraints]
+    updates = 0
+    while True:
+        converged = False
+        for it in range(1, max_iterations + 1):
+            if norm <= rtol * norm0 or norm <= atol:
+                converged = True
+                break
+            J = L.fmt(P.T @ A @ P)
+            if scene.geometric_stiffness:
+                J = J - h * h * L.geometric_stiffness(scene._with_reactions(f_all), P)
+            shifted = [(*g[:-1], g[-1] + np.asarray(g[2] @ z_m).ravel())
+                       for g in bilateral + unilateral]
+            z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r,
+                                                  shifted[:len(bilateral)],
+                                                  shifted[len(bilateral):], where)
+            dz = z_new - z_m
+            step, z_start = 1.0, z_m
+            while step >= 1e-4:
+                z_m = z_start + step * dz
+                place(z_m)
+                if not L.inverted():
+                    trial = residual(z_m)
+                    norm_trial = merit(trial[0], trial[3], trial[4], lam_new)
+                    if np.isfinite(norm_trial) and norm_trial <= (1.0 - 1e-4 * step) * norm:
+                        break
+                step *= 0.5
+            else:
+                raise StepFailed(f"{where}: line search failed at Newton iteration {it} "
+                                 f"(|r| = {norm:.3e})")
+            r, A, f_all, bilateral, unilateral = trial
+            lam, norm = lam_new, norm_trial
+            history.append(norm)
+            if step == 1.0 and np.abs(dz).max() <= 1e-14 * max(np.abs(z_m).max(), 1e-300):
+                converged = True
+                break
+        if not (converged or norm <= rtol * norm0 or norm <= atol):
+            raise StepFailed(f"{where}: Newton did not converge in {max_iterations} "
+                             f"iterations (merit {norm:.3e}, first {norm0:.3e})")
+        # Uzawa around Newton for hard-incompressible bodies: p <- pi until g(u) holds
+        # (their g was assembled at this configuration by the last residual)
+        violations = [vc.update() for vc in constrained]
+        if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
+            for vc in constrained:
+                vc.updates = updates
             return impulses_by_joint(bilateral, unilateral, lam), history
-        J = L.fmt(P.T @ A @ P)
-        if scene.geometric_stiffness:
-            J = J - h * h * L.geometric_stiffness(scene._with_reactions(f_all), P)
-        shifted = [(*g[:-1], g[-1] + np.asarray(g[2] @ z_m).ravel())
-                   for g in bilateral + unilateral]
-        z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r,
-                                              shifted[:len(bilateral)],
-                                              shifted[len(bilateral):], where)
-        dz = z_new - z_m
-        step, z_start = 1.0, z_m
-        while step >= 1e-4:
-            z_m = z_start + step * dz
-            place(z_m)
-            if not L.inverted():
-                trial = residual(z_m)
-                norm_trial = merit(trial[0], trial[3], trial[4], lam_new)
-                if np.isfinite(norm_trial) and norm_trial <= (1.0 - 1e-4 * step) * norm:
-                    break
-            step *= 0.5
-        else:
-            raise StepFailed(f"{where}: line search failed at Newton iteration {it} "
-                             f"(|r| = {norm:.3e})")
-        r, A, f_all, bilateral, unilateral = trial
-        lam, norm = lam_new, norm_trial
-        history.append(norm)
-        if step == 1.0 and np.abs(dz).max() <= 1e-14 * max(np.abs(z_m).max(), 1e-300):
-            return impulses_by_joint(bilateral, unilateral, lam), history
-    if norm <= rtol * norm0 or norm <= atol:
-        return impulses_by_joint(bilateral, unilateral, lam), history
-    raise StepFailed(f"{where}: Newton did not converge in {max_iterations} iterations "
-                     f"(merit {norm:.3e}, first {norm0:.3e})")
-
+        updates += 1
+        if updates > min(vc.spec.max_updates for vc in constrained):
+            raise StepFailed(f"{where}: element volumes still off by {max(violations):.2e} "
+                             f"after {updates - 1} pressure updates")
+        r, A, f_all, bilateral, unilateral = residual(z_m)
+        norm = merit(r, bilateral, unilateral, lam)

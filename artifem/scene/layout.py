@@ -14,11 +14,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
 
-from artifem.errors import InputError
+from artifem.errors import InputError, StepFailed
 from artifem.fem_body import FemBody
+from artifem.incompressibility import hold_linearized
 from artifem.integrators import reduced_step_system, step_system
 from artifem.multibody.attachments import FemPoint, NodeAttachment, dof_positions, pose_gap
 from artifem.multibody.point_paths import PointPath
@@ -51,12 +53,6 @@ class Layout:
         self.fem_bodies, self.reduced_bodies = list(fem_bodies), list(reduced_bodies)
         rigid = scene.rigid_bodies
         for body in self.fem_bodies:
-            if body.volume_constraint is not None:
-                raise InputError(
-                    f"FEM body {body.name!r} has the hard incompressibility (Incompressible) "
-                    "and is coupled to other bodies (attachments, paths or loads): the coupled "
-                    "island does not update its pressures yet; use the element penalty "
-                    "(incompressibility=kappa_inc) there, or leave the body uncoupled")
             if body.mesh.comm.size != 1:
                 raise NotImplementedError(
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
@@ -453,13 +449,14 @@ class Layout:
                     b[i:i + 6] -= h * D @ bj.twist
         return forces
 
-    def dynamics(self, h: float, t1: float):
-        """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo)."""
+    def dynamics(self, h: float, t1: float, linearized: bool = True):
+        """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo);
+        ``linearized=False`` at Newton's trial states (:func:`~artifem.integrators.step_system`)."""
         scene = self.scene
         blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
         for body in self.fem_bodies:            # integrators.step_system: A, b, f - D v
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
-            A_body, b_body, applied = step_system(body, h)
+            A_body, b_body, applied = step_system(body, h, linearized)
             b[o:o + n] = b_body.array[:n]
             f_all[o:o + n] = applied.array[:n]
             blocks.append(_csr(A_body))
@@ -498,6 +495,53 @@ class Layout:
             b += h * F
             f_all += F
         return A, b, f_all
+
+    @property
+    def volume_constraints(self) -> list:
+        """(body, its VolumeConstraint) of the FEM bodies with hard incompressibility."""
+        return [(b, b.volume_constraint) for b in self.fem_bodies
+                if b.volume_constraint is not None]
+
+    def hold_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float) -> None:
+        """The linearized volume constraints of the step (:func:`~artifem.incompressibility.
+        hold_linearized`) for every hard-incompressible body of the island together: a
+        pressure change dp acts as the force h G^T dp on its body's dofs, the island's KKT
+        system (factored, joints' active rows kept: ``resolve``) gives the velocities of
+        everything. ``z`` (all velocities) and ``lam`` (joint impulses) are corrected in
+        place; StepFailed when the tolerance is not reached."""
+        pairs = self.volume_constraints
+        views, last = [], {}
+        for body, vc in pairs:
+            o, n = self.fem_offset[id(body)], 3 * body.V.dofmap.index_map.size_local
+            views.append((o, n, vc))
+        force = [pairs[k][0].v.x.petsc_vec.duplicate() for k in range(len(pairs))]
+
+        def as_vec(array):
+            return PETSc.Vec().createWithArray(array, comm=PETSc.COMM_SELF)
+
+        def respond(d):
+            rhs = np.zeros(self.n_all)
+            for (o, n, vc), dk, fk in zip(views, d, force):
+                vc.force_of(dk, h, fk)
+                rhs[o:o + n] = fk.array[:n]
+            y_m, mu = resolve(np.asarray(P.T @ rhs).ravel())
+            last["y"], last["mu"] = np.asarray(P @ y_m).ravel(), mu
+            return [vc.rate_of(as_vec(last["y"][o:o + n]), h) for o, n, vc in views]
+
+        def accept(alpha):
+            z[:] += alpha * last["y"]
+            lam[:] += alpha * last["mu"]
+
+        c0 = [vc.linearized(as_vec(z[o:o + n].copy()), h) for o, n, vc in views]
+        try:
+            if hold_linearized([vc for *_, vc in views], c0, respond, accept,
+                               MPI.COMM_SELF) < 0:
+                names = ", ".join(repr(b.name) for b, _ in pairs)
+                raise StepFailed(f"FEM bod(ies) {names}: element volumes still off by more "
+                                 "than the tolerance after the pressure iterations")
+        finally:
+            for vec in force:
+                vec.destroy()
 
     def mass_matrix(self):
         """M_all: the bodies' mass blocks at the current configuration (FEM lumped or

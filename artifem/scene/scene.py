@@ -682,10 +682,12 @@ class Scene:
         """The coupled island's linearized step (module docstring)."""
         L, P, z_k, targets, A_m, b_m = self._step_system(h)
         bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
-        z_m, impulses = self._solve(A_m, b_m, bilateral, unilateral)
+        z_m, lam, resolve = self._solve(A_m, b_m, bilateral, unilateral)
         z = P @ z_m + z_k
+        if L.volume_constraints:
+            L.hold_volumes(z, lam, P, resolve, h)
         L.advance(z, h, targets)
-        self._record_impulses(L, impulses, h)
+        self._record_impulses(L, impulses_by_joint(bilateral, unilateral, lam), h)
 
     def _record_impulses(self, L, impulses: dict, h: float) -> None:
         """Keep the joints' impulses of the step (reactions, and K_geo's lagged loads)."""
@@ -719,17 +721,18 @@ class Scene:
         return L, P, z_k, targets, A_m, b_m
 
     def _solve(self, A_m, b_m, bilateral, unilateral):
-        """z_m+ and the joint impulses (:func:`~artifem.scene.constraints.solve_constrained`:
-        the Schur complement of the joint rows, minimum-norm for redundant rows, an active
-        set for the limits)."""
+        """z_m+, the joint impulses lambda and the solve for another right-hand side
+        (:func:`~artifem.scene.constraints.solve_constrained`: the Schur complement of the
+        joint rows, minimum-norm for redundant rows, an active set for the limits)."""
         n = A_m.shape[0]
         if n == 0:                                  # everything fixed, prescribed or attached
             self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
-            return np.zeros(0), {}
-        z_m, lam, active = solve_constrained(self._solver, A_m, b_m, bilateral, unilateral,
-                                             f"t = {self.t:g}")
+            return np.zeros(0), np.zeros(0), lambda rhs: (np.zeros(0), np.zeros(0))
+        z_m, lam, active, resolve = solve_constrained(self._solver, A_m, b_m, bilateral,
+                                                      unilateral, f"t = {self.t:g}",
+                                                      resolver=True)
         self.last_solve = {"masters": n, "constraint_rows": active, "factorizations": 1}
-        return z_m, impulses_by_joint(bilateral, unilateral, lam)
+        return z_m, lam, resolve
 
     # ---- statics -------------------------------------------------------------------------
 
