@@ -118,6 +118,10 @@ def _add_arguments(parser, kind: str) -> None:
         parser.add_argument("--motion", default="protrusion",
                             help="speech motion: protrusion, retroflexion, retraction "
                                  "(default: %(default)s)")
+        parser.add_argument("--incompressibility", default="penalty",
+                            help="comma-separated: penalty (element penalty 100 C10), hard "
+                                 "(element volumes held; artifem.incompressibility) "
+                                 "(default: %(default)s)")
         steps, warmup = TONGUE_STEPS, TONGUE_WARMUP
     else:
         parser.add_argument("--sizes", default="1k,3k,13k",
@@ -184,12 +188,14 @@ def machine_info() -> dict:
 
 def format_table(cases: list[dict], lead: tuple[str, ...] = ()) -> str:
     """Text table of the cases; ``lead``: case fields shown first (e.g. ('level',))."""
-    head = " ".join(f"{k:>5}" for k in lead) + (" " if lead else "")
+    widths = [max(5, len(k)) for k in lead]
+    head = " ".join(f"{k:>{w}}" for k, w in zip(lead, widths)) + (" " if lead else "")
     head += (f"{'nodes':>6} {'ranks':>5} {'solver':<16} {'ms/step':>8} {'assembly':>8} "
              f"{'solve':>8} {'iters':>5} {'peak MB':>8}")
     rows = [head, "-" * len(head)]
     for c in cases:
-        first = " ".join(f"{c.get(k, ''):>5}" for k in lead) + (" " if lead else "")
+        first = " ".join(f"{c.get(k, ''):>{w}}" for k, w in zip(lead, widths)) \
+            + (" " if lead else "")
         rows.append(first + f"{c['nodes']:>6} {c['ranks']:>5} {c.get('solver', ''):<16} "
                     f"{c['ms_per_step']:>8.1f} {c['assembly_ms']:>8.1f} {c['solve_ms']:>8.1f} "
                     f"{c.get('iterations', 0):>5.0f} {c['peak_mb']:>8.0f}")
@@ -294,15 +300,21 @@ def run(args) -> int:
         if args.motion not in _tongue_motions():
             raise InputError(f"--motion: unknown {args.motion!r}; choose from "
                              f"{', '.join(_tongue_motions())}")
+        kinds = [k.strip() for k in args.incompressibility.split(",") if k.strip()]
+        if not kinds or any(k not in ("penalty", "hard") for k in kinds):
+            raise InputError(f"--incompressibility: expected penalty and/or hard, got "
+                             f"{args.incompressibility!r}")
     else:
         sizes = parse_sizes(args.sizes)
     mpiexec = find_mpiexec()
 
     settings = {"steps": args.steps, "warmup_steps": args.warmup, "ranks": ranks, "solvers": solvers}
     if kind == "tongue":
-        plan = [{"label": f"level {level}", "ranks": r, "solver": s, "fields": {"level": level},
-                 "scene_args": ["--scene", "tongue", "--level", str(level), "--motion", args.motion]}
-                for level in levels for r in ranks for s in solvers]
+        plan = [{"label": f"level {level}, {inc}", "ranks": r, "solver": s,
+                 "fields": {"level": level, "incompressibility": inc},
+                 "scene_args": ["--scene", "tongue", "--level", str(level), "--motion", args.motion,
+                                "--incompressibility", inc]}
+                for level in levels for inc in kinds for r in ranks for s in solvers]
     else:
         plan = [{"label": f"{'x'.join(map(str, cells))} cells", "ranks": r, "solver": s,
                  "fields": {"size": name, "cells": list(cells)},
@@ -312,7 +324,8 @@ def run(args) -> int:
 
     out = Path(args.out)
     if kind == "tongue":
-        settings.update(levels=levels, motion=args.motion, integrator="semi-implicit", dt=DT,
+        settings.update(levels=levels, motion=args.motion, incompressibility=kinds,
+                        integrator="semi-implicit", dt=DT,
                         timed_window_s=[round(args.warmup * DT, 10),
                                         round((args.warmup + args.steps) * DT, 10)])
         write_report(out, "tongue",
@@ -320,7 +333,7 @@ def run(args) -> int:
                      f"running {args.motion} (excitations ramp over 0.5 s, then hold); "
                      f"{args.warmup} warm-up steps, median over the next {args.steps}",
                      settings, cases, errors, reference=dict(TONGUE_REFERENCE))
-        print(format_table(cases, lead=("level",)))
+        print(format_table(cases, lead=("level", "incompressibility")))
         ref = TONGUE_REFERENCE
         print(f"seed paper: {ref['seed_paper_ms_per_step']} ms/step for its "
               f"{ref['seed_paper_nodes']:,}-node tongue ({ref['machine']})")

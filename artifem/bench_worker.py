@@ -28,6 +28,7 @@ over ranks of the peak resident set size of the process.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import resource
 import sys
@@ -101,19 +102,23 @@ def box_scene(comm, solver: str, cells) -> Case:
     return Case(scene, body, 2, n_nodes - 1, {"cells": list(cells), "box_m": list(BOX)})
 
 
-def tongue_scene(comm, solver: str, level: int, motion: str) -> Case:
-    """The ArtiSynth tongue at ``level`` running ``motion``; probe: the tip landmark."""
+def tongue_scene(comm, solver: str, level: int, motion: str,
+                 incompressibility: str = "penalty") -> Case:
+    """The ArtiSynth tongue at ``level`` running ``motion``, with its element penalty or the
+    hard constraint (``incompressibility``: "penalty" or "hard"); probe: the tip landmark."""
     from artifem.models.tongue.model import DT as TONGUE_DT
-    from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, TongueConfig
+    from artifem.models.tongue.model import HARD, MOTIONS, RAMP_TIME, Tongue, TongueConfig
 
     if TONGUE_DT != DT:
         raise SolverError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
-    tongue = Tongue(TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver),
-                    comm=comm)
+    config = TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver)
+    if incompressibility == "hard":
+        config = dataclasses.replace(config, incompressibility=HARD)
+    tongue = Tongue(config, comm=comm)
     tongue.drive(Tongue.motion(motion))
     return Case(tongue.scene, tongue.body, 5, tongue.data.landmarks["tip"],
                  {"level": level, "motion": motion, "peak_excitations": MOTIONS[motion],
-                  "ramp_s": RAMP_TIME})
+                  "ramp_s": RAMP_TIME, "incompressibility": incompressibility})
 
 
 #: scene name -> function(comm, solver, **scene options) -> Case
@@ -163,6 +168,8 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
 
     rows = []
     t_start = None
+    rest_volume = body.volume()
+    vc = body.volume_constraint
     for k in range(warmup + steps):
         if k == warmup:
             t_start = scene.t
@@ -176,13 +183,14 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
         if k >= warmup:
             rows.append((wall, comm.allreduce(assemble.total, op=MPI.MAX),
                          comm.allreduce(solve.total, op=MPI.MAX), linear.iterations,
-                         scene.halvings - halvings))
+                         scene.halvings - halvings, vc.updates if vc is not None else 0))
 
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # KiB on Linux
     peak_mb = comm.allreduce(rss_mb, op=MPI.SUM)
     n_nodes = body.mesh.geometry.index_map().size_global
     n_cells = body.mesh.topology.index_map(3).size_global
     probe = body.displacement_at([case.probe])[0]
+    volume_change = body.volume() / rest_volume - 1.0
     u_dump = gather_displacement(body) if dump else None
     if comm.rank != 0:
         return None
@@ -207,6 +215,9 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
         "halvings": int(a[:, 4].sum()),
         "preconditioner_setups": int(linear.setups),
         "iterations_per_step": [int(i) for i in a[:, 3]],
+        "pressure_iterations": float(np.median(a[:, 5])),
+        "max_pressure_iterations": int(a[:, 5].max()),
+        "volume_change": float(volume_change),
         "tip_displacement_m": [float(t) for t in probe],
         "dofs": int(3 * n_nodes),
     }
@@ -218,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cells", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="box scene")
     parser.add_argument("--level", type=int, choices=(0, 1), default=0, help="tongue scene")
     parser.add_argument("--motion", default="protrusion", help="tongue scene")
+    parser.add_argument("--incompressibility", choices=("penalty", "hard"), default="penalty",
+                        help="tongue scene")
     parser.add_argument("--solver", choices=METHODS, required=True)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--warmup", type=int, help="untimed steps first (default: the scene's)")
@@ -230,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the box scene needs --cells NX NY NZ, each >= 1")
         options = {"cells": tuple(args.cells)}
     else:
-        options = {"level": args.level, "motion": args.motion}
+        options = {"level": args.level, "motion": args.motion,
+                   "incompressibility": args.incompressibility}
     comm = MPI.COMM_WORLD
     case = SCENES[args.scene](comm, args.solver, **options)
     result = run_case(comm, case, args.solver, args.steps, args.warmup, args.dump)
