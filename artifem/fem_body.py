@@ -19,7 +19,8 @@ dilatation, so it penalizes volume change per element without locking the
 bending modes (ArtiSynth's soft "element" incompressibility). The hard
 alternative, ``incompressibility=Incompressible(...)``, keeps every element's
 volume (:mod:`artifem.incompressibility`: an augmented Lagrangian with its
-pressure field, assembled as forms of its own beside these). The
+pressure field; its -G^T pi and geometric tangent join R and K, the rank-one
+element blocks G^T D G are added to K after assembly). The
 internal-plus-external force is f = -dPi/du, the tangent K = d^2 Pi/du^2,
 both derived by ``ufl.derivative`` from the UFL energies of ``artifem.forms``.
 Mass is lumped (row sums of the consistent mass, ArtiSynth's default) or
@@ -553,6 +554,11 @@ class FemBody:
             if closed is not None:
                 Pi += closed
         K = ufl.derivative(R, self.u, du)
+        if vc is not None:      # -G^T pi and its geometric tangent, in the same integrals
+            F, dx = self.kinematics(), vc.measure()
+            R += ufl.derivative(vc.residual_term(F) * dx, self.u, v)
+            K += ufl.derivative(ufl.derivative(vc.geometric_term(F) * dx, self.u, v),
+                                self.u, du)
         c = {}
         c["R"], c["K"], c["Pi"] = fem.form(R), fem.form(K), fem.form(Pi)
         zero = np.zeros(3, dtype=PETSc.ScalarType)
@@ -564,12 +570,7 @@ class FemBody:
             self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
         self.K = fem_petsc.create_matrix(c["K"])
         self.R = fem_petsc.create_vector(self.V)
-        if vc is not None:              # forms of their own: the body's JIT cache is shared
-            R_inc = ufl.derivative(vc.residual_term(self.kinematics()) * vc.measure(), self.u, v)
-            geometric = ufl.derivative(vc.geometric_term(self.kinematics()) * vc.measure(),
-                                       self.u, v)
-            c["R_inc"], c["K_inc"] = fem.form(R_inc), fem.form(ufl.derivative(geometric,
-                                                                             self.u, du))
+        if vc is not None:
             vc.compile()
             vc.assemble(tangent=True)   # room in K for G^T D G (nodal pressures: 2-ring)
             self.K.assemble()
@@ -620,15 +621,11 @@ class FemBody:
             self.K.zeroEntries()
             fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)
             self.K.assemble()
-            if vc is not None:          # -sum pi_i d^2 g_i, then G^T D G
-                fem_petsc.assemble_matrix(self.K, c["K_inc"], bcs=self.bcs, diag=diag)
-                self.K.assemble()
+            if vc is not None:          # + G^T D G
                 self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         with self.R.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.R, c["R"])
-        if vc is not None:
-            fem_petsc.assemble_vector(self.R, c["R_inc"])          # -G^T pi
         self.R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.R.axpy(-self.load_factor.value, self.nodal_load)
 
