@@ -38,7 +38,7 @@ from petsc4py import PETSc
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
-from artifem.errors import InputError
+from artifem.errors import InputError, StepFailed
 
 #: pressure space per cell type (see the module docstring)
 PRESSURE_SPACE = {"hexahedron": ("DG", 0), "prism": ("DG", 0), "tetrahedron": ("Lagrange", 1)}
@@ -179,6 +179,29 @@ class VolumeConstraint:
         local = float(np.abs(g / self.volume).max()) if g.size else 0.0
         return self.body.mesh.comm.allreduce(local, op=MPI.MAX)
 
+    def describe(self, g: np.ndarray | None = None, count: int = 5) -> str:
+        """Where the constraint is worst (collective): its element(s) (Q1/P0) or node
+        patch(es) (nodal pressure) by input index, with their relative volume change."""
+        g = self.g.array[:self.n_owned] if g is None else g
+        ratio = np.abs(g / self.volume) if g.size else np.zeros(0)
+        order = np.argsort(-ratio)[:count]
+        dofs = self.Q.dofmap.list                       # cell -> pressure dof(s)
+        if dofs.shape[1] == 1:                          # one per element
+            cell_of = np.empty(self.n_owned, dtype=np.int32)
+            owned = dofs[:, 0] < self.n_owned
+            cell_of[dofs[owned, 0]] = np.flatnonzero(owned)
+            ids, what = self.body.input_cell_index(cell_of[order]), "element"
+        else:                                           # nodal: the geometry's node ids
+            node_of = np.empty(dofs.max() + 1, dtype=np.int64)
+            node_of[dofs.reshape(-1)] = self.body.mesh.geometry.dofmaps[0].reshape(-1)
+            ids = self.body.mesh.geometry.input_global_indices[node_of[order]]
+            what = "node patch"
+        found = sorted(sum(self.body.mesh.comm.allgather(
+            [(float(ratio[k]), int(i)) for k, i in zip(order, ids)]), []), reverse=True)[:count]
+        shown = ", ".join(f"{i} ({v:.1e})" for v, i in found)
+        return (f"FemBody {self.body.name!r}: element volumes off by more than "
+                f"{self.spec.tol:g} at {what}(s) (input index, relative volume change) {shown}")
+
     def energy(self) -> float:
         """W(u; p) at the assembled g (module docstring)."""
         n = self.n_owned
@@ -247,7 +270,8 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     ``accept(alpha)`` adds alpha times that last velocity response to the step's
     velocities. S is symmetric when A is; for a non-conservative body (follower
     pressures) CG still reduces c in practice. The pressures are updated. Returns the
-    iterations, or -1 when ``max_updates`` of some constraint is reached first.
+    iterations; raises StepFailed naming the worst elements when ``max_updates`` of some
+    constraint is reached first (or CG breaks down).
     """
     weight = [vc.kappa / vc.volume for vc in constraints]
     r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
@@ -261,11 +285,12 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
         while any(vc.violation(-ri) > vc.spec.tol for vc, ri in zip(constraints, r)):
             iterations += 1
             if iterations > limit:
-                return -1
+                raise StepFailed(_worst(constraints, r) + f" after {limit} pressure iterations")
             Sd = respond(d)
             dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
             if not dSd > 0:
-                return -1
+                raise StepFailed(_worst(constraints, r) + " (the pressure iteration broke "
+                                 "down: the step matrix is not positive definite)")
             alpha = rz / dSd
             accept(alpha)
             for k in range(len(constraints)):
@@ -279,3 +304,9 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
         for vc, xk in zip(constraints, x):
             vc.add_to_pressures(xk)
             vc.updates = iterations
+
+
+def _worst(constraints: list[VolumeConstraint], r: list[np.ndarray]) -> str:
+    """:meth:`VolumeConstraint.describe` of every constraint still off (c = -r)."""
+    return "; ".join(vc.describe(-rk) for vc, rk in zip(constraints, r)
+                     if vc.violation(-rk) > vc.spec.tol)

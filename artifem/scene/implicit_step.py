@@ -151,7 +151,8 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
             return impulses_by_joint(bilateral, unilateral, lam), history
         updates += 1
         if updates > min(vc.spec.max_updates for vc in constrained):
-            raise StepFailed(f"{where}: element volumes still off by {max(violations):.2e} "
-                             f"after {updates - 1} pressure updates")
+            off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
+                            if v > vc.spec.tol)
+            raise StepFailed(f"{where}: {off} after {updates - 1} pressure updates")
         r, A, f_all, bilateral, unilateral = residual(z_m)
         norm = merit(r, bilateral, unilateral, lam)

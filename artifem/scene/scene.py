@@ -829,8 +829,10 @@ class Scene:
             if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
                 return iterations
             iterations += self._newton(L, rtol, atol, max_iterations, factor)
-        raise StepFailed(f"static solve: element volumes still off by {max(violations):.2e} "
-                         f"after {updates - 1} pressure updates at load factor {factor:g}")
+        off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
+                        if v > vc.spec.tol)
+        raise StepFailed(f"static solve: {off} after {updates - 1} pressure updates at load "
+                         f"factor {factor:g}")
 
     def _set_load_factor(self, factor: float, g: np.ndarray) -> None:
         """Ramp the loads: the rigid bodies' gravity, the load elements, and the FEM load
