@@ -26,6 +26,9 @@ Comparison (``artifem study jaw-tongue --out DIR``): the three speech motions,
 full and reduced scene in one process; per motion the mean nodal tongue error
 over time (mm), the jaw angle of both, ms per step and the speed-up; JSON,
 Markdown table and a side-by-side render at each motion's largest error.
+``--quick`` (:func:`quick_config`): a smoke run, protrusion for 0.15 s over a small
+training (0.15 s runs, r = 12, 150 points; about a minute on 2 cores, seconds once
+the training is in ``--cache``).
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +56,7 @@ from artifem.reduction.rigid_lift import rigid_lift
 from artifem.reduction.training import ArtifactCache, force_training_matrix, project
 
 __all__ = ["ReducedJawTongueConfig", "ReducedTongue", "train", "build_reduced_scene",
-           "compare"]
+           "compare", "quick_config"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,17 @@ class ReducedJawTongueConfig:
     cubature_tol: float = 1e-3
     dt: float = 0.01
     jaw: jt.JawTongueConfig = field(default_factory=jt.JawTongueConfig)
+
+
+def quick_config() -> ReducedJawTongueConfig:
+    """A small training for tests and smoke runs (``--quick``): 0.15 s training runs
+    (every step a snapshot), r = 12 POD vectors, 150 trained points."""
+    return ReducedJawTongueConfig(r=12, points=150, training_duration=0.15, snapshot_every=1,
+                                  force_snapshots=60)
+
+
+#: ``--quick``: motions and duration of the comparison (unless given).
+QUICK_MOTIONS, QUICK_DURATION = ("protrusion",), 0.15
 
 
 @dataclass
@@ -234,31 +248,50 @@ def report(figures: dict) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    quick = quick_config()
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS), choices=sorted(MOTIONS))
-    parser.add_argument("--duration", type=positive_float, default=0.6)
-    parser.add_argument("--r", type=positive_int, default=ReducedJawTongueConfig.r)
-    parser.add_argument("--points", type=positive_int, default=ReducedJawTongueConfig.points)
+    parser.add_argument("--motions", nargs="+", default=None, choices=sorted(MOTIONS),
+                        help=f"default: all ({', '.join(sorted(MOTIONS))}); "
+                             f"with --quick {' '.join(QUICK_MOTIONS)}")
+    parser.add_argument("--duration", type=positive_float, default=None,
+                        help=f"seconds per motion (default 0.6; with --quick {QUICK_DURATION})")
+    parser.add_argument("--r", type=positive_int, default=None,
+                        help=f"POD vectors (default {ReducedJawTongueConfig.r}; with --quick "
+                             f"{quick.r})")
+    parser.add_argument("--points", type=positive_int, default=None,
+                        help=f"trained integration points (default "
+                             f"{ReducedJawTongueConfig.points}; with --quick "
+                             f"{quick.points})")
     parser.add_argument("--cache", type=Path, default=None,
                         help="training cache (default OUT/cache)")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"a small smoke-test study: the quick training "
+                             f"({quick.training_duration} s runs, r = {quick.r}, "
+                             f"{quick.points} points), "
+                             f"{' '.join(QUICK_MOTIONS)} for {QUICK_DURATION} s")
 
 
 def run(args: argparse.Namespace) -> int:
-    config = ReducedJawTongueConfig(r=args.r, points=args.points)
-    figures = compare(config, args.out, motions=tuple(args.motions), duration=args.duration,
+    config = quick_config() if args.quick else ReducedJawTongueConfig()
+    config = replace(config, **{k: v for k, v in (("r", args.r), ("points", args.points))
+                                if v is not None})
+    motions = args.motions or (QUICK_MOTIONS if args.quick else sorted(MOTIONS))
+    duration = args.duration or (QUICK_DURATION if args.quick else 0.6)
+    figures = compare(config, args.out, motions=tuple(motions), duration=duration,
                       cache=args.cache)
     print(report(figures))
     return 0
 
 
 def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig | None = None,
-              cache: Path | None = None) -> dict:
+              cache: Path | None = None, quick: bool = False) -> dict:
     """Milliseconds per coupled step (median of ``steps`` after ``warmup``) of the jaw-tongue
     scene during protrusion with the full and with the reduced tongue (training cached in
-    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced)."""
+    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced). ``quick``: the reduced tongue
+    of :func:`quick_config` (unless ``config`` is given), a smoke test of the timings."""
     if steps < 1 or warmup < 0:
         raise InputError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
-    config = config or ReducedJawTongueConfig()
+    config = config or (quick_config() if quick else ReducedJawTongueConfig())
     cache = cache or Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
     model = train(config, cache)
     cases = {}
