@@ -13,6 +13,10 @@ variants and times them in this process (medians over the timed steps):
 - ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
   conforming masseter, with and without aponeuroses.
 
+``--quick``: a smoke test of the command, not figures to quote: the reduced
+tongues of ``artifem study jaw-tongue --quick`` (a small training, seconds when
+already in ``--cache``), the coarse masseter and :data:`QUICK_STEPS` timed steps.
+
 Unless already set, OMP_NUM_THREADS and OPENBLAS_NUM_THREADS are 1 (one core
 per case, like ``artifem bench fom``).
 """
@@ -30,6 +34,10 @@ from artifem.errors import UnknownNameError
 SCENES = {"jaw-tongue": "artifem.models.jaw_tongue_reduced",
           "airway": "artifem.models.airway",
           "masseter": "artifem.models.masseter"}
+#: Scenes whose benchmark trains a reduced tongue (they take ``cache``).
+TRAINED = ("jaw-tongue", "airway")
+#: ``--quick``: timed steps per case (unless ``--steps``).
+QUICK_STEPS = 2
 
 
 def add_arguments(parser) -> None:
@@ -37,7 +45,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--scenes", default=",".join(SCENES),
                         help="comma-separated scenes (default: %(default)s)")
     parser.add_argument("--steps", type=positive_int, default=None,
-                        help="timed steps per case (default: each scene's own)")
+                        help=f"timed steps per case (default: each scene's own; with --quick "
+                             f"{QUICK_STEPS})")
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="reduced tongue training cache of jaw-tongue and airway "
+                             "(default: ~/.cache/artifem/jaw_tongue_reduced)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke test: the quick reduced tongue (study jaw-tongue "
+                             f"--quick), the coarse masseter, {QUICK_STEPS} timed steps")
 
 
 def run(args) -> int:
@@ -56,6 +71,10 @@ def run(args) -> int:
         tic = time.perf_counter()
         module = importlib.import_module(SCENES[name])
         kwargs = {} if args.steps is None else {"steps": args.steps}
+        if args.quick:
+            kwargs = {"steps": QUICK_STEPS, **kwargs, "quick": True}
+        if args.cache is not None and name in TRAINED:
+            kwargs["cache"] = args.cache
         try:
             results[name] = module.benchmark(**kwargs)
         except Exception as exc:                      # keep the other scenes' figures
@@ -64,7 +83,8 @@ def run(args) -> int:
             continue
         results[name]["seconds"] = time.perf_counter() - tic
         print(f"[bench scenes] {name}: {results[name].get('cases', results[name])}", flush=True)
-    write_report(Path(args.out), "scenes", __doc__.split("\n\n")[0], {"scenes": scenes},
-                 [], errors, scenes=results)
+    write_report(Path(args.out), "scenes", __doc__.split("\n\n")[0],
+                 {"scenes": scenes, "steps": args.steps, "quick": args.quick}, [], errors,
+                 scenes=results)
     print(f"[bench scenes] wrote {args.out}")
     return 1 if errors else 0

@@ -771,15 +771,17 @@ def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
 
 
 def benchmark(steps: int = 10, dt: float = 0.01, data=None,
-              reduced: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig(),
-              cache: Path | None = None) -> dict:
+              reduced: jtr.ReducedJawTongueConfig | None = None,
+              cache: Path | None = None, quick: bool = False) -> dict:
     """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
-    protrusion, with the full and with the reduced tongue (``reduced`` training, cached in
+    protrusion, with the full and with the reduced tongue (``reduced`` training, default
+    the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
     ``cache``, default ~/.cache/artifem/jaw_tongue_reduced): without the airway's load,
     then with its skin and pressure; and the cost of one skin update (positions), of G
     (jacobian) and of the pressure's master loads."""
     if steps < 1:
         raise InputError(f"benchmark: steps must be >= 1, got {steps}")
+    reduced = reduced or (jtr.quick_config() if quick else jtr.ReducedJawTongueConfig())
     data = data or load_tongue_data(0)
     config = AirwayConfig(pressure_start=(steps + 1) * dt)
     model = reduced_tongue(config, cache or DEFAULT_CACHE, reduced)

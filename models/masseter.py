@@ -637,10 +637,11 @@ def simulate(model: MasseterModel, *, excitation: float | None = None,
     return out
 
 
-def benchmark(steps: int = 5, config: MasseterConfig | None = None) -> dict:
+def benchmark(steps: int = 5, config: MasseterConfig | None = None, quick: bool = False) -> dict:
     """Milliseconds per coupled step (median of ``steps``, excitation ramp) of the embedding
-    and conforming masseter models, with and without aponeuroses, and their masters."""
-    config = config or MasseterConfig()
+    and conforming masseter models, with and without aponeuroses, and their masters.
+    ``quick``: on the coarse setting (:data:`COARSE`) unless ``config`` is given."""
+    config = config or MasseterConfig(**(COARSE if quick else {}))
     cases = {}
     for primary, apo in MODELS:
         model = build_model(config, primary, apo)
