@@ -6,6 +6,10 @@
    training is cached in the output directory, so a second run skips it);
 2. the muscle-driven cantilever (``artifem simulate beam``) and the tongue's
    protrusion, retroflexion and retraction (``artifem simulate tongue --motion all``).
+
+``--quick``: the same job, small (a minute on 2 cores): ``study tongue --quick``,
+the beam on 8 x 2 x 2 cells for 0.2 s and each tongue motion for 0.1 s; results
+to look at the pipeline by, not figures to quote.
 """
 
 from __future__ import annotations
@@ -17,8 +21,18 @@ from artifem.models import muscle_beam
 from artifem.models.tongue import simulate as tongue, study
 
 
+#: ``--quick``: extra arguments of each part.
+QUICK_STUDY = ["--quick"]
+QUICK_BEAM = ["--cells", "8", "2", "2", "--duration", "0.2", "--dt", "0.02"]
+QUICK_TONGUE = ["--duration", "0.1"]
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output directory")
+    parser.add_argument("--quick", action="store_true",
+                        help="a small run of the same job (study tongue --quick, the beam on "
+                             f"{' x '.join(QUICK_BEAM[1:4])} cells for {QUICK_BEAM[5]} s, each "
+                             f"tongue motion for {QUICK_TONGUE[1]} s)")
 
 
 def _parse(module, argv: list[str]) -> argparse.Namespace:
@@ -28,10 +42,14 @@ def _parse(module, argv: list[str]) -> argparse.Namespace:
 
 
 def run(args: argparse.Namespace) -> int:
-    status = study.run(_parse(study, ["--out", str(args.out / "study")]))
-    status = status or muscle_beam.run(_parse(muscle_beam, ["--out", str(args.out / "muscle_beam")]))
+    quick = args.quick
+    status = study.run(_parse(study, ["--out", str(args.out / "study")]
+                              + (QUICK_STUDY if quick else [])))
+    status = status or muscle_beam.run(_parse(muscle_beam, ["--out", str(args.out / "muscle_beam")]
+                                              + (QUICK_BEAM if quick else [])))
     status = status or tongue.run(_parse(tongue, ["--motion", "all",
-                                                  "--out", str(args.out / "tongue")]))
+                                                  "--out", str(args.out / "tongue")]
+                                         + (QUICK_TONGUE if quick else [])))
     print(f"demo: reduced-model study report {args.out}/study/report.md (speed versus error, "
           f"Table 2 analog, plots and renders beside it); beam pictures "
           f"{args.out}/muscle_beam/beam.png; tongue motions {args.out}/tongue/motions.png; "
