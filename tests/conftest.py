@@ -12,7 +12,9 @@ first use, whichever module asks first, and only read afterwards.
 - ``quick_jaw_tongue``: the quick reduced jaw-tongue training (test_jaw_tongue_reduced,
   test_airway);
 - ``level1_protrusion``: the level-1 tongue's protrusion run (the ``level_1`` hard case of
-  test_tongue_hard_cases and the level-1 side of test_tongue_convergence).
+  test_tongue_hard_cases and the level-1 side of test_tongue_convergence);
+- ``quick_tongue_study``: ``artifem study tongue --quick``'s output directory
+  (test_tongue_study; test_cli_end_to_end's demo starts from its training cache).
 """
 
 import zlib
@@ -42,12 +44,13 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     cache directory. Modules that train through another entry point
     (``jaw_tongue_reduced.compare``, ``airway.reduced_tongue``, ``airway.benchmark``) pass
     this ``cache`` and ``config``: the artifacts are keyed by the inputs (the airway's
-    jaw-tongue config is the default one, as here), so they load instead of training again."""
+    jaw-tongue config is the default one, as here), so they load instead of training again
+    (so do ``artifem study jaw-tongue --quick`` and ``artifem bench scenes --quick`` given
+    ``--cache``)."""
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
     from artifem.models import jaw_tongue_reduced as jtr
 
-    config = jtr.ReducedJawTongueConfig(r=12, points=150, training_duration=0.15,
-                                        snapshot_every=1, force_snapshots=60)
+    config = jtr.quick_config()      # also ``artifem study jaw-tongue --quick``'s training
     cache = tmp_path_factory.mktemp("jaw_tongue_quick") / "cache"
     return QuickJawTongue(config, jtr.train(config, cache), cache)
 
@@ -73,3 +76,18 @@ def level1_protrusion():
     assert all(np.array_equal(schedule.values[k], protrusion.values[k])
                for k in protrusion.values)
     return tongue, run_built(tongue, dt, record_times=(RAMP_TIME,))
+
+
+@pytest.fixture(scope="session")
+def quick_tongue_study(tmp_path_factory) -> Path:
+    """The output directory of ``artifem study tongue --quick`` (about 40 s): study.json,
+    report, pictures and the training cache (``cache/``). test_tongue_study reads it and
+    runs the study again in it (after deleting one training artifact, which that run
+    restores); test_cli_end_to_end copies its cache into the quick demo's study directory,
+    as a second demo run would find it."""
+    import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+    from artifem.cli import main
+
+    out = tmp_path_factory.mktemp("study")
+    assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
+    return out

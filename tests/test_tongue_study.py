@@ -22,10 +22,9 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the study runs 
 
 
 @pytest.fixture(scope="module")
-def quick_study(tmp_path_factory):
-    out = tmp_path_factory.mktemp("study")
-    assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
-    return out
+def quick_study(quick_tongue_study):
+    """``artifem study tongue --quick --out DIR``'s DIR (session fixture, tests/conftest.py)."""
+    return quick_tongue_study
 
 
 def test_study_json_has_every_configuration(quick_study):
