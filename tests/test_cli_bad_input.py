@@ -58,14 +58,57 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
      "argument --r: must be a positive integer"),
     (["simulate", "beam", "--dt", "0.1"], "the following arguments are required: --out"),
     (["simulate", "pendulum"], "invalid choice: 'pendulum'"),
+    # every subcommand: a missing file, a value out of range, an unknown name (where it
+    # takes one), the quick modes included
+    (["mesh", "info", "{tmp}/mesh.xyz"], "unknown mesh file extension '.xyz'"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--level", "2"], "invalid choice: 2"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--integrator", "rk4"], "invalid choice: 'rk4'"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--incompressibility", "rigid"],
+     "invalid choice: 'rigid'"),
+    (["simulate", "beam-ellipsoid", "--out", "{tmp}/o", "--duration", "inf"],
+     "argument --duration: must be finite"),
+    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--schedule", "{tmp}/missing.json"],
+     "excitation schedule file not found"),
+    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--schedule",
+      "schedule:" + json.dumps({"times": [0, 0.5], "excitations": {"XX": [0, 0.5]}})],
+     "unknown muscles ['XX']"),
+    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--motion", "yawn"], "invalid choice: 'yawn'"),
+    (["simulate", "styloglossus", "--out", "{tmp}/o", "--r", "0"],
+     "argument --r: must be a positive integer"),
+    (["simulate", "styloglossus", "--out", "{tmp}/o", "--duration", "-0.3"],
+     "argument --duration: must be > 0"),
+    (["simulate", "airway", "--out", "{tmp}/o", "--dt", "0"], "argument --dt: must be > 0"),
+    (["simulate", "masseter", "--out", "{tmp}/o", "--coarse", "--steps", "0"],
+     "argument --steps: must be a positive integer"),
+    (["bench", "fom", "--out", "{tmp}/b.json", "--ranks", "x"],
+     "--ranks: expected comma-separated integers"),
+    (["bench", "fom", "--out", "{tmp}/b.json", "--solver", "lu"], "--solver: unknown ['lu']"),
+    (["bench", "tongue", "--out", "{tmp}/b.json", "--levels", "2"],
+     "--levels: expected comma-separated levels among 0, 1"),
+    (["bench", "tongue", "--out", "{tmp}/b.json", "--motion", "swallow"],
+     "--motion: unknown 'swallow'"),
+    (["bench", "scenes", "--out", "{tmp}/b.json", "--quick", "--steps", "-1"],
+     "argument --steps: must be a positive integer"),
+    (["study", "tongue", "--out", "{tmp}/o", "--level", "2"], "invalid choice: 2"),
+    (["study", "tongue", "--out", "{tmp}/o", "--quick", "--bases", "pca"],
+     "invalid choice: 'pca'"),
+    (["study", "jaw-tongue", "--out", "{tmp}/o", "--motions", "yawn"], "invalid choice: 'yawn'"),
+    (["study", "jaw-tongue", "--out", "{tmp}/o", "--quick", "--duration", "-1"],
+     "argument --duration: must be > 0"),
+    (["demo", "--quick", "--out", "{tmp}/o", "--steps", "3"], "unrecognized arguments: --steps 3"),
+    (["demo", "--quick", "--out", "file:{tmp}/taken"], "Not a directory"),
 ]
 
 
 def _argv(tmp_path, argv):
+    """"schedule:TEXT": a schedule file holding TEXT; "file:PATH": an existing (empty) file."""
     out = []
     for a in argv:
         if a.startswith("schedule:"):
             a = schedule(tmp_path, a[len("schedule:"):])
+        elif a.startswith("file:"):
+            a = a[len("file:"):].replace("{tmp}", str(tmp_path))
+            Path(a).write_text("")
         out.append(a.replace("{tmp}", str(tmp_path)))
     return out
 
