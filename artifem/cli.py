@@ -7,6 +7,7 @@
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem study tongue --out DIR           reduced tongue models: speed versus error report
+    artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
     artifem demo --out DIR                   the main job (``make demo``)
 
 Each command lives in its own module, which declares its arguments
@@ -57,6 +58,9 @@ COMMANDS = {
                           "reduced tongue models against the full one: speed versus error"),
     ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",
                               "jaw-tongue scene, full against reduced tongue: speed, error"),
+    ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
+                                     "tongue motions with the element penalty and with hard "
+                                     "incompressibility: volume, landmarks, speed"),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
 }
 

@@ -381,3 +381,26 @@ def test_a_constraint_that_cannot_be_met_names_its_elements(integrator):
                                             r"than 1e-14 at element\(s\) \(input index"):
         scene.step(5e-3)
     assert scene.t == 0.0 and np.abs(body.u.x.array).max() == 0.0
+
+
+def test_the_incompressibility_study_writes_its_report(tmp_path):
+    """``artifem study incompressibility`` in a quick mode (level 0, protrusion, 3 steps):
+    both formulations run, the hard one holds the volume within its element tolerance and
+    closer than the penalty, the report and the pictures are written; bad input is one
+    clear line before any work."""
+    import json
+
+    from artifem.cli import main
+    assert main(["study", "incompressibility", "--out", str(tmp_path), "--levels", "0",
+                 "--motions", "protrusion", "--duration", "0.03", "--no-progress"]) == 0
+    report = json.loads((tmp_path / "incompressibility.json").read_text())
+    runs = report["runs"]["level 0"]["protrusion"]
+    assert abs(runs["hard"]["max_volume_change"]) <= 1e-4
+    assert abs(runs["penalty"]["max_volume_change"]) > 10 * abs(runs["hard"]["max_volume_change"])
+    assert runs["penalty"]["pressure_range_Pa"] is None and runs["hard"]["pressure_iterations"] >= 1
+    assert "| 0 | protrusion | hard |" in (tmp_path / "report.md").read_text()
+    for kind in ("penalty", "hard"):
+        assert (tmp_path / f"motions_{kind}_level0.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["study", "incompressibility", "--out", str(tmp_path / "bad"),
+                 "--levels", "2"]) == 2
+    assert not (tmp_path / "bad").exists()

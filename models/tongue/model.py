@@ -212,9 +212,11 @@ class Tongue:
         return ExcitationSchedule(schedule.times, values)
 
     def reset(self) -> None:
-        """Back to rest: zero displacement, velocity, excitations and time."""
+        """Back to rest: zero displacement, velocity, pressures, excitations and time."""
         self.body.u.x.array[:] = 0.0
         self.body.v.x.array[:] = 0.0
+        if self.body.volume_constraint is not None:
+            self.body.volume_constraint.p.x.array[:] = 0.0
         for name in self.body.muscles:
             self.body.set_excitation(name, 0.0)
         self.scene.t = 0.0
