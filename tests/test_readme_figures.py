@@ -1,6 +1,7 @@
 """The README's measured figures are the ones in the JSON files the benchmark commands
-write (docs/benchmarks/*.json: ``artifem bench fom|tongue|scenes``). A figure edited
-by hand, or a JSON refreshed without the text, fails here."""
+write (docs/benchmarks/*.json: ``artifem bench fom|tongue|scenes``), and the verification
+page's mutation figures those of scripts/mutation-study's report. A figure edited by
+hand, or a JSON refreshed without the text, fails here."""
 
 import json
 import re
@@ -124,3 +125,17 @@ def test_jaw_tongue_reduced_table_matches_its_study_json():
     assert agrees(lo, min(errors)) and agrees(hi, max(errors))
     angle = float(re.search(r"within ([\d.]+) deg", rows["reduced"][2])[1])
     assert max(m["max_angle_difference_deg"] for m in study) <= angle
+
+
+def test_mutation_figures_on_the_verification_page_match_mutation_json():
+    totals = load("mutation.json")["totals"]
+    page = (ROOT / "docs" / "verification.md").read_text()
+    text = re.sub(r"\s+", " ", page[page.index("## Mutation study"):])
+    m = re.search(r"(\d+) scripted mutations .*?: (\d+) killed, (\d+) survived, a kill rate of "
+                  r"(\d+) % \((\d+) % of the (\d+) non-equivalent mutants", text)
+    assert m, "the mutation sentence changed: update this test with it"
+    mutants, killed, survived, rate, rate_relevant, relevant = (int(g) for g in m.groups())
+    assert (mutants, killed, survived) == (totals["mutants"], totals["killed"], totals["survived"])
+    assert relevant == totals["mutants"] - totals["equivalent"] - totals["stale"] - totals["error"]
+    assert agrees(str(rate), 100 * totals["kill_rate"])
+    assert agrees(str(rate_relevant), 100 * totals["kill_rate_non_equivalent"])
