@@ -404,3 +404,58 @@ def test_the_incompressibility_study_writes_its_report(tmp_path):
     assert main(["study", "incompressibility", "--out", str(tmp_path / "bad"),
                  "--levels", "2"]) == 2
     assert not (tmp_path / "bad").exists()
+
+
+_TWO_RANKS = '''
+import json, sys
+import numpy as np
+import artifem as af
+from mpi4py import MPI
+from dolfinx import mesh
+
+def run(integrator):
+    box = mesh.create_box(MPI.COMM_WORLD, [[0, 0, 0], [0.1, 0.01, 0.01]], [8, 2, 2],
+                          mesh.CellType.hexahedron)
+    body = af.FemBody(box, af.NeoHookean.from_young_poisson(3000.0, 0.3), 1000.0,
+                      incompressibility=af.Incompressible(kappa=1e5, tol=1e-10))
+    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+    scene = af.Scene(gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator)
+    scene.add(body)
+    for _ in range(10):
+        scene.step(5e-3)
+    tip = body.displacement_at([body.nearest_node((0.1, 0.005, 0.005))])[0]
+    return {"tip": tip.tolist(), "pressure": list(body.volume_constraint.pressure_range()),
+            "volume": body.volume()}
+
+out = {k: run(k) for k in ("semi-implicit", "implicit")}
+if MPI.COMM_WORLD.rank == 0:
+    out["ranks"] = MPI.COMM_WORLD.size
+    open(sys.argv[1], "w").write(json.dumps(out))
+'''
+
+
+def test_two_ranks_hold_the_volumes_as_one(tmp_path):
+    """The same falling beam on ``mpiexec -n 2`` (the pressure iterations' dot products and
+    the constraint rows distributed) and on one rank: equal to 1e-8."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    mpiexec = Path(sys.executable).parent / "mpiexec"
+    if not mpiexec.exists():
+        pytest.skip(f"no mpiexec next to the interpreter ({mpiexec})")
+    script = tmp_path / "two_ranks.py"
+    script.write_text(_TWO_RANKS)
+    namespace: dict = {}
+    exec(compile(_TWO_RANKS.split("out = {")[0], "two_ranks", "exec"), namespace)
+    serial = {k: namespace["run"](k) for k in ("semi-implicit", "implicit")}
+    command = [str(mpiexec), "-n", "2", sys.executable, str(script), str(tmp_path / "out.json")]
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, f"{' '.join(command)} failed:\n{proc.stdout}\n{proc.stderr}"
+    parallel = json.loads((tmp_path / "out.json").read_text())
+    assert parallel["ranks"] == 2
+    for k in ("semi-implicit", "implicit"):
+        scale = np.abs(serial[k]["tip"]).max()
+        assert np.abs(np.subtract(parallel[k]["tip"], serial[k]["tip"])).max() < 1e-8 * scale
+        assert parallel[k]["volume"] == pytest.approx(serial[k]["volume"], rel=1e-12)
+        assert np.allclose(parallel[k]["pressure"], serial[k]["pressure"], rtol=1e-6)
