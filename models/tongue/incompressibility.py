@@ -6,8 +6,8 @@ the hard constraint, side by side.
 
 For every level and motion (protrusion, retroflexion, retraction: the seed paper's Fig. 2)
 the tongue runs twice, with FemBody's element penalty (kappa_inc = 100 C10, the model's
-default) and with the hard constraint (:data:`~artifem.models.tongue.model.HARD`: element
-volumes held to 1e-4 by an augmented Lagrangian). It writes
+default, CG + AMG) and with the hard constraint (:data:`~artifem.models.tongue.model.HARD`:
+element volumes held to 1e-4 by an augmented Lagrangian; MUMPS, ``HARD_SOLVER``). It writes
 
 - DIR/incompressibility.json: per run the volume change V / V0 - 1 at the end and its
   largest magnitude over the run, the tip, top and base landmarks (mm) at the end, the
@@ -28,7 +28,8 @@ import numpy as np
 
 from artifem.arguments import positive_float
 from artifem.errors import InputError
-from artifem.models.tongue.model import DT, DURATION, HARD, MOTIONS, Tongue, TongueConfig
+from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, Tongue,
+                                         TongueConfig)
 
 KINDS = ("penalty", "hard")
 
@@ -106,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
     finals: dict = {}
     for level in levels:
         for kind in KINDS:
-            config = TongueConfig(level=level, **({"incompressibility": HARD} if kind == "hard"
-                                                  else {}))
+            hard = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
+            config = TongueConfig(level=level, **(hard if kind == "hard" else {}))
             tongue = Tongue(config, comm=comm)
             for motion in motions:
                 figures, u = run_motion(tongue, motion, args.duration, not args.no_progress)
@@ -115,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
                 finals.setdefault((level, kind), (tongue.body.mesh, []))[1].append(u)
     report = {"model": "artisynth_hex_tongue", "levels": levels, "motions": motions,
               "duration_s": args.duration, "dt": DT, "ranks": comm.size,
-              "hard": {"kappa_Pa": HARD.kappa, "tol": HARD.tol},
+              "hard": {"kappa_Pa": HARD.kappa, "tol": HARD.tol, "linear_solver": HARD_SOLVER},
+              "penalty_linear_solver": TongueConfig().linear_solver,
               "penalty_kappa_inc_Pa": TongueConfig().incompressibility, "runs": runs}
     if len(levels) == 2:
         report["level_difference_mm"] = {

@@ -24,8 +24,8 @@ import numpy as np
 
 from artifem.arguments import positive_float
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, RAMP_TIME, Tongue,
-                                         TongueConfig)
+from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, RAMP_TIME,
+                                         Tongue, TongueConfig)
 from artifem.scene import INTEGRATORS
 
 
@@ -51,10 +51,9 @@ def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
     from artifem.scene import simulate
 
-    defaults = TongueConfig()
-    tongue = Tongue(TongueConfig(
-        level=args.level, integrator=args.integrator,
-        incompressibility=HARD if args.incompressibility == "hard" else defaults.incompressibility))
+    hard = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
+    tongue = Tongue(TongueConfig(level=args.level, integrator=args.integrator,
+                                 **(hard if args.incompressibility == "hard" else {})))
     if args.schedule is not None:
         runs = {args.schedule.stem: ExcitationSchedule.from_file(args.schedule)}
     else:
