@@ -271,7 +271,9 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     velocities. S is symmetric when A is; for a non-conservative body (follower
     pressures) CG still reduces c in practice. The pressures are updated. Returns the
     iterations; raises StepFailed naming the worst elements when ``max_updates`` of some
-    constraint is reached first (or CG breaks down).
+    constraint is reached first. Where the step matrix is indefinite (a tangent that lost
+    its stability, e.g. a full excitation at the first step), S is too and CG breaks down:
+    :func:`_conjugate_residuals` takes over.
     """
     weight = [vc.kappa / vc.volume for vc in constraints]
     r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
@@ -288,9 +290,9 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
                 raise StepFailed(_worst(constraints, r) + f" after {limit} pressure iterations")
             Sd = respond(d)
             dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
-            if not dSd > 0:
-                raise StepFailed(_worst(constraints, r) + " (the pressure iteration broke "
-                                 "down: the step matrix is not positive definite)")
+            if not dSd > 0:         # S is indefinite (so is the step matrix): CR from here
+                return _conjugate_residuals(constraints, r, x, weight, respond, accept, comm,
+                                            iterations, limit)
             alpha = rz / dSd
             accept(alpha)
             for k in range(len(constraints)):
@@ -310,3 +312,42 @@ def _worst(constraints: list[VolumeConstraint], r: list[np.ndarray]) -> str:
     """:meth:`VolumeConstraint.describe` of every constraint still off (c = -r)."""
     return "; ".join(vc.describe(-rk) for vc, rk in zip(constraints, r)
                      if vc.violation(-rk) > vc.spec.tol)
+
+
+def _conjugate_residuals(constraints, r, x, weight, respond, accept, comm, iterations: int,
+                         limit: int) -> int:
+    """Preconditioned conjugate residuals (Saad, Iterative Methods, alg. 6.20) on S dp = r
+    from where :func:`hold_linearized`'s CG broke down: like CG one S product (one solve) per
+    iteration with the residual kept, but for symmetric indefinite S. The velocities of the
+    pressure change it finds come from one more solve at the end. ``r`` and ``x`` are
+    updated in place; returns the total iteration count."""
+    def dot(a, b):
+        return comm.allreduce(sum(float(ai @ bi) for ai, bi in zip(a, b)))
+
+    start = [xi.copy() for xi in x]
+    z = [w * ri for w, ri in zip(weight, r)]
+    Sz = respond(z)
+    p, Sp = [zi.copy() for zi in z], [si.copy() for si in Sz]
+    zSz = dot(z, Sz)
+    while any(vc.violation(-ri) > vc.spec.tol for vc, ri in zip(constraints, r)):
+        iterations += 1
+        MSp = [w * si for w, si in zip(weight, Sp)]
+        denominator = dot(Sp, MSp)
+        if iterations > limit or not denominator > 0 or zSz == 0:
+            why = f"after {limit} pressure iterations" if iterations > limit else \
+                "(the pressure iteration broke down)"
+            raise StepFailed(_worst(constraints, r) + f" {why}; the step matrix is not "
+                             "positive definite (the tangent lost its stability)")
+        alpha = zSz / denominator
+        for k in range(len(constraints)):
+            x[k] += alpha * p[k]
+            r[k] -= alpha * Sp[k]
+            z[k] -= alpha * MSp[k]
+        Sz = respond(z)
+        zSz, zSz_old = dot(z, Sz), zSz
+        beta = zSz / zSz_old
+        p = [zi + beta * pi for zi, pi in zip(z, p)]
+        Sp = [si + beta * spi for si, spi in zip(Sz, Sp)]
+    respond([xi - si for xi, si in zip(x, start)])
+    accept(1.0)
+    return iterations

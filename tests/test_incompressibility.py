@@ -459,3 +459,45 @@ def test_two_ranks_hold_the_volumes_as_one(tmp_path):
         assert np.abs(np.subtract(parallel[k]["tip"], serial[k]["tip"])).max() < 1e-8 * scale
         assert parallel[k]["volume"] == pytest.approx(serial[k]["volume"], rel=1e-12)
         assert np.allclose(parallel[k]["pressure"], serial[k]["pressure"], rtol=1e-6)
+
+
+@pytest.mark.parametrize("definite", [True, False])
+def test_the_pressure_iteration_solves_its_schur_system(definite, rng, monkeypatch):
+    """hold_linearized on a synthetic symmetric S (positive definite: conjugate gradients;
+    indefinite, as when a tangent loses its stability: CG breaks down and conjugate
+    residuals take over): the pressure change solves S dp = -c0 to the constraint's
+    tolerance, and the velocities accepted are exactly those of dp (y = B dp for the
+    response map B that ``respond`` stands for)."""
+    import artifem.incompressibility as incompressibility
+    from artifem.incompressibility import hold_linearized
+    took_over = []
+    conjugate_residuals = incompressibility._conjugate_residuals
+    monkeypatch.setattr(incompressibility, "_conjugate_residuals",
+                        lambda *a: took_over.append(1) or conjugate_residuals(*a))
+    body = FemBody(_box((3, 2, 2)), NeoHookean(MU, MU), 1000.0,
+                   incompressibility=Incompressible(kappa=10.0, tol=1e-10, max_updates=200))
+    body.compile()
+    vc = body.volume_constraint
+    n = vc.n_owned
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    eigenvalues = np.linspace(0.5, 3.0, n) * (vc.volume.mean() / vc.kappa)
+    if not definite:
+        eigenvalues[: n // 3] *= -1.0
+    S = (Q * eigenvalues) @ Q.T
+    B = rng.standard_normal((7, n))                     # a stand-in velocity response
+    c0 = 1e-3 * vc.volume * rng.standard_normal(n)
+    velocity, last = np.zeros(7), {}
+
+    def respond(d):
+        last["y"] = B @ d[0]
+        return [S @ d[0]]
+
+    def accept(alpha):
+        velocity[:] += alpha * last["y"]
+
+    p0 = vc.p.x.array[:n].copy()
+    iterations = hold_linearized([vc], [c0], respond, accept, MPI.COMM_SELF)
+    dp = vc.p.x.array[:n] - p0
+    assert iterations >= 1 and bool(took_over) == (not definite)
+    assert np.abs((c0 + S @ dp) / vc.volume).max() <= 1e-10
+    np.testing.assert_allclose(velocity, B @ dp, rtol=1e-9, atol=1e-12 * np.abs(B @ dp).max())

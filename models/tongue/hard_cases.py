@@ -14,7 +14,10 @@ Each case is a variation of the protrusion motion (level 0, dt = 0.01 s,
   bulk modulus kappa = 100 C10 = 103,700 Pa and 1000 C10 = 1,037,000 Pa
   (default 10 C10). Only ``kappa`` changes; the element-wise incompressibility
   penalty stays at its default 100 C10;
-- ``level_1``: protrusion on the 2x2x2-split mesh (6,699 nodes).
+- ``level_1``: protrusion on the 2x2x2-split mesh (6,699 nodes);
+- ``incompressible_*``: the all-exciters, step, dt = 0.05 s and level-1 cases with the
+  hard incompressibility (:data:`~artifem.models.tongue.model.HARD`, element volumes held
+  to 1e-4, with its solver) instead of the element penalty.
 
 A run either finishes (no inverted element, every value finite) or the
 scene gives up after its step halvings with
@@ -38,8 +41,8 @@ import numpy as np
 from artifem.errors import ElementInversionError, UnknownNameError
 from artifem.scene import simulate
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, MOTIONS, RAMP_TIME, Tongue,
-                                         TongueConfig, load_tongue_data)
+from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, RAMP_TIME,
+                                         Tongue, TongueConfig, load_tongue_data)
 
 INTEGRATOR_NAMES = ("semi-implicit", "implicit")
 C10 = TongueConfig().C10
@@ -72,6 +75,12 @@ CASES: dict[str, Case] = {
                           config={"kappa": 1000 * C10}),
     "level_1": Case("protrusion on level 1 (2x2x2 split, 6,699 nodes)", config={"level": 1}),
 }
+_INCOMPRESSIBLE = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
+CASES.update({
+    f"incompressible_{name}": Case(CASES[name].description + ", hard incompressibility",
+                                   {**CASES[name].config, **_INCOMPRESSIBLE},
+                                   CASES[name].excitations, CASES[name].ramp, CASES[name].dt)
+    for name in ("all_exciters", "step", "dt_0.05", "level_1")})
 
 
 def case_schedule(case: Case) -> ExcitationSchedule:
@@ -103,7 +112,8 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
     """Step a driven tongue for ``duration``; never raises for a failed step.
 
     Returns the outcome ("finished", "inversion error" or the name of another
-    exception), how far it got, min det F over completed steps, halvings,
+    exception), how far it got, min det F over completed steps, halvings, the volume
+    change V / V0 - 1 at the end,
     landmark displacements (mm) at the end and at ``record_times``, the median
     ms per step, the wall time, whether the state is finite afterwards and, on
     an inversion error, its time, element count, det F and message.
@@ -112,6 +122,7 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
     nodes = list(tongue.data.landmarks.values())
     names = list(tongue.data.landmarks)
     steps = int(round(duration / dt))
+    rest_volume = body.volume()
     wall = time.perf_counter()
     run = simulate(scene, duration, dt, on_failure="stop", progress=progress is not None,
                    label=progress or "",
@@ -143,6 +154,7 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
         "wall_s": round(wall, 2),
         "state_finite": finite,
         "inverted_now": int(len(bad)),
+        "volume_change": float(body.volume() / rest_volume - 1.0),
         "det_F_now": float(det_now),
         # iterative solves that failed and were redone by MUMPS LDL^T (indefinite matrix)
         "direct_solves": int(getattr(scene.linear_solver_for(body), "direct_solves", 0)),
@@ -162,8 +174,15 @@ def run_case(name: str, integrator: str = "semi-implicit", duration: float = DUR
     result = run_built(tongue, dt, duration, progress=f"{name}/{integrator}" if progress else None)
     return {"case": name, "description": CASES[name].description, "integrator": integrator,
             "level": tongue.config.level, "kappa": tongue.config.kappa,
-            "incompressibility": tongue.config.incompressibility,
+            "incompressibility": _incompressibility(tongue.config.incompressibility),
             "nodes": int(tongue.data.mesh.points.shape[0]), "duration": duration, **result}
+
+
+def _incompressibility(value):
+    """The JSON of TongueConfig.incompressibility: the penalty (Pa), or the hard constraint."""
+    if hasattr(value, "kappa"):
+        return {"hard": True, "kappa": value.kappa, "tol": value.tol}
+    return value
 
 
 def _norm(v) -> float:
