@@ -264,22 +264,47 @@ def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
         differences.append(abs(tip_deflection(reference, config) - coupled) / coupled)
     assert differences[1] < 1e-6
     assert differences[0] / differences[1] > 5.0
-    assert coupled == pytest.approx(euler_bernoulli_tip(config), rel=0.05)
+    # Euler-Bernoulli (closed form from the configuration): 0.93 < FEM / EB < 1.03 as in
+    # tests/test_beam_ellipsoid.py (shear and the FEM's stiffness bound it above, the Q1
+    # mesh's locking and the clamp's Poisson constraint below; measured 0.967)
+    assert 0.93 < coupled / euler_bernoulli_tip(config) < 1.03
+
+
+def released_load_overshoot(static: float, h: float) -> float:
+    """Peak / static deflection of an undamped oscillator released from rest under its load
+    and stepped by the semi-implicit Euler: 1 + (the amplitude left after half a period).
+    The step's amplification is (1 + (omega h)^2)^(-1/2) per step (det of its 2 x 2 map,
+    as backward Euler), i.e. exp(-pi omega h / 2) over the pi / (omega h) steps of half a
+    period; omega^2 = g / static (the load's own static deflection, Rayleigh's estimate of
+    the lowest mode)."""
+    omega = np.sqrt(G / static)
+    return 1.0 + np.exp(-np.pi * omega * h / 2.0)
 
 
 def test_beam_ellipsoid_swing_is_stable_and_overshoots_like_a_released_load():
     """Released straight under gravity, undamped, h = 2 ms for 0.3 s: finite, no energy gain
-    (measured: max E = E(0) exactly, 0.0629 J), the tip overshoots to about twice the static
-    deflection (measured 1.92x), the face stays on the ellipsoid's pose."""
-    from artifem.models.beam_ellipsoid import BeamEllipsoidConfig, swing
+    (measured: max E = E(0) exactly, 0.0629 J), the face stays on the ellipsoid's pose, and
+    the tip overshoots its static deflection (the same scene's static solve, itself checked
+    against the stiff-block reference above) as a released load stepped by this integrator
+    does: released_load_overshoot, 1.932 here (omega = 22.3 rad/s). Measured 1.922 (the
+    peak at 0.138 s); tolerance 2 %, fourfold: the higher modes the distributed weight
+    excites and the Rayleigh estimate of omega (10 % on omega moves the prediction 0.7 %).
+    Without the step's dissipation it would be 2; a lost or doubled ellipsoid weight in the
+    dynamics moves it by tens of percent."""
+    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_scene, swing,
+                                               tip_deflection)
     config = BeamEllipsoidConfig()
-    scene, beam, ellipsoid, record, _ = swing(config, 0.3, 2e-3)
+    h = 2e-3
+    scene, beam, ellipsoid, record, _ = swing(config, 0.3, h)
     assert np.all(np.isfinite(beam.u.x.array)) and np.all(np.isfinite(ellipsoid.twist))
     E0 = record["energy"][0]
     assert record["energy"].max() <= E0 + 1e-9 * abs(E0)
-    static = 0.0197354732                                  # the static test above
-    assert 1.7 < record["tip"].max() / static < 2.05
     assert max(scene.attachment_errors().values()) < 1e-15
+    static_scene, static_beam, _, _ = build_scene(config)
+    static_scene.solve_static()
+    static = tip_deflection(static_beam, config)
+    predicted = released_load_overshoot(static, h)
+    assert record["tip"].max() / static == pytest.approx(predicted, rel=0.02)
 
 
 # ---- (6) joints in the same solve ----------------------------------------------------------
