@@ -2,8 +2,7 @@
 FrameAttachment; Lloyd et al. 2019, section 3.2, Fig. 11), and joints between frames on
 deformable bodies.
 
-(1) G: the body's twist is J times the nodes' velocities (finite differences of the pose),
-    and virtual work [f; tau] . u = (J^T [f; tau]) . v;
+(1) G: the body's twist is J times the nodes' velocities (finite differences of the pose);
 (2) the static tangent P^T K P - K_geo with the frame's K_geo (polar and Procrustes)
     matches finite differences of the master forces; without K_geo it does not;
 (3) the paper's Fig. 11 scene with the ellipsoid on a frame of the end face: the static tip
@@ -65,7 +64,7 @@ def loaded_scene(body, method):
     return scene, w
 
 
-# ---- (1) G and virtual work ------------------------------------------------------------
+# ---- (1) G ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method", ["polar", "procrustes"])
 def test_the_body_twist_is_J_times_the_node_velocities(method):
@@ -91,8 +90,6 @@ def test_the_body_twist_is_J_times_the_node_velocities(method):
     w_fd = np.array([spin[2, 1], spin[0, 2], spin[1, 0]]) / (4 * eps)
     np.testing.assert_allclose(J @ v, np.concatenate([(p1 - p0) / (2 * eps), w_fd]),
                                rtol=1e-6, atol=1e-8 * np.abs(J @ v).max())
-    wrench = rng.standard_normal(6)
-    assert wrench @ (J @ v) == pytest.approx((J.T @ wrench) @ v, rel=1e-13)
 
 
 # ---- (2) the static tangent -----------------------------------------------------------
@@ -132,19 +129,33 @@ def test_ellipsoid_on_an_end_frame_deflects_the_beam_like_the_rigid_face():
         tips[attach] = tip_deflection(beam, config)
         assert max(scene.attachment_errors().values()) < 1e-14
     assert tips["frame"] == pytest.approx(tips["face"], rel=3e-4)
-    assert tips["frame"] == pytest.approx(euler_bernoulli_tip(config), rel=0.05)
+    # Euler-Bernoulli (closed form): 0.93 < FEM / EB < 1.03, the window of
+    # tests/test_beam_ellipsoid.py (shear above, Q1 locking below; measured 0.967)
+    assert 0.93 < tips["frame"] / euler_bernoulli_tip(config) < 1.03
 
 
 def test_ellipsoid_on_an_end_frame_swings_without_gaining_energy():
-    """Undamped, h = 2 ms, 0.3 s: measured max E = E(0), tip overshoot 1.9x the static."""
-    from artifem.models.beam_ellipsoid import BeamEllipsoidConfig, swing
+    """Undamped, h = 2 ms, 0.3 s: measured max E = E(0). The tip overshoots the static
+    deflection of the same scene (its static solve, checked in the test above) as a load
+    released from rest and stepped by the semi-implicit Euler does: 1 + exp(-pi omega h / 2),
+    omega^2 = g / static (the step damps the amplitude by (1 + (omega h)^2)^(-1/2) per step,
+    over pi / (omega h) steps; test_multibody_coupled.released_load_overshoot): 1.932
+    predicted, 1.922 measured, asserted within 2 % (the higher modes, Rayleigh's omega)."""
+    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_scene, swing,
+                                               tip_deflection)
     config = BeamEllipsoidConfig()
-    scene, beam, ellipsoid, record, _ = swing(config, 0.3, 2e-3, attach="frame")
+    h = 2e-3
+    scene, beam, ellipsoid, record, _ = swing(config, 0.3, h, attach="frame")
     assert np.all(np.isfinite(beam.u.x.array)) and np.all(np.isfinite(ellipsoid.twist))
     E0 = record["energy"][0]
     assert record["energy"].max() <= E0 + 1e-9 * abs(E0)
-    assert 1.7 < record["tip"].max() / 0.0197344 < 2.05
     assert max(scene.attachment_errors().values()) < 1e-14
+    static_scene, static_beam, _, _ = build_scene(config, attach="frame")
+    static_scene.solve_static()
+    static = tip_deflection(static_beam, config)
+    omega = np.sqrt(np.linalg.norm(config.gravity) / static)
+    predicted = 1.0 + np.exp(-np.pi * omega * h / 2.0)
+    assert record["tip"].max() / static == pytest.approx(predicted, rel=0.02)
 
 
 # ---- (4) reduced = full with the full basis ------------------------------------------------
