@@ -41,7 +41,7 @@ def test_simulate_beam_writes_results(tmp_path):
     figures = json.loads((out / "simulate.json").read_text())
     assert figures["nodes"] == 9 * 3 * 3 and figures["elements"] == 32
     assert figures["steps"] == 10
-    assert figures["ms_per_step"] > 0 and 0 < figures["min_det_F"] < 1.5
+    assert 0 < figures["min_det_F"] < 1.5
     tip = figures["tip_displacement_mm"]["t=0.2"]
     assert np.all(np.isfinite(tip)) and np.linalg.norm(tip) > 0.1  # the beam moved
     assert (out / "beam.png").stat().st_size > 10_000
