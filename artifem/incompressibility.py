@@ -256,7 +256,7 @@ class VolumeConstraint:
 
 
 def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], respond,
-                    accept, comm) -> int:
+                    accept, comm, inexact: int | None = None) -> int:
     """The linearized constraints of a semi-implicit step, c = c0 + S dp = 0 to each one's
     ``tol``, for the pressure changes dp of one or more bodies stepped together:
 
@@ -273,7 +273,9 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     iterations; raises StepFailed naming the worst elements when ``max_updates`` of some
     constraint is reached first. Where the step matrix is indefinite (a tangent that lost
     its stability, e.g. a full excitation at the first step), S is too and CG breaks down:
-    :func:`_conjugate_residuals` takes over.
+    :func:`_conjugate_residuals` takes over. ``inexact=k`` (a Newton iteration, whose
+    linearization is only as good as its iterate): at most k iterations and no error; the
+    Newton loop and the pressure updates around it make the constraint hold in the end.
     """
     weight = [vc.kappa / vc.volume for vc in constraints]
     r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
@@ -281,18 +283,20 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     z = [w * ri for w, ri in zip(weight, r)]
     d = [zi.copy() for zi in z]
     rz = comm.allreduce(sum(float(ri @ zi) for ri, zi in zip(r, z)))
-    limit = min(vc.spec.max_updates for vc in constraints)
+    limit = min(vc.spec.max_updates for vc in constraints) if inexact is None else inexact
     iterations = 0
     try:
         while any(vc.violation(-ri) > vc.spec.tol for vc, ri in zip(constraints, r)):
             iterations += 1
             if iterations > limit:
+                if inexact is not None:
+                    return iterations - 1
                 raise StepFailed(_worst(constraints, r) + f" after {limit} pressure iterations")
             Sd = respond(d)
             dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
             if not dSd > 0:         # S is indefinite (so is the step matrix): CR from here
                 return _conjugate_residuals(constraints, r, x, weight, respond, accept, comm,
-                                            iterations, limit)
+                                            iterations, limit, inexact is not None)
             alpha = rz / dSd
             accept(alpha)
             for k in range(len(constraints)):
@@ -315,12 +319,13 @@ def _worst(constraints: list[VolumeConstraint], r: list[np.ndarray]) -> str:
 
 
 def _conjugate_residuals(constraints, r, x, weight, respond, accept, comm, iterations: int,
-                         limit: int) -> int:
+                         limit: int, inexact: bool = False) -> int:
     """Preconditioned conjugate residuals (Saad, Iterative Methods, alg. 6.20) on S dp = r
     from where :func:`hold_linearized`'s CG broke down: like CG one S product (one solve) per
     iteration with the residual kept, but for symmetric indefinite S. The velocities of the
     pressure change it finds come from one more solve at the end. ``r`` and ``x`` are
-    updated in place; returns the total iteration count."""
+    updated in place; returns the total iteration count (``inexact``: stops without an
+    error at ``limit`` or a breakdown)."""
     def dot(a, b):
         return comm.allreduce(sum(float(ai @ bi) for ai, bi in zip(a, b)))
 
@@ -334,6 +339,9 @@ def _conjugate_residuals(constraints, r, x, weight, respond, accept, comm, itera
         MSp = [w * si for w, si in zip(weight, Sp)]
         denominator = dot(Sp, MSp)
         if iterations > limit or not denominator > 0 or zSz == 0:
+            if inexact:
+                iterations -= 1
+                break
             why = f"after {limit} pressure iterations" if iterations > limit else \
                 "(the pressure iteration broke down)"
             raise StepFailed(_worst(constraints, r) + f" {why}; the step matrix is not "

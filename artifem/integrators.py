@@ -48,6 +48,11 @@ if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
     from artifem.reduction.reduced_body import ReducedFemBody
 
 
+#: Pressure iterations per Newton iteration of a hard-incompressible body (its linearized
+#: constraint only as good as the iterate; the Uzawa updates around Newton finish the job).
+NEWTON_PRESSURE_ITERATIONS = 10
+
+
 def _update_ghosts(*vecs: PETSc.Vec) -> None:
     for vec in vecs:
         vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -140,7 +145,7 @@ class SemiImplicitEuler:
         solver.solve(A, b, dv)
         body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
         if body.volume_constraint is not None:
-            _hold_volumes(body, h, A, dv, solver)
+            _hold_volumes(body, h, A, dv, solver, base=v)
         v.axpy(1.0, dv)
         u.axpy(h, v)
         _update_ghosts(u, v)
@@ -157,14 +162,18 @@ class SemiImplicitEuler:
 
 
 def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
-                  solver: LinearSolver) -> None:
-    """The semi-implicit step's linearized volume constraint (the step matrix A kept):
+                  solver: LinearSolver, base: PETSc.Vec | None = None,
+                  inexact: int | None = None) -> None:
+    """The linearized volume constraint of a linear solve A dv = b whose displacement
+    change is h (base + dv) (the semi-implicit step: base = v; a Newton iteration of the
+    implicit step: no base; of statics: h = 1), g + h G (base + dv) = 0 with A kept:
     :func:`~artifem.incompressibility.hold_linearized` corrects dv and the pressures;
-    StepFailed when it does not reach the tolerance."""
+    StepFailed when it does not reach the tolerance (``inexact``: see there)."""
     vc = body.volume_constraint
     v_new, w, y = dv.duplicate(), dv.duplicate(), dv.duplicate()
-    body.v.x.petsc_vec.copy(v_new)
-    v_new.axpy(1.0, dv)
+    dv.copy(v_new)
+    if base is not None:
+        v_new.axpy(1.0, base)
 
     def respond(d):
         vc.force_of(d[0], h, w)
@@ -175,7 +184,7 @@ def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
 
     try:
         hold_linearized([vc], [vc.linearized(v_new, h)], respond,
-                        lambda alpha: dv.axpy(alpha, y), body.mesh.comm)
+                        lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact)
     finally:
         for vec in (v_new, w, y):
             vec.destroy()
@@ -264,6 +273,13 @@ class ImplicitEuler:
                 solver.solve(A, r, dv)
                 body.zero_fixed(dv)
                 slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
+                if body.volume_constraint is not None:
+                    # Newton-Lagrange: the pressures that hold g + h G dv = 0 (so Newton
+                    # converges in u and p together), then r and the slope with them
+                    _hold_volumes(body, h, A, dv, solver, inexact=min(
+                        NEWTON_PRESSURE_ITERATIONS, body.volume_constraint.spec.max_updates))
+                    norm = residual(tangent=False)
+                    slope = r.dot(dv)               # r holds the gradient again
                 E0 = incremental_potential()
                 v_start = v.array.copy()
                 step = _backtrack(lambda s: set_velocity(v_start + s * dv.array),
