@@ -501,3 +501,20 @@ def test_the_pressure_iteration_solves_its_schur_system(definite, rng, monkeypat
     assert iterations >= 1 and bool(took_over) == (not definite)
     assert np.abs((c0 + S @ dp) / vc.volume).max() <= 1e-10
     np.testing.assert_allclose(velocity, B @ dp, rtol=1e-9, atol=1e-12 * np.abs(B @ dp).max())
+
+
+def test_the_incompressibility_page_quotes_its_json():
+    """docs/incompressibility.md's tables are those of the files the commands wrote
+    (``artifem study incompressibility`` and ``artifem bench tongue --incompressibility``)."""
+    import json
+    from pathlib import Path
+
+    from artifem.models.tongue.incompressibility import format_report, format_speed_table
+    root = Path(__file__).resolve().parents[1]
+    page = (root / "docs" / "incompressibility.md").read_text()
+    study = json.loads((root / "docs" / "incompressibility" / "incompressibility.json").read_text())
+    bench = json.loads((root / "docs" / "benchmarks" / "tongue_incompressible.json").read_text())
+    for table in (format_speed_table(bench), format_report(study)):
+        for line in table.splitlines():
+            if line.startswith("|") and not line.startswith("|---"):
+                assert line in page, line

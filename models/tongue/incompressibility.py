@@ -170,3 +170,16 @@ def format_report(report: dict) -> str:
                 lines.append(f"| {motion} | {kind} | {d['tip']:.2f} | {d['top']:.2f} | "
                              f"{d['base']:.2f} |")
     return "\n".join(lines) + "\n"
+
+
+def format_speed_table(bench: dict) -> str:
+    """The step times of ``artifem bench tongue --incompressibility penalty,hard`` (its
+    JSON) as a Markdown table (docs/incompressibility.md quotes it)."""
+    lines = ["| level | nodes | ranks | formulation | solver | ms/step | assembly | solve | "
+             "pressure iterations | volume change |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for c in bench["cases"]:
+        lines.append(f"| {c['level']} | {c['nodes']:,} | {c['ranks']} | {c['incompressibility']} "
+                     f"| {c['solver']} | {c['ms_per_step']:.1f} | {c['assembly_ms']:.1f} | "
+                     f"{c['solve_ms']:.1f} | {c['pressure_iterations']:.0f} | "
+                     f"{100 * c['volume_change']:+.3f} % |")
+    return "\n".join(lines) + "\n"
