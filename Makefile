@@ -6,6 +6,11 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PYTEST_ARGS ?=
+# Two pytest workers (pytest-xdist), one per core; a test file stays on one worker, so its
+# module fixtures are built once. `make test XDIST=` runs in one process.
+# dolfinx_jit_options.json (read by DOLFINx from the working directory) lets a worker wait
+# up to 15 minutes for a form the other is compiling, instead of DOLFINx's 10 s.
+XDIST  ?= -n 2 --dist loadfile
 
 .PHONY: demo test test-wheel bench lock venv clean
 
@@ -31,7 +36,7 @@ demo: $(STAMP)
 # Tests run in random order (pytest-randomly, seed printed first); replay one with
 #   make test PYTEST_ARGS='--randomly-seed=N'   or keep the file order: '-p no:randomly'.
 test: $(STAMP)
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest $(XDIST) $(PYTEST_ARGS)
 
 # The wheel a user installs: built from this tree, installed with its pinned
 # dependencies into a fresh venv outside the source tree, and run there.
