@@ -18,7 +18,7 @@ several millimetres; and a motion so small that agreement means nothing
 (|d1| > 5 mm, same direction within 15 degrees). One motion only, to keep it
 cheap: the test takes about 100 s here (level 1 about 90 s).
 
-The level-1 run is the ``level_1`` hard case (test_tongue_hard_cases: the level-1
+The level-1 run is the ``level_1`` hard case (checked here too: the level-1
 tongue, semi-implicit, protrusion, dt = 0.01 s, 1.0 s): both read the session fixture
 ``level1_protrusion`` (tests/conftest.py), which checks that it is the run
 ``run_motions(1, ("protrusion",))`` would make, so it is computed once per run.
@@ -29,6 +29,7 @@ import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models.tongue.convergence import landmark_mm, run_motions
+from hard_case_checks import check_outcome
 
 #: Measured |d0 - d1| of the protrusion tip at t = 1 s (mm) and relative to |d1|.
 MEASURED_MM, MEASURED_REL = 1.07, 0.14
@@ -51,3 +52,13 @@ def test_protrusion_tip_level0_agrees_with_level1(level1_protrusion):
     diff = float(np.linalg.norm(d0 - d1))
     assert diff < TOLERANCE_MM, f"|d0 - d1| = {diff:.2f} mm (level 0 {d0}, level 1 {d1})"
     assert diff / n1 < TOLERANCE_REL, f"|d0 - d1| / |d1| = {diff / n1:.3f}"
+
+
+@pytest.mark.slow
+def test_the_level1_protrusion_is_a_sound_hard_case(level1_protrusion):
+    """The hard case ``level_1`` is this run (models/tongue/hard_cases.py): it finishes, or
+    stops with the inversion error naming time, elements and det F, never NaN
+    (tests/hard_case_checks.py). Here rather than in test_tongue_hard_cases.py so that the
+    run is made once, on the worker that holds this file."""
+    tongue, result = level1_protrusion
+    check_outcome("level_1", tongue, result)

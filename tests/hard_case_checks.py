@@ -1,0 +1,68 @@
+"""What the tongue hard-case tests check (tests/test_tongue_hard_cases*.py,
+tests/test_tongue_convergence.py): the outcome contract and the landmark agreement."""
+
+import re
+
+import numpy as np
+import pytest
+
+from artifem.models.tongue.hard_cases import CASES, build_case, run_built
+
+#: The cases with the element penalty (the tongue's default), and those on level 0.
+PENALTY = [name for name in CASES if not name.startswith("incompressible_")]
+LEVEL0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
+#: Landmark agreement documented (1e-4 mm), plus the 1e-4 mm rounding of run_built's figures.
+AGREE_MM = 2e-4
+
+
+
+def make_runs(request):
+    """runs(name, integrator) -> (tongue, run_built result), each run at most once per
+    module (the level-1 semi-implicit run is the session fixture ``level1_protrusion``)."""
+    done = {}
+
+    def get(name, integrator):
+        if (name, integrator) not in done:
+            if (name, integrator) == ("level_1", "semi-implicit"):  # test_tongue_convergence's
+                done[name, integrator] = request.getfixturevalue("level1_protrusion")
+            else:
+                tongue, _, dt = build_case(name, integrator)
+                done[name, integrator] = tongue, run_built(tongue, dt)
+        return done[name, integrator]
+    return get
+
+
+def check_outcome(name, tongue, result):
+    """A result or ElementInversionError naming time, elements and det F; never NaN."""
+    body = tongue.body
+    # Never a silent NaN: whatever happened, the state left behind is finite.
+    assert np.all(np.isfinite(body.u.x.array)), "non-finite displacement left in the body"
+    assert np.all(np.isfinite(body.v.x.array)), "non-finite velocity left in the body"
+    landmarks = np.array(list(result["landmarks_mm"].values()))
+    assert np.all(np.isfinite(landmarks))
+    bad, det_now = body.inverted_elements()
+    assert bad.size == 0 and det_now > 0, f"inverted elements left in the body: {bad[:20]}"
+
+    if result["outcome"] == "finished":
+        assert result["steps_done"] == result["steps"]
+        assert result["t_reached"] == pytest.approx(1.0)
+        assert 0 < result["min_det_F"] < np.inf
+        assert np.abs(landmarks).max() > 0.1, "the muscles did not move the tongue"
+    else:
+        assert result["outcome"] == "inversion error", (
+            f"{name}: stopped with something other than ElementInversionError: "
+            f"{result.get('error')}")
+        inv = result["inversion"]
+        message = inv["message"]
+        assert re.search(r"t = [-+0-9.e]+ s", message), message
+        assert re.search(r"det F = [-+0-9.e]+ <= 0", message), message
+        assert re.search(r"\d+ element\(s\) \[\d+", message), message
+        assert inv["elements"] >= 1 and inv["min_det_F"] <= 0
+        assert inv["time"] > result["t_reached"] - 1e-12
+
+
+
+def assert_same_landmarks(a, b, what):
+    for landmark in a["landmarks_mm"]:
+        np.testing.assert_allclose(a["landmarks_mm"][landmark], b["landmarks_mm"][landmark],
+                                   rtol=0, atol=AGREE_MM, err_msg=f"{what}: {landmark}")
