@@ -66,3 +66,16 @@ def assert_same_landmarks(a, b, what):
     for landmark in a["landmarks_mm"]:
         np.testing.assert_allclose(a["landmarks_mm"][landmark], b["landmarks_mm"][landmark],
                                    rtol=0, atol=AGREE_MM, err_msg=f"{what}: {landmark}")
+
+
+def check_protrusion_variants(runs, integrator: str) -> None:
+    """``step`` (no ramp) and ``dt_0.05`` (five times the step) end on the same landmarks, at
+    the protrusion's documented end state (docs/tongue_hard_cases.md: tip (-1.40, 6.64) mm
+    in x, z)."""
+    step, coarse = runs("step", integrator)[1], runs("dt_0.05", integrator)[1]
+    assert step["outcome"] == coarse["outcome"] == "finished"
+    assert (step["dt"], coarse["dt"]) == (0.01, 0.05)
+    assert coarse["steps"] == 20 and step["steps"] == 100
+    assert_same_landmarks(step, coarse, f"step vs dt_0.05 ({integrator})")
+    assert step["landmarks_mm"]["tip"][0] == pytest.approx(-1.40, abs=0.01)
+    assert step["landmarks_mm"]["tip"][2] == pytest.approx(6.64, abs=0.01)

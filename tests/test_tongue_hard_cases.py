@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from hard_case_checks import PENALTY, assert_same_landmarks, check_outcome, make_runs
+from hard_case_checks import PENALTY, check_outcome, check_protrusion_variants, make_runs
 
 @pytest.fixture(scope="module")
 def runs(request):
@@ -44,14 +44,7 @@ def test_hard_case_semi_implicit(name, runs):
 @pytest.mark.slow
 @pytest.mark.parametrize("integrator", ["semi-implicit"])
 def test_protrusion_variants_end_on_the_same_state(integrator, runs):
-    step, coarse = runs("step", integrator)[1], runs("dt_0.05", integrator)[1]
-    assert step["outcome"] == coarse["outcome"] == "finished"
-    assert (step["dt"], coarse["dt"]) == (0.01, 0.05)
-    assert coarse["steps"] == 20 and step["steps"] == 100
-    assert_same_landmarks(step, coarse, f"step vs dt_0.05 ({integrator})")
-    # the protrusion's end state (docs: tip (-1.40, 6.64) mm in x, z)
-    assert step["landmarks_mm"]["tip"][0] == pytest.approx(-1.40, abs=0.01)
-    assert step["landmarks_mm"]["tip"][2] == pytest.approx(6.64, abs=0.01)
+    check_protrusion_variants(runs, integrator)
 
 
 @pytest.mark.slow
