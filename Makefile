@@ -11,6 +11,10 @@ PYTEST_ARGS ?=
 # dolfinx_jit_options.json (read by DOLFINx from the working directory) lets a worker wait
 # up to 15 minutes for a form the other is compiling, instead of DOLFINx's 10 s.
 XDIST  ?= -n 2 --dist loadfile
+# One BLAS/OpenMP thread per worker: two workers on two cores, each with OpenBLAS's
+# default of a thread per core, fight for the cores in every dense product (measured:
+# 8 % longer on the reduced-model tests). `make test XDIST= THREADS=2` for one process.
+THREADS ?= 1
 
 .PHONY: demo test test-wheel bench lock venv clean
 
@@ -36,7 +40,7 @@ demo: $(STAMP)
 # Tests run in random order (pytest-randomly, seed printed first); replay one with
 #   make test PYTEST_ARGS='--randomly-seed=N'   or keep the file order: '-p no:randomly'.
 test: $(STAMP)
-	$(PY) -m pytest $(XDIST) $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=$(THREADS) OMP_NUM_THREADS=$(THREADS) $(PY) -m pytest $(XDIST) $(PYTEST_ARGS)
 
 # The wheel a user installs: built from this tree, installed with its pinned
 # dependencies into a fresh venv outside the source tree, and run there.
