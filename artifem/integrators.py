@@ -60,8 +60,7 @@ def _update_ghosts(*vecs: PETSc.Vec) -> None:
 
 def _reduced_inverted(body: ReducedFemBody) -> bool:
     """True when q or q' is non-finite or det F <= 0 at an integration point."""
-    q, qdot = body.state()
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot))):
+    if not all(np.all(np.isfinite(a)) for a in body.state()):
         return True
     bad, min_det = body.inverted_elements()
     return bool(bad.size) or not min_det > 0
@@ -119,10 +118,11 @@ def step_system(body: FemBody, h: float,
     return body.K, b, d
 
 
-def reduced_step_system(body: ReducedFemBody, h: float):
+def reduced_step_system(body: ReducedFemBody, h: float, linearized: bool = False):
     """:func:`step_system` in reduced coordinates (dense r x r): (A, b, f~ - D~ q') with
-    A = (1 + h alpha) M~ + (h beta + h^2) K~, b = M~ q' + h f~."""
-    K, f, M, v = body.tangent(), body.force(), body.M, body.qdot
+    A = (1 + h alpha) M~ + (h beta + h^2) K~, b = M~ q' + h f~ (``linearized``: a hard body's
+    geometric tangent with its multipliers, as in :func:`step_system`)."""
+    K, f, M, v = body.tangent(linearized), body.force(), body.M, body.qdot
     Mv = M @ v
     return ((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K, Mv + h * f,
             f - body.alpha * Mv - body.beta * (K @ v))
@@ -155,9 +155,12 @@ class SemiImplicitEuler:
     def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
         """The same step in reduced coordinates (dense r x r, :func:`reduced_step_system`):
         A dq' = b - A q', q' += dq', q += h q'."""
-        A, b, _ = reduced_step_system(body, h)
-        q, qdot = body.state()
-        qdot = qdot + _dense_solve(A, b - A @ qdot, "semi-implicit Euler (reduced)")
+        A, b, _ = reduced_step_system(body, h, linearized=True)
+        q, qdot = body.q.copy(), body.qdot.copy()
+        dv = _dense_solve(A, b - A @ qdot, "semi-implicit Euler (reduced)")
+        if body.volume_constraint is not None:
+            dv = body.volume_constraint.hold_linearized(A, dv, h, base=qdot)
+        qdot = qdot + dv
         body.set_state((q + h * qdot, qdot))
 
 
@@ -313,9 +316,11 @@ class ImplicitEuler:
             J(v) = M~ + h D~_k + h^2 K~(q_k + h v),   D~_k = alpha M~ + beta K~(q_k),
 
         with the Armijo line search on E(v) = 1/2 (v - q'_k)^T M~ (v - q'_k)
-        + Pi~(q_k + h v) + h/2 v^T D~_k v.
+        + Pi~(q_k + h v) + h/2 v^T D~_k v. A hard-incompressible body: Newton-Lagrange (its
+        multipliers solved with each iteration) and the Uzawa updates around Newton, as
+        for the full body.
         """
-        q0, v0 = body.state()
+        q0, v0 = body.q.copy(), body.qdot.copy()
         M = body.M
         D = body.alpha * M
         if body.beta > 0:
@@ -336,41 +341,56 @@ class ImplicitEuler:
         set_velocity(v0)                 # initial guess v = q'_k, so q = q_k + h q'_k ...
         if _reduced_inverted(body):
             set_velocity(np.zeros_like(v0))     # ... unless that inverts: then q = q_k
-        r = residual()
-        norm = float(np.linalg.norm(r))
-        norm0 = max(norm, self.atol)
-        for it in range(1, self.max_iterations + 1):
-            if norm <= self.rtol * norm0 or norm <= self.atol:
-                self.iterations = it - 1
-                return
-            A = M + h * D + h * h * body.tangent()
-            dv = _dense_solve(A, -r, "implicit Euler (reduced)")
-            slope = float(r @ dv)                   # dE/ds at s = 0
-            E0 = incremental_potential()
-            v_start = body.qdot.copy()
-            step = _backtrack(lambda s: set_velocity(v_start + s * dv),
-                              lambda: _reduced_inverted(body), incremental_potential, E0, slope,
-                              lambda: float(np.linalg.norm(residual())), norm)
-            if step is None:
-                raise StepFailed(f"implicit Euler (reduced): line search failed at Newton "
-                                 f"iteration {it}")
+        vc = body.volume_constraint
+        scale = []                      # |r| at the start of the step: the reference of rtol
+
+        def newton() -> int:
+            """Newton from the current v to r(v) = 0; the iteration count."""
             r = residual()
             norm = float(np.linalg.norm(r))
-            if step == 1.0 and _round_off(dv, body.qdot):
-                self.iterations = it
-                return
-        if norm <= self.rtol * norm0 or norm <= self.atol:         # the last iteration converged
-            self.iterations = self.max_iterations
-            return
-        raise StepFailed(f"implicit Euler (reduced): Newton did not converge in "
-                         f"{self.max_iterations} iterations (|r| = {norm:.3e}, "
-                         f"|r0| = {norm0:.3e})")
+            if not scale:
+                scale.append(max(norm, self.atol))
+            norm0 = scale[0]
+            for it in range(1, self.max_iterations + 1):
+                if norm <= self.rtol * norm0 or norm <= self.atol:
+                    return it - 1
+                A = M + h * D + h * h * body.tangent()
+                dv = _dense_solve(A, -r, "implicit Euler (reduced)")
+                slope = float(r @ dv)                   # dE/ds at s = 0
+                if vc is not None:
+                    # Newton-Lagrange: the multipliers that hold c + h C dv = 0 (exact, the
+                    # system is small), then r and the slope with them
+                    dv = vc.hold_linearized(A, dv, h, exact=False)
+                    r = residual()
+                    norm = float(np.linalg.norm(r))
+                    slope = float(r @ dv)
+                E0 = incremental_potential()
+                v_start = body.qdot.copy()
+                step = _backtrack(lambda s: set_velocity(v_start + s * dv),
+                                  lambda: _reduced_inverted(body), incremental_potential, E0,
+                                  slope, lambda: float(np.linalg.norm(residual())), norm)
+                if step is None:
+                    raise StepFailed(f"implicit Euler (reduced): line search failed at Newton "
+                                     f"iteration {it}")
+                r = residual()
+                norm = float(np.linalg.norm(r))
+                if step == 1.0 and _round_off(dv, body.qdot):
+                    return it
+            if norm <= self.rtol * norm0 or norm <= self.atol:     # the last one converged
+                return self.max_iterations
+            raise StepFailed(f"implicit Euler (reduced): Newton did not converge in "
+                             f"{self.max_iterations} iterations (|r| = {norm:.3e}, "
+                             f"|r0| = {norm0:.3e})")
+
+        self.iterations = newton()
+        if vc is not None:                              # Uzawa around Newton
+            self.iterations += _hold_volumes_newton(body, newton)
 
 
-def _hold_volumes_newton(body: FemBody, newton) -> int:
-    """Uzawa on the volume constraint around a Newton solve that has just converged (its
-    last residual assembled g at the solution): while max |g| / V > tol, p <- pi and
-    Newton again from there. The Newton iterations it took."""
+def _hold_volumes_newton(body, newton) -> int:
+    """Uzawa on the volume constraint of a full or reduced body around a Newton solve that
+    has just converged (a full body's last residual assembled g at the solution): while
+    max |g| / V > tol, p <- pi and Newton again from there. The Newton iterations it took."""
     vc = body.volume_constraint
     iterations = 0
     for vc.updates in range(1, vc.spec.max_updates + 1):
@@ -501,33 +521,49 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
     to q; q' is left as it is. Returns the Newton iteration count of each load
     step. Raises :class:`StepFailed` if an increment fails.
     """
+    vc = body.volume_constraint
     counts = []
     for k in range(1, load_steps + 1):
         body.full.load_factor.value = k / load_steps
-        f = body.force()
-        norm = float(np.linalg.norm(f))
-        scale = max(norm, atol)
-        it = 0
-        while norm > max(rtol * scale, atol):
-            it += 1
-            if it > max_iterations:
-                raise StepFailed(f"static solve (reduced): Newton did not converge in "
-                                 f"{max_iterations} iterations at load factor "
-                                 f"{k / load_steps:g} (|f| = {norm:.3e})")
-            dq = _dense_solve(body.tangent(), f, "static solve (reduced)")
-            slope = -float(f @ dq)
-            q_start = body.q.copy()
-            step = _backtrack(lambda s: body.set_q(q_start + s * dq),
-                              lambda: _reduced_inverted(body), body.potential_energy,
-                              body.potential_energy(), slope,
-                              lambda: float(np.linalg.norm(body.force())), norm)
-            if step is None:
-                raise StepFailed(f"static solve (reduced): line search failed at load factor "
-                                 f"{k / load_steps:g}, Newton iteration {it}")
+        scale = []
+
+        def newton() -> int:
             f = body.force()
             norm = float(np.linalg.norm(f))
-            if step == 1.0 and _round_off(dq, body.q):
-                break
+            if not scale:
+                scale.append(max(norm, atol))
+            it = 0
+            while norm > max(rtol * scale[0], atol):
+                it += 1
+                if it > max_iterations:
+                    raise StepFailed(f"static solve (reduced): Newton did not converge in "
+                                     f"{max_iterations} iterations at load factor "
+                                     f"{k / load_steps:g} (|f| = {norm:.3e})")
+                K = body.tangent()
+                dq = _dense_solve(K, f, "static solve (reduced)")
+                slope = -float(f @ dq)
+                if vc is not None:          # Newton-Lagrange, as in ImplicitEuler
+                    dq = vc.hold_linearized(K, dq, 1.0, exact=False)
+                    f = body.force()
+                    norm = float(np.linalg.norm(f))
+                    slope = -float(f @ dq)
+                q_start = body.q.copy()
+                step = _backtrack(lambda s: body.set_q(q_start + s * dq),
+                                  lambda: _reduced_inverted(body), body.potential_energy,
+                                  body.potential_energy(), slope,
+                                  lambda: float(np.linalg.norm(body.force())), norm)
+                if step is None:
+                    raise StepFailed(f"static solve (reduced): line search failed at load "
+                                     f"factor {k / load_steps:g}, Newton iteration {it}")
+                f = body.force()
+                norm = float(np.linalg.norm(f))
+                if step == 1.0 and _round_off(dq, body.q):
+                    break
+            return it
+
+        it = newton()
+        if vc is not None:
+            it += _hold_volumes_newton(body, newton)
         counts.append(it)
         if progress is not None:
             progress.update(1)

@@ -11,7 +11,6 @@ from dolfinx import fem, mesh
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.incompressibility import Incompressible
-from artifem.reduction.cubature import IntegrationPoints
 from artifem.scene import Scene
 
 MU = 1000.0
@@ -280,14 +279,12 @@ def test_inflated_sphere_converges_to_the_incompressible_solution_and_its_pressu
     assert errors[1] < 0.006 and errors[0] / errors[1] > 1.8, errors
 
 
-def test_a_reduced_or_distributed_hard_body_is_refused_with_a_clear_error():
-    """Until the reduced body and the distributed (Schur) island update the pressures, they
-    refuse a body with the hard constraint (rather than hold its volumes as a penalty)."""
+def test_a_distributed_island_refuses_a_hard_body_with_a_clear_error():
+    """Until the distributed (Schur) island updates the pressures, it refuses a body with the
+    hard constraint (rather than hold its volumes as a penalty). (Reduced bodies:
+    tests/test_reduced_incompressibility.py.)"""
     body = FemBody(_box((2, 1, 1)), NeoHookean(MU, MU), 1000.0,
                    incompressibility=Incompressible(kappa=10 * MU))
-    with pytest.raises(ValueError, match="hard incompressibility"):
-        af.ReducedFemBody(body, np.ones((body.u.x.array.size, 1)),
-                          IntegrationPoints(np.array([0]), np.array([1.0]), "random"))
     bone = af.RigidBody("bone", 1.0, 1e-3 * np.eye(3))
     scene = Scene(gravity=(0.0, 0.0, 0.0), island_solver="schur")
     scene.add(body, bone, af.NodeAttachment(body, body.find_nodes(lambda x: np.isclose(x[0], 0)),

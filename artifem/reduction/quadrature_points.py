@@ -36,6 +36,7 @@ class QuadraturePoints:
     volume: np.ndarray      # (C,) w_q |det J|
     dofs: np.ndarray        # (C, k) local block dofs of the cell
     grad_N: np.ndarray      # (C, k, 3) reference-configuration shape function gradients
+    N: np.ndarray           # (C, k) shape function values (u(X_c) = sum_a u_{dofs[c, a]} N[c, a])
 
     @property
     def size(self) -> int:
@@ -60,7 +61,8 @@ def quadrature_points(body: FemBody) -> QuadraturePoints:
     parts = []
     for degree in sorted({t.degree for t in body.energy_terms()}):
         pts, wts = basix.make_quadrature(cell_type, degree)
-        dN = lagrange.tabulate(1, pts)[1:4, :, :, 0]                 # (3, q, k) d/dxi
+        tab = lagrange.tabulate(1, pts)[:, :, :, 0]
+        N, dN = tab[0], tab[1:4]                                     # (q, k), (3, q, k) d/dxi
         J = np.einsum("cai,jqa->cqij", x, dN)                        # dx_i/dxi_j
         detJ = np.linalg.det(J)
         if np.any(detJ <= 0):
@@ -70,6 +72,6 @@ def quadrature_points(body: FemBody) -> QuadraturePoints:
         nq = pts.shape[0]
         parts.append((np.repeat(np.arange(n_cells), nq), np.full(n_cells * nq, degree),
                       (detJ * wts).reshape(-1), np.repeat(dofs, nq, axis=0),
-                      grad.reshape(n_cells * nq, -1, 3)))
-    cell, degree, volume, point_dofs, grad_N = (np.concatenate(a) for a in zip(*parts))
-    return QuadraturePoints(cell, degree, volume, point_dofs.astype(np.int64), grad_N)
+                      grad.reshape(n_cells * nq, -1, 3), np.tile(N, (n_cells, 1))))
+    cell, degree, volume, point_dofs, grad_N, N = (np.concatenate(a) for a in zip(*parts))
+    return QuadraturePoints(cell, degree, volume, point_dofs.astype(np.int64), grad_N, N)

@@ -40,6 +40,11 @@ only, at u_s = u_bar_s + U_s q (U_s the basis rows of the patch's dofs):
 O(patch r^2) per evaluation (unsymmetric for an open pressure); a closed
 pressure's potential -lambda p V enters Pi~.
 
+A full body with the hard incompressibility keeps it in a reduced pressure space
+(``pressure_basis``, :mod:`artifem.reduction.reduced_volume_constraint`): its augmented
+energy W~(q; lambda) enters Pi~, its multipliers the state, and the integrators hold the
+constraint in every solve.
+
 Dynamics: a reduced body is a Scene body like a full one; the
 integrators of :mod:`artifem.integrators` advance it with dense r x r
 matrices, M~ = U^T M U and D~ = alpha M~ + beta K~ (``advance_reduced``).
@@ -62,6 +67,7 @@ from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import QuadraturePoints, quadrature_points
+from artifem.reduction.reduced_volume_constraint import ReducedVolumeConstraint
 from artifem.reduction.stress_kernel import PointStresses
 from artifem.surface_loads import SurfacePatch
 
@@ -95,6 +101,11 @@ class ReducedFemBody:
             1e-10 max|U| there are taken as round-off and zeroed, larger ones raise).
         points: integration points: indices into ``quadrature_points(full)`` and weights > 0
             (multiplying each point's quadrature volume; ``all_points(full)`` is the full rule).
+        pressure_basis: the reduced pressure space Pi (n_p x s, s < r) of a full body with
+            the hard incompressibility (:mod:`~artifem.reduction.reduced_volume_constraint`);
+            required for such a body, refused for any other.
+        hold_volume: False leaves a hard body's volume constraint out (its material forces
+            only, e.g. to train a cubature).
         name: component name.
     """
 
@@ -102,16 +113,21 @@ class ReducedFemBody:
     scene_group = "reduced_bodies"
 
     def __init__(self, full: FemBody, U: np.ndarray, points: IntegrationPoints, *,
+                 pressure_basis: np.ndarray | None = None, hold_volume: bool = True,
                  name: str | None = None):
         if full.mesh.comm.size != 1:
             raise NotImplementedError("ReducedFemBody runs in serial only for now")
         self.full, self.points = full, points
         self.name = name or f"{full.name}_reduced"
-        if full.volume_constraint is not None:
+        hard = full.volume_constraint is not None and hold_volume
+        if hard and pressure_basis is None:
             raise InputError(
                 f"ReducedFemBody {self.name!r}: {full.name!r} has the hard incompressibility "
-                "(Incompressible), which reduced bodies do not honour yet; build the full "
-                "body with the element penalty (incompressibility=kappa_inc) to reduce it")
+                "(Incompressible); give its reduced pressure space, pressure_basis (n_p x s, "
+                "e.g. reduced_volume_constraint.pressure_basis of training pressures)")
+        if pressure_basis is not None and not hard:
+            raise InputError(f"ReducedFemBody {self.name!r}: a pressure_basis needs a full "
+                             "body with the hard incompressibility (Incompressible)")
         self.alpha, self.beta = full.alpha, full.beta
         full.compile()
         bs = 3
@@ -233,6 +249,8 @@ class ReducedFemBody:
         # Views of the excitation values (updated in place when a controller sets them).
         self._excitations = [mus.excitation.value for mus in full.muscles.values()]
         self.set_q(self.q)
+        #: the hard incompressibility in a reduced pressure space, or None
+        self.volume_constraint = ReducedVolumeConstraint(self, pressure_basis) if hard else None
 
     # ---- evaluation --------------------------------------------------------
 
@@ -310,17 +328,22 @@ class ReducedFemBody:
     def force(self) -> np.ndarray:
         """f~(q) = -dPi~_int/dq + f~_ext (+ f~_p of the follower pressures)."""
         f = -self.internal_residual() + self.external_force()
+        if self.volume_constraint is not None:
+            f = f + self.volume_constraint.force()
         return f if self._patch is None else f + self._pressure("force")
 
-    def tangent(self) -> np.ndarray:
+    def tangent(self, linearized: bool = False) -> np.ndarray:
         """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric) (+ K~_p of the
-        follower pressures, unsymmetric for an open one)."""
+        follower pressures, unsymmetric for an open one; + the volume constraint's, its
+        geometric part with the multipliers in a ``linearized`` step)."""
         _, _, A = self._evaluate()
         # blockdiag(w_p A_p) as a BSR matrix: one compiled pass over the 9x9 blocks.
         self._blocks.data[:] = A * self.weights[:, None, None]
         D = self.D.reshape(-1, self.r)
         K = D.T @ (self._blocks @ D)
         K = 0.5 * (K + K.T)
+        if self.volume_constraint is not None:
+            K = K + self.volume_constraint.tangent(linearized)
         return K if self._patch is None else K + self._pressure("tangent")
 
     def potential_energy(self) -> float:
@@ -328,6 +351,8 @@ class ReducedFemBody:
         plus a closed pressure's -lambda p V (an open one has no potential)."""
         psi, _, _ = self._evaluate()
         Pi = float(self.weights @ psi) - float(self.q @ self.external_force())
+        if self.volume_constraint is not None:
+            Pi += self.volume_constraint.energy()
         return Pi if self._patch is None else Pi + self._pressure("potential")
 
     def kinetic_energy(self) -> float:
@@ -362,13 +387,18 @@ class ReducedFemBody:
 
     # ---- state -------------------------------------------------------------
 
-    def state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.q.copy(), self.qdot.copy()
+    def state(self) -> tuple[np.ndarray, ...]:
+        """(q, q') and, with the hard incompressibility, its multipliers lambda."""
+        if self.volume_constraint is None:
+            return self.q.copy(), self.qdot.copy()
+        return self.q.copy(), self.qdot.copy(), self.volume_constraint.lam.copy()
 
     def set_state(self, state) -> None:
-        q, qdot = state
+        q, qdot = state[:2]
         self.qdot = np.array(qdot, dtype=float).reshape(self.r)
         self.set_q(q)
+        if self.volume_constraint is not None and len(state) > 2:
+            self.volume_constraint.lam = np.array(state[2], dtype=float)
 
     def nodal_displacement(self) -> np.ndarray:
         """u = u_bar + U q on all full dofs (O(n r), on demand), block-interleaved."""

@@ -283,13 +283,18 @@ def _table2_cell(runs: list[dict]) -> str:
 def runs_table_lines(study: dict) -> list[str]:
     """Every run: configuration, motion, timing, speed-up, errors, status."""
     runs = sorted(study["runs"], key=_run_key)
+    volumes = all("max_volume_change" in run for run in runs)
     rows = [[run["basis"], run["r"], run["points"], run["sampling"], run["motion"],
              _fmt(run["ms_per_step"]), _fmt(run["speedup"], ".1f"), _fmt(run["mean_error_mm"]),
-             _fmt(run["max_error_mm"]), _fmt(run["max_node_error_mm"]),
-             f"FAILED: {run.get('error', '')}" if _failed(run) else "ok"]
+             _fmt(run["max_error_mm"]), _fmt(run["max_node_error_mm"])]
+            + ([_fmt(100 * run["max_volume_change"], ".3f"),
+                _fmt(100 * run["full_max_volume_change"], ".3f")] if volumes else [])
+            + [f"FAILED: {run.get('error', '')}" if _failed(run) else "ok"]
             for run in runs]
     return _md_table(["basis", "r", "points", "sampling", "motion", "ms/step", "speed-up",
-                      "mean error (mm)", "max error (mm)", "max node error (mm)", "status"], rows)
+                      "mean error (mm)", "max error (mm)", "max node error (mm)"]
+                     + (["max volume change (%)", "full model's (%)"] if volumes else [])
+                     + ["status"], rows)
 
 
 def _motion_check(run: dict | None, motion: str, targets: dict) -> tuple[bool, str]:
@@ -351,6 +356,15 @@ def _full_model_line(full: dict) -> str:
             + ", ".join(f"{motion} {_fmt(ms)}" for motion, ms in by_motion) + ").")
 
 
+def _incompressibility_line(study: dict) -> str:
+    """How the volume is kept (a study from before the key: the element penalty)."""
+    if study.get("incompressibility") == "hard":
+        modes = study.get("config", {}).get("pressure_modes")
+        return (f"Incompressibility: hard (every element's volume held by the full model; "
+                f"the reduced bodies hold {modes} POD modes of the training pressures).")
+    return "Incompressibility: the element penalty (full and reduced)."
+
+
 def report_markdown(study: dict, figures: Sequence[Path]) -> str:
     """The whole report.md text; ``figures`` are embedded by file name."""
     model = study["model"]
@@ -358,7 +372,8 @@ def report_markdown(study: dict, figures: Sequence[Path]) -> str:
              f"Model: {model['name']}, {model['nodes']} nodes, {model['elements']} elements, "
              f"level {model['level']}, {model['dofs']} dofs; dt = {study['dt']:g} s, "
              f"duration {study['duration']:g} s.", "",
-             _full_model_line(study["full"]), "", "## Training", ""]
+             _full_model_line(study["full"]), "", _incompressibility_line(study),
+             "", "## Training", ""]
     lines += _training_lines(study["training"]) or ["(no scalar entries)"]
     lines += ["", "## Per-step time, trained points (Table 2 analog)", ""] + table2_lines(study)
     lines += ["", "## All runs", ""] + runs_table_lines(study)

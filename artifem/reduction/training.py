@@ -104,11 +104,13 @@ class ArtifactCache:
 
 @dataclass
 class Snapshots:
-    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states:
-    one snapshot per row, the convention of every function in artifem.reduction."""
+    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states, and
+    the pressures (S, n_p) of a body with the hard incompressibility (else None): one
+    snapshot per row, the convention of every function in artifem.reduction."""
 
     displacements: np.ndarray
     excitations: np.ndarray
+    pressures: np.ndarray | None = None
 
     def __post_init__(self):
         u, a = np.asarray(self.displacements), np.asarray(self.excitations)
@@ -116,29 +118,49 @@ class Snapshots:
             raise InputError(f"Snapshots: displacements (n_snapshots, dofs) and excitations "
                              f"(n_snapshots, muscles) need one row per snapshot, got shapes "
                              f"{u.shape} and {a.shape}")
+        if self.pressures is not None and (np.ndim(self.pressures) != 2
+                                           or np.shape(self.pressures)[0] != u.shape[0]):
+            raise InputError(f"Snapshots: pressures (n_snapshots, pressure dofs) need one row "
+                             f"per snapshot, got shape {np.shape(self.pressures)} for "
+                             f"{u.shape[0]} snapshots")
 
     @staticmethod
     def concatenate(parts: list[Snapshots]) -> Snapshots:
+        pressures = None if any(p.pressures is None for p in parts) else \
+            np.concatenate([p.pressures for p in parts])
         return Snapshots(np.concatenate([p.displacements for p in parts]),
-                         np.concatenate([p.excitations for p in parts]))
+                         np.concatenate([p.excitations for p in parts]), pressures)
 
     def as_arrays(self) -> dict[str, np.ndarray]:
-        return {"displacements": self.displacements, "excitations": self.excitations}
+        arrays = {"displacements": self.displacements, "excitations": self.excitations}
+        if self.pressures is not None:
+            arrays["pressures"] = self.pressures
+        return arrays
+
+    @staticmethod
+    def from_arrays(arrays: dict[str, np.ndarray]) -> Snapshots:
+        """The inverse of :meth:`as_arrays` (a cached artifact)."""
+        return Snapshots(arrays["displacements"], arrays["excitations"], arrays.get("pressures"))
 
 
 def record_snapshots(scene: Scene, body: FemBody, *, duration: float, dt: float,
                      every: int, label: str = "training", progress: bool = True) -> Snapshots:
-    """Step ``scene`` for ``duration`` and keep (u, excitations) of ``body`` every ``every`` steps."""
+    """Step ``scene`` for ``duration`` and keep (u, excitations) of ``body`` every ``every``
+    steps, and its pressures p when it has the hard incompressibility."""
     steps = int(round(duration / dt))
     if steps < 1 or every < 1:
         raise InputError(f"record_snapshots: need duration >= dt and every >= 1, got "
                          f"duration={duration}, dt={dt}, every={every}")
     n = 3 * body.V.dofmap.index_map.size_local
-    run = simulate(scene, duration, dt, progress=progress, label=label, record={
-        "u": lambda s: body.u.x.array[:n].copy(),
-        "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]})
+    record = {"u": lambda s: body.u.x.array[:n].copy(),
+              "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]}
+    vc = body.volume_constraint
+    if vc is not None:
+        record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
+    run = simulate(scene, duration, dt, progress=progress, label=label, record=record)
     u, a = run.records["u"][every::every], run.records["a"][every::every]
-    return Snapshots(u, a.reshape(len(u), len(body.muscles)))
+    p = None if vc is None else run.records["p"][every::every]
+    return Snapshots(u, a.reshape(len(u), len(body.muscles)), p)
 
 
 def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:
@@ -174,7 +196,9 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
     if excitations.shape != (q.shape[0], len(muscles)):
         raise InputError(f"force_training_matrix: excitations must have shape "
                          f"({q.shape[0]}, {len(muscles)}), got {excitations.shape}")
-    everything = ReducedFemBody(full, U, all_points(full), name=f"{full.name}_training")
+    # the material's forces only: a hard body's pressures are multipliers, not a cubature's
+    everything = ReducedFemBody(full, U, all_points(full), hold_volume=False,
+                                name=f"{full.name}_training")
     r = everything.r
     saved = [float(m.excitation.value) for m in muscles]
     G = np.empty((q.shape[0] * r, everything.m))

@@ -58,6 +58,12 @@ class Layout:
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
                     "coupled to other bodies (attachments, paths or loads): coupled islands "
                     "run in serial only for now; a body that nothing couples runs in parallel")
+        for body in self.reduced_bodies:
+            if body.volume_constraint is not None:
+                raise InputError(
+                    f"reduced body {body.name!r} has the hard incompressibility and is coupled "
+                    "to other bodies (attachments, paths or loads): coupled reduced bodies do "
+                    "not hold it yet; a reduced body that nothing couples does")
         self.fixed = [b.fixed_components.copy() for b in fem_bodies]   # 3 node + component
         offset = 0
         self.fem_offset: dict[int, int] = {}

@@ -38,12 +38,14 @@ from tqdm import tqdm
 from artifem.arguments import positive_int
 from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import DT, DURATION, MOTIONS, RAMP_TIME, Tongue, TongueConfig
+from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, RAMP_TIME,
+                                         Tongue, TongueConfig)
 from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
                                      modal_derivative_basis, pod_basis)
 from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.reduced_volume_constraint import pressure_basis
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
                                         project, record_snapshots)
 from artifem.scene import Scene, simulate
@@ -75,8 +77,20 @@ class StudyConfig:
     seed: int = 0
     dt: float = DT
     duration: float = DURATION
+    #: "penalty" (the element penalty, TongueConfig's default) or "hard" (:data:`HARD`: the
+    #: full model holds every element's volume; the reduced bodies hold ``pressure_modes``
+    #: POD modes of the training pressures)
+    incompressibility: str = "penalty"
+    pressure_modes: int = 6
 
     def __post_init__(self):
+        if self.incompressibility not in ("penalty", "hard"):
+            raise InputError(f"incompressibility must be 'penalty' or 'hard', got "
+                             f"{self.incompressibility!r}")
+        if (self.incompressibility == "hard" and "trained-pod" in self.bases
+                and not 1 <= self.pressure_modes < self.pod_r):
+            raise InputError(f"pressure_modes ({self.pressure_modes}) must be in [1, pod_r = "
+                             f"{self.pod_r})")
         unknown = set(self.bases) - set(BASES)
         if unknown:
             raise InputError(f"unknown bases {sorted(unknown)}; use {', '.join(BASES)}")
@@ -100,9 +114,12 @@ class TongueStudy:
         self.config, self.out = config, Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
         self.cache = ArtifactCache(cache or self.out / "cache")
-        self.tongue = Tongue(TongueConfig(level=config.level))
+        hard = config.incompressibility == "hard"
+        self.tongue = Tongue(TongueConfig(level=config.level) if not hard else TongueConfig(
+            level=config.level, incompressibility=HARD, linear_solver=HARD_SOLVER))
         self.body = self.tongue.body
         self.body.compile()
+        self.volume0 = self.body.volume()
         self.mass = body_mass(self.body)
         self.table = quadrature_points(self.body)
         self.model_key = {"tongue": asdict(self.tongue.config), "dt": config.dt}
@@ -131,8 +148,7 @@ class TongueStudy:
                                         duration=c.training_duration, dt=c.dt,
                                         every=c.snapshot_every,
                                         label=f"training {exciter}").as_arrays()
-            data = self.cache.get(key, run)
-            parts.append(Snapshots(data["displacements"], data["excitations"]))
+            parts.append(Snapshots.from_arrays(self.cache.get(key, run)))
             keys.append(key)
         return Snapshots.concatenate(parts), keys
 
@@ -155,6 +171,31 @@ class TongueStudy:
                 return {"U": extended_modes(modes, self.mass, fixed_dofs=self.body.fixed_dofs)}
             data = self.cache.get(key, compute)
         return data["U"], key
+
+    def pressure_space(self, snapshots: Snapshots) -> np.ndarray | None:
+        """The reduced bodies' pressure space with the hard incompressibility: the first
+        ``pressure_modes`` POD modes of the training pressures (else None)."""
+        vc = self.body.volume_constraint
+        if vc is None:
+            return None
+        return pressure_basis(snapshots.pressures, vc.volume, self.config.pressure_modes)
+
+    def volume_changes(self, displacements: np.ndarray) -> np.ndarray:
+        """V(t) / V0 - 1 of the full mesh at each displacement row (O(n) each: after a run,
+        outside its timing)."""
+        n = displacements.shape[1]
+        u = self.body.u.x.array
+        saved = u[:n].copy()
+        V0 = self.volume0
+        changes = np.full(displacements.shape[0], np.nan)
+        for k, row in enumerate(displacements):
+            if np.all(np.isfinite(row)):
+                u[:n] = row
+                self.body.u.x.scatter_forward()
+                changes[k] = self.body.volume() / V0 - 1.0
+        u[:n] = saved
+        self.body.u.x.scatter_forward()
+        return changes
 
     def trained_points(self, U, basis_key, snapshots: Snapshots) -> dict[int, IntegrationPoints]:
         """ECSW points for every m of the study, from one greedy path (cached per m)."""
@@ -191,13 +232,14 @@ class TongueStudy:
         n = 3 * self.body.V.dofmap.index_map.size_local
         run = simulate(self.tongue.scene, c.duration, c.dt, label=f"full {motion}",
                        record={"u": lambda s: self.body.u.x.array[:n].copy()})
-        return {"u": run.records["u"], "ms_per_step": run.ms_per_step}
+        return {"u": run.records["u"], "ms_per_step": run.ms_per_step,
+                "volume_change": self.volume_changes(run.records["u"])}
 
     def reduced_run(self, reduced: ReducedFemBody, motion: str, full: dict, run_id: str) -> dict:
         """A reduced configuration through a motion, its error against the full run."""
         c = self.config
         self.tongue.reset()
-        reduced.set_state((np.zeros(reduced.r), np.zeros(reduced.r)))
+        reduced.set_state(tuple(np.zeros_like(part) for part in reduced.state()))
         scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=self.tongue.config.integrator)
         scene.add(reduced)
         scene.add_controller(self._controller(motion))
@@ -216,7 +258,8 @@ class TongueStudy:
         worst = int(np.nanargmax(mean_error)) if np.any(np.isfinite(mean_error)) else 0
         return {"q": q, "ms": ms, "failure": failure, "mean_error": mean_error,
                 "max_node_error": float(np.nanmax(node_error)) if ms else float("nan"),
-                "worst_step": worst, "u_worst": u_red[worst]}
+                "worst_step": worst, "u_worst": u_red[worst],
+                "volume_change": self.volume_changes(u_red)}
 
     # ---- the study ------------------------------------------------------------
 
@@ -224,6 +267,7 @@ class TongueStudy:
         c = self.config
         snapshots, snapshot_keys = self.snapshots()
         bases = {name: self.basis(name, snapshots, snapshot_keys) for name in c.bases}
+        pressures = self.pressure_space(snapshots)
         point_sets = {}
         for name, (U, key) in bases.items():
             if "trained" in c.samplings:
@@ -242,7 +286,8 @@ class TongueStudy:
         for (name, m, sampling), pts in tqdm(point_sets.items(), desc="reduced configurations",
                                              unit="config"):
             U, _ = bases[name]
-            reduced = ReducedFemBody(self.body, U, pts, name=f"{name}_{m}_{sampling}")
+            reduced = ReducedFemBody(self.body, U, pts, pressure_basis=pressures,
+                                     name=f"{name}_{m}_{sampling}")
             for motion in c.motions:
                 run_id = f"{name}_r{U.shape[1]}_m{m}_{sampling}_{motion}"
                 result = self.reduced_run(reduced, motion, full[motion], run_id)
@@ -258,7 +303,10 @@ class TongueStudy:
                       "quadrature_points": int(self.table.size)},
             "dt": c.dt, "duration": c.duration,
             "full": {"ms_per_step": float(np.median([f["ms_per_step"] for f in full.values()])),
-                     "ms_per_step_by_motion": {k: f["ms_per_step"] for k, f in full.items()}},
+                     "ms_per_step_by_motion": {k: f["ms_per_step"] for k, f in full.items()},
+                     "max_volume_change_by_motion": {
+                         k: float(np.nanmax(np.abs(f["volume_change"]))) for k, f in full.items()}},
+            "incompressibility": c.incompressibility,
             "training": {"snapshots": int(snapshots.displacements.shape[0]),
                          "exciters": len(snapshot_keys),
                          "training_excitation": c.training_excitation,
@@ -291,6 +339,8 @@ class TongueStudy:
                    "max_node_error_mm": result["max_node_error"],
                    "speedup": full["ms_per_step"] / ms,
                    "time_of_max_error": float(result["worst_step"] * self.config.dt),
+                   "max_volume_change": float(np.nanmax(np.abs(result["volume_change"]))),
+                   "full_max_volume_change": float(np.nanmax(np.abs(full["volume_change"]))),
                    "failed": result["failure"] is not None}
         if result["failure"] is not None:
             summary["error"] = result["failure"]
@@ -313,7 +363,7 @@ def quick_config(level: int = 0) -> StudyConfig:
     """A small study for tests and smoke runs: one motion, short, few points."""
     return StudyConfig(level=level, points=(120, 60), motions=("protrusion",), duration=0.3,
                        training_duration=0.3, snapshot_every=10, force_snapshots=20, pod_r=8,
-                       linear_modes=2)
+                       linear_modes=2, pressure_modes=4)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -329,6 +379,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training cache directory (default OUT/cache)")
     parser.add_argument("--quick", action="store_true",
                         help="a small smoke-test study (one motion, 0.3 s, few points)")
+    parser.add_argument("--incompressibility", choices=("penalty", "hard"), default="penalty",
+                        help="the element penalty, or the hard constraint (reduced bodies "
+                             "hold --pressure-modes POD modes of the training pressures)")
+    parser.add_argument("--pressure-modes", type=positive_int, default=None,
+                        help="reduced pressure modes with --incompressibility hard (default 6)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -339,6 +394,9 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, motions=tuple(args.motions))
     if args.bases:
         config = replace(config, bases=tuple(args.bases))
+    config = replace(config, incompressibility=args.incompressibility)
+    if args.pressure_modes:
+        config = replace(config, pressure_modes=args.pressure_modes)
     report = TongueStudy(config, args.out, args.cache).run()
     print(f"report: {report}")
     return 0
