@@ -241,6 +241,27 @@ class VolumeConstraint:
         c.destroy()
         return out
 
+    # The same three on numpy arrays of the body's local dofs (serial: owned and ghost
+    # rows), as the coupled island holds them (artifem.scene.layout.Layout.hold_volumes).
+
+    def linearized_rows(self, v: np.ndarray, h: float) -> np.ndarray:
+        return self.linearized(self._as_vec(v), h)
+
+    def force_rows(self, dp: np.ndarray, h: float) -> np.ndarray:
+        out = self.body.v.x.petsc_vec.duplicate()
+        self.force_of(dp, h, out)
+        rows = out.array.copy()
+        out.destroy()
+        return rows
+
+    def rate_rows(self, y: np.ndarray, h: float) -> np.ndarray:
+        return self.rate_of(self._as_vec(y), h)
+
+    @staticmethod
+    def _as_vec(array: np.ndarray) -> PETSc.Vec:
+        return PETSc.Vec().createWithArray(np.array(array, dtype=PETSc.ScalarType),
+                                           comm=PETSc.COMM_SELF)
+
     def add_to_pressures(self, dp: np.ndarray) -> None:
         n = self.n_owned
         for f in (self.p, self.pressure):

@@ -105,6 +105,9 @@ class ReducedVolumeConstraint:
         self.N = Pi.T @ (full.volume[:, None] * Pi)
         self.N_inv = np.linalg.inv(0.5 * (self.N + self.N.T))
         self.scale = np.abs(Pi).T @ full.volume                         # n_k
+        #: 1 / diag(N^-1): with kappa, the preconditioner kappa / volume of the island's
+        #: pressure iteration (:func:`~artifem.incompressibility.hold_linearized`)
+        self.volume = 1.0 / np.diag(self.N_inv)
         self.lam = np.zeros(self.s)                                     # multipliers
         self.updates = 0
         self._cache: dict = {}
@@ -189,6 +192,23 @@ class ReducedVolumeConstraint:
             if not self.violation(left) <= self.spec.tol:
                 raise StepFailed(self.describe(left) + " (the basis cannot hold it)")
         return x
+
+    # ---- in the coupled island (artifem.scene.layout.Layout.hold_volumes) -------------
+
+    def linearized_rows(self, v: np.ndarray, h: float) -> np.ndarray:
+        """c + h C v: the constraint at the end of a step with velocity v."""
+        return self.values() + h * (self.jacobian() @ v)
+
+    def force_rows(self, dlam: np.ndarray, h: float) -> np.ndarray:
+        """h C^T dlambda: the change of h f when the multipliers change by dlambda."""
+        return h * (self.jacobian().T @ dlam)
+
+    def rate_rows(self, y: np.ndarray, h: float) -> np.ndarray:
+        """h C y: the change of c when the velocity changes by y."""
+        return h * (self.jacobian() @ y)
+
+    def add_to_pressures(self, dlam: np.ndarray) -> None:
+        self.lam = self.lam + dlam
 
     def update(self) -> float:
         """Uzawa on the nonlinear constraint: the violation at q, then lambda <- pi~."""

@@ -58,12 +58,6 @@ class Layout:
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
                     "coupled to other bodies (attachments, paths or loads): coupled islands "
                     "run in serial only for now; a body that nothing couples runs in parallel")
-        for body in self.reduced_bodies:
-            if body.volume_constraint is not None:
-                raise InputError(
-                    f"reduced body {body.name!r} has the hard incompressibility and is coupled "
-                    "to other bodies (attachments, paths or loads): coupled reduced bodies do "
-                    "not hold it yet; a reduced body that nothing couples does")
         self.fixed = [b.fixed_components.copy() for b in fem_bodies]   # 3 node + component
         offset = 0
         self.fem_offset: dict[int, int] = {}
@@ -470,7 +464,7 @@ class Layout:
             applied.destroy()
         for body in self.reduced_bodies:       # the same, dense r x r
             o, r = self.reduced_offset[id(body)], body.r
-            A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h)
+            A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h, linearized)
             blocks.append(A_body)
         rigid_blocks = []
         for body in scene.rigid_bodies:
@@ -504,46 +498,36 @@ class Layout:
 
     @property
     def volume_constraints(self) -> list:
-        """(body, its VolumeConstraint) of the FEM bodies with hard incompressibility."""
-        return [(b, b.volume_constraint) for b in self.fem_bodies
+        """(body, its volume constraint) of the full and reduced bodies with hard
+        incompressibility."""
+        return [(b, b.volume_constraint) for b in self.fem_bodies + self.reduced_bodies
                 if b.volume_constraint is not None]
 
     def hold_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float) -> None:
         """The linearized volume constraints of the step (:func:`~artifem.incompressibility.
         hold_linearized`) for every hard-incompressible body of the island together: a
-        pressure change dp acts as the force h G^T dp on its body's dofs, the island's KKT
-        system (factored, joints' active rows kept: ``resolve``) gives the velocities of
-        everything. ``z`` (all velocities) and ``lam`` (joint impulses) are corrected in
-        place; StepFailed when the tolerance is not reached."""
-        pairs = self.volume_constraints
-        views, last = [], {}
-        for body, vc in pairs:
-            o, n = self.fem_offset[id(body)], 3 * body.V.dofmap.index_map.size_local
-            views.append((o, n, vc))
-        force = [pairs[k][0].v.x.petsc_vec.duplicate() for k in range(len(pairs))]
-
-        def as_vec(array):
-            return PETSc.Vec().createWithArray(array, comm=PETSc.COMM_SELF)
+        pressure change dp acts as the force h G^T dp on its body's coordinates (``force_rows``
+        of its constraint), the island's KKT system (factored, joints' active rows kept:
+        ``resolve``) gives the velocities of everything. ``z`` (all velocities) and ``lam``
+        (joint impulses) are corrected in place; StepFailed when the tolerance is not
+        reached."""
+        views = [(*self.span(body), vc) for body, vc in self.volume_constraints]
+        last = {}
 
         def respond(d):
             rhs = np.zeros(self.n_all)
-            for (o, n, vc), dk, fk in zip(views, d, force):
-                vc.force_of(dk, h, fk)
-                rhs[o:o + n] = fk.array[:n]
+            for (o, n, vc), dk in zip(views, d):
+                rhs[o:o + n] = vc.force_rows(dk, h)
             y_m, mu = resolve(np.asarray(P.T @ rhs).ravel())
             last["y"], last["mu"] = np.asarray(P @ y_m).ravel(), mu
-            return [vc.rate_of(as_vec(last["y"][o:o + n]), h) for o, n, vc in views]
+            return [vc.rate_rows(last["y"][o:o + n], h) for o, n, vc in views]
 
         def accept(alpha):
             z[:] += alpha * last["y"]
             lam[:] += alpha * last["mu"]
 
-        c0 = [vc.linearized(as_vec(z[o:o + n].copy()), h) for o, n, vc in views]
-        try:
-            hold_linearized([vc for *_, vc in views], c0, respond, accept, MPI.COMM_SELF)
-        finally:
-            for vec in force:
-                vec.destroy()
+        c0 = [vc.linearized_rows(z[o:o + n], h) for o, n, vc in views]
+        hold_linearized([vc for *_, vc in views], c0, respond, accept, MPI.COMM_SELF)
 
     def mass_matrix(self):
         """M_all: the bodies' mass blocks at the current configuration (FEM lumped or
