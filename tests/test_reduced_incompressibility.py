@@ -134,7 +134,8 @@ def test_force_and_tangent_are_derivatives_of_the_energy():
 
 
 def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
-    """POD of a full hard run (r = 8) and of its pressures (s = 6), the run replayed by the
+    """POD of a full hard run (r = 8) and of its pressures (s = 6 modes, no constant one), the
+    run replayed by the
     reduced body: with the constraint it follows the full run to 0.2 % of the motion and
     changes the element volumes as the full semi-implicit run does (its O(h^2) drift per
     step, here 0.27 %) within 5 %; without the constraint the same basis is 10 times
@@ -156,7 +157,8 @@ def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
     for hold in (True, False):
         twin = _hard_beam(tol=1e-8)
         reduced = ReducedFemBody(twin, U, all_points(twin), hold_volume=hold, pressure_basis=(
-            pressure_basis(np.array(p_s), vc.volume, 6) if hold else None))
+            pressure_basis(np.array(p_s), vc.volume, 6, total_volume=False) if hold
+            else None))
         s = Scene(gravity=(0.0, 0.0, -9.81))
         s.add(reduced)
         error = 0.0
@@ -170,17 +172,45 @@ def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
     assert abs(held / change - 1) < 0.05 and abs(free / change - 1) > 0.3, (change, runs)
 
 
-def test_pressure_basis_is_orthonormal_in_the_pressure_mass_and_spans_the_snapshots():
+def test_the_constant_pressure_mode_holds_the_total_volume():
+    """A random basis that changes volume, the pressure space of the constant mode alone, every
+    point, implicit steps (the constraint solved at the end of each step): the total volume
+    of the full mesh rebuilt from the reduced body stays at its rest value to the tolerance,
+    while the same body without the constraint loses it."""
+    changes = {}
+    for hold in (True, False):
+        body = _hard_beam(tol=1e-9)
+        V0 = body.volume()
+        Pi = pressure_basis(np.zeros((1, body.volume_constraint.n_owned)),
+                            body.volume_constraint.volume, 1)
+        reduced = ReducedFemBody(body, random_basis(body, 6, seed=4, scale=0.3),
+                                 all_points(body), hold_volume=hold,
+                                 pressure_basis=Pi if hold else None)
+        scene = Scene(gravity=(0.0, 0.0, -9.81), integrator="implicit")
+        scene.add(reduced)
+        for _ in range(5):
+            scene.step(0.01)
+        reduced.to_full()
+        changes[hold] = body.volume() / V0 - 1
+    assert abs(changes[False]) > 1e-4 and abs(changes[True]) < 2e-9, changes
+
+
+@pytest.mark.parametrize("total_volume", [True, False])
+def test_pressure_basis_is_orthonormal_in_the_pressure_mass_and_spans_the_snapshots(
+        total_volume):
     rng = np.random.default_rng(0)
     V = rng.uniform(0.5, 2.0, 40)
     modes = rng.standard_normal((40, 3))
     P = rng.standard_normal((12, 3)) @ modes.T           # 12 snapshots of rank 3
-    Pi = pressure_basis(P, V, 3)
-    np.testing.assert_allclose(Pi.T @ (V[:, None] * Pi), np.eye(3), atol=1e-12)
+    s = 4 if total_volume else 3
+    Pi = pressure_basis(P, V, s, total_volume=total_volume)
+    np.testing.assert_allclose(Pi.T @ (V[:, None] * Pi), np.eye(s), atol=1e-12)
     coef = np.linalg.lstsq(Pi, P.T, rcond=None)[0]
     assert np.abs(Pi @ coef - P.T).max() < 1e-10 * np.abs(P).max()
+    if total_volume:                                     # the first mode: the total volume
+        np.testing.assert_allclose(Pi[:, 0], 1 / np.sqrt(V.sum()), rtol=1e-12)
     with pytest.raises(ValueError, match="span only 3 pressure modes"):
-        pressure_basis(P, V, 4)
+        pressure_basis(P, V, s + 1, total_volume=total_volume)
     with pytest.raises(ValueError, match="pressure dofs"):
         pressure_basis(P.T, V, 2)
 

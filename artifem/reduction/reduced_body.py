@@ -321,15 +321,17 @@ class ReducedFemBody:
         return V[:, None] * np.einsum("pir,pi->pr", self.D, P)
 
     def internal_residual(self) -> np.ndarray:
-        """dPi~_int/dq = sum_p w_p V_p D_p^T vec(P_p)."""
+        """dPi~_int/dq = sum_p w_p V_p D_p^T vec(P_p) (with a hard body's constraint term
+        -C^T pi~ as point stresses, :meth:`ReducedVolumeConstraint.add_point_stress`)."""
         _, P, _ = self._evaluate()
-        return self.D.reshape(-1, self.r).T @ (self.weights[:, None] * P).reshape(-1)
+        weighted = self.weights[:, None] * P
+        if self.volume_constraint is not None:
+            self.volume_constraint.add_point_stress(weighted)
+        return self.D.reshape(-1, self.r).T @ weighted.reshape(-1)
 
     def force(self) -> np.ndarray:
         """f~(q) = -dPi~_int/dq + f~_ext (+ f~_p of the follower pressures)."""
         f = -self.internal_residual() + self.external_force()
-        if self.volume_constraint is not None:
-            f = f + self.volume_constraint.force()
         return f if self._patch is None else f + self._pressure("force")
 
     def tangent(self, linearized: bool = False) -> np.ndarray:
@@ -339,11 +341,13 @@ class ReducedFemBody:
         _, _, A = self._evaluate()
         # blockdiag(w_p A_p) as a BSR matrix: one compiled pass over the 9x9 blocks.
         self._blocks.data[:] = A * self.weights[:, None, None]
+        if self.volume_constraint is not None:
+            self.volume_constraint.add_point_tangent(self._blocks.data, linearized)
         D = self.D.reshape(-1, self.r)
         K = D.T @ (self._blocks @ D)
         K = 0.5 * (K + K.T)
         if self.volume_constraint is not None:
-            K = K + self.volume_constraint.tangent(linearized)
+            K = K + self.volume_constraint.augmentation()
         return K if self._patch is None else K + self._pressure("tangent")
 
     def potential_energy(self) -> float:

@@ -4,7 +4,7 @@ pressure space.
 The full body (:mod:`artifem.incompressibility`) keeps g_i(u) = int q_i (J - 1) dX = 0
 for every pressure dof i with multipliers p. A reduced body u = u_bar + U q keeps s
 combinations of these rows, those of a reduced pressure space p = Pi lambda (Pi: n_p x s,
-e.g. the POD of training pressures, :func:`pressure_basis`):
+e.g. the constant pressure and the POD of training pressures, :func:`pressure_basis`):
 
     c(q) = Pi^T g(u_bar + U q)  ~=  sum_p w_p V_p pi_p (J_p - 1),     pi_p = Pi^T q(X_p),
 
@@ -16,8 +16,10 @@ energy in these coordinates,
 
 (V_i = int q_i dX; N = diag(V) for Pi = I), whose force is C^T pi~ with C = dc/dq and
 pi~ = lambda - kappa N^-1 c, and whose tangent is kappa C^T N^-1 C - sum_k pi~_k d^2 c_k
-(lambda in place of pi~ in a linearized step, as in the full body). O(m r (r + s)) per
-evaluation, never O(n).
+(lambda in place of pi~ in a linearized step, as in the full body). The force and the
+geometric term are per point (a pressure -pi~_p dJ_p / dF and its derivative added to the
+material's stress and tangent at the point, so that the body's one D^T (.) D pass takes
+them), the rank-s term apart: O(m r (r + s)) per evaluation, never O(n).
 
 The multipliers are exact: a step's linear system A x = b with the linearized constraint
 c + h C (base + x) = 0 is solved through the s x s Schur complement S = h^2 C A^-1 C^T
@@ -46,10 +48,17 @@ _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 _D2J = np.einsum("ikm,JLn->iJkLmn", _EPS, _EPS).reshape(81, 9)
 
 
-def pressure_basis(pressures: np.ndarray, volumes: np.ndarray, modes: int) -> np.ndarray:
-    """The reduced pressure space of training pressures: the first ``modes`` left singular
-    vectors of the volume-weighted snapshots diag(V)^1/2 [p_1 ... p_S] mapped back,
-    Pi = diag(V)^-1/2 W (columns orthonormal in the pressure mass N = diag(V)).
+def pressure_basis(pressures: np.ndarray, volumes: np.ndarray, modes: int, *,
+                   total_volume: bool = True) -> np.ndarray:
+    """The reduced pressure space of training pressures, Pi (n_p x modes), its columns
+    orthonormal in the pressure mass N = diag(V):
+
+    - with ``total_volume`` (the default), the first column is the constant pressure, whose
+      constraint is the body's total volume (what a muscular hydrostat keeps, and what the
+      other modes, fitted to snapshots, hold only approximately); the others are the POD
+      of the snapshots' remainder, N-orthogonal to it;
+    - without it, the first ``modes`` POD modes: the left singular vectors of the
+      volume-weighted snapshots diag(V)^1/2 [p_1 ... p_S], mapped back by diag(V)^-1/2.
 
     ``pressures``: one snapshot per row (S, n_p), the convention of artifem.reduction.
     """
@@ -58,15 +67,20 @@ def pressure_basis(pressures: np.ndarray, volumes: np.ndarray, modes: int) -> np
     if P.ndim != 2 or P.shape[1] != V.size:
         raise InputError(f"pressure_basis: pressures must be rows (n_snapshots, {V.size} "
                          f"pressure dofs), got shape {P.shape}")
-    if not 1 <= modes <= min(P.shape):
-        raise InputError(f"pressure_basis: modes must be in [1, {min(P.shape)}] for "
-                         f"{P.shape[0]} snapshots, got {modes}")
+    fitted = modes - 1 if total_volume else modes
+    if not 0 <= fitted <= min(P.shape) or modes < 1:
+        raise InputError(f"pressure_basis: modes must be in [1, {min(P.shape) + total_volume}] "
+                         f"for {P.shape[0]} snapshots, got {modes}")
+    constant = np.ones(V.size) / np.sqrt(V.sum())
+    if total_volume:                        # the snapshots without their constant part
+        P = P - np.outer(P @ (V * constant), constant)
     W, sigma, _ = np.linalg.svd(np.sqrt(V)[:, None] * P.T, full_matrices=False)
-    if not sigma[modes - 1] > 1e-12 * sigma[0]:
+    if fitted and not sigma[fitted - 1] > 1e-12 * max(sigma[0], np.finfo(float).tiny):
         raise InputError(f"pressure_basis: the snapshots span only "
-                         f"{int(np.sum(sigma > 1e-12 * sigma[0]))} pressure modes, "
-                         f"{modes} asked")
-    return W[:, :modes] / np.sqrt(V)[:, None]
+                         f"{int(np.sum(sigma > 1e-12 * sigma[0]))} pressure modes"
+                         f"{' besides the constant' if total_volume else ''}, {fitted} asked")
+    Pi = W[:, :fitted] / np.sqrt(V)[:, None]
+    return np.column_stack([constant, Pi]) if total_volume else Pi
 
 
 class ReducedVolumeConstraint:
@@ -118,11 +132,16 @@ class ReducedVolumeConstraint:
         """(F, J, dJ/dF) at the constraint's points, cached until q changes."""
         key = self.body.q.tobytes()
         if self._cache.get("key") != key:
-            F = np.eye(3) + self.body._H[self.at]
-            cof = np.stack([np.cross(F[:, 1], F[:, 2]), np.cross(F[:, 2], F[:, 0]),
-                            np.cross(F[:, 0], F[:, 1])], axis=1)      # dJ/dF_iJ
-            J = np.einsum("pj,pj->p", F[:, 0], cof[:, 0])
-            self._cache = {"key": key, "F": F, "J": J, "dJ": cof.reshape(-1, 9)}
+            F = (np.eye(3) + self.body._H[self.at]).reshape(-1, 9)
+            f = [F[:, k] for k in range(9)]
+            # cofactor rows: F_1 x F_2, F_2 x F_0, F_0 x F_1 (rows of F), elementwise
+            cof = np.stack([f[4] * f[8] - f[5] * f[7], f[5] * f[6] - f[3] * f[8],
+                            f[3] * f[7] - f[4] * f[6], f[7] * f[2] - f[8] * f[1],
+                            f[8] * f[0] - f[6] * f[2], f[6] * f[1] - f[7] * f[0],
+                            f[1] * f[5] - f[2] * f[4], f[2] * f[3] - f[0] * f[5],
+                            f[0] * f[4] - f[1] * f[3]], axis=1)          # dJ/dF_iJ
+            J = f[0] * cof[:, 0] + f[1] * cof[:, 1] + f[2] * cof[:, 2]
+            self._cache = {"key": key, "F": F, "J": J, "dJ": cof}
         return self._cache
 
     def values(self) -> np.ndarray:
@@ -130,11 +149,12 @@ class ReducedVolumeConstraint:
         return self.point_basis.T @ (self._kinematics()["J"] - 1.0)
 
     def jacobian(self) -> np.ndarray:
-        """C = dc/dq (s, r)."""
+        """C = dc/dq (s, r): one product, sum_p (pi_p dJ_p^T) D_p."""
         k = self._kinematics()
         if "C" not in k:
-            dJdq = np.einsum("pi,pir->pr", k["dJ"], self.body.D[self.at])
-            k["C"] = self.point_basis.T @ dJdq
+            D = self.body.D[self.at]
+            weighted = self.point_basis[:, :, None] * k["dJ"][:, None, :]      # (ma, s, 9)
+            k["C"] = weighted.transpose(1, 0, 2).reshape(self.s, -1) @ D.reshape(-1, D.shape[2])
         return k["C"]
 
     def augmented(self) -> np.ndarray:
@@ -146,20 +166,25 @@ class ReducedVolumeConstraint:
         c = self.values() if c is None else c
         return float(np.abs(c / self.scale).max())
 
-    def force(self) -> np.ndarray:
-        """C^T pi~ (added to the body's force)."""
-        return self.jacobian().T @ self.augmented()
+    def add_point_stress(self, weighted_stress: np.ndarray) -> None:
+        """Add -pi~_p dJ_p to the body's weighted point stresses w_p V_p P_p (m, 9): the
+        constraint's residual -C^T pi~ is then part of the body's D^T (w P), pi~_p =
+        pi_p . pi~ (w_p V_p in pi_p)."""
+        k = self._kinematics()
+        weighted_stress[self.at] -= (self.point_basis @ self.augmented())[:, None] * k["dJ"]
 
-    def tangent(self, linearized: bool = False) -> np.ndarray:
-        """kappa C^T N^-1 C - sum_k pi_k d^2 c_k, pi = lambda (``linearized``) or pi~."""
+    def add_point_tangent(self, weighted_blocks: np.ndarray, linearized: bool = False) -> None:
+        """Add -pi_p d^2 J_p / dF^2 to the body's weighted point tangents w_p V_p A_p
+        (m, 9, 9): the geometric term -sum_k pi_k d^2 c_k, pi = lambda (``linearized``)
+        or pi~. The rank-s term :meth:`augmentation` is added to K~ apart."""
+        pi = self.point_basis @ (self.lam if linearized else self.augmented())
+        d2J = (self._kinematics()["F"] @ _D2J.T).reshape(-1, 9, 9)
+        weighted_blocks[self.at] -= pi[:, None, None] * d2J
+
+    def augmentation(self) -> np.ndarray:
+        """kappa C^T N^-1 C (r, r)."""
         C = self.jacobian()
-        pi = self.lam if linearized else self.augmented()
-        weight = self.point_basis @ pi                                  # sum_k pi_k w_p pi_pk
-        F, D = self._kinematics()["F"], self.body.D[self.at]
-        d2J = (F.reshape(-1, 9) @ _D2J.T).reshape(-1, 9, 9) * weight[:, None, None]
-        r = D.shape[2]
-        geometric = D.reshape(-1, r).T @ np.matmul(d2J, D).reshape(-1, r)
-        return self.kappa * (C.T @ self.N_inv @ C) - geometric
+        return self.kappa * (C.T @ (self.N_inv @ C))
 
     def energy(self) -> float:
         """W~(q; lambda)."""
