@@ -104,6 +104,8 @@ class ReducedFemBody:
         pressure_basis: the reduced pressure space Pi (n_p x s, s < r) of a full body with
             the hard incompressibility (:mod:`~artifem.reduction.reduced_volume_constraint`);
             required for such a body, refused for any other.
+        pressure_weights: the constraint's cubature weights at the m points (default: the
+            energy's, ``points.weights``).
         hold_volume: False leaves a hard body's volume constraint out (its material forces
             only, e.g. to train a cubature).
         name: component name.
@@ -113,7 +115,8 @@ class ReducedFemBody:
     scene_group = "reduced_bodies"
 
     def __init__(self, full: FemBody, U: np.ndarray, points: IntegrationPoints, *,
-                 pressure_basis: np.ndarray | None = None, hold_volume: bool = True,
+                 pressure_basis: np.ndarray | None = None,
+                 pressure_weights: np.ndarray | None = None, hold_volume: bool = True,
                  name: str | None = None):
         if full.mesh.comm.size != 1:
             raise NotImplementedError("ReducedFemBody runs in serial only for now")
@@ -250,7 +253,8 @@ class ReducedFemBody:
         self._excitations = [mus.excitation.value for mus in full.muscles.values()]
         self.set_q(self.q)
         #: the hard incompressibility in a reduced pressure space, or None
-        self.volume_constraint = ReducedVolumeConstraint(self, pressure_basis) if hard else None
+        self.volume_constraint = ReducedVolumeConstraint(
+            self, pressure_basis, pressure_weights) if hard else None
 
     # ---- evaluation --------------------------------------------------------
 

@@ -8,9 +8,11 @@ e.g. the constant pressure and the POD of training pressures, :func:`pressure_ba
 
     c(q) = Pi^T g(u_bar + U q)  ~=  sum_p w_p V_p pi_p (J_p - 1),     pi_p = Pi^T q(X_p),
 
-evaluated at the body's own m integration points with their cubature weights (with every
-point at weight 1 and Pi = I it is exactly the full g), with the full body's augmented
-energy in these coordinates,
+evaluated at the body's own m integration points with cubature weights w_p (the energy's,
+or weights fitted to the constraint's Jacobian on training states,
+:func:`artifem.reduction.training.pressure_weights`; with every point at weight 1 and
+Pi = I it is exactly the full g), with the full body's augmented energy in these
+coordinates,
 
     W~(q; lambda) = -lambda^T c + kappa / 2 c^T N^-1 c,      N = Pi^T diag(V) Pi,
 
@@ -91,7 +93,7 @@ class ReducedVolumeConstraint:
     ``weights``) and their strain-displacement matrices ``D``.
     """
 
-    def __init__(self, body, basis: np.ndarray):
+    def __init__(self, body, basis: np.ndarray, weights: np.ndarray | None = None):
         full = body.full.volume_constraint
         self.body, self.spec, self.kappa = body, full.spec, full.kappa
         Pi = np.asarray(basis, dtype=float)
@@ -114,8 +116,16 @@ class ReducedVolumeConstraint:
         dofs = full.Q.dofmap.list[body.cells[self.at]]                 # (ma, kq)
         shape = np.ones(dofs.shape) if dofs.shape[1] == 1 else \
             body.table.N[body.point_index[self.at]]
-        self.point_basis = np.einsum("pa,pas->ps", shape, Pi[dofs]) \
-            * body.weights[self.at, None]                               # w_p V_p pi_p
+        #: pi_p V_p: the pressure modes at the points times the quadrature volumes
+        self.point_values = np.einsum("pa,pas->ps", shape, Pi[dofs]) \
+            * body.table.volume[body.point_index[self.at], None]
+        if weights is None:
+            weights = body.points.weights
+        weights = np.asarray(weights, dtype=float)
+        if weights.shape != (body.m,) or not np.all(np.isfinite(weights)) or weights.min() < 0:
+            raise InputError(f"ReducedFemBody {body.name!r}: pressure_weights must be {body.m} "
+                             f"finite weights >= 0 (one per integration point)")
+        self.point_basis = self.point_values * weights[self.at, None]   # w_p V_p pi_p
         self.N = Pi.T @ (full.volume[:, None] * Pi)
         self.N_inv = np.linalg.inv(0.5 * (self.N + self.N.T))
         self.scale = np.abs(Pi).T @ full.volume                         # n_k
@@ -143,6 +153,13 @@ class ReducedVolumeConstraint:
             J = f[0] * cof[:, 0] + f[1] * cof[:, 1] + f[2] * cof[:, 2]
             self._cache = {"key": key, "F": F, "J": J, "dJ": cof}
         return self._cache
+
+    def point_jacobians(self) -> np.ndarray:
+        """Each point's V_p pi_p dJ_p^T D_p (ma, s, r) at weight 1: C = sum_p w_p (row p); the
+        training matrix of the constraint's own cubature weights (training.pressure_weights)."""
+        k = self._kinematics()
+        dJdq = np.einsum("pi,pir->pr", k["dJ"], self.body.D[self.at])
+        return self.point_values[:, :, None] * dJdq[:, None, :]
 
     def values(self) -> np.ndarray:
         """c(q) (s,)."""

@@ -360,8 +360,10 @@ def _incompressibility_line(study: dict) -> str:
     """How the volume is kept (a study from before the key: the element penalty)."""
     if study.get("incompressibility") == "hard":
         modes = study.get("config", {}).get("pressure_modes")
-        return (f"Incompressibility: hard (every element's volume held by the full model; "
-                f"the reduced bodies hold {modes} POD modes of the training pressures).")
+        return (f"Incompressibility: hard (every element's volume held by the full model; the "
+                f"reduced bodies hold {modes} pressure modes, the constant one (the total "
+                f"volume) and POD modes of the training pressures, with cubature weights fitted "
+                f"to the constraint's Jacobian on the training states).")
     return "Incompressibility: the element penalty (full and reduced)."
 
 

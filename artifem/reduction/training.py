@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from scipy.optimize import nnls
 from tqdm import tqdm
 
 from artifem.errors import InputError
@@ -41,7 +42,7 @@ from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.scene import Scene, simulate
 
 __all__ = ["ArtifactCache", "Snapshots", "record_snapshots", "project",
-           "force_training_matrix"]
+           "force_training_matrix", "pressure_weights"]
 
 #: Bump when a change in the code changes what a cached artifact would hold.
 CACHE_VERSION = 1
@@ -224,3 +225,40 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
                       f"left out", stacklevel=2)
     G = G[np.repeat(kept, r)]
     return G, G.sum(axis=1)
+
+
+def pressure_weights(full: FemBody, U: np.ndarray, points, pressure_basis: np.ndarray,
+                     q: np.ndarray) -> tuple[np.ndarray, float]:
+    """Cubature weights of a reduced body's volume constraint at its points, fitted to the
+    constraint's Jacobian on training states (the constraint's own ECSW):
+
+        min_{w >= 0} sum_s || sum_p w_p V_p pi_p dJ_p^T D_p - C_full(q_s) ||^2,
+
+    C_full = dc/dq with every quadrature point (the exact Pi^T G U). The energy's weights are
+    fitted to forces; the volume, a sum of J - 1 that is zero on incompressible training
+    states, is not what they integrate, and its Jacobian is what the step holds
+    (c + h C v = 0). Returns (weights (m,), relative residual). ``q``: reduced training
+    states, one per row.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    exact = ReducedFemBody(full, U, all_points(full), pressure_basis=pressure_basis,
+                           name=f"{full.name}_pressure_training")
+    some = ReducedFemBody(full, U, points, pressure_basis=pressure_basis,
+                          name=f"{full.name}_pressure_points")
+    rows, target = [], []
+    for state in q:
+        exact.set_q(state)
+        some.set_q(state)
+        if min(exact.det_F().min(), some.det_F().min()) <= 0:
+            continue
+        target.append(exact.volume_constraint.jacobian().reshape(-1))
+        per_point = some.volume_constraint.point_jacobians()
+        rows.append(per_point.reshape(per_point.shape[0], -1).T)
+    if not rows:
+        raise InputError("pressure_weights: every training state inverts an element once "
+                         "projected on the basis")
+    A, b = np.vstack(rows), np.concatenate(target)
+    w_at, residual = nnls(A, b, maxiter=50 * A.shape[1])
+    weights = np.zeros(some.m)
+    weights[some.volume_constraint.at] = w_at
+    return weights, float(residual / max(np.linalg.norm(b), np.finfo(float).tiny))
