@@ -502,16 +502,20 @@ def test_the_pressure_iteration_solves_its_schur_system(definite, rng, monkeypat
 
 def test_the_incompressibility_page_quotes_its_json():
     """docs/incompressibility.md's tables are those of the files the commands wrote
-    (``artifem study incompressibility`` and ``artifem bench tongue --incompressibility``)."""
+    (``artifem study incompressibility``, ``artifem bench tongue --incompressibility`` and
+    ``artifem study tongue --incompressibility hard``)."""
     import json
     from pathlib import Path
 
-    from artifem.models.tongue.incompressibility import format_report, format_speed_table
+    from artifem.models.tongue.incompressibility import (format_reduced_table, format_report,
+                                                         format_speed_table)
     root = Path(__file__).resolve().parents[1]
     page = (root / "docs" / "incompressibility.md").read_text()
     study = json.loads((root / "docs" / "incompressibility" / "incompressibility.json").read_text())
     bench = json.loads((root / "docs" / "benchmarks" / "tongue_incompressible.json").read_text())
-    for table in (format_speed_table(bench), format_report(study)):
+    reduced = json.loads((root / "docs" / "tongue_study" / "level0_hard" / "study.json")
+                         .read_text())
+    for table in (format_speed_table(bench), format_report(study), format_reduced_table(reduced)):
         for line in table.splitlines():
             if line.startswith("|") and not line.startswith("|---"):
                 assert line in page, line

@@ -183,3 +183,20 @@ def format_speed_table(bench: dict) -> str:
                      f"{c['solve_ms']:.1f} | {c['pressure_iterations']:.0f} | "
                      f"{100 * c['volume_change']:+.3f} % |")
     return "\n".join(lines) + "\n"
+
+
+def format_reduced_table(study: dict) -> str:
+    """The trained-POD rows of ``artifem study tongue --incompressibility hard`` (its
+    study.json) as a Markdown table (docs/incompressibility.md quotes it): per point count
+    and sampling, the step time, the largest mean node error against the hard full model,
+    and the largest volume change of the reduced and of the full run, per motion."""
+    runs = [r for r in study["runs"] if r["basis"] == "trained-pod"]
+    lines = ["| points | sampling | motion | ms/step | max error (mm) | volume change, reduced "
+             "| full |", "|---|---|---|---|---|---|---|"]
+    order = list(MOTIONS)
+    for r in sorted(runs, key=lambda r: (r["sampling"], -r["points"], order.index(r["motion"]))):
+        lines.append(f"| {r['points']} | {r['sampling']} | {r['motion']} | "
+                     f"{r['ms_per_step']:.2f} | {r['max_error_mm']:.2f} | "
+                     f"{100 * r['max_volume_change']:.3f} % | "
+                     f"{100 * r['full_max_volume_change']:.3f} % |")
+    return "\n".join(lines) + "\n"
