@@ -174,8 +174,8 @@ class TongueStudy:
         return data["U"], key
 
     def pressure_space(self, snapshots: Snapshots) -> np.ndarray | None:
-        """The reduced bodies' pressure space with the hard incompressibility: the first
-        ``pressure_modes`` POD modes of the training pressures (else None)."""
+        """The reduced bodies' pressure space with the hard incompressibility: the constant
+        pressure and ``pressure_modes - 1`` POD modes of the training pressures (else None)."""
         vc = self.body.volume_constraint
         if vc is None:
             return None
