@@ -48,6 +48,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.incompressibility import Incompressible, VolumeConstraint
+from artifem.muscle_layers import MuscleLayers
 from artifem.surface_loads import (SurfaceLoad, check_closed, make_load, select_facets,
                                    surface_measure)
 
@@ -146,6 +147,7 @@ class FemBody:
         self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
         self.body_force = None          # UFL vector expression per reference volume
         self.muscles: dict[str, Muscle] = {}
+        self._layers = None             # the muscles' MuscleLayers, built with the forms
         self.surface_loads: dict[str, SurfaceLoad] = {}
         self._surface_ds = (None,)      # (loads, ds measure, subdomain ids) of _surface_terms
         n_blocks = self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts
@@ -398,7 +400,7 @@ class FemBody:
             muscle = Muscle(name, np.sort(local[local < n_owned]), a0, fiber,
                             fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
             self.muscles[name] = muscle
-            self._compiled = None
+            self._compiled = self._layers = None
             return muscle
         directions = np.broadcast_to(np.asarray(directions, dtype=float), (cells.size, 3))
         norms = np.linalg.norm(directions, axis=1)
@@ -422,7 +424,7 @@ class FemBody:
         muscle = Muscle(name, owned, a0, fiber,
                         fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
         self.muscles[name] = muscle
-        self._compiled = None
+        self._compiled = self._layers = None
         return muscle
 
     def quadrature_space(self) -> fem.FunctionSpace:
@@ -485,12 +487,18 @@ class FemBody:
         """F = I + grad u as a UFL expression."""
         return ufl.Identity(3) + ufl.grad(self.u)
 
-    def energy_terms(self) -> list[EnergyTerm]:
-        """The internal energy as a sum of integrals, one per ingredient (see EnergyTerm)."""
+    def energy_terms(self, merged: bool = False) -> list[EnergyTerm]:
+        """The internal energy as a sum of integrals, one per ingredient (see EnergyTerm):
+        one per muscle, or (``merged``, the body's own forms) one per layer of muscles
+        (:mod:`artifem.muscle_layers`: the same sum with far fewer kernels to compile)."""
         material = with_form_constants(self.material, self.mesh)
         terms = [EnergyTerm("material", lambda F, a0: material.strain_energy(F),
                             self.quadrature_degree)]
-        for m in self.muscles.values():
+        if merged:
+            for k, (density, cells, direction) in enumerate(self._muscle_layers().terms()):
+                terms.append(EnergyTerm(f"muscle layer {k}", density, self.quadrature_degree,
+                                        cells, direction))
+        for m in self.muscles.values() if not merged else ():
             fiber = with_form_constants(m.fiber, self.mesh)
             terms.append(EnergyTerm(f"muscle:{m.name}",
                                     lambda F, a0, m=m, f=fiber: f.strain_energy(F, a0, m.excitation),
@@ -500,6 +508,11 @@ class FemBody:
             terms.append(EnergyTerm("incompressibility",
                                     lambda F, a0: 0.5 * kappa * (ufl.det(F) - 1) ** 2, 1))
         return terms
+
+    def _muscle_layers(self) -> MuscleLayers:
+        if self._layers is None:
+            self._layers = MuscleLayers(self)
+        return self._layers
 
     def _density_factor(self):
         """rho in the forms: a run-time constant when it is a number (with_form_constants)."""
@@ -512,7 +525,7 @@ class FemBody:
         leaves out the closed pressures' potential (the residual takes their virtual
         work instead)."""
         F = self.kinematics()
-        terms = self.energy_terms()
+        terms = self.energy_terms(merged=True)
         restricted = [t for t in terms if t.cells is not None]
         data = [(i + 1, t.cells) for i, t in enumerate(restricted)] or None
         Pi = 0
@@ -614,6 +627,7 @@ class FemBody:
         """
         self.compile()
         c = self._compiled
+        self._muscle_layers().refresh()
         vc = self.volume_constraint
         if vc is not None:
             vc.assemble(tangent, linearized)
@@ -679,6 +693,7 @@ class FemBody:
         pressure has no potential and is left out (``conservative`` is False); a closed
         one enters as -lambda p V (:mod:`artifem.surface_loads`)."""
         self.compile()
+        self._muscle_layers().refresh()
         local = fem.assemble_scalar(self._compiled["Pi"])
         Pi = self.mesh.comm.allreduce(local)
         if self.volume_constraint is not None:

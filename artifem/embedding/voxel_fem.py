@@ -253,10 +253,10 @@ class VoxelFemBody(FemBody):
         self.surface = EmbeddedMesh(self, V, T, "triangle", snap=True, name="surface") \
             if comm.size == 1 else None
 
-    def energy_terms(self):
+    def energy_terms(self, merged: bool = False):
         phi = self.fraction
         return [dataclasses.replace(t, density=lambda F, a0, d=t.density: phi * d(F, a0))
-                for t in super().energy_terms()]
+                for t in super().energy_terms(merged)]
 
     def set_body_force(self, b) -> None:
         """Body force per unit solid volume (weighted by phi here)."""
