@@ -17,7 +17,8 @@ LAYERS = {
     # 3: bodies and what evaluates them
     "artifem.fem_body": 3, "artifem.pointwise": 3, "artifem.material_response": 3,
     "artifem.linear_solver": 3, "artifem.excitation": 3, "artifem.render": 3,
-    "artifem.surface_loads": 3, "artifem.incompressibility": 3,
+    "artifem.surface_loads": 3, "artifem.incompressibility": 3, "artifem.muscle_layers": 3,
+    "artifem.reduction.reduced_volume_constraint": 3,
     "artifem.reduction.reduced_body": 3, "artifem.reduction.cubature": 3,
     "artifem.reduction.quadrature_points": 3, "artifem.reduction.stress_kernel": 3,
     "artifem.reduction.rigid_lift": 3, "artifem.embedding.embedded_mesh": 3,
