@@ -157,6 +157,9 @@ class FemBody:
         self._fixed_values = fem.Function(self.V)   # prescribed displacement of fixed dofs
         self.nodal_load = fem_petsc.create_vector(self.V)
         self.nodal_load.zeroEntries()
+        #: counts the changes of the nodal loads and the body force (a reduced body of this
+        #: one projects them again when it changes)
+        self.loads_version = 0
         self._node_to_dof = self._input_node_to_dof()
         #: the hard incompressibility (pressure field, multipliers), or None
         self.volume_constraint = VolumeConstraint(self, incompressibility) if hard else None
@@ -289,6 +292,7 @@ class FemBody:
                 d = self._node_to_dof.get(n)
                 if d is not None and d < n_owned:     # owned copy only: no double count
                     arr[d] += f
+        self.loads_version += 1
 
     def add_pressure(self, pressure: float, *, where=None, tags=None, values=None,
                      surface=None, tol: float | None = None, name: str | None = None,
@@ -368,6 +372,7 @@ class FemBody:
     def set_body_force(self, b) -> None:
         """Body force per reference volume (UFL vector expression), scaled by the load factor."""
         self.body_force = b
+        self.loads_version += 1
         self._compiled = None
 
     def add_muscle(self, name: str, cells, directions, fiber, excitation: float = 0.0) -> Muscle:

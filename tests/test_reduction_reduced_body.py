@@ -260,3 +260,46 @@ def test_full_mesh_inversion_sees_what_the_integration_points_cannot():
     bad_full, min_full = reduced.full_mesh_inversion()
     assert bad_full.tolist() == body.input_cell_index(corner_cells).tolist() and min_full < 0
     assert np.all(body.u.x.array == 0.0)        # the full body's state is left alone
+
+
+def test_loads_changed_after_construction_act_on_the_reduced_body():
+    """Every load changed after the reduced body was built acts on it as on the full body:
+    a nodal load added, a body force set, a constant of that body force given another value,
+    the gravity and a dead traction changed. After each change, f~(q) = U^T f(U q) of the
+    full body at the same state (to round-off)."""
+    body = make_body(loads=False)
+    traction = body.add_traction((0.0, 0.0, 0.0), where=lambda x: np.isclose(x[0], 1.0))
+    U = random_basis(body, 7, seed=3)
+    reduced = ReducedFemBody(body, U, all_points(body))
+    q = 1e-2 * np.random.default_rng(4).standard_normal(7)
+    reduced.set_q(q)
+    n = ndofs(body)
+    seen = []
+
+    def check():
+        body.u.x.array[:n] = U @ q
+        body.u.x.scatter_forward()
+        body.assemble(tangent=False)
+        f_full = U.T @ -body.R.array[:n]
+        np.testing.assert_allclose(reduced.force(), f_full, rtol=0,
+                                   atol=1e-12 * np.abs(f_full).max())
+        seen.append(f_full)
+
+    check()
+    x = body.mesh.geometry.x
+    inputs = np.asarray(body.mesh.geometry.input_global_indices, dtype=np.int64)
+    body.add_nodal_load(inputs[np.isclose(x[:, 0], 1.0)], [0.0, 0.3, 0.1])
+    check()
+    c = fem.Constant(body.mesh, np.array([0.0, 50.0, 0.0]))
+    body.set_body_force(c * ufl.SpatialCoordinate(body.mesh)[0])
+    check()
+    c.value = np.array([10.0, 0.0, -20.0])
+    check()
+    body.gravity.value = np.array([0.0, -3.0, 0.0])
+    check()
+    traction.value.value = np.array([5.0, 0.0, 2.0])
+    check()
+    # negative control: a reduced body that kept the old loads would miss each check by
+    # `change`, a million times the round-off tolerance above
+    changes = [np.abs(b - a).max() for a, b in zip(seen, seen[1:])]
+    assert min(changes) > 1e-6 * max(np.abs(f).max() for f in seen), changes

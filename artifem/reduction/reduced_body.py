@@ -25,9 +25,11 @@ A = dP/dF at the m points. Then
     K~(q) =  sum_p w_p V_p D_p^T A_p D_p,
 
 O(m r^2) per evaluation, never O(n). The external loads are linear in u, so
-their reduced force is exact and precomputed on the full model:
+their reduced force is exact and computed on the full model:
 f~_ext = lambda (U^T int rho g . phi dX + U^T (int b . phi dX + f_nodal)), the
-gravity part per component so that changing ``full.gravity`` acts here too; a
+gravity part per component so that changing ``full.gravity`` acts here too, the
+body-force and nodal part again whenever the full body's loads change (a new nodal
+load or body force, or a constant of the body force set to another value); a
 dead traction t of the full body (:mod:`artifem.surface_loads`) adds
 lambda U^T int phi dA t, per component, with t read at every evaluation.
 
@@ -62,6 +64,7 @@ import ufl
 from dolfinx import fem, mesh as dmesh
 from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
+from ufl.algorithms.analysis import extract_constants
 
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
@@ -191,12 +194,7 @@ class ReducedFemBody:
             vec = fem_petsc.assemble_vector(fem.form(full.density * ufl.dot(ek, v) * dx))
             self.G[:, k] = U.T @ vec.array[:ndofs]
             vec.destroy()
-        f_const = full.nodal_load.array[:ndofs].copy()
-        if full.body_force is not None:
-            vec = fem_petsc.assemble_vector(fem.form(ufl.dot(full.body_force, v) * dx))
-            f_const += vec.array[:ndofs]
-            vec.destroy()
-        self.f_const = U.T @ f_const
+        self._loads: dict = {}              # U^T (b, f_nodal), refreshed when they change
         # dead tractions: U^T int e_k . phi dA per load (r x 3), times t at evaluation
         self._tractions = []
         pressures = []
@@ -286,10 +284,38 @@ class ReducedFemBody:
             self._stress = self._stresses(self._H)
         return self._stress
 
+    def _body_and_nodal_loads(self) -> np.ndarray:
+        """U^T (int b . phi dX + f_nodal), recomputed on the full model (O(n r)) only when
+        the full body's nodal loads or body force were changed (``loads_version``) or a
+        ``fem.Constant`` of the body force took another value: loads changed after this body
+        was built act on it as on the full body."""
+        full, loads = self.full, self._loads
+        b = full.body_force
+        if loads.get("version") != full.loads_version:       # a new body force or load
+            loads.clear()
+            loads["version"] = full.loads_version
+            loads["constants"] = [] if b is None else extract_constants(b)
+            if b is not None:
+                v = ufl.TestFunction(full.V)
+                dx = ufl.Measure("dx", domain=full.mesh,
+                                 metadata={"quadrature_degree": full.quadrature_degree})
+                loads["form"] = fem.form(ufl.dot(b, v) * dx)
+        values = tuple(np.asarray(c.value).tobytes() for c in loads["constants"])
+        if loads.get("values") != values:
+            n = self.U.shape[0]
+            f = full.nodal_load.array[:n].copy()
+            if b is not None:
+                vec = fem_petsc.assemble_vector(loads["form"])
+                f += vec.array[:n]
+                vec.destroy()
+            loads["values"], loads["value"] = values, self.U.T @ f
+        return loads["value"]
+
     def external_force(self) -> np.ndarray:
         """f~_ext = lambda (G g + U^T (b, f_nodal) + sum_t T_t t) (constant in q)."""
         lf = float(self.full.load_factor.value)
-        f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + self.f_const
+        f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + \
+            self._body_and_nodal_loads()
         for load, T in self._tractions:
             f = f + T @ np.asarray(load.value.value, dtype=float)
         return lf * f
