@@ -60,7 +60,7 @@ def first_mode(body: FemBody) -> tuple[float, np.ndarray]:
     """(omega_1, mode shape as a dof array) of the linearized, clamped body (serial, dense)."""
     body.assemble(tangent=True, diag=1.0)
     K = body.K.copy()
-    K_dense = K.convert("dense").getDenseArray().copy()
+    K_dense = K.copy().convert("dense").getDenseArray().copy()
     K.destroy()
     m = body.M_lumped.array.copy()
     fixed = (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()

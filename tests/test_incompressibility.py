@@ -145,7 +145,7 @@ def test_tangent_is_the_derivative_of_the_residual(rng):
     body.volume_constraint.p.x.array[:] = 0.1 * MU * rng.standard_normal(
         body.volume_constraint.p.x.array.size)
     body.assemble(tangent=True)
-    K = body.K.convert("dense").getDenseArray()
+    K = body.K.copy().convert("dense").getDenseArray()
     u0 = body.u.x.array.copy()
     for _ in range(3):
         d = np.zeros_like(u0)

@@ -35,7 +35,7 @@ def full_force_and_tangent(body, u):
     body.u.x.scatter_forward()
     body.assemble(tangent=True)
     n = ndofs(body)
-    K = body.K.convert("dense").getDenseArray()[:n, :n]
+    K = body.K.copy().convert("dense").getDenseArray()[:n, :n]
     return -body.R.array[:n].copy(), K
 
 
@@ -265,8 +265,9 @@ def test_full_mesh_inversion_sees_what_the_integration_points_cannot():
 def test_loads_changed_after_construction_act_on_the_reduced_body():
     """Every load changed after the reduced body was built acts on it as on the full body:
     a nodal load added, a body force set, a constant of that body force given another value,
-    the gravity and a dead traction changed. After each change, f~(q) = U^T f(U q) of the
-    full body at the same state (to round-off)."""
+    the gravity and a dead traction changed, a traction and a follower pressure added. After
+    each change, f~(q) = U^T f(U q) and K~(q) = U^T K(U q) U of the full body at the same
+    state (to round-off)."""
     body = make_body(loads=False)
     traction = body.add_traction((0.0, 0.0, 0.0), where=lambda x: np.isclose(x[0], 1.0))
     U = random_basis(body, 7, seed=3)
@@ -277,12 +278,12 @@ def test_loads_changed_after_construction_act_on_the_reduced_body():
     seen = []
 
     def check():
-        body.u.x.array[:n] = U @ q
-        body.u.x.scatter_forward()
-        body.assemble(tangent=False)
-        f_full = U.T @ -body.R.array[:n]
+        f, K = full_force_and_tangent(body, U @ q)
+        f_full, K_full = U.T @ f, U.T @ K @ U
         np.testing.assert_allclose(reduced.force(), f_full, rtol=0,
                                    atol=1e-12 * np.abs(f_full).max())
+        np.testing.assert_allclose(reduced.tangent(), K_full, rtol=0,
+                                   atol=1e-10 * np.abs(K_full).max())
         seen.append(f_full)
 
     check()
@@ -298,6 +299,10 @@ def test_loads_changed_after_construction_act_on_the_reduced_body():
     body.gravity.value = np.array([0.0, -3.0, 0.0])
     check()
     traction.value.value = np.array([5.0, 0.0, 2.0])
+    check()
+    body.add_traction((0.0, 4.0, 0.0), where=lambda x: np.isclose(x[1], 0.3))
+    check()
+    body.add_pressure(30.0, where=lambda x: np.isclose(x[2], 0.2))
     check()
     # negative control: a reduced body that kept the old loads would miss each check by
     # `change`, a million times the round-off tolerance above

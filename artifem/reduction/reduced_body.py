@@ -31,7 +31,9 @@ gravity part per component so that changing ``full.gravity`` acts here too, the
 body-force and nodal part again whenever the full body's loads change (a new nodal
 load or body force, or a constant of the body force set to another value); a
 dead traction t of the full body (:mod:`artifem.surface_loads`) adds
-lambda U^T int phi dA t, per component, with t read at every evaluation.
+lambda U^T int phi dA t, per component, with t read at every evaluation. A
+surface load added to the full body after this one was built is projected at
+the next evaluation, so no load of the full body is silently left out.
 
 Follower pressures of the full body are not linear in u: they are assembled on
 a :class:`~artifem.surface_loads.SurfacePatch`, the cells next to their facets
@@ -195,30 +197,7 @@ class ReducedFemBody:
             self.G[:, k] = U.T @ vec.array[:ndofs]
             vec.destroy()
         self._loads: dict = {}              # U^T (b, f_nodal), refreshed when they change
-        # dead tractions: U^T int e_k . phi dA per load (r x 3), times t at evaluation
-        self._tractions = []
-        pressures = []
-        for load in full.surface_loads.values():
-            if load.follower:
-                pressures.append(load)
-                continue
-            tags = dmesh.meshtags(full.mesh, full.mesh.topology.dim - 1, load.facets,
-                                  np.ones_like(load.facets))
-            ds = ufl.Measure("ds", domain=full.mesh, subdomain_data=tags,
-                             metadata={"quadrature_degree": load.degree})(1)
-            T = np.zeros((self.r, 3))
-            for k in range(3):
-                vec = fem_petsc.assemble_vector(fem.form(v[k] * ds))
-                T[:, k] = U.T @ vec.array[:ndofs]
-                vec.destroy()
-            self._tractions.append((load, T))
-        # follower pressures: assembled on the cells next to their facets (module docstring)
-        self._patch = None
-        if pressures:
-            self._patch = SurfacePatch(full.V, pressures, full.load_factor)
-            self._U_patch = U[self._patch.dofs]
-            self._u_bar_patch = self.u_bar[self._patch.dofs]
-        self._pressure_cache: dict = {}
+        self._project_surface_loads()
 
         # ---- online: the m points, their D_p and one stress kernel per energy term ----
         self.point_index = idx
@@ -311,12 +290,50 @@ class ReducedFemBody:
             loads["values"], loads["value"] = values, self.U.T @ f
         return loads["value"]
 
+    def _project_surface_loads(self) -> None:
+        """Project the full body's surface loads (O(n r), at construction and again when a
+        load was added to the full body since): a dead traction t gives
+        T = U^T int e_k . phi dA (r x 3), times t at every evaluation; the follower
+        pressures are assembled on the cells next to their facets (module docstring)."""
+        full, U, ndofs = self.full, self.U, self.U.shape[0]
+        v = ufl.TestFunction(full.V)
+        self._surface_names = tuple(full.surface_loads)
+        self._tractions = []
+        pressures = []
+        for load in full.surface_loads.values():
+            if load.follower:
+                pressures.append(load)
+                continue
+            tags = dmesh.meshtags(full.mesh, full.mesh.topology.dim - 1, load.facets,
+                                  np.ones_like(load.facets))
+            ds = ufl.Measure("ds", domain=full.mesh, subdomain_data=tags,
+                             metadata={"quadrature_degree": load.degree})(1)
+            T = np.zeros((self.r, 3))
+            for k in range(3):
+                vec = fem_petsc.assemble_vector(fem.form(v[k] * ds))
+                T[:, k] = U.T @ vec.array[:ndofs]
+                vec.destroy()
+            self._tractions.append((load, T))
+        self._patch = None
+        if pressures:
+            self._patch = SurfacePatch(full.V, pressures, full.load_factor)
+            self._U_patch = U[self._patch.dofs]
+            self._u_bar_patch = self.u_bar[self._patch.dofs]
+        self._pressure_cache: dict = {}
+
+    def _surface_loads(self):
+        """(dead tractions with their T, follower-pressure patch or None), projected again
+        if a surface load was added to the full body after this body was built."""
+        if self._surface_names != tuple(self.full.surface_loads):
+            self._project_surface_loads()
+        return self._tractions, self._patch
+
     def external_force(self) -> np.ndarray:
         """f~_ext = lambda (G g + U^T (b, f_nodal) + sum_t T_t t) (constant in q)."""
         lf = float(self.full.load_factor.value)
         f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + \
             self._body_and_nodal_loads()
-        for load, T in self._tractions:
+        for load, T in self._surface_loads()[0]:
             f = f + T @ np.asarray(load.value.value, dtype=float)
         return lf * f
 
@@ -362,7 +379,7 @@ class ReducedFemBody:
     def force(self) -> np.ndarray:
         """f~(q) = -dPi~_int/dq + f~_ext (+ f~_p of the follower pressures)."""
         f = -self.internal_residual() + self.external_force()
-        return f if self._patch is None else f + self._pressure("force")
+        return f if self._surface_loads()[1] is None else f + self._pressure("force")
 
     def tangent(self, linearized: bool = False) -> np.ndarray:
         """K~(q) = sum_p w_p V_p D_p^T A_p D_p (dense r x r, symmetric) (+ K~_p of the
@@ -378,7 +395,7 @@ class ReducedFemBody:
         K = 0.5 * (K + K.T)
         if self.volume_constraint is not None:
             K = K + self.volume_constraint.augmentation()
-        return K if self._patch is None else K + self._pressure("tangent")
+        return K if self._surface_loads()[1] is None else K + self._pressure("tangent")
 
     def potential_energy(self) -> float:
         """Pi~(q) = sum_p w_p V_p psi(F_p) - q^T f~_ext (up to the constant u_bar work),
@@ -387,7 +404,7 @@ class ReducedFemBody:
         Pi = float(self.weights @ psi) - float(self.q @ self.external_force())
         if self.volume_constraint is not None:
             Pi += self.volume_constraint.energy()
-        return Pi if self._patch is None else Pi + self._pressure("potential")
+        return Pi if self._surface_loads()[1] is None else Pi + self._pressure("potential")
 
     def kinetic_energy(self) -> float:
         return 0.5 * float(self.qdot @ self.M @ self.qdot)
