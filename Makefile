@@ -7,16 +7,18 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PYTEST_ARGS ?=
 # Two pytest workers (pytest-xdist), one per core; a test file stays on one worker, so its
-# module fixtures are built once. `make test XDIST=` runs in one process.
+# module fixtures are built once, and the files measured longest (tests/durations.json)
+# go first so that the workers end together (tests/conftest.py). `make test XDIST=` runs
+# in one process.
 # dolfinx_jit_options.json (read by DOLFINx from the working directory) lets a worker wait
 # up to 15 minutes for a form the other is compiling, instead of DOLFINx's 10 s.
-XDIST  ?= -n 2 --dist loadfile
+XDIST  ?= -n 2 --dist loadfile --no-loadscope-reorder
 # One BLAS/OpenMP thread per worker: two workers on two cores, each with OpenBLAS's
 # default of a thread per core, fight for the cores in every dense product (measured:
 # 8 % longer on the reduced-model tests). `make test XDIST= THREADS=2` for one process.
 THREADS ?= 1
 
-.PHONY: demo test test-wheel bench lock venv clean
+.PHONY: demo test test-durations test-wheel bench lock venv clean
 
 venv: $(STAMP)
 
@@ -41,6 +43,14 @@ demo: $(STAMP)
 #   make test PYTEST_ARGS='--randomly-seed=N'   or keep the file order: '-p no:randomly'.
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=$(THREADS) OMP_NUM_THREADS=$(THREADS) $(PY) -m pytest $(XDIST) $(PYTEST_ARGS)
+
+# Refresh tests/durations.json, the seconds of each test file that order the files for
+# the workers: the suite run with an empty JIT cache, as on a fresh machine; the file is
+# rewritten only if the run passed.
+test-durations: $(STAMP)
+	cache=$$(mktemp -d) && XDG_CACHE_HOME=$$cache $(MAKE) test \
+	  PYTEST_ARGS='--write-durations tests/durations.json $(PYTEST_ARGS)'; \
+	  status=$$?; rm -rf $$cache; exit $$status
 
 # The wheel a user installs: built from this tree, installed with its pinned
 # dependencies into a fresh venv outside the source tree, and run there.

@@ -7,7 +7,11 @@ runs in random order) and a failure is reproduced by running the test alone.
 Session fixtures: expensive results that several test modules need with the same
 inputs, computed once per run instead of once per module (issue 13: the suite's time on
 a fresh machine is mostly JIT compilation and full model runs). Each is computed on
-first use, whichever module asks first, and only read afterwards.
+first use, whichever module asks first, and only read afterwards. Under pytest-xdist the
+first worker that asks computes it into the run's shared temporary directory while the
+others wait on a lock; each worker then works on its own copy (``computed_once``), so a
+test that changes its copy (deleting an artifact to test a resume) cannot disturb a test
+on the other worker.
 
 - ``quick_jaw_tongue``: the quick reduced jaw-tongue training (test_jaw_tongue_reduced,
   test_airway);
@@ -15,20 +19,97 @@ first use, whichever module asks first, and only read afterwards.
   test_tongue_hard_cases and the level-1 side of test_tongue_convergence);
 - ``quick_tongue_study``: ``artifem study tongue --quick``'s output directory
   (test_tongue_study; test_cli_end_to_end's demo starts from its training cache).
+
+Order of the files under pytest-xdist: the files measured to take over ``HEAVY_S``
+seconds (``tests/durations.json``, written by ``make test-durations``) go first, in the
+random order pytest-randomly gave them, the rest after them in theirs; with
+``--no-loadscope-reorder`` (the Makefile) the two workers take the long files first and
+end together (longest-processing-time-first scheduling; xdist's default puts the files
+with the most tests first, which says little of their time).
 """
 
+import collections
+import fcntl
+import json
+import os
+import shutil
 import zlib
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 import pytest
+
+
+#: seconds of a test file (setup, call and teardown of its tests) above which it runs first
+HEAVY_S = 20.0
+DURATIONS = Path(__file__).with_name("durations.json")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--write-durations", metavar="FILE", type=Path,
+                     help="after a passing run, write each test file's seconds (setup, "
+                          "call and teardown of its tests) to FILE as JSON")
+
+
+@pytest.hookimpl(trylast=True)      # after pytest-randomly's shuffle
+def pytest_collection_modifyitems(config, items):
+    """Long files first (module docstring), each group in the order it came in."""
+    if "PYTEST_XDIST_WORKER" not in os.environ or not DURATIONS.exists():
+        return
+    seconds = json.loads(DURATIONS.read_text())["seconds_per_file"]
+    items.sort(key=lambda item: seconds.get(item.nodeid.split("::")[0], 0.0) < HEAVY_S)
+
+
+_file_seconds: collections.Counter = collections.Counter()
+
+
+def pytest_runtest_logreport(report):
+    _file_seconds[report.nodeid.split("::")[0]] += report.duration
+
+
+def pytest_sessionfinish(session, exitstatus):
+    out = session.config.getoption("write_durations")
+    if out is None or exitstatus != 0 or "PYTEST_XDIST_WORKER" in os.environ:
+        return
+    out.write_text(json.dumps({
+        "what": "seconds per test file (setup, call and teardown of its tests) in one "
+                "passing run of the suite; tests/conftest.py runs the long files first",
+        "command": "make test-durations",
+        "seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_seconds.items())},
+    }, indent=1) + "\n")
 
 
 @pytest.fixture
 def rng(request) -> np.random.Generator:
     """A generator seeded by the test's node id (stable across runs and orders)."""
     return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+def computed_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> Path:
+    """A directory that ``make(directory)`` fills, made once per test run.
+
+    In one process: made in a fresh temporary directory. Under pytest-xdist: made once in
+    the run's temporary root (shared by the workers and new for every run), under an
+    exclusive lock (stdlib ``fcntl``: one machine, no extra dependency), by whichever
+    worker asks first; every worker gets its own copy of it.
+    """
+    if "PYTEST_XDIST_WORKER" not in os.environ:          # set by xdist in its workers
+        own = tmp_path_factory.mktemp(name)
+        make(own)
+        return own
+    root = tmp_path_factory.getbasetemp().parent
+    shared, done = root / name, root / f"{name}.done"
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)          # released when the file closes
+        if not done.exists():                     # first asker (or an earlier one failed)
+            shutil.rmtree(shared, ignore_errors=True)
+            shared.mkdir()
+            make(shared)
+            done.touch()
+    own = tmp_path_factory.mktemp(name)
+    shutil.copytree(shared, own, dirs_exist_ok=True)
+    return own
 
 
 class QuickJawTongue(NamedTuple):
@@ -40,8 +121,8 @@ class QuickJawTongue(NamedTuple):
 @pytest.fixture(scope="session")
 def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     """The quick jaw-tongue reduced training (r = 12 POD + 12 lift columns, 150 trained
-    points, 0.15 s training runs of every exciter), trained once per session into a tmp
-    cache directory. Modules that train through another entry point
+    points, 0.15 s training runs of every exciter), trained once per run into a tmp
+    cache directory (``computed_once``; a worker that did not train loads it). Modules that train through another entry point
     (``jaw_tongue_reduced.compare``, ``airway.reduced_tongue``, ``airway.benchmark``) pass
     this ``cache`` and ``config``: the artifacts are keyed by the inputs (the airway's
     jaw-tongue config is the default one, as here), so they load instead of training again
@@ -51,7 +132,8 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     from artifem.models import jaw_tongue_reduced as jtr
 
     config = jtr.quick_config()      # also ``artifem study jaw-tongue --quick``'s training
-    cache = tmp_path_factory.mktemp("jaw_tongue_quick") / "cache"
+    cache = computed_once(tmp_path_factory, "jaw_tongue_quick",
+                          lambda d: jtr.train(config, d / "cache")) / "cache"
     return QuickJawTongue(config, jtr.train(config, cache), cache)
 
 
@@ -88,6 +170,7 @@ def quick_tongue_study(tmp_path_factory) -> Path:
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
     from artifem.cli import main
 
-    out = tmp_path_factory.mktemp("study")
-    assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
-    return out
+    def make(out: Path) -> None:
+        assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
+
+    return computed_once(tmp_path_factory, "study", make)
