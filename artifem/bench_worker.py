@@ -28,7 +28,6 @@ over ranks of the peak resident set size of the process.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import resource
 import sys
@@ -107,13 +106,12 @@ def tongue_scene(comm, solver: str, level: int, motion: str,
     """The ArtiSynth tongue at ``level`` running ``motion``, with its element penalty or the
     hard constraint (``incompressibility``: "penalty" or "hard"); probe: the tip landmark."""
     from artifem.models.tongue.model import DT as TONGUE_DT
-    from artifem.models.tongue.model import HARD, MOTIONS, RAMP_TIME, Tongue, TongueConfig
+    from artifem.models.tongue.model import HARD, MOTIONS, PENALTY, RAMP_TIME, Tongue, TongueConfig
 
     if TONGUE_DT != DT:
         raise SolverError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
-    config = TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver)
-    if incompressibility == "hard":
-        config = dataclasses.replace(config, incompressibility=HARD)
+    config = TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver,
+                          incompressibility=HARD if incompressibility == "hard" else PENALTY)
     tongue = Tongue(config, comm=comm)
     tongue.drive(Tongue.motion(motion))
     return Case(tongue.scene, tongue.body, 5, tongue.data.landmarks["tip"],

@@ -3,7 +3,10 @@
 Scene (issue 5, "Jaw and tongue")
 ---------------------------------
 - Tongue: the ArtiSynth hex tongue of :mod:`artifem.models.tongue.model`
-  (level 0, same Mooney-Rivlin material, incompressibility penalty, Rayleigh
+  (level 0, same Mooney-Rivlin material, the element-wise incompressibility penalty
+  :data:`~artifem.models.tongue.model.PENALTY` rather than the tongue's default hard
+  constraint, because the reduced jaw-tongue's training has no reduced pressure space
+  yet (issue 15's reductor will give it one), Rayleigh
   damping and 21 Blemker muscle bundles, built by ``Tongue`` itself) but only
   its *hyoid* attachment nodes (hyoidAttachments.txt, 56 nodes) are fixed; its
   59 *jaw* attachment nodes (jawAttachments.txt, ArtiSynth 0-based node rows)
@@ -65,7 +68,8 @@ import numpy as np
 from artifem.arguments import positive_float
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data
+from artifem.models.tongue.model import (DATA, MOTIONS, PENALTY, Tongue, TongueConfig,
+                                         load_tongue_data)
 from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
 from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.frame_paths import FramePath
@@ -98,7 +102,8 @@ class JawTongueConfig:
     closer_damping: float = 2.0
     #: "hinge" (revolute + limits), "welded" (FixedJoint to the skull).
     joint: str = "hinge"
-    tongue: TongueConfig = TongueConfig(level=0, linear_solver="mumps")
+    tongue: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY,
+                                        linear_solver="mumps")
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -3,7 +3,10 @@ section 3.1, Figs. 9-10): 4 versus 24 support nodes, signed or non-negative weig
 excitation or equal tension, full or reduced tongue, and the resulting stress fields.
 
 Scene. The level-0 ArtiSynth hex tongue (models.tongue: Mooney-Rivlin C10 = 1037 Pa,
-C20 = 486 Pa, kappa = 10370 Pa, element-wise incompressibility penalty 100 C10, Rayleigh
+C20 = 486 Pa, kappa = 10370 Pa, element-wise incompressibility penalty 100 C10
+(:data:`~artifem.models.tongue.model.PENALTY`, not the tongue's default hard constraint:
+this study's reduced tongue has no reduced pressure space and its von Mises stress is that
+of the penalty's energy), Rayleigh
 40 M + 0.03 K, jaw and hyoid attachment nodes fixed; internal muscles unexcited) in a
 :class:`~artifem.scene.Scene` without gravity, and two
 :class:`~artifem.scene.PointPath` elements (left, right) from the styloid points of
@@ -79,7 +82,7 @@ from threadpoolctl import threadpool_limits
 
 from artifem.arguments import nonnegative_float, positive_float, positive_int
 from artifem.errors import InputError
-from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
+from artifem.models.tongue.model import PENALTY, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.attachments import FemPoint
 from artifem.multibody.point_paths import PointPath
 from artifem.scene import Scene, simulate as simulate_scene
@@ -204,7 +207,7 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
              tension: float = TENSION, sides=tuple(STYLOID), reduced: ReducedTongue | None = None,
              duration: float = DURATION, dt: float = DT, radius: float = 0.012,
              snapshot_every: int = 0, data=None,
-             config: TongueConfig = TongueConfig(level=0)) -> dict:
+             config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)) -> dict:
     """One run: the styloglossus of ``sides`` on ``support`` nearest nodes (min-norm or
     non-negative weights), pulled by a Thelen muscle at excitation e(t) (``load="thelen"``) or
     by the prescribed tension T = ``tension`` e(t) (``load="tension"``), on the full tongue or
@@ -275,7 +278,8 @@ def train(cache: Path, rc: ReducedConfig = ReducedConfig(), *, data=None,
                               sides=(s,), duration=duration, dt=dt,
                               snapshot_every=rc.snapshot_every, data=data)["_snapshots"]})["u"])
     S = np.concatenate(parts)
-    body = Tongue(TongueConfig(level=0), comm=MPI.COMM_SELF, data=data).body
+    body = Tongue(TongueConfig(level=0, incompressibility=PENALTY), comm=MPI.COMM_SELF,
+                  data=data).body
     mass = body_mass(body)
     model = {"rc": rc.__dict__, "duration": duration, "dt": dt}
     pod = store.get(store.key("styloglossus-pod", **model),

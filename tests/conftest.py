@@ -147,11 +147,12 @@ def level1_protrusion():
     instead of computing it twice. Read only: nothing steps or resets the tongue after."""
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
     from artifem.models.tongue.hard_cases import build_case, run_built
-    from artifem.models.tongue.model import DT, RAMP_TIME, Tongue, TongueConfig
+    from artifem.models.tongue.model import DT, PENALTY, RAMP_TIME, Tongue, TongueConfig
 
     tongue, schedule, dt = build_case("level_1", "semi-implicit")
     protrusion = Tongue.motion("protrusion")
-    assert tongue.config == TongueConfig(level=1, integrator="semi-implicit")
+    assert tongue.config == TongueConfig(level=1, integrator="semi-implicit",
+                                         incompressibility=PENALTY)
     assert dt == DT and tongue.scene.t == 0.0
     assert np.array_equal(schedule.times, protrusion.times)
     assert schedule.values.keys() == protrusion.values.keys()

@@ -330,14 +330,15 @@ def test_the_coupled_island_holds_volumes_as_the_body_alone(integrator):
 
 
 def test_the_tongue_simulates_with_its_volumes_held(tmp_path):
-    """``artifem simulate tongue --incompressibility hard`` (level 0, 5 steps of protrusion):
-    the volume change it reports stays within the element tolerance 1e-4 (the penalty's is
-    2-3 % by the end of a motion), with the element pressures and no inverted element."""
+    """``artifem simulate tongue`` (its default, the hard incompressibility; level 0, 5 steps
+    of protrusion): the volume change it reports stays within the element tolerance 1e-4
+    (the penalty's is 2-3 % by the end of a motion), with the element pressures and no
+    inverted element."""
     import json
 
     from artifem.cli import main
     assert main(["simulate", "tongue", "--out", str(tmp_path), "--duration", "0.05",
-                 "--incompressibility", "hard", "--no-progress"]) == 0
+                 "--no-progress"]) == 0
     figures = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
     assert figures["incompressibility"] == "hard" and figures["steps"] == 5
     assert figures["max_volume_change"] <= 1e-4

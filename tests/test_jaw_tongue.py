@@ -6,7 +6,7 @@ import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models import jaw_tongue as jt
-from artifem.models.tongue.model import Tongue, TongueConfig, load_tongue_data
+from artifem.models.tongue.model import PENALTY, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 
 DT, DURATION = 0.01, 0.15
@@ -71,7 +71,8 @@ def test_welded_jaw_matches_the_plain_tongue(data):
     config = jt.JawTongueConfig(joint="welded", opener_force=0.0, closer_stiffness=0.0)
     s = jt.build_scene(config, data=data)
     jt.simulate(s, "protrusion", 0.1, DT)
-    plain = Tongue(TongueConfig(level=0, linear_solver="mumps"), data=data)
+    plain = Tongue(TongueConfig(level=0, incompressibility=PENALTY, linear_solver="mumps"),
+                   data=data)
     plain.scene.gravity = config.gravity
     plain.drive(Tongue.motion("protrusion"))
     for _ in range(10):

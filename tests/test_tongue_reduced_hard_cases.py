@@ -27,7 +27,7 @@ Reduced models:
   directory through ArtifactCache), with 200 integration points either trained (ECSW
   fitted to the case body's *own* forces at the training states, so the kappa cases
   are fitted with their own bulk modulus) or random (uniform per quadrature rule).
-  The kappa cases reuse the default tongue's snapshots: same mesh, fixed nodes and
+  The kappa cases reuse the penalty tongue's snapshots: same mesh, fixed nodes and
   muscles; only the bulk modulus differs.
 - level_1: training snapshots would need full level-1 steps (about 0.7 s each), too
   slow here; it runs the study's other basis instead, extended linear modes (6 modes x
@@ -46,7 +46,7 @@ from mpi4py import MPI
 
 from artifem.excitation import ExcitationSchedule
 from artifem.errors import ElementInversionError
-from artifem.models.tongue.hard_cases import CASES, build_case
+from artifem.models.tongue.hard_cases import CASES, PENALTY_CONFIG, build_case
 from artifem.models.tongue.model import DURATION, Tongue, TongueConfig
 from artifem.reduction.bases import body_mass, extended_modes, linear_modes, pod_basis
 from artifem.reduction.cubature import random_points, trained_points
@@ -63,24 +63,25 @@ POD_R = 10
 LINEAR_MODES = 6
 POINTS = 200
 
-#: The cases with the element penalty: a reduced body refuses the hard incompressibility
-#: (the ``incompressible_*`` cases; tests/test_incompressibility.py checks the refusal).
-PENALTY = [name for name in CASES if not name.startswith("incompressible_")]
-LEVEL_0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
+#: The cases with the element penalty (the ``incompressible_*`` cases need a reduced
+#: pressure space trained on hard runs: tests/test_reduced_incompressibility.py).
+PENALTY_CASES = [name for name in CASES if not name.startswith("incompressible_")]
+LEVEL_0 = [name for name in PENALTY_CASES if CASES[name].config.get("level", 0) == 0]
 CONFIGS = ([(name, "pod", sampling) for name in LEVEL_0 for sampling in ("trained", "random")]
            + [("level_1", "extended-modal", "random")])
 
 
 def test_every_hard_case_is_covered():
-    assert set(LEVEL_0) | {"level_1"} == set(PENALTY)
-    assert {name for name, _, _ in CONFIGS} == set(PENALTY)
+    assert set(LEVEL_0) | {"level_1"} == set(PENALTY_CASES)
+    assert {name for name, _, _ in CONFIGS} == set(PENALTY_CASES)
 
 
 @pytest.fixture(scope="module")
 def training(tmp_path_factory) -> Snapshots:
-    """Snapshots of the default level-0 tongue, one cached run per exciter."""
+    """Snapshots of the level-0 tongue of the cases (the element penalty), one cached run
+    per exciter."""
     cache = ArtifactCache(tmp_path_factory.mktemp("tongue_training"))
-    tongue = Tongue(TongueConfig())
+    tongue = Tongue(TongueConfig(**PENALTY_CONFIG))
     body = tongue.body
     parts, keys = [], []
     for exciter in tongue.exciters:

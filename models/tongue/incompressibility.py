@@ -28,8 +28,8 @@ import numpy as np
 
 from artifem.arguments import positive_float
 from artifem.errors import InputError
-from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, Tongue,
-                                         TongueConfig)
+from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, PENALTY,
+                                         Tongue, TongueConfig)
 
 KINDS = ("penalty", "hard")
 
@@ -107,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
     finals: dict = {}
     for level in levels:
         for kind in KINDS:
-            hard = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
-            config = TongueConfig(level=level, **(hard if kind == "hard" else {}))
+            config = TongueConfig(level=level,
+                                  incompressibility=HARD if kind == "hard" else PENALTY)
             tongue = Tongue(config, comm=comm)
             for motion in motions:
                 figures, u = run_motion(tongue, motion, args.duration, not args.no_progress)
@@ -117,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
     report = {"model": "artisynth_hex_tongue", "levels": levels, "motions": motions,
               "duration_s": args.duration, "dt": DT, "ranks": comm.size,
               "hard": {"kappa_Pa": HARD.kappa, "tol": HARD.tol, "linear_solver": HARD_SOLVER},
-              "penalty_linear_solver": TongueConfig().linear_solver,
-              "penalty_kappa_inc_Pa": TongueConfig().incompressibility, "runs": runs}
+              "penalty_linear_solver": TongueConfig(incompressibility=PENALTY).linear_solver,
+              "penalty_kappa_inc_Pa": PENALTY, "runs": runs}
     if len(levels) == 2:
         report["level_difference_mm"] = {
             motion: {kind: {name: float(np.linalg.norm(

@@ -16,18 +16,19 @@ volume / mean fiber length (for the styloglossus, the length of its fibers
 inside the tongue). Bilateral exciters drive the _L and _R bundles together.
 
 Incompressibility: ArtiSynth's demo also enforces incompressibility per
-element (IncompMethod.AUTO, hard constraints) on top of kappa = 10 C10.
-``TongueConfig.incompressibility`` takes either FemBody's soft element-wise
-penalty, kappa_inc = 100 C10 (Poisson ratio about 0.49, the value the demo's
-own comment gives for a nearly incompressible bulk modulus; the default while
-the coupled jaw-tongue island and the reduced tongue take the penalty only),
-or :data:`HARD`, the element volumes held by an augmented Lagrangian
-(:mod:`artifem.incompressibility`; ``artifem simulate tongue
---incompressibility hard``). Without either the tissue (nu = 0.41) lets the
-muscles change its volume instead of its shape, and protrusion, which relies
-on the transverse muscles pushing tissue forward, moves the tip backwards
-(measured: +6.8 mm in x); the penalty changes the volume by 2-3 % over a
-motion, the hard constraint by less than 0.01 %.
+element (IncompMethod.AUTO, hard constraints) on top of kappa = 10 C10, and so
+does this model by default: ``TongueConfig.incompressibility`` is :data:`HARD`,
+the element volumes held by an augmented Lagrangian
+(:mod:`artifem.incompressibility`), solved with :data:`HARD_SOLVER`; reduced
+tongues hold it in a reduced pressure space (artifem.reduction). The soft
+alternative is FemBody's element-wise penalty :data:`PENALTY`, kappa_inc =
+100 C10 (Poisson ratio about 0.49, the value the demo's own comment gives for a
+nearly incompressible bulk modulus; ``--incompressibility penalty`` on the
+command line). Without either the tissue (nu = 0.41) lets the muscles change
+its volume instead of its shape, and protrusion, which relies on the
+transverse muscles pushing tissue forward, moves the tip backwards (measured:
++6.8 mm in x); the penalty changes the volume by 2-3 % over a motion, the hard
+constraint by less than 0.01 % (docs/incompressibility.md).
 
 Fidelity levels: 0 is the mesh as shipped (946 nodes, 740 hexahedra); 1 splits
 every hexahedron 2x2x2 (6,699 nodes, 5,920 hexahedra), recomputing element
@@ -76,6 +77,9 @@ HARD = Incompressible(kappa=100 * 1037.0, tol=1e-4)
 #: pair of triangular solves (CG + AMG pays a whole CG solve per pressure iteration:
 #: docs/incompressibility.md measures both).
 HARD_SOLVER = "mumps"
+#: The soft alternative: FemBody's element-wise penalty kappa_inc = 100 C10 (Pa), solved
+#: with the default linear solver (CG + AMG).
+PENALTY = 100 * 1037.0
 
 
 @dataclass(frozen=True)
@@ -84,18 +88,23 @@ class TongueConfig:
     C10: float = 1037.0
     C20: float = 486.0
     kappa: float = 10370.0
-    #: Element-wise incompressibility: the penalty kappa_inc (Pa) or :data:`HARD` (module
-    #: docstring).
-    incompressibility: float | Incompressible | None = 100 * 1037.0
+    #: Element-wise incompressibility: :data:`HARD` (the default), the penalty kappa_inc
+    #: (Pa, e.g. :data:`PENALTY`) or None (module docstring).
+    incompressibility: float | Incompressible | None = HARD
     density: float = 1040.0
     rayleigh: tuple[float, float] = (40.0, 0.03)
     integrator: str = "semi-implicit"
-    linear_solver: str = DEFAULT_METHOD
+    #: The linear solver (artifem.linear_solver); None: :data:`HARD_SOLVER` with a hard
+    #: constraint, the default method (CG + AMG) otherwise.
+    linear_solver: str | None = None
 
     def __post_init__(self):
         if self.level not in (0, 1):
             raise InputError(f"tongue level must be 0 (as shipped) or 1 (2x2x2 split), "
                              f"got {self.level}")
+        if self.linear_solver is None:
+            hard = isinstance(self.incompressibility, Incompressible)
+            object.__setattr__(self, "linear_solver", HARD_SOLVER if hard else DEFAULT_METHOD)
 
 
 @dataclass

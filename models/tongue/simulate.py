@@ -1,7 +1,7 @@
 """``artifem simulate tongue``: a speech motion of the tongue, rendered and measured.
 
     artifem simulate tongue --motion protrusion [--level 1] [--integrator implicit]
-                            [--incompressibility hard] --out DIR
+                            [--incompressibility penalty] --out DIR
     artifem simulate tongue --motion all --out DIR      (the seed paper's Fig. 2 analog)
     artifem simulate tongue --schedule FILE.json --out DIR
 
@@ -9,7 +9,8 @@ Per motion it writes DIR/<motion>/tongue.bp (VTX, ParaView), DIR/<motion>/
 tongue.png (rest, t = 0.5 s, t = 1.0 s) and DIR/<motion>/simulate.json with
 nodes, elements, steps, ms_per_step, min_det_F, the volume change V / V0 - 1
 (at the end and its largest magnitude), the element pressure range (hard
-incompressibility) and the displacement of the tip, top and base landmarks in
+incompressibility, the default; ``--incompressibility penalty`` for the element
+penalty) and the displacement of the tip, top and base landmarks in
 millimetres. ``--motion all`` adds
 DIR/motions.png: rest, protrusion, retroflexion and retraction side by side.
 """
@@ -24,7 +25,7 @@ import numpy as np
 
 from artifem.arguments import positive_float
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, RAMP_TIME,
+from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
                                          Tongue, TongueConfig)
 from artifem.scene import INTEGRATORS
 
@@ -39,9 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level", type=int, default=0, choices=(0, 1),
                         help="0: mesh as shipped (946 nodes); 1: every hexahedron split 2x2x2")
     parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
-    parser.add_argument("--incompressibility", default="penalty", choices=("penalty", "hard"),
-                        help="element-wise penalty 100 C10, or element volumes held to 1e-4 "
-                             "(augmented Lagrangian)")
+    parser.add_argument("--incompressibility", default="hard", choices=("hard", "penalty"),
+                        help="element volumes held to 1e-4 (augmented Lagrangian; the default), "
+                             "or the element-wise penalty 100 C10")
     parser.add_argument("--dt", type=positive_float, default=DT)
     parser.add_argument("--duration", type=positive_float, default=DURATION)
     parser.add_argument("--no-progress", action="store_true")
@@ -51,9 +52,9 @@ def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
     from artifem.scene import simulate
 
-    hard = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
+    hard = args.incompressibility == "hard"
     tongue = Tongue(TongueConfig(level=args.level, integrator=args.integrator,
-                                 **(hard if args.incompressibility == "hard" else {})))
+                                 incompressibility=HARD if hard else PENALTY))
     if args.schedule is not None:
         runs = {args.schedule.stem: ExcitationSchedule.from_file(args.schedule)}
     else:

@@ -1,6 +1,11 @@
 """The tongue speed-versus-error study of reduced models (Lloyd et al. 2019, section 2.3).
 
     artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
+                         [--incompressibility hard|penalty]
+
+The tongue holds its element volumes (the hard incompressibility, its default) and the
+reduced bodies hold them in a reduced pressure space; ``--incompressibility penalty``
+studies the element penalty instead.
 
 In one process, on one tongue:
 
@@ -38,7 +43,7 @@ from tqdm import tqdm
 from artifem.arguments import positive_int
 from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, RAMP_TIME,
+from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
                                          Tongue, TongueConfig)
 from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
                                      modal_derivative_basis, pod_basis)
@@ -77,11 +82,11 @@ class StudyConfig:
     seed: int = 0
     dt: float = DT
     duration: float = DURATION
-    #: "penalty" (the element penalty, TongueConfig's default) or "hard" (:data:`HARD`: the
-    #: full model holds every element's volume; the reduced bodies hold ``pressure_modes``
-    #: pressure modes, the constant one and POD modes of the training pressures, with
-    #: cubature weights fitted to the constraint's Jacobian on the training states)
-    incompressibility: str = "penalty"
+    #: "hard" (:data:`HARD`, TongueConfig's default: the full model holds every element's
+    #: volume; the reduced bodies hold ``pressure_modes`` pressure modes, the constant one
+    #: and POD modes of the training pressures, with cubature weights fitted to the
+    #: constraint's Jacobian on the training states) or "penalty" (:data:`PENALTY`)
+    incompressibility: str = "hard"
     pressure_modes: int = 4
 
     def __post_init__(self):
@@ -116,8 +121,8 @@ class TongueStudy:
         self.out.mkdir(parents=True, exist_ok=True)
         self.cache = ArtifactCache(cache or self.out / "cache")
         hard = config.incompressibility == "hard"
-        self.tongue = Tongue(TongueConfig(level=config.level) if not hard else TongueConfig(
-            level=config.level, incompressibility=HARD, linear_solver=HARD_SOLVER))
+        self.tongue = Tongue(TongueConfig(level=config.level,
+                                          incompressibility=HARD if hard else PENALTY))
         self.body = self.tongue.body
         self.body.compile()
         self.volume0 = self.body.volume()
@@ -399,9 +404,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training cache directory (default OUT/cache)")
     parser.add_argument("--quick", action="store_true",
                         help="a small smoke-test study (one motion, 0.3 s, few points)")
-    parser.add_argument("--incompressibility", choices=("penalty", "hard"), default="penalty",
-                        help="the element penalty, or the hard constraint (reduced bodies "
-                             "hold --pressure-modes POD modes of the training pressures)")
+    parser.add_argument("--incompressibility", choices=("hard", "penalty"), default="hard",
+                        help="the hard constraint (the default: reduced bodies hold "
+                             "--pressure-modes POD modes of the training pressures), or the "
+                             "element penalty 100 C10")
     parser.add_argument("--pressure-modes", type=positive_int, default=None,
                         help="reduced pressure modes with --incompressibility hard: the constant "
                              "and POD modes of the training pressures (default 4)")
