@@ -33,6 +33,7 @@ import fcntl
 import json
 import os
 import shutil
+import time
 import zlib
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -62,20 +63,32 @@ def pytest_collection_modifyitems(config, items):
 
 
 _file_seconds: collections.Counter = collections.Counter()
+_tests: set = set()
+_started: list = []
+
+
+def pytest_sessionstart(session):
+    _started.append(time.perf_counter())
 
 
 def pytest_runtest_logreport(report):
     _file_seconds[report.nodeid.split("::")[0]] += report.duration
+    _tests.add(report.nodeid)
 
 
 def pytest_sessionfinish(session, exitstatus):
     out = session.config.getoption("write_durations")
     if out is None or exitstatus != 0 or "PYTEST_XDIST_WORKER" in os.environ:
         return
+    workers = getattr(session.config.option, "numprocesses", None) or 1
     out.write_text(json.dumps({
         "what": "seconds per test file (setup, call and teardown of its tests) in one "
-                "passing run of the suite; tests/conftest.py runs the long files first",
+                "passing run of the suite with an empty JIT cache; tests/conftest.py runs "
+                "the long files first",
         "command": "make test-durations",
+        "tests": len(_tests),
+        "workers": workers,
+        "wall_s": round(time.perf_counter() - _started[0], 1),
         "seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_seconds.items())},
     }, indent=1) + "\n")
 
