@@ -139,3 +139,16 @@ def test_mutation_figures_on_the_verification_page_match_mutation_json():
     assert relevant == totals["mutants"] - totals["equivalent"] - totals["stale"] - totals["error"]
     assert agrees(str(rate), 100 * totals["kill_rate"])
     assert agrees(str(rate_relevant), 100 * totals["kill_rate_non_equivalent"])
+
+
+def test_suite_figures_match_the_durations_json():
+    """The README's size and time of the suite are those of the run that wrote
+    tests/durations.json (``make test-durations``: a passing run, empty JIT cache)."""
+    run = json.loads((ROOT / "tests" / "durations.json").read_text())
+    m = re.search(r"The run that wrote `tests/durations.json` .*? ran ([\d,]+) tests in "
+                  r"([\d.]+) minutes of pytest", re.sub(r"\s+", " ", README))
+    assert m, "the README's Verification section must quote tests/durations.json"
+    assert int(m.group(1).replace(",", "")) == run["tests"]
+    assert agrees(m.group(2), run["wall_s"] / 60.0)
+    slowest = max(run["seconds_per_file"], key=run["seconds_per_file"].get)
+    assert slowest in README, "the README names the longest test file of that run"
