@@ -14,9 +14,12 @@ the scene and its options:
 - ``tongue``: the ArtiSynth hex tongue at levels 0 (946 nodes) and 1
   (6,699 nodes) running a speech motion (protrusion by default: excitations
   ramp over 0.5 s, then hold); 5 warm-up steps, then 20 timed ones, i.e.
-  t = 0.05 ... 0.25 s, inside the ramp where the muscles do work. The JSON
-  carries the seed paper's figure (188.9 ms per step, 2,961 nodes) as
-  ``reference``.
+  t = 0.05 ... 0.25 s, inside the ramp where the muscles do work, with the
+  tongue's own incompressibility (hard by default, ``--incompressibility
+  penalty`` or ``penalty,hard``) and, unless ``--solver`` says otherwise, each
+  formulation's own solver (MUMPS for hard, the iterative default for the
+  penalty). The JSON carries the seed paper's figure (188.9 ms per step, 2,961
+  nodes) as ``reference``.
 
 Every step is semi-implicit backward Euler with dt = 0.01 s through
 ``Scene.step``. Figures per case: the median over the timed steps of the wall
@@ -118,23 +121,26 @@ def _add_arguments(parser, kind: str) -> None:
         parser.add_argument("--motion", default="protrusion",
                             help="speech motion: protrusion, retroflexion, retraction "
                                  "(default: %(default)s)")
-        parser.add_argument("--incompressibility", default="penalty",
-                            help="comma-separated: penalty (element penalty 100 C10), hard "
-                                 "(element volumes held; artifem.incompressibility) "
-                                 "(default: %(default)s)")
+        parser.add_argument("--incompressibility", default="hard",
+                            help="comma-separated: hard (element volumes held; "
+                                 "artifem.incompressibility; the tongue's default), penalty "
+                                 "(element penalty 100 C10) (default: %(default)s)")
         steps, warmup = TONGUE_STEPS, TONGUE_WARMUP
+        solver_default, solver_help = None, "each formulation's own: mumps for hard, " \
+                                            f"{DEFAULT_SOLVER} for penalty"
     else:
         parser.add_argument("--sizes", default="1k,3k,13k",
                             help=f"comma-separated cases: {', '.join(f'{k}={'x'.join(map(str, v))}' for k, v in SIZES.items())}"
                                  " or NXxNYxNZ cells (default: %(default)s)")
         steps, warmup = 10, 2
+        solver_default, solver_help = DEFAULT_SOLVER, DEFAULT_SOLVER
     parser.add_argument("--ranks", default="1,2", help="comma-separated MPI rank counts (default: %(default)s)")
     parser.add_argument("--steps", type=positive_int, default=steps, help="timed steps per case (default: %(default)s)")
     parser.add_argument("--warmup", type=int, default=warmup, help="untimed steps first (default: %(default)s)")
-    parser.add_argument("--solver", default=DEFAULT_SOLVER,
+    parser.add_argument("--solver", default=solver_default,
                         help="linear solver, or a comma-separated list to compare "
                              "(mumps, cg-gamg, cg-gamg-lagged, cg-mumps-lagged, cg-hypre; "
-                             "default: %(default)s)")
+                             f"default: {solver_help})")
     parser.add_argument("--timeout", type=positive_float, default=1800.0,
                         help="seconds allowed per case (default: %(default)s)")
 
@@ -289,10 +295,17 @@ def _tongue_motions() -> tuple[str, ...]:
     return tuple(MOTIONS)
 
 
+def _own_solver(incompressibility: str) -> str:
+    """The tongue's solver for a formulation: HARD_SOLVER (MUMPS) for the hard constraint,
+    the iterative default for the penalty (as TongueConfig chooses)."""
+    from artifem.models.tongue.model import HARD_SOLVER
+    return HARD_SOLVER if incompressibility == "hard" else DEFAULT_SOLVER
+
+
 def run(args) -> int:
     kind = args._benchmark
     ranks = parse_ints(args.ranks, "--ranks")
-    solvers = parse_solvers(args.solver)
+    solvers = parse_solvers(args.solver) if args.solver is not None else None
     if args.steps < 1 or args.warmup < 0:
         raise InputError("--steps must be >= 1 and --warmup >= 0")
     if kind == "tongue":
@@ -304,6 +317,9 @@ def run(args) -> int:
         if not kinds or any(k not in ("penalty", "hard") for k in kinds):
             raise InputError(f"--incompressibility: expected penalty and/or hard, got "
                              f"{args.incompressibility!r}")
+        solvers_of = {inc: solvers or [_own_solver(inc)] for inc in kinds}
+        solvers = solvers or list(dict.fromkeys(s for listed in solvers_of.values()
+                                                for s in listed))
     else:
         sizes = parse_sizes(args.sizes)
     mpiexec = find_mpiexec()
@@ -314,7 +330,7 @@ def run(args) -> int:
                  "fields": {"level": level, "incompressibility": inc},
                  "scene_args": ["--scene", "tongue", "--level", str(level), "--motion", args.motion,
                                 "--incompressibility", inc]}
-                for level in levels for inc in kinds for r in ranks for s in solvers]
+                for level in levels for inc in kinds for r in ranks for s in solvers_of[inc]]
     else:
         plan = [{"label": f"{'x'.join(map(str, cells))} cells", "ranks": r, "solver": s,
                  "fields": {"size": name, "cells": list(cells)},

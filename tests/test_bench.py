@@ -64,7 +64,9 @@ def test_bench_tongue_level0_writes_sound_json(tmp_path):
         assert field in case, field
     assert (case["level"], case["nodes"], case["elements"]) == (0, 946, 740)
     assert case["ranks"] == 1 and case["steps"] == 2
-    assert case["solver"] == bench.DEFAULT_SOLVER
+    # the tongue's default formulation with its own solver
+    assert case["incompressibility"] == "hard" and case["solver"] == "mumps"
+    assert settings["incompressibility"] == ["hard"] and settings["solvers"] == ["mumps"]
     assert case["timed_window_s"] == [0.05, 0.07]
     for field in ("ms_per_step", "assembly_ms", "solve_ms", "peak_mb"):
         value = case[field]
