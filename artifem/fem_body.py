@@ -747,6 +747,14 @@ class FemBody:
         if self.volume_constraint is not None:
             self.volume_constraint.p.x.array[:] = state[2]
 
+    def output_fields(self) -> dict[str, list[fem.Function]]:
+        """The fields a result series writes, by file suffix (one element type per file):
+        the displacement and, with the hard incompressibility, the pressures p."""
+        fields = {"": [self.u]}
+        if self.volume_constraint is not None:
+            fields["_pressure"] = [self.volume_constraint.p]
+        return fields
+
     def nodal_positions(self) -> np.ndarray:
         """Current positions X + u of the local geometry nodes, shape (nodes, 3)."""
         x = self.mesh.geometry.x.copy()

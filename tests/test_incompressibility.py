@@ -332,8 +332,8 @@ def test_the_coupled_island_holds_volumes_as_the_body_alone(integrator):
 def test_the_tongue_simulates_with_its_volumes_held(tmp_path):
     """``artifem simulate tongue`` (its default, the hard incompressibility; level 0, 5 steps
     of protrusion): the volume change it reports stays within the element tolerance 1e-4
-    (the penalty's is 2-3 % by the end of a motion), with the element pressures and no
-    inverted element."""
+    (the penalty's is 2-3 % by the end of a motion), with the element pressures (also
+    written for ParaView) and no inverted element."""
     import json
 
     from artifem.cli import main
@@ -342,6 +342,9 @@ def test_the_tongue_simulates_with_its_volumes_held(tmp_path):
     figures = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
     assert figures["incompressibility"] == "hard" and figures["steps"] == 5
     assert figures["max_volume_change"] <= 1e-4
+    for series in ("tongue.bp", "tongue_pressure.bp"):       # ParaView: u and the pressures
+        data = tmp_path / "protrusion" / series / "data.0"
+        assert data.stat().st_size > 10_000, series
     low, high = figures["pressure_range_Pa"]
     assert np.isfinite(low) and np.isfinite(high) and low < high
     assert figures["min_det_F"] > 0.5

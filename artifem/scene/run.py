@@ -59,7 +59,9 @@ def simulate(scene, duration: float, dt: float, *,
             start and after every step.
         vtx: a directory: every FEM body's displacement is written as a VTX (.bp) series
             ``<dir>/<body name>.bp`` (a reduced body's through its full body, rebuilt
-            only for the output), every ``write_every`` steps.
+            only for the output), and a hard-incompressible body's pressures as
+            ``<dir>/<body name>_pressure.bp`` (``FemBody.output_fields``), every
+            ``write_every`` steps.
         keep: times at which a copy of every FEM body's displacement is kept
             (``Run.snapshots``, e.g. for renders).
         on_failure: ``"raise"``: a step that fails even after halving raises the scene's
@@ -84,7 +86,9 @@ def simulate(scene, duration: float, dt: float, *,
     writers = []
     if vtx is not None:
         for body in scene.fem_bodies:
-            writers.append((None, ResultWriter(Path(vtx) / f"{body.name}.bp", [body.u])))
+            for suffix, functions in body.output_fields().items():
+                writers.append((None, ResultWriter(Path(vtx) / f"{body.name}{suffix}.bp",
+                                                   functions)))
         for body in scene.reduced_bodies:
             writers.append((body, ResultWriter(Path(vtx) / f"{body.name}.bp", [body.full.u])))
 

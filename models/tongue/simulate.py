@@ -5,8 +5,9 @@
     artifem simulate tongue --motion all --out DIR      (the seed paper's Fig. 2 analog)
     artifem simulate tongue --schedule FILE.json --out DIR
 
-Per motion it writes DIR/<motion>/tongue.bp (VTX, ParaView), DIR/<motion>/
-tongue.png (rest, t = 0.5 s, t = 1.0 s) and DIR/<motion>/simulate.json with
+Per motion it writes DIR/<motion>/tongue.bp (VTX, ParaView; with the hard
+incompressibility also the element pressures, DIR/<motion>/tongue_pressure.bp),
+DIR/<motion>/tongue.png (rest, t = 0.5 s, t = 1.0 s) and DIR/<motion>/simulate.json with
 nodes, elements, steps, ms_per_step, min_det_F, the volume change V / V0 - 1
 (at the end and its largest magnitude), the element pressure range (hard
 incompressibility, the default; ``--incompressibility penalty`` for the element
