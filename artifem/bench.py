@@ -296,10 +296,10 @@ def _tongue_motions() -> tuple[str, ...]:
 
 
 def _own_solver(incompressibility: str) -> str:
-    """The tongue's solver for a formulation: HARD_SOLVER (MUMPS) for the hard constraint,
-    the iterative default for the penalty (as TongueConfig chooses)."""
-    from artifem.models.tongue.model import HARD_SOLVER
-    return HARD_SOLVER if incompressibility == "hard" else DEFAULT_SOLVER
+    """The solver TongueConfig chooses for a formulation ("hard" or "penalty")."""
+    from artifem.models.tongue.model import HARD, PENALTY, TongueConfig
+    formulation = HARD if incompressibility == "hard" else PENALTY
+    return TongueConfig(incompressibility=formulation).linear_solver
 
 
 def run(args) -> int:

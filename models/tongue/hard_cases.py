@@ -44,8 +44,8 @@ import numpy as np
 from artifem.errors import ElementInversionError, UnknownNameError
 from artifem.scene import simulate
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, HARD, HARD_SOLVER, MOTIONS, PENALTY,
-                                         RAMP_TIME, Tongue, TongueConfig, load_tongue_data)
+from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
+                                         Tongue, TongueConfig, load_tongue_data)
 
 INTEGRATOR_NAMES = ("semi-implicit", "implicit")
 C10 = TongueConfig().C10
@@ -82,7 +82,7 @@ CASES: dict[str, Case] = {
                           config={"kappa": 1000 * C10}),
     "level_1": Case("protrusion on level 1 (2x2x2 split, 6,699 nodes)", config={"level": 1}),
 }
-_INCOMPRESSIBLE = {"incompressibility": HARD, "linear_solver": HARD_SOLVER}
+_INCOMPRESSIBLE = {"incompressibility": HARD}            # with its own solver, HARD_SOLVER
 CASES.update({
     f"incompressible_{name}": Case(CASES[name].description + ", hard incompressibility",
                                    {**CASES[name].config, **_INCOMPRESSIBLE},
