@@ -84,6 +84,17 @@ class NodeAttachment:
     def __repr__(self) -> str:
         return f"NodeAttachment({self.name!r}, {self.nodes.size} nodes)"
 
+    def carried_nodes(self, fem) -> tuple[np.ndarray, RigidBody] | None:
+        """(input node indices, the rigid body carrying them) when they are nodes of
+        ``fem``, else None: what a reductor puts into a reduced basis as rigid-lift columns
+        (:mod:`artifem.reduction.rigid_lift`)."""
+        return (self.nodes, self.body) if fem is self.fem else None
+
+    def onto_reduced(self, reduced: ReducedFemBody, lift) -> LiftAttachment:
+        """This attachment for ``reduced``, the reduced body of ``self.fem`` whose basis
+        holds ``lift``'s columns: the same nodes ride on the same rigid body."""
+        return LiftAttachment(reduced, lift, self.body, name=self.name)
+
     def levers(self) -> np.ndarray:
         """R r_i (n, 3): the nodes relative to the body's COM, world axes."""
         return self.offsets @ self.body.rotation.T

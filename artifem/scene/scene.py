@@ -404,6 +404,30 @@ class Scene:
             members.append(item)
             self._layout = None
 
+    def couplings_of(self, body) -> list:
+        """The components other than bodies (attachments, joints, paths, force and load
+        elements) whose ``bodies`` include ``body``."""
+        return [item for group in COMPONENT_GROUPS if group not in BODY_GROUPS
+                for item in getattr(self, group)
+                if any(b is body for b in getattr(item, "bodies", ()))]
+
+    def remove(self, *items) -> None:
+        """Take components out of the scene (the inverse of :meth:`add`): e.g. a full body
+        and its couplings, for the reduced body that replaces them. Whatever stays must
+        not name a removed body (checked at the next step or static solve)."""
+        for item in items:
+            group = next((g for g in COMPONENT_GROUPS
+                          if any(item is other for other in getattr(self, g))), None)
+            if group is None:
+                raise InputError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
+                                 "not in the scene")
+            members = getattr(self, group)
+            members.pop(next(k for k, other in enumerate(members) if other is item))
+            self._layout = None
+        self._comm = self.fem_bodies[0].mesh.comm if self.fem_bodies else MPI.COMM_SELF
+        self._linear_solvers.clear()
+        self._schur = None
+
     def check(self) -> None:
         """Validate the scene and index its coordinates (done automatically when needed)."""
         self._layout = None

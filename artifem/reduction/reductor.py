@@ -1,0 +1,531 @@
+"""The reductor: a scene in, the same scene with a reduced body in place of a full one out.
+
+In the spirit of pyMOR's reductors, the inputs are the full model, its training inputs and
+the reduction options; the output is a model of the same kind:
+
+    reduced = reduce(model, training, basis=Basis("pod", 20), points=Points(300),
+                     cache="cache/")
+    scene = reduced.scene()          # model.build(), with the reduced body in place
+
+``model`` (:class:`ReducibleScene`) says how to build the full scene, which FEM body to
+reduce and how inputs (exciters) drive it. The stages (:class:`Reductor`), each an
+artifact of :class:`~artifem.reduction.training.ArtifactCache` keyed by its inputs, so an
+interrupted reduction resumes at the first one not on disk:
+
+1. snapshots: the full scene driven by each training schedule, the body's nodal
+   displacements u_s, its excitations a_s (and pressures p_s of a hard body) every few
+   steps, and the pose coordinates g_c,s of each rigid body c that carries nodes of it;
+2. a basis W = [U, L_1, ..., L_k]: U from the snapshots (mass-weighted POD of
+   u_s - sum_c L_c g_c,s, which vanishes on carried nodes) or the body's linear modes
+   (linear, extended by linear maps, modal derivatives); L_c the 12 rigid-lift columns
+   of carrier c (:mod:`artifem.reduction.rigid_lift`);
+3. integration points: trained (ECSW: NNLS on the reduced forces of W at the training
+   states q_s = [U^T M (u_s - sum L g); g_s]) or random;
+4. for a body with the hard incompressibility, its reduced pressure space (the constant
+   and POD modes of the training pressures) and the constraint's cubature weights.
+
+Couplings: a coupling of the scene that names the body must be able to follow it onto the
+reduced body. One whose nodes of the body ride on a rigid body offers
+``carried_nodes(body) -> (nodes, rigid body)`` and ``onto_reduced(reduced, lift)``
+(:class:`~artifem.multibody.attachments.NodeAttachment`); any other is refused, naming it,
+before any training. Controllers need nothing: a reduced body reads its full body's
+excitations and loads.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from artifem.errors import InputError, UnknownNameError
+from artifem.excitation import ExcitationSchedule
+from artifem.fem_body import FemBody
+from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
+                                     modal_derivative_basis, pod_basis)
+from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
+from artifem.reduction.quadrature_points import quadrature_points
+from artifem.reduction.reduced_body import ReducedFemBody, all_points
+from artifem.reduction.reduced_volume_constraint import pressure_basis
+from artifem.reduction.rigid_lift import RigidLift, rigid_lift
+from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
+                                        pressure_weights, project)
+from artifem.scene import Scene, simulate
+
+__all__ = ["ReducibleScene", "Training", "Basis", "Points", "Reductor", "ReducedModel",
+           "reduce", "BASES"]
+
+#: The bases a reductor builds.
+BASES = ("pod", "linear", "extended", "modal-derivatives")
+
+
+@dataclass(frozen=True)
+class ReducibleScene:
+    """What a reductor needs of a model.
+
+    Attributes:
+        name: the model's name (in progress bars and errors).
+        build: a callable returning the full scene at rest, freshly built.
+        body: the name of the FEM body of that scene to reduce.
+        key: JSON-able inputs that identify the model (its configuration): the cache key
+            of every stage starts from it.
+        exciters: input name -> the muscles of the body it drives (default: each muscle
+            is its own input).
+        motions: the model's named test inputs (schedules over the exciters).
+    """
+
+    name: str
+    build: Callable[[], Scene]
+    body: str
+    key: Mapping
+    exciters: Mapping[str, Sequence[str]] | None = None
+    motions: Mapping[str, ExcitationSchedule] = field(default_factory=dict)
+
+    def fem_body(self, scene: Scene) -> FemBody:
+        """The body to reduce in ``scene`` (a clear error when it has none of that name)."""
+        for body in scene.fem_bodies:
+            if body.name == self.body:
+                return body
+        raise UnknownNameError(f"model {self.name!r}: its scene has no FEM body named "
+                               f"{self.body!r}; it has {[b.name for b in scene.fem_bodies]}")
+
+    def inputs(self, body: FemBody) -> dict[str, list[str]]:
+        """Input name -> the muscles of ``body`` it drives."""
+        if self.exciters is None:
+            return {name: [name] for name in body.muscles}
+        return {e: list(m) for e, m in self.exciters.items()}
+
+    def muscle_schedule(self, body: FemBody, schedule: ExcitationSchedule
+                        ) -> ExcitationSchedule:
+        """A schedule over the model's inputs expanded to the muscles they drive."""
+        inputs = self.inputs(body)
+        unknown = sorted(set(schedule.values) - set(inputs))
+        if unknown:
+            raise UnknownNameError(f"model {self.name!r}: the schedule names unknown inputs "
+                                   f"{unknown}; the inputs are {sorted(inputs)}")
+        return ExcitationSchedule(schedule.times, {
+            muscle: values for e, values in schedule.values.items() for muscle in inputs[e]})
+
+    def drive(self, scene: Scene, schedule: ExcitationSchedule) -> Callable:
+        """Add a controller applying ``schedule`` to the body's muscles (returned, so that
+        it can be removed); a reduced body reads the same excitations."""
+        body = self.fem_body_or_full(scene)
+        control = self.muscle_schedule(body, schedule).controller(body)
+        scene.add_controller(control)
+        return control
+
+    def fem_body_or_full(self, scene: Scene) -> FemBody:
+        """The body to reduce, or the full body of the reduced body that replaced it."""
+        for reduced in scene.reduced_bodies:
+            if reduced.name == self.body:
+                return reduced.full
+        return self.fem_body(scene)
+
+
+@dataclass(frozen=True)
+class Training:
+    """The full runs a reductor learns from: each schedule (over the model's inputs) for
+    ``duration`` in steps of ``dt``, a snapshot every ``snapshot_every`` steps."""
+
+    schedules: Mapping[str, ExcitationSchedule]
+    duration: float
+    dt: float
+    snapshot_every: int = 5
+
+    def __post_init__(self):
+        if not self.schedules:
+            raise InputError("Training: give at least one schedule")
+        if not (np.isfinite(self.dt) and 0 < self.dt <= self.duration):
+            raise InputError(f"Training: need 0 < dt <= duration, got dt={self.dt}, "
+                             f"duration={self.duration}")
+        if int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 1:
+            raise InputError(f"Training: snapshot_every must be a positive integer, got "
+                             f"{self.snapshot_every!r}")
+
+
+@dataclass(frozen=True)
+class Basis:
+    """A basis: ``"pod"`` of the training snapshots (``size`` vectors), or from ``size``
+    linear modes, ``"linear"`` (those modes), ``"extended"`` (each mode under the 9 linear
+    maps, von Tycowicz et al. 2013) or ``"modal-derivatives"`` (Barbic & James 2005)."""
+
+    kind: str = "pod"
+    size: int = 20
+
+    def __post_init__(self):
+        if self.kind not in BASES:
+            raise InputError(f"Basis: unknown kind {self.kind!r}; choose one of {BASES}")
+        if int(self.size) != self.size or self.size < 1:
+            raise InputError(f"Basis: size must be a positive integer, got {self.size!r}")
+
+
+@dataclass(frozen=True)
+class Points:
+    """Integration points: ``count`` of them, ``"trained"`` (greedy NNLS to tolerance
+    ``tol`` on ``training_states`` evenly spaced snapshots, ``growth``: points added per
+    NNLS solve as a fraction of those selected) or ``"random"`` (seed ``seed``); or
+    ``"all"`` of them at weight 1 (the full quadrature: a reference, O(n) per step)."""
+
+    count: int = 300
+    sampling: str = "trained"
+    tol: float = 1e-4
+    growth: float = 0.1
+    training_states: int = 66
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.sampling not in ("trained", "random", "all"):
+            raise InputError(f"Points: sampling must be 'trained', 'random' or 'all', got "
+                             f"{self.sampling!r}")
+        for name in ("count", "training_states"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1:
+                raise InputError(f"Points: {name} must be a positive integer, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Carrier:
+    """Nodes of the reduced body carried by a rigid body, and their lift columns."""
+
+    body: str
+    lift: RigidLift
+
+
+@dataclass
+class ReducedModel:
+    """What a reductor returns: the model, and the parts that put its reduced body in any
+    freshly built scene of it.
+
+    Attributes:
+        basis: W = [U, L_1, ..., L_k] (ndofs x r).
+        carriers: the rigid bodies whose lift columns end W, in that order.
+        points: the integration points.
+        pressure_basis, pressure_weights: the reduced pressure space and the constraint's
+            cubature weights (a body with the hard incompressibility), else None.
+        training: what the training took: snapshots, runs, seconds of computation per
+            stage (also of stages loaded from the cache: the cost that bought them).
+    """
+
+    model: ReducibleScene
+    basis: np.ndarray
+    carriers: list[Carrier]
+    points: IntegrationPoints
+    pressure_basis: np.ndarray | None = None
+    pressure_weights: np.ndarray | None = None
+    training: dict = field(default_factory=dict)
+
+    @property
+    def r(self) -> int:
+        return self.basis.shape[1]
+
+    def body(self, full: FemBody) -> ReducedFemBody:
+        """The reduced body of ``full`` (named as ``full``, which it replaces)."""
+        return ReducedFemBody(full, self.basis, self.points, pressure_basis=self.pressure_basis,
+                              pressure_weights=self.pressure_weights, name=full.name)
+
+    def put_in(self, scene: Scene) -> tuple[ReducedFemBody, dict]:
+        """Replace the model's full body in ``scene`` (built by the model, at rest) by its
+        reduced body, and the couplings naming it by theirs. Returns (the reduced body,
+        {name of a replaced coupling: its replacement})."""
+        full = self.model.fem_body(scene)
+        couplings = _couplings_of(scene, full, self.model.name)
+        lifts = {(c.body, tuple(np.sort(c.lift.nodes))): c.lift for c in self.carriers}
+        reduced = self.body(full)
+        replaced = {}
+        for coupling in couplings:
+            nodes, carrier = coupling.carried_nodes(full)
+            lift = lifts.get((carrier.name, tuple(np.sort(nodes))))
+            if lift is None:
+                raise InputError(f"model {self.model.name!r}: coupling {coupling.name!r} "
+                                 f"carries nodes of {full.name!r} on {carrier.name!r} that "
+                                 "the reduced basis was not trained with")
+            replaced[coupling.name] = coupling.onto_reduced(reduced, lift)
+        scene.remove(full, *couplings)
+        scene.add(reduced, *replaced.values())
+        return reduced, replaced
+
+    def scene(self) -> Scene:
+        """A freshly built scene of the model with the reduced body in place."""
+        scene = self.model.build()
+        self.put_in(scene)
+        return scene
+
+
+def _couplings_of(scene: Scene, body, model: str) -> list:
+    """The scene's couplings that name ``body``; each must follow it onto a reduced body
+    (module docstring), else a clear error before any training."""
+    found = scene.couplings_of(body)
+    for item in found:
+        if not (callable(getattr(item, "carried_nodes", None))
+                and callable(getattr(item, "onto_reduced", None))
+                and item.carried_nodes(body) is not None):
+            raise InputError(
+                f"model {model!r}: {type(item).__name__} {getattr(item, 'name', '')!r} "
+                f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
+                "body (it carries nodes on rigid bodies: NodeAttachment)")
+    return found
+
+
+class Reductor:
+    """The stages of a reduction (module docstring), each cached in ``cache``.
+
+    Builds the model once at construction, at rest: its body, mass, quadrature points and
+    the lift columns of the rigid bodies that carry nodes of it.
+    """
+
+    def __init__(self, model: ReducibleScene, training: Training, cache: str | Path, *,
+                 pressure_modes: int = 4, progress: bool = True):
+        self.model, self.training, self.progress = model, training, progress
+        self.cache = ArtifactCache(cache)
+        self.scene = model.build()
+        self.body = model.fem_body(self.scene)
+        inputs = model.inputs(self.body)
+        for name, schedule in training.schedules.items():
+            unknown = sorted(set(schedule.values) - set(inputs))
+            if unknown:
+                raise UnknownNameError(f"training schedule {name!r} of {model.name!r} names "
+                                       f"unknown inputs {unknown}; the inputs are "
+                                       f"{sorted(inputs)}")
+        missing = sorted({m for ms in inputs.values() for m in ms} - set(self.body.muscles))
+        if missing:
+            raise UnknownNameError(f"model {model.name!r}: its inputs drive muscles {missing} "
+                                   f"that {self.body.name!r} does not define")
+        couplings = _couplings_of(self.scene, self.body, model.name)
+        self.body.compile()
+        self.mass = body_mass(self.body)
+        self.table = quadrature_points(self.body)
+        self.carriers = []
+        for coupling in couplings:
+            nodes, carrier = coupling.carried_nodes(self.body)
+            self.carriers.append(Carrier(carrier.name, rigid_lift(
+                self.body, nodes, carrier.position, carrier.rotation)))
+        hard = self.body.volume_constraint is not None
+        if hard and not 1 <= pressure_modes:
+            raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
+        self.pressure_modes = pressure_modes if hard else 0
+        self.seconds: dict[str, float] = {}
+        self._snapshots = None
+
+    # ---- stage 1: snapshots -------------------------------------------------------------
+
+    def _cached(self, stage: str, key: str, compute: Callable[[], dict]) -> dict:
+        """``cache.get`` that keeps the seconds the artifact took to compute (in it)."""
+        def timed():
+            tic = time.perf_counter()
+            arrays = compute()
+            return {**arrays, "seconds": np.array(time.perf_counter() - tic)}
+        data = self.cache.get(key, timed)
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + float(data.get("seconds", 0.0))
+        return data
+
+    def _run(self, name: str, schedule: ExcitationSchedule) -> dict[str, np.ndarray]:
+        """One training run in a freshly built scene."""
+        t = self.training
+        scene = self.model.build()
+        body = self.model.fem_body(scene)
+        self.model.drive(scene, schedule)
+        carriers = {c.body: next(b for b in scene.rigid_bodies if b.name == c.body)
+                    for c in self.carriers}
+        n = 3 * body.V.dofmap.index_map.size_local
+        record = {"u": lambda s: body.u.x.array[:n].copy(),
+                  "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]}
+        for c in self.carriers:
+            record[f"g:{c.body}"] = (lambda s, c=c: c.lift.coordinates(
+                carriers[c.body].position, carriers[c.body].rotation))
+        vc = body.volume_constraint
+        if vc is not None:
+            record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
+        run = simulate(scene, t.duration, t.dt, record=record, progress=self.progress,
+                       label=f"training {name}", leave=False)
+        every = t.snapshot_every
+        arrays = {"u": run.records["u"][every::every],
+                  "a": run.records["a"][every::every].reshape(-1, len(body.muscles))}
+        arrays["g"] = np.hstack([run.records[f"g:{c.body}"][every::every]
+                                 for c in self.carriers]) if self.carriers else \
+            np.zeros((len(arrays["u"]), 0))
+        if vc is not None:
+            arrays["p"] = run.records["p"][every::every]
+        return arrays
+
+    def snapshot_keys(self) -> list[str]:
+        t = self.training
+        return [self.cache.key("reductor-snapshots", model=self.model.key, body=self.model.body,
+                               times=s.times, values=s.values, duration=t.duration, dt=t.dt,
+                               every=t.snapshot_every)
+                for s in t.schedules.values()]
+
+    def snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
+        """(snapshots of u - sum L g, the pose coordinates g (S, 12 k), their cache keys)."""
+        if self._snapshots is None:
+            self._snapshots = self._all_snapshots()
+        return self._snapshots
+
+    def _all_snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
+        keys, parts = self.snapshot_keys(), []
+        for key, (name, schedule) in zip(keys, self.training.schedules.items()):
+            parts.append(self._cached("snapshots", key, lambda n=name, s=schedule:
+                                      self._run(n, s)))
+        u = np.concatenate([p["u"] for p in parts])
+        g = np.concatenate([p["g"] for p in parts])
+        L = self.lift_columns()
+        if L.shape[1]:
+            u = u - g @ L.T
+            rows = self._carried_rows()
+            off = float(np.abs(u[:, rows]).max(initial=0.0))
+            if off > 1e-9 * max(float(np.abs(u).max()), float(np.abs(g @ L.T).max())):
+                raise InputError(f"model {self.model.name!r}: the carried nodes of "
+                                 f"{self.body.name!r} left their rigid bodies by up to "
+                                 f"{off:.3g} in training; the lift cannot carry them")
+            u[:, rows] = 0.0                    # round-off of u - Phi g
+        pressures = None if self.pressure_modes == 0 else np.concatenate([p["p"] for p in parts])
+        return Snapshots(u, np.concatenate([p["a"] for p in parts]), pressures), g, keys
+
+    def lift_columns(self) -> np.ndarray:
+        n = 3 * self.body.V.dofmap.index_map.size_local
+        return np.hstack([c.lift.columns[:n] for c in self.carriers]) if self.carriers else \
+            np.zeros((n, 0))
+
+    # ---- stage 2: the basis -------------------------------------------------------------
+
+    def basis(self, spec: Basis) -> tuple[np.ndarray, str]:
+        """(W = [U, L_1, ..., L_k], its cache key)."""
+        if spec.kind == "pod":
+            snapshots, _, keys = self.snapshots()
+            key = self.cache.key("reductor-basis-pod", snapshots=keys, r=spec.size)
+            U = self._cached("basis", key, lambda: {
+                "U": pod_basis(snapshots.displacements, self._uncarried_mass(),
+                               r=spec.size)[0]})["U"]
+        else:
+            if self.carriers:
+                raise InputError(f"model {self.model.name!r}: a {spec.kind!r} basis does not "
+                                 f"vanish on the nodes {[c.body for c in self.carriers]} "
+                                 "carry; use the 'pod' basis")
+            key = self.cache.key(f"reductor-basis-{spec.kind}", model=self.model.key,
+                                 body=self.model.body, modes=spec.size)
+
+            def compute():
+                if spec.kind == "modal-derivatives":
+                    return {"U": modal_derivative_basis(self.body, spec.size)}
+                modes, _ = linear_modes(self.body, spec.size)
+                if spec.kind == "linear":
+                    return {"U": modes}
+                return {"U": extended_modes(modes, self.mass, fixed_dofs=self.body.fixed_dofs)}
+            U = self._cached("basis", key, compute)["U"]
+        return np.hstack([U, self.lift_columns()]), key
+
+    def _carried_rows(self) -> np.ndarray:
+        return np.concatenate([(3 * c.lift.dofs[:, None] + np.arange(3)).ravel()
+                               for c in self.carriers]) if self.carriers else \
+            np.zeros(0, dtype=np.int64)
+
+    def _uncarried_mass(self):
+        """The mass with the carried rows zeroed: POD vectors then vanish there exactly,
+        also those of round-off singular values (a POD size beyond the snapshots' rank)."""
+        if not self.carriers:
+            return self.mass
+        keep = np.ones(3 * self.body.V.dofmap.index_map.size_local)
+        keep[self._carried_rows()] = 0.0
+        if callable(self.mass):
+            return lambda x: keep * self.mass(keep * x)
+        return keep * self.mass
+
+    def training_states(self, W: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """(q, excitations) of ``count`` snapshots evenly spaced over the training: the
+        reduced coordinates [U^T M (u - L g); g] of the basis W = [U, L]."""
+        snapshots, g, _ = self.snapshots()
+        S = snapshots.displacements.shape[0]
+        rows = np.unique(np.linspace(0, S - 1, min(S, count)).round().astype(int))
+        U = W[:, :W.shape[1] - g.shape[1]]
+        q = np.hstack([project(U, self.mass, snapshots.displacements[rows]), g[rows]])
+        return q, snapshots.excitations[rows]
+
+    # ---- stage 3: the integration points ------------------------------------------------
+
+    def points(self, W: np.ndarray, basis_key: str, spec: Points,
+               counts: Sequence[int] | None = None) -> dict[int, IntegrationPoints]:
+        """{m: points} for m in ``counts`` (default ``spec.count``): trained ones from one
+        greedy path (each m cached), or random ones."""
+        counts = sorted({int(m) for m in (counts or [spec.count])})
+        if spec.sampling == "all":
+            return {m: all_points(self.body) for m in counts}
+        if spec.sampling == "random":
+            return {m: random_points(self.table.volume, m, rng=spec.seed,
+                                     groups=self.table.degree) for m in counts}
+        keys = {m: self.cache.key("reductor-points", basis=basis_key, m=m, tol=spec.tol,
+                                  growth=spec.growth, states=spec.training_states,
+                                  snapshots=self.snapshot_keys())
+                for m in counts}
+        cached = {m: self.cache.load(k) for m, k in keys.items()}
+        if any(v is None for v in cached.values()):
+            tic = time.perf_counter()
+            q, a = self.training_states(W, spec.training_states)
+            G, b = force_training_matrix(self.body, W, q, a, progress=self.progress)
+            path = trained_points_path(G, b, sizes=counts, tol=spec.tol, growth=spec.growth,
+                                       progress=self.progress)
+            del G
+            seconds = (time.perf_counter() - tic) / len(counts)
+            for m, pts in path.items():
+                cached[m] = {"indices": pts.indices, "weights": pts.weights,
+                             "residual": np.array(pts.residual), "seconds": np.array(seconds)}
+                self.cache.save(keys[m], cached[m])
+        self.seconds["points"] = self.seconds.get("points", 0.0) + sum(
+            float(d.get("seconds", 0.0)) for d in cached.values())
+        return {m: IntegrationPoints(d["indices"], d["weights"], "trained",
+                                     float(d["residual"])) for m, d in cached.items()}
+
+    # ---- stage 4: the pressure space of a hard body -------------------------------------
+
+    def pressure_space(self) -> np.ndarray | None:
+        """The constant pressure and ``pressure_modes - 1`` POD modes of the training
+        pressures (a body with the hard incompressibility), else None."""
+        if self.pressure_modes == 0:
+            return None
+        snapshots, _, _ = self.snapshots()
+        return pressure_basis(snapshots.pressures, self.body.volume_constraint.volume,
+                              self.pressure_modes)
+
+    def constraint_weights(self, W: np.ndarray, basis_key: str, pts: IntegrationPoints,
+                           Pi: np.ndarray, states: int) -> np.ndarray:
+        """The volume constraint's cubature weights at ``pts`` (training.pressure_weights on
+        ``states`` training states), cached."""
+        key = self.cache.key("reductor-pressure-weights", basis=basis_key, indices=pts.indices,
+                             weights=pts.weights, modes=self.pressure_modes, states=states,
+                             snapshots=self.snapshot_keys())
+
+        def fit():
+            q, _ = self.training_states(W, states)
+            weights, residual = pressure_weights(self.body, W, pts, Pi, q)
+            return {"weights": weights, "residual": np.array(residual)}
+        return self._cached("pressure weights", key, fit)["weights"]
+
+    # ---- all of them --------------------------------------------------------------------
+
+    def reduce(self, basis: Basis = Basis(), points: Points = Points()) -> ReducedModel:
+        """The reduced model of ``basis`` and ``points``."""
+        self.seconds = {}
+        self._snapshots = None
+        W, key = self.basis(basis)
+        pts = self.points(W, key, points)[points.count]
+        Pi = self.pressure_space()
+        weights = None if Pi is None else \
+            self.constraint_weights(W, key, pts, Pi, points.training_states)
+        trained = self._snapshots is not None
+        return ReducedModel(self.model, W, list(self.carriers), pts, Pi, weights, training={
+            "runs": len(self.training.schedules) if trained else 0,
+            "snapshots": int(self._snapshots[0].displacements.shape[0]) if trained else 0,
+            "basis": {"kind": basis.kind, "size": basis.size,
+                      "lift_columns": 12 * len(self.carriers), "r": int(W.shape[1])},
+            "points": {"count": int(pts.m), "sampling": points.sampling,
+                       "residual": pts.residual},
+            "seconds": dict(self.seconds)})
+
+
+def reduce(model: ReducibleScene, training: Training, *, basis: Basis = Basis(),
+           points: Points = Points(), cache: str | Path, pressure_modes: int = 4,
+           progress: bool = True) -> ReducedModel:
+    """The reduced model of ``model`` trained by ``training`` (module docstring)."""
+    return Reductor(model, training, cache, pressure_modes=pressure_modes,
+                    progress=progress).reduce(basis, points)
