@@ -103,6 +103,7 @@ from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, r
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
+from artifem.reduction.reductor import ReducedModel
 from artifem.scene import simulate as simulate_scene
 
 __all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark",
@@ -401,7 +402,7 @@ class AirwayScene:
 
 def reduced_tongue(config: AirwayConfig, cache: Path,
                    base: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig()
-                   ) -> jtr.ReducedTongue:
+                   ) -> ReducedModel:
     """The jaw-tongue reduced tongue (POD + 12 jaw-lift columns, trained points) for this
     airway's jaw-tongue scene: ``jaw_tongue_reduced.train`` with ``base``'s training settings
     and the airway's jaw-tongue config, cached under ``cache``."""
@@ -409,7 +410,7 @@ def reduced_tongue(config: AirwayConfig, cache: Path,
 
 
 def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
-                data=None, reduced: jtr.ReducedTongue | None = None) -> AirwayScene:
+                data=None, reduced: ReducedModel | None = None) -> AirwayScene:
     """The jaw-tongue scene, the fixed palate, the airway skin and (``pressure``) its air
     pressure load (module docstring). With ``reduced`` (from :func:`reduced_tongue`) the
     tongue is the reduced one, u = U q + L g (jaw_tongue_reduced), and the skin's tongue
@@ -417,8 +418,7 @@ def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
     and the air's load on it is the generalized force [U, L]^T N^T (w f_v), its lift part
     reaching the jaw as G_g^T f_g."""
     data = data or load_tongue_data(0)
-    s = jt.build_scene(config.jaw_tongue, data=data,
-                       reduce=None if reduced is None else reduced.reducer())
+    s = jt.build_scene(config.jaw_tongue, data=data, reduce=reduced)
     x, triangles, sections, alignment, (pal_v, pal_t) = _aligned_airway(config.trim)
     centre = pal_v.mean(0)
     palate = RigidBody("palate", 1e-3, 1e-9 * np.eye(3), position=centre, motion="fixed",
@@ -766,7 +766,7 @@ def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
     return {"basis": {"pod_vectors": base.r, "lift_columns": 12, "points": base.points,
                       "training": "jaw_tongue_reduced.train (each tongue exciter alone at "
                                   f"{base.training_excitation}, no air pressure)",
-                      "snapshots": model.snapshots, "cache": str(args.cache)},
+                      "snapshots": model.training["snapshots"], "cache": str(args.cache)},
             "training_seconds": train_s, "runs": comparison, "png": str(png)}
 
 

@@ -269,8 +269,9 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
                 data=None, reduce=None) -> JawTongueScene:
     """The tongue, the aligned jaw, the TMJ hinge, the opener and the closer (docstring).
 
-    ``reduce(tongue_body, jaw, jaw_rows) -> (ReducedFemBody, LiftAttachment)``, if given,
-    puts a reduced tongue in the scene in place of the full one (jaw_tongue_reduced).
+    ``reduce``, a reduced model of this scene (``ReducedModel`` of
+    :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue_reduced.train``), puts the reduced
+    tongue in place of the full one, riding on the jaw by a lift attachment.
     """
     data = data or load_tongue_data(config.tongue.level)
     if config.tongue.level != 0:
@@ -285,13 +286,8 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     vertices = closed_mm @ alignment["linear"].T + alignment["translation"]
     jaw = RigidBody.from_surface("jaw", vertices, closed_tri, config.bone_density)
     scene = Scene(gravity=config.gravity)
-    if reduce is None:
-        reduced = None
-        attachment = NodeAttachment(tongue.body, jaw_rows, jaw, name="tongue->jaw")
-        scene.add(tongue.body, jaw, attachment)
-    else:
-        reduced, attachment = reduce(tongue.body, jaw, jaw_rows)
-        scene.add(reduced, jaw, attachment)
+    attachment = NodeAttachment(tongue.body, jaw_rows, jaw, name="tongue->jaw")
+    scene.add(tongue.body, jaw, attachment)
     condyles = _condyle_centres(vertices)
     hinge = condyles.mean(0)
     axis = condyles[0] - condyles[1]            # +y -> -y: positive angle opens
@@ -328,6 +324,10 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
         closer = FramePath(AxialSpring(config.closer_stiffness, rest, config.closer_damping),
                            [Frame(None, zygoma), Frame.at_world(jaw, gonion)], name="closer")
         scene.add(closer)
+    reduced = None
+    if reduce is not None:
+        reduced, replaced = reduce.put_in(scene)
+        attachment = replaced[attachment.name]
     return JawTongueScene(scene, tongue, jaw, attachment, joint, opener, closer, alignment,
                           jaw_rows, hinge, reduced)
 

@@ -13,14 +13,14 @@ by the rest tangent), U a trained POD basis that vanishes on the attachment
 and hyoid nodes. In the Scene g is a slave of the jaw
 (:class:`LiftAttachment`); the masters are q and the jaw's twist.
 
-Training (cached on disk by the inputs, :class:`ArtifactCache`): the *full*
-jaw-tongue scene run with each exciter alone at ``training_excitation``
-(ramped over the paper's 0.5 s) while the jaw opens by its own schedule;
-snapshots of u - L g (zero on the attachment and hyoid nodes) every
-``snapshot_every`` steps; U = the r leading mass-weighted POD vectors;
-integration points by ECSW (non-negative least squares) on the reduced forces
-of the basis [U, L] at those states (the points and weights of the tongue
-study, :mod:`artifem.reduction.cubature`).
+Training is the reductor's (:func:`artifem.reduction.reductor.reduce`, cached on disk
+by the inputs): the *full* jaw-tongue scene run with each exciter alone at
+``training_excitation`` (ramped over the paper's 0.5 s) while the jaw opens by its own
+schedule; snapshots of u - L g (zero on the attachment and hyoid nodes) every
+``snapshot_every`` steps; U = the r leading mass-weighted POD vectors; integration
+points by ECSW (non-negative least squares) on the reduced forces of the basis [U, L]
+at those states. The reductor finds the jaw's node attachment in the scene, builds L
+and turns the attachment into a :class:`LiftAttachment`.
 
 Comparison (``artifem study jaw-tongue --out DIR``): the three speech motions,
 full and reduced scene in one process; per motion the mean nodal tongue error
@@ -41,21 +41,16 @@ from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
-from tqdm import tqdm
 
 from artifem.arguments import positive_float, positive_int
 from artifem.errors import InputError
-from artifem.excitation import ExcitationSchedule
 from artifem.models import jaw_tongue as jt
-from artifem.models.tongue.model import MOTIONS, RAMP_TIME
-from artifem.multibody.attachments import LiftAttachment
-from artifem.reduction.bases import body_mass, pod_basis
-from artifem.reduction.cubature import IntegrationPoints, trained_points_path
-from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.rigid_lift import rigid_lift
-from artifem.reduction.training import ArtifactCache, force_training_matrix, project
+from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
+from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Training,
+                                        reduce)
+from artifem.reduction.schedules import each_alone
 
-__all__ = ["ReducedJawTongueConfig", "ReducedTongue", "train", "build_reduced_scene",
+__all__ = ["ReducedJawTongueConfig", "reducible", "train", "build_reduced_scene",
            "compare", "quick_config"]
 
 
@@ -83,87 +78,31 @@ def quick_config() -> ReducedJawTongueConfig:
 QUICK_MOTIONS, QUICK_DURATION = ("protrusion",), 0.15
 
 
-@dataclass
-class ReducedTongue:
-    """The trained parts: the POD basis U (zero on the carried and fixed nodes) and the
-    integration points of [U, L]."""
-
-    U: np.ndarray
-    points: IntegrationPoints
-    snapshots: int
-
-    def reducer(self):
-        """``build_scene(reduce=...)``: the reduced tongue riding on the jaw."""
-        def reduce(body, jaw, jaw_rows):
-            lift = rigid_lift(body, jaw_rows, jaw.position, jaw.rotation)
-            reduced = ReducedFemBody(body, np.hstack([self.U, lift.columns]), self.points,
-                                     name="tongue_reduced")
-            return reduced, LiftAttachment(reduced, lift, jaw, name="tongue->jaw")
-        return reduce
+def reducible(config: ReducedJawTongueConfig) -> ReducibleScene:
+    """The jaw-tongue scene as the reductor sees it: its tongue reduced, driven by the
+    tongue's exciters (the jaw opener keeps its own schedule)."""
+    exciters = load_tongue_data(config.jaw.tongue.level).exciters
+    return ReducibleScene("jaw-tongue", lambda: jt.build_scene(config.jaw).scene, "tongue",
+                          {"jaw": asdict(config.jaw), "dt": config.dt}, exciters=exciters,
+                          motions={m: Tongue.motion(m) for m in MOTIONS})
 
 
-def _training_run(config: ReducedJawTongueConfig, exciter: str) -> dict[str, np.ndarray]:
-    """Snapshots (u - L g, g, excitations) of the full scene driven by one exciter."""
-    s = jt.build_scene(config.jaw)
-    body = s.tongue.body
-    lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
-    n = 3 * body.V.dofmap.index_map.size_local
-    schedule = ExcitationSchedule.ramp_and_hold({exciter: config.training_excitation},
-                                                RAMP_TIME)
-    rec = jt.simulate(s, schedule, config.training_duration, config.dt, record={
-        "excitations": lambda scene: [float(m.excitation.value)
-                                      for m in body.muscles.values()]})
-    u, g = [], []
-    for k in range(config.snapshot_every, len(rec["t"]), config.snapshot_every):
-        gk = lift.coordinates(rec["jaw_position"][k], rec["jaw_rotation"][k])
-        u.append(rec["u"][k][:n] - lift.columns[:n] @ gk)
-        g.append(gk)
-    return {"residual": np.array(u), "lift": np.array(g),
-            "excitations": rec["excitations"][config.snapshot_every::config.snapshot_every]}
+def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedModel:
+    """The reduced tongue (module docstring) from :func:`artifem.reduction.reductor.reduce`:
+    each exciter alone, a POD basis with the jaw's lift columns, trained points; cached
+    under ``cache``."""
+    model = reducible(config)
+    training = Training(each_alone(sorted(model.exciters), config.training_excitation,
+                                   RAMP_TIME),
+                        config.training_duration, config.dt, config.snapshot_every)
+    return reduce(model, training, basis=Basis("pod", config.r),
+                  points=Points(config.points, tol=config.cubature_tol, growth=0.0,
+                                training_states=config.force_snapshots), cache=cache)
 
 
-def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedTongue:
-    """Training runs, POD and trained points (module docstring), cached under ``cache``."""
-    store = ArtifactCache(cache)
-    model = {"config": asdict(config)}
-    s = jt.build_scene(config.jaw)
-    body = s.tongue.body
-    parts = []
-    for exciter in tqdm(s.tongue.exciters, desc="jaw-tongue training runs", unit="run"):
-        key = store.key("jaw-tongue-snapshots", jaw=asdict(config.jaw), exciter=exciter,
-                        excitation=config.training_excitation,
-                        duration=config.training_duration, every=config.snapshot_every,
-                        dt=config.dt)
-        parts.append(store.get(key, lambda e=exciter: _training_run(config, e)))
-    residual = np.concatenate([p["residual"] for p in parts])
-    lifted = np.concatenate([p["lift"] for p in parts])
-    excitations = np.concatenate([p["excitations"] for p in parts])
-    mass = body_mass(body)
-    key = store.key("jaw-tongue-pod", model=model)
-    pod = store.get(key, lambda: dict(zip(("U", "sigma"),
-                                          pod_basis(residual, mass, r=config.r))))
-    lift = rigid_lift(body, s.jaw_rows, s.jaw.position, s.jaw.rotation)
-    W = np.hstack([pod["U"], lift.columns])
-    key = store.key("jaw-tongue-points", model=model)
-
-    def cubature():
-        rows = np.unique(np.linspace(0, len(residual) - 1,
-                                     min(len(residual), config.force_snapshots)).round()
-                         .astype(int))
-        q = np.hstack([project(pod["U"], mass, residual[rows]), lifted[rows]])
-        G, b = force_training_matrix(body, W, q, excitations[rows])
-        pts = trained_points_path(G, b, sizes=[config.points], tol=config.cubature_tol,
-                                  progress=True)[config.points]
-        return {"indices": pts.indices, "weights": pts.weights,
-                "residual": np.array(pts.residual)}
-    p = store.get(key, cubature)
-    points = IntegrationPoints(p["indices"], p["weights"], "trained", float(p["residual"]))
-    return ReducedTongue(pod["U"], points, len(residual))
-
-
-def build_reduced_scene(model: ReducedTongue, config: ReducedJawTongueConfig
+def build_reduced_scene(model: ReducedModel, config: ReducedJawTongueConfig
                         ) -> jt.JawTongueScene:
-    return jt.build_scene(config.jaw, reduce=model.reducer())
+    return jt.build_scene(config.jaw, reduce=model)
 
 
 def _run(s: jt.JawTongueScene, motion: str, duration: float, dt: float) -> dict:
@@ -220,10 +159,11 @@ def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS)
         "basis": {"pod_vectors": config.r, "lift_columns": 12,
                   "training": "full jaw-tongue scene, each exciter alone at "
                               f"{config.training_excitation}, jaw opener on",
-                  "snapshots": model.snapshots},
+                  "snapshots": model.training["snapshots"]},
         "points": {"count": int(model.points.m), "kind": "trained (ECSW NNLS)",
                    "training_residual": model.points.residual},
-        "training_seconds": train_s,
+        "training_seconds": sum(model.training["seconds"].values()),
+        "reduce_seconds": train_s,
         "motions": results,
     }
     (out / "jaw_tongue_reduced.json").write_text(json.dumps(figures, indent=2))

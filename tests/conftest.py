@@ -127,7 +127,7 @@ def computed_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
 
 class QuickJawTongue(NamedTuple):
     config: Any          # jaw_tongue_reduced.ReducedJawTongueConfig
-    model: Any           # jaw_tongue_reduced.ReducedTongue
+    model: Any           # reduction.reductor.ReducedModel (jaw_tongue_reduced.train)
     cache: Path          # its ArtifactCache directory (training runs, POD, points)
 
 

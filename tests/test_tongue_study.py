@@ -18,6 +18,7 @@ from mpi4py import MPI
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.cli import main
 from artifem.models.tongue import study
+from artifem.reduction import reductor
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the study runs in serial")
 
@@ -69,24 +70,24 @@ def test_report_and_pictures_exist(quick_study):
 
 
 def test_second_run_reuses_the_training_and_resumes_a_lost_artifact(quick_study, monkeypatch):
-    snapshots = sorted((quick_study / "cache").glob("snapshots-*.npz"))
+    snapshots = sorted((quick_study / "cache").glob("reductor-snapshots-*.npz"))
     assert len(snapshots) == 11                     # one training run per exciter
     snapshots[3].unlink()                           # as if the run had stopped there
     calls = []
-    real = study.record_snapshots
+    real = reductor.Reductor._run
 
-    def counting(*args, **kwargs):
-        calls.append(kwargs.get("label"))
-        return real(*args, **kwargs)
+    def counting(self, name, schedule):
+        calls.append(name)
+        return real(self, name, schedule)
 
     def no_training(*args, **kwargs):
         raise AssertionError("trained points should come from the cache")
 
-    monkeypatch.setattr(study, "record_snapshots", counting)
-    monkeypatch.setattr(study, "force_training_matrix", no_training)
+    monkeypatch.setattr(reductor.Reductor, "_run", counting)
+    monkeypatch.setattr(reductor, "force_training_matrix", no_training)
     assert main(["study", "tongue", "--quick", "--out", str(quick_study)]) == 0
     assert len(calls) == 1                          # only the lost training run again
-    assert len(list((quick_study / "cache").glob("snapshots-*.npz"))) == 11
+    assert len(list((quick_study / "cache").glob("reductor-snapshots-*.npz"))) == 11
 
 
 def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_study, tmp_path):

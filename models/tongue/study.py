@@ -42,17 +42,13 @@ from tqdm import tqdm
 
 from artifem.arguments import positive_int
 from artifem.errors import InputError
-from artifem.excitation import ExcitationSchedule
 from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
                                          Tongue, TongueConfig)
-from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
-                                     modal_derivative_basis, pod_basis)
-from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
+from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.reduced_volume_constraint import pressure_basis
-from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
-                                        pressure_weights, project, record_snapshots)
+from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
+from artifem.reduction.schedules import each_alone
 from artifem.scene import Scene, simulate
 
 TARGETS = {"ms_per_step": 1.0, "speedup": 100.0, "max_error_mm": 1.0}
@@ -119,16 +115,24 @@ class TongueStudy:
     def __init__(self, config: StudyConfig, out: Path, cache: Path | None = None):
         self.config, self.out = config, Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
-        self.cache = ArtifactCache(cache or self.out / "cache")
         hard = config.incompressibility == "hard"
-        self.tongue = Tongue(TongueConfig(level=config.level,
-                                          incompressibility=HARD if hard else PENALTY))
+        tongue_config = TongueConfig(level=config.level,
+                                     incompressibility=HARD if hard else PENALTY)
+        self.tongue = Tongue(tongue_config)
         self.body = self.tongue.body
         self.body.compile()
         self.volume0 = self.body.volume()
-        self.mass = body_mass(self.body)
         self.table = quadrature_points(self.body)
-        self.model_key = {"tongue": asdict(self.tongue.config), "dt": config.dt}
+        model = ReducibleScene("tongue", lambda: Tongue(tongue_config, data=self.tongue.data).scene,
+                               "tongue", {"tongue": asdict(tongue_config)},
+                               exciters=self.tongue.data.exciters,
+                               motions={m: Tongue.motion(m) for m in MOTIONS})
+        training = Training(each_alone(self.tongue.exciters, config.training_excitation,
+                                       RAMP_TIME),
+                            config.training_duration, config.dt, config.snapshot_every)
+        #: the training stages (snapshots, bases, points, pressure space), cached
+        self.reductor = Reductor(model, training, cache or self.out / "cache",
+                                 pressure_modes=config.pressure_modes)
         n = self.body.V.dofmap.index_map.size_local
         node_of_dof = np.empty(n, dtype=np.int64)
         for node, dof in self.body._input_node_to_dof().items():
@@ -136,72 +140,26 @@ class TongueStudy:
                 node_of_dof[dof] = node
         self.node_of_dof = node_of_dof
 
-    # ---- training ---------------------------------------------------------
+    # ---- training (the reductor's stages) ----------------------------------------------
 
-    def snapshots(self) -> tuple[Snapshots, list[str]]:
-        """Training snapshots, one cached run per exciter."""
-        c, parts, keys = self.config, [], []
-        for exciter in self.tongue.exciters:
-            key = self.cache.key("snapshots", model=self.model_key, exciter=exciter,
-                                 excitation=c.training_excitation, ramp=RAMP_TIME,
-                                 duration=c.training_duration, every=c.snapshot_every)
-
-            def run(exciter=exciter):
-                self.tongue.reset()
-                self.tongue.drive(ExcitationSchedule.ramp_and_hold(
-                    {exciter: c.training_excitation}, RAMP_TIME))
-                return record_snapshots(self.tongue.scene, self.body,
-                                        duration=c.training_duration, dt=c.dt,
-                                        every=c.snapshot_every,
-                                        label=f"training {exciter}").as_arrays()
-            parts.append(Snapshots.from_arrays(self.cache.get(key, run)))
-            keys.append(key)
-        return Snapshots.concatenate(parts), keys
-
-    def basis(self, name: str, snapshots: Snapshots, snapshot_keys: list[str]):
-        """(U, cache key) of a named basis."""
+    def basis(self, name: str) -> tuple[np.ndarray, str]:
+        """(U, cache key) of a basis of the study."""
         c = self.config
-        if name == "trained-pod":
-            key = self.cache.key("basis-pod", snapshots=snapshot_keys, r=c.pod_r)
-            data = self.cache.get(key, lambda: {"U": pod_basis(snapshots.displacements,
-                                                               self.mass, r=c.pod_r)[0]})
-        elif name == "modal-derivatives":
-            key = self.cache.key("basis-derivatives", model=self.model_key, modes=c.linear_modes)
-            data = self.cache.get(key, lambda: {
-                "U": modal_derivative_basis(self.body, c.linear_modes)})
-        else:
-            key = self.cache.key("basis-extended", model=self.model_key, modes=c.linear_modes)
+        spec = {"trained-pod": Basis("pod", c.pod_r),
+                "extended-modal": Basis("extended", c.linear_modes),
+                "modal-derivatives": Basis("modal-derivatives", c.linear_modes)}[name]
+        return self.reductor.basis(spec)
 
-            def compute():
-                modes, _ = linear_modes(self.body, c.linear_modes)
-                return {"U": extended_modes(modes, self.mass, fixed_dofs=self.body.fixed_dofs)}
-            data = self.cache.get(key, compute)
-        return data["U"], key
-
-    def pressure_space(self, snapshots: Snapshots) -> np.ndarray | None:
-        """The reduced bodies' pressure space with the hard incompressibility: the constant
-        pressure and ``pressure_modes - 1`` POD modes of the training pressures (else None)."""
-        vc = self.body.volume_constraint
-        if vc is None:
-            return None
-        return pressure_basis(snapshots.pressures, vc.volume, self.config.pressure_modes)
-
-    def constraint_weights(self, U, basis_key, pts: IntegrationPoints, Pi,
-                           snapshots: Snapshots) -> np.ndarray:
-        """The volume constraint's cubature weights at ``pts`` (training.pressure_weights on
-        the cubature's training states), cached."""
-        c = self.config
-        key = self.cache.key("pressure-weights", basis=basis_key, indices=pts.indices,
-                             weights=pts.weights, modes=c.pressure_modes,
-                             states=c.force_snapshots)
-
-        def fit():
-            S = snapshots.displacements.shape[0]
-            rows = np.unique(np.linspace(0, S - 1, min(S, c.force_snapshots)).round().astype(int))
-            q = project(U, self.mass, snapshots.displacements[rows])
-            weights, residual = pressure_weights(self.body, U, pts, Pi, q)
-            return {"weights": weights, "residual": np.array(residual)}
-        return self.cache.get(key, fit)["weights"]
+    def point_sets(self, U, basis_key) -> dict[tuple[int, str], IntegrationPoints]:
+        """{(m, sampling): points} of every count and sampling of the study (trained: one
+        greedy path, each m cached)."""
+        c, sets = self.config, {}
+        for sampling in c.samplings:
+            spec = Points(sampling=sampling, tol=c.cubature_tol, growth=c.cubature_growth,
+                          training_states=c.force_snapshots, seed=c.seed)
+            for m, pts in self.reductor.points(U, basis_key, spec, counts=c.points).items():
+                sets[(m, sampling)] = pts
+        return sets
 
     def volume_changes(self, displacements: np.ndarray) -> np.ndarray:
         """V(t) / V0 - 1 of the full mesh at each displacement row (O(n) each: after a run,
@@ -219,28 +177,6 @@ class TongueStudy:
         u[:n] = saved
         self.body.u.x.scatter_forward()
         return changes
-
-    def trained_points(self, U, basis_key, snapshots: Snapshots) -> dict[int, IntegrationPoints]:
-        """ECSW points for every m of the study, from one greedy path (cached per m)."""
-        c = self.config
-        keys = {m: self.cache.key("points", basis=basis_key, m=m, tol=c.cubature_tol,
-                                  growth=c.cubature_growth, states=c.force_snapshots)
-                for m in c.points}
-        cached = {m: self.cache.load(k) for m, k in keys.items()}
-        if any(v is None for v in cached.values()):
-            S = snapshots.displacements.shape[0]
-            rows = np.unique(np.linspace(0, S - 1, min(S, c.force_snapshots)).round().astype(int))
-            q = project(U, self.mass, snapshots.displacements[rows])
-            G, b = force_training_matrix(self.body, U, q, snapshots.excitations[rows])
-            path = trained_points_path(G, b, sizes=c.points, tol=c.cubature_tol,
-                                       growth=c.cubature_growth, progress=True)
-            del G
-            for m, pts in path.items():
-                cached[m] = {"indices": pts.indices, "weights": pts.weights,
-                             "residual": np.array(pts.residual)}
-                self.cache.save(keys[m], cached[m])
-        return {m: IntegrationPoints(d["indices"], d["weights"], "trained",
-                                     float(d["residual"])) for m, d in cached.items()}
 
     # ---- runs ---------------------------------------------------------------
 
@@ -288,18 +224,11 @@ class TongueStudy:
 
     def run(self) -> Path:
         c = self.config
-        snapshots, snapshot_keys = self.snapshots()
-        bases = {name: self.basis(name, snapshots, snapshot_keys) for name in c.bases}
-        pressures = self.pressure_space(snapshots)
-        point_sets = {}
-        for name, (U, key) in bases.items():
-            if "trained" in c.samplings:
-                for m, pts in self.trained_points(U, key, snapshots).items():
-                    point_sets[(name, m, "trained")] = pts
-            if "random" in c.samplings:
-                for m in c.points:
-                    point_sets[(name, m, "random")] = random_points(
-                        self.table.volume, m, rng=c.seed, groups=self.table.degree)
+        snapshots, _, snapshot_keys = self.reductor.snapshots()
+        bases = {name: self.basis(name) for name in c.bases}
+        pressures = self.reductor.pressure_space()
+        point_sets = {(name, m, sampling): pts for name, (U, key) in bases.items()
+                      for (m, sampling), pts in self.point_sets(U, key).items()}
         full = {motion: self.full_run(motion) for motion in c.motions}
         steps = int(round(c.duration / c.dt))
         times = np.arange(steps + 1) * c.dt
@@ -309,8 +238,8 @@ class TongueStudy:
         for (name, m, sampling), pts in tqdm(point_sets.items(), desc="reduced configurations",
                                              unit="config"):
             U, basis_key = bases[name]
-            weights = None if pressures is None else \
-                self.constraint_weights(U, basis_key, pts, pressures, snapshots)
+            weights = None if pressures is None else self.reductor.constraint_weights(
+                U, basis_key, pts, pressures, c.force_snapshots)
             reduced = ReducedFemBody(self.body, U, pts, pressure_basis=pressures,
                                      pressure_weights=weights, name=f"{name}_{m}_{sampling}")
             for motion in c.motions:
