@@ -199,3 +199,40 @@ def test_random_schedules_are_seeded_space_filling_and_release():
     assert released > 0
     with pytest.raises(InputError, match="excitations are in"):
         random_schedules(exciters, 2, seed=0, duration=1.0, excitation=(0.1, 1.5))
+
+
+def test_generalization_study_reports_the_three_sets(tmp_path):
+    """The train/test split on the free beam: training, the model's motions and held-out
+    random schedules, each run's error and estimate; the hierarchical estimate (r = 12
+    against r = 3) is within a factor of 3 of the error, and the report, series and plot
+    are written."""
+    from artifem.reduction.generalization import generalization_study
+
+    motion = ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)
+    model = ReducibleScene("free", free_beam, "fem", {"model": "free"},
+                           motions={"ramp": motion})
+    figures = generalization_study(model, TRAINING, tmp_path, basis=Basis("pod", 3),
+                                   points=Points(sampling="all"),
+                                   reference=(Basis("pod", 12), Points(sampling="all")),
+                                   held_out=3, seed=99, duration=0.2, progress=False)
+    sets = figures["sets"]
+    assert [len(sets[s]) for s in ("training", "motions", "held-out")] == [2, 1, 3]
+    assert figures["reduced"]["basis"]["r"] == 3 and figures["reference"]["basis"]["r"] == 12
+    for runs in sets.values():
+        for r in runs:
+            assert not r["failed"] and r["speedup"] > 0 and r["max_error_mm"] > 0.1
+            assert 1 / 3 <= r["estimate_ratio"] <= 3
+    assert "## held-out" in (tmp_path / "generalization.md").read_text()
+    assert (tmp_path / "generalization.png").stat().st_size > 10_000
+    series = np.load(tmp_path / "generalization_series.npz")
+    assert series["held-out/held-out-99-0/error_mm"].shape == (21,)
+
+
+def test_a_held_out_set_drawn_with_the_training_seed_is_refused(tmp_path):
+    from artifem.reduction.generalization import held_out_schedules
+
+    training = Training(random_schedules(["top"], 2, seed=5, duration=0.2, prefix="held-out"),
+                        0.2, DT)
+    with pytest.raises(InputError, match="seed the training did not use"):
+        held_out_schedules(ReducibleScene("free", free_beam, "fem", {}), ["top"], training,
+                           2, 5, 0.2)

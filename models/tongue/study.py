@@ -43,7 +43,7 @@ from tqdm import tqdm
 from artifem.arguments import positive_int
 from artifem.errors import InputError
 from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
-                                         Tongue, TongueConfig)
+                                         Tongue, TongueConfig, load_tongue_data)
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
@@ -109,6 +109,15 @@ class StudyConfig:
                              f"{self.training_excitation}")
 
 
+def reducible(config: TongueConfig, data=None) -> ReducibleScene:
+    """The tongue as the reductor sees it: its scene, driven by its exciters (bilateral
+    muscles drive both bundles), with the seed paper's motions."""
+    data = data or load_tongue_data(config.level)
+    return ReducibleScene("tongue", lambda: Tongue(config, data=data).scene, "tongue",
+                          {"tongue": asdict(config)}, exciters=data.exciters,
+                          motions={m: Tongue.motion(m) for m in MOTIONS})
+
+
 class TongueStudy:
     """Runs the study (see the module docstring); each stage is a method."""
 
@@ -123,10 +132,7 @@ class TongueStudy:
         self.body.compile()
         self.volume0 = self.body.volume()
         self.table = quadrature_points(self.body)
-        model = ReducibleScene("tongue", lambda: Tongue(tongue_config, data=self.tongue.data).scene,
-                               "tongue", {"tongue": asdict(tongue_config)},
-                               exciters=self.tongue.data.exciters,
-                               motions={m: Tongue.motion(m) for m in MOTIONS})
+        model = reducible(tongue_config, self.tongue.data)
         training = Training(each_alone(self.tongue.exciters, config.training_excitation,
                                        RAMP_TIME),
                             config.training_duration, config.dt, config.snapshot_every)

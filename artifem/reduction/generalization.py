@@ -1,0 +1,153 @@
+"""How a reduced model does on inputs it was not built from: a train/test split.
+
+    report = generalization_study(model, training, out, basis=Basis("pod", 20),
+                                  points=Points(300), held_out=5, seed=1000)
+
+For any :class:`~artifem.reduction.reductor.ReducibleScene`: the reductor builds the reduced
+model from ``training`` (and a reference twice as rich, for the estimate), then
+:func:`~artifem.reduction.evaluation.compare` runs full and reduced scenes on three sets:
+
+- ``training``: the training schedules themselves (what the model was fitted to);
+- ``motions``: the model's named motions (for the tongue, the seed paper's three);
+- ``held-out``: ``held_out`` random multi-exciter schedules
+  (:func:`~artifem.reduction.schedules.random_schedules`) drawn with a ``seed`` that no
+  training schedule came from (checked: none equals a training schedule).
+
+Written to ``out``: generalization.json (the configuration, the training cost, per run
+the maximum and mean error, the estimate, ms per step and its worst step against the
+median), generalization.md (a table per set) and generalization.png (error over time,
+estimate dashed, one panel per set).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from artifem.errors import InputError
+from artifem.reduction.evaluation import Comparison, compare
+from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
+                                        Training)
+from artifem.reduction.schedules import random_schedules
+
+__all__ = ["generalization_study", "held_out_schedules", "write_markdown"]
+
+SETS = ("training", "motions", "held-out")
+
+
+def held_out_schedules(model: ReducibleScene, inputs: list[str], training: Training,
+                       count: int, seed: int, duration: float) -> dict:
+    """``count`` random schedules of ``seed`` over ``inputs``; an error if one of them is a
+    training schedule (the seed was used for training)."""
+    schedules = random_schedules(inputs, count, seed=seed, duration=duration,
+                                 prefix="held-out")
+    for name, s in schedules.items():
+        for t_name, t in training.schedules.items():
+            if (np.array_equal(s.times, t.times) and s.values.keys() == t.values.keys()
+                    and all(np.array_equal(s.values[k], t.values[k]) for k in s.values)):
+                raise InputError(f"model {model.name!r}: held-out schedule {name!r} is the "
+                                 f"training schedule {t_name!r}; draw the held-out set with a "
+                                 "seed the training did not use")
+    return schedules
+
+
+def _plot(results: dict[str, list[Comparison]], png: Path) -> Path:
+    sets = [s for s in SETS if results.get(s)]
+    fig = Figure(figsize=(4.2 * len(sets), 3.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(sets), sharey=True, squeeze=False)[0]
+    for ax, name in zip(axes, sets):
+        for k, c in enumerate(results[name]):
+            color = f"C{k % 10}"
+            ax.plot(c.times, c.error_mm, color=color, lw=1.2, label=c.name)
+            if np.any(np.isfinite(c.estimate_mm)):
+                ax.plot(c.times, c.estimate_mm, color=color, lw=1.0, ls="--")
+        ax.set_title(f"{name} ({len(results[name])} runs)")
+        ax.set_xlabel("time (s)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("mean node error (mm); estimate dashed")
+    fig.savefig(png, dpi=110)
+    return png
+
+
+def write_markdown(figures: dict) -> str:
+    """The report's tables (one per set) from generalization.json's content."""
+    m = figures["reduced"]
+    lines = [f"# {figures['model']}: the reduced model on inputs it was not built from", "",
+             f"Reduced model: {m['basis']['kind']} basis, r = {m['basis']['r']}"
+             f"{' (' + str(m['basis']['lift_columns']) + ' lift columns)' if m['basis']['lift_columns'] else ''}, "
+             f"{m['points']['count']} {m['points']['sampling']} points; trained on "
+             f"{m['runs']} runs ({m['snapshots']} snapshots), "
+             f"{sum(m['seconds'].values()):.0f} s of training computation "
+             f"({', '.join(f'{k} {v:.0f} s' for k, v in m['seconds'].items())}). "
+             f"Estimate: the difference to a reference reduced model with r = "
+             f"{figures['reference']['basis']['r']} and {figures['reference']['points']['count']}"
+             f" points (hierarchical estimate, no full run).", ""]
+    for name in SETS:
+        runs = figures["sets"].get(name, [])
+        if not runs:
+            continue
+        lines += [f"## {name}", "",
+                  "| schedule | max error (mm) | mean error (mm) | estimate (mm) | estimate / "
+                  "error | reduced ms/step | slowest / median step | speed-up |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r in runs:
+            lines.append(f"| {r['name']}{' (failed)' if r['failed'] else ''} | "
+                         f"{r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
+                         f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} | "
+                         f"{r['reduced_ms_per_step']:.2f} | {r['max_step_over_median']:.1f} | "
+                         f"{r['speedup']:.0f}x |")
+        lines.append("")
+    lines += ["![error over time](generalization.png)", ""]
+    return "\n".join(lines)
+
+
+def generalization_study(model: ReducibleScene, training: Training, out: str | Path, *,
+                         basis: Basis = Basis(), points: Points = Points(),
+                         reference: tuple[Basis, Points] | None = None, held_out: int = 5,
+                         seed: int = 1000, duration: float = 1.0, dt: float | None = None,
+                         cache: str | Path | None = None, sets=SETS,
+                         pressure_modes: int = 4, progress: bool = True) -> dict:
+    """The train/test study of the module docstring; returns generalization.json's content.
+
+    ``reference``: the richer model of the estimate (default: twice the basis size and the
+    points, a tenth of the cubature tolerance). ``sets``: which of the three sets to run.
+    """
+    out = Path(out)
+    unknown = set(sets) - set(SETS)
+    if unknown:
+        raise InputError(f"generalization_study: unknown sets {sorted(unknown)}; use {SETS}")
+    dt = dt or training.dt
+    reductor = Reductor(model, training, cache or out / "cache", pressure_modes=pressure_modes,
+                        progress=progress)
+    inputs = sorted(model.inputs(reductor.body))
+    schedules = {"training": dict(training.schedules), "motions": dict(model.motions),
+                 "held-out": held_out_schedules(model, inputs, training, held_out, seed,
+                                                duration) if held_out else {}}
+    out.mkdir(parents=True, exist_ok=True)
+    reduced: ReducedModel = reductor.reduce(basis, points)
+    reference = reference or (Basis(basis.kind, 2 * basis.size),
+                              Points(2 * points.count, points.sampling, points.tol / 10,
+                                     points.growth, points.training_states, points.seed))
+    richer = reductor.reduce(*reference)
+    results = {name: compare(reduced, schedules[name], duration=duration if name != "training"
+                             else training.duration, dt=dt, cache=reductor.cache.root,
+                             reference=richer, progress=progress)
+               for name in sets if schedules[name]}
+    figures = {"model": model.name, "dt": dt, "duration": duration,
+               "training_duration": training.duration, "held_out_seed": seed,
+               "reduced": reduced.training, "reference": richer.training,
+               "specification": {"basis": asdict(basis), "points": asdict(points)},
+               "sets": {name: [c.summary() for c in runs] for name, runs in results.items()}}
+    (out / "generalization.json").write_text(json.dumps(figures, indent=1))
+    (out / "generalization.md").write_text(write_markdown(figures))
+    np.savez(out / "generalization_series.npz", **{
+        f"{name}/{c.name}/{kind}": getattr(c, kind) for name, runs in results.items()
+        for c in runs for kind in ("times", "error_mm", "estimate_mm")})
+    _plot(results, out / "generalization.png")
+    return figures
