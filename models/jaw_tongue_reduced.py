@@ -25,7 +25,10 @@ and turns the attachment into a :class:`LiftAttachment`.
 Comparison (``artifem study jaw-tongue --out DIR``): the three speech motions,
 full and reduced scene in one process; per motion the mean nodal tongue error
 over time (mm), the jaw angle of both, ms per step and the speed-up; JSON,
-Markdown table and a side-by-side render at each motion's largest error.
+Markdown table and a side-by-side render at each motion's largest error; then the
+train/test split (:mod:`artifem.reduction.generalization`, ``--held-out N``, default 5):
+the training schedules, the motions and N held-out random tongue schedules, error beside
+the hierarchical estimate.
 ``--quick`` (:func:`quick_config`): a smoke run, protrusion for 0.15 s over a small
 training (0.15 s runs, r = 12, 150 points; about a minute on 2 cores, seconds once
 the training is in ``--cache``).
@@ -42,12 +45,14 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from artifem.arguments import positive_float, positive_int
+from artifem.arguments import nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Training,
                                         reduce)
+from artifem.reduction.generalization import generalization_study
+from artifem.reduction.generalization_report import write_markdown
 from artifem.reduction.schedules import each_alone
 
 __all__ = ["ReducedJawTongueConfig", "reducible", "train", "build_reduced_scene",
@@ -87,17 +92,25 @@ def reducible(config: ReducedJawTongueConfig) -> ReducibleScene:
                           motions={m: Tongue.motion(m) for m in MOTIONS})
 
 
+def training(config: ReducedJawTongueConfig) -> Training:
+    """Each exciter alone, ramped to ``training_excitation`` over the paper's 0.5 s."""
+    exciters = sorted(load_tongue_data(config.jaw.tongue.level).exciters)
+    return Training(each_alone(exciters, config.training_excitation, RAMP_TIME),
+                    config.training_duration, config.dt, config.snapshot_every)
+
+
+def specification(config: ReducedJawTongueConfig) -> tuple[Basis, Points]:
+    """The reduced tongue's basis (POD, the jaw's lift columns added) and trained points."""
+    return Basis("pod", config.r), Points(config.points, tol=config.cubature_tol, growth=0.0,
+                                          training_states=config.force_snapshots)
+
+
 def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedModel:
-    """The reduced tongue (module docstring) from :func:`artifem.reduction.reductor.reduce`:
-    each exciter alone, a POD basis with the jaw's lift columns, trained points; cached
-    under ``cache``."""
-    model = reducible(config)
-    training = Training(each_alone(sorted(model.exciters), config.training_excitation,
-                                   RAMP_TIME),
-                        config.training_duration, config.dt, config.snapshot_every)
-    return reduce(model, training, basis=Basis("pod", config.r),
-                  points=Points(config.points, tol=config.cubature_tol, growth=0.0,
-                                training_states=config.force_snapshots), cache=cache)
+    """The reduced tongue (module docstring) from :func:`artifem.reduction.reductor.reduce`,
+    cached under ``cache``."""
+    basis, points = specification(config)
+    return reduce(reducible(config), training(config), basis=basis, points=points,
+                  cache=cache)
 
 
 def build_reduced_scene(model: ReducedModel, config: ReducedJawTongueConfig
@@ -204,6 +217,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"{quick.points})")
     parser.add_argument("--cache", type=Path, default=None,
                         help="training cache (default OUT/cache)")
+    parser.add_argument("--held-out", type=nonnegative_int, default=None,
+                        help="held-out random tongue schedules for the train/test split "
+                             "(generalization.json, .md, .png; default 5, --quick 0)")
+    parser.add_argument("--held-out-seed", type=int, default=1000,
+                        help="their seed (default 1000)")
     parser.add_argument("--quick", action="store_true",
                         help=f"a small smoke-test study: the quick training "
                              f"({quick.training_duration} s runs, r = {quick.r}, "
@@ -220,6 +238,14 @@ def run(args: argparse.Namespace) -> int:
     figures = compare(config, args.out, motions=tuple(motions), duration=duration,
                       cache=args.cache)
     print(report(figures))
+    held_out = args.held_out if args.held_out is not None else (0 if args.quick else 5)
+    if held_out:
+        basis, points = specification(config)
+        split = generalization_study(reducible(config), training(config), args.out,
+                                     basis=basis, points=points, held_out=held_out,
+                                     seed=args.held_out_seed, duration=duration,
+                                     dt=config.dt, cache=args.cache or args.out / "cache")
+        print(write_markdown(split))
     return 0
 
 

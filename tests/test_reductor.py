@@ -220,7 +220,8 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
     assert figures["reduced"]["basis"]["r"] == 3 and figures["reference"]["basis"]["r"] == 12
     for runs in sets.values():
         for r in runs:
-            assert not r["failed"] and r["speedup"] > 0 and r["max_error_mm"] > 0.1
+            assert not r["failed"] and r["max_error_mm"] > 0.1
+            assert (r["speedup"] is None) == (r in sets["training"])   # no 2nd full run
             assert 1 / 3 <= r["estimate_ratio"] <= 3
     assert "## held-out" in (tmp_path / "generalization.md").read_text()
     assert (tmp_path / "generalization.png").stat().st_size > 10_000

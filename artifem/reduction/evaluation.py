@@ -37,7 +37,8 @@ __all__ = ["Comparison", "full_run", "compare"]
 @dataclass
 class Comparison:
     """One schedule: times (steps + 1), the error e(t) and the estimate e~(t) (mm, NaN after
-    a failure or without a reference), ms per step of the full and the reduced runs."""
+    a failure, without a reference, or between training snapshots), ms per step of the full
+    (NaN when its run was the training's) and the reduced runs."""
 
     name: str
     times: np.ndarray
@@ -50,15 +51,16 @@ class Comparison:
     def summary(self) -> dict:
         """The figures of the run (JSON-able)."""
         ms = float(np.median(self.reduced_ms)) if self.reduced_ms.size else float("nan")
-        full = float(np.median(self.full_ms))
+        full = float(np.median(self.full_ms)) if np.all(np.isfinite(self.full_ms)) else None
         worst = float(np.nanmax(self.error_mm))
-        estimate = float(np.nanmax(self.estimate_mm)) \
-            if np.any(np.isfinite(self.estimate_mm)) else float("nan")
+        seen = np.isfinite(self.error_mm)           # the estimate where the error is known
+        estimate = float(np.nanmax(self.estimate_mm[seen])) \
+            if np.any(np.isfinite(self.estimate_mm[seen])) else float("nan")
         return {"name": self.name, "max_error_mm": worst,
                 "mean_error_mm": float(np.nanmean(self.error_mm)),
                 "max_estimate_mm": estimate,
                 "estimate_ratio": estimate / worst if worst > 0 else float("nan"),
-                "reduced_ms_per_step": ms, "full_ms_per_step": full, "speedup": full / ms,
+                "reduced_ms_per_step": ms, "full_ms_per_step": full, "speedup": None if full is None else full / ms,
                 "max_step_over_median": float(self.reduced_ms.max() / ms)
                 if self.reduced_ms.size else float("nan"),
                 "failed": self.failure is not None,
@@ -109,8 +111,11 @@ def _node_mean_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def compare(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule], *,
             duration: float, dt: float, cache: str | Path,
-            reference: ReducedModel | None = None, progress: bool = True) -> list[Comparison]:
-    """Full against reduced runs of ``schedules`` (module docstring)."""
+            reference: ReducedModel | None = None, known: dict | None = None,
+            progress: bool = True) -> list[Comparison]:
+    """Full against reduced runs of ``schedules`` (module docstring). ``known``: name ->
+    (steps, displacements) of full runs already at hand (the training snapshots): the
+    error is then taken at those steps only, NaN at the others, and no full run is made."""
     if not schedules:
         raise InputError("compare: give at least one schedule")
     if reference is not None and reference.model.key != reduced.model.key:
@@ -119,12 +124,21 @@ def compare(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule], *,
     out = []
     for name, schedule in tqdm(schedules.items(), desc=f"{reduced.model.name}: full vs reduced",
                                unit="run", disable=not progress):
-        full = full_run(reduced.model, schedule, duration, dt, store, label=f"full {name}",
-                        progress=progress)
         u, ms, failure = _reduced_run(reduced, schedule, duration, dt)
+        error = np.full(u.shape[0], np.nan)
+        if known is not None and name in known:
+            steps, u_full = known[name]
+            keep = steps < u.shape[0]
+            error[steps[keep]] = _node_mean_mm(u[steps[keep]], u_full[keep])
+            full_ms = np.full(1, np.nan)
+        else:
+            full = full_run(reduced.model, schedule, duration, dt, store,
+                            label=f"full {name}", progress=progress)
+            error = _node_mean_mm(u, full["u"])
+            full_ms = np.asarray(full["ms"])
         estimate = np.full(u.shape[0], np.nan)
         if reference is not None:
             estimate = _node_mean_mm(u, _reduced_run(reference, schedule, duration, dt)[0])
-        out.append(Comparison(name, np.arange(u.shape[0]) * dt, _node_mean_mm(u, full["u"]),
-                              estimate, np.asarray(full["ms"]), ms, failure))
+        out.append(Comparison(name, np.arange(u.shape[0]) * dt, error, estimate, full_ms, ms,
+                              failure))
     return out

@@ -7,7 +7,8 @@ For any :class:`~artifem.reduction.reductor.ReducibleScene`: the reductor builds
 model from ``training`` (and a reference twice as rich, for the estimate), then
 :func:`~artifem.reduction.evaluation.compare` runs full and reduced scenes on three sets:
 
-- ``training``: the training schedules themselves (what the model was fitted to);
+- ``training``: the training schedules themselves (what the model was fitted to), the
+  error at the training snapshots (no other full run);
 - ``motions``: the model's named motions (for the tongue, the seed paper's three);
 - ``held-out``: ``held_out`` random multi-exciter schedules
   (:func:`~artifem.reduction.schedules.random_schedules`) drawn with a ``seed`` that no
@@ -31,14 +32,12 @@ from matplotlib.figure import Figure
 
 from artifem.errors import InputError
 from artifem.reduction.evaluation import Comparison, compare
+from artifem.reduction.generalization_report import SETS, write_markdown
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
                                         Training)
 from artifem.reduction.schedules import random_schedules
 
-__all__ = ["generalization_study", "held_out_schedules", "write_markdown"]
-
-SETS = ("training", "motions", "held-out")
-
+__all__ = ["generalization_study", "held_out_schedules"]
 
 def held_out_schedules(model: ReducibleScene, inputs: list[str], training: Training,
                        count: int, seed: int, duration: float) -> dict:
@@ -75,38 +74,6 @@ def _plot(results: dict[str, list[Comparison]], png: Path) -> Path:
     return png
 
 
-def write_markdown(figures: dict) -> str:
-    """The report's tables (one per set) from generalization.json's content."""
-    m = figures["reduced"]
-    lines = [f"# {figures['model']}: the reduced model on inputs it was not built from", "",
-             f"Reduced model: {m['basis']['kind']} basis, r = {m['basis']['r']}"
-             f"{' (' + str(m['basis']['lift_columns']) + ' lift columns)' if m['basis']['lift_columns'] else ''}, "
-             f"{m['points']['count']} {m['points']['sampling']} points; trained on "
-             f"{m['runs']} runs ({m['snapshots']} snapshots), "
-             f"{sum(m['seconds'].values()):.0f} s of training computation "
-             f"({', '.join(f'{k} {v:.0f} s' for k, v in m['seconds'].items())}). "
-             f"Estimate: the difference to a reference reduced model with r = "
-             f"{figures['reference']['basis']['r']} and {figures['reference']['points']['count']}"
-             f" points (hierarchical estimate, no full run).", ""]
-    for name in SETS:
-        runs = figures["sets"].get(name, [])
-        if not runs:
-            continue
-        lines += [f"## {name}", "",
-                  "| schedule | max error (mm) | mean error (mm) | estimate (mm) | estimate / "
-                  "error | reduced ms/step | slowest / median step | speed-up |",
-                  "|---|---|---|---|---|---|---|---|"]
-        for r in runs:
-            lines.append(f"| {r['name']}{' (failed)' if r['failed'] else ''} | "
-                         f"{r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
-                         f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} | "
-                         f"{r['reduced_ms_per_step']:.2f} | {r['max_step_over_median']:.1f} | "
-                         f"{r['speedup']:.0f}x |")
-        lines.append("")
-    lines += ["![error over time](generalization.png)", ""]
-    return "\n".join(lines)
-
-
 def generalization_study(model: ReducibleScene, training: Training, out: str | Path, *,
                          basis: Basis = Basis(), points: Points = Points(),
                          reference: tuple[Basis, Points] | None = None, held_out: int = 5,
@@ -135,9 +102,11 @@ def generalization_study(model: ReducibleScene, training: Training, out: str | P
                               Points(2 * points.count, points.sampling, points.tol / 10,
                                      points.growth, points.training_states, points.seed))
     richer = reductor.reduce(*reference)
+    known = {name: reductor.training_run(name) for name in training.schedules}
     results = {name: compare(reduced, schedules[name], duration=duration if name != "training"
                              else training.duration, dt=dt, cache=reductor.cache.root,
-                             reference=richer, progress=progress)
+                             reference=richer, known=known if name == "training" else None,
+                             progress=progress)
                for name in sets if schedules[name]}
     figures = {"model": model.name, "dt": dt, "duration": duration,
                "training_duration": training.duration, "held_out_seed": seed,

@@ -363,6 +363,18 @@ class Reductor:
             self._snapshots = self._all_snapshots()
         return self._snapshots
 
+    def training_run(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(the steps of its snapshots, the body's displacements there) of the training run
+        ``name``: the full model's answer on a training schedule, without another run."""
+        names = list(self.training.schedules)
+        if name not in names:
+            raise UnknownNameError(f"no training schedule {name!r}; they are {names}")
+        k = names.index(name)
+        data = self._cached("snapshots", self.snapshot_keys()[k],
+                            lambda: self._run(name, self.training.schedules[name]))
+        every = self.training.snapshot_every
+        return every * np.arange(1, len(data["u"]) + 1), data["u"]
+
     def _all_snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
         keys, parts = self.snapshot_keys(), []
         for key, (name, schedule) in zip(keys, self.training.schedules.items()):

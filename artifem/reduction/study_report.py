@@ -31,6 +31,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from artifem.reduction.generalization_report import write_markdown
+
 pv.OFF_SCREEN = True
 
 #: Table 2 of the paper: per-step ms by basis and number of trained integration points.
@@ -367,8 +369,10 @@ def _incompressibility_line(study: dict) -> str:
     return "Incompressibility: the element penalty (full and reduced)."
 
 
-def report_markdown(study: dict, figures: Sequence[Path]) -> str:
-    """The whole report.md text; ``figures`` are embedded by file name."""
+def report_markdown(study: dict, figures: Sequence[Path], generalization: dict | None = None
+                    ) -> str:
+    """The whole report.md text; ``figures`` are embedded by file name; ``generalization``:
+    the train/test split's figures (generalization.json), if the study ran it."""
     model = study["model"]
     lines = [f"# Reduced {model['name']} model: speed vs error", "",
              f"Model: {model['name']}, {model['nodes']} nodes, {model['elements']} elements, "
@@ -381,6 +385,8 @@ def report_markdown(study: dict, figures: Sequence[Path]) -> str:
     lines += ["", "## All runs", ""] + runs_table_lines(study)
     lines += [""] + targets_lines(study)
     lines += ["", "## Figures", ""] + [f"![{png.stem}]({png.name})\n" for png in figures]
+    if generalization is not None:         # the train/test split (generalization.json)
+        lines += ["", "#" + write_markdown(generalization).replace("\n## ", "\n### ")]
     return "\n".join(lines) + "\n"
 
 
@@ -395,8 +401,10 @@ def write_report(out_dir: Path) -> Path:
     figures.append(plot_speed_vs_error(study, out_dir / "speed_vs_error.png"))
     figures += [render_frame(frame, runs[frame.stem], out_dir / f"render_{frame.stem}.png")
                 for frame in sorted((out_dir / "frames").glob("*.npz"))]
+    split = out_dir / "generalization.json"
+    generalization = json.loads(split.read_text()) if split.exists() else None
     report = out_dir / "report.md"
-    report.write_text(report_markdown(study, figures))
+    report.write_text(report_markdown(study, figures, generalization))
     return report
 
 

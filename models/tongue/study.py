@@ -1,7 +1,8 @@
 """The tongue speed-versus-error study of reduced models (Lloyd et al. 2019, section 2.3).
 
     artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
-                         [--incompressibility hard|penalty]
+                         [--incompressibility hard|penalty] [--random-training N]
+                         [--held-out N] [--held-out-seed S]
 
 The tongue holds its element volumes (the hard incompressibility, its default) and the
 reduced bodies hold them in a reduced pressure space; ``--incompressibility penalty``
@@ -24,9 +25,15 @@ In one process, on one tongue:
    the same excitation controller; the error at a step is the mean over the
    nodes of |x_reduced - x_full|.
 
+5. the train/test split (:mod:`artifem.reduction.generalization`, ``--held-out N``,
+   default 5): the trained POD model with the renders' points on the training schedules,
+   the motions and N random multi-exciter schedules drawn with a seed the training never
+   saw, its error beside a hierarchical estimate (no full run). ``--random-training N``
+   adds N random multi-exciter schedules to the training (seed ``training_seed``).
+
 Results: DIR/study.json, DIR/series.npz, DIR/frames/*.npz (full and reduced
-displacements at the time of largest error), then the report stage
-(:mod:`artifem.reduction.study_report`): report.md and PNGs.
+displacements at the time of largest error), DIR/generalization.json (.md, .png, series),
+then the report stage (:mod:`artifem.reduction.study_report`): report.md and PNGs.
 """
 
 from __future__ import annotations
@@ -40,7 +47,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from artifem.arguments import positive_int
+from artifem.arguments import nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
                                          Tongue, TongueConfig, load_tongue_data)
@@ -48,7 +55,8 @@ from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
-from artifem.reduction.schedules import each_alone
+from artifem.reduction.generalization import generalization_study
+from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
 
 TARGETS = {"ms_per_step": 1.0, "speedup": 100.0, "max_error_mm": 1.0}
@@ -69,6 +77,15 @@ class StudyConfig:
     motions: tuple[str, ...] = tuple(MOTIONS)
     training_excitation: float = 0.6
     training_duration: float = 0.7
+    #: random multi-exciter training schedules added to the exciters alone
+    #: (:func:`~artifem.reduction.schedules.random_schedules`, seed ``training_seed``)
+    random_training: int = 0
+    training_seed: int = 1
+    #: held-out random schedules (seed ``held_out_seed``) for the train/test split
+    #: (:mod:`artifem.reduction.generalization`), run on the trained POD basis with the
+    #: points of the renders; 0: none
+    held_out: int = 5
+    held_out_seed: int = 1000
     snapshot_every: int = 5
     #: Training states used for the cubature fit (evenly spaced among all snapshots).
     force_snapshots: int = 66
@@ -104,6 +121,10 @@ class StudyConfig:
             raise InputError(f"unknown motions {sorted(unknown)}; choose from {sorted(MOTIONS)}")
         if not self.points or min(self.points) < 1:
             raise InputError(f"points must be positive counts, got {self.points}")
+        if self.held_out and (self.random_training and self.held_out_seed == self.training_seed):
+            raise InputError(f"held_out_seed ({self.held_out_seed}) must differ from "
+                             f"training_seed: held-out schedules are inputs the training "
+                             "never saw")
         if not 0.0 < self.training_excitation <= 1.0:
             raise InputError(f"training_excitation must be in (0, 1], got "
                              f"{self.training_excitation}")
@@ -133,11 +154,17 @@ class TongueStudy:
         self.volume0 = self.body.volume()
         self.table = quadrature_points(self.body)
         model = reducible(tongue_config, self.tongue.data)
-        training = Training(each_alone(self.tongue.exciters, config.training_excitation,
-                                       RAMP_TIME),
-                            config.training_duration, config.dt, config.snapshot_every)
+        schedules = each_alone(self.tongue.exciters, config.training_excitation, RAMP_TIME)
+        if config.random_training:
+            schedules.update(random_schedules(self.tongue.exciters, config.random_training,
+                                              seed=config.training_seed,
+                                              duration=config.training_duration))
+        self.training = Training(schedules, config.training_duration, config.dt,
+                                 config.snapshot_every)
+        self.model = model
         #: the training stages (snapshots, bases, points, pressure space), cached
-        self.reductor = Reductor(model, training, cache or self.out / "cache",
+        self.cache = Path(cache or self.out / "cache")
+        self.reductor = Reductor(model, self.training, self.cache,
                                  pressure_modes=config.pressure_modes)
         n = self.body.V.dofmap.index_map.size_local
         node_of_dof = np.empty(n, dtype=np.int64)
@@ -268,7 +295,8 @@ class TongueStudy:
                          k: float(np.nanmax(np.abs(f["volume_change"]))) for k, f in full.items()}},
             "incompressibility": c.incompressibility,
             "training": {"snapshots": int(snapshots.displacements.shape[0]),
-                         "exciters": len(snapshot_keys),
+                         "runs": len(snapshot_keys),
+                         "random_schedules": c.random_training,
                          "training_excitation": c.training_excitation,
                          "force_snapshots": c.force_snapshots,
                          "cubature_tol": c.cubature_tol,
@@ -279,6 +307,13 @@ class TongueStudy:
             "runs": runs,
             "targets": TARGETS,
         }
+        if c.held_out and "trained-pod" in c.bases:
+            generalization_study(
+                self.model, self.training, self.out, basis=Basis("pod", c.pod_r),
+                points=Points(self._frame_m(), tol=c.cubature_tol, growth=c.cubature_growth,
+                              training_states=c.force_snapshots),
+                held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt,
+                cache=self.cache, pressure_modes=c.pressure_modes)
         (self.out / "study.json").write_text(json.dumps(study, indent=1))
         np.savez(self.out / "series.npz", **series)
         from artifem.reduction.study_report import write_report
@@ -323,7 +358,7 @@ def quick_config(level: int = 0) -> StudyConfig:
     """A small study for tests and smoke runs: one motion, short, few points."""
     return StudyConfig(level=level, points=(120, 60), motions=("protrusion",), duration=0.3,
                        training_duration=0.3, snapshot_every=10, force_snapshots=20, pod_r=8,
-                       linear_modes=2, pressure_modes=3)
+                       linear_modes=2, pressure_modes=3, held_out=0)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -343,6 +378,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the hard constraint (the default: reduced bodies hold "
                              "--pressure-modes POD modes of the training pressures), or the "
                              "element penalty 100 C10")
+    parser.add_argument("--random-training", type=nonnegative_int, default=None,
+                        help="random multi-exciter training schedules added to the exciters "
+                             "alone (default 0)")
+    parser.add_argument("--training-duration", type=positive_float, default=None,
+                        help="seconds of each training run (default 0.7; --quick: 0.3)")
+    parser.add_argument("--held-out", type=nonnegative_int, default=None,
+                        help="held-out random schedules the trained POD model is tested on "
+                             "(default 5; --quick: 0)")
+    parser.add_argument("--held-out-seed", type=int, default=None,
+                        help="their seed (default 1000; must differ from the training's)")
     parser.add_argument("--pressure-modes", type=positive_int, default=None,
                         help="reduced pressure modes with --incompressibility hard: the constant "
                              "and POD modes of the training pressures (default 4)")
@@ -350,6 +395,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
+    for name in ("random_training", "training_duration", "held_out", "held_out_seed"):
+        if getattr(args, name) is not None:
+            config = replace(config, **{name: getattr(args, name)})
     if args.points:
         config = replace(config, points=tuple(args.points))
     if args.motions:

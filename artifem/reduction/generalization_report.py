@@ -1,0 +1,41 @@
+"""The Markdown of a train/test split (:mod:`artifem.reduction.generalization`), from its
+generalization.json alone (no model, no dolfinx: the study reports import it)."""
+
+from __future__ import annotations
+
+__all__ = ["SETS", "write_markdown"]
+
+#: The sets of a split, in report order.
+SETS = ("training", "motions", "held-out")
+
+
+def write_markdown(figures: dict) -> str:
+    """The report's tables (one per set) from generalization.json's content."""
+    m = figures["reduced"]
+    lines = [f"# {figures['model']}: the reduced model on inputs it was not built from", "",
+             f"Reduced model: {m['basis']['kind']} basis, r = {m['basis']['r']}"
+             f"{' (' + str(m['basis']['lift_columns']) + ' lift columns)' if m['basis']['lift_columns'] else ''}, "
+             f"{m['points']['count']} {m['points']['sampling']} points; trained on "
+             f"{m['runs']} runs ({m['snapshots']} snapshots), "
+             f"{sum(m['seconds'].values()):.0f} s of training computation "
+             f"({', '.join(f'{k} {v:.0f} s' for k, v in m['seconds'].items())}). "
+             f"Estimate: the difference to a reference reduced model with r = "
+             f"{figures['reference']['basis']['r']} and {figures['reference']['points']['count']}"
+             f" points (hierarchical estimate, no full run).", ""]
+    for name in SETS:
+        runs = figures["sets"].get(name, [])
+        if not runs:
+            continue
+        lines += [f"## {name}", "",
+                  "| schedule | max error (mm) | mean error (mm) | estimate (mm) | estimate / "
+                  "error | reduced ms/step | slowest / median step | speed-up |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r in runs:
+            lines.append(f"| {r['name']}{' (failed)' if r['failed'] else ''} | "
+                         f"{r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
+                         f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} | "
+                         f"{r['reduced_ms_per_step']:.2f} | {r['max_step_over_median']:.1f} | "
+                         f"{'-' if r['speedup'] is None else format(r['speedup'], '.0f') + 'x'} |")
+        lines.append("")
+    lines += ["![error over time](generalization.png)", ""]
+    return "\n".join(lines)
