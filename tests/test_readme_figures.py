@@ -152,3 +152,29 @@ def test_suite_figures_match_the_durations_json():
     assert agrees(m.group(2), run["wall_s"] / 60.0)
     slowest = max(run["seconds_per_file"], key=run["seconds_per_file"].get)
     assert slowest in README, "the README names the longest test file of that run"
+
+
+def test_held_out_figures_match_the_generalization_jsons():
+    """The train/test split table of docs/tongue_study.md and the README's sentence: ranges
+    of the max error per set and of the estimate ratio on the held-out set, from
+    docs/tongue_study/level0_generalization{_each_alone,}/generalization.json."""
+    page = (ROOT / "docs" / "tongue_study.md").read_text()
+    for label, folder in (("each exciter alone", "level0_generalization_each_alone"),
+                          ("and 20 random schedules", "level0_generalization")):
+        split = json.loads((ROOT / "docs" / "tongue_study" / folder / "generalization.json")
+                           .read_text())
+        row = next(line for line in page.splitlines() if line.startswith(f"| {label}"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert int(cells[1]) == split["reduced"]["runs"]
+        assert agrees(cells[2].removesuffix(" s"), sum(split["reduced"]["seconds"].values()))
+        for cell, name in zip(cells[3:6], ("training", "motions", "held-out")):
+            errors = [r["max_error_mm"] for r in split["sets"][name]]
+            lo, hi = cell.split("-")
+            assert agrees(lo, min(errors)) and agrees(hi, max(errors))
+            quoted = {"each exciter alone": ("motions", "held-out"),
+                      "and 20 random schedules": ("held-out",)}[label]
+            if name in quoted:                              # the README's sentence
+                assert f"{min(errors):.2f}-{max(errors):.2f} mm" in README.replace("\n", " ")
+        ratios = [r["estimate_ratio"] for r in split["sets"]["held-out"]]
+        lo, hi = cells[6].split("-")
+        assert agrees(lo, min(ratios)) and agrees(hi, max(ratios))
