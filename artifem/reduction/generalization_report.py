@@ -28,7 +28,7 @@ def write_markdown(figures: dict) -> str:
             continue
         lines += [f"## {name}", "",
                   "| schedule | max error (mm) | mean error (mm) | estimate (mm) | estimate / "
-                  "error | reduced ms/step | slowest / median step | speed-up |",
+                  "error | reduced ms/step | slowest / median step (after the first) | speed-up |",
                   "|---|---|---|---|---|---|---|---|"]
         for r in runs:
             lines.append(f"| {r['name']}{' (failed)' if r['failed'] else ''} | "
