@@ -39,6 +39,7 @@ from artifem.reduction.schedules import random_schedules
 
 __all__ = ["generalization_study", "held_out_schedules"]
 
+
 def held_out_schedules(model: ReducibleScene, inputs: list[str], training: Training,
                        count: int, seed: int, duration: float) -> dict:
     """``count`` random schedules of ``seed`` over ``inputs``; an error if one of them is a
@@ -103,11 +104,16 @@ def generalization_study(model: ReducibleScene, training: Training, out: str | P
                                      points.growth, points.training_states, points.seed))
     richer = reductor.reduce(*reference)
     known = {name: reductor.training_run(name) for name in training.schedules}
-    results = {name: compare(reduced, schedules[name], duration=duration if name != "training"
-                             else training.duration, dt=dt, cache=reductor.cache.root,
-                             reference=richer, known=known if name == "training" else None,
-                             progress=progress)
-               for name in sets if schedules[name]}
+    results = {}
+    for name in sets:
+        if not schedules[name]:
+            continue
+        trained = name == "training"        # the training's own steps: its snapshots
+        results[name] = compare(reduced, schedules[name],
+                                duration=training.duration if trained else duration,
+                                dt=training.dt if trained else dt, cache=reductor.cache.root,
+                                reference=richer, known=known if trained else None,
+                                progress=progress)
     figures = {"model": model.name, "dt": dt, "duration": duration,
                "training_duration": training.duration, "held_out_seed": seed,
                "reduced": reduced.training, "reference": richer.training,

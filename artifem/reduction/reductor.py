@@ -303,7 +303,7 @@ class Reductor:
             self.carriers.append(Carrier(carrier.name, rigid_lift(
                 self.body, nodes, carrier.position, carrier.rotation)))
         hard = self.body.volume_constraint is not None
-        if hard and not 1 <= pressure_modes:
+        if hard and pressure_modes < 1:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
         self.pressure_modes = pressure_modes if hard else 0
         self.seconds: dict[str, float] = {}
@@ -327,14 +327,13 @@ class Reductor:
         scene = self.model.build()
         body = self.model.fem_body(scene)
         self.model.drive(scene, schedule)
-        carriers = {c.body: next(b for b in scene.rigid_bodies if b.name == c.body)
-                    for c in self.carriers}
+        bones = [next(b for b in scene.rigid_bodies if b.name == c.body) for c in self.carriers]
         n = 3 * body.V.dofmap.index_map.size_local
         record = {"u": lambda s: body.u.x.array[:n].copy(),
                   "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]}
-        for c in self.carriers:
-            record[f"g:{c.body}"] = (lambda s, c=c: c.lift.coordinates(
-                carriers[c.body].position, carriers[c.body].rotation))
+        for k, (c, bone) in enumerate(zip(self.carriers, bones)):
+            record[f"g{k}"] = (lambda s, c=c, bone=bone: c.lift.coordinates(bone.position,
+                                                                           bone.rotation))
         vc = body.volume_constraint
         if vc is not None:
             record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
@@ -343,8 +342,8 @@ class Reductor:
         every = t.snapshot_every
         arrays = {"u": run.records["u"][every::every],
                   "a": run.records["a"][every::every].reshape(-1, len(body.muscles))}
-        arrays["g"] = np.hstack([run.records[f"g:{c.body}"][every::every]
-                                 for c in self.carriers]) if self.carriers else \
+        arrays["g"] = np.hstack([run.records[f"g{k}"][every::every]
+                                 for k in range(len(self.carriers))]) if self.carriers else \
             np.zeros((len(arrays["u"]), 0))
         if vc is not None:
             arrays["p"] = run.records["p"][every::every]
