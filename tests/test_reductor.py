@@ -237,3 +237,35 @@ def test_a_held_out_set_drawn_with_the_training_seed_is_refused(tmp_path):
     with pytest.raises(InputError, match="seed the training did not use"):
         held_out_schedules(ReducibleScene("free", free_beam, "fem", {}), ["top"], training,
                            2, 5, 0.2)
+
+
+def test_a_hard_body_is_reduced_with_its_pressure_space(tmp_path):
+    """The hard incompressibility goes through every stage: training pressures, the reduced
+    pressure space (the constant and POD modes), the constraint's weights at trained
+    points, and the split of a hard body (its reference too). With every snapshot in the
+    basis, every point and every pressure mode (16 elements) the reduced scene reproduces
+    the full hard scene; with 3 modes it holds only those: 0.4 % off, measured."""
+    from artifem.incompressibility import Incompressible
+    from artifem.reduction.generalization import generalization_study
+
+    def hard_beam() -> Scene:
+        scene = Scene(gravity=(0.0, 0.0, -9.81))
+        scene.add(make_body(excitation=0.0, rayleigh=(0.5, 0.01),
+                            incompressibility=Incompressible(kappa=7.6e5, tol=1e-10)))
+        return scene
+    model = ReducibleScene("hard", hard_beam, "fem", {"model": "hard"})
+    schedule = next(iter(TRAINING.schedules.values()))
+    full = run(model, hard_beam(), schedule, 0.2)["u"]
+    scale = np.abs(full).max()
+    for modes, tol in ((16, 1e-6), (3, 1e-2)):
+        reduced = reduce(model, TRAINING, basis=Basis("pod", 40), points=Points(sampling="all"),
+                         cache=tmp_path, pressure_modes=modes, progress=False)
+        assert reduced.pressure_basis.shape[1] == modes
+        assert np.abs(run(model, reduced.scene(), schedule, 0.2)["u"] - full).max() \
+            < tol * scale
+    figures = generalization_study(model, TRAINING, tmp_path / "split", basis=Basis("pod", 4),
+                                   points=Points(40, tol=1e-6, training_states=20),
+                                   held_out=1, seed=99, duration=0.2, cache=tmp_path,
+                                   pressure_modes=3, progress=False)
+    assert figures["reduced"]["points"]["count"] <= 40
+    assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
