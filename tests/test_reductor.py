@@ -269,3 +269,32 @@ def test_a_hard_body_is_reduced_with_its_pressure_space(tmp_path):
                                    pressure_modes=3, progress=False)
     assert figures["reduced"]["points"]["count"] <= 40
     assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
+
+
+def test_a_full_model_that_fails_ends_its_comparison_there(tmp_path):
+    """A held-out schedule the full model cannot complete (the hard tongue inverts elements
+    under some) does not end the study: the comparison says why and keeps the error up to
+    that time, the reduced run goes on."""
+    from artifem.errors import StepFailed
+    from artifem.reduction.evaluation import compare
+
+    failing = {"on": False}
+
+    def failing_beam() -> Scene:
+        scene = free_beam()
+
+        def stop(s, t0, t1):
+            if failing["on"] and s.fem_bodies and t1 > 0.1 + 1e-9:
+                raise StepFailed("the full beam stops at 0.1 s")
+        scene.add_controller(stop)
+        return scene
+    model = ReducibleScene("failing", failing_beam, "fem", {"model": "failing"})
+    reduced = reduce(model, TRAINING, basis=Basis("pod", 4), points=Points(sampling="all"),
+                     cache=tmp_path, progress=False)
+    failing["on"] = True
+    (c,) = compare(reduced, {"held out": HELD_OUT}, duration=0.2, dt=DT, cache=tmp_path,
+                   progress=False)
+    s = c.summary()
+    assert s["full_failed"] and "stops at 0.1 s" in s["full_error"] and not s["failed"]
+    assert np.all(np.isfinite(c.error_mm[:11])) and np.all(np.isnan(c.error_mm[11:]))
+    assert c.reduced_ms.size == 20

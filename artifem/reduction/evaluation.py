@@ -12,8 +12,8 @@ With a ``reference`` reduced model (a richer one: more vectors, more points), th
 
 a hierarchical error estimate (Hain, Ohlberger, Radic & Urban 2019): it needs no full run,
 only the reference's reduced run, and is close to e(t) when the reference's own error is
-small against the reduced model's. A run that fails (the reduced step cannot be completed)
-ends there and says why.
+small against the reduced model's. A run that fails (the reduced step, or the full model's,
+cannot be completed) ends there and says why; the error is known up to the first failure.
 """
 
 from __future__ import annotations
@@ -47,6 +47,8 @@ class Comparison:
     full_ms: np.ndarray
     reduced_ms: np.ndarray
     failure: str | None = None
+    #: why the full model stopped early: the error is known up to there only
+    full_failure: str | None = None
 
     def summary(self) -> dict:
         """The figures of the run (JSON-able)."""
@@ -67,7 +69,9 @@ class Comparison:
                 "max_step_over_median": float(self.reduced_ms[1:].max() / ms)
                 if self.reduced_ms.size > 1 else float("nan"),
                 "failed": self.failure is not None,
-                **({"error": self.failure} if self.failure else {})}
+                **({"error": self.failure} if self.failure else {}),
+                "full_failed": self.full_failure is not None,
+                **({"full_error": self.full_failure} if self.full_failure else {})}
 
 
 def _schedule_key(schedule: ExcitationSchedule) -> dict:
@@ -76,8 +80,9 @@ def _schedule_key(schedule: ExcitationSchedule) -> dict:
 
 def full_run(model: ReducibleScene, schedule: ExcitationSchedule, duration: float, dt: float,
              cache: ArtifactCache, *, label: str = "full", progress: bool = True) -> dict:
-    """The body's displacements (steps + 1, ndofs) and step times of the full scene driven
-    by ``schedule``, cached."""
+    """The body's displacements (steps + 1, ndofs; NaN after a failure) and step times of the
+    full scene driven by ``schedule``, and ``failure``: why the full model stopped early
+    (e.g. inverted elements under a strong schedule), else empty. Cached."""
     key = cache.key("full-run", model=model.key, body=model.body, duration=duration, dt=dt,
                     **_schedule_key(schedule))
 
@@ -87,8 +92,11 @@ def full_run(model: ReducibleScene, schedule: ExcitationSchedule, duration: floa
         model.drive(scene, schedule)
         n = 3 * body.V.dofmap.index_map.size_local
         run = simulate(scene, duration, dt, record={"u": lambda s: body.u.x.array[:n].copy()},
-                       progress=progress, label=label, leave=False)
-        return {"u": run.records["u"], "ms": run.step_ms}
+                       on_failure="stop", progress=progress, label=label, leave=False)
+        u = np.full((int(round(duration / dt)) + 1, n), np.nan)
+        u[:len(run.records["u"])] = run.records["u"]
+        return {"u": u, "ms": run.step_ms,
+                "failure": np.array("" if run.failure is None else str(run.failure))}
     return cache.get(key, compute)
 
 
@@ -133,15 +141,16 @@ def compare(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule], *,
             steps, u_full = known[name]
             keep = steps < u.shape[0]
             error[steps[keep]] = _node_mean_mm(u[steps[keep]], u_full[keep])
-            full_ms = np.full(1, np.nan)
+            full_ms, full_failure = np.full(1, np.nan), None
         else:
             full = full_run(reduced.model, schedule, duration, dt, store,
                             label=f"full {name}", progress=progress)
             error = _node_mean_mm(u, full["u"])
             full_ms = np.asarray(full["ms"])
+            full_failure = str(full["failure"]) or None
         estimate = np.full(u.shape[0], np.nan)
         if reference is not None:
             estimate = _node_mean_mm(u, _reduced_run(reference, schedule, duration, dt)[0])
         out.append(Comparison(name, np.arange(u.shape[0]) * dt, error, estimate, full_ms, ms,
-                              failure))
+                              failure, full_failure))
     return out

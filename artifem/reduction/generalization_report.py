@@ -31,7 +31,9 @@ def write_markdown(figures: dict) -> str:
                   "error | reduced ms/step | slowest / median step (after the first) | speed-up |",
                   "|---|---|---|---|---|---|---|---|"]
         for r in runs:
-            lines.append(f"| {r['name']}{' (failed)' if r['failed'] else ''} | "
+            failed = " (reduced failed)" if r["failed"] else ""
+            failed += " (full model failed: error until then)" if r.get("full_failed") else ""
+            lines.append(f"| {r['name']}{failed} | "
                          f"{r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
                          f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} | "
                          f"{r['reduced_ms_per_step']:.2f} | {r['max_step_over_median']:.1f} | "
