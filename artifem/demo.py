@@ -2,8 +2,9 @@
 
 1. ``artifem study tongue`` on the level-0 tongue: training, bases, integration
    points, the full model and twelve reduced configurations through the three
-   speech motions, and the report (about 5 minutes on 2 cores the first time;
-   training is cached in the output directory, so a second run skips it);
+   speech motions, the train/test split on five held-out random schedules, and the
+   report (about 5 minutes on 2 cores the first time; training is cached in the output
+   directory, so a second run skips it);
 2. the muscle-driven cantilever (``artifem simulate beam``) and the tongue's
    protrusion, retroflexion and retraction (``artifem simulate tongue --motion all``).
 
