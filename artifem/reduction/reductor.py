@@ -52,8 +52,8 @@ from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.reduction.reduced_volume_constraint import pressure_basis
 from artifem.reduction.rigid_lift import RigidLift, rigid_lift
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
-                                        pressure_weights, project)
-from artifem.scene import Scene, simulate
+                                        pressure_weights, project, record_snapshots)
+from artifem.scene import Scene
 
 __all__ = ["ReducibleScene", "Training", "Basis", "Points", "Reductor", "ReducedModel",
            "reduce", "BASES"]
@@ -322,32 +322,17 @@ class Reductor:
         return data
 
     def _run(self, name: str, schedule: ExcitationSchedule) -> dict[str, np.ndarray]:
-        """One training run in a freshly built scene."""
+        """One training run in a freshly built scene (:func:`record_snapshots`)."""
         t = self.training
         scene = self.model.build()
         body = self.model.fem_body(scene)
         self.model.drive(scene, schedule)
         bones = [next(b for b in scene.rigid_bodies if b.name == c.body) for c in self.carriers]
-        n = 3 * body.V.dofmap.index_map.size_local
-        record = {"u": lambda s: body.u.x.array[:n].copy(),
-                  "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]}
-        for k, (c, bone) in enumerate(zip(self.carriers, bones)):
-            record[f"g{k}"] = (lambda s, c=c, bone=bone: c.lift.coordinates(bone.position,
-                                                                           bone.rotation))
-        vc = body.volume_constraint
-        if vc is not None:
-            record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
-        run = simulate(scene, t.duration, t.dt, record=record, progress=self.progress,
-                       label=f"training {name}", leave=False)
-        every = t.snapshot_every
-        arrays = {"u": run.records["u"][every::every],
-                  "a": run.records["a"][every::every].reshape(-1, len(body.muscles))}
-        arrays["g"] = np.hstack([run.records[f"g{k}"][every::every]
-                                 for k in range(len(self.carriers))]) if self.carriers else \
-            np.zeros((len(arrays["u"]), 0))
-        if vc is not None:
-            arrays["p"] = run.records["p"][every::every]
-        return arrays
+        return record_snapshots(scene, body, duration=t.duration, dt=t.dt,
+                                every=t.snapshot_every, label=f"training {name}",
+                                progress=self.progress,
+                                carriers=[(c.lift, bone) for c, bone in zip(self.carriers, bones)]
+                                ).as_arrays()
 
     def snapshot_keys(self) -> list[str]:
         t = self.training
@@ -372,15 +357,17 @@ class Reductor:
         data = self._cached("snapshots", self.snapshot_keys()[k],
                             lambda: self._run(name, self.training.schedules[name]))
         every = self.training.snapshot_every
-        return every * np.arange(1, len(data["u"]) + 1), data["u"]
+        u = data["displacements"]
+        return every * np.arange(1, len(u) + 1), u
 
     def _all_snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
         keys, parts = self.snapshot_keys(), []
         for key, (name, schedule) in zip(keys, self.training.schedules.items()):
             parts.append(self._cached("snapshots", key, lambda n=name, s=schedule:
                                       self._run(n, s)))
-        u = np.concatenate([p["u"] for p in parts])
-        g = np.concatenate([p["g"] for p in parts])
+        found = Snapshots.concatenate([Snapshots.from_arrays(p) for p in parts])
+        u = found.displacements
+        g = found.poses if found.poses is not None else np.zeros((len(u), 0))
         L = self.lift_columns()
         if L.shape[1]:
             u = u - g @ L.T
@@ -391,8 +378,7 @@ class Reductor:
                                  f"{self.body.name!r} left their rigid bodies by up to "
                                  f"{off:.3g} in training; the lift cannot carry them")
             u[:, rows] = 0.0                    # round-off of u - Phi g
-        pressures = None if self.pressure_modes == 0 else np.concatenate([p["p"] for p in parts])
-        return Snapshots(u, np.concatenate([p["a"] for p in parts]), pressures), g, keys
+        return Snapshots(u, found.excitations, found.pressures), g, keys
 
     def lift_columns(self) -> np.ndarray:
         n = 3 * self.body.V.dofmap.index_map.size_local

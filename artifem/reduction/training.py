@@ -45,7 +45,7 @@ __all__ = ["ArtifactCache", "Snapshots", "record_snapshots", "project",
            "force_training_matrix", "pressure_weights"]
 
 #: Bump when a change in the code changes what a cached artifact would hold.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 def _jsonable(value):
@@ -105,13 +105,16 @@ class ArtifactCache:
 
 @dataclass
 class Snapshots:
-    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states, and
-    the pressures (S, n_p) of a body with the hard incompressibility (else None): one
-    snapshot per row, the convention of every function in artifem.reduction."""
+    """Displacements (S, ndofs) and muscle excitations (S, muscles) of training states, the
+    pressures (S, n_p) of a body with the hard incompressibility (else None), and the pose
+    coordinates g (S, 12 k) of the k rigid bodies that carry nodes of it
+    (:mod:`artifem.reduction.rigid_lift`; None without any): one snapshot per row, the
+    convention of every function in artifem.reduction."""
 
     displacements: np.ndarray
     excitations: np.ndarray
     pressures: np.ndarray | None = None
+    poses: np.ndarray | None = None
 
     def __post_init__(self):
         u, a = np.asarray(self.displacements), np.asarray(self.excitations)
@@ -127,27 +130,33 @@ class Snapshots:
 
     @staticmethod
     def concatenate(parts: list[Snapshots]) -> Snapshots:
-        pressures = None if any(p.pressures is None for p in parts) else \
-            np.concatenate([p.pressures for p in parts])
-        return Snapshots(np.concatenate([p.displacements for p in parts]),
-                         np.concatenate([p.excitations for p in parts]), pressures)
+        def joined(name):
+            if any(getattr(p, name) is None for p in parts):
+                return None
+            return np.concatenate([getattr(p, name) for p in parts])
+        return Snapshots(joined("displacements"), joined("excitations"), joined("pressures"),
+                         joined("poses"))
 
     def as_arrays(self) -> dict[str, np.ndarray]:
         arrays = {"displacements": self.displacements, "excitations": self.excitations}
-        if self.pressures is not None:
-            arrays["pressures"] = self.pressures
+        for name in ("pressures", "poses"):
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
         return arrays
 
     @staticmethod
     def from_arrays(arrays: dict[str, np.ndarray]) -> Snapshots:
         """The inverse of :meth:`as_arrays` (a cached artifact)."""
-        return Snapshots(arrays["displacements"], arrays["excitations"], arrays.get("pressures"))
+        return Snapshots(arrays["displacements"], arrays["excitations"], arrays.get("pressures"),
+                         arrays.get("poses"))
 
 
 def record_snapshots(scene: Scene, body: FemBody, *, duration: float, dt: float,
-                     every: int, label: str = "training", progress: bool = True) -> Snapshots:
+                     every: int, label: str = "training", progress: bool = True,
+                     carriers=()) -> Snapshots:
     """Step ``scene`` for ``duration`` and keep (u, excitations) of ``body`` every ``every``
-    steps, and its pressures p when it has the hard incompressibility."""
+    steps, its pressures p when it has the hard incompressibility, and the pose coordinates
+    g of each (RigidLift, rigid body) of ``carriers``."""
     steps = int(round(duration / dt))
     if steps < 1 or every < 1:
         raise InputError(f"record_snapshots: need duration >= dt and every >= 1, got "
@@ -158,10 +167,16 @@ def record_snapshots(scene: Scene, body: FemBody, *, duration: float, dt: float,
     vc = body.volume_constraint
     if vc is not None:
         record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
-    run = simulate(scene, duration, dt, progress=progress, label=label, record=record)
+    for k, (lift, bone) in enumerate(carriers):
+        record[f"g{k}"] = lambda s, lift=lift, bone=bone: lift.coordinates(bone.position,
+                                                                            bone.rotation)
+    run = simulate(scene, duration, dt, progress=progress, label=label, record=record,
+                   leave=False)
     u, a = run.records["u"][every::every], run.records["a"][every::every]
     p = None if vc is None else run.records["p"][every::every]
-    return Snapshots(u, a.reshape(len(u), len(body.muscles)), p)
+    g = np.hstack([run.records[f"g{k}"][every::every] for k in range(len(carriers))]) \
+        if carriers else None
+    return Snapshots(u, a.reshape(len(u), len(body.muscles)), p, g)
 
 
 def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:
