@@ -49,8 +49,8 @@ from artifem.arguments import nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
-from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Training,
-                                        reduce)
+from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
+                                        Training, reduce)
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.generalization_report import write_markdown
 from artifem.reduction.schedules import each_alone
@@ -241,10 +241,11 @@ def run(args: argparse.Namespace) -> int:
     held_out = args.held_out if args.held_out is not None else (0 if args.quick else 5)
     if held_out:
         basis, points = specification(config)
-        split = generalization_study(reducible(config), training(config), args.out,
-                                     basis=basis, points=points, held_out=held_out,
-                                     seed=args.held_out_seed, duration=duration,
-                                     dt=config.dt, cache=args.cache or args.out / "cache")
+        reductor = Reductor(reducible(config), training(config),
+                            args.cache or args.out / "cache")
+        split = generalization_study(reductor, args.out, basis=basis, points=points,
+                                     held_out=held_out, seed=args.held_out_seed,
+                                     duration=duration, dt=config.dt)
         print(write_markdown(split))
     return 0
 

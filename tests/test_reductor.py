@@ -211,7 +211,8 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
     motion = ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)
     model = ReducibleScene("free", free_beam, "fem", {"model": "free"},
                            motions={"ramp": motion})
-    figures = generalization_study(model, TRAINING, tmp_path, basis=Basis("pod", 3),
+    figures = generalization_study(Reductor(model, TRAINING, tmp_path / "cache",
+                                            progress=False), tmp_path, basis=Basis("pod", 3),
                                    points=Points(sampling="all"),
                                    reference=(Basis("pod", 12), Points(sampling="all")),
                                    held_out=3, seed=99, duration=0.2, progress=False)
@@ -263,10 +264,11 @@ def test_a_hard_body_is_reduced_with_its_pressure_space(tmp_path):
         assert reduced.pressure_basis.shape[1] == modes
         assert np.abs(run(model, reduced.scene(), schedule, 0.2)["u"] - full).max() \
             < tol * scale
-    figures = generalization_study(model, TRAINING, tmp_path / "split", basis=Basis("pod", 4),
+    figures = generalization_study(Reductor(model, TRAINING, tmp_path, pressure_modes=3,
+                                            progress=False),
+                                   tmp_path / "split", basis=Basis("pod", 4),
                                    points=Points(40, tol=1e-6, training_states=20),
-                                   held_out=1, seed=99, duration=0.2, cache=tmp_path,
-                                   pressure_modes=3, progress=False)
+                                   held_out=1, seed=99, duration=0.2, progress=False)
     assert figures["reduced"]["points"]["count"] <= 40
     assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
 

@@ -1,10 +1,11 @@
 """How a reduced model does on inputs it was not built from: a train/test split.
 
-    report = generalization_study(model, training, out, basis=Basis("pod", 20),
-                                  points=Points(300), held_out=5, seed=1000)
+    report = generalization_study(Reductor(model, training, cache), out,
+                                  basis=Basis("pod", 20), points=Points(300), held_out=5,
+                                  seed=1000)
 
-For any :class:`~artifem.reduction.reductor.ReducibleScene`: the reductor builds the reduced
-model from ``training`` (and a reference twice as rich, for the estimate), then
+For any :class:`~artifem.reduction.reductor.ReducibleScene`: its reductor builds the reduced
+model from its training (and a reference twice as rich, for the estimate), then
 :func:`~artifem.reduction.evaluation.compare` runs full and reduced scenes on three sets:
 
 - ``training``: the training schedules themselves (what the model was fitted to), the
@@ -75,13 +76,13 @@ def _plot(results: dict[str, list[Comparison]], png: Path) -> Path:
     return png
 
 
-def generalization_study(model: ReducibleScene, training: Training, out: str | Path, *,
-                         basis: Basis = Basis(), points: Points = Points(),
+def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = Basis(),
+                         points: Points = Points(),
                          reference: tuple[Basis, Points] | None = None, held_out: int = 5,
                          seed: int = 1000, duration: float = 1.0, dt: float | None = None,
-                         cache: str | Path | None = None, sets=SETS,
-                         pressure_modes: int = 4, progress: bool = True) -> dict:
-    """The train/test study of the module docstring; returns generalization.json's content.
+                         sets=SETS, progress: bool = True) -> dict:
+    """The train/test study of the module docstring on ``reductor``'s model and training
+    (its cache holds every stage and full run); returns generalization.json's content.
 
     ``reference``: the richer model of the estimate (default: twice the basis size and the
     points, a tenth of the cubature tolerance). ``sets``: which of the three sets to run.
@@ -90,9 +91,8 @@ def generalization_study(model: ReducibleScene, training: Training, out: str | P
     unknown = set(sets) - set(SETS)
     if unknown:
         raise InputError(f"generalization_study: unknown sets {sorted(unknown)}; use {SETS}")
+    model, training = reductor.model, reductor.training
     dt = dt or training.dt
-    reductor = Reductor(model, training, cache or out / "cache", pressure_modes=pressure_modes,
-                        progress=progress)
     inputs = sorted(model.inputs(reductor.body))
     schedules = {"training": dict(training.schedules), "motions": dict(model.motions),
                  "held-out": held_out_schedules(model, inputs, training, held_out, seed,
@@ -103,7 +103,8 @@ def generalization_study(model: ReducibleScene, training: Training, out: str | P
                               Points(2 * points.count, points.sampling, points.tol / 10,
                                      points.growth, points.training_states, points.seed))
     richer = reductor.reduce(*reference)
-    known = {name: reductor.training_run(name) for name in training.schedules}
+    known = {name: reductor.training_run(name) for name in training.schedules} \
+        if "training" in sets else {}
     results = {}
     for name in sets:
         if not schedules[name]:

@@ -307,18 +307,24 @@ class Reductor:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
         self.pressure_modes = pressure_modes if hard else 0
         self.seconds: dict[str, float] = {}
+        self._runs = None               # (each training run's Snapshots, seconds), loaded once
         self._snapshots = None
 
     # ---- stage 1: snapshots -------------------------------------------------------------
 
-    def _cached(self, stage: str, key: str, compute: Callable[[], dict]) -> dict:
-        """``cache.get`` that keeps the seconds the artifact took to compute (in it)."""
+    def _timed(self, key: str, compute: Callable[[], dict]) -> tuple[dict, float]:
+        """``cache.get``, the artifact holding the seconds it took to compute: (it, them)."""
         def timed():
             tic = time.perf_counter()
             arrays = compute()
             return {**arrays, "seconds": np.array(time.perf_counter() - tic)}
         data = self.cache.get(key, timed)
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + float(data.get("seconds", 0.0))
+        return data, float(data.get("seconds", 0.0))
+
+    def _cached(self, stage: str, key: str, compute: Callable[[], dict]) -> dict:
+        """:meth:`_timed`, its seconds added to ``stage``'s."""
+        data, seconds = self._timed(key, compute)
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
         return data
 
     def _run(self, name: str, schedule: ExcitationSchedule) -> dict[str, np.ndarray]:
@@ -345,7 +351,20 @@ class Reductor:
         """(snapshots of u - sum L g, the pose coordinates g (S, 12 k), their cache keys)."""
         if self._snapshots is None:
             self._snapshots = self._all_snapshots()
+        self.seconds["snapshots"] = self._runs[1]
         return self._snapshots
+
+    def _training_runs(self) -> list[Snapshots]:
+        """Each training run's snapshots, computed or loaded from the cache once."""
+        if self._runs is None:
+            runs, seconds = [], 0.0
+            for key, (name, schedule) in zip(self.snapshot_keys(),
+                                             self.training.schedules.items()):
+                data, spent = self._timed(key, lambda n=name, s=schedule: self._run(n, s))
+                seconds += spent
+                runs.append(Snapshots.from_arrays(data))
+            self._runs = (runs, seconds)
+        return self._runs[0]
 
     def training_run(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(the steps of its snapshots, the body's displacements there) of the training run
@@ -353,19 +372,11 @@ class Reductor:
         names = list(self.training.schedules)
         if name not in names:
             raise UnknownNameError(f"no training schedule {name!r}; they are {names}")
-        k = names.index(name)
-        data = self._cached("snapshots", self.snapshot_keys()[k],
-                            lambda: self._run(name, self.training.schedules[name]))
-        every = self.training.snapshot_every
-        u = data["displacements"]
-        return every * np.arange(1, len(u) + 1), u
+        u = self._training_runs()[names.index(name)].displacements
+        return self.training.snapshot_every * np.arange(1, len(u) + 1), u
 
     def _all_snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
-        keys, parts = self.snapshot_keys(), []
-        for key, (name, schedule) in zip(keys, self.training.schedules.items()):
-            parts.append(self._cached("snapshots", key, lambda n=name, s=schedule:
-                                      self._run(n, s)))
-        found = Snapshots.concatenate([Snapshots.from_arrays(p) for p in parts])
+        found = Snapshots.concatenate(self._training_runs())
         u = found.displacements
         g = found.poses if found.poses is not None else np.zeros((len(u), 0))
         L = self.lift_columns()
@@ -378,7 +389,7 @@ class Reductor:
                                  f"{self.body.name!r} left their rigid bodies by up to "
                                  f"{off:.3g} in training; the lift cannot carry them")
             u[:, rows] = 0.0                    # round-off of u - Phi g
-        return Snapshots(u, found.excitations, found.pressures), g, keys
+        return Snapshots(u, found.excitations, found.pressures), g, self.snapshot_keys()
 
     def lift_columns(self) -> np.ndarray:
         n = 3 * self.body.V.dofmap.index_map.size_local
@@ -503,13 +514,12 @@ class Reductor:
     def reduce(self, basis: Basis = Basis(), points: Points = Points()) -> ReducedModel:
         """The reduced model of ``basis`` and ``points``."""
         self.seconds = {}
-        self._snapshots = None
         W, key = self.basis(basis)
         pts = self.points(W, key, points)[points.count]
         Pi = self.pressure_space()
         weights = None if Pi is None else \
             self.constraint_weights(W, key, pts, Pi, points.training_states)
-        trained = self._snapshots is not None
+        trained = "snapshots" in self.seconds          # this model used the training
         return ReducedModel(self.model, W, list(self.carriers), pts, Pi, weights, training={
             "runs": len(self.training.schedules) if trained else 0,
             "snapshots": int(self._snapshots[0].displacements.shape[0]) if trained else 0,

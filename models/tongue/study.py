@@ -54,8 +54,8 @@ from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, R
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
 from artifem.reduction.generalization import generalization_study
+from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
 
@@ -121,7 +121,7 @@ class StudyConfig:
             raise InputError(f"unknown motions {sorted(unknown)}; choose from {sorted(MOTIONS)}")
         if not self.points or min(self.points) < 1:
             raise InputError(f"points must be positive counts, got {self.points}")
-        if self.held_out and (self.random_training and self.held_out_seed == self.training_seed):
+        if self.held_out and self.random_training and self.held_out_seed == self.training_seed:
             raise InputError(f"held_out_seed ({self.held_out_seed}) must differ from "
                              f"training_seed: held-out schedules are inputs the training "
                              "never saw")
@@ -153,18 +153,16 @@ class TongueStudy:
         self.body.compile()
         self.volume0 = self.body.volume()
         self.table = quadrature_points(self.body)
-        model = reducible(tongue_config, self.tongue.data)
         schedules = each_alone(self.tongue.exciters, config.training_excitation, RAMP_TIME)
         if config.random_training:
             schedules.update(random_schedules(self.tongue.exciters, config.random_training,
                                               seed=config.training_seed,
                                               duration=config.training_duration))
-        self.training = Training(schedules, config.training_duration, config.dt,
-                                 config.snapshot_every)
-        self.model = model
+        training = Training(schedules, config.training_duration, config.dt,
+                            config.snapshot_every)
         #: the training stages (snapshots, bases, points, pressure space), cached
-        self.cache = Path(cache or self.out / "cache")
-        self.reductor = Reductor(model, self.training, self.cache,
+        self.reductor = Reductor(reducible(tongue_config, self.tongue.data), training,
+                                 cache or self.out / "cache",
                                  pressure_modes=config.pressure_modes)
         n = self.body.V.dofmap.index_map.size_local
         node_of_dof = np.empty(n, dtype=np.int64)
@@ -309,11 +307,10 @@ class TongueStudy:
         }
         if c.held_out and "trained-pod" in c.bases:
             generalization_study(
-                self.model, self.training, self.out, basis=Basis("pod", c.pod_r),
+                self.reductor, self.out, basis=Basis("pod", c.pod_r),
                 points=Points(self._frame_m(), tol=c.cubature_tol, growth=c.cubature_growth,
                               training_states=c.force_snapshots),
-                held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt,
-                cache=self.cache, pressure_modes=c.pressure_modes)
+                held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt)
         (self.out / "study.json").write_text(json.dumps(study, indent=1))
         np.savez(self.out / "series.npz", **series)
         from artifem.reduction.study_report import write_report
