@@ -178,3 +178,21 @@ def test_held_out_figures_match_the_generalization_jsons():
         ratios = [r["estimate_ratio"] for r in split["sets"]["held-out"]]
         lo, hi = cells[6].split("-")
         assert agrees(lo, min(ratios)) and agrees(hi, max(ratios))
+
+
+def test_distributed_training_table_matches_its_jsons():
+    """docs/tongue_study.md's table of training on 1 and 2 ranks, from
+    docs/tongue_study/distributed_training/ranks{1,2}/training.json."""
+    page = (ROOT / "docs" / "tongue_study.md").read_text()
+    one = None
+    for ranks in (1, 2):
+        run = json.loads((ROOT / "docs" / "tongue_study" / "distributed_training" /
+                          f"ranks{ranks}" / "training.json").read_text())
+        assert run["ranks"] == ranks and run["missing"] == run["runs"]
+        row = next(line for line in page.splitlines() if line.startswith(f"| {ranks} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[1] == ", ".join(str(len(names)) for names in run["by_rank"])
+        assert agrees(cells[2].removesuffix(" s"), run["wall_seconds"])
+        assert agrees(cells[3].removesuffix(" s"), run["compute_seconds"])
+        one = one or run["wall_seconds"]
+        assert agrees(cells[4], one / run["wall_seconds"])

@@ -88,6 +88,9 @@ def test_second_run_reuses_the_training_and_resumes_a_lost_artifact(quick_study,
     assert main(["study", "tongue", "--quick", "--out", str(quick_study)]) == 0
     assert len(calls) == 1                          # only the lost training run again
     assert len(list((quick_study / "cache").glob("reductor-snapshots-*.npz"))) == 11
+    done = json.loads((quick_study / "training.json").read_text())
+    assert (done["ranks"], done["runs"], done["missing"]) == (1, 11, 1)
+    assert done["by_rank"] == [calls]
 
 
 def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_study, tmp_path):

@@ -64,7 +64,6 @@ from __future__ import annotations
 import numpy as np
 import ufl
 from dolfinx import fem, mesh as dmesh
-from scipy import sparse
 from dolfinx.fem import petsc as fem_petsc
 from ufl.algorithms.analysis import extract_constants
 
@@ -206,8 +205,9 @@ class ReducedFemBody:
         self.D = strain_displacement(self.table, idx, U)
         self.H_bar = strain_displacement(self.table, idx, self.u_bar[:, None])[:, :, 0]
         m = idx.size
-        self._blocks = sparse.bsr_matrix((np.zeros((m, 9, 9)), np.arange(m), np.arange(m + 1)),
-                                         shape=(9 * m, 9 * m))
+        self._blocks = np.zeros((m, 9, 9))          # w_p A_p
+        self._AD = np.zeros((m, 9, self.r))         # w_p A_p D_p
+        self._Dt = np.ascontiguousarray(self.D.reshape(-1, self.r).T)
         # Each energy term's density at the points where it is integrated.
         terms = []
         for term in full.energy_terms():
@@ -386,12 +386,13 @@ class ReducedFemBody:
         follower pressures, unsymmetric for an open one; + the volume constraint's, its
         geometric part with the multipliers in a ``linearized`` step)."""
         _, _, A = self._evaluate()
-        # blockdiag(w_p A_p) as a BSR matrix: one compiled pass over the 9x9 blocks.
-        self._blocks.data[:] = A * self.weights[:, None, None]
+        np.multiply(A, self.weights[:, None, None], out=self._blocks)
         if self.volume_constraint is not None:
-            self.volume_constraint.add_point_tangent(self._blocks.data, linearized)
-        D = self.D.reshape(-1, self.r)
-        K = D.T @ (self._blocks @ D)
+            self.volume_constraint.add_point_tangent(self._blocks, linearized)
+        # (w_p A_p) D_p for all p in one batched product (5x faster than a block-diagonal
+        # sparse matrix times D), then one dense (r x 9m)(9m x r) product.
+        np.matmul(self._blocks, self.D, out=self._AD)
+        K = self._Dt @ self._AD.reshape(-1, self.r)
         K = 0.5 * (K + K.T)
         if self.volume_constraint is not None:
             K = K + self.volume_constraint.augmentation()

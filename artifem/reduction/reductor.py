@@ -24,6 +24,10 @@ interrupted reduction resumes at the first one not on disk:
 4. for a body with the hard incompressibility, its reduced pressure space (the constant
    and POD modes of the training pressures) and the constraint's cubature weights.
 
+The training runs may be shared over the ranks of an MPI communicator
+(:meth:`Reductor.train`, :mod:`artifem.reduction.distributed`): ``mpiexec -n N`` runs N of
+them at a time, each rank on its own serial model, and the cache holds the results.
+
 Couplings: a coupling of the scene that names the body must be able to follow it onto the
 reduced body. One whose nodes of the body ride on a rigid body offers
 ``carried_nodes(body) -> (nodes, rigid body)`` and ``onto_reduced(reduced, lift)``
@@ -40,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
@@ -47,6 +52,7 @@ from artifem.fem_body import FemBody
 from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
                                      modal_derivative_basis, pod_basis)
 from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
+from artifem.reduction.distributed import compute_shared
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.reduction.reduced_volume_constraint import pressure_basis
@@ -273,15 +279,21 @@ class Reductor:
     """The stages of a reduction (module docstring), each cached in ``cache``.
 
     Builds the model once at construction, at rest: its body, mass, quadrature points and
-    the lift columns of the rigid bodies that carry nodes of it.
+    the lift columns of the rigid bodies that carry nodes of it. ``comm``: the ranks
+    :meth:`train` shares the training runs over (each builds its own serial model; the
+    other stages are computed where they are called).
     """
 
     def __init__(self, model: ReducibleScene, training: Training, cache: str | Path, *,
-                 pressure_modes: int = 4, progress: bool = True):
-        self.model, self.training, self.progress = model, training, progress
+                 pressure_modes: int = 4, progress: bool = True, comm: MPI.Comm = MPI.COMM_SELF):
+        self.model, self.training, self.progress, self.comm = model, training, progress, comm
         self.cache = ArtifactCache(cache)
         self.scene = model.build()
         self.body = model.fem_body(self.scene)
+        if self.body.mesh.comm.size != 1:
+            raise InputError(f"model {model.name!r}: its body {self.body.name!r} is distributed "
+                             f"over {self.body.mesh.comm.size} ranks; a reductor needs a serial "
+                             "model on each rank (build its mesh on MPI.COMM_SELF)")
         inputs = model.inputs(self.body)
         for name, schedule in training.schedules.items():
             unknown = sorted(set(schedule.values) - set(inputs))
@@ -334,8 +346,9 @@ class Reductor:
         body = self.model.fem_body(scene)
         self.model.drive(scene, schedule)
         bones = [next(b for b in scene.rigid_bodies if b.name == c.body) for c in self.carriers]
+        on = f" (rank {self.comm.rank + 1}/{self.comm.size})" if self.comm.size > 1 else ""
         return record_snapshots(scene, body, duration=t.duration, dt=t.dt,
-                                every=t.snapshot_every, label=f"training {name}",
+                                every=t.snapshot_every, label=f"training {name}{on}",
                                 progress=self.progress,
                                 carriers=[(c.lift, bone) for c, bone in zip(self.carriers, bones)]
                                 ).as_arrays()
@@ -347,6 +360,16 @@ class Reductor:
                                every=t.snapshot_every)
                 for s in t.schedules.values()]
 
+    def train(self) -> dict:
+        """Compute the training runs not in the cache, shared over the ranks of ``comm``
+        (collective: every rank calls it; :func:`compute_shared`). Returns what it did:
+        ranks, runs computed, the names each rank computed, wall seconds."""
+        jobs = [(name, key, lambda n=name, s=schedule, k=key: self._timed(
+                    k, lambda: self._run(n, s)))
+                for key, (name, schedule) in zip(self.snapshot_keys(),
+                                                 self.training.schedules.items())]
+        return compute_shared(jobs, self.cache, self.comm)
+
     def snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
         """(snapshots of u - sum L g, the pose coordinates g (S, 12 k), their cache keys)."""
         if self._snapshots is None:
@@ -355,7 +378,8 @@ class Reductor:
         return self._snapshots
 
     def _training_runs(self) -> list[Snapshots]:
-        """Each training run's snapshots, computed or loaded from the cache once."""
+        """Each training run's snapshots, computed (here, on this rank alone) or loaded
+        from the cache, once."""
         if self._runs is None:
             runs, seconds = [], 0.0
             for key, (name, schedule) in zip(self.snapshot_keys(),

@@ -2,17 +2,22 @@
 
     artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
                          [--incompressibility hard|penalty] [--random-training N]
-                         [--held-out N] [--held-out-seed S]
+                         [--held-out N] [--held-out-seed S] [--train-only]
+    mpiexec -n N artifem study tongue ...        the training runs shared over N ranks
 
 The tongue holds its element volumes (the hard incompressibility, its default) and the
 reduced bodies hold them in a reduced pressure space; ``--incompressibility penalty``
 studies the element penalty instead.
 
-In one process, on one tongue:
+On one tongue (each rank builds its own, on MPI.COMM_SELF):
 
 1. training (cached in DIR/cache, resumable): the full model driven by each
    exciter alone (ramp to ``training_excitation`` over 0.5 s, hold), nodal
-   displacements and excitations recorded every ``snapshot_every`` steps;
+   displacements and excitations recorded every ``snapshot_every`` steps; under
+   ``mpiexec -n N`` the runs are shared over the N ranks
+   (:mod:`artifem.reduction.distributed`), then rank 0 alone goes on; DIR/training.json
+   says what the training did (ranks, runs computed by each, wall and compute seconds);
+   ``--train-only`` stops here;
 2. bases: *extended modal* (6 linear modes x 9 linear maps = 54 vectors, von
    Tycowicz et al. 2013) and *trained* (mass-weighted POD of the snapshots, r = 20);
    optionally (``--bases``) *modal derivatives* (6 modes and their 21 derivatives,
@@ -44,6 +49,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
@@ -134,7 +140,7 @@ def reducible(config: TongueConfig, data=None) -> ReducibleScene:
     """The tongue as the reductor sees it: its scene, driven by its exciters (bilateral
     muscles drive both bundles), with the seed paper's motions."""
     data = data or load_tongue_data(config.level)
-    return ReducibleScene("tongue", lambda: Tongue(config, data=data).scene, "tongue",
+    return ReducibleScene("tongue", lambda: Tongue(config, MPI.COMM_SELF, data).scene, "tongue",
                           {"tongue": asdict(config)}, exciters=data.exciters,
                           motions={m: Tongue.motion(m) for m in MOTIONS})
 
@@ -142,13 +148,14 @@ def reducible(config: TongueConfig, data=None) -> ReducibleScene:
 class TongueStudy:
     """Runs the study (see the module docstring); each stage is a method."""
 
-    def __init__(self, config: StudyConfig, out: Path, cache: Path | None = None):
+    def __init__(self, config: StudyConfig, out: Path, cache: Path | None = None,
+                 comm: MPI.Comm = MPI.COMM_SELF):
         self.config, self.out = config, Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
         hard = config.incompressibility == "hard"
         tongue_config = TongueConfig(level=config.level,
                                      incompressibility=HARD if hard else PENALTY)
-        self.tongue = Tongue(tongue_config)
+        self.tongue = Tongue(tongue_config, MPI.COMM_SELF)
         self.body = self.tongue.body
         self.body.compile()
         self.volume0 = self.body.volume()
@@ -163,7 +170,7 @@ class TongueStudy:
         #: the training stages (snapshots, bases, points, pressure space), cached
         self.reductor = Reductor(reducible(tongue_config, self.tongue.data), training,
                                  cache or self.out / "cache",
-                                 pressure_modes=config.pressure_modes)
+                                 pressure_modes=config.pressure_modes, comm=comm)
         n = self.body.V.dofmap.index_map.size_local
         node_of_dof = np.empty(n, dtype=np.int64)
         for node, dof in self.body._input_node_to_dof().items():
@@ -172,6 +179,22 @@ class TongueStudy:
         self.node_of_dof = node_of_dof
 
     # ---- training (the reductor's stages) ----------------------------------------------
+
+    def train(self) -> dict | None:
+        """The training runs not in the cache, shared over the ranks (collective); rank 0
+        writes OUT/training.json and returns it (other ranks: None)."""
+        done = self.reductor.train()
+        if self.reductor.comm.rank != 0:
+            return None
+        snapshots, _, _ = self.reductor.snapshots()
+        done.update(runs=len(self.reductor.training.schedules),
+                    snapshots=int(snapshots.displacements.shape[0]),
+                    compute_seconds=self.reductor.seconds["snapshots"],
+                    level=self.config.level, incompressibility=self.config.incompressibility,
+                    random_training=self.config.random_training,
+                    training_duration=self.config.training_duration)
+        (self.out / "training.json").write_text(json.dumps(done, indent=1))
+        return done
 
     def basis(self, name: str) -> tuple[np.ndarray, str]:
         """(U, cache key) of a basis of the study."""
@@ -385,6 +408,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 5; --quick: 0)")
     parser.add_argument("--held-out-seed", type=int, default=None,
                         help="their seed (default 1000; must differ from the training's)")
+    parser.add_argument("--train-only", action="store_true",
+                        help="run the training (shared over the ranks under mpiexec), write "
+                             "OUT/training.json and stop")
     parser.add_argument("--pressure-modes", type=positive_int, default=None,
                         help="reduced pressure modes with --incompressibility hard: the constant "
                              "and POD modes of the training pressures (default 4)")
@@ -404,6 +430,15 @@ def run(args: argparse.Namespace) -> int:
     config = replace(config, incompressibility=args.incompressibility)
     if args.pressure_modes:
         config = replace(config, pressure_modes=args.pressure_modes)
-    report = TongueStudy(config, args.out, args.cache).run()
+    comm = MPI.COMM_WORLD
+    study = TongueStudy(config, args.out, args.cache, comm=comm)
+    done = study.train()
+    if comm.rank != 0:
+        return 0
+    print(f"training: {done['missing']} of {done['runs']} runs computed on {done['ranks']} "
+          f"rank(s) in {done['wall_seconds']:.1f} s: {args.out / 'training.json'}")
+    if args.train_only:
+        return 0
+    report = study.run()
     print(f"report: {report}")
     return 0
