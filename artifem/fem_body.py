@@ -81,7 +81,10 @@ class EnergyTerm:
     of fiber terms, DG0 or a quadrature function, None otherwise), integrated with a quadrature rule
     of ``degree`` over ``cells`` (owned local cells; None means all). The
     full body assembles the sum of its terms; a reduced body evaluates the
-    same densities at its integration points.
+    same densities at its integration points. ``fields_at(cells)``: for a density that
+    reads cell-wise fields (a muscle layer's excitations and constants), their values at
+    given cells without the full mesh ((static, live()) as in
+    :meth:`artifem.muscle_layers._Layer.fields_at`); None when it reads none.
     """
 
     name: str
@@ -89,6 +92,7 @@ class EnergyTerm:
     degree: int
     cells: np.ndarray | None = None
     direction: fem.Function | None = None
+    fields_at: Callable | None = None
 
 
 class FemBody:
@@ -500,9 +504,10 @@ class FemBody:
         terms = [EnergyTerm("material", lambda F, a0: material.strain_energy(F),
                             self.quadrature_degree)]
         if merged:
-            for k, (density, cells, direction) in enumerate(self._muscle_layers().terms()):
+            for k, (density, cells, direction, fields_at) in enumerate(
+                    self._muscle_layers().terms()):
                 terms.append(EnergyTerm(f"muscle layer {k}", density, self.quadrature_degree,
-                                        cells, direction))
+                                        cells, direction, fields_at))
         for m in self.muscles.values() if not merged else ():
             fiber = with_form_constants(m.fiber, self.mesh)
             terms.append(EnergyTerm(f"muscle:{m.name}",

@@ -24,11 +24,14 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 from petsc4py import PETSc
 
 from dolfinx import fem
+
+from artifem.errors import InputError
 
 __all__ = ["MuscleLayers"]
 
@@ -83,8 +86,9 @@ class MuscleLayers:
             layer.refresh()
 
     def terms(self) -> list[tuple]:
-        """(density(F, a0), cells, direction) of each layer."""
-        return [(layer.density, layer.cells, layer.direction) for layer in self.layers]
+        """(density(F, a0), cells, direction, fields_at) of each layer (:meth:`_Layer.fields_at`)."""
+        return [(layer.density, layer.cells, layer.direction, layer.fields_at)
+                for layer in self.layers]
 
 
 class _Layer:
@@ -105,18 +109,37 @@ class _Layer:
         self._dofs = Q.dofmap.list[cells, 0]
         self.excitation = fem.Function(Q, name="layer excitation")
         fiber = copy.copy(muscles[0].fiber)
+        self._constants = {}                # cell-wise form constant -> value per muscle
         for name in getattr(fiber, "form_constants", ()):
             field = fem.Function(Q, name=f"layer {name}")
             values = np.array([float(getattr(m.fiber, name)) for m in muscles],
                               dtype=PETSc.ScalarType)
             field.x.array[self._dofs] = values[owner]
+            self._constants[field] = values
             object.__setattr__(fiber, name, field)
         self.fiber = fiber
+        self._excitation_values = [m.excitation.value for m in muscles]
         self.refresh()
 
+    def _excitations(self) -> np.ndarray:
+        # views of the Constants' values (a Constant's value is updated in place)
+        return np.array([float(v) for v in self._excitation_values])
+
     def refresh(self) -> None:
-        values = np.array([float(m.excitation.value) for m in self.muscles])
-        self.excitation.x.array[self._dofs] = values[self.owner]
+        self.excitation.x.array[self._dofs] = self._excitations()[self.owner]
+
+    def fields_at(self, cells: np.ndarray) -> tuple[dict, Callable[[], dict]]:
+        """The layer's cell-wise fields at ``cells`` (cells of the layer, e.g. those of a
+        reduced body's points), without the full mesh: ({form constant field: values},
+        a callable returning {excitation field: the muscles' current excitations}); O(len
+        (cells)) each, for evaluations at a few points."""
+        cells = np.asarray(cells)
+        pos = np.minimum(np.searchsorted(self.cells, cells), self.cells.size - 1)
+        if not np.array_equal(self.cells[pos], cells):
+            raise InputError("fields_at: cells outside the muscle layer")
+        owner = self.owner[pos]
+        static = {field: values[owner] for field, values in self._constants.items()}
+        return static, lambda: {self.excitation: self._excitations()[owner]}
 
     def density(self, F, a0):
         return self.fiber.strain_energy(F, a0, self.excitation)

@@ -7,7 +7,9 @@
     general basis, all cells, weights 1; Pi~ is the potential of f~ (loads included);
 (c) the points of a subset of cells with weights w equal the full-mesh assembly of the
     w-weighted (DG0) energy;
-(d) muscles: the full body's excitation Constant drives the reduced force;
+(d) muscles: the full body's excitation Constant drives the reduced force; overlapping
+    muscles of two fiber kinds, each point's terms in one fused kernel, give U^T f and
+    U^T K U, also after the excitations change;
 (e) bad input (nonzero basis rows at fixed dofs) and inversion detection.
 """
 
@@ -20,6 +22,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from artifem.errors import ElementInversionError
+from artifem.forms import BlemkerFiber
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
@@ -203,6 +206,39 @@ def test_full_body_excitation_drives_the_reduced_force():
     assert np.abs(f1 - f0).max() > 1e-3 * np.abs(f0).max()
     f_full, _ = full_force_and_tangent(body, U @ q)
     np.testing.assert_allclose(f1, U.T @ f_full, rtol=0, atol=1e-12 * np.abs(f1).max())
+
+
+def test_fused_kernels_of_overlapping_muscles_are_projections_of_the_full_body():
+    """Three muscles: two of one fiber kind overlapping (two layers of it), one of another
+    kind, with the material and the penalty (degree-1 points): each point's terms share
+    one fused kernel, whose force and tangent are U^T f and U^T K U of the full body, also
+    after the excitations change (read live from the muscles)."""
+    body = make_body(excitation=0.3)
+    msh = body.mesh
+    n = msh.topology.index_map(3).size_local
+    centroids = msh.geometry.x[msh.geometry.dofmaps[0][:n]].mean(axis=1)
+    original = np.asarray(msh.topology.original_cell_index[:n])
+    rng = np.random.default_rng(11)
+    front = original[centroids[:, 0] < 0.6]
+    side = original[centroids[:, 1] < 0.15]
+    body.add_muscle("front", front, rng.standard_normal((front.size, 3)),
+                    BlemkerFiber(3.0e4), excitation=0.6)
+    body.add_muscle("side", side, (0.0, 1.0, 0.2), BlemkerFiber(1.0e4, P2=5.0),
+                    excitation=0.9)
+    U = random_basis(body, 6, seed=12)
+    reduced = ReducedFemBody(body, U, all_points(body))
+    assert max(k.slots.__len__() for k in reduced._stresses.kernels) >= 3   # fused terms
+    q = 1e-2 * np.random.default_rng(13).standard_normal(6)
+    for excitations in ({}, {"top": 0.0, "front": 1.0, "side": 0.25}):
+        for name, value in excitations.items():
+            body.set_excitation(name, value)
+        reduced.set_q(q)
+        f_full, K_full = full_force_and_tangent(body, U @ q)
+        f_ref, K_ref = U.T @ f_full, U.T @ K_full @ U
+        np.testing.assert_allclose(reduced.force(), f_ref, rtol=0,
+                                   atol=1e-12 * np.abs(f_ref).max())
+        np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0,
+                                   atol=1e-12 * np.abs(K_ref).max())
 
 
 # ---- (e) bad input and inversion ------------------------------------------------------------

@@ -15,11 +15,11 @@ the full quadrature) times its quadrature volume V_p:
 
 where D_p (9 x r) = B_p U_e is the point's strain-displacement matrix times the
 basis rows of its cell, precomputed once. psi_t are the full body's own
-:class:`~artifem.fem_body.EnergyTerm` densities (bulk material, each muscle's
-fiber energy with the *same* excitation ``fem.Constant``, the element-wise
-incompressibility penalty), compiled by FFCx into batched
+:class:`~artifem.fem_body.EnergyTerm` densities (bulk material, its muscle layers'
+fiber energies read live from the muscles' *same* excitation ``fem.Constant``
+objects, the element-wise incompressibility penalty), compiled by FFCx into
 :class:`~artifem.reduction.stress_kernel.PointStresses` evaluations of P and
-A = dP/dF at the m points. Then
+A = dP/dF at the m points, one fused kernel per set of terms a point holds. Then
 
     f~(q) = -sum_p w_p V_p D_p^T vec(P_p) + f~_ext,
     K~(q) =  sum_p w_p V_p D_p^T A_p D_p,
@@ -210,7 +210,7 @@ class ReducedFemBody:
         self._Dt = np.ascontiguousarray(self.D.reshape(-1, self.r).T)
         # Each energy term's density at the points where it is integrated.
         terms = []
-        for term in full.energy_terms():
+        for term in full.energy_terms(merged=True):
             at = np.flatnonzero(np.isin(idx, self.table.of_term(term)))
             if at.size == 0:
                 continue
@@ -224,7 +224,8 @@ class ReducedFemBody:
                         "(DG0) for now")
                 directions = term.direction.x.array.reshape(-1, 3)[
                     W.dofmap.list[self.cells[at], 0]]
-            terms.append((term.density, at, directions))
+            fields = None if term.fields_at is None else term.fields_at(self.cells[at])
+            terms.append((term.density, at, directions, fields))
         self._stresses = PointStresses(terms, m)
         # Views of the excitation values (updated in place when a controller sets them).
         self._excitations = [mus.excitation.value for mus in full.muscles.values()]
@@ -248,7 +249,7 @@ class ReducedFemBody:
     def set_q(self, q) -> None:
         """Set the reduced coordinates and evaluate F at the integration points."""
         self.q = np.array(q, dtype=float).reshape(self.r)
-        self._H = (self.H_bar + self.D @ self.q).reshape(-1, 3, 3)
+        self._H = (self.H_bar.ravel() + self.D.reshape(-1, self.r) @ self.q).reshape(-1, 3, 3)
         self._stress = None
 
     def _evaluate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
