@@ -6,6 +6,7 @@
     artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
+    artifem bench reduced --out FILE.json    reduced tongue step: parts, FLOPs, GFLOP/s
     artifem study tongue --out DIR           reduced tongue models: speed versus error report
     artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
     artifem demo --out DIR                   the main job (``make demo``)
@@ -52,6 +53,8 @@ COMMANDS = {
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
     ("bench", "tongue"): ("artifem.bench:tongue",
                           "tongue step timings (protrusion, levels 0 and 1) to JSON"),
+    ("bench", "reduced"): ("artifem.bench_reduced",
+                           "reduced tongue step against its floating-point work to JSON"),
     ("bench", "scenes"): ("artifem.bench_scenes",
                           "ms per coupled step: jaw-tongue full/reduced, airway, masseter"),
     ("study", "tongue"): ("artifem.models.tongue.study",

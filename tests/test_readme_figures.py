@@ -196,3 +196,35 @@ def test_distributed_training_table_matches_its_jsons():
         assert agrees(cells[3].removesuffix(" s"), run["compute_seconds"])
         one = one or run["wall_seconds"]
         assert agrees(cells[4], one / run["wall_seconds"])
+
+
+def test_reduced_step_table_matches_the_bench_json():
+    """docs/tongue_study.md's table of a reduced step's parts, from
+    docs/benchmarks/reduced.json (artifem bench reduced)."""
+    page = (ROOT / "docs" / "tongue_study.md").read_text()
+    penalty, hard = json.loads((ROOT / "docs" / "benchmarks" / "reduced.json")
+                               .read_text())["cases"]
+    assert (penalty["incompressibility"], hard["incompressibility"]) == ("penalty", "hard")
+    labels = {"stresses": "| stresses", "tangent": "| tangent", "force": "| force",
+              "kinematics": "| kinematics", "rest": "| rest"}
+    for part, label in labels.items():
+        row = next(line for line in page.splitlines() if line.startswith(label))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        for case, first in ((penalty, 1), (hard, 4)):
+            figures = case["parts"][part]
+            assert agrees(cells[first], figures["ms"])
+            assert agrees(cells[first + 1], figures["flops"] / 1e6)
+            assert agrees(cells[first + 2], figures["gflops_per_s"])
+    row = next(line for line in page.splitlines() if line.startswith("| step (median"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    for case, first in ((penalty, 1), (hard, 4)):
+        assert agrees(cells[first], case["ms_per_step"])
+        assert agrees(cells[first + 1], case["flops_per_step"] / 1e6)
+        assert agrees(cells[first + 2], case["gflops_per_s"])
+    flops = ", ".join(f"{k['flops_per_point']:,}" for k in penalty["kernels"][2:])
+    assert flops.replace(", 7", " and 7") in page.replace("\n", " ")
+    assert f"{penalty['ms_per_step']:.3f} ms per step at r = 20, m = 300" in page
+    assert (f"{penalty['ms_per_step']:.3f} ms per step with the penalty and "
+            f"{hard['ms_per_step']:.3f} ms with the") in README.replace("\n", " ")
+    assert (f"{penalty['max_step_over_median']:.2f}x the median (penalty) and "
+            f"{hard['max_step_over_median']:.2f}x (hard)") in page.replace("\n", " ")

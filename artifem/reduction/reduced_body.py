@@ -434,6 +434,9 @@ class ReducedFemBody:
     def inverted_elements(self) -> tuple[np.ndarray, float]:
         """(input indices of cells with an integration point at det F <= 0 or NaN, min det F)."""
         detF = self.det_F()
+        low = float(detF.min())                             # NaN if any is NaN
+        if low > 0:
+            return np.zeros(0, dtype=np.int64), low
         detF = np.where(np.isnan(detF), -np.inf, detF)      # NaN counts as inverted
         bad = np.unique(self.cells[detF <= 0])
         return np.sort(self.full.input_cell_index(bad)).astype(np.int64), float(detF.min())

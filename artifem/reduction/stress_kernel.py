@@ -125,8 +125,9 @@ class StressKernel:
         index = [(i, J) for i in range(3) for J in range(3)]
         packed = ufl.as_vector([psi] + [P[i, J] for i, J in index]
                                + [A[index[a] + index[b]] for a, b in zip(*UPPER)])
-        self._expression = fem.Expression(packed, np.array([[0.25, 0.25, 0.25]]),
-                                          comm=MPI.COMM_SELF)
+        #: (UFL expression, reference point) the kernel is compiled from
+        self.ufl_expression = (packed, np.array([[0.25, 0.25, 0.25]]))
+        self._expression = fem.Expression(*self.ufl_expression, comm=MPI.COMM_SELF)
         self._cells = np.arange(self.n, dtype=np.int32)
         expr = self._expression._cpp_object
         # Where the packing puts each value: tag every source value with its index.
