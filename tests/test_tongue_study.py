@@ -6,10 +6,12 @@ both bases, trained and random points, full and reduced runs of protrusion,
 report), then checks what a researcher reads: the JSON schema, errors that
 are finite and small, a reduced step far cheaper than the full one, the
 report and its pictures; and that a second run reuses the cached training
-(and resumes after one training artifact is lost).
+(and resumes after one training artifact is lost); and that a greedy training adds
+the worst estimated run of its pool.
 """
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from mpi4py import MPI
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.cli import main
+from artifem.errors import InputError
 from artifem.models.tongue import study
 from artifem.reduction import reductor
 
@@ -115,3 +118,19 @@ def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_s
         assert not h["failed"] and h["max_error_mm"] < 5.0, h
         assert h["full_max_volume_change"] < 1e-4 < p["full_max_volume_change"]
         assert h["max_volume_change"] < 0.5 * p["max_volume_change"], (h, p)
+
+
+def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, tmp_path):
+    shutil.copytree(quick_study / "cache", tmp_path / "cache")
+    assert main(["study", "tongue", "--quick", "--greedy-pool", "2", "--greedy-runs", "1",
+                 "--train-only", "--out", str(tmp_path)]) == 0
+    greedy = json.loads((tmp_path / "greedy.json").read_text())
+    assert greedy["stopped"] == "size" and greedy["runs"] == 12
+    first = greedy["history"][0]
+    assert set(first["estimates_mm"]) == {"greedy-2-0", "greedy-2-1"}
+    assert first["added"] == max(first["estimates_mm"], key=first["estimates_mm"].get)
+    assert len(list((tmp_path / "cache").glob("reductor-snapshots-*.npz"))) == 12
+    with pytest.raises(InputError, match="greedy_seed"):
+        study.StudyConfig(greedy_pool=3, greedy_runs=1, greedy_seed=1000)
+    with pytest.raises(InputError, match="where to stop"):
+        study.StudyConfig(greedy_pool=3)

@@ -31,7 +31,7 @@ from artifem.reduction.reductor import ReducedModel, ReducibleScene
 from artifem.reduction.training import ArtifactCache
 from artifem.scene import simulate
 
-__all__ = ["Comparison", "full_run", "compare"]
+__all__ = ["Comparison", "full_run", "reduced_run", "node_mean_mm", "compare"]
 
 
 @dataclass
@@ -100,8 +100,8 @@ def full_run(model: ReducibleScene, schedule: ExcitationSchedule, duration: floa
     return cache.get(key, compute)
 
 
-def _reduced_run(reduced: ReducedModel, schedule: ExcitationSchedule, duration: float,
-                 dt: float) -> tuple[np.ndarray, np.ndarray, str | None]:
+def reduced_run(reduced: ReducedModel, schedule: ExcitationSchedule, duration: float,
+                dt: float) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(displacements (steps + 1, ndofs), NaN after a failure; ms per step; the failure)."""
     scene = reduced.scene()
     body = next(b for b in scene.reduced_bodies if b.name == reduced.model.body)
@@ -116,7 +116,8 @@ def _reduced_run(reduced: ReducedModel, schedule: ExcitationSchedule, duration: 
         None if run.failure is None else str(run.failure)
 
 
-def _node_mean_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def node_mean_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per row (time): the mean over the nodes of |a - b|, in mm (a, b: (steps, 3 n), m)."""
     return 1e3 * np.linalg.norm((a - b).reshape(a.shape[0], -1, 3), axis=2).mean(axis=1)
 
 
@@ -135,22 +136,22 @@ def compare(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule], *,
     out = []
     for name, schedule in tqdm(schedules.items(), desc=f"{reduced.model.name}: full vs reduced",
                                unit="run", disable=not progress):
-        u, ms, failure = _reduced_run(reduced, schedule, duration, dt)
+        u, ms, failure = reduced_run(reduced, schedule, duration, dt)
         error = np.full(u.shape[0], np.nan)
         if known is not None and name in known:
             steps, u_full = known[name]
             keep = steps < u.shape[0]
-            error[steps[keep]] = _node_mean_mm(u[steps[keep]], u_full[keep])
+            error[steps[keep]] = node_mean_mm(u[steps[keep]], u_full[keep])
             full_ms, full_failure = np.full(1, np.nan), None
         else:
             full = full_run(reduced.model, schedule, duration, dt, store,
                             label=f"full {name}", progress=progress)
-            error = _node_mean_mm(u, full["u"])
+            error = node_mean_mm(u, full["u"])
             full_ms = np.asarray(full["ms"])
             full_failure = str(full["failure"]) or None
         estimate = np.full(u.shape[0], np.nan)
         if reference is not None:
-            estimate = _node_mean_mm(u, _reduced_run(reference, schedule, duration, dt)[0])
+            estimate = node_mean_mm(u, reduced_run(reference, schedule, duration, dt)[0])
         out.append(Comparison(name, np.arange(u.shape[0]) * dt, error, estimate, full_ms, ms,
                               failure, full_failure))
     return out

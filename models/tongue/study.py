@@ -3,6 +3,7 @@
     artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
                          [--incompressibility hard|penalty] [--random-training N]
                          [--held-out N] [--held-out-seed S] [--train-only]
+                         [--greedy-pool N --greedy-runs N --greedy-tol MM]
     mpiexec -n N artifem study tongue ...        the training runs shared over N ranks
 
 The tongue holds its element volumes (the hard incompressibility, its default) and the
@@ -17,7 +18,10 @@ On one tongue (each rank builds its own, on MPI.COMM_SELF):
    ``mpiexec -n N`` the runs are shared over the N ranks
    (:mod:`artifem.reduction.distributed`), then rank 0 alone goes on; DIR/training.json
    says what the training did (ranks, runs computed by each, wall and compute seconds);
-   ``--train-only`` stops here;
+   with ``--greedy-pool N`` the training then grows greedily from a pool of N random
+   schedules, the worst estimated first (:mod:`artifem.reduction.enrichment`), until
+   ``--greedy-runs`` runs are added or every estimate is below ``--greedy-tol`` mm
+   (DIR/greedy.json: each iteration's estimates); ``--train-only`` stops here;
 2. bases: *extended modal* (6 linear modes x 9 linear maps = 54 vectors, von
    Tycowicz et al. 2013) and *trained* (mass-weighted POD of the snapshots, r = 20);
    optionally (``--bases``) *modal derivatives* (6 modes and their 21 derivatives,
@@ -45,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -60,6 +65,7 @@ from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, R
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.enrichment import greedy_training
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
 from artifem.reduction.schedules import each_alone, random_schedules
@@ -92,6 +98,13 @@ class StudyConfig:
     #: points of the renders; 0: none
     held_out: int = 5
     held_out_seed: int = 1000
+    #: greedy training (:mod:`artifem.reduction.enrichment`): a pool of ``greedy_pool``
+    #: random schedules (seed ``greedy_seed``) from which at most ``greedy_runs`` are added
+    #: to the training, worst estimate first, until the estimate is <= ``greedy_tol`` mm
+    greedy_pool: int = 0
+    greedy_runs: int = 0
+    greedy_tol: float = 0.0
+    greedy_seed: int = 2
     snapshot_every: int = 5
     #: Training states used for the cubature fit (evenly spaced among all snapshots).
     force_snapshots: int = 66
@@ -131,6 +144,16 @@ class StudyConfig:
             raise InputError(f"held_out_seed ({self.held_out_seed}) must differ from "
                              f"training_seed: held-out schedules are inputs the training "
                              "never saw")
+        if self.greedy_pool:
+            seeds = {"held_out_seed": self.held_out_seed if self.held_out else None,
+                     "training_seed": self.training_seed if self.random_training else None}
+            for name, seed in seeds.items():
+                if seed == self.greedy_seed:
+                    raise InputError(f"greedy_seed ({self.greedy_seed}) must differ from "
+                                     f"{name}: the pools must not share schedules")
+            if self.greedy_runs < 1 and self.greedy_tol <= 0:
+                raise InputError("a greedy training needs greedy_runs >= 1 or greedy_tol > 0 "
+                                 "(where to stop)")
         if not 0.0 < self.training_excitation <= 1.0:
             raise InputError(f"training_excitation must be in (0, 1], got "
                              f"{self.training_excitation}")
@@ -194,7 +217,36 @@ class TongueStudy:
                     random_training=self.config.random_training,
                     training_duration=self.config.training_duration)
         (self.out / "training.json").write_text(json.dumps(done, indent=1))
+        if self.config.greedy_pool:
+            self.greedy()
         return done
+
+    def greedy(self) -> dict:
+        """Greedy training from the study's training over a pool of random schedules
+        (:func:`~artifem.reduction.enrichment.greedy_training`, the trained POD basis and
+        the renders' points); the study then uses the enriched training. Writes
+        OUT/greedy.json (the estimates of every iteration, the schedules added)."""
+        c, reductor = self.config, self.reductor
+        pool = random_schedules(self.tongue.exciters, c.greedy_pool, seed=c.greedy_seed,
+                                duration=c.training_duration, prefix="greedy")
+        tic = time.perf_counter()
+        result = greedy_training(
+            reductor.model, reductor.training, pool, cache=reductor.cache.root,
+            basis=Basis("pod", c.pod_r), points=self._render_points(), tol=c.greedy_tol,
+            max_runs=len(reductor.training.schedules) + c.greedy_runs if c.greedy_runs
+            else None, pressure_modes=c.pressure_modes)
+        self.reductor = Reductor(reductor.model, result.training, reductor.cache.root,
+                                 pressure_modes=c.pressure_modes, comm=reductor.comm)
+        summary = {**result.summary(), "pool": c.greedy_pool, "seed": c.greedy_seed,
+                   "tol_mm": c.greedy_tol, "max_added": c.greedy_runs,
+                   "wall_seconds": time.perf_counter() - tic}
+        (self.out / "greedy.json").write_text(json.dumps(summary, indent=1))
+        return summary
+
+    def _render_points(self) -> Points:
+        c = self.config
+        return Points(self._frame_m(), tol=c.cubature_tol, growth=c.cubature_growth,
+                      training_states=c.force_snapshots)
 
     def basis(self, name: str) -> tuple[np.ndarray, str]:
         """(U, cache key) of a basis of the study."""
@@ -331,8 +383,7 @@ class TongueStudy:
         if c.held_out and "trained-pod" in c.bases:
             generalization_study(
                 self.reductor, self.out, basis=Basis("pod", c.pod_r),
-                points=Points(self._frame_m(), tol=c.cubature_tol, growth=c.cubature_growth,
-                              training_states=c.force_snapshots),
+                points=self._render_points(),
                 held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt)
         (self.out / "study.json").write_text(json.dumps(study, indent=1))
         np.savez(self.out / "series.npz", **series)
@@ -408,6 +459,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 5; --quick: 0)")
     parser.add_argument("--held-out-seed", type=int, default=None,
                         help="their seed (default 1000; must differ from the training's)")
+    parser.add_argument("--greedy-pool", type=nonnegative_int, default=None,
+                        help="greedy training: a pool of N random schedules (seed "
+                             "--greedy-seed) from which the worst estimated are added to the "
+                             "training (default 0: none)")
+    parser.add_argument("--greedy-runs", type=nonnegative_int, default=None,
+                        help="greedy training: at most N runs added")
+    parser.add_argument("--greedy-tol", type=positive_float, default=None,
+                        help="greedy training: stop when every estimate is below MM")
+    parser.add_argument("--greedy-seed", type=int, default=None,
+                        help="the pool's seed (default 2)")
     parser.add_argument("--train-only", action="store_true",
                         help="run the training (shared over the ranks under mpiexec), write "
                              "OUT/training.json and stop")
@@ -418,7 +479,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
-    for name in ("random_training", "training_duration", "held_out", "held_out_seed"):
+    for name in ("random_training", "training_duration", "held_out", "held_out_seed",
+                 "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed"):
         if getattr(args, name) is not None:
             config = replace(config, **{name: getattr(args, name)})
     if args.points:
