@@ -4,7 +4,8 @@
     the requested size; the estimates are the hierarchical ones (a reduced model against
     one with twice the vectors and points), finite and positive.
 (2) It stops at the tolerance (nothing added when the first estimate is below it) and
-    when the pool is exhausted.
+    when the pool is exhausted; a candidate whose full run fails leaves the pool, with the
+    reason, and the next worst is tried.
 (3) Bad input is refused before any run: a candidate already in the training, a size
     below the first training's.
 """
@@ -15,7 +16,7 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.errors import InputError
+from artifem.errors import InputError, SolverError
 from artifem.excitation import ExcitationSchedule
 from artifem.reduction.enrichment import greedy_training
 from artifem.reduction.reductor import Basis, Points, ReducibleScene, Training
@@ -67,6 +68,24 @@ def test_it_stops_at_the_tolerance_and_when_the_pool_is_exhausted(tmp_path):
     one = {"mid": POOL["mid"]}
     exhausted = greedy_training(MODEL, FIRST, one, cache=tmp_path, **OPTIONS)
     assert exhausted.stopped == "pool" and list(exhausted.training.schedules) == ["low", "mid"]
+
+
+class InvertingBeam(ReducibleScene):
+    """The beam, whose *full* runs of the pool's schedules fail as an inversion would."""
+
+    def drive(self, scene, schedule):
+        if not scene.reduced_bodies and schedule.values["top"][-1] != 0.2:
+            raise SolverError("beam: element 3 inverted")
+        return super().drive(scene, schedule)
+
+
+def test_a_candidate_the_full_model_cannot_run_leaves_the_pool_with_why(tmp_path):
+    model = InvertingBeam("beam", free_beam, "fem", {"beam": "free"})
+    result = greedy_training(model, FIRST, POOL, cache=tmp_path, **OPTIONS)
+    assert result.stopped == "pool" and list(result.training.schedules) == ["low"]
+    entry = result.history[0]
+    assert entry["added"] is None
+    assert entry["rejected"] == {name: "beam: element 3 inverted" for name in POOL}
 
 
 def test_bad_input_is_refused_before_any_run(tmp_path):

@@ -124,11 +124,18 @@ def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, 
     shutil.copytree(quick_study / "cache", tmp_path / "cache")
     assert main(["study", "tongue", "--quick", "--greedy-pool", "2", "--greedy-runs", "1",
                  "--train-only", "--out", str(tmp_path)]) == 0
-    greedy = json.loads((tmp_path / "greedy.json").read_text())
-    assert greedy["stopped"] == "size" and greedy["runs"] == 12
+    text = (tmp_path / "greedy.json").read_text()
+    assert "Infinity" not in text and "NaN" not in text          # strict JSON
+    greedy = json.loads(text)
+    assert greedy["stopped"] in ("size", "pool") and greedy["runs"] == 12
     first = greedy["history"][0]
     assert set(first["estimates_mm"]) == {"greedy-2-0", "greedy-2-1"}
-    assert first["added"] == max(first["estimates_mm"], key=first["estimates_mm"].get)
+    # the worst first; a candidate the full hard tongue cannot run (it inverts elements
+    # under one of them) is rejected with why; a failed reduced run counts as the worst
+    kept = {k: np.inf if v is None else v for k, v in first["estimates_mm"].items()
+            if k not in first["rejected"]}
+    assert first["added"] == max(kept, key=kept.get)
+    assert all("inversion" in why for why in first["rejected"].values())
     assert len(list((tmp_path / "cache").glob("reductor-snapshots-*.npz"))) == 12
     with pytest.raises(InputError, match="greedy_seed"):
         study.StudyConfig(greedy_pool=3, greedy_runs=1, greedy_seed=1000)

@@ -11,7 +11,9 @@ schedules of a seed of their own) and the reduction (basis, points):
                 candidate s not in the training (two reduced runs each, no full run)
         stop when max_s e~(s) <= tol, when the training holds max_runs runs, or when the
              pool is exhausted
-        s* = argmax_s e~(s): run the full model on s* (a training run) and add it
+        s* = argmax_s e~(s): run the full model on s* (a training run) and add it; a
+             candidate whose full run fails (inverted elements) leaves the pool, with
+             why, and the next worst is tried
 
 the POD-greedy of Haasdonk & Ohlberger (2008) with the hierarchical estimate of Hain,
 Ohlberger, Radic & Urban (2019) (:mod:`artifem.reduction.evaluation`) in place of a
@@ -30,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from artifem.errors import InputError
+from artifem.errors import InputError, SolverError
 from artifem.excitation import ExcitationSchedule
 from artifem.reduction.evaluation import node_mean_mm, reduced_run
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
@@ -44,7 +46,8 @@ class GreedyTraining:
     """What :func:`greedy_training` did: the final training and reduced model, why it
     stopped (``"tolerance"``, ``"size"`` or ``"pool"``) and one entry per iteration: the
     runs in the training, each candidate's estimate (mm), the largest, the schedule added
-    (None at the last)."""
+    (None at the last) and the candidates rejected because their full run failed (name ->
+    why)."""
 
     training: Training
     reduced: ReducedModel
@@ -52,9 +55,14 @@ class GreedyTraining:
     history: list[dict] = field(default_factory=list)
 
     def summary(self) -> dict:
-        """JSON-able."""
+        """JSON-able: an estimate whose reduced run failed (inf) is None."""
+        def finite(value):
+            return value if value is None or np.isfinite(value) else None
+        history = [{**entry, "max_estimate_mm": finite(entry["max_estimate_mm"]),
+                    "estimates_mm": {k: finite(v) for k, v in entry["estimates_mm"].items()}}
+                   for entry in self.history]
         return {"stopped": self.stopped, "runs": len(self.training.schedules),
-                "history": self.history}
+                "history": history}
 
 
 def _estimates(reduced: ReducedModel, reference: ReducedModel,
@@ -95,27 +103,33 @@ def greedy_training(model: ReducibleScene, training: Training,
     richer_basis = replace(basis, size=2 * basis.size)
     richer_points = replace(points, count=2 * points.count)
     pool, history = dict(candidates), []
+    reductor = Reductor(model, training, cache, pressure_modes=pressure_modes,
+                        progress=progress)
     while True:
-        reductor = Reductor(model, training, cache, pressure_modes=pressure_modes,
-                            progress=progress)
         reduced = reductor.reduce(basis, points)
-        if not pool:
-            stopped = "pool"
-        elif max_runs is not None and len(training.schedules) >= max_runs:
-            stopped = "size"
-        else:
-            reference = reductor.reduce(richer_basis, richer_points)
-            estimates = _estimates(reduced, reference, pool, duration, training.dt, progress)
-            worst = max(estimates, key=estimates.get)
-            entry = {"runs": len(training.schedules), "estimates_mm": estimates,
-                     "max_estimate_mm": estimates[worst]}
-            if estimates[worst] <= tol:
-                history.append({**entry, "added": None})
-                return GreedyTraining(training, reduced, "tolerance", history)
-            history.append({**entry, "added": worst})
-            training = replace(training, schedules={**training.schedules,
-                                                    worst: pool.pop(worst)})
-            continue
-        history.append({"runs": len(training.schedules), "estimates_mm": {},
-                        "max_estimate_mm": None, "added": None})
-        return GreedyTraining(training, reduced, stopped, history)
+        entry = {"runs": len(training.schedules), "estimates_mm": {}, "max_estimate_mm": None,
+                 "added": None, "rejected": {}}
+        if not pool or (max_runs is not None and len(training.schedules) >= max_runs):
+            history.append(entry)
+            return GreedyTraining(training, reduced, "pool" if not pool else "size", history)
+        reference = reductor.reduce(richer_basis, richer_points)
+        estimates = _estimates(reduced, reference, pool, duration, training.dt, progress)
+        entry.update(estimates_mm=estimates, max_estimate_mm=max(estimates.values()))
+        history.append(entry)
+        # the worst first; a candidate the full model cannot run (it inverts elements,
+        # say) cannot train: it leaves the pool, with why, and the next worst is tried
+        for name in sorted(estimates, key=estimates.get, reverse=True):
+            if estimates[name] <= tol:
+                break
+            enriched = replace(training, schedules={**training.schedules, name: pool.pop(name)})
+            candidate = Reductor(model, enriched, cache, pressure_modes=pressure_modes,
+                                 progress=progress)
+            try:
+                candidate.train()                  # the candidate's full run, cached
+            except SolverError as exc:
+                entry["rejected"][name] = str(exc)
+                continue
+            entry["added"], training, reductor = name, enriched, candidate
+            break
+        if entry["added"] is None:
+            return GreedyTraining(training, reduced, "tolerance" if pool else "pool", history)

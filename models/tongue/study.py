@@ -479,10 +479,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
-    for name in ("random_training", "training_duration", "held_out", "held_out_seed",
-                 "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed"):
-        if getattr(args, name) is not None:
-            config = replace(config, **{name: getattr(args, name)})
+    names = ("random_training", "training_duration", "held_out", "held_out_seed",
+             "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed")
+    config = replace(config, **{name: getattr(args, name) for name in names
+                                if getattr(args, name) is not None})
     if args.points:
         config = replace(config, points=tuple(args.points))
     if args.motions:
