@@ -42,7 +42,7 @@ from ufl.algorithms.analysis import extract_coefficients, extract_constants
 
 from artifem.errors import InputError
 
-__all__ = ["StressKernel", "PointStresses", "hessian"]
+__all__ = ["StressKernel", "PointStresses"]
 
 _REFERENCE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 #: The entries (iJ, kL) of A the kernels compute: iJ <= kL.
@@ -63,11 +63,6 @@ FULL = np.zeros((9, 9), dtype=np.int64)
 FULL[UPPER] = np.arange(UPPER[0].size)
 FULL[UPPER[1], UPPER[0]] = np.arange(UPPER[0].size)
 FULL = FULL.ravel()
-
-
-def hessian(upper: np.ndarray) -> np.ndarray:
-    """A (n, 9, 9) from its entries iJ <= kL (n, 45) (:data:`UPPER`)."""
-    return upper[:, FULL].reshape(-1, 9, 9)
 
 
 class StressKernel:
@@ -180,13 +175,6 @@ class StressKernel:
                                     constants[self._constant_order], self.coefficients,
                                     self._mesh._cpp_object, self._cells)
 
-    def __call__(self, grad_u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """psi (n,), P (n, 9), A (n, 9, 9) (row-major iJ, kL) at F_p = I + grad_u[p]."""
-        self.set_grad_u(grad_u)
-        self.tabulate()
-        out = self.values[:, 0]
-        return out[:, 0].copy(), out[:, 1:10].copy(), hessian(out[:, 10:])
-
 
 class PointStresses:
     """sum_t (psi_t, P_t, A_t) at m points, term t active at the points ``at_t``; one
@@ -212,8 +200,8 @@ class PointStresses:
         self.kernels, self.points = [], []
         rows, comps, positions, targets = [], [], [], []
         slot_values = []                    # (kernel, slot, values at its points) fixed
-        live = []                           # (kernel, slot, term, field, rows in at_t)
-        offset = 0
+        live = []                           # (kernel index, slot, term, field, rows in at_t)
+        offset, offsets = 0, []
         for g, signature in enumerate(signatures):
             points = np.flatnonzero(group_of == g)
             members = np.flatnonzero(signature)
@@ -240,7 +228,7 @@ class PointStresses:
                 if field in static:
                     slot_values.append((kernel, j, static[field][where[owner]]))
                 else:
-                    live.append((kernel, j, owner, field, where[owner]))
+                    live.append((len(self.kernels), j, owner, field, where[owner]))
             self.kernels.append(kernel)
             self.points.append(points)
             cols = kernel.coefficients.shape[1]
@@ -249,14 +237,13 @@ class PointStresses:
             positions.append(kernel.u_position.reshape(-1, 3))
             targets.append(offset + (np.arange(points.size)[:, None] * cols
                                      + kernel.u_columns[None, :]).ravel())
-            kernel._offset = offset
+            offsets.append(offset)
             offset += points.size * cols
         # One flat buffer holds every kernel's coefficients (each a contiguous block).
         flat = np.zeros(offset)
-        for kernel in self.kernels:
-            block = flat[kernel._offset:kernel._offset + kernel.coefficients.size].reshape(
+        for kernel, start in zip(self.kernels, offsets):
+            kernel.coefficients = flat[start:start + kernel.coefficients.size].reshape(
                 kernel.coefficients.shape)
-            kernel.coefficients = block
         for kernel, j, values in slot_values:
             kernel.set_slot(j, values)
         # flat = Q vec(grad_u) + the fixed fields, Q sparse: u_i(X) = sum_J grad_u[p, i, J] X_J.
@@ -270,10 +257,11 @@ class PointStresses:
         self._flat = flat
         # Live fields (excitations): flat[target] = current values of (term, field)[source].
         self._live = {}
-        for kernel, j, owner, field, where in live:
+        for k, j, owner, field, where in live:
+            kernel = self.kernels[k]
             columns, component = kernel.slots[j]
-            target = kernel._offset + (np.arange(kernel.n)[:, None] * kernel.coefficients.shape[1]
-                                       + columns[None, :])
+            target = offsets[k] + (
+                np.arange(kernel.n)[:, None] * kernel.coefficients.shape[1] + columns[None, :])
             bs = max(1, int(np.prod(field.ufl_shape)))
             source = where[:, None] * bs + component
             key = (owner, field)
