@@ -141,3 +141,14 @@ def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, 
         study.StudyConfig(greedy_pool=3, greedy_runs=1, greedy_seed=1000)
     with pytest.raises(InputError, match="where to stop"):
         study.StudyConfig(greedy_pool=3)
+
+
+def test_the_report_lists_the_greedy_iterations():
+    from artifem.reduction.study_report import greedy_lines
+    text = "\n".join(greedy_lines({
+        "pool": 3, "seed": 2, "stopped": "size", "runs": 12, "wall_seconds": 5.0,
+        "history": [{"runs": 11, "max_estimate_mm": 1.234, "added": "a",
+                     "rejected": {"b": "inverted"}},
+                    {"runs": 12, "max_estimate_mm": None, "added": None, "rejected": {}}]}))
+    assert "stopped: size, 12 runs" in text
+    assert "| 0 | 11 | 1.23 | a | b |" in text and "| 1 | 12 | — | - | - |" in text

@@ -369,10 +369,24 @@ def _incompressibility_line(study: dict) -> str:
     return "Incompressibility: the element penalty (full and reduced)."
 
 
-def report_markdown(study: dict, figures: Sequence[Path], generalization: dict | None = None
-                    ) -> str:
+def greedy_lines(greedy: dict) -> list[str]:
+    """The greedy training's iterations (greedy.json): runs, largest estimate, what was
+    added and what was rejected (its full run failed)."""
+    lines = ["## Greedy training", "",
+             f"From a pool of {greedy['pool']} random schedules (seed {greedy['seed']}), the "
+             f"worst estimated added first; stopped: {greedy['stopped']}, {greedy['runs']} "
+             f"runs, {greedy['wall_seconds']:.0f} s.", ""]
+    rows = [[str(i), str(h["runs"]), _fmt(h["max_estimate_mm"]), h["added"] or "-",
+             ", ".join(h["rejected"]) or "-"] for i, h in enumerate(greedy["history"])]
+    return lines + _md_table(["iteration", "training runs", "largest estimate (mm)", "added",
+                              "rejected (full run failed)"], rows)
+
+
+def report_markdown(study: dict, figures: Sequence[Path], generalization: dict | None = None,
+                    greedy: dict | None = None) -> str:
     """The whole report.md text; ``figures`` are embedded by file name; ``generalization``:
-    the train/test split's figures (generalization.json), if the study ran it."""
+    the train/test split's figures (generalization.json), ``greedy``: the greedy
+    training's (greedy.json), if the study ran them."""
     model = study["model"]
     lines = [f"# Reduced {model['name']} model: speed vs error", "",
              f"Model: {model['name']}, {model['nodes']} nodes, {model['elements']} elements, "
@@ -381,6 +395,9 @@ def report_markdown(study: dict, figures: Sequence[Path], generalization: dict |
              _full_model_line(study["full"]), "", _incompressibility_line(study),
              "", "## Training", ""]
     lines += _training_lines(study["training"]) or ["(no scalar entries)"]
+    if greedy is not None:
+        lines += [""] + ["#" + line if line.startswith("## ") else line
+                         for line in greedy_lines(greedy)]
     lines += ["", "## Per-step time, trained points (Table 2 analog)", ""] + table2_lines(study)
     lines += ["", "## All runs", ""] + runs_table_lines(study)
     lines += [""] + targets_lines(study)
@@ -401,10 +418,11 @@ def write_report(out_dir: Path) -> Path:
     figures.append(plot_speed_vs_error(study, out_dir / "speed_vs_error.png"))
     figures += [render_frame(frame, runs[frame.stem], out_dir / f"render_{frame.stem}.png")
                 for frame in sorted((out_dir / "frames").glob("*.npz"))]
-    split = out_dir / "generalization.json"
-    generalization = json.loads(split.read_text()) if split.exists() else None
+    found = {name: json.loads((out_dir / f"{name}.json").read_text())
+             if (out_dir / f"{name}.json").exists() else None
+             for name in ("generalization", "greedy")}
     report = out_dir / "report.md"
-    report.write_text(report_markdown(study, figures, generalization))
+    report.write_text(report_markdown(study, figures, **found))
     return report
 
 
