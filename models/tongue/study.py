@@ -65,6 +65,7 @@ from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, R
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.reduction.distributed import sleeping_barrier
 from artifem.reduction.enrichment import greedy_training
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
@@ -494,13 +495,15 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, pressure_modes=args.pressure_modes)
     comm = MPI.COMM_WORLD
     study = TongueStudy(config, args.out, args.cache, comm=comm)
-    done = study.train()
-    if comm.rank != 0:
+    try:
+        done = study.train()
+        if comm.rank != 0:
+            return 0                # rank 0 goes on alone; the others sleep until it is done
+        print(f"training: {done['missing']} of {done['runs']} runs computed on "
+              f"{done['ranks']} rank(s) in {done['wall_seconds']:.1f} s: "
+              f"{args.out / 'training.json'}")
+        if not args.train_only:
+            print(f"report: {study.run()}")
         return 0
-    print(f"training: {done['missing']} of {done['runs']} runs computed on {done['ranks']} "
-          f"rank(s) in {done['wall_seconds']:.1f} s: {args.out / 'training.json'}")
-    if args.train_only:
-        return 0
-    report = study.run()
-    print(f"report: {report}")
-    return 0
+    finally:
+        sleeping_barrier(comm)
