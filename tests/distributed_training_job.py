@@ -2,18 +2,14 @@
 tests/test_distributed_training.py):
 
     mpiexec -n 2 python tests/distributed_training_job.py CACHE [--fail] [--distributed]
-    mpiexec -n 2 python tests/distributed_training_job.py DIR --barrier
 
 The free muscle beam (tests/reduced_beam.py), built on MPI.COMM_SELF on every rank
 (``--distributed``: on MPI.COMM_WORLD), trained on four schedules; with ``--fail`` the
-third one fails (a model error raised by its drive). ``--barrier``: rank 1 waits in the
-sleeping barrier while rank 0 works, and says whether rank 0's work was done when it
-passed. Rank 0 prints ``RESULT {json}``: what :meth:`Reductor.train` did.
+third one fails (a model error raised by its drive). Rank 0 prints ``RESULT {json}``: what :meth:`Reductor.train` did.
 """
 
 import json
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -23,7 +19,6 @@ from mpi4py import MPI
 
 from artifem.errors import SolverError
 from artifem.excitation import ExcitationSchedule
-from artifem.reduction.distributed import sleeping_barrier
 from artifem.reduction.reductor import ReducibleScene, Reductor, Training
 from artifem.scene import Scene
 from reduced_beam import make_body
@@ -60,23 +55,8 @@ def model(fail: bool = False, distributed: bool = False) -> ReducibleScene:
     return kind("beam", build, "fem", {"beam": "free"})
 
 
-def barrier_after_root(marker: Path) -> None:
-    """Rank 0 works (sleeps), leaves ``marker``, then meets the others at the sleeping
-    barrier; they must not pass it before the marker exists."""
-    comm = MPI.COMM_WORLD
-    if comm.rank == 0:
-        time.sleep(0.3)
-        marker.write_text("root done")
-    sleeping_barrier(comm)
-    if comm.rank == 1:
-        print(f"PASSED AFTER ROOT {marker.exists()}", flush=True)
-
-
 if __name__ == "__main__":
     cache, flags = sys.argv[1], sys.argv[2:]
-    if "--barrier" in flags:
-        barrier_after_root(Path(cache) / "root-done")
-        sys.exit(0)
     reductor = Reductor(model("--fail" in flags, "--distributed" in flags), Training(schedules(), DURATION, DT, 2), cache,
                         progress=False, comm=MPI.COMM_WORLD)
     done = reductor.train()

@@ -10,9 +10,7 @@ tests/distributed_training_job.py trains the free muscle beam on four schedules 
     compute that one only;
 (3) a run that fails on one rank fails the training on both ranks, which say which rank
     and which run, and the runs already finished stay in the cache;
-(4) a reductor refuses a model whose body is distributed over the ranks, before any run;
-(5) the sleeping barrier the other ranks wait in while rank 0 works is a barrier: rank 1
-    passes it only after rank 0's work.
+(4) a reductor refuses a model whose body is distributed over the ranks, before any run.
 """
 
 import json
@@ -90,8 +88,3 @@ def test_a_distributed_model_is_refused(tmp_path):
     assert "body 'fem' is distributed over 2 ranks" in proc.stderr
     assert not list((tmp_path / "cache").glob("*.npz"))
 
-
-def test_the_sleeping_barrier_waits_for_the_root(tmp_path):
-    proc = launch(tmp_path, "--barrier")
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "PASSED AFTER ROOT True" in proc.stdout

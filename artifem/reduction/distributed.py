@@ -17,10 +17,11 @@ round-robin split keeps every rank busy; on a cluster the same command runs with
 A job that fails on one rank fails the call on every rank (the others name the rank and
 the job), after all ranks are through their shares: no rank waits forever on another.
 
-After a shared training the root goes on alone; the other ranks wait for it in
-:func:`sleeping_barrier`. A plain barrier, or MPI_Finalize with PETSc initialized, spins in
-MPICH's progress engine: measured, the waiting rank then took 90 % of a core and the root's
-full tongue step slowed from 0.76 to 1.35 s.
+After a shared training the ranks should end together: a rank that goes on alone with
+PETSc objects of its own can meet the others in petsc4py's exit-time garbage collection, a
+collective, with different work to do, and wait forever (seen: rank 0 of
+``mpiexec -n 2 artifem study tongue`` continuing after the training never exited). The
+study therefore trains only under several ranks (``--train-only``) and continues on one.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from mpi4py import MPI
 
 from artifem.errors import ArtifemError, SolverError
 
-__all__ = ["compute_shared", "share", "sleeping_barrier"]
+__all__ = ["compute_shared", "share"]
 
 
 def share(count: int, comm: MPI.Comm) -> range:
@@ -80,10 +81,3 @@ def compute_shared(jobs: Sequence[tuple[str, str, Callable[[], object]]], cache,
     return {"ranks": comm.size, "jobs": len(jobs), "missing": len(missing), "by_rank": by_rank,
             "wall_seconds": wall}
 
-
-def sleeping_barrier(comm: MPI.Comm, interval: float = 0.05) -> None:
-    """A barrier that sleeps while it waits (``interval`` seconds between tests) instead of
-    spinning: ranks idle while the root works call it, and the root calls it when done."""
-    request = comm.Ibarrier()
-    while not request.Test():
-        time.sleep(interval)

@@ -4,7 +4,7 @@
                          [--incompressibility hard|penalty] [--random-training N]
                          [--held-out N] [--held-out-seed S] [--train-only]
                          [--greedy-pool N --greedy-runs N --greedy-tol MM]
-    mpiexec -n N artifem study tongue ...        the training runs shared over N ranks
+    mpiexec -n N artifem study tongue ... --train-only   the training shared over N ranks
 
 The tongue holds its element volumes (the hard incompressibility, its default) and the
 reduced bodies hold them in a reduced pressure space; ``--incompressibility penalty``
@@ -15,8 +15,9 @@ On one tongue (each rank builds its own, on MPI.COMM_SELF):
 1. training (cached in DIR/cache, resumable): the full model driven by each
    exciter alone (ramp to ``training_excitation`` over 0.5 s, hold), nodal
    displacements and excitations recorded every ``snapshot_every`` steps; under
-   ``mpiexec -n N`` the runs are shared over the N ranks
-   (:mod:`artifem.reduction.distributed`), then rank 0 alone goes on; DIR/training.json
+   ``mpiexec -n N ... --train-only`` the runs are shared over the N ranks
+   (:mod:`artifem.reduction.distributed`; the study then continues on one process from
+   the same cache); DIR/training.json
    says what the training did (ranks, runs computed by each, wall and compute seconds);
    with ``--greedy-pool N`` the training then grows greedily from a pool of N random
    schedules, the worst estimated first (:mod:`artifem.reduction.enrichment`), until
@@ -65,7 +66,6 @@ from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, R
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.distributed import sleeping_barrier
 from artifem.reduction.enrichment import greedy_training
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
@@ -494,16 +494,17 @@ def run(args: argparse.Namespace) -> int:
     if args.pressure_modes:
         config = replace(config, pressure_modes=args.pressure_modes)
     comm = MPI.COMM_WORLD
+    if comm.size > 1 and not args.train_only:
+        # artifem.reduction.distributed: ranks must end together, so rank 0 cannot go on
+        raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains: add "
+                         "--train-only, then run it on one process with the same --cache "
+                         "(it reads the training from there)")
     study = TongueStudy(config, args.out, args.cache, comm=comm)
-    try:
-        done = study.train()
-        if comm.rank != 0:
-            return 0                # rank 0 goes on alone; the others sleep until it is done
+    done = study.train()
+    if comm.rank == 0:
         print(f"training: {done['missing']} of {done['runs']} runs computed on "
               f"{done['ranks']} rank(s) in {done['wall_seconds']:.1f} s: "
               f"{args.out / 'training.json'}")
         if not args.train_only:
             print(f"report: {study.run()}")
-        return 0
-    finally:
-        sleeping_barrier(comm)
+    return 0
