@@ -160,7 +160,8 @@ def test_held_out_figures_match_the_generalization_jsons():
     docs/tongue_study/level0_generalization{_each_alone,}/generalization.json."""
     page = (ROOT / "docs" / "tongue_study.md").read_text()
     for label, folder in (("each exciter alone", "level0_generalization_each_alone"),
-                          ("and 20 random schedules", "level0_generalization")):
+                          ("and 20 random schedules", "level0_generalization"),
+                          ("level 1, and 20 random schedules", "level1_generalization")):
         split = json.loads((ROOT / "docs" / "tongue_study" / folder / "generalization.json")
                            .read_text())
         row = next(line for line in page.splitlines() if line.startswith(f"| {label}"))
@@ -172,7 +173,8 @@ def test_held_out_figures_match_the_generalization_jsons():
             lo, hi = cell.split("-")
             assert agrees(lo, min(errors)) and agrees(hi, max(errors))
             quoted = {"each exciter alone": ("motions", "held-out"),
-                      "and 20 random schedules": ("held-out",)}[label]
+                      "and 20 random schedules": ("held-out",),
+                      "level 1, and 20 random schedules": ()}[label]
             if name in quoted:                              # the README's sentence
                 assert f"{min(errors):.2f}-{max(errors):.2f} mm" in README.replace("\n", " ")
         ratios = [r["estimate_ratio"] for r in split["sets"]["held-out"]]
@@ -228,3 +230,28 @@ def test_reduced_step_table_matches_the_bench_json():
             f"{hard['ms_per_step']:.3f} ms with the") in README.replace("\n", " ")
     assert (f"{penalty['max_step_over_median']:.2f}x the median (penalty) and "
             f"{hard['max_step_over_median']:.2f}x (hard)") in page.replace("\n", " ")
+
+
+def test_level1_split_figures_match_their_jsons():
+    """The level-1 bullet of docs/tongue_study.md's split: held-out errors, steps, the
+    slowest step, the estimate, the training's wall and compute seconds."""
+    page = (ROOT / "docs" / "tongue_study.md").read_text().replace("\n  ", " ")
+    folder = ROOT / "docs" / "tongue_study" / "level1_generalization"
+    held = json.loads((folder / "generalization.json").read_text())["sets"]["held-out"]
+    training = json.loads((folder / "training.json").read_text())
+    assert training["ranks"] == 2 and training["level"] == 1
+    errors = sorted(r["max_error_mm"] for r in held)
+    below = [e for e in errors if e <= 1.0]
+    above = [e for e in errors if e > 1.0]
+    assert " and ".join(f"{e:.2f}" for e in below) + " mm)" in page
+    assert f"({min(above):.2f}-{max(above):.2f} mm)" in page
+    ms = [r["reduced_ms_per_step"] for r in held]
+    assert f"{min(ms):.2f}-{max(ms):.2f} ms" in page
+    assert f"at most {max(r['max_step_over_median'] for r in held):.1f}x" in page
+    ratios = [r["estimate_ratio"] for r in held]
+    assert f"within {min(ratios):.2f}-{max(ratios):.2f} of the error" in page
+    assert f"{training['wall_seconds']:,.0f} s on two ranks" in page
+    text = README.replace("\n", " ")
+    assert f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at " \
+           f"{min(ms):.2f}-{max(ms):.2f} ms" in text
+    assert f"{training['compute_seconds']:,.0f} s of computation" in page
