@@ -33,6 +33,16 @@ from reduced_beam import full_basis, make_body, ndofs, random_basis
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
 
 
+def assert_projection_of_full(reduced, body, U, q, tangent_tol=1e-12):
+    """The reduced force and tangent at q are U^T f(U q) and U^T K(U q) U; returns U^T f."""
+    f, K = full_force_and_tangent(body, U @ q)
+    f_ref, K_ref = U.T @ f, U.T @ K @ U
+    np.testing.assert_allclose(reduced.force(), f_ref, rtol=0, atol=1e-12 * np.abs(f_ref).max())
+    np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0,
+                               atol=tangent_tol * np.abs(K_ref).max())
+    return f_ref
+
+
 def full_force_and_tangent(body, u):
     body.u.x.array[:u.size] = u
     body.u.x.scatter_forward()
@@ -227,18 +237,13 @@ def test_fused_kernels_of_overlapping_muscles_are_projections_of_the_full_body()
                     excitation=0.9)
     U = random_basis(body, 6, seed=12)
     reduced = ReducedFemBody(body, U, all_points(body))
-    assert max(k.slots.__len__() for k in reduced._stresses.kernels) >= 3   # fused terms
+    assert max(len(k.slots) for k in reduced._stresses.kernels) >= 3   # fused terms
     q = 1e-2 * np.random.default_rng(13).standard_normal(6)
     for excitations in ({}, {"top": 0.0, "front": 1.0, "side": 0.25}):
         for name, value in excitations.items():
             body.set_excitation(name, value)
         reduced.set_q(q)
-        f_full, K_full = full_force_and_tangent(body, U @ q)
-        f_ref, K_ref = U.T @ f_full, U.T @ K_full @ U
-        np.testing.assert_allclose(reduced.force(), f_ref, rtol=0,
-                                   atol=1e-12 * np.abs(f_ref).max())
-        np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0,
-                                   atol=1e-12 * np.abs(K_ref).max())
+        assert_projection_of_full(reduced, body, U, q)
 
 
 # ---- (e) bad input and inversion ------------------------------------------------------------
@@ -310,17 +315,10 @@ def test_loads_changed_after_construction_act_on_the_reduced_body():
     reduced = ReducedFemBody(body, U, all_points(body))
     q = 1e-2 * np.random.default_rng(4).standard_normal(7)
     reduced.set_q(q)
-    n = ndofs(body)
     seen = []
 
     def check():
-        f, K = full_force_and_tangent(body, U @ q)
-        f_full, K_full = U.T @ f, U.T @ K @ U
-        np.testing.assert_allclose(reduced.force(), f_full, rtol=0,
-                                   atol=1e-12 * np.abs(f_full).max())
-        np.testing.assert_allclose(reduced.tangent(), K_full, rtol=0,
-                                   atol=1e-10 * np.abs(K_full).max())
-        seen.append(f_full)
+        seen.append(assert_projection_of_full(reduced, body, U, q, tangent_tol=1e-10))
 
     check()
     x = body.mesh.geometry.x
