@@ -53,6 +53,8 @@ class GreedyTraining:
     reduced: ReducedModel
     stopped: str
     history: list[dict] = field(default_factory=list)
+    #: the reductor of the final training (its stages loaded), for further reductions
+    reductor: Reductor | None = None
 
     def summary(self) -> dict:
         """JSON-able: an estimate whose reduced run failed (inf) is None."""
@@ -111,7 +113,8 @@ def greedy_training(model: ReducibleScene, training: Training,
                  "added": None, "rejected": {}}
         if not pool or (max_runs is not None and len(training.schedules) >= max_runs):
             history.append(entry)
-            return GreedyTraining(training, reduced, "pool" if not pool else "size", history)
+            return GreedyTraining(training, reduced, "pool" if not pool else "size", history,
+                                  reductor)
         reference = reductor.reduce(richer_basis, richer_points)
         estimates = _estimates(reduced, reference, pool, duration, training.dt, progress)
         entry.update(estimates_mm=estimates, max_estimate_mm=max(estimates.values()))
@@ -132,4 +135,5 @@ def greedy_training(model: ReducibleScene, training: Training,
             entry["added"], training, reductor = name, enriched, candidate
             break
         if entry["added"] is None:
-            return GreedyTraining(training, reduced, "tolerance" if pool else "pool", history)
+            return GreedyTraining(training, reduced, "tolerance" if pool else "pool", history,
+                                  reductor)

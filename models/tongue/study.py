@@ -236,8 +236,7 @@ class TongueStudy:
             basis=Basis("pod", c.pod_r), points=self._render_points(), tol=c.greedy_tol,
             max_runs=len(reductor.training.schedules) + c.greedy_runs if c.greedy_runs
             else None, pressure_modes=c.pressure_modes)
-        self.reductor = Reductor(reductor.model, result.training, reductor.cache.root,
-                                 pressure_modes=c.pressure_modes, comm=reductor.comm)
+        self.reductor = result.reductor
         summary = {**result.summary(), "pool": c.greedy_pool, "seed": c.greedy_seed,
                    "tol_mm": c.greedy_tol, "max_added": c.greedy_runs,
                    "wall_seconds": time.perf_counter() - tic}
@@ -494,6 +493,10 @@ def run(args: argparse.Namespace) -> int:
     if args.pressure_modes:
         config = replace(config, pressure_modes=args.pressure_modes)
     comm = MPI.COMM_WORLD
+    if comm.size > 1 and config.greedy_pool:
+        raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains; the greedy "
+                         "training runs on one process: train with --train-only first, then "
+                         "run the greedy study on one process with the same --cache")
     if comm.size > 1 and not args.train_only:
         # artifem.reduction.distributed: ranks must end together, so rank 0 cannot go on
         raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains: add "
