@@ -25,7 +25,7 @@ from mpi4py import MPI
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.multibody.attachments import FemPoint, NodeAttachment
+from artifem.multibody.attachments import FemFrame, FemPoint, FrameAttachment, NodeAttachment
 from artifem.multibody.joints import RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring
 from artifem.multibody.point_attachments import shape_function_weights
@@ -35,6 +35,7 @@ from artifem.reduction.reductor import (Basis, Points, ReducibleScene, Reductor,
                                         reduce)
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
+from artifem.scene.inputs import Gravity, PathExcitation, SurfaceLoadLevel
 from reduced_beam import make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
@@ -160,17 +161,24 @@ def test_bad_input_is_refused_before_any_training_run(tmp_path):
     with pytest.raises(UnknownNameError, match=r"unknown inputs \['bottom'\]"):
         reduce(ReducibleScene("beam", build, "fem", {}), unknown, cache=tmp_path)
 
-    def with_spring() -> Scene:
+    def with_frame() -> Scene:
         scene = free_beam()
         body = scene.fem_bodies[0]
-        tip = FemPoint(body, shape_function_weights(body, [1.0, 0.15, 0.1]))
-        scene.add(PointPath(AxialSpring(10.0, 0.2), [np.array([1.2, 0.15, 0.1]), tip],
-                            name="spring"))
+        marker = RigidBody.marker("marker", position=(1.0, 0.15, 0.1))
+        scene.add(marker, FrameAttachment(marker, FemFrame(body, (1.0, 0.15, 0.1)),
+                                          name="tip frame"))
         return scene
-    with pytest.raises(InputError, match="PointPath 'spring' couples 'fem'"):
-        reduce(ReducibleScene("beam", Builds(with_spring), "fem", {}), TRAINING,
+    with pytest.raises(InputError, match="FrameAttachment 'tip frame' couples 'fem'"):
+        reduce(ReducibleScene("beam", Builds(with_frame), "fem", {}), TRAINING,
                cache=tmp_path)
-    assert build.count == 2 and not list(tmp_path.glob("*.npz"))
+    with pytest.raises(UnknownNameError, match="no surface load 'lid'"):
+        reduce(ReducibleScene("beam", build, "fem", {},
+                              loads={"lid": SurfaceLoadLevel("fem", "lid", 100.0)}),
+               TRAINING, cache=tmp_path)
+    with pytest.raises(InputError, match=r"\['top'\] name both an exciter and a load"):
+        reduce(ReducibleScene("beam", build, "fem", {}, loads={"top": Gravity()}),
+               TRAINING, cache=tmp_path)
+    assert build.count == 4 and not list(tmp_path.glob("*.npz"))
 
 
 def test_random_schedules_are_seeded_space_filling_and_release():

@@ -71,6 +71,16 @@ class TimedPath:
         vars(self.element).update(attributes)
 
 
+class _Constant:
+    """e(t) = value."""
+
+    def __init__(self, value: float):
+        self.value = value
+
+    def __call__(self, t: float) -> float:
+        return self.value
+
+
 class PathElement:
     """What every path (a spring or muscle through points) shares: its TimedPath
     ``self._timed``, its ``element`` and ``positions()``; tension, energy and the
@@ -86,6 +96,18 @@ class PathElement:
 
     def restore_state(self, saved) -> None:
         self._timed.restore_state(saved)
+
+    def set_excitation(self, value: float) -> None:
+        """Excite the path's muscle at ``value`` from the next new time on (it replaces the
+        schedule ``excitation(t)``; the activation follows as under a schedule): what a
+        scene input sets each step (:class:`~artifem.scene.inputs.PathExcitation`)."""
+        if not hasattr(self.element, "set_excitation"):
+            raise InputError(f"path {self.name!r}: {type(self.element).__name__} takes no "
+                             "excitation")
+        value = float(value)
+        if not np.isfinite(value):
+            raise InputError(f"path {self.name!r}: excitation must be finite, got {value!r}")
+        self._timed.excitation = _Constant(value)
 
     def potential_energy(self) -> float:
         """The element's stored energy, for elements that have one (springs)."""

@@ -48,6 +48,20 @@ class PointPath(PathElement):
     def __repr__(self) -> str:
         return f"PointPath({self.name!r}, {len(self.points)} points)"
 
+    def onto_reduced(self, reduced, lift=None) -> "PointPath":
+        """This path for ``reduced``, the reduced body of an FEM body it passes through:
+        its points there keep their weights, now with G = sum_j w_j U_j (:class:`FemPoint`).
+        The element and its excitation schedule are this path's (a reductor swaps the
+        path at rest, before any step). ``lift``: unused, a path carries no nodes."""
+        points = [FemPoint(reduced, p.weights, name=p.name)
+                  if isinstance(p, FemPoint) and p.fem is reduced.full else p
+                  for p in self.points]
+        if all(a is b for a, b in zip(points, self.points)):
+            raise InputError(f"PointPath {self.name!r}: no point of it is on "
+                             f"{reduced.full.name!r}, the body {reduced.name!r} reduces")
+        return PointPath(self.element, points, excitation=self._timed.excitation,
+                         name=self.name)
+
     @property
     def conservative(self) -> bool:
         """True when the element has an energy (springs): statics may use it as a merit."""

@@ -83,7 +83,7 @@ def full_run(model: ReducibleScene, schedule: ExcitationSchedule, duration: floa
     """The body's displacements (steps + 1, ndofs; NaN after a failure) and step times of the
     full scene driven by ``schedule``, and ``failure``: why the full model stopped early
     (e.g. inverted elements under a strong schedule), else empty. Cached."""
-    key = cache.key("full-run", model=model.key, body=model.body, duration=duration, dt=dt,
+    key = cache.key("full-run", **model.identity(), duration=duration, dt=dt,
                     **_schedule_key(schedule))
 
     def compute():
@@ -130,7 +130,7 @@ def compare(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule], *,
     error is then taken at those steps only, NaN at the others, and no full run is made."""
     if not schedules:
         raise InputError("compare: give at least one schedule")
-    if reference is not None and reference.model.key != reduced.model.key:
+    if reference is not None and reference.model.identity() != reduced.model.identity():
         raise InputError("compare: the reference is a reduced model of another model")
     store = ArtifactCache(cache)
     out = []

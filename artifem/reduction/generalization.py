@@ -93,7 +93,7 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
         raise InputError(f"generalization_study: unknown sets {sorted(unknown)}; use {SETS}")
     model, training = reductor.model, reductor.training
     dt = dt or training.dt
-    inputs = sorted(model.inputs(reductor.body))
+    inputs = sorted(model.input_names(reductor.body))
     schedules = {"training": dict(training.schedules), "motions": dict(model.motions),
                  "held-out": held_out_schedules(model, inputs, training, held_out, seed,
                                                 duration) if held_out else {}}

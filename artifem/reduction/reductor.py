@@ -29,11 +29,17 @@ The training runs may be shared over the ranks of an MPI communicator
 them at a time, each rank on its own serial model, and the cache holds the results.
 
 Couplings: a coupling of the scene that names the body must be able to follow it onto the
-reduced body. One whose nodes of the body ride on a rigid body offers
-``carried_nodes(body) -> (nodes, rigid body)`` and ``onto_reduced(reduced, lift)``
-(:class:`~artifem.multibody.attachments.NodeAttachment`); any other is refused, naming it,
-before any training. Controllers need nothing: a reduced body reads its full body's
-excitations and loads.
+reduced body: it offers ``onto_reduced(reduced, lift)``, its replacement. One whose nodes
+of the body ride on a rigid body also offers ``carried_nodes(body) -> (nodes, rigid body)``
+(:class:`~artifem.multibody.attachments.NodeAttachment`: the basis gets their lift
+columns, and ``lift`` is theirs); one through points of the body keeps their weights
+(:class:`~artifem.multibody.point_paths.PointPath`, lift None). Any other is refused,
+naming it, before any training.
+
+Inputs: schedules drive the model's exciters (muscles of the body) and its load inputs
+(``ReducibleScene.loads``: gravity, surface load levels, path muscles; found by name, so
+they drive the reduced scene too): load cases in the training. A reduced body reads its
+full body's excitations and loads.
 """
 
 from __future__ import annotations
@@ -60,6 +66,7 @@ from artifem.reduction.rigid_lift import RigidLift, rigid_lift
 from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
                                         pressure_weights, project, record_snapshots)
 from artifem.scene import Scene
+from artifem.scene import inputs as scene_inputs
 
 __all__ = ["ReducibleScene", "Training", "Basis", "Points", "Reductor", "ReducedModel",
            "reduce", "BASES"]
@@ -80,7 +87,10 @@ class ReducibleScene:
             of every stage starts from it.
         exciters: input name -> the muscles of the body it drives (default: each muscle
             is its own input).
-        motions: the model's named test inputs (schedules over the exciters).
+        motions: the model's named test inputs (schedules over the exciters and loads).
+        loads: input name -> a scene input (:mod:`artifem.scene.inputs`: gravity, a surface
+            load's level, a path muscle's excitation) that schedules may drive beside the
+            exciters: training on load cases. Part of every cache key.
     """
 
     name: str
@@ -89,6 +99,12 @@ class ReducibleScene:
     key: Mapping
     exciters: Mapping[str, Sequence[str]] | None = None
     motions: Mapping[str, ExcitationSchedule] = field(default_factory=dict)
+    loads: Mapping[str, object] = field(default_factory=dict)
+
+    def identity(self) -> dict:
+        """What identifies the model's runs in a cache key: its key, body and load inputs."""
+        loads = {"loads": scene_inputs.describe(self.loads)} if self.loads else {}
+        return {"model": self.key, "body": self.body, **loads}
 
     def fem_body(self, scene: Scene) -> FemBody:
         """The body to reduce in ``scene`` (a clear error when it has none of that name)."""
@@ -99,27 +115,49 @@ class ReducibleScene:
                                f"{self.body!r}; it has {[b.name for b in scene.fem_bodies]}")
 
     def inputs(self, body: FemBody) -> dict[str, list[str]]:
-        """Input name -> the muscles of ``body`` it drives."""
+        """Exciter name -> the muscles of ``body`` it drives."""
         if self.exciters is None:
             return {name: [name] for name in body.muscles}
         return {e: list(m) for e, m in self.exciters.items()}
 
+    def input_names(self, body: FemBody) -> list[str]:
+        """Every name a schedule of the model may drive: the exciters, then the loads."""
+        exciters = self.inputs(body)
+        both = sorted(set(exciters) & set(self.loads))
+        if both:
+            raise InputError(f"model {self.name!r}: {both} name both an exciter and a load")
+        return [*exciters, *self.loads]
+
+    def check_schedule(self, body: FemBody, schedule: ExcitationSchedule, what: str) -> None:
+        """A clear error when ``schedule`` names an input the model does not have."""
+        names = self.input_names(body)
+        unknown = sorted(set(schedule.values) - set(names))
+        if unknown:
+            raise UnknownNameError(f"{what} of model {self.name!r} names unknown inputs "
+                                   f"{unknown}; the inputs are {names}")
+
     def muscle_schedule(self, body: FemBody, schedule: ExcitationSchedule
                         ) -> ExcitationSchedule:
-        """A schedule over the model's inputs expanded to the muscles they drive."""
+        """The exciters of a schedule over the model's inputs expanded to the muscles they
+        drive (its loads left out)."""
+        self.check_schedule(body, schedule, "a schedule")
         inputs = self.inputs(body)
-        unknown = sorted(set(schedule.values) - set(inputs))
-        if unknown:
-            raise UnknownNameError(f"model {self.name!r}: the schedule names unknown inputs "
-                                   f"{unknown}; the inputs are {sorted(inputs)}")
         return ExcitationSchedule(schedule.times, {
-            muscle: values for e, values in schedule.values.items() for muscle in inputs[e]})
+            muscle: values for e, values in schedule.values.items() if e in inputs
+            for muscle in inputs[e]})
 
     def drive(self, scene: Scene, schedule: ExcitationSchedule) -> Callable:
-        """Add a controller applying ``schedule`` to the body's muscles (returned, so that
-        it can be removed); a reduced body reads the same excitations."""
+        """Add a controller applying ``schedule`` to the body's muscles and the scene's
+        load inputs (returned, so that it can be removed); a reduced body reads the same
+        excitations and loads."""
         body = self.fem_body_or_full(scene)
-        control = self.muscle_schedule(body, schedule).controller(body)
+        muscles = self.muscle_schedule(body, schedule).controller(body)
+        loads = scene_inputs.controller(ExcitationSchedule(schedule.times, {
+            name: v for name, v in schedule.values.items() if name in self.loads}), self.loads)
+
+        def control(system, t0: float, t1: float) -> None:
+            muscles(system, t0, t1)
+            loads(system, t0, t1)
         scene.add_controller(control)
         return control
 
@@ -242,9 +280,9 @@ class ReducedModel:
         reduced = self.body(full)
         replaced = {}
         for coupling in couplings:
-            nodes, carrier = coupling.carried_nodes(full)
-            lift = lifts.get((carrier.name, tuple(np.sort(nodes))))
-            if lift is None:
+            nodes, carrier = _carried(coupling, full)
+            lift = None if carrier is None else lifts.get((carrier.name, tuple(np.sort(nodes))))
+            if carrier is not None and lift is None:
                 raise InputError(f"model {self.model.name!r}: coupling {coupling.name!r} "
                                  f"carries nodes of {full.name!r} on {carrier.name!r} that "
                                  "the reduced basis was not trained with")
@@ -265,14 +303,19 @@ def _couplings_of(scene: Scene, body, model: str) -> list:
     (module docstring), else a clear error before any training."""
     found = scene.couplings_of(body)
     for item in found:
-        if not (callable(getattr(item, "carried_nodes", None))
-                and callable(getattr(item, "onto_reduced", None))
-                and item.carried_nodes(body) is not None):
+        if not callable(getattr(item, "onto_reduced", None)):
             raise InputError(
                 f"model {model!r}: {type(item).__name__} {getattr(item, 'name', '')!r} "
                 f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
-                "body (it carries nodes on rigid bodies: NodeAttachment)")
+                "body (those that can: NodeAttachment, PointPath)")
     return found
+
+
+def _carried(coupling, body) -> tuple:
+    """(nodes of ``body``, the rigid body carrying them) of a coupling, else (None, None)."""
+    carried = getattr(coupling, "carried_nodes", None)
+    found = carried(body) if callable(carried) else None
+    return found if found is not None else (None, None)
 
 
 class Reductor:
@@ -296,11 +339,9 @@ class Reductor:
                              "model on each rank (build its mesh on MPI.COMM_SELF)")
         inputs = model.inputs(self.body)
         for name, schedule in training.schedules.items():
-            unknown = sorted(set(schedule.values) - set(inputs))
-            if unknown:
-                raise UnknownNameError(f"training schedule {name!r} of {model.name!r} names "
-                                       f"unknown inputs {unknown}; the inputs are "
-                                       f"{sorted(inputs)}")
+            model.check_schedule(self.body, schedule, f"training schedule {name!r}")
+        for load in model.loads.values():
+            load.check(self.scene)
         missing = sorted({m for ms in inputs.values() for m in ms} - set(self.body.muscles))
         if missing:
             raise UnknownNameError(f"model {model.name!r}: its inputs drive muscles {missing} "
@@ -311,9 +352,10 @@ class Reductor:
         self.table = quadrature_points(self.body)
         self.carriers = []
         for coupling in couplings:
-            nodes, carrier = coupling.carried_nodes(self.body)
-            self.carriers.append(Carrier(carrier.name, rigid_lift(
-                self.body, nodes, carrier.position, carrier.rotation)))
+            nodes, carrier = _carried(coupling, self.body)
+            if carrier is not None:
+                self.carriers.append(Carrier(carrier.name, rigid_lift(
+                    self.body, nodes, carrier.position, carrier.rotation)))
         hard = self.body.volume_constraint is not None
         if hard and pressure_modes < 1:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
@@ -355,7 +397,7 @@ class Reductor:
 
     def snapshot_keys(self) -> list[str]:
         t = self.training
-        return [self.cache.key("reductor-snapshots", model=self.model.key, body=self.model.body,
+        return [self.cache.key("reductor-snapshots", **self.model.identity(),
                                times=s.times, values=s.values, duration=t.duration, dt=t.dt,
                                every=t.snapshot_every)
                 for s in t.schedules.values()]

@@ -1,0 +1,120 @@
+"""Load cases in a reductor's training, and a path muscle carried onto the reduced body.
+
+The muscle beam (clamped at x = 0) pulled sideways at its tip by a Thelen path muscle from a
+world point, a follower pressure on its top face and gravity: three scene inputs
+(:mod:`artifem.scene.inputs`) that schedules drive beside the beam's own muscle.
+
+(1) The inputs set what they name, on a scene built full and on the same scene reduced.
+(2) With every snapshot of a load-case training in the basis and every integration point,
+    the reduced scene reproduces the full one on a training schedule: the path went onto
+    the reduced body (same weights, G = sum_j w_j U_j) and the loads act on it live.
+(3) On a held-out load case, a basis trained on the load cases is far closer to the full
+    model than one of the same size trained on the muscle alone (the loads bend the beam
+    in directions the muscle does not).
+"""
+
+import numpy as np
+import pytest
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
+
+from artifem.errors import InputError, UnknownNameError
+from artifem.excitation import ExcitationSchedule
+from artifem.multibody.attachments import FemPoint
+from artifem.multibody.muscles import ThelenMuscle, ThelenParameters
+from artifem.multibody.point_attachments import shape_function_weights
+from artifem.multibody.point_paths import PointPath
+from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
+from artifem.reduction.schedules import random_schedules
+from artifem.scene import Scene, simulate
+from artifem.scene.inputs import Gravity, PathExcitation, SurfaceLoadLevel, controller
+from reduced_beam import make_body, ndofs
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
+
+DT = 0.01
+TIP, ANCHOR = np.array([1.0, 0.15, 0.1]), np.array([1.0, 0.8, 0.1])
+LOADS = {"pull": PathExcitation("sideways"), "press": SurfaceLoadLevel("fem", "top", 400.0),
+         "gravity": Gravity((0.0, 0.0, -9.81))}
+
+
+def pulled_beam() -> Scene:
+    """The beam, a pressure on its top face (set by the inputs, 0 at first), a Thelen
+    muscle from a world point to its tip, no gravity until an input sets it."""
+    body = make_body(excitation=0.0, loads=False)
+    body.add_pressure(0.0, where=lambda x: np.isclose(x[2], 0.2), name="top")
+    L = float(np.linalg.norm(ANCHOR - TIP))
+    muscle = ThelenMuscle(ThelenParameters(40.0, 0.8 * L, 0.2 * L), name="sideways")
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(body, PointPath(muscle, [ANCHOR, FemPoint(body, shape_function_weights(
+        body, TIP), name="tip")], name="sideways"))
+    return scene
+
+
+MODEL = ReducibleScene("pulled", pulled_beam, "fem", {"model": "pulled"}, loads=LOADS)
+
+
+def run(scene: Scene, schedule: ExcitationSchedule, duration: float) -> np.ndarray:
+    MODEL.drive(scene, schedule)
+    reduced = next(iter(scene.reduced_bodies), None)
+    n = ndofs(MODEL.fem_body_or_full(scene))
+    full = MODEL.fem_body_or_full(scene)
+    record = (lambda s: reduced.nodal_displacement().copy()) if reduced else \
+        (lambda s: full.u.x.array[:n].copy())
+    return simulate(scene, duration, DT, record={"u": record}, progress=False).records["u"]
+
+
+def test_scene_inputs_set_what_they_name():
+    scene = pulled_beam()
+    schedule = ExcitationSchedule(np.array([0.0, 1.0]), {"pull": np.array([0.0, 0.5]),
+                                                        "press": np.array([0.0, 1.0]),
+                                                        "gravity": np.array([1.0, 0.0])})
+    controller(schedule, LOADS)(scene, 0.0, 0.5)
+    assert np.allclose(scene.gravity, [0.0, 0.0, -0.5 * 9.81])
+    assert scene.fem_bodies[0].surface_loads["top"].get() == pytest.approx(200.0)
+    assert scene.paths[0]._timed.excitation(0.5) == pytest.approx(0.25)
+    with pytest.raises(UnknownNameError, match=r"unknown scene inputs \['wind'\]"):
+        controller(ExcitationSchedule(np.array([0.0]), {"wind": np.array([0.0])}), LOADS)
+    with pytest.raises(UnknownNameError, match="0 paths named 'other'"):
+        PathExcitation("other").apply(scene, 0.5)
+    with pytest.raises(InputError, match="a pressure needs a reference of 1 number"):
+        SurfaceLoadLevel("fem", "top", (0.0, 0.0, 1.0)).apply(scene, 0.5)
+
+
+TRAINING = Training(random_schedules(["pull", "press", "gravity", "top"], 3, seed=3,
+                                     duration=0.2, active=(2, 3)),
+                    duration=0.2, dt=DT, snapshot_every=1)
+HELD_OUT = ExcitationSchedule(np.array([0.0, 0.08, 0.2]),
+                              {"pull": np.array([0.0, 0.9, 0.6]),
+                               "press": np.array([0.0, 0.7, 0.7]),
+                               "gravity": np.array([0.0, 0.5, 0.5])})
+
+
+def test_every_snapshot_and_point_of_a_load_case_training_reproduce_the_full_scene(tmp_path):
+    reductor = Reductor(MODEL, TRAINING, tmp_path, progress=False)
+    reduced = reductor.reduce(Basis("pod", 3 * 20), Points(sampling="all"))
+    schedule = max(TRAINING.schedules.values(), key=lambda s: len(set(s.values) & set(LOADS)))
+    assert len(set(schedule.values) & set(LOADS)) >= 2
+    full = run(pulled_beam(), schedule, 0.2)
+    scene = reduced.scene()
+    path, = scene.paths
+    assert path.name == "sideways" and path.bodies == tuple(scene.reduced_bodies)
+    red = run(scene, schedule, 0.2)
+    scale = np.abs(full).max()
+    assert scale > 0.02
+    assert np.abs(red - full).max() < 1e-6 * scale
+
+
+def test_a_basis_trained_on_load_cases_follows_a_held_out_load_case(tmp_path):
+    full = run(pulled_beam(), HELD_OUT, 0.2)
+    muscle_only = Training(random_schedules(["top"], 3, seed=3, duration=0.2),
+                           duration=0.2, dt=DT, snapshot_every=1)
+    errors = {}
+    for name, training in (("loads", TRAINING), ("muscle", muscle_only)):
+        reduced = Reductor(MODEL, training, tmp_path, progress=False).reduce(
+            Basis("pod", 6), Points(sampling="all"))
+        errors[name] = np.abs(run(reduced.scene(), HELD_OUT, 0.2) - full).max()
+    scale = np.abs(full).max()
+    assert errors["loads"] < 0.05 * scale
+    assert errors["loads"] < 0.2 * errors["muscle"]
