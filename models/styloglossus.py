@@ -88,10 +88,10 @@ from artifem.multibody.point_paths import PointPath
 from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.muscles import PathForces, PathGeometry, ThelenMuscle, ThelenParameters
 from artifem.multibody.point_attachments import nearest_nodes, support_weights
-from artifem.reduction.bases import body_mass, pod_basis
-from artifem.reduction.cubature import IntegrationPoints, trained_points_path
-from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.training import ArtifactCache, force_training_matrix, project
+from artifem.excitation import ExcitationSchedule
+from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
+                                        Training)
+from artifem.scene.inputs import PathExcitation
 
 STYLOID = {"left": np.array([0.14984, 0.035891, 0.125]),
            "right": np.array([0.14984, -0.035891, 0.125])}
@@ -132,16 +132,6 @@ class PrescribedTension:
 
     def commit(self, result: PathForces) -> None:
         """Stateless."""
-
-
-@dataclass
-class ReducedTongue:
-    """The trained parts: POD basis U (zero on the fixed nodes) and integration points."""
-
-    U: np.ndarray
-    points: IntegrationPoints
-    snapshots: int
-    singular_values: np.ndarray
 
 
 def boundary_facet_centroids(body, exclude_dofs=()):
@@ -203,47 +193,53 @@ def cells_near(body, point, radius) -> np.ndarray:
     return np.flatnonzero(d <= radius)
 
 
-def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen",
-             tension: float = TENSION, sides=tuple(STYLOID), reduced: ReducedTongue | None = None,
-             duration: float = DURATION, dt: float = DT, radius: float = 0.012,
-             snapshot_every: int = 0, data=None,
-             config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)) -> dict:
-    """One run: the styloglossus of ``sides`` on ``support`` nearest nodes (min-norm or
-    non-negative weights), pulled by a Thelen muscle at excitation e(t) (``load="thelen"``) or
-    by the prescribed tension T = ``tension`` e(t) (``load="tension"``), on the full tongue or
-    on ``reduced``. Returns the figures and, under "_" keys, the body and the stress."""
+def build_scene(support: int = 4, *, nonnegative: bool = False, load: str = "thelen",
+                tension: float = TENSION, sides=tuple(STYLOID), excitation=excitation,
+                data=None, config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)
+                ) -> Scene:
+    """The full tongue (named ``tongue``) and the styloglossus of ``sides`` on ``support``
+    nearest nodes (min-norm or non-negative weights), each a path ``STY_<side>`` of a
+    Thelen muscle (``load="thelen"``) or of the prescribed tension T = ``tension`` e
+    (``load="tension"``), excited by ``excitation(t)`` (None: by a scene input)."""
     if load not in ("thelen", "tension"):
         raise InputError(f"styloglossus: load must be 'thelen' or 'tension', got {load!r}")
     unknown = set(sides) - set(STYLOID)
     if unknown or not sides:
         raise InputError(f"styloglossus: sides must be among {sorted(STYLOID)}, got {sides!r}")
-    tongue = Tongue(config, comm=MPI.COMM_SELF, data=data)
-    body = tongue.body
-    master = body if reduced is None else ReducedFemBody(body, reduced.U, reduced.points,
-                                                         name="tongue_reduced")
+    body = Tongue(config, comm=MPI.COMM_SELF, data=data).body
     scene = Scene(gravity=(0.0, 0.0, 0.0))
-    scene.add(master)
-    points = {s: p for s, p in attachment_points(body).items() if s in sides}
-    paths, fem_points = {}, {}
-    for side, p in points.items():
+    scene.add(body)
+    for side, p in attachment_points(body).items():
+        if side not in sides:
+            continue
         w = support_weights(body, p, nearest_nodes(body, p, support), nonnegative=nonnegative)
-        fem_points[side] = FemPoint(master, w, name=f"STY_{side}")
         L = float(np.linalg.norm(STYLOID[side] - p))
         element = (ThelenMuscle(ThelenParameters(MAX_FORCE, 0.8 * L, 0.2 * L), name=f"STY_{side}")
                    if load == "thelen" else PrescribedTension(tension))
-        paths[side] = PointPath(element, [STYLOID[side], fem_points[side]], excitation=excitation,
-                                name=f"STY_{side}")
-        scene.add(paths[side])
+        scene.add(PointPath(element, [STYLOID[side], FemPoint(body, w, name=f"STY_{side}")],
+                            excitation=excitation, name=f"STY_{side}"))
+    return scene
+
+
+def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen",
+             tension: float = TENSION, sides=tuple(STYLOID), reduced: ReducedModel | None = None,
+             duration: float = DURATION, dt: float = DT, radius: float = 0.012, data=None,
+             config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)) -> dict:
+    """One run of :func:`build_scene`'s scene over e(t), on the full tongue or with the
+    reduced tongue of ``reduced`` in place (its paths then pull on the reduced body).
+    Returns the figures and, under "_" keys, the (full) body and the stress."""
+    scene = build_scene(support, nonnegative=nonnegative, load=load, tension=tension,
+                        sides=sides, data=data, config=config)
+    body = scene.fem_bodies[0]
+    if reduced is not None:
+        master, _ = reduced.put_in(scene)
+    paths = {p.name.removeprefix("STY_"): p for p in scene.paths}
+    fem_points = {side: path.points[-1] for side, path in paths.items()}
+    points = {side: fp.weights.rest_position for side, fp in fem_points.items()}
     start = {s: fp.position().copy() for s, fp in fem_points.items()}
     n = int(round(duration / dt))
-    n_dofs = 3 * body.V.dofmap.index_map.size_local
-    record = {}
-    if snapshot_every:
-        record["u"] = (lambda s: body.u.x.array[:n_dofs].copy()) if reduced is None else \
-            (lambda s: master.nodal_displacement()[:n_dofs])
     with threadpool_limits(limits=1, user_api="blas"):
-        run = simulate_scene(scene, n * dt, dt, record=record, progress=False)
-    snapshots = run.records["u"][snapshot_every::snapshot_every] if snapshot_every else []
+        run = simulate_scene(scene, n * dt, dt, progress=False)
     if reduced is not None:
         master.to_full()                                  # u = U q on the full mesh, observed
     vm = von_mises_dg0(body, config)
@@ -259,44 +255,37 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
             "tension_N": {s: paths[s].tension() for s in points},
             "ms_per_step": run.ms_per_step, "steps": n, "dt": dt, "radius_m": radius,
             "min_det_F": float(np.nanmin(body.det_F())),
-            "_body": body, "_vm": vm, "_snapshots": np.array(snapshots),
+            "_body": body, "_vm": vm,
             "_support_dofs": {s: fp.weights.dofs for s, fp in fem_points.items()}}
 
 
-def train(cache: Path, rc: ReducedConfig = ReducedConfig(), *, data=None,
-          duration: float = DURATION, dt: float = DT) -> ReducedTongue:
-    """POD + ECSW of full styloglossus runs, cached in ``cache`` (module docstring)."""
-    store = ArtifactCache(cache)
-    parts = []
-    for side in STYLOID:
-        for name, (k, nonneg) in SUPPORTS.items():
-            key = store.key("styloglossus-snapshots", side=side, support=name,
-                            tension=rc.training_tension, every=rc.snapshot_every,
-                            duration=duration, dt=dt)
-            parts.append(store.get(key, lambda s=side, k=k, nn=nonneg: {
-                "u": simulate(k, nonnegative=nn, load="tension", tension=rc.training_tension,
-                              sides=(s,), duration=duration, dt=dt,
-                              snapshot_every=rc.snapshot_every, data=data)["_snapshots"]})["u"])
-    S = np.concatenate(parts)
-    body = Tongue(TongueConfig(level=0, incompressibility=PENALTY), comm=MPI.COMM_SELF,
-                  data=data).body
-    mass = body_mass(body)
-    model = {"rc": rc.__dict__, "duration": duration, "dt": dt}
-    pod = store.get(store.key("styloglossus-pod", **model),
-                    lambda: dict(zip(("U", "sigma"), pod_basis(S, mass, r=rc.r))))
+def reducible(support: str, rc: ReducedConfig = ReducedConfig(), *, data=None) -> ReducibleScene:
+    """The scene of support ``support`` (a key of :data:`SUPPORTS`) as a reductor's model:
+    both sides at the prescribed tension ``rc.training_tension`` e, e the load inputs
+    ``left`` and ``right`` (path excitations); the tongue's own muscles are not inputs."""
+    if support not in SUPPORTS:
+        raise InputError(f"styloglossus: unknown support {support!r}; choose one of "
+                         f"{sorted(SUPPORTS)}")
+    k, nonnegative = SUPPORTS[support]
+    return ReducibleScene(
+        "styloglossus", lambda: build_scene(k, nonnegative=nonnegative, load="tension",
+                                            tension=rc.training_tension, excitation=None,
+                                            data=data),
+        "tongue", {"model": "styloglossus", "support": support,
+                   "tension": rc.training_tension, "level": 0, "penalty": PENALTY},
+        exciters={}, loads={side: PathExcitation(f"STY_{side}") for side in STYLOID})
 
-    def cubature():
-        rows = np.unique(np.linspace(0, len(S) - 1, min(len(S), rc.force_snapshots))
-                         .round().astype(int))
-        q = project(pod["U"], mass, S[rows])
-        G, b = force_training_matrix(body, pod["U"], q, np.zeros((len(rows), len(body.muscles))))
-        pts = trained_points_path(G, b, sizes=[rc.points], tol=rc.cubature_tol, growth=0.1,
-                                  progress=True)[rc.points]
-        return {"indices": pts.indices, "weights": pts.weights,
-                "residual": np.array(pts.residual)}
-    p = store.get(store.key("styloglossus-points", **model), cubature)
-    points = IntegrationPoints(p["indices"], p["weights"], "trained", float(p["residual"]))
-    return ReducedTongue(pod["U"], points, len(S), pod["sigma"])
+
+def reduce_tongue(support: str, cache: Path, rc: ReducedConfig = ReducedConfig(), *,
+                  data=None, duration: float = DURATION, dt: float = DT) -> ReducedModel:
+    """The reduced tongue of support ``support``: POD and ECSW points of full runs with each
+    side alone, ramped as e(t) to ``rc.training_tension`` (module docstring), cached."""
+    training = Training({side: ExcitationSchedule.ramp_and_hold({side: 1.0}, RAMP)
+                         for side in STYLOID}, duration=duration, dt=dt,
+                        snapshot_every=rc.snapshot_every)
+    return Reductor(reducible(support, rc, data=data), training, cache).reduce(
+        Basis("pod", rc.r), Points(rc.points, tol=rc.cubature_tol,
+                                   training_states=rc.force_snapshots))
 
 
 def _summary(r: dict) -> dict:
@@ -338,16 +327,18 @@ def report(args: argparse.Namespace) -> dict:
     render_panels(pngs["tension"], [[(LABELS[n], runs[f"tension {n}"]) for n in SUPPORTS]])
     if not args.no_reduced:
         rc = ReducedConfig(r=args.r, points=args.points)
-        tic = time.perf_counter()
-        model = train(args.cache or out / "cache", rc, data=data, duration=args.duration)
-        figures["reduced"] = {"pod_vectors": rc.r, "points": int(model.points.m),
-                              "training_residual": model.points.residual,
+        models = {}
+        for name in SUPPORTS:
+            tic = time.perf_counter()
+            models[name] = reduce_tongue(name, args.cache or out / "cache", rc, data=data,
+                                         duration=args.duration)
+            models[name].training["wall_seconds"] = time.perf_counter() - tic
+        figures["reduced"] = {"pod_vectors": rc.r, "points_asked": rc.points,
                               "training_tension_N": rc.training_tension,
-                              "snapshots": model.snapshots,
-                              "training_seconds": time.perf_counter() - tic}
+                              "training": {n: m.training for n, m in models.items()}}
         for name, (k, nn) in SUPPORTS.items():
             red = simulate(k, nonnegative=nn, load="tension", tension=args.tension,
-                           reduced=model, duration=args.duration, data=data)
+                           reduced=models[name], duration=args.duration, data=data)
             full = runs[f"tension {name}"]
             n = 3 * full["_body"].V.dofmap.index_map.size_local
             du = (red["_body"].u.x.array[:n] - full["_body"].u.x.array[:n]).reshape(-1, 3)
@@ -362,7 +353,7 @@ def report(args: argparse.Namespace) -> dict:
         pngs["reduced"] = out / "styloglossus_reduced.png"
         render_panels(pngs["reduced"], [
             [(f"full, {LABELS[n]}", runs[f"tension {n}"]) for n in SUPPORTS],
-            [(f"reduced ({rc.r}, {model.points.m} pts), {LABELS[n]}", runs[f"reduced {n}"])
+            [(f"reduced ({rc.r}, {models[n].points.m} pts), {LABELS[n]}", runs[f"reduced {n}"])
              for n in SUPPORTS]])
     figures["runs"] = {name: _summary(r) for name, r in runs.items()}
     figures["table"] = [_row(name, r) | ({"error_vs_full": r["error_vs_full"]}

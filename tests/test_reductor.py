@@ -234,6 +234,12 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
             assert 1 / 3 <= r["estimate_ratio"] <= 3
     assert "## held-out" in (tmp_path / "generalization.md").read_text()
     assert (tmp_path / "generalization.png").stat().st_size > 10_000
+    worst = figures["worst"]            # the render: the worst held-out moment
+    assert worst["set"] == "held-out" and worst["mean_error_mm"] == pytest.approx(
+        max(r["max_error_mm"] for r in sets["held-out"]), rel=1e-12)
+    assert worst["max_node_error_mm"] > worst["mean_error_mm"]
+    assert (tmp_path / "generalization_worst.png").stat().st_size > 10_000
+    assert "generalization_worst.png" in (tmp_path / "generalization.md").read_text()
     series = np.load(tmp_path / "generalization_series.npz")
     assert series["held-out/held-out-99-0/error_mm"].shape == (21,)
 

@@ -24,8 +24,10 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
 from artifem.models.tongue.model import load_tongue_data
+from artifem.errors import InputError
 from artifem.models.styloglossus import (STYLOID, ReducedConfig, SUPPORTS, attachment_points,
-                                         boundary_facet_centroids, simulate, train)
+                                         boundary_facet_centroids, reduce_tongue, reducible,
+                                         simulate)
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
@@ -99,14 +101,23 @@ def test_equal_tension_24_nonnegative_nodes_lower_the_peak_stress(results):
 
 
 def test_reduced_tongue_follows_the_full_attachment(data, results, tmp_path_factory):
-    """A small reduced tongue (POD of short one-sided training runs, ECSW points) pulled on 24
-    min-norm nodes: attachment displacement close to the full one, stress reconstructed."""
+    """A small reduced tongue (the reductor: POD of short one-sided training runs, the path
+    excitations its load inputs; ECSW points) pulled on 24 min-norm nodes by both sides at
+    once: the paths went onto the reduced body, the attachment displacement is close to the
+    full one, the stress is reconstructed."""
     rc = ReducedConfig(r=10, points=80, force_snapshots=30, snapshot_every=3)
-    model = train(tmp_path_factory.mktemp("styloglossus_cache"), rc, data=data,
-                  duration=DURATION)
+    model = reduce_tongue("24", tmp_path_factory.mktemp("styloglossus_cache"), rc, data=data,
+                          duration=DURATION)
+    assert model.training["runs"] == 2 and model.r == 10
     red = simulate(24, load="tension", reduced=model, duration=DURATION, data=data)
     full = results["tension 24"]
+    assert red["tension_N"]["left"] == pytest.approx(full["tension_N"]["left"], rel=1e-12)
     d_full = np.array(full["attachment_displacement_m"]["left"])
     d_red = np.array(red["attachment_displacement_m"]["left"])
     assert np.linalg.norm(d_red - d_full) < 0.2 * np.linalg.norm(d_full)
     assert peak(red) == pytest.approx(peak(full), rel=0.5)
+
+
+def test_an_unknown_support_is_refused():
+    with pytest.raises(InputError, match="unknown support '12'"):
+        reducible("12")

@@ -17,8 +17,10 @@ model from its training (and a reference twice as rich, for the estimate), then
 
 Written to ``out``: generalization.json (the configuration, the training cost, per run
 the maximum and mean error, the estimate, ms per step and its worst step against the
-median), generalization.md (a table per set) and generalization.png (error over time,
-estimate dashed, one panel per set).
+median), generalization.md (a table per set), generalization.png (error over time,
+estimate dashed, one panel per set) and generalization_worst.png: the full and the reduced
+body at the worst moment of the worst held-out run (else motion), coloured by |u| and by
+the reduced model's error |u_r - u|.
 """
 
 from __future__ import annotations
@@ -28,11 +30,14 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from dolfinx import fem
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from artifem.errors import InputError
-from artifem.reduction.evaluation import Comparison, compare
+from artifem.reduction.evaluation import Comparison, compare, full_run, reduced_run
+from artifem.reduction.training import ArtifactCache
+from artifem.render import render_bodies
 from artifem.reduction.generalization_report import SETS, write_markdown
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
                                         Training)
@@ -126,4 +131,42 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
         f"{name}/{c.name}/{kind}": getattr(c, kind) for name, runs in results.items()
         for c in runs for kind in ("times", "error_mm", "estimate_mm")})
     _plot(results, out / "generalization.png")
+    worst = _render_worst(reduced, results, schedules, duration, dt, reductor.cache,
+                          out / "generalization_worst.png")
+    if worst:
+        figures["worst"] = worst
+        (out / "generalization.json").write_text(json.dumps(figures, indent=1))
+        (out / "generalization.md").write_text(write_markdown(figures))
     return figures
+
+
+def _render_worst(reduced: ReducedModel, results: dict[str, list[Comparison]],
+                  schedules: dict, duration: float, dt: float, cache: ArtifactCache,
+                  png: Path) -> dict | None:
+    """Render the full and the reduced body at the largest error of the held-out runs (else
+    of the motions); the full run comes from the cache. Returns what it drew, or None."""
+    for name in ("held-out", "motions"):
+        runs = [c for c in results.get(name, []) if np.any(np.isfinite(c.error_mm))]
+        if runs:
+            break
+    else:
+        return None
+    run = max(runs, key=lambda c: np.nanmax(c.error_mm))
+    k = int(np.nanargmax(run.error_mm))
+    schedule = schedules[name][run.name]
+    u_full = full_run(reduced.model, schedule, duration, dt, cache, progress=False)["u"][k]
+    u_red = reduced_run(reduced, schedule, duration, dt)[0][k]
+    body = reduced.model.fem_body(reduced.model.build())
+    fields = []
+    for u in (u_full, u_red):
+        f = fem.Function(body.V)
+        f.x.array[:u.size] = u
+        fields.append(f)
+    error = 1e3 * np.linalg.norm((u_red - u_full).reshape(-1, 3), axis=1)
+    render_bodies(png, [(body.mesh, f) for f in fields],
+                  scalars=[1e3 * np.linalg.norm(u_full.reshape(-1, 3), axis=1), error],
+                  titles=[f"full, {run.name}, t = {run.times[k]:.2f} s: displacement (mm)",
+                          "reduced: error (mm)"], scalar_name="mm", window_size=(1400, 600))
+    return {"set": name, "run": run.name, "time": float(run.times[k]),
+            "mean_error_mm": float(run.error_mm[k]), "max_node_error_mm": float(error.max()),
+            "png": png.name}

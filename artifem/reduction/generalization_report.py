@@ -40,4 +40,11 @@ def write_markdown(figures: dict) -> str:
                          f"{'-' if r['speedup'] is None else format(r['speedup'], '.0f') + 'x'} |")
         lines.append("")
     lines += ["![error over time](generalization.png)", ""]
+    worst = figures.get("worst")
+    if worst:
+        lines += [f"The worst moment of the {worst['set']} runs: {worst['run']} at t = "
+                  f"{worst['time']:.2f} s (mean node error {worst['mean_error_mm']:.2f} mm, "
+                  f"largest {worst['max_node_error_mm']:.2f} mm); left the full body by |u|, "
+                  "right the reduced one by its error:", "",
+                  f"![the full and the reduced body at the worst moment]({worst['png']})", ""]
     return "\n".join(lines)
