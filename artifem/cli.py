@@ -8,6 +8,7 @@
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem bench reduced --out FILE.json    reduced tongue step: parts, FLOPs, GFLOP/s
     artifem study tongue --out DIR           reduced tongue models: speed versus error report
+    artifem study scene MODULE:FUNCTION --out DIR   any scene's reduced model: train/test split
     artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
     artifem demo --out DIR                   the main job (``make demo``)
 
@@ -61,6 +62,9 @@ COMMANDS = {
                           "reduced tongue models against the full one: speed versus error"),
     ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",
                               "jaw-tongue scene, full against reduced tongue: speed, error"),
+    ("study", "scene"): ("artifem.scene_study",
+                         "any scene's reduced model on training, motions and held-out "
+                         "schedules (MODULE:FUNCTION returning a ReducibleScene)"),
     ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
                                      "tongue motions with the element penalty and with hard "
                                      "incompressibility: volume, landmarks, speed"),

@@ -64,6 +64,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
 from artifem.arguments import positive_float
 from artifem.errors import InputError, UnknownNameError
@@ -266,18 +267,21 @@ class JawTongueScene:
 
 
 def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=None,
-                data=None, reduce=None) -> JawTongueScene:
+                data=None, reduce=None, comm=MPI.COMM_WORLD) -> JawTongueScene:
     """The tongue, the aligned jaw, the TMJ hinge, the opener and the closer (docstring).
 
     ``reduce``, a reduced model of this scene (``ReducedModel`` of
     :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue_reduced.train``), puts the reduced
-    tongue in place of the full one, riding on the jaw by a lift attachment.
+    tongue in place of the full one, riding on the jaw by a lift attachment. ``comm``: the
+    tongue mesh's communicator (``MPI.COMM_SELF``: a serial scene on each rank, as a
+    reductor's training runs need).
     """
     data = data or load_tongue_data(config.tongue.level)
     if config.tongue.level != 0:
         raise InputError("jaw_tongue: the attachment files index level-0 nodes")
     jaw_rows, hyoid_rows = jaw_attachment_rows(), hyoid_attachment_rows()
-    tongue = Tongue(config.tongue, data=replace(data, fixed_nodes=np.unique(hyoid_rows)))
+    tongue = Tongue(config.tongue, comm,
+                    data=replace(data, fixed_nodes=np.unique(hyoid_rows)))
     nodes = data.mesh.points[jaw_rows]
     vertices_mm, triangles = read_obj(DATA / "jaw.obj")
     alignment = align_jaw(nodes, vertices_mm, triangles)

@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 from threadpoolctl import threadpool_limits
 
 from artifem.arguments import nonnegative_int, positive_float, positive_int
@@ -83,11 +84,13 @@ def quick_config() -> ReducedJawTongueConfig:
 QUICK_MOTIONS, QUICK_DURATION = ("protrusion",), 0.15
 
 
-def reducible(config: ReducedJawTongueConfig) -> ReducibleScene:
+def reducible(config: ReducedJawTongueConfig = ReducedJawTongueConfig()) -> ReducibleScene:
     """The jaw-tongue scene as the reductor sees it: its tongue reduced, driven by the
-    tongue's exciters (the jaw opener keeps its own schedule)."""
+    tongue's exciters (the jaw opener keeps its own schedule); each build a serial scene
+    (``MPI.COMM_SELF``), so that training runs may be shared over ranks."""
     exciters = load_tongue_data(config.jaw.tongue.level).exciters
-    return ReducibleScene("jaw-tongue", lambda: jt.build_scene(config.jaw).scene, "tongue",
+    return ReducibleScene("jaw-tongue", lambda: jt.build_scene(config.jaw,
+                                                               comm=MPI.COMM_SELF).scene, "tongue",
                           {"jaw": asdict(config.jaw), "dt": config.dt}, exciters=exciters,
                           motions={m: Tongue.motion(m) for m in MOTIONS})
 

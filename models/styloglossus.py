@@ -27,40 +27,43 @@ tendon slack 0.2 L, L the initial styloid-attachment distance) at excitation e(t
 0 -> 1 over 0.5 s, held to 1 s), or, for equal tension, :class:`PrescribedTension`
 T = 1.5 N e(t) along the path (f = -T dL/dx, K = -T d2L/dx2, D = 0). h = 0.01 s.
 
-Reduced tongue (:func:`train`): POD (r = 20, mass-weighted) of full runs of this scene with
-each side alone, each support of :data:`SUPPORTS`, at 2 N (above the test's 1.5 N; the
-tongue study's basis, trained on the internal muscles, does not contain point loads on the
-lateral surface, and linear modes miss the large local strains at the attachment), and 200
-ECSW points (tol 1e-3, reached before the 300 asked for), cached by ``ArtifactCache``. The
-comparison pulls both sides at once: combinations not in the training set. The attachment
-is ``FemPoint(reduced, w)``, G = sum_j w_j U_j; u = U q is rebuilt on the full mesh only for
-the stress and the picture.
+Reduced tongue (:func:`reduce_tongue`, through the reductor): each support is its own model
+(:func:`reducible`: the scene at the prescribed tension 2 N, above the test's 1.5 N, whose
+path excitations ``left`` and ``right`` are load inputs, ``PathExcitation``). Training: each
+side alone, ramped and held (2 runs); POD (r = 20, mass-weighted) and ECSW points (tol
+1e-3, reached at 105-131 points before the 300 asked for), cached. The tongue study's basis,
+trained on the internal muscles, does not contain point loads on the lateral surface, and
+linear modes miss the large local strains at the attachment. The comparison pulls both
+sides at once: combinations not in the training set. The reductor carries each path onto
+the reduced tongue (``PointPath.onto_reduced``): ``FemPoint(reduced, w)``,
+G = sum_j w_j U_j; u = U q is rebuilt on the full mesh only for the stress and the picture.
 
 Stress: Cauchy sigma = (1/J) P F^T with P = d psi/dF (ufl.diff) of the passive energy, at cell
 centres (DG0), von Mises; "near the attachment" = cells with a node within 12 mm of the
 attachment's rest position.
 
 Measured (``artifem simulate styloglossus --out DIR``: 1 s, serial, left side; the scene is
-symmetric to 1e-4; ms/step medians of one run with other jobs on the machine):
+symmetric to 1e-4; ms/step medians of one run; docs/img/styloglossus.json, tables in
+docs/styloglossus.md):
 
 | run | tension | peak von Mises near attachment | attachment moved | min det F | ms/step |
 |---|---|---|---|---|---|
-| Thelen, 4 nodes | 1.51 N | 12.5 kPa | 18.7 mm | 0.41 | 105 |
-| Thelen, 24 nodes | 2.25 N | 20.0 kPa | 12.6 mm | 0.72 | 107 |
-| 1.5 N, 4 nodes | 1.50 N | 12.3 kPa | 18.6 mm | 0.41 | 145 |
-| 1.5 N, 24 min-norm | 1.50 N | 11.4 kPa | 9.7 mm | 0.77 | 148 |
-| 1.5 N, 24 w >= 0 | 1.50 N | 23.0 kPa | 12.6 mm | 0.66 | 155 |
-| reduced, 4 nodes | 1.50 N | 10.0 kPa | 17.5 mm | 0.48 | 15.4 |
-| reduced, 24 min-norm | 1.50 N | 8.8 kPa | 8.6 mm | 0.76 | 11.2 |
-| reduced, 24 w >= 0 | 1.50 N | 19.6 kPa | 11.5 mm | 0.61 | 15.5 |
+| Thelen, 4 nodes | 1.51 N | 12.5 kPa | 18.7 mm | 0.41 | 76 |
+| Thelen, 24 nodes | 2.25 N | 20.0 kPa | 12.6 mm | 0.72 | 77 |
+| 1.5 N, 4 nodes | 1.50 N | 12.3 kPa | 18.6 mm | 0.41 | 73 |
+| 1.5 N, 24 min-norm | 1.50 N | 11.4 kPa | 9.7 mm | 0.77 | 71 |
+| 1.5 N, 24 w >= 0 | 1.50 N | 23.0 kPa | 12.6 mm | 0.66 | 72 |
+| reduced, 4 nodes | 1.50 N | 10.0 kPa | 18.0 mm | 0.49 | 1.3 |
+| reduced, 24 min-norm | 1.50 N | 10.5 kPa | 9.4 mm | 0.77 | 1.7 |
+| reduced, 24 w >= 0 | 1.50 N | 19.6 kPa | 12.1 mm | 0.65 | 1.5 |
 
 At equal excitation the comparison is not at equal load (the 4-node point sinks further, the
 Thelen fiber shortens, its force drops to 1.51 N against 2.25 N). At equal tension the 24
 min-norm nodes lower the peak near the attachment by 7% (11.4 / 12.3 kPa), halve the
 attachment displacement and keep min det F at 0.77 instead of 0.41: the paper's claim holds.
 With non-negative weights it does not: the force stays on one facet and the peak doubles
-(23.0 kPa). Reduced against full (same support): attachment error 1.2-1.5 mm, mean nodal
-error 0.5-0.65 mm, peak stress 15-30% lower (the basis smooths the attachment), 9-13x faster.
+(23.0 kPa). Reduced against full (same support): attachment error 0.8-1.1 mm, mean nodal
+error 0.4-0.6 mm, peak stress 8-19% lower (the basis smooths the attachment), 43-56x faster.
 """
 
 from __future__ import annotations

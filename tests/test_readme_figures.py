@@ -255,3 +255,15 @@ def test_level1_split_figures_match_their_jsons():
     assert f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at " \
            f"{min(ms):.2f}-{max(ms):.2f} ms" in text
     assert f"{training['compute_seconds']:,.0f} s of computation" in page
+
+
+def test_styloglossus_reduced_sentence_matches_its_json():
+    table = json.loads((ROOT / "docs" / "img" / "styloglossus.json").read_text())["table"]
+    errors = [r["error_vs_full"] for r in table if "error_vs_full" in r]
+    speedups = [e["speedup"] for e in errors]
+    attachment = [e["attachment_mm"] for e in errors]
+    found = re.search(r"runs it (\d+)-(\d+)x faster with ([\d.]+)-([\d.]+) mm attachment error",
+                      README)
+    assert found, "the README's styloglossus sentence is gone"
+    assert agrees(found[1], min(speedups)) and agrees(found[2], max(speedups))
+    assert agrees(found[3], min(attachment)) and agrees(found[4], max(attachment))

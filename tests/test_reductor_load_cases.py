@@ -13,6 +13,8 @@ world point, a follower pressure on its top face and gravity: three scene inputs
     in directions the muscle does not).
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -52,7 +54,14 @@ def pulled_beam() -> Scene:
     return scene
 
 
-MODEL = ReducibleScene("pulled", pulled_beam, "fem", {"model": "pulled"}, loads=LOADS)
+def pulled_model() -> ReducibleScene:
+    """The pulled beam as a reductor's model (also for ``artifem study scene``)."""
+    return ReducibleScene("pulled", pulled_beam, "fem", {"model": "pulled"}, loads=LOADS,
+                          motions={"press": ExcitationSchedule.ramp_and_hold({"press": 1.0},
+                                                                             0.1)})
+
+
+MODEL = pulled_model()
 
 
 def run(scene: Scene, schedule: ExcitationSchedule, duration: float) -> np.ndarray:
@@ -118,3 +127,37 @@ def test_a_basis_trained_on_load_cases_follows_a_held_out_load_case(tmp_path):
     scale = np.abs(full).max()
     assert errors["loads"] < 0.05 * scale
     assert errors["loads"] < 0.2 * errors["muscle"]
+
+
+def test_the_scene_study_command_splits_any_model(tmp_path):
+    """``artifem study scene MODULE:FUNCTION``: random training over the exciter and the
+    three loads, the split on training, motions and held-out schedules, the render."""
+    from artifem.cli import main
+
+    out = tmp_path / "study"
+    args = ["study", "scene", "test_reductor_load_cases:pulled_model", "--out", str(out),
+            "--training-runs", "4", "--duration", "0.2", "--snapshot-every", "2", "--r", "6",
+            "--sampling", "all", "--held-out", "2"]
+    assert main(args) == 0
+    training = json.loads((out / "training.json").read_text())
+    assert training["runs"] == training["missing"] == 4 and training["ranks"] == 1
+    figures = json.loads((out / "generalization.json").read_text())
+    assert [len(figures["sets"][s]) for s in ("training", "motions", "held-out")] == [4, 1, 2]
+    assert figures["reduced"]["basis"]["r"] == 6
+    assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
+    assert figures["worst"]["set"] == "held-out"
+    assert (out / "generalization_worst.png").stat().st_size > 10_000
+    assert main(args) == 0                                   # again: all from the cache
+    assert json.loads((out / "training.json").read_text())["missing"] == 0
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("pulled_model", "give the model as MODULE:FUNCTION"),
+    ("no_such_module_here:f", "cannot import 'no_such_module_here'"),
+    ("test_reductor_load_cases:nothing", "has no 'nothing'"),
+    ("test_reductor_load_cases:pulled_beam", "returned a Scene, not a ReducibleScene")])
+def test_the_scene_study_refuses_a_bad_model_spec(spec, message, tmp_path, capsys):
+    from artifem.cli import main
+
+    assert main(["study", "scene", spec, "--out", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
