@@ -262,7 +262,8 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
             "_support_dofs": {s: fp.weights.dofs for s, fp in fem_points.items()}}
 
 
-def reducible(support: str, rc: ReducedConfig = ReducedConfig(), *, data=None) -> ReducibleScene:
+def reducible(support: str = "24", rc: ReducedConfig = ReducedConfig(), *,
+              data=None) -> ReducibleScene:
     """The scene of support ``support`` (a key of :data:`SUPPORTS`) as a reductor's model:
     both sides at the prescribed tension ``rc.training_tension`` e, e the load inputs
     ``left`` and ``right`` (path excitations); the tongue's own muscles are not inputs."""
