@@ -135,9 +135,14 @@ def run(args: argparse.Namespace) -> int:
     done.update(model=args.model, runs=len(training.schedules),
                 training_seed=args.training_seed, each_alone=args.each_alone,
                 duration=args.duration, dt=args.dt, snapshot_every=args.snapshot_every)
-    (out / "training.json").write_text(json.dumps(done, indent=1))
+    record = out / "training.json"
+    old = json.loads(record.read_text()) if record.exists() else {}
+    same = all(old.get(k) == done[k] for k in ("model", "runs", "training_seed", "each_alone",
+                                                "duration", "dt", "snapshot_every"))
+    if done["missing"] or not same:     # else keep the record of this training's computation
+        record.write_text(json.dumps(done, indent=1))
     print(f"training: {done['missing']} of {done['runs']} runs computed on {done['ranks']} "
-          f"rank(s) in {done['wall_seconds']:.1f} s: {out / 'training.json'}")
+          f"rank(s) in {done['wall_seconds']:.1f} s; the record of the training: {record}")
     if args.train_only:
         return 0
     generalization_study(reductor, out, basis=Basis(args.basis, args.r),

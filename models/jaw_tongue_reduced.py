@@ -55,6 +55,7 @@ from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleSc
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.generalization_report import write_markdown
 from artifem.reduction.schedules import each_alone
+from artifem.scene.inputs import PathExcitation
 
 __all__ = ["ReducedJawTongueConfig", "reducible", "train", "build_reduced_scene",
            "compare", "quick_config"]
@@ -86,13 +87,16 @@ QUICK_MOTIONS, QUICK_DURATION = ("protrusion",), 0.15
 
 def reducible(config: ReducedJawTongueConfig = ReducedJawTongueConfig()) -> ReducibleScene:
     """The jaw-tongue scene as the reductor sees it: its tongue reduced, driven by the
-    tongue's exciters (the jaw opener keeps its own schedule); each build a serial scene
-    (``MPI.COMM_SELF``), so that training runs may be shared over ranks."""
+    tongue's exciters and by the jaw opener's excitation, a load input (``opener``: the
+    jaw's motion as a load case; a schedule that does not name it leaves the opener on its
+    own ramp); each build a serial scene (``MPI.COMM_SELF``), so that training runs may be
+    shared over ranks."""
     exciters = load_tongue_data(config.jaw.tongue.level).exciters
+    loads = {"opener": PathExcitation("opener")} if config.jaw.opener_force > 0 else {}
     return ReducibleScene("jaw-tongue", lambda: jt.build_scene(config.jaw,
                                                                comm=MPI.COMM_SELF).scene, "tongue",
                           {"jaw": asdict(config.jaw), "dt": config.dt}, exciters=exciters,
-                          motions={m: Tongue.motion(m) for m in MOTIONS})
+                          motions={m: Tongue.motion(m) for m in MOTIONS}, loads=loads)
 
 
 def training(config: ReducedJawTongueConfig) -> Training:

@@ -46,3 +46,29 @@ def test_lift_basis_vanishes_on_the_fixed_and_carried_nodes(quick_jaw_tongue):
     assert [c.body for c in model.carriers] == ["jaw"]
     assert np.array_equal(model.basis[:, quick.r:], s.attachment.lift.columns)
     assert s.scene.master_count() == quick.r + 6
+
+
+def test_the_jaw_opener_is_a_load_input_of_the_reductor_model():
+    """The opener's excitation is a load case of the model: a schedule that leaves it out
+    lets the opener follow its own ramp (to 0.5 over 0.2 s); one naming it at 0 keeps the
+    jaw nearly shut (it settles under gravity: 0.2 against 2.6 degrees at 0.1 s, measured),
+    one naming it at 1 opens it further."""
+    from artifem.excitation import ExcitationSchedule
+    from artifem.scene import simulate
+
+    model = jtr.reducible(jtr.quick_config())
+    angles = {}
+    for name, values in (("own ramp", {}), ("held at 0", {"opener": np.zeros(2)}),
+                         ("held at 1", {"opener": np.ones(2)})):
+        scene = model.build()
+        model.drive(scene, ExcitationSchedule(np.array([0.0, 0.1]),
+                                              {"GGP": np.zeros(2), **values}))
+        assert model.input_names(model.fem_body(scene))[-1] == "opener"
+        jaw = next(b for b in scene.rigid_bodies if b.name == "jaw")
+        start = jaw.rotation.copy()
+        simulate(scene, 0.1, 0.01, progress=False)
+        angles[name] = np.degrees(np.arccos(np.clip((np.trace(start.T @ jaw.rotation) - 1) / 2,
+                                                    -1.0, 1.0)))
+    assert angles["own ramp"] > 0.5
+    assert angles["held at 0"] < 0.15 * angles["own ramp"]
+    assert angles["held at 1"] > 1.5 * angles["own ramp"]

@@ -267,3 +267,39 @@ def test_styloglossus_reduced_sentence_matches_its_json():
     assert found, "the README's styloglossus sentence is gone"
     assert agrees(found[1], min(speedups)) and agrees(found[2], max(speedups))
     assert agrees(found[3], min(attachment)) and agrees(found[4], max(attachment))
+
+
+def test_jaw_tongue_split_figures_match_their_jsons():
+    """The README's jaw-tongue split sentence and the table of docs/reduction.md, from
+    docs/jaw_tongue_split/{generalization,training}.json."""
+    root = ROOT / "docs" / "jaw_tongue_split"
+    split = json.loads((root / "generalization.json").read_text())["sets"]
+    training = json.loads((root / "training.json").read_text())
+    held = split["held-out"]
+    text = re.sub(r"\s+", " ", README)
+    found = re.search(r"\((\d+) training runs shared over two ranks in ([\d.]+) s\) the reduced "
+                      r"model stays within ([\d.]+)-([\d.]+) mm of the full one on six held-out "
+                      r"schedules, (\d+)-(\d+)x faster, its estimate within ([\d.]+)-([\d.]+)",
+                      text)
+    assert found, "the README's jaw-tongue split sentence is gone"
+    assert int(found[1]) == training["runs"] == training["missing"] and training["ranks"] == 2
+    assert agrees(found[2], training["wall_seconds"])
+    errors = [r["max_error_mm"] for r in held]
+    speedups = [r["speedup"] for r in held]
+    ratios = [r["estimate_ratio"] for r in held]
+    assert len(held) == 6
+    assert agrees(found[3], min(errors)) and agrees(found[4], max(errors))
+    assert agrees(found[5], min(speedups)) and agrees(found[6], max(speedups))
+    assert agrees(found[7], min(ratios)) and agrees(found[8], max(ratios))
+    page = (ROOT / "docs" / "reduction.md").read_text()
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.strip().strip("|").split("|")]
+            for line in page[page.index("| set | runs |"):].splitlines()[2:5]}
+    for label, name in (("training", "training"), ("the three", "motions"),
+                        ("held-out", "held-out")):
+        row = next(v for k, v in rows.items() if k.startswith(label))
+        runs = split[name]
+        assert int(row[1]) == len(runs)
+        for col, key in ((2, "max_error_mm"), (3, "estimate_ratio"), (4, "reduced_ms_per_step")):
+            lo, hi = row[col].split("-")
+            values = [r[key] for r in runs]
+            assert agrees(lo, min(values)) and agrees(hi, max(values)), (name, key)
