@@ -34,7 +34,7 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from artifem.arguments import nonnegative_int, positive_float, positive_int
+from artifem.arguments import fraction, nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import BASES, Basis, Points, ReducibleScene, Reductor, Training
@@ -91,7 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--training-runs", type=nonnegative_int, default=10,
                         help="random training schedules over every input (default 10)")
     parser.add_argument("--training-seed", type=int, default=0)
-    parser.add_argument("--each-alone", type=positive_float, default=None, metavar="LEVEL",
+    parser.add_argument("--each-alone", type=fraction, default=None, metavar="LEVEL",
                         help="also train on each input alone ramped to LEVEL over 0.5 s")
     parser.add_argument("--duration", type=positive_float, default=1.0,
                         help="seconds of every run, training and test (default 1)")

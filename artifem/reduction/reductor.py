@@ -99,7 +99,7 @@ class ReducibleScene:
     key: Mapping
     exciters: Mapping[str, Sequence[str]] | None = None
     motions: Mapping[str, ExcitationSchedule] = field(default_factory=dict)
-    loads: Mapping[str, object] = field(default_factory=dict)
+    loads: Mapping[str, scene_inputs.SceneInput] = field(default_factory=dict)
 
     def identity(self) -> dict:
         """What identifies the model's runs in a cache key: its key, body and load inputs."""

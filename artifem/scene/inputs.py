@@ -21,13 +21,25 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 import numpy as np
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 
-__all__ = ["Gravity", "SurfaceLoadLevel", "PathExcitation", "controller", "describe"]
+__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "controller",
+           "describe"]
+
+
+class SceneInput(Protocol):
+    """What every input offers (a frozen dataclass: its fields describe it in cache keys)."""
+
+    def check(self, scene) -> None:
+        """A clear error when ``scene`` lacks what the input sets."""
+
+    def apply(self, scene, value: float) -> None:
+        """Set the input's level to ``value`` (from the next step on)."""
 
 
 @dataclass(frozen=True)
@@ -78,9 +90,9 @@ class SurfaceLoadLevel:
             raise UnknownNameError(f"SurfaceLoadLevel: FEM body {self.body!r} has no surface "
                                    f"load {self.load!r}; it has {sorted(body.surface_loads)}")
         if (load.kind == "pressure") != (np.ndim(self.reference) == 0):
+            size = "1 number" if load.kind == "pressure" else "3 numbers"
             raise InputError(f"SurfaceLoadLevel {self.body!r}/{self.load!r}: a {load.kind} "
-                             f"needs a reference of {'1 number' if load.kind == 'pressure' else '3 numbers'}, "
-                             f"got {self.reference!r}")
+                             f"needs a reference of {size}, got {self.reference!r}")
         return load
 
     def check(self, scene) -> None:
@@ -97,11 +109,11 @@ class PathExcitation:
     path: str
 
     def _path(self, scene):
-        paths = [p for p in [*scene.paths, *scene.forces] if getattr(p, "name", None) == self.path
-                 and callable(getattr(p, "set_excitation", None))]
-        if len(paths) != 1:
-            names = [getattr(p, "name", "") for p in [*scene.paths, *scene.forces]
+        excitable = [p for p in [*scene.paths, *scene.forces]
                      if callable(getattr(p, "set_excitation", None))]
+        paths = [p for p in excitable if getattr(p, "name", None) == self.path]
+        if len(paths) != 1:
+            names = [getattr(p, "name", "") for p in excitable]
             raise UnknownNameError(f"PathExcitation: the scene has {len(paths)} paths named "
                                    f"{self.path!r} (need one); its paths are {names}")
         return paths[0]
@@ -113,12 +125,13 @@ class PathExcitation:
         self._path(scene).set_excitation(value)
 
 
-def describe(inputs: Mapping[str, object]) -> dict:
+def describe(inputs: Mapping[str, SceneInput]) -> dict:
     """JSON-able {name: {type, fields}} of scene inputs (part of a cache key)."""
     return {name: {"type": type(i).__name__, **asdict(i)} for name, i in inputs.items()}
 
 
-def controller(schedule: ExcitationSchedule, inputs: Mapping[str, object]) -> Callable:
+def controller(schedule: ExcitationSchedule, inputs: Mapping[str, SceneInput]
+               ) -> Callable:
     """A scene controller setting each input of ``schedule`` to its value at the step's end
     time; every name of the schedule must be one of ``inputs``."""
     unknown = sorted(set(schedule.values) - set(inputs))
