@@ -157,10 +157,12 @@ def test_suite_figures_match_the_durations_json():
 def test_held_out_figures_match_the_generalization_jsons():
     """The train/test split table of docs/tongue_study.md and the README's sentence: ranges
     of the max error per set and of the estimate ratio on the held-out set, from
-    docs/tongue_study/level0_generalization{_each_alone,}/generalization.json."""
+    docs/tongue_study/level0_generalization{_each_alone,}/, level0_greedy/ and
+    level1_generalization/generalization.json."""
     page = (ROOT / "docs" / "tongue_study.md").read_text()
     for label, folder in (("each exciter alone", "level0_generalization_each_alone"),
                           ("and 20 random schedules", "level0_generalization"),
+                          ("and 20 greedy of a pool of 30", "level0_greedy"),
                           ("level 1, and 20 random schedules", "level1_generalization")):
         split = json.loads((ROOT / "docs" / "tongue_study" / folder / "generalization.json")
                            .read_text())
@@ -174,6 +176,7 @@ def test_held_out_figures_match_the_generalization_jsons():
             assert agrees(lo, min(errors)) and agrees(hi, max(errors))
             quoted = {"each exciter alone": ("motions", "held-out"),
                       "and 20 random schedules": ("held-out",),
+                      "and 20 greedy of a pool of 30": (),
                       "level 1, and 20 random schedules": ()}[label]
             if name in quoted:                              # the README's sentence
                 assert f"{min(errors):.2f}-{max(errors):.2f} mm" in README.replace("\n", " ")

@@ -44,7 +44,7 @@ LOADS = {"pull": PathExcitation("sideways"), "press": SurfaceLoadLevel("fem", "t
 def pulled_beam() -> Scene:
     """The beam, a pressure on its top face (set by the inputs, 0 at first), a Thelen
     muscle from a world point to its tip, no gravity until an input sets it."""
-    body = make_body(excitation=0.0, loads=False)
+    body = make_body(excitation=0.0, loads=False, comm=MPI.COMM_SELF)
     body.add_pressure(0.0, where=lambda x: np.isclose(x[2], 0.2), name="top")
     L = float(np.linalg.norm(ANCHOR - TIP))
     muscle = ThelenMuscle(ThelenParameters(40.0, 0.8 * L, 0.2 * L), name="sideways")
