@@ -103,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     args = parser.parse_args(argv)
+    args._argv = list(argv)             # the command itself: to run it again (a study under MPI)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except (ValueError, OSError, SolverError) as exc:

@@ -2,7 +2,7 @@
 
     artifem study scene MODULE:FUNCTION --out DIR [--training-runs 10] [--each-alone LEVEL]
                         [--r 20] [--points 300] [--held-out 5] [--held-out-seed 1000] ...
-    mpiexec -n N artifem study scene MODULE:FUNCTION --out DIR ... --train-only
+    mpiexec -n N artifem study scene MODULE:FUNCTION --out DIR ...
 
 ``FUNCTION()`` (importable from ``MODULE``) returns the model: a
 :class:`~artifem.reduction.reductor.ReducibleScene` (how to build the full scene, which FEM
@@ -14,9 +14,10 @@ or a function of the user's own module on the Python path.
    schedules over every input of the model, exciters and loads
    (:func:`~artifem.reduction.schedules.random_schedules`, seed ``--training-seed``), plus,
    with ``--each-alone LEVEL``, each input alone ramped to LEVEL over 0.5 s (the seed
-   paper's design). Under ``mpiexec -n N ... --train-only`` the runs are shared over the N
-   ranks (:mod:`artifem.reduction.distributed`); the study then continues on one process
-   from the same cache. DIR/training.json says what the training did.
+   paper's design). Under ``mpiexec -n N`` the runs are shared over the N ranks
+   (:mod:`artifem.reduction.distributed`), then rank 0 runs the rest of the study in a
+   fresh serial process, from the cache (``--train-only``: stop after the training).
+   DIR/training.json says what the training did.
 2. The train/test split (:func:`~artifem.reduction.generalization.generalization_study`):
    the reduced model (``--basis``, ``--r``, ``--points``, ``--sampling``) on the training
    schedules, the model's motions and ``--held-out`` random schedules of a seed the
@@ -36,6 +37,7 @@ from mpi4py import MPI
 
 from artifem.arguments import fraction, nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
+from artifem.reduction.distributed import continue_alone, record_training
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import BASES, Basis, Points, ReducibleScene, Reductor, Training
 from artifem.reduction.schedules import each_alone, random_schedules
@@ -113,10 +115,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     comm = MPI.COMM_WORLD
-    if comm.size > 1 and not args.train_only:
-        # artifem.reduction.distributed: ranks must end together, so rank 0 cannot go on
-        raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains: add "
-                         "--train-only, then run it on one process with the same --cache")
     if args.held_out and args.held_out_seed == args.training_seed and args.training_runs:
         raise InputError(f"--held-out-seed {args.held_out_seed} is the training's seed: the "
                          "held-out schedules would be training schedules")
@@ -130,19 +128,11 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     reductor = Reductor(model, training, args.cache or out / "cache", comm=comm)
     done = reductor.train()
-    if comm.rank != 0:
-        return 0
-    done.update(model=args.model, runs=len(training.schedules),
-                training_seed=args.training_seed, each_alone=args.each_alone,
-                duration=args.duration, dt=args.dt, snapshot_every=args.snapshot_every)
-    record = out / "training.json"
-    old = json.loads(record.read_text()) if record.exists() else {}
-    same = all(old.get(k) == done[k] for k in ("model", "runs", "training_seed", "each_alone",
-                                                "duration", "dt", "snapshot_every"))
-    if done["missing"] or not same:     # else keep the record of this training's computation
-        record.write_text(json.dumps(done, indent=1))
-    print(f"training: {done['missing']} of {done['runs']} runs computed on {done['ranks']} "
-          f"rank(s) in {done['wall_seconds']:.1f} s; the record of the training: {record}")
+    if comm.size > 1:       # the rest on one process: artifem.reduction.distributed
+        if comm.rank == 0:
+            _record(out, done, args)
+        return 0 if args.train_only else continue_alone(args._argv, comm)
+    _record(out, done, args)
     if args.train_only:
         return 0
     generalization_study(reductor, out, basis=Basis(args.basis, args.r),
@@ -150,3 +140,14 @@ def run(args: argparse.Namespace) -> int:
                          seed=args.held_out_seed, duration=args.duration, dt=args.dt)
     print(f"report: {out / 'generalization.md'}")
     return 0
+
+
+def _record(out: Path, done: dict, args: argparse.Namespace) -> None:
+    """OUT/training.json (:func:`~artifem.reduction.distributed.record_training`)."""
+    done.update(model=args.model, runs=done["jobs"], training_seed=args.training_seed,
+                each_alone=args.each_alone, duration=args.duration, dt=args.dt,
+                snapshot_every=args.snapshot_every)
+    record = record_training(out / "training.json", done, (
+        "model", "runs", "training_seed", "each_alone", "duration", "dt", "snapshot_every"))
+    print(f"training: {done['missing']} of {done['runs']} runs computed on {done['ranks']} "
+          f"rank(s) in {done['wall_seconds']:.1f} s; the record of the training: {record}")

@@ -17,23 +17,37 @@ round-robin split keeps every rank busy; on a cluster the same command runs with
 A job that fails on one rank fails the call on every rank (the others name the rank and
 the job), after all ranks are through their shares: no rank waits forever on another.
 
-After a shared training the ranks should end together: a rank that goes on alone with
-PETSc objects of its own can meet the others in petsc4py's exit-time garbage collection, a
-collective, with different work to do, and wait forever (seen: rank 0 of
-``mpiexec -n 2 artifem study tongue`` continuing after the training never exited). The
-study therefore trains only under several ranks (``--train-only``) and continues on one.
+After a shared training the ranks must not diverge in PETSc work: at exit each rank runs
+PETSc's garbage cleanup of PETSC_COMM_WORLD (petsc4py's ``_pre_finalize``, then
+``PetscFinalize``), whose collectives (a communicator duplication, an intersection of
+the delayed-destroy keys) depend on that rank's own PETSc state. A rank that went on
+alone with a study meets the others there with different work to do, and both wait
+forever (reproduced with gdb, also with the ranks meeting at a barrier first: rank 0 in
+``MPI_Comm_dup`` under ``PetscGarbageCleanup``, rank 1 in ``MPI_Finalize``).
+:func:`continue_alone` avoids it: rank 0 runs the rest of the command in a fresh serial
+process (its own MPI, the results read from the cache) while the other ranks wait
+without spinning, and all ranks end alike.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from mpi4py import MPI
 
 from artifem.errors import ArtifemError, SolverError
 
-__all__ = ["compute_shared", "share"]
+__all__ = ["compute_shared", "continue_alone", "record_training", "share"]
+
+#: Environment variables of MPI launchers: a child process without them initializes MPI
+#: as a singleton (a serial process) instead of joining the launcher's job.
+_LAUNCHER_PREFIXES = ("PMI_", "PMIX_", "HYDRA_", "MPIR_", "MPICH_", "OMPI_")
 
 
 def share(count: int, comm: MPI.Comm) -> range:
@@ -81,3 +95,30 @@ def compute_shared(jobs: Sequence[tuple[str, str, Callable[[], object]]], cache,
     return {"ranks": comm.size, "jobs": len(jobs), "missing": len(missing), "by_rank": by_rank,
             "wall_seconds": wall}
 
+
+
+def continue_alone(argv: Sequence[str], comm: MPI.Comm, *, poll: float = 0.1) -> int:
+    """Run ``artifem ARGV`` on rank 0 in a fresh serial process, the other ranks of
+    ``comm`` waiting without spinning (a polled ``Ibarrier``), then return the command's
+    exit status on every rank (module docstring: why not on rank 0 itself)."""
+    status = 0
+    if comm.rank == 0:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(_LAUNCHER_PREFIXES)}
+        status = subprocess.run([sys.executable, "-m", "artifem.cli", *argv],
+                                env=env).returncode
+    request = comm.Ibarrier()
+    while not request.Test():
+        time.sleep(poll)
+    return comm.bcast(status, root=0)
+
+
+def record_training(path: Path, done: dict, same: Sequence[str]) -> Path:
+    """Write ``done`` (what a training call did, with the study's settings) to ``path`` as
+    JSON, unless the file already records the same training (equal ``same`` entries) and
+    this call computed nothing: a study continuing from the cache keeps the record of the
+    computation (which ranks ran what, and how long)."""
+    path = Path(path)
+    old = json.loads(path.read_text()) if path.exists() else {}
+    if done["missing"] or any(old.get(k) != done.get(k) for k in same):
+        path.write_text(json.dumps(done, indent=1))
+    return path

@@ -4,7 +4,7 @@
                          [--incompressibility hard|penalty] [--random-training N]
                          [--held-out N] [--held-out-seed S] [--train-only]
                          [--greedy-pool N --greedy-runs N --greedy-tol MM]
-    mpiexec -n N artifem study tongue ... --train-only   the training shared over N ranks
+    mpiexec -n N artifem study tongue ...   the training shared over N ranks, the rest on one
 
 The tongue holds its element volumes (the hard incompressibility, its default) and the
 reduced bodies hold them in a reduced pressure space; ``--incompressibility penalty``
@@ -15,14 +15,15 @@ On one tongue (each rank builds its own, on MPI.COMM_SELF):
 1. training (cached in DIR/cache, resumable): the full model driven by each
    exciter alone (ramp to ``training_excitation`` over 0.5 s, hold), nodal
    displacements and excitations recorded every ``snapshot_every`` steps; under
-   ``mpiexec -n N ... --train-only`` the runs are shared over the N ranks
-   (:mod:`artifem.reduction.distributed`; the study then continues on one process from
-   the same cache); DIR/training.json
+   ``mpiexec -n N`` the runs are shared over the N ranks, then rank 0 runs the rest of
+   the study in a fresh serial process, from the same cache
+   (:mod:`artifem.reduction.distributed`); DIR/training.json
    says what the training did (ranks, runs computed by each, wall and compute seconds);
-   with ``--greedy-pool N`` the training then grows greedily from a pool of N random
-   schedules, the worst estimated first (:mod:`artifem.reduction.enrichment`), until
-   ``--greedy-runs`` runs are added or every estimate is below ``--greedy-tol`` mm
-   (DIR/greedy.json: each iteration's estimates); ``--train-only`` stops here;
+   with ``--greedy-pool N`` the training then grows greedily (on one process) from a pool
+   of N random schedules, the worst estimated first (:mod:`artifem.reduction.enrichment`),
+   until ``--greedy-runs`` runs are added or every estimate is below ``--greedy-tol`` mm
+   (DIR/greedy.json: each iteration's estimates); ``--train-only`` stops here (under
+   mpiexec: before the greedy part);
 2. bases: *extended modal* (6 linear modes x 9 linear maps = 54 vectors, von
    Tycowicz et al. 2013) and *trained* (mass-weighted POD of the snapshots, r = 20);
    optionally (``--bases``) *modal derivatives* (6 modes and their 21 derivatives,
@@ -64,6 +65,7 @@ from artifem.errors import InputError
 from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
                                          Tongue, TongueConfig, load_tongue_data)
 from artifem.reduction.cubature import IntegrationPoints
+from artifem.reduction.distributed import continue_alone, record_training
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.enrichment import greedy_training
@@ -217,9 +219,10 @@ class TongueStudy:
                     level=self.config.level, incompressibility=self.config.incompressibility,
                     random_training=self.config.random_training,
                     training_duration=self.config.training_duration)
-        (self.out / "training.json").write_text(json.dumps(done, indent=1))
-        if self.config.greedy_pool:
-            self.greedy()
+        record_training(self.out / "training.json", done, (
+            "runs", "level", "incompressibility", "random_training", "training_duration"))
+        if self.config.greedy_pool and self.reductor.comm.size == 1:
+            self.greedy()           # on one process (under mpiexec: its continuation)
         return done
 
     def greedy(self) -> dict:
@@ -493,21 +496,15 @@ def run(args: argparse.Namespace) -> int:
     if args.pressure_modes:
         config = replace(config, pressure_modes=args.pressure_modes)
     comm = MPI.COMM_WORLD
-    if comm.size > 1 and config.greedy_pool:
-        raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains; the greedy "
-                         "training runs on one process: train with --train-only first, then "
-                         "run the greedy study on one process with the same --cache")
-    if comm.size > 1 and not args.train_only:
-        # artifem.reduction.distributed: ranks must end together, so rank 0 cannot go on
-        raise InputError(f"under mpiexec ({comm.size} ranks) the study only trains: add "
-                         "--train-only, then run it on one process with the same --cache "
-                         "(it reads the training from there)")
     study = TongueStudy(config, args.out, args.cache, comm=comm)
     done = study.train()
     if comm.rank == 0:
         print(f"training: {done['missing']} of {done['runs']} runs computed on "
               f"{done['ranks']} rank(s) in {done['wall_seconds']:.1f} s: "
               f"{args.out / 'training.json'}")
-        if not args.train_only:
-            print(f"report: {study.run()}")
+    if args.train_only:
+        return 0
+    if comm.size > 1:       # the rest on one process: artifem.reduction.distributed
+        return continue_alone(args._argv, comm)
+    print(f"report: {study.run()}")
     return 0
