@@ -280,10 +280,22 @@ def reducible(support: str = "24", rc: ReducedConfig = ReducedConfig(), *,
         exciters={}, loads={side: PathExcitation(f"STY_{side}") for side in STYLOID})
 
 
+def check_training_size(rc: ReducedConfig, duration: float, dt: float = DT) -> None:
+    """A clear error, before any run, when the training cannot hold ``rc.r`` POD vectors:
+    each side alone gives one snapshot every ``rc.snapshot_every`` steps."""
+    snapshots = len(STYLOID) * (int(round(duration / dt)) // rc.snapshot_every)
+    if rc.r > snapshots:
+        raise InputError(f"styloglossus: r = {rc.r} POD vectors need as many training "
+                         f"snapshots; {duration:g} s at dt = {dt:g} s, one every "
+                         f"{rc.snapshot_every} steps, on {len(STYLOID)} runs gives {snapshots}: "
+                         "lengthen --duration or lower --r")
+
+
 def reduce_tongue(support: str, cache: Path, rc: ReducedConfig = ReducedConfig(), *,
                   data=None, duration: float = DURATION, dt: float = DT) -> ReducedModel:
     """The reduced tongue of support ``support``: POD and ECSW points of full runs with each
     side alone, ramped as e(t) to ``rc.training_tension`` (module docstring), cached."""
+    check_training_size(rc, duration, dt)
     training = Training({side: ExcitationSchedule.ramp_and_hold({side: 1.0}, RAMP)
                          for side in STYLOID}, duration=duration, dt=dt,
                         snapshot_every=rc.snapshot_every)
@@ -312,6 +324,8 @@ def report(args: argparse.Namespace) -> dict:
     """Equal excitation (Thelen), equal tension (prescribed), full and reduced: JSON, Markdown
     table and the side-by-side stress renders in ``args.out``."""
     out = Path(args.out)
+    if not args.no_reduced:
+        check_training_size(ReducedConfig(r=args.r, points=args.points), args.duration)
     out.mkdir(parents=True, exist_ok=True)
     data = load_tongue_data(0)
     runs = {}

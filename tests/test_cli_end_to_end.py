@@ -166,14 +166,17 @@ def test_simulate_airway_one_motion(tmp_path):
 
 
 def test_simulate_styloglossus_with_its_reduced_tongue(tmp_path):
-    duration, tension, r, points = 0.02, 0.15, 4, 40
+    duration, tension, r, points = 0.04, 0.15, 4, 40
     assert main(["simulate", "styloglossus", "--duration", str(duration), "--tension",
                  str(tension), "--r", str(r), "--points", str(points),
                  "--out", str(tmp_path)]) == 0
     f = json.loads((tmp_path / "styloglossus.json").read_text())
     assert set(f["runs"]) == {"excitation 4", "excitation 24", "tension 4", "tension 24",
                               "tension 24+", "reduced 4", "reduced 24", "reduced 24+"}
-    assert f["reduced"]["pod_vectors"] == r and 0 < f["reduced"]["points"] <= points
+    assert f["reduced"]["pod_vectors"] == r and set(f["reduced"]["training"]) == {"4", "24", "24+"}
+    for support, trained in f["reduced"]["training"].items():     # a model per support
+        assert trained["runs"] == 2 and trained["basis"]["r"] == r, support
+        assert 0 < trained["points"]["count"] <= points, support
     for name, run in f["runs"].items():
         assert run["steps"] == round(duration / 0.01) and run["dt"] == 0.01, name
         assert 0 < run["min_det_F"] <= 1.5 and finite_positive(run["ms_per_step"]), name
