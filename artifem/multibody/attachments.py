@@ -222,6 +222,12 @@ class FrameAttachment:
     def __repr__(self) -> str:
         return f"FrameAttachment({self.name!r}, {self.frame.method})"
 
+    def onto_reduced(self, reduced, lift=None) -> FrameAttachment:
+        """This attachment for ``reduced``, the reduced body of the frame's FEM body (a
+        reductor swaps it at rest): the same frame on it, the same body on the frame.
+        ``lift``: unused, the frame carries no nodes."""
+        return FrameAttachment(self.slave, self.frame.onto(reduced), name=self.name)
+
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, R) the frame gives the body now."""
         R_f = self.frame.rotation()

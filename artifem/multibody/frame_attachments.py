@@ -104,6 +104,8 @@ class FemFrame:
             raise TypeError(f"FemFrame: expected a FemBody or ReducedFemBody, got "
                             f"{type(body).__name__}")
         self.body, self.full, self.method = body, full, method
+        self._spec = {"point": point, "method": method, "support": support,
+                      "support_weights": support_weights, "snap": snap}
         self.planar = False
         self.reduced = full is not body
         x = full.V.tabulate_dof_coordinates()
@@ -141,6 +143,14 @@ class FemFrame:
         self._X = x[self.dofs]
         self.A_rest = self._X.T @ self.c
         self.R_rest, _ = polar_rotation(self.A_rest, self.planar)
+
+    def onto(self, reduced) -> "FemFrame":
+        """This frame on ``reduced``, the reduced body of its full FEM body: the same
+        origin, method and support, read from q."""
+        if getattr(reduced, "full", None) is not self.full:
+            raise InputError(f"FemFrame on {self.full.name!r}: {getattr(reduced, 'name', '')!r} "
+                             "is not a reduced body of it")
+        return FemFrame(reduced, **self._spec)
 
     def _gradients(self, X: np.ndarray) -> np.ndarray:
         """grad N_j(X) of the element containing the origin, (k, 3)."""

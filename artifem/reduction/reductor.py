@@ -32,9 +32,10 @@ Couplings: a coupling of the scene that names the body must be able to follow it
 reduced body: it offers ``onto_reduced(reduced, lift)``, its replacement. One whose nodes
 of the body ride on a rigid body also offers ``carried_nodes(body) -> (nodes, rigid body)``
 (:class:`~artifem.multibody.attachments.NodeAttachment`: the basis gets their lift
-columns, and ``lift`` is theirs); one through points of the body keeps their weights
-(:class:`~artifem.multibody.point_paths.PointPath`, lift None). Any other is refused,
-naming it, before any training.
+columns, and ``lift`` is theirs); one through points or frames of the body keeps their
+weights (:class:`~artifem.multibody.point_paths.PointPath`,
+:class:`~artifem.multibody.attachments.FrameAttachment`; lift None). Any other is
+refused, naming it, before any training.
 
 Inputs: schedules drive the model's exciters (muscles of the body) and its load inputs
 (``ReducibleScene.loads``: gravity, surface load levels, path muscles; found by name, so
@@ -307,7 +308,7 @@ def _couplings_of(scene: Scene, body, model: str) -> list:
             raise InputError(
                 f"model {model!r}: {type(item).__name__} {getattr(item, 'name', '')!r} "
                 f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
-                "body (those that can: NodeAttachment, PointPath)")
+                "body (those that can: NodeAttachment, PointPath, FrameAttachment)")
     return found
 
 
