@@ -29,17 +29,14 @@ from mpi4py import MPI
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.multibody.attachments import FemFrame, FemPoint, FrameAttachment, NodeAttachment
+from artifem.multibody.attachments import FemFrame, FrameAttachment, NodeAttachment
 from artifem.multibody.joints import RevoluteJoint, axis_rotation
-from artifem.multibody.muscles import AxialSpring
-from artifem.multibody.point_attachments import shape_function_weights
-from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody, exp_so3
 from artifem.reduction.reductor import (Basis, Points, ReducibleScene, Reductor, Training,
                                         reduce)
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
-from artifem.scene.inputs import Gravity, PathExcitation, SurfaceLoadLevel
+from artifem.scene.inputs import Gravity, SurfaceLoadLevel
 from reduced_beam import make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
