@@ -8,7 +8,9 @@ An input is a small frozen dataclass with ``apply(scene, value)``; ``value`` is 
 - :class:`SurfaceLoadLevel`: the surface load ``load`` of FEM body ``body`` (a pressure p or
   a traction t, :meth:`~artifem.fem_body.FemBody.add_pressure`) set to value x reference;
 - :class:`PathExcitation`: the excitation of the path muscle ``path``
-  (:meth:`~artifem.multibody.frame_paths.PathElement.set_excitation`).
+  (:meth:`~artifem.multibody.frame_paths.PathElement.set_excitation`);
+- :class:`PrescribedMotion`: a prescribed (kinematic) rigid body moved by value x a
+  reference rigid displacement (attachment motion: the nodes it carries follow it).
 
 Inputs find what they set by name, so the same input drives a freshly built scene and the
 same scene with a reduced body in place of a full one (the reduced body reads its full
@@ -24,12 +26,14 @@ from dataclasses import asdict, dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
+from artifem.multibody.rigid_body import BodyState, exp_so3
 
-__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "controller",
-           "describe"]
+__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "PrescribedMotion",
+           "controller", "describe"]
 
 
 class SceneInput(Protocol):
@@ -123,6 +127,84 @@ class PathExcitation:
 
     def apply(self, scene, value: float) -> None:
         self._path(scene).set_excitation(value)
+
+
+@dataclass(frozen=True)
+class PrescribedMotion:
+    """The prescribed rigid body ``body`` moved by value x a reference rigid displacement
+    from where its own trajectory (p_b, R_b) puts it: turned by ``rotation`` (a rotation
+    vector theta, rad) about the world point ``pivot``, then translated by ``translation``
+    (m):
+
+        Q = exp(value [theta]x),   p = c + Q (p_b - c) + value d,   R = Q R_b.
+
+    Like every input the level holds from the end of the step on: over the step from t0
+    (when it is set) the body moves at the secant velocity from its pose (p0, R0) then,
+    v = (p - p0) / (t - t0), w = log(R R0^T) / (t - t0), which is what the scene's known
+    velocities of the nodes it carries are (the secant of their exact motion)."""
+
+    body: str
+    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pivot: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        for name in ("translation", "rotation", "pivot"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)):
+                raise InputError(f"PrescribedMotion {self.body!r}: {name} must be 3 finite "
+                                 f"numbers, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(float(x) for x in value))
+
+    def _body(self, scene):
+        body = next((b for b in scene.rigid_bodies if b.name == self.body), None)
+        if body is None:
+            raise UnknownNameError(f"PrescribedMotion: the scene has no rigid body "
+                                   f"{self.body!r}; it has "
+                                   f"{[b.name for b in scene.rigid_bodies]}")
+        if body.motion != "prescribed":
+            raise InputError(f"PrescribedMotion: rigid body {self.body!r} is {body.motion}; "
+                             "an input can only move a prescribed body (motion='prescribed' "
+                             "with its own trajectory, e.g. at rest)")
+        return body
+
+    def check(self, scene) -> None:
+        self._body(scene)
+
+    def apply(self, scene, value: float) -> None:
+        body = self._body(scene)
+        base = getattr(body.trajectory, "base", body.trajectory)
+        body.trajectory = _Displaced(base, self, float(value), float(scene.t),
+                                     body.position.copy(), body.rotation.copy())
+
+    def pose(self, base: BodyState, value: float) -> tuple[np.ndarray, np.ndarray]:
+        """(p, R) at level ``value`` of the base pose (class docstring)."""
+        Q = exp_so3(value * np.asarray(self.rotation))
+        c = np.asarray(self.pivot)
+        return c + Q @ (base.position - c) + value * np.asarray(self.translation), \
+            Q @ base.rotation
+
+
+@dataclass(frozen=True)
+class _Displaced:
+    """The trajectory a :class:`PrescribedMotion` gives its body from t0 on: its pose at the
+    level, reached at the secant velocity from (p0, R0) (the body's own trajectory is
+    ``base``, kept for the next level)."""
+
+    base: Callable
+    motion: PrescribedMotion
+    level: float
+    t0: float
+    p0: np.ndarray
+    R0: np.ndarray
+
+    def __call__(self, t: float) -> BodyState:
+        if t <= self.t0:
+            return BodyState(self.p0, self.R0, np.zeros(3), np.zeros(3))
+        p, R = self.motion.pose(BodyState(*self.base(t)), self.level)
+        dt = t - self.t0
+        turn = Rotation.from_matrix(R @ self.R0.T).as_rotvec()
+        return BodyState(p, R, (p - self.p0) / dt, turn / dt)
 
 
 def describe(inputs: Mapping[str, SceneInput]) -> dict:
