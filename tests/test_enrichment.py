@@ -8,6 +8,11 @@
     reason, and the next worst is tried.
 (3) Bad input is refused before any run: a candidate already in the training, a size
     below the first training's.
+(4) Greedy enrichment of the points alone (no full run): each round adds the visited states
+    of the candidate of largest cubature residual; with the count following the points'
+    tolerance the largest residual falls and the reduced runs come far closer to those with
+    every point, closer than as many points trained on the training alone; it stops at the
+    tolerance, and a round that does not lower the largest residual is undone.
 """
 
 import numpy as np
@@ -16,10 +21,11 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.errors import InputError, SolverError
+from artifem.errors import InputError, SolverError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.reduction.enrichment import greedy_training
-from artifem.reduction.reductor import Basis, Points, ReducibleScene, Training
+from artifem.reduction.enrichment import greedy_points, greedy_training
+from artifem.reduction.evaluation import node_mean_mm, reduced_run
+from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training
 from artifem.scene import Scene
 from reduced_beam import make_body
 
@@ -93,4 +99,76 @@ def test_bad_input_is_refused_before_any_run(tmp_path):
         greedy_training(MODEL, FIRST, {"low": ramp(0.3)}, cache=tmp_path, **OPTIONS)
     with pytest.raises(InputError, match="max_runs"):
         greedy_training(MODEL, FIRST, POOL, cache=tmp_path, max_runs=0, **OPTIONS)
+    assert not list(tmp_path.glob("*.npz"))
+
+
+#: points trained on weak and moderate ramps; candidates: a full ramp, a fast one, a release
+POINTS_TRAINING = Training({"low": ramp(0.2), "mid": ramp(0.6)}, duration=0.3, dt=0.01,
+                           snapshot_every=2)
+POINTS_POOL = {"high": ramp(1.0), "fast": ramp(0.8, 0.02),
+               "release": ExcitationSchedule(np.array([0.0, 0.05, 0.15, 0.3]),
+                                             {"top": np.array([0.0, 1.0, 0.0, 0.0])})}
+W4 = Basis("pod", 4)
+
+
+def point_errors(reduced, reference) -> dict[str, float]:
+    """max_t mean node distance (mm) of each candidate's reduced run to the reference's."""
+    return {name: float(node_mean_mm(reduced_run(reduced, s, 0.3, 0.01)[0],
+                                     reduced_run(reference, s, 0.3, 0.01)[0]).max())
+            for name, s in POINTS_POOL.items()}
+
+
+def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(tmp_path):
+    reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
+    spec = Points(40, tol=1e-3, training_states=20)
+    result = greedy_points(reductor, POINTS_POOL, basis=W4, points=spec, max_rounds=4,
+                           progress=False)
+    first, last = result.history[0], result.history[-1]
+    for entry in result.history:
+        assert set(entry["indicators"]) == set(POINTS_POOL)
+        assert entry["max_indicator"] == max(entry["indicators"].values())
+        if entry["added"] is not None:
+            assert entry["added"] == max(entry["indicators"], key=entry["indicators"].get)
+    rounds = len(result.history) - (2 if result.stopped == "stalled" else 1)
+    kept = result.history[rounds]                     # the model returned
+    assert kept["max_indicator"] < 0.2 * first["max_indicator"]
+    assert result.states[0].shape == (10 * rounds, W4.size)   # 10 visited states a round
+    everything = reductor.reduce(W4, Points(sampling="all"))
+    before = reductor.reduce(W4, spec)                # the cache still holds the first points
+    assert before.points.m == first["points"] < result.reduced.points.m
+    same_count = reductor.reduce(W4, Points(result.reduced.points.m, tol=1e-9,
+                                            training_states=20))
+    errors = {"before": point_errors(before, everything),
+              "enriched": point_errors(result.reduced, everything),
+              "same count": point_errors(same_count, everything)}
+    for name in POINTS_POOL:
+        assert errors["enriched"][name] < 0.3 * errors["before"][name]
+        assert errors["enriched"][name] < 0.5 * errors["same count"][name]
+    assert not list(tmp_path.glob("full-run*"))       # no full run beyond the training
+
+
+def test_point_enrichment_stops_at_the_tolerance_and_undoes_a_round_that_does_not_help(
+        tmp_path):
+    reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
+    loose = greedy_points(reductor, POINTS_POOL, basis=W4, tol=1.0, progress=False,
+                          points=Points(40, tol=1e-3, training_states=20))
+    assert loose.stopped == "tolerance" and loose.states is None and len(loose.history) == 1
+    # eight points cannot fit the strong states: a later round raises the largest residual
+    few = greedy_points(reductor, POINTS_POOL, basis=W4, max_rounds=6, progress=False,
+                        points=Points(8, tol=1e-9, training_states=20))
+    assert few.stopped == "stalled"
+    *_, kept, undone = few.history
+    assert undone["undone"] and undone["max_indicator"] >= kept["max_indicator"]
+    assert kept["max_indicator"] == min(e["max_indicator"] for e in few.history)
+    assert few.states[0].shape[0] == 10 * (len(few.history) - 2)
+
+
+def test_point_enrichment_refuses_bad_input_before_any_run(tmp_path):
+    reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
+    with pytest.raises(InputError, match="only trained points"):
+        greedy_points(reductor, POINTS_POOL, points=Points(sampling="random"))
+    with pytest.raises(InputError, match="tol must be >= 0"):
+        greedy_points(reductor, POINTS_POOL, tol=-1.0)
+    with pytest.raises(UnknownNameError, match=r"candidate 'wind'.*unknown inputs"):
+        greedy_points(reductor, {"wind": ExcitationSchedule.ramp_and_hold({"gust": 1.0}, 0.1)})
     assert not list(tmp_path.glob("*.npz"))

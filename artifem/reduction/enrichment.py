@@ -21,6 +21,19 @@ residual bound: the residual-based estimate diverges on this model's strongly ex
 states (docs/tongue_study.md). Both the basis and the integration points are retrained from
 the enriched training at each iteration. Every stage is cached in the reductor's cache, so
 an interrupted greedy training resumes: its full runs are training runs.
+
+Greedy enrichment of the points alone (:func:`greedy_points`), for a fixed basis W and no
+full run at all: the points' error indicator on a candidate schedule is the cubature's
+relative residual at the states its reduced run visits,
+
+    rho(s) = ||b - G_S w|| / ||b||,   b = sum over every point of W^T f_point(W q_t; a_t),
+
+(G the ECSW training matrix at those states, :func:`~artifem.reduction.training.
+force_training_matrix`: one evaluation of every point's force per state, no solve), the
+quantity the trained points were fitted to make small on the training states. Each round
+adds the visited states of the candidate with the largest rho to the points' training
+states and retrains the points (the same count and tolerance), until rho <= tol on every
+candidate left, ``max_rounds`` rounds, or the pool is exhausted.
 """
 
 from __future__ import annotations
@@ -37,8 +50,11 @@ from artifem.excitation import ExcitationSchedule
 from artifem.reduction.evaluation import node_mean_mm, reduced_run
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
                                         Training)
+from artifem.reduction.training import force_training_matrix
+from artifem.scene import simulate
 
-__all__ = ["GreedyTraining", "greedy_training"]
+__all__ = ["GreedyTraining", "greedy_training", "GreedyPoints", "greedy_points",
+           "visited_states", "cubature_residual"]
 
 
 @dataclass
@@ -137,3 +153,123 @@ def greedy_training(model: ReducibleScene, training: Training,
         if entry["added"] is None:
             return GreedyTraining(training, reduced, "tolerance" if pool else "pool", history,
                                   reductor)
+
+
+@dataclass
+class GreedyPoints:
+    """What :func:`greedy_points` did: the final reduced model, the states added to the
+    points' training (q (k, r), excitations (k, muscles)), why it stopped
+    (``"tolerance"``, ``"rounds"`` or ``"stalled"``: the last round did not lower the
+    largest indicator, is marked ``undone``, and the model is the round's before) and one
+    entry per round: the points' count and training residual, each candidate's indicator
+    rho and the candidate whose visited states were added (None at the last)."""
+
+    reduced: ReducedModel
+    states: tuple[np.ndarray, np.ndarray] | None
+    stopped: str
+    history: list[dict] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """JSON-able."""
+        def finite(value):
+            return value if value is None or np.isfinite(value) else None
+        history = [{**entry, "max_indicator": finite(entry["max_indicator"]),
+                    "indicators": {k: finite(v) for k, v in entry["indicators"].items()}}
+                   for entry in self.history]
+        return {"stopped": self.stopped, "rounds": len(self.history) - 1,
+                "extra_states": 0 if self.states is None else int(self.states[0].shape[0]),
+                "history": history}
+
+
+def visited_states(reduced: ReducedModel, schedule: ExcitationSchedule, duration: float,
+                   dt: float, count: int) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(q (k, r), the body's muscle excitations there (k, muscles), the failure or None):
+    ``count`` states evenly spaced over the reduced run of ``schedule`` (up to a failure)."""
+    scene = reduced.scene()
+    body = next(b for b in scene.reduced_bodies if b.name == reduced.model.body)
+    muscles = list(body.full.muscles.values())
+    reduced.model.drive(scene, schedule)
+    run = simulate(scene, duration, dt, on_failure="stop", progress=False, record={
+        "q": lambda s: body.q.copy(),
+        "a": lambda s: np.array([float(m.excitation.value) for m in muscles])})
+    q, a = np.asarray(run.records["q"]), np.asarray(run.records["a"]).reshape(-1, len(muscles))
+    rows = np.unique(np.linspace(1, len(q) - 1, min(count, len(q) - 1)).round().astype(int)) \
+        if len(q) > 1 else np.zeros(0, dtype=int)           # none past the initial state
+    return q[rows], a[rows], None if run.failure is None else str(run.failure)
+
+
+def cubature_residual(reductor: Reductor, reduced: ReducedModel, q: np.ndarray,
+                      a: np.ndarray) -> float:
+    """rho = ||b - G_S w|| / ||b|| of the reduced model's points at the states (q, a)
+    (module docstring); inf when there is no state or none has a finite force."""
+    if len(q) == 0:
+        return float("inf")
+    try:
+        G, b = force_training_matrix(reductor.body, reduced.basis, q, a, progress=False)
+    except InputError:                          # every state inverts an element
+        return float("inf")
+    pts = reduced.points
+    norm = float(np.linalg.norm(b))
+    return float(np.linalg.norm(b - G[:, pts.indices] @ pts.weights)) / norm if norm > 0 \
+        else 0.0
+
+
+def greedy_points(reductor: Reductor, candidates: Mapping[str, ExcitationSchedule], *,
+                  basis: Basis = Basis(), points: Points = Points(), tol: float = 0.0,
+                  max_rounds: int = 3, duration: float | None = None,
+                  states_per_run: int = 10, progress: bool = True) -> GreedyPoints:
+    """Greedy enrichment of trained points over the pool ``candidates`` (module docstring):
+    the basis stays; each round the points are retrained (``points``: their largest count
+    and tolerance) on the training states plus the states visited by the worst candidate
+    of every round so far. Every candidate is measured every round; a round that does not
+    lower the largest indicator is undone and ends the enrichment (``"stalled"``).
+    ``duration``: of the candidates' reduced runs (default: the training's)."""
+    if not candidates:
+        raise InputError("greedy_points: give at least one candidate schedule")
+    if points.sampling != "trained":
+        raise InputError(f"greedy_points: only trained points are enriched, got "
+                         f"{points.sampling!r} ones")
+    if not (np.isfinite(tol) and tol >= 0):
+        raise InputError(f"greedy_points: tol must be >= 0, got {tol}")
+    if int(max_rounds) != max_rounds or max_rounds < 0:
+        raise InputError(f"greedy_points: max_rounds must be an integer >= 0, got "
+                         f"{max_rounds!r}")
+    for name, schedule in candidates.items():
+        reductor.model.check_schedule(reductor.body, schedule, f"candidate {name!r}")
+    duration = duration or reductor.training.duration
+    dt = reductor.training.dt
+    extra, history, best = None, [], None
+    while True:
+        reduced = reductor.reduce(basis, points, extra_states=extra)
+        entry = {"points": int(reduced.points.m), "residual": reduced.points.residual,
+                 "indicators": {}, "max_indicator": None, "added": None}
+        visited = {}
+        for name, schedule in tqdm(candidates.items(), desc="points' indicators",
+                                   unit="run", disable=not progress, leave=False):
+            q, a, _ = visited_states(reduced, schedule, duration, dt, states_per_run)
+            visited[name] = (q, a)
+            entry["indicators"][name] = cubature_residual(reductor, reduced, q, a)
+        worst = max(entry["indicators"], key=entry["indicators"].get)
+        entry["max_indicator"] = entry["indicators"][worst]
+        history.append(entry)
+        if best is not None and entry["max_indicator"] >= best.max_indicator:
+            entry["undone"] = True
+            return GreedyPoints(best.reduced, best.states, "stalled", history)
+        best = _Round(reduced, extra, entry["max_indicator"])
+        if entry["max_indicator"] <= tol:
+            return GreedyPoints(reduced, extra, "tolerance", history)
+        if len(history) > max_rounds:
+            return GreedyPoints(reduced, extra, "rounds", history)
+        entry["added"] = worst
+        q, a = visited[worst]
+        extra = (q, a) if extra is None else (np.vstack([extra[0], q]), np.vstack([extra[1], a]))
+
+
+@dataclass
+class _Round:
+    """The model of a round of :func:`greedy_points`, its extra states and largest
+    indicator."""
+
+    reduced: ReducedModel
+    states: tuple[np.ndarray, np.ndarray] | None
+    max_indicator: float

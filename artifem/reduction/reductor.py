@@ -507,22 +507,37 @@ class Reductor:
             return lambda x: keep * self.mass(keep * x)
         return keep * self.mass
 
-    def training_states(self, W: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    def training_states(self, W: np.ndarray, count: int,
+                        extra: tuple[np.ndarray, np.ndarray] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
         """(q, excitations) of ``count`` snapshots evenly spaced over the training: the
-        reduced coordinates [U^T M (u - L g); g] of the basis W = [U, L]."""
+        reduced coordinates [U^T M (u - L g); g] of the basis W = [U, L]; then the states
+        ``extra`` (q, excitations) of W, e.g. states reduced runs visited
+        (:func:`artifem.reduction.enrichment.greedy_points`)."""
         snapshots, g, _ = self.snapshots()
         S = snapshots.displacements.shape[0]
         rows = np.unique(np.linspace(0, S - 1, min(S, count)).round().astype(int))
         U = W[:, :W.shape[1] - g.shape[1]]
         q = np.hstack([project(U, self.mass, snapshots.displacements[rows]), g[rows]])
-        return q, snapshots.excitations[rows]
+        a = snapshots.excitations[rows]
+        if extra is None:
+            return q, a
+        q_x, a_x = (np.atleast_2d(np.asarray(x, dtype=float)) for x in extra)
+        if q_x.shape[1] != W.shape[1] or a_x.shape != (q_x.shape[0], a.shape[1]):
+            raise InputError(f"model {self.model.name!r}: extra training states must be "
+                             f"(k, {W.shape[1]}) coordinates and (k, {a.shape[1]}) "
+                             f"excitations, got {q_x.shape} and {a_x.shape}")
+        return np.vstack([q, q_x]), np.vstack([a, a_x])
 
     # ---- stage 3: the integration points ------------------------------------------------
 
     def points(self, W: np.ndarray, basis_key: str, spec: Points,
-               counts: Sequence[int] | None = None) -> dict[int, IntegrationPoints]:
+               counts: Sequence[int] | None = None,
+               extra: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> dict[int, IntegrationPoints]:
         """{m: points} for m in ``counts`` (default ``spec.count``): trained ones from one
-        greedy path (each m cached), or random ones."""
+        greedy path (each m cached), on the training states and ``extra`` ones
+        (:meth:`training_states`), or random ones."""
         counts = sorted({int(m) for m in (counts or [spec.count])})
         if spec.sampling == "all":
             return {m: all_points(self.body) for m in counts}
@@ -531,12 +546,13 @@ class Reductor:
                                      groups=self.table.degree) for m in counts}
         keys = {m: self.cache.key("reductor-points", basis=basis_key, m=m, tol=spec.tol,
                                   growth=spec.growth, states=spec.training_states,
-                                  snapshots=self.snapshot_keys())
+                                  snapshots=self.snapshot_keys(),
+                                  **({} if extra is None else {"extra": list(extra)}))
                 for m in counts}
         cached = {m: self.cache.load(k) for m, k in keys.items()}
         if any(v is None for v in cached.values()):
             tic = time.perf_counter()
-            q, a = self.training_states(W, spec.training_states)
+            q, a = self.training_states(W, spec.training_states, extra)
             G, b = force_training_matrix(self.body, W, q, a, progress=self.progress)
             path = trained_points_path(G, b, sizes=counts, tol=spec.tol, growth=spec.growth,
                                        progress=self.progress)
@@ -578,11 +594,13 @@ class Reductor:
 
     # ---- all of them --------------------------------------------------------------------
 
-    def reduce(self, basis: Basis = Basis(), points: Points = Points()) -> ReducedModel:
-        """The reduced model of ``basis`` and ``points``."""
+    def reduce(self, basis: Basis = Basis(), points: Points = Points(),
+               extra_states: tuple[np.ndarray, np.ndarray] | None = None) -> ReducedModel:
+        """The reduced model of ``basis`` and ``points`` (trained points also on
+        ``extra_states``, :meth:`training_states`)."""
         self.seconds = {}
         W, key = self.basis(basis)
-        pts = self.points(W, key, points)[points.count]
+        pts = self.points(W, key, points, extra=extra_states)[points.count]
         Pi = self.pressure_space()
         weights = None if Pi is None else \
             self.constraint_weights(W, key, pts, Pi, points.training_states)
@@ -593,7 +611,9 @@ class Reductor:
             "basis": {"kind": basis.kind, "size": basis.size,
                       "lift_columns": 12 * len(self.carriers), "r": int(W.shape[1])},
             "points": {"count": int(pts.m), "sampling": points.sampling,
-                       "residual": pts.residual},
+                       "residual": pts.residual,
+                       "extra_states": 0 if extra_states is None else
+                       int(np.atleast_2d(extra_states[0]).shape[0])},
             "seconds": dict(self.seconds)})
 
 
