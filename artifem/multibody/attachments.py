@@ -8,7 +8,8 @@ scene (:mod:`artifem.scene`) eliminates the slaves with the prolongation P.
 - :class:`NodeAttachment`: FEM nodes carried by a rigid body, x_i = p + R r_i.
 - :class:`RigidAttachment`: a rigid body welded to another.
 - :class:`FrameAttachment`: a rigid body on a frame of a full or reduced FEM body.
-- :class:`EmbeddedFemAttachment`: every node of an FEM body inside another, x_s = W x_m + c.
+- :class:`EmbeddedFemAttachment`: every node of an FEM body inside a full or reduced one,
+  x_s = W x_m + c.
 - :class:`LiftAttachment`: the 12 rigid-lift coordinates of a reduced body follow a bone.
 - :class:`FemPoint`: a point on a full or reduced FEM body (a path's end), x_a = sum w_j x_j.
 """
@@ -267,9 +268,9 @@ class FrameAttachment:
 
 
 class EmbeddedFemAttachment:
-    """Every node of FEM body ``slave`` follows FEM body ``master`` (Lloyd et al. 2019,
-    section 4.2: the masseter's aponeurosis membranes, attached node by node to the
-    primary FEM they lie in, non-conforming).
+    """Every node of FEM body ``slave`` follows FEM body ``master``, full or reduced (Lloyd
+    et al. 2019, section 4.2: the masseter's aponeurosis membranes, attached node by node
+    to the primary FEM they lie in, non-conforming).
 
     With W (3 n_s x 3 n_m) the shape functions of the master element that contains
     each slave node's rest position (:class:`~artifem.embedding.EmbeddedMesh`),
@@ -278,37 +279,43 @@ class EmbeddedFemAttachment:
 
     c = x_s - W x_m taken now (0 for nodes inside the master at rest; the snapping
     offset of nodes snapped from outside, ``snap=True``, ``distance`` per node).
-    The slave's dofs leave the solve (its rows of P are W times the master's), so
-    its mass, stiffness and loads act on the master: P^T A P holds W^T A_s W.
-    Embedded bodies chain (a slave may be the master of another); a cycle is an
-    error of the scene. The slave may have no fixed dofs.
+    On a reduced master (u_m = u_bar + U q, W on its full body's dofs) the same weights give
+
+        x_s = W (X_m + u_bar + U q) + c,     v_s = (W U) q',     f_q = (W U)^T f_s,
+
+    O(n_s r) per evaluation. The slave's dofs leave the solve (its rows of P are
+    G = W, or W U, times the master's), so its mass, stiffness and loads act on the
+    master: P^T A P holds G^T A_s G. Embedded bodies chain (a slave may be the master of
+    another); a cycle is an error of the scene. The slave is a full body with no fixed dofs.
     """
 
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "embedded_attachments"
 
-    def __init__(self, slave: FemBody, master: FemBody, *, snap: bool = False,
-                 name: str = ""):
-        for b in (slave, master):
-            if not isinstance(b, FemBody):
-                raise TypeError(f"EmbeddedFemAttachment: expected FemBody objects, got "
-                                f"{type(b).__name__}")
+    def __init__(self, slave: FemBody, master: FemBody | ReducedFemBody, *,
+                 snap: bool = False, name: str = ""):
+        if not isinstance(slave, FemBody):
+            raise TypeError(f"EmbeddedFemAttachment: expected a FemBody slave, got "
+                            f"{type(slave).__name__}")
+        if not isinstance(master, (FemBody, ReducedFemBody)):
+            raise TypeError(f"EmbeddedFemAttachment: expected a FemBody or ReducedFemBody "
+                            f"master, got {type(master).__name__}")
         self.name = name or f"{slave.name}->{master.name}"
-        if slave is master:
+        full = master.full if isinstance(master, ReducedFemBody) else master
+        if slave is full:
             raise InputError(f"embedded attachment {self.name!r}: a body cannot be embedded "
                              "in itself (an attachment cycle)")
-        for b in (slave, master):
+        for b in (slave, full):
             if b.mesh.comm.size != 1:
                 raise NotImplementedError(f"embedded attachment {self.name!r}: coupled scenes "
                                           "run in serial only for now")
-        self.slave, self.master = slave, master
+        self.slave, self.master, self.snap = slave, master, snap
         rest = slave.V.tabulate_dof_coordinates()
         self._rest = rest.ravel()
-        embedded = EmbeddedMesh(master, rest, snap=snap, name=self.name)
-        self.W = embedded.G.tocsr()
-        self.distance = embedded.distance
-        x_m = dof_positions(master).ravel()
-        self.offset = dof_positions(slave).ravel() - self.W @ x_m[:self.W.shape[1]]
+        self.embedded = EmbeddedMesh(master, rest, snap=snap, name=self.name)
+        self.W = self.embedded.G.tocsr()        # on the full master's blocked dofs
+        self.distance = self.embedded.distance
+        self.offset = dof_positions(slave).ravel() - self.embedded.positions().ravel()
 
     @property
     def bodies(self) -> tuple:
@@ -318,10 +325,38 @@ class EmbeddedFemAttachment:
     def __repr__(self) -> str:
         return f"EmbeddedFemAttachment({self.name!r}, {self.W.shape[0] // 3} nodes)"
 
+    def refusal(self, body) -> str | None:
+        """Why this attachment cannot follow ``body`` onto a reduced body (a reductor asks
+        before any training), else None: only its master can be reduced."""
+        if body is self.slave:
+            return (f"embedded attachment {self.name!r} embeds {body.name!r} in "
+                    f"{self.master.name!r}: its slave cannot be reduced (only its master)")
+        return None
+
+    def onto_reduced(self, reduced: ReducedFemBody, lift=None) -> EmbeddedFemAttachment:
+        """This attachment for ``reduced``, the reduced body of its master (a reductor swaps
+        it at rest): the same slave on the same weights W, x_s = W (X_m + u_bar + U q) + c.
+        ``lift``: unused, the attachment carries no node of the master on a rigid body."""
+        reason = self.refusal(reduced.full)
+        if reason is not None:
+            raise InputError(reason)
+        if reduced.full is not self.master:
+            raise InputError(f"embedded attachment {self.name!r}: {reduced.name!r} is not a "
+                             f"reduced body of its master {self.master.name!r}")
+        return EmbeddedFemAttachment(self.slave, reduced, snap=self.snap, name=self.name)
+
+    def jacobian(self):
+        """G with v_s = G v_m on the master body's coordinates: W (sparse, 3 n_s x 3 n_m) on
+        its blocked dofs, or W U (dense, 3 n_s x r) on q of a reduced master."""
+        return self.embedded.jacobian
+
+    def positions(self) -> np.ndarray:
+        """x_s = W x_m + c (n_s, 3), from the master's current state."""
+        return self.embedded.positions() + self.offset.reshape(-1, 3)
+
     def displacement(self) -> np.ndarray:
         """u_s = W x_m + c - X_s (block-interleaved, the slave's dof layout)."""
-        x_m = dof_positions(self.master).ravel()[:self.W.shape[1]]
-        return self.W @ x_m + self.offset - self._rest
+        return self.positions().ravel() - self._rest
 
 
 class LiftAttachment:

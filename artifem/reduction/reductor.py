@@ -34,8 +34,13 @@ of the body ride on a rigid body also offers ``carried_nodes(body) -> (nodes, ri
 (:class:`~artifem.multibody.attachments.NodeAttachment`: the basis gets their lift
 columns, and ``lift`` is theirs); one through points or frames of the body keeps their
 weights (:class:`~artifem.multibody.point_paths.PointPath`,
-:class:`~artifem.multibody.attachments.FrameAttachment`; lift None). Any other is
-refused, naming it, before any training.
+:class:`~artifem.multibody.attachments.FrameAttachment`; lift None); an FEM body embedded
+in it keeps its own dofs' dynamics and follows the reduced body on the same weights,
+x_s = W (X + u_bar + U q) + c, v_s = (W U) q', f_q = (W U)^T f_s
+(:class:`~artifem.multibody.attachments.EmbeddedFemAttachment`; lift None). A coupling
+may also say why it cannot follow this body, ``refusal(body) -> str | None`` (an
+embedded attachment whose *slave* is the body: only its master can be reduced). Any
+other, and any refused, is an error naming it, before any training.
 
 Inputs: schedules drive the model's exciters (muscles of the body) and its load inputs
 (``ReducibleScene.loads``: gravity, surface load levels, path muscles; found by name, so
@@ -308,7 +313,12 @@ def _couplings_of(scene: Scene, body, model: str) -> list:
             raise InputError(
                 f"model {model!r}: {type(item).__name__} {getattr(item, 'name', '')!r} "
                 f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
-                "body (those that can: NodeAttachment, PointPath, FrameAttachment)")
+                "body (those that can: NodeAttachment, PointPath, FrameAttachment, "
+                "EmbeddedFemAttachment with the body as its master)")
+        refusal = getattr(item, "refusal", None)
+        reason = refusal(body) if callable(refusal) else None
+        if reason is not None:
+            raise InputError(f"model {model!r}: {reason}")
     return found
 
 

@@ -172,12 +172,13 @@ class Layout:
         return sparse.bmat([[K, G.T], [G, None]], format="csr")
 
     def _embedding_matrix(self):
-        """Z_e (n_all x n_all): z_slave = W z_master of every embedded body (constant)."""
+        """Z_e (n_all x n_all): z_slave = G z_master of every embedded body (constant): G = W
+        on a full master's blocked dofs, the dense W U on a reduced master's q."""
         blocks = []
         for att in self.embedded:
-            o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
-            W = att.W.tocoo()
-            blocks.append((W.data, o_s + W.row, o_m + W.col))
+            o_s, o_m = self.fem_offset[id(att.slave)], self._body_offset(att.master)
+            G = sparse.coo_matrix(att.jacobian())
+            blocks.append((G.data, o_s + G.row, o_m + G.col))
         return self.triplets(blocks, (self.n_all, self.n_all))
 
     def _lift_matrix(self):
@@ -271,11 +272,12 @@ class Layout:
                 raise InputError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
                     f"the attachment gives it; a body moved after the attachment was made")
+        reduced_ids = {id(b) for b in scene.reduced_bodies}
         embedded: dict[int, str] = {}
         for att in scene.embedded_attachments:
             what = f"embedded attachment {att.name!r}"
-            for b in (att.slave, att.master):
-                if id(b) not in fem_ids:
+            for b, ids in ((att.slave, fem_ids), (att.master, fem_ids | reduced_ids)):
+                if id(b) not in ids:
                     raise InputError(f"{what}: FEM body {b.name!r} is not in the scene")
             if att.slave.fixed_components.size:
                 raise InputError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
@@ -287,7 +289,6 @@ class Layout:
                 raise InputError(f"FEM body {att.slave.name!r} is embedded twice: by "
                                  f"{embedded[id(att.slave)]!r} and by {att.name!r}")
             embedded[id(att.slave)] = att.name
-        reduced_ids = {id(b) for b in scene.reduced_bodies}
         lifted: dict[int, list] = {}
         for att in scene.lift_attachments:
             what = f"lift attachment {att.name!r}"
@@ -713,7 +714,8 @@ class Layout:
     def geometric_stiffness(self, f_all: np.ndarray, P):
         """K_geo on the masters (artifem.scene.scene docstring): sum_s [f_s]x [d_s]x on each dynamic root's
         rotation block, for the applied forces f_all on the slaves (an embedded body's
-        forces first moved to its master's nodes, W^T f_s; a lift as levers R_k)."""
+        forces first moved to its master's coordinates, G^T f_s with G = W or W U; a lift
+        as levers R_k)."""
         K_frames = None
         if self.scene.frame_attachments:
             f_all = f_all.copy()
@@ -731,8 +733,9 @@ class Layout:
         if self.embedded:
             f_all = f_all.copy()
             for att in self.embedded:                   # slaves before their masters
-                o_s, o_m = self.fem_offset[id(att.slave)], self.fem_offset[id(att.master)]
-                f_all[o_m:o_m + att.W.shape[1]] += att.W.T @ f_all[o_s:o_s + att.W.shape[0]]
+                o_s, o_m = self.fem_offset[id(att.slave)], self._body_offset(att.master)
+                G = att.jacobian()                      # f_m += G^T f_s (W, or W U)
+                f_all[o_m:o_m + G.shape[1]] += G.T @ f_all[o_s:o_s + G.shape[0]]
         K = {}
         for att in self.scene.lift_attachments:
             root = self.root[id(att.body)]
@@ -845,9 +848,9 @@ class Layout:
             att = s.attachment
             u = att.fem.u.x.array.reshape(-1, 3)
             u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
+        self._place_lifts()                             # a reduced master's lift columns
         for att in reversed(self.embedded):             # masters before their slaves
             att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
-        self._place_lifts()
         for att in self.scene.frame_attachments:        # leaves: after every FEM body
             att.slave.position, att.slave.rotation = att.pose()
         for body in self.fem_bodies:

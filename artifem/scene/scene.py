@@ -144,7 +144,9 @@ sum_k [f_gRk]x [R_k]x (the columns of R turn like node levers).
 Embedded FEM bodies (:class:`EmbeddedFemAttachment`): every node of a slave
 body follows the master element containing it, z_s = W z_m, so its P rows are
 W times the master's (P = P_0 + Z P_0 + Z^2 P_0 + ... over the chain of derived
-rows Z, lifts included); its forces reach K_geo as W^T f_s.
+rows Z, lifts included); its forces reach K_geo as W^T f_s. On a reduced master
+the same rows are the dense G = W U on its q (z_s = W U q'), the slave placed at
+x_s = W (X_m + u_bar + U q) + c (``EmbeddedFemAttachment.jacobian``, ``positions``).
 
 Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
 FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
@@ -553,10 +555,13 @@ class Scene:
         return total
 
     def attachment_errors(self) -> dict[str, float]:
-        """max |x_i - (p + R r_i)| of each node and lift attachment, and the pose error
-        (m and rad) of each frame attachment (round-off after a step)."""
+        """max |x_i - (p + R r_i)| of each node and lift attachment, max |x_s - (W x_m + c)|
+        of each embedded attachment, and the pose error (m and rad) of each frame
+        attachment (round-off after a step)."""
         out = {a.name: float(np.abs(dof_positions(a.fem)[a.dofs] - a.positions()).max())
                for a in self.node_attachments}
+        out.update({a.name: float(np.abs(dof_positions(a.slave) - a.positions()).max())
+                    for a in self.embedded_attachments})
         out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
                     for a in self.lift_attachments})
         for a in self.frame_attachments:
