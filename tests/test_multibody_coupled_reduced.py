@@ -238,6 +238,8 @@ def test_bad_lift_attachments_are_clear_errors():
         LiftAttachment(ReducedFemBody(body, U, all_points(body)), lift, b)
     with pytest.raises(ValueError, match="fixed"):
         rigid_lift(body, body.find_nodes(lambda x: x[0] < 1e-12), b.position, b.rotation)
+    with pytest.raises(ValueError, match="also held by another rigid body"):
+        rigid_lift(body, end_nodes(body), b.position, b.rotation, held=end_nodes(body)[:2])
     reduced = ReducedFemBody(body, lifted_basis(body, lift, 4), all_points(body))
     scene = Scene()
     scene.add(reduced, LiftAttachment(reduced, lift, b))

@@ -20,6 +20,10 @@ no fixed nodes) lying inside it, attached node by node ("membrane").
     forces through (W U)^T on the lift columns.
 (4) Bad input: the sheet, the attachment's slave, as the body to reduce is refused before
     any training run, naming the attachment; a reduced body of another body is refused.
+(5) The masseter as built (models/masseter.py, coarse: its primary FEM carried by two bones,
+    the jaw and the arch, three aponeurosis membranes embedded in it) reduces: each bone's
+    lift columns hold the other bone's nodes at rest, and with every snapshot and point the
+    reduced scene reproduces the full one (measured 3e-15 m on 0.7 mm).
 """
 
 import numpy as np
@@ -215,3 +219,41 @@ def test_the_slave_of_an_embedded_attachment_is_refused_before_any_training(tmp_
     other = reduced.body(make_body(excitation=0.0, comm=MPI.COMM_SELF))
     with pytest.raises(InputError, match="is not a reduced body of its master 'fem'"):
         att.onto_reduced(other, None)
+
+
+def test_the_masseter_with_two_bones_and_embedded_aponeuroses_reduces(tmp_path):
+    from artifem.models.masseter import COARSE, MasseterConfig, build_model
+    from artifem.scene import simulate
+
+    config = MasseterConfig(**COARSE)
+    model = ReducibleScene("masseter", lambda: build_model(config, "conforming",
+                                                           "embedded").scene,
+                           "masseter (conforming)", {"model": "masseter"})
+    schedule = ExcitationSchedule.ramp_and_hold({"masseter": 0.8}, 0.05)
+    training = Training({"ramp": schedule}, duration=0.1, dt=0.01, snapshot_every=1)
+    reduced = reduce(model, training, basis=Basis("pod", 10), points=Points(sampling="all"),
+                     cache=tmp_path, progress=False)
+    jaw, arch = reduced.carriers                      # each lift holds the other's nodes
+    for mine, other in ((jaw.lift, arch.lift), (arch.lift, jaw.lift)):
+        rows = (3 * other.dofs[:, None] + np.arange(3)).ravel()
+        assert np.abs(mine.columns[rows]).max() == 0.0
+
+    def run(scene):
+        model.drive(scene, schedule)
+        body = model.fem_body_or_full(scene)
+        red = next(iter(scene.reduced_bodies), None)
+        n = 3 * body.V.dofmap.index_map.size_local
+        record = {"u": (lambda s: red.nodal_displacement().copy()) if red else
+                  (lambda s: body.u.x.array[:n].copy()),
+                  "attached": lambda s: max(s.attachment_errors().values())}
+        return simulate(scene, 0.1, 0.01, record=record, progress=False).records
+
+    full = run(model.build())
+    scene = reduced.scene()
+    assert sorted(a.name for a in scene.lift_attachments) == ["arch origin", "jaw insertion"]
+    assert len(scene.embedded_attachments) == 3
+    red = run(scene)
+    scale = np.abs(full["u"]).max()
+    assert scale > 1e-4
+    assert np.abs(red["u"] - full["u"]).max() < 1e-6 * scale
+    assert red["attached"].max() < 1e-12

@@ -361,12 +361,16 @@ class Reductor:
         self.body.compile()
         self.mass = body_mass(self.body)
         self.table = quadrature_points(self.body)
+        carried = [(nodes, carrier) for nodes, carrier in
+                   (_carried(coupling, self.body) for coupling in couplings)
+                   if carrier is not None]
         self.carriers = []
-        for coupling in couplings:
-            nodes, carrier = _carried(coupling, self.body)
-            if carrier is not None:
-                self.carriers.append(Carrier(carrier.name, rigid_lift(
-                    self.body, nodes, carrier.position, carrier.rotation)))
+        for i, (nodes, carrier) in enumerate(carried):
+            # the lift holds the other carriers' nodes at rest (rigid_lift)
+            others = [np.asarray(n) for k, (n, _) in enumerate(carried) if k != i]
+            held = np.concatenate(others) if others else np.zeros(0, dtype=np.int64)
+            self.carriers.append(Carrier(carrier.name, rigid_lift(
+                self.body, nodes, carrier.position, carrier.rotation, held=held)))
         hard = self.body.volume_constraint is not None
         if hard and pressure_modes < 1:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")

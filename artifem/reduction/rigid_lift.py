@@ -16,7 +16,10 @@ f,
 
     K_ff L_f = -K_fJ Phi_J,     L_J = Phi_J,     L = 0 on the fixed dofs,
 
-K the body's tangent at its current state. A basis [U, L] whose other
+K the body's tangent at its current state. Nodes held by other rigid bodies are held at
+rest too (L = 0 there: ``held``), so that with several carriers each one's columns move
+its own nodes only, and the lift of one bone leaves the other bones' nodes where their
+own lifts put them. A basis [U, L] whose other
 columns U vanish on J then reproduces the carried nodes exactly, and g is a
 function of the bone's pose: in a Scene the 12 lift coordinates are
 slaves of the body (``LiftAttachment``), with g' = G_g u,
@@ -88,12 +91,13 @@ class RigidLift:
         return Phi.reshape(3 * k, 12)
 
 
-def rigid_lift(body: FemBody, nodes, position, rotation) -> RigidLift:
+def rigid_lift(body: FemBody, nodes, position, rotation, held=()) -> RigidLift:
     """The lift columns of ``nodes`` (input indices) carried by a rigid body at pose
-    (``position``, ``rotation``), from ``body``'s tangent at its current state.
+    (``position``, ``rotation``), from ``body``'s tangent at its current state; ``held``:
+    input indices of nodes other rigid bodies carry (kept at rest, L = 0 there).
 
-    Raises ValueError for nodes that are fixed in ``body`` (a node is either
-    fixed or carried) and for a pose that is not a rotation.
+    Raises InputError for nodes that are fixed in ``body`` or also held (a node is
+    fixed, carried by one body, or free) and for a pose that is not a rotation.
     """
     if body.mesh.comm.size != 1:
         raise NotImplementedError("rigid_lift: serial only")
@@ -107,12 +111,18 @@ def rigid_lift(body: FemBody, nodes, position, rotation) -> RigidLift:
     if fixed.size:
         raise InputError(f"rigid_lift: {fixed.size} of the carried nodes are fixed in "
                          f"{body.name!r}; a node is either fixed or carried")
+    held = body.local_dofs(body._check_nodes(np.asarray(held, dtype=np.int64), "rigid_lift")
+                           ).astype(np.int64) if len(held) else np.zeros(0, dtype=np.int64)
+    both = np.intersect1d(dofs, held)
+    if both.size:
+        raise InputError(f"rigid_lift: {both.size} of the carried nodes of {body.name!r} are "
+                         "also held by another rigid body; a node rides on one body")
     n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
     X = body.V.tabulate_dof_coordinates()[dofs]
     offsets = (X - p0) @ R0
     lift = RigidLift(nodes, dofs, p0, R0, offsets, np.zeros((3 * n, 12)))
     J = (3 * dofs[:, None] + np.arange(3)).ravel()
-    fixed_rows = (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
+    fixed_rows = (3 * np.concatenate([body.fixed_dofs, held])[:, None] + np.arange(3)).ravel()
     free = np.setdiff1d(np.arange(3 * n), np.concatenate([J, fixed_rows]))
     body.assemble(tangent=True)
     indptr, indices, data = body.K.getValuesCSR()
