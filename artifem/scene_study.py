@@ -24,19 +24,29 @@ or a function of the user's own module on the Python path.
    training never saw, each against the full model, the hierarchical estimate beside the
    error: DIR/generalization.json, .md, .png and generalization_worst.png (a render of the
    worst held-out moment).
+
+With ``--point-pool N`` the trained points are first enriched greedily, with no full run
+(:func:`~artifem.reduction.enrichment.greedy_points`): N random schedules of seed
+``--point-seed`` (neither the training's nor the held-out seed), at most ``--point-rounds``
+rounds, each adding the states the worst candidate's reduced run visits to the points'
+training, until the cubature residual there is at most ``--point-tol``: DIR/points.json.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import json
+import time
 from pathlib import Path
 
 from mpi4py import MPI
 
-from artifem.arguments import fraction, nonnegative_int, positive_float, positive_int
+from artifem.arguments import (fraction, nonnegative_float, nonnegative_int,
+                                positive_float, positive_int)
 from artifem.errors import InputError
 from artifem.reduction.distributed import continue_alone, record_training
+from artifem.reduction.enrichment import greedy_points
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.reductor import BASES, Basis, Points, ReducibleScene, Reductor, Training
 from artifem.reduction.schedules import each_alone, random_schedules
@@ -107,6 +117,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="held-out random schedules (default 5)")
     parser.add_argument("--held-out-seed", type=int, default=1000,
                         help="their seed (must differ from --training-seed)")
+    parser.add_argument("--point-pool", type=nonnegative_int, default=0,
+                        help="enrich the trained points greedily over N random schedules "
+                             "(no full run; default 0: no enrichment)")
+    parser.add_argument("--point-rounds", type=nonnegative_int, default=3,
+                        help="rounds of the points' enrichment (default 3)")
+    parser.add_argument("--point-tol", type=nonnegative_float, default=0.0,
+                        help="stop when the cubature residual on every pool run is at most "
+                             "this (default 0: the rounds)")
+    parser.add_argument("--point-seed", type=int, default=2000,
+                        help="seed of the enrichment's pool (must differ from the training "
+                             "and held-out seeds)")
     parser.add_argument("--train-only", action="store_true",
                         help="run the training (shared over the ranks under mpiexec), write "
                              "OUT/training.json and stop")
@@ -117,6 +138,16 @@ def run(args: argparse.Namespace) -> int:
     if args.held_out and args.held_out_seed == args.training_seed and args.training_runs:
         raise InputError(f"--held-out-seed {args.held_out_seed} is the training's seed: the "
                          "held-out schedules would be training schedules")
+    if args.point_pool:
+        if args.sampling != "trained":
+            raise InputError(f"--point-pool enriches trained points; --sampling is "
+                             f"{args.sampling!r}")
+        used = {"--training-seed": args.training_seed if args.training_runs else None,
+                "--held-out-seed": args.held_out_seed if args.held_out else None}
+        for flag, seed in used.items():
+            if seed == args.point_seed:
+                raise InputError(f"--point-seed {args.point_seed} is also {flag}: the pool "
+                                 "would hold schedules of that set")
     model = load_model(args.model)
     training = study_training(model, runs=args.training_runs, seed=args.training_seed,
                               each_alone_level=args.each_alone or 0.0,
@@ -134,11 +165,33 @@ def run(args: argparse.Namespace) -> int:
     _record(out, done, args)
     if args.train_only:
         return 0
-    generalization_study(reductor, out, basis=Basis(args.basis, args.r),
-                         points=Points(args.points, args.sampling), held_out=args.held_out,
-                         seed=args.held_out_seed, duration=args.duration, dt=args.dt)
+    basis, points = Basis(args.basis, args.r), Points(args.points, args.sampling)
+    extra = _enrich_points(reductor, model, basis, points, args, out) if args.point_pool \
+        else None
+    generalization_study(reductor, out, basis=basis, points=points, held_out=args.held_out,
+                         seed=args.held_out_seed, duration=args.duration, dt=args.dt,
+                         extra_states=extra)
     print(f"report: {out / 'generalization.md'}")
     return 0
+
+
+def _enrich_points(reductor: Reductor, model: ReducibleScene, basis: Basis, points: Points,
+                   args: argparse.Namespace, out: Path):
+    """The greedy enrichment of the points (module docstring): OUT/points.json; returns the
+    states it added."""
+    pool = random_schedules(model.input_names(reductor.body), args.point_pool,
+                            seed=args.point_seed, duration=args.duration, prefix="points")
+    tic = time.perf_counter()
+    result = greedy_points(reductor, pool, basis=basis, points=points, tol=args.point_tol,
+                           max_rounds=args.point_rounds, duration=args.duration)
+    summary = {**result.summary(), "pool": args.point_pool, "seed": args.point_seed,
+               "tol": args.point_tol, "wall_seconds": time.perf_counter() - tic}
+    (out / "points.json").write_text(json.dumps(summary, indent=1))
+    print(f"points: {summary['stopped']} after {summary['rounds']} round(s), "
+          f"{summary['extra_states']} states added, largest residual "
+          f"{result.history[0]['max_indicator']:.3g} -> "
+          f"{min(e['max_indicator'] for e in result.history):.3g}")
+    return result.states
 
 
 def _record(out: Path, done: dict, args: argparse.Namespace) -> None:

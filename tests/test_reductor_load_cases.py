@@ -161,3 +161,30 @@ def test_the_scene_study_refuses_a_bad_model_spec(spec, message, tmp_path, capsy
 
     assert main(["study", "scene", spec, "--out", str(tmp_path)]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_scene_study_enriches_its_points_without_a_full_run(tmp_path, capsys):
+    """``--point-pool``: the points' greedy enrichment over random schedules of their own
+    seed, recorded in points.json, its states in the reduced model's training record."""
+    from artifem.cli import main
+
+    out = tmp_path / "study"
+    base = ["study", "scene", "test_reductor_load_cases:pulled_model", "--out", str(out),
+            "--training-runs", "3", "--duration", "0.2", "--snapshot-every", "2", "--r", "6",
+            "--points", "30", "--held-out", "1", "--point-pool", "2", "--point-rounds", "1"]
+    assert main(base) == 0
+    record = json.loads((out / "points.json").read_text())
+    assert record["pool"] == 2 and record["seed"] == 2000 and len(record["history"]) == 2
+    first = record["history"][0]
+    assert set(first["indicators"]) == {"points-2000-0", "points-2000-1"}
+    assert first["added"] == max(first["indicators"], key=first["indicators"].get)
+    kept = 10 if record["stopped"] == "rounds" else 0      # "stalled": the round undone
+    assert record["stopped"] in ("rounds", "stalled") and record["extra_states"] == kept
+    figures = json.loads((out / "generalization.json").read_text())
+    assert figures["reduced"]["points"]["extra_states"] == kept
+    assert len(list((out / "cache").glob("full-run-*"))) == 2    # the motion and held-out
+    capsys.readouterr()
+    assert main([*base, "--point-seed", "0"]) == 2
+    assert "--point-seed 0 is also --training-seed" in capsys.readouterr().err
+    assert main([*base, "--sampling", "random"]) == 2
+    assert "--point-pool enriches trained points" in capsys.readouterr().err

@@ -85,12 +85,15 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
                          points: Points = Points(),
                          reference: tuple[Basis, Points] | None = None, held_out: int = 5,
                          seed: int = 1000, duration: float = 1.0, dt: float | None = None,
-                         sets=SETS, progress: bool = True) -> dict:
+                         sets=SETS, extra_states: tuple[np.ndarray, np.ndarray] | None = None,
+                         progress: bool = True) -> dict:
     """The train/test study of the module docstring on ``reductor``'s model and training
     (its cache holds every stage and full run); returns generalization.json's content.
 
     ``reference``: the richer model of the estimate (default: twice the basis size and the
     points, a tenth of the cubature tolerance). ``sets``: which of the three sets to run.
+    ``extra_states``: more training states of the reduced model's points (those of a
+    greedy enrichment, :func:`~artifem.reduction.enrichment.greedy_points`).
     """
     out = Path(out)
     unknown = set(sets) - set(SETS)
@@ -103,7 +106,7 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
                  "held-out": held_out_schedules(model, inputs, training, held_out, seed,
                                                 duration) if held_out else {}}
     out.mkdir(parents=True, exist_ok=True)
-    reduced: ReducedModel = reductor.reduce(basis, points)
+    reduced: ReducedModel = reductor.reduce(basis, points, extra_states=extra_states)
     reference = reference or (Basis(basis.kind, 2 * basis.size),
                               Points(2 * points.count, points.sampling, points.tol / 10,
                                      points.growth, points.training_states, points.seed))
