@@ -23,7 +23,8 @@ or a function of the user's own module on the Python path.
    schedules, the model's motions and ``--held-out`` random schedules of a seed the
    training never saw, each against the full model, the hierarchical estimate beside the
    error: DIR/generalization.json, .md, .png and generalization_worst.png (a render of the
-   worst held-out moment).
+   worst held-out moment); with ``--error-sources``, where the error comes from (the basis'
+   best approximation, the reduced model with every point).
 
 With ``--point-pool N`` the trained points are first enriched greedily, with no full run
 (:func:`~artifem.reduction.enrichment.greedy_points`): N random schedules of seed
@@ -117,6 +118,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="held-out random schedules (default 5)")
     parser.add_argument("--held-out-seed", type=int, default=1000,
                         help="their seed (must differ from --training-seed)")
+    parser.add_argument("--error-sources", action="store_true",
+                        help="also report where the error comes from: the full runs' "
+                             "projection on the basis and the reduced model with every "
+                             "integration point (one O(n)-per-step run each)")
     parser.add_argument("--point-pool", type=nonnegative_int, default=0,
                         help="enrich the trained points greedily over N random schedules "
                              "(no full run; default 0: no enrichment)")
@@ -170,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         else None
     generalization_study(reductor, out, basis=basis, points=points, held_out=args.held_out,
                          seed=args.held_out_seed, duration=args.duration, dt=args.dt,
-                         extra_states=extra)
+                         extra_states=extra, sources=args.error_sources)
     print(f"report: {out / 'generalization.md'}")
     return 0
 

@@ -267,6 +267,34 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
     assert series["held-out/held-out-99-0/error_mm"].shape == (21,)
 
 
+def test_error_sources_split_the_error_into_basis_cubature_and_dynamics(tmp_path):
+    """``sources=True``: with every point the reduced model is its own every-point model;
+    a basis holding every snapshot of a run holds that run (projection at round-off), while
+    its reduced model with few trained points is off by the cubature's error."""
+    from artifem.reduction.evaluation import compare
+    from artifem.reduction.generalization import error_sources, generalization_study
+
+    model = ReducibleScene("free", free_beam, "fem", {"model": "free"},
+                           motions={"ramp": ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)})
+    reductor = Reductor(model, TRAINING, tmp_path / "cache", progress=False)
+    figures = generalization_study(reductor, tmp_path, basis=Basis("pod", 3),
+                                   points=Points(sampling="all"), held_out=2, seed=99,
+                                   duration=0.2, sources=True, progress=False)
+    for name in ("motions", "held-out"):
+        for r in figures["sets"][name]:
+            assert r["every_point_mm"] == pytest.approx(r["max_error_mm"], rel=1e-12)
+            assert 0 < r["projection_mm"] < r["max_error_mm"]
+    assert "best in the basis (mm)" in (tmp_path / "generalization.md").read_text()
+    name, schedule = next(iter(TRAINING.schedules.items()))
+    every_snapshot = reductor.reduce(Basis("pod", 2 * 20), Points(12, tol=1e-9))
+    found = error_sources(reductor, every_snapshot, {name: schedule}, 0.2, DT,
+                          progress=False)[name]
+    error = np.nanmax(compare(every_snapshot, {name: schedule}, duration=0.2, dt=DT,
+                              cache=tmp_path / "cache", progress=False)[0].error_mm)
+    assert found["projection_mm"] < 1e-9
+    assert found["every_point_mm"] < 1e-6 < 0.01 < error
+
+
 def test_a_held_out_set_drawn_with_the_training_seed_is_refused(tmp_path):
     from artifem.reduction.generalization import held_out_schedules
 

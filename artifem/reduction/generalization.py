@@ -15,6 +15,12 @@ model from its training (and a reference twice as rich, for the estimate), then
   (:func:`~artifem.reduction.schedules.random_schedules`) drawn with a ``seed`` that no
   training schedule came from (checked: none equals a training schedule).
 
+With ``sources=True``, where the error of each motion and held-out run comes from: the
+full run's best approximation in the reduced basis W (its M-orthogonal projection, which
+no reduced model of this basis beats at every instant) and the error of the reduced model
+of the same basis with every integration point (the cubature's share is the difference
+to the reduced model's error; the rest is the reduced dynamics' own, Galerkin, error).
+
 Written to ``out``: generalization.json (the configuration, the training cost, per run
 the maximum and mean error, the estimate, ms per step and its worst step against the
 median), generalization.md (a table per set), generalization.png (error over time,
@@ -26,7 +32,7 @@ the reduced model's error |u_r - u|.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +40,12 @@ from dolfinx import fem
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from tqdm import tqdm
+
 from artifem.errors import InputError
-from artifem.reduction.evaluation import Comparison, compare, full_run, reduced_run
+from artifem.excitation import ExcitationSchedule
+from artifem.reduction.evaluation import Comparison, compare, full_run, node_mean_mm, reduced_run
+from artifem.reduction.reduced_body import all_points
 from artifem.reduction.training import ArtifactCache
 from artifem.render import render_bodies
 from artifem.reduction.generalization_report import SETS, write_markdown
@@ -43,7 +53,7 @@ from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleSc
                                         Training)
 from artifem.reduction.schedules import random_schedules
 
-__all__ = ["generalization_study", "held_out_schedules"]
+__all__ = ["generalization_study", "held_out_schedules", "error_sources"]
 
 
 def held_out_schedules(model: ReducibleScene, inputs: list[str], training: Training,
@@ -86,14 +96,16 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
                          reference: tuple[Basis, Points] | None = None, held_out: int = 5,
                          seed: int = 1000, duration: float = 1.0, dt: float | None = None,
                          sets=SETS, extra_states: tuple[np.ndarray, np.ndarray] | None = None,
-                         progress: bool = True) -> dict:
+                         sources: bool = False, progress: bool = True) -> dict:
     """The train/test study of the module docstring on ``reductor``'s model and training
     (its cache holds every stage and full run); returns generalization.json's content.
 
     ``reference``: the richer model of the estimate (default: twice the basis size and the
     points, a tenth of the cubature tolerance). ``sets``: which of the three sets to run.
     ``extra_states``: more training states of the reduced model's points (those of a
-    greedy enrichment, :func:`~artifem.reduction.enrichment.greedy_points`).
+    greedy enrichment, :func:`~artifem.reduction.enrichment.greedy_points`). ``sources``:
+    also where the error comes from (module docstring; a reduced run with every point per
+    schedule, O(n) per step).
     """
     out = Path(out)
     unknown = set(sets) - set(SETS)
@@ -128,6 +140,13 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
                "reduced": reduced.training, "reference": richer.training,
                "specification": {"basis": asdict(basis), "points": asdict(points)},
                "sets": {name: [c.summary() for c in runs] for name, runs in results.items()}}
+    if sources:
+        for name, runs in figures["sets"].items():
+            if name != "training":
+                found = error_sources(reductor, reduced, schedules[name], duration, dt,
+                                      progress=progress)
+                for run in runs:
+                    run.update(found[run["name"]])
     (out / "generalization.json").write_text(json.dumps(figures, indent=1))
     (out / "generalization.md").write_text(write_markdown(figures))
     np.savez(out / "generalization_series.npz", **{
@@ -141,6 +160,31 @@ def generalization_study(reductor: Reductor, out: str | Path, *, basis: Basis = 
         (out / "generalization.json").write_text(json.dumps(figures, indent=1))
         (out / "generalization.md").write_text(write_markdown(figures))
     return figures
+
+
+def error_sources(reductor: Reductor, reduced: ReducedModel,
+                  schedules: dict[str, ExcitationSchedule], duration: float, dt: float, *,
+                  progress: bool = True) -> dict[str, dict]:
+    """Per schedule, max over time of the mean node distance to the full run (mm) of the
+    full run's M-orthogonal projection on span W, W (W^T M W)^-1 W^T M u (the best
+    approximation in the basis), and of the reduced model of W with every integration
+    point: {"projection_mm", "every_point_mm"}. The full runs come from the cache."""
+    W, mass = reduced.basis, reductor.mass
+    MW = np.column_stack([mass(w) for w in W.T]) if callable(mass) else mass[:, None] * W
+    gram = W.T @ MW
+    # every point at weight 1 (a hard body's constraint on them too: its default weights)
+    everything = replace(reduced, points=all_points(reductor.body), pressure_weights=None)
+    out = {}
+    for name, schedule in tqdm(schedules.items(), desc="error sources", unit="run",
+                               disable=not progress, leave=False):
+        u = full_run(reduced.model, schedule, duration, dt, reductor.cache, progress=False)["u"]
+        finite = np.all(np.isfinite(u), axis=1)
+        best = np.full_like(u, np.nan)
+        best[finite] = np.linalg.solve(gram, (u[finite] @ MW).T).T @ W.T
+        u_all = reduced_run(everything, schedule, duration, dt)[0]
+        out[name] = {"projection_mm": float(np.nanmax(node_mean_mm(best, u))),
+                     "every_point_mm": float(np.nanmax(node_mean_mm(u_all, u)))}
+    return out
 
 
 def _render_worst(reduced: ReducedModel, results: dict[str, list[Comparison]],

@@ -2,7 +2,7 @@
 
     artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
                          [--incompressibility hard|penalty] [--random-training N]
-                         [--held-out N] [--held-out-seed S] [--train-only]
+                         [--held-out N] [--held-out-seed S] [--error-sources] [--train-only]
                          [--greedy-pool N --greedy-runs N --greedy-tol MM]
     mpiexec -n N artifem study tongue ...   the training shared over N ranks, the rest on one
 
@@ -39,8 +39,10 @@ On one tongue (each rank builds its own, on MPI.COMM_SELF):
 5. the train/test split (:mod:`artifem.reduction.generalization`, ``--held-out N``,
    default 5): the trained POD model with the renders' points on the training schedules,
    the motions and N random multi-exciter schedules drawn with a seed the training never
-   saw, its error beside a hierarchical estimate (no full run). ``--random-training N``
-   adds N random multi-exciter schedules to the training (seed ``training_seed``).
+   saw, its error beside a hierarchical estimate (no full run); ``--error-sources`` adds
+   where the error comes from (the basis' best approximation, the model with every point).
+   ``--random-training N`` adds N random multi-exciter schedules to the training (seed
+   ``training_seed``).
 
 Results: DIR/study.json, DIR/series.npz, DIR/frames/*.npz (full and reduced
 displacements at the time of largest error), DIR/generalization.json (.md, .png, series),
@@ -101,6 +103,9 @@ class StudyConfig:
     #: points of the renders; 0: none
     held_out: int = 5
     held_out_seed: int = 1000
+    #: the split also says where the error comes from (the basis' best approximation, the
+    #: reduced model with every point: ``generalization_study(sources=True)``)
+    error_sources: bool = False
     #: greedy training (:mod:`artifem.reduction.enrichment`): a pool of ``greedy_pool``
     #: random schedules (seed ``greedy_seed``) from which at most ``greedy_runs`` are added
     #: to the training, worst estimate first, until the estimate is <= ``greedy_tol`` mm
@@ -387,7 +392,8 @@ class TongueStudy:
             generalization_study(
                 self.reductor, self.out, basis=Basis("pod", c.pod_r),
                 points=self._render_points(),
-                held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt)
+                held_out=c.held_out, seed=c.held_out_seed, duration=c.duration, dt=c.dt,
+                sources=c.error_sources)
         (self.out / "study.json").write_text(json.dumps(study, indent=1))
         np.savez(self.out / "series.npz", **series)
         from artifem.reduction.study_report import write_report
@@ -462,6 +468,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 5; --quick: 0)")
     parser.add_argument("--held-out-seed", type=int, default=None,
                         help="their seed (default 1000; must differ from the training's)")
+    parser.add_argument("--error-sources", action="store_true", default=None,
+                        help="the split also reports where the error comes from: the full "
+                             "runs' projection on the basis and the reduced model with every "
+                             "integration point (one O(n)-per-step run each)")
     parser.add_argument("--greedy-pool", type=nonnegative_int, default=None,
                         help="greedy training: a pool of N random schedules (seed "
                              "--greedy-seed) from which the worst estimated are added to the "
@@ -483,7 +493,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
     names = ("random_training", "training_duration", "held_out", "held_out_seed",
-             "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed")
+             "error_sources", "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed")
     config = replace(config, **{name: getattr(args, name) for name in names
                                 if getattr(args, name) is not None})
     if args.points:
