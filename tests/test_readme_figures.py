@@ -258,6 +258,13 @@ def test_level1_split_figures_match_their_jsons():
     assert f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at " \
            f"{min(ms):.2f}-{max(ms):.2f} ms" in text
     assert f"{training['compute_seconds']:,.0f} s of computation" in page
+    best = [r["projection_mm"] for r in held]
+    every = [r["every_point_mm"] for r in held]
+    assert f"within {min(best):.2f}-{max(best):.2f} mm of the r = 20 basis" in page
+    assert f"is off by {min(every):.2f}-{max(every):.2f} mm, as much as" in page
+    ratio = [e / b for e, b in zip(every, best)]
+    assert f"error, {min(ratio):.1f}-{max(ratio):.1f}x the best approximation" in page
+    assert f"basis holds those runs within {max(best):.2f} mm" in text
 
 
 def test_styloglossus_reduced_sentence_matches_its_json():

@@ -1,6 +1,6 @@
 """The tongue speed-versus-error study of reduced models (Lloyd et al. 2019, section 2.3).
 
-    artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--quick]
+    artifem study tongue --out DIR [--level 0|1] [--points 600 300 200] [--pod-r 20] [--quick]
                          [--incompressibility hard|penalty] [--random-training N]
                          [--held-out N] [--held-out-seed S] [--error-sources] [--train-only]
                          [--greedy-pool N --greedy-runs N --greedy-tol MM]
@@ -447,6 +447,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tongue fidelity: 0 as shipped, 1 split 2x2x2")
     parser.add_argument("--points", type=positive_int, nargs="+", default=None,
                         help="integration point counts (default 600 300 200)")
+    parser.add_argument("--pod-r", type=positive_int, default=None,
+                        help="vectors of the trained POD basis (default 20)")
     parser.add_argument("--motions", nargs="+", choices=sorted(MOTIONS), default=None)
     parser.add_argument("--bases", nargs="+", choices=BASES, default=None,
                         help="bases to compare (default: extended-modal trained-pod)")
@@ -492,7 +494,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = quick_config(args.level) if args.quick else StudyConfig(level=args.level)
-    names = ("random_training", "training_duration", "held_out", "held_out_seed",
+    names = ("pod_r", "random_training", "training_duration", "held_out", "held_out_seed",
              "error_sources", "greedy_pool", "greedy_runs", "greedy_tol", "greedy_seed")
     config = replace(config, **{name: getattr(args, name) for name in names
                                 if getattr(args, name) is not None})
