@@ -265,6 +265,16 @@ def test_level1_split_figures_match_their_jsons():
     ratio = [e / b for e, b in zip(every, best)]
     assert f"error, {min(ratio):.1f}-{max(ratio):.1f}x the best approximation" in page
     assert f"basis holds those runs within {max(best):.2f} mm" in text
+    r30 = json.loads((ROOT / "docs" / "tongue_study" / "level1_r30" / "generalization.json")
+                     .read_text())
+    assert r30["reduced"]["basis"]["r"] == 30 and r30["reduced"]["points"]["count"] == 300
+    held = r30["sets"]["held-out"]
+    for pattern, key in (("lie within {}-{} mm", "projection_mm"),
+                         ("is off by {}-{} mm", "max_error_mm"),
+                         ("({}-{} mm with every point)", "every_point_mm"),
+                         ("at {}-{} ms per step", "reduced_ms_per_step")):
+        values = [r[key] for r in held]
+        assert pattern.format(f"{min(values):.2f}", f"{max(values):.2f}") in page, key
 
 
 def test_styloglossus_reduced_sentence_matches_its_json():
@@ -313,3 +323,31 @@ def test_jaw_tongue_split_figures_match_their_jsons():
             lo, hi = row[col].split("-")
             values = [r[key] for r in runs]
             assert agrees(lo, min(values)) and agrees(hi, max(values)), (name, key)
+
+
+def test_hard_against_penalty_bullet_matches_its_jsons():
+    """docs/tongue_study.md: the same each-alone training, hard and penalty, with the
+    error's sources."""
+    page = (ROOT / "docs" / "tongue_study.md").read_text().replace("\n  ", " ")
+    held = {inc: json.loads((ROOT / "docs" / "tongue_study" / f"level0_sources_{inc}" /
+                             "generalization.json").read_text())["sets"]["held-out"]
+            for inc in ("hard", "penalty")}
+
+    def span(values, unit=""):
+        return f"{min(values):.2f}-{max(values):.2f}{unit}"
+
+    def gap(runs):
+        ratios = [r["every_point_mm"] / r["projection_mm"] for r in runs]
+        return f"{min(ratios):.1f}-{max(ratios):.1f}x"
+
+    hard, penalty = held["hard"], held["penalty"]
+    assert (f"off by {span([r['max_error_mm'] for r in hard], ' mm')} on the held-out "
+            f"schedules, against {span([r['max_error_mm'] for r in penalty], ' mm')} with "
+            "the penalty") in page
+    assert (f"at {span([r['reduced_ms_per_step'] for r in hard], ' ms')} per step against "
+            f"{span([r['reduced_ms_per_step'] for r in penalty], ' ms')}") in page
+    assert f"its error is {gap(hard)} the best" in page and f"against {gap(penalty)} with" in page
+    lower = sum(h["max_error_mm"] < p["max_error_mm"] for h, p in zip(hard, penalty))
+    assert f"lowers the error on {['no', 'one', 'two', 'three', 'four', 'five', 'all'][lower]} " \
+           "of the six" in page
+    assert [r["name"] for r in hard if r["full_failed"]] == ["held-out-1000-2"]
