@@ -1,4 +1,5 @@
-"""The small muscle-driven beam the reduced-body tests share, and basis helpers."""
+"""The small muscle-driven beam the reduced-body tests share, basis helpers, and a
+counting scene builder."""
 
 import numpy as np
 import ufl
@@ -56,3 +57,14 @@ def random_basis(body, r, seed=0, scale=1.0):
     U = np.zeros((ndofs(body), r))
     U[free_rows(body)] = scale * rng.standard_normal((free_rows(body).size, r))
     return U
+
+
+class Builds:
+    """A model's build() that counts its calls."""
+
+    def __init__(self, make):
+        self.make, self.count = make, 0
+
+    def __call__(self):
+        self.count += 1
+        return self.make()

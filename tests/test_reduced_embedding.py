@@ -45,7 +45,7 @@ from artifem.reduction.reductor import Basis, Points, ReducibleScene, Training, 
 from artifem.reduction.schedules import random_schedules
 from artifem.scene import Scene, simulate
 from coupled_fd import master_force_difference
-from reduced_beam import make_body, ndofs
+from reduced_beam import Builds, make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
 
@@ -70,17 +70,6 @@ def beam_with_a_sheet(density: float = 1000.0) -> Scene:
     scene = Scene(gravity=(0.0, 0.0, -9.81))
     scene.add(beam, slave, EmbeddedFemAttachment(slave, beam, name="membrane"))
     return scene
-
-
-class Builds:
-    """A model's build() that counts its calls."""
-
-    def __init__(self, make):
-        self.make, self.count = make, 0
-
-    def __call__(self) -> Scene:
-        self.count += 1
-        return self.make()
 
 
 def hinged_beam_with_a_sheet() -> Scene:

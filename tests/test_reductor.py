@@ -37,22 +37,11 @@ from artifem.reduction.reductor import (Basis, Points, ReducibleScene, Reductor,
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
 from artifem.scene.inputs import Gravity, SurfaceLoadLevel
-from reduced_beam import make_body, ndofs
+from reduced_beam import Builds, make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
 
 DT = 0.01
-
-
-class Builds:
-    """A model's build() that counts its calls."""
-
-    def __init__(self, make):
-        self.make, self.count = make, 0
-
-    def __call__(self) -> Scene:
-        self.count += 1
-        return self.make()
 
 
 def free_beam() -> Scene:

@@ -57,6 +57,11 @@ __all__ = ["GreedyTraining", "greedy_training", "GreedyPoints", "greedy_points",
            "visited_states", "cubature_residual"]
 
 
+def _finite(value):
+    """JSON-able: an infinite value (a failed run's) as None."""
+    return value if value is None or np.isfinite(value) else None
+
+
 @dataclass
 class GreedyTraining:
     """What :func:`greedy_training` did: the final training and reduced model, why it
@@ -74,10 +79,8 @@ class GreedyTraining:
 
     def summary(self) -> dict:
         """JSON-able: an estimate whose reduced run failed (inf) is None."""
-        def finite(value):
-            return value if value is None or np.isfinite(value) else None
-        history = [{**entry, "max_estimate_mm": finite(entry["max_estimate_mm"]),
-                    "estimates_mm": {k: finite(v) for k, v in entry["estimates_mm"].items()}}
+        history = [{**entry, "max_estimate_mm": _finite(entry["max_estimate_mm"]),
+                    "estimates_mm": {k: _finite(v) for k, v in entry["estimates_mm"].items()}}
                    for entry in self.history]
         return {"stopped": self.stopped, "runs": len(self.training.schedules),
                 "history": history}
@@ -171,10 +174,8 @@ class GreedyPoints:
 
     def summary(self) -> dict:
         """JSON-able."""
-        def finite(value):
-            return value if value is None or np.isfinite(value) else None
-        history = [{**entry, "max_indicator": finite(entry["max_indicator"]),
-                    "indicators": {k: finite(v) for k, v in entry["indicators"].items()}}
+        history = [{**entry, "max_indicator": _finite(entry["max_indicator"]),
+                    "indicators": {k: _finite(v) for k, v in entry["indicators"].items()}}
                    for entry in self.history]
         return {"stopped": self.stopped, "rounds": len(self.history) - 1,
                 "extra_states": 0 if self.states is None else int(self.states[0].shape[0]),
