@@ -687,6 +687,13 @@ class FemBody:
         self.compile()
         return self._compiled["detF"].eval(self.mesh, self._owned_cells)
 
+    def constraint_failure(self) -> str | None:
+        """After a step (the body interface; collective): None, or which of the body's own
+        constraints the step left off by more than it may (the hard incompressibility's
+        ``step_tol``: :meth:`~artifem.incompressibility.VolumeConstraint.step_failure`)."""
+        vc = self.volume_constraint
+        return None if vc is None else vc.step_failure()
+
     def inverted_elements(self) -> tuple[np.ndarray, float]:
         """(input indices of elements with det F <= 0 anywhere, global min det F)."""
         detF = self.det_F()

@@ -310,6 +310,10 @@ class RigidBody:
         self.position, self.rotation = np.array(p, dtype=float), np.array(R, dtype=float)
         self.set_twist(u)
 
+    def constraint_failure(self) -> None:
+        """A rigid body has no constraints of its own (the body interface)."""
+        return None
+
     def inverted_elements(self) -> tuple[np.ndarray, float]:
         """A rigid body has no elements to invert: (none, inf) (the body interface)."""
         return np.zeros(0, dtype=np.int64), np.inf

@@ -431,6 +431,12 @@ class ReducedFemBody:
         finally:
             self.full.set_state(saved)
 
+    def constraint_failure(self) -> str | None:
+        """After a step (the body interface): None, or the reduced volume constraint left
+        off by more than its ``step_tol`` (FemBody.constraint_failure)."""
+        vc = self.volume_constraint
+        return None if vc is None else vc.step_failure()
+
     def inverted_elements(self) -> tuple[np.ndarray, float]:
         """(input indices of cells with an integration point at det F <= 0 or NaN, min det F)."""
         detF = self.det_F()

@@ -258,6 +258,14 @@ class ReducedVolumeConstraint:
         self.lam = self.augmented()
         return violation
 
+    def step_failure(self) -> str | None:
+        """After a step: None while max_k |c_k| / n_k <= ``step_tol``, else where it is not
+        (the full body's :meth:`~artifem.incompressibility.VolumeConstraint.step_failure`)."""
+        if self.violation() <= self.spec.step_tol:
+            return None
+        return self.describe().replace(f"more than {self.spec.tol:g}",
+                                       f"more than the step's {self.spec.step_tol:g}")
+
     def describe(self, c: np.ndarray | None = None) -> str:
         """Which pressure modes miss the tolerance, by how much."""
         c = self.values() if c is None else c

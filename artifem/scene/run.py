@@ -3,7 +3,7 @@ writes ParaView series, and reports speed and robustness.
 
     run = simulate(scene, 1.0, 0.01, record={"tip": lambda s: tip.position()},
                    vtx="out/")
-    run.records["tip"], run.ms_per_step, run.halvings, run.min_det_F
+    run.records["tip"], run.ms_per_step, run.halvings, run.fallbacks, run.min_det_F
 
 Under ``mpiexec`` (FEM bodies on several ranks) every rank calls it; the step times
 are measured between barriers and the progress bar is shown on rank 0.
@@ -41,6 +41,9 @@ class Run:
     snapshots: dict = field(default_factory=dict)
     #: the step failure that ended the run early (``on_failure="stop"``), else None
     failure: Exception | None = None
+    #: steps the scene's fallback integrator completed after the semi-implicit step failed
+    #: (``Scene.fallbacks``; like ``halvings``, counted since the scene was built or reset)
+    fallbacks: int = 0
 
     @property
     def ms_per_step(self) -> float:
@@ -138,7 +141,7 @@ def simulate(scene, duration: float, dt: float, *,
             writer.close()
     return Run(np.array(times), {name: np.array(v) for name, v in values.items()},
                np.array(step_ms), int(scene.halvings), float(scene.min_det_F), snapshots,
-               failure)
+               failure, int(scene.fallbacks))
 
 
 def _copy(u: fem.Function) -> fem.Function:

@@ -271,6 +271,12 @@ class Scene:
             with ``advance(body, h, solver)`` and ``advance_reduced(body, h)``.
         linear_solver: the :class:`~artifem.linear_solver.LinearSolver` method of those
             FEM bodies (PETSc: CG with algebraic multigrid by default, or ``"mumps"``).
+        fallback: the integrator that retries a step the semi-implicit one fails (an
+            inverted element, volumes not held, a failed solve) before the step is
+            halved: ``"implicit"`` (the default: Newton on the same backward Euler
+            equations, :meth:`step`) or None (halve at once). Used only when
+            ``integrator`` is the semi-implicit one and the island is not the
+            distributed Schur island.
         island_solver: how the coupled island's linear system is solved: ``"direct"``
             (one sparse or dense LU of the whole KKT system, serial) or ``"schur"`` (FEM
             blocks distributed, solved by ``linear_solver``, the rigid coordinates by a
@@ -281,7 +287,7 @@ class Scene:
     def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
                  geometric_stiffness: bool = True, max_halvings: int = 4,
                  integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD,
-                 island_solver: str | None = None):
+                 island_solver: str | None = None, fallback: str | None = "implicit"):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
@@ -297,11 +303,17 @@ class Scene:
         for method in ("advance", "advance_reduced"):
             if not callable(getattr(integrator, method, None)):
                 raise InputError(f"integrator {integrator!r} has no {method}() method")
+        if fallback not in (None, "implicit"):
+            raise InputError(f"fallback must be 'implicit' or None, got {fallback!r}")
         if linear_solver not in METHODS:
             raise InputError(f"unknown linear solver {linear_solver!r}; choose one of {METHODS}")
         if island_solver not in (None, "direct", "schur"):
             raise InputError(f"island_solver must be 'direct' or 'schur', got {island_solver!r}")
         self.integrator = integrator
+        #: the integrator that retries a failed semi-implicit step before it is halved
+        self.fallback = ImplicitEuler() if fallback is not None and getattr(
+            integrator, "name", None) == "semi-implicit" else None
+        self.fallbacks = 0              # steps completed by the fallback integrator
         self.linear_solver = linear_solver
         self.island_solver = island_solver
         self._schur = None              # the SchurIsland stepping the coupled island, if any
@@ -626,11 +638,15 @@ class Scene:
         """Advance from t to t + h: the controllers, one linearized step (module docstring),
         then the health of every body (finite coordinates, det F > 0 at every quadrature
         point; a reduced body's at its integration points). A failed step (unhealthy, or a
-        singular or failed solve) is undone (:meth:`restore_state`) and retried as two
-        steps of half the size, recursively up to ``max_halvings`` times; beyond that it
-        raises :class:`~artifem.errors.ElementInversionError` (body, time, elements,
-        smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left at the
-        start of the failed step."""
+        singular or failed solve) is undone (:meth:`restore_state`) and retried by the
+        ``fallback`` integrator (Newton on the same backward Euler equations: it holds
+        where the linearization at the start of the step does not, e.g. a full excitation
+        switched on at once; ``fallbacks`` counts the steps it completed), so the cost is
+        the semi-implicit step's wherever that succeeds. A step that fails both ways is
+        retried as two steps of half the size, recursively up to ``max_halvings`` times;
+        beyond that it raises :class:`~artifem.errors.ElementInversionError` (body, time,
+        elements, smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left
+        at the start of the failed step."""
         if not (np.isfinite(h) and h > 0):
             raise InputError(f"time step must be positive and finite, got {h!r}")
         self._advance(h, depth=0)
@@ -639,11 +655,15 @@ class Scene:
         for controller in self.controllers:
             controller(self, self.t, self.t + h)
         saved = self.save_state()
-        try:
-            self._step_once(h)
-            failure = self._health()
-        except (StepFailed, LinearSolveError) as exc:
-            failure = _Failure(str(exc), self._inverted())
+        failure = self._attempt(h, self.integrator)
+        if failure is not None and self.fallback is not None and self._schur is None:
+            self.restore_state(saved)
+            retried = self._attempt(h, self.fallback)
+            if retried is None:
+                self.fallbacks += 1
+                return
+            failure = _Failure(f"{failure.message}; the {self.fallback.name} retry: "
+                               f"{retried.message}", retried.inverted or failure.inverted)
         if failure is None:
             return
         self.restore_state(saved)
@@ -652,6 +672,14 @@ class Scene:
         self.halvings += 1
         self._advance(h / 2, depth + 1)
         self._advance(h / 2, depth + 1)
+
+    def _attempt(self, h: float, integrator) -> _Failure | None:
+        """One step by ``integrator`` and the health check: None, or what went wrong."""
+        try:
+            self._step_once(h, integrator)
+            return self._health()
+        except (StepFailed, LinearSolveError) as exc:
+            return _Failure(str(exc), self._inverted())
 
     def _inverted(self) -> list:
         """(body name, inverted elements, min det F) of every body with det F <= 0 now."""
@@ -676,6 +704,10 @@ class Scene:
         if inverted:
             return _Failure("inverted elements in " + ", ".join(repr(n) for n, *_ in inverted),
                             inverted)
+        for body in self.bodies:
+            off = body.constraint_failure()
+            if off is not None:
+                return _Failure(off, [])
         self.min_det_F = min(self.min_det_F, step_min)
         return None
 
@@ -686,20 +718,21 @@ class Scene:
             raise ElementInversionError(self.t + h, bad, min_det, detail, body=name)
         raise StepFailed(f"step failed at t = {self.t:.6g} s: {detail}")
 
-    def _step_once(self, h: float) -> None:
+    def _step_once(self, h: float, integrator) -> None:
         """One step from t to t + h (module docstring), no checks: the bodies on their own
-        by the integrator, the coupled island by one linearized solve."""
+        by ``integrator``, the coupled island by one linearized solve or, with the
+        implicit integrator, by Newton (:func:`~artifem.scene.implicit_step.implicit_step`)."""
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]
         for body in free_fem:
-            self.integrator.advance(body, h, self.linear_solver_for(body))
+            integrator.advance(body, h, self.linear_solver_for(body))
         for body in free_reduced:
-            self.integrator.advance_reduced(body, h)
+            integrator.advance_reduced(body, h)
         if self._schur is not None:
             self._record_impulses(L, self._schur.step(h), h)
-        elif L.n_all and self.integrator.name == "implicit":
-            impulses, merits = implicit_step(self, L, h, self.integrator.rtol,
-                                             self.integrator.atol, self.integrator.max_iterations)
+        elif L.n_all and integrator.name == "implicit":
+            impulses, merits = implicit_step(self, L, h, integrator.rtol, integrator.atol,
+                                             integrator.max_iterations)
             self._record_impulses(L, impulses, h)
             self.last_solve = {"masters": L.n_masters, "newton_iterations": len(merits) - 1,
                                "merits": merits}

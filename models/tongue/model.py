@@ -236,6 +236,7 @@ class Tongue:
         self.scene.t = 0.0
         self.scene.min_det_F = np.inf
         self.scene.halvings = 0
+        self.scene.fallbacks = 0
 
     def drive(self, schedule: ExcitationSchedule) -> None:
         """Apply an exciter schedule at every step (replacing earlier ones)."""
