@@ -131,6 +131,17 @@ def test_unknown_integrator():
         Scene(integrator="rk4")
 
 
+def test_unknown_fallback_integrator():
+    with pytest.raises(InputError, match=r"fallback must be 'implicit' or None, got 'rk4'"):
+        Scene(fallback="rk4")
+
+
+def test_a_step_tolerance_below_the_constraint_tolerance():
+    from artifem.incompressibility import Incompressible
+    with pytest.raises(InputError, match=r"step_tol must be >= tol \(0\.001\), got 0\.0001"):
+        Incompressible(kappa=1e4, tol=1e-3, step_tol=1e-4)
+
+
 def test_unknown_linear_solver_in_the_solver():
     with pytest.raises(ValueError, match=r"unknown linear solver 'umfpack'; choose one of .*mumps"):
         LinearSolver(MPI.COMM_WORLD, "umfpack")

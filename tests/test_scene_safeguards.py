@@ -87,8 +87,28 @@ def assert_same(a, b, rtol=1e-12):
         assert np.abs(x - y).max() <= rtol * max(np.abs(y).max(), 1e-300), key
 
 
+def test_a_failed_step_is_undone_and_retried_by_the_implicit_step_before_halving():
+    """Scene.fallback (the default): the glitched semi-implicit step is undone and the same
+    step is taken by the implicit Newton step (the glitch is gone by then), exactly as a
+    twin scene stepped implicitly from the start gives it; no halving."""
+    failing, *parts_f = hinged_beam(glitch=True)
+    calls = []
+    failing.add_controller(lambda scene, t0, t1: calls.append((t0, t1)))
+    failing.step(H)
+    assert (failing.fallbacks, failing.halvings) == (1, 0)
+    assert calls == [(0.0, H)]
+
+    twin, *parts_t = hinged_beam()
+    twin.integrator = type(failing.fallback)()
+    twin.step(H)
+    a, b = snapshot(failing, *parts_f), snapshot(twin, *parts_t)
+    assert np.abs(b["u"]).max() > 1e-5                                  # it moved
+    assert_same(a, b, rtol=1e-10)
+
+
 def test_a_failed_step_is_undone_and_retried_as_two_exact_half_steps():
     failing, *parts_f = hinged_beam(glitch=True)
+    failing.fallback = None                      # halving alone (the fallback: above)
     calls = []
     failing.add_controller(lambda scene, t0, t1: calls.append((t0, t1)))
     failing.step(H)                              # the first try inverts: halved once
