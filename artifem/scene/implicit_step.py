@@ -14,20 +14,39 @@ p_0 + h v and exp(h [w]x) R_0, prescribed bodies at their targets, slaves set
 exactly from their roots), f every applied force (elastic, gravity, damping,
 gyroscopic, force and path elements, loads) at that configuration and those
 velocities. Newton at a trial z_t solves the step's KKT system at the trial
-state (artifem.scene.scene docstring: A = M + h D + h^2 K there, and K_geo):
+state (artifem.scene.scene docstring: A = M + h D + h^2 K there):
 
     [ J      -G_m^T ] [ z_new  ]   [ J z_t - r(z_t)         ]
-    [ G_m     0     ] [ lambda ] = [ G_m z_t - phi(q_t) / h ],     J = P^T A P - h^2 K_geo,
+    [ G_x     0     ] [ lambda ] = [ G_x z_t - phi(q_t) / h ],     J, G_x below,
 
 with the joint limits by the same active set, then z_t += s (z_new - z_t), s the
 largest of 1, 1/2, ... whose configuration inverts no element and lowers the
 merit |r - G_m^T lambda| + m |phi| / h (m the mean master mass: one unit). It
 stops when the merit falls below ``rtol`` times its first value or ``atol``, or
-when a full step is at round-off. The Jacobian leaves out how the joint rows turn
-with the bodies (d(G^T lambda)/dq) and takes the joints' reactions in K_geo from
-the last step, so with loaded joints Newton converges linearly at a rate of
-about h^2 |lambda| / (m h) per iteration (measured: a hinged rod at h = 10 ms,
-merit 0.1 -> 4e-5 -> 4e-8 -> 6e-11), quadratically without them.
+when a full step is at round-off.
+
+The Jacobian is the exact derivative of these equations as formed
+(:class:`NewtonSystem`; tests/test_scene_implicit_jacobian.py checks it against
+finite differences). With P_t the prolongation at the trial state and T the
+rotation update's derivative (identity but dexp(h w) on each root's rotation:
+exp(h [w + dw]x) R_0 = exp(h [dexp(h w) dw]x) exp(h [w]x) R_0), the configuration
+moves by h P_t T dz_m, so
+
+    J   = P^T (A - M(q_t) + M_0) P + P^T A_pos (P_t T - P) - h^2 P^T K_gyro P_t T
+          - h P^T K_lambda P_t T,
+    G_x = G(q_t) P_t T                  (the rows of d(phi / h)/dz_m),
+
+A_pos the part of A from the forces' position derivatives (h^2 K), K_gyro the
+gyroscopic wrench's turn with the body, K_lambda = d(G^T lambda)/dq the joint and
+limit rows' geometric stiffness at the iterate's impulses (``Joint.constraint_stiffness``,
+``Joint.limit_stiffness``; the last step's on the first iteration), and the KKT
+system's first row takes G_m^T (the residual's forces), its second G_x. The
+attachments' K_geo of the semi-implicit step is not a derivative of this residual
+(its P is the one at the start of the step) and is left out (it took Newton from 3
+to 5-6 iterations); ``Scene.geometric_stiffness`` does not change this step. Left
+out: the derivative of Rayleigh's beta K(q) v and of a path's damping D(q) by the
+configuration. Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5 -> 2e-11
+(before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
 
 As in the semi-implicit step, M and the velocity map P are taken at the start of
 the step (a rigid body's world inertia turns with it). The Rayleigh damping
