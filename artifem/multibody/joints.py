@@ -41,7 +41,7 @@ from typing import ClassVar
 import numpy as np
 
 from artifem.errors import InputError
-from artifem.multibody.rigid_body import Frame, RigidBody, cross
+from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew, skews
 
 __all__ = ["ConstraintRows", "FixedJoint", "Joint", "PlanarJoint", "RevoluteJoint",
            "SliderJoint", "SphericalJoint", "axis_rotation"]
@@ -255,3 +255,117 @@ class PlanarJoint(Joint):
 
     TRANSLATION = (2,)
     ROTATION = ALIGN_Z
+
+
+# ---- the rows' geometric stiffness: d(G^T lambda)/dq at fixed lambda -------------------------
+#
+# Columns and rows in the order [p_A, theta_A, p_B, theta_B] (12), the poses perturbed as
+# p += dp, R = exp([dtheta]x) R (world), rows the wrenches G_A^T lambda and G_B^T lambda.
+# A frame on the world has no rows and no columns (left zero).
+
+def _translation_stiffness(fa: Frame, fb: Frame, force: np.ndarray) -> np.ndarray:
+    """Of translation rows whose reaction is the world force f = sum_k lambda_k b_k at x_A
+    (b_k the axes of frame B, turning with body B): on A [f; r_A x f], on B
+    -[f; (x_A - p_B) x f]."""
+    K = np.zeros((12, 12))
+    F = skew(force)
+    a, b = fa.body is not None, fb.body is not None
+    r_a = fa.lever()
+    if a:
+        K[3:6, 3:6] = F @ skew(r_a)                 # the lever of A turns
+    if b:
+        e = fa.world_position() - fb.body.position
+        K[9:12, 9:12] = skew(e) @ F                 # f turns with B, lever fixed
+        K[6:9, 9:12] = F                            # -f turns with B
+        K[9:12, 6:9] = -F                           # the lever x_A - p_B shortens with p_B
+        if a:
+            K[0:3, 9:12] = -F
+            K[3:6, 9:12] = -skew(r_a) @ F
+            K[9:12, 0:3] = F
+            K[9:12, 3:6] = -F @ skew(r_a)
+    return K
+
+
+def _rotation_stiffness(fa: Frame, fb: Frame, M: np.ndarray) -> np.ndarray:
+    """Of rotation rows with the torque tau_A = sum_ij M_ij a_i x b_j = -tau_B."""
+    K = np.zeros((12, 12))
+    A, B = fa.world_rotation(), fb.world_rotation()
+    SA, SB = skews(A.T), skews(B.T)                 # [a_i]x, [b_j]x
+    dA = np.einsum("ij,jkl,ilm->km", M, SB, SA)     # sum M_ij [b_j]x [a_i]x
+    dB = -np.einsum("ij,ikl,jlm->km", M, SA, SB)    # -sum M_ij [a_i]x [b_j]x
+    a, b = fa.body is not None, fb.body is not None
+    for on, sign in ((a, 1.0), (b, -1.0)):
+        if not on:
+            continue
+        r = 3 if sign > 0 else 9
+        if a:
+            K[r:r + 3, 3:6] = sign * dA
+        if b:
+            K[r:r + 3, 9:12] = sign * dB
+    return K
+
+
+def _joint_constraint_stiffness(self, lam) -> np.ndarray:
+    """d(G^T lambda)/dq of :meth:`Joint.constraint`'s rows at fixed impulses ``lam``
+    (12 x 12: [p_A, theta_A, p_B, theta_B], see above)."""
+    lam = np.asarray(lam, dtype=float)
+    K = np.zeros((12, 12))
+    n_t = len(self.TRANSLATION)
+    if n_t:
+        axes = self.frame_b.world_rotation()[:, list(self.TRANSLATION)]
+        K += _translation_stiffness(self.frame_a, self.frame_b, axes @ lam[:n_t])
+    if len(self.ROTATION):
+        K += _rotation_stiffness(self.frame_a, self.frame_b,
+                                 np.einsum("r,rij->ij", lam[n_t:], self.ROTATION))
+    return K
+
+
+def _joint_limit_stiffness(self, lam) -> np.ndarray:
+    """d(G^T lambda)/dq of :meth:`Joint.unilateral`'s two rows (+G, -G) at fixed ``lam``."""
+    lam = np.asarray(lam, dtype=float)
+    if self.limits is None or not lam.size:
+        return np.zeros((12, 12))
+    return self._coordinate_stiffness(float(lam[0] - lam[1]))
+
+
+def _revolute_coordinate_stiffness(self, lam: float) -> np.ndarray:
+    """The angle row g = (c (a_x x b_y) - s (a_x x b_x)) / (c^2 + s^2) on [0; g] (A) and
+    [0; -g] (B): d(lam g)/dtheta_A and /dtheta_B."""
+    K = np.zeros((12, 12))
+    a_x = self.frame_a.world_rotation()[:, 0]
+    B = self.frame_b.world_rotation()
+    b_x, b_y = B[:, 0], B[:, 1]
+    s, c = a_x @ b_y, a_x @ b_x
+    u, w = cross(a_x, b_y), cross(a_x, b_x)
+    n = c * c + s * s
+    g = (c * u - s * w) / n
+    dn = 2.0 * (c * w + s * u)                       # dn = dn . (dtheta_A - dtheta_B)
+    base = (np.outer(u, w) - np.outer(w, u) - np.outer(g, dn)) / n
+    Ax, By, Bx = skew(a_x), skew(b_y), skew(b_x)
+    dA = base + (c * By @ Ax - s * Bx @ Ax) / n
+    dB = -base + (-c * Ax @ By + s * Ax @ Bx) / n
+    a, b = self.frame_a.body is not None, self.frame_b.body is not None
+    for on, r, sign in ((a, 3, 1.0), (b, 9, -1.0)):
+        if not on:
+            continue
+        if a:
+            K[r:r + 3, 3:6] = sign * lam * dA
+        if b:
+            K[r:r + 3, 9:12] = sign * lam * dB
+    return K
+
+
+def _slider_coordinate_stiffness(self, lam: float) -> np.ndarray:
+    return _translation_stiffness(self.frame_a, self.frame_b,
+                                  lam * self.frame_b.world_rotation()[:, 2])
+
+
+def _no_coordinate_stiffness(self, lam: float) -> np.ndarray:
+    raise NotImplementedError
+
+
+Joint.constraint_stiffness = _joint_constraint_stiffness
+Joint.limit_stiffness = _joint_limit_stiffness
+Joint._coordinate_stiffness = _no_coordinate_stiffness
+RevoluteJoint._coordinate_stiffness = _revolute_coordinate_stiffness
+SliderJoint._coordinate_stiffness = _slider_coordinate_stiffness

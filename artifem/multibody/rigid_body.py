@@ -86,6 +86,17 @@ def exp_so3(phi) -> np.ndarray:
     return np.eye(3) + (np.sin(t) / t) * K + ((1.0 - np.cos(t)) / (t * t)) * K @ K
 
 
+def dexp_so3(phi) -> np.ndarray:
+    """The left Jacobian of exp: exp([phi + dphi]x) = exp([J dphi]x) exp([phi]x) + O(dphi^2),
+    J = 1 + (1 - cos t) / t^2 [phi]x + (t - sin t) / t^3 [phi]x^2, t = |phi|."""
+    phi = np.asarray(phi, dtype=float)
+    t = float(np.linalg.norm(phi))
+    K = skew(phi)
+    if t < 1e-6:                        # series: error O(t^3)
+        return np.eye(3) + 0.5 * K + K @ K / 6.0
+    return np.eye(3) + ((1.0 - np.cos(t)) / (t * t)) * K + ((t - np.sin(t)) / t ** 3) * K @ K
+
+
 def orthonormalize(R: np.ndarray) -> np.ndarray:
     """The rotation nearest to R (polar factor U V^T of R = U S V^T)."""
     U, _, Vt = np.linalg.svd(R)

@@ -30,7 +30,7 @@ __all__ = ["solve_constrained"]
 
 
 def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: list,
-                      what: str, resolver: bool = False):
+                      what: str, resolver: bool = False, force_rows: list | None = None):
     """(z, lambda, active rows) of the system above.
 
     ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver);
@@ -39,7 +39,11 @@ def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: lis
     is returned in that order (bilateral first). With ``resolver``, a fourth item:
     ``resolve(b) -> (z, lambda)``, the same system for another right-hand side with
     c = 0 and the active rows kept (the factorization reused; the pressure iterations
-    of :func:`artifem.incompressibility.hold_linearized`).
+    of :func:`artifem.incompressibility.hold_linearized`). ``force_rows`` (one block per
+    group, bilateral first; default the groups' own rows) are the rows F of the first
+    block row, A z - F^T lambda = b, when they differ from the constraint rows G (Newton
+    on a residual whose constraint forces and constraint values have different
+    derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
     """
     groups = bilateral + unilateral
     n = A.shape[0]
@@ -55,7 +59,11 @@ def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: lis
     G = sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
         np.vstack(blocks)
     c = np.concatenate([g[-1] for g in groups])
-    X = solver.apply(np.column_stack([b, G.T.toarray() if sparse.issparse(G) else G.T]))
+    F = G
+    if force_rows is not None:
+        F = sparse.vstack(force_rows).tocsr() if any(sparse.issparse(x) for x in force_rows) \
+            else np.vstack(force_rows)
+    X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
     a, W = X[:, 0], X[:, 1:]
     S = np.asarray(G @ W)
     r = c - G @ a

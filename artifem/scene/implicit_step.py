@@ -14,20 +14,39 @@ p_0 + h v and exp(h [w]x) R_0, prescribed bodies at their targets, slaves set
 exactly from their roots), f every applied force (elastic, gravity, damping,
 gyroscopic, force and path elements, loads) at that configuration and those
 velocities. Newton at a trial z_t solves the step's KKT system at the trial
-state (artifem.scene.scene docstring: A = M + h D + h^2 K there, and K_geo):
+state (artifem.scene.scene docstring: A = M + h D + h^2 K there):
 
     [ J      -G_m^T ] [ z_new  ]   [ J z_t - r(z_t)         ]
-    [ G_m     0     ] [ lambda ] = [ G_m z_t - phi(q_t) / h ],     J = P^T A P - h^2 K_geo,
+    [ G_x     0     ] [ lambda ] = [ G_x z_t - phi(q_t) / h ],     J, G_x below,
 
 with the joint limits by the same active set, then z_t += s (z_new - z_t), s the
 largest of 1, 1/2, ... whose configuration inverts no element and lowers the
 merit |r - G_m^T lambda| + m |phi| / h (m the mean master mass: one unit). It
 stops when the merit falls below ``rtol`` times its first value or ``atol``, or
-when a full step is at round-off. The Jacobian leaves out how the joint rows turn
-with the bodies (d(G^T lambda)/dq) and takes the joints' reactions in K_geo from
-the last step, so with loaded joints Newton converges linearly at a rate of
-about h^2 |lambda| / (m h) per iteration (measured: a hinged rod at h = 10 ms,
-merit 0.1 -> 4e-5 -> 4e-8 -> 6e-11), quadratically without them.
+when a full step is at round-off.
+
+The Jacobian is the exact derivative of these equations as formed
+(:class:`NewtonSystem`; tests/test_scene_implicit_jacobian.py checks it against
+finite differences). With P_t the prolongation at the trial state and T the
+rotation update's derivative (identity but dexp(h w) on each root's rotation:
+exp(h [w + dw]x) R_0 = exp(h [dexp(h w) dw]x) exp(h [w]x) R_0), the configuration
+moves by h P_t T dz_m, so
+
+    J   = P^T (A - M(q_t) + M_0) P + P^T A_pos (P_t T - P) - h^2 P^T K_gyro P_t T
+          - h P^T K_lambda P_t T,
+    G_x = G(q_t) P_t T                  (the rows of d(phi / h)/dz_m),
+
+A_pos the part of A from the forces' position derivatives (h^2 K), K_gyro the
+gyroscopic wrench's turn with the body, K_lambda = d(G^T lambda)/dq the joint and
+limit rows' geometric stiffness at the iterate's impulses (``Joint.constraint_stiffness``,
+``Joint.limit_stiffness``; the last step's on the first iteration), and the KKT
+system's first row takes G_m^T (the residual's forces), its second G_x. The
+attachments' K_geo of the semi-implicit step is not a derivative of this residual
+(its P is the one at the start of the step) and is left out (it took Newton from 3
+to 5-6 iterations); ``Scene.geometric_stiffness`` does not change this step. Left
+out: the derivative of Rayleigh's beta K(q) v and of a path's damping D(q) by the
+configuration. Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5 -> 2e-11
+(before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
 
 As in the semi-implicit step, M and the velocity map P are taken at the start of
 the step (a rigid body's world inertia turns with it). The Rayleigh damping
@@ -43,7 +62,75 @@ from scipy import sparse
 from artifem.errors import StepFailed
 from artifem.scene.constraints import impulses_by_joint, solve_constrained
 
-__all__ = ["implicit_step"]
+__all__ = ["NewtonSystem", "implicit_step"]
+
+
+class NewtonSystem:
+    """The residual of the step from t to t + h and its exact Jacobian (module docstring),
+    at trial master velocities z_m; builds on ``L`` (the layout) at the start of the step.
+    ``place(z_m)`` puts the scene at the trial state, ``residual(z_m)`` places and gives
+    (r, A_all, f_all, bilateral, unilateral) there, ``jacobian(z_m, lam)`` (at the placed
+    trial state) the KKT blocks of Newton's step."""
+
+    def __init__(self, scene, L, h: float):
+        self.scene, self.L, self.h = scene, L, h
+        self.t1 = scene.t + h
+        self.targets = L.kinematic_targets(self.t1)
+        for body, (_, _, twist) in self.targets.items():
+            body.set_twist(twist)
+        self.P = L.prolongation()
+        self.z_k = L.known_velocities(h, self.targets)
+        self.M0 = L.mass_matrix()
+        self.z0 = L.current_velocities()
+        self.Mz0 = self.M0 @ self.z0
+        self.start = L.save()
+        self._A_pos = None
+
+    def place(self, z_m):
+        L = self.L
+        L.restore(self.start)
+        L.advance(self.P @ z_m + self.z_k, self.h, self.targets)
+
+    def residual(self, z_m):
+        """(r_m, A_all, f_all, joint rows) at the trial state of z_m (placed)."""
+        L, P, h = self.L, self.P, self.h
+        self.place(z_m)
+        A, _, f_all, self._A_pos = L.dynamics(h, self.t1, linearized=False, positional=True)
+        r = P.T @ (self.M0 @ (P @ z_m + self.z_k) - self.Mz0 - h * f_all)
+        bilateral, unilateral = L.joint_rows(P, np.zeros(L.n_all), h, 1.0)
+        return np.asarray(r).ravel(), A, f_all, bilateral, unilateral
+
+    def jacobian(self, z_m, A, bilateral, unilateral, lam):
+        """(J, constraint rows) of Newton's KKT system at the trial state of z_m (the last
+        one :meth:`residual` placed) for the impulses ``lam``: J = d(r - G_m^T lam)/dz_m and
+        the rows d(phi / h)/dz_m, one block per group of ``bilateral + unilateral``."""
+        L, P, h = self.L, self.P, self.h
+        # the master displacements per unit h dz_m at the trial state: P_t T
+        PT = L.fmt(L.prolongation() @ L.rotation_jacobian(z_m, h))
+        # r = P^T [M0 (P z_m + z_k) - M0 z0 - h f(q_0 + h P_t T z_m, P z_m + z_k)]:
+        # the velocity part of A on P, its position part on P_t T, M0 for A's M(q_t)
+        J = P.T @ (A - L.mass_matrix() + self.M0) @ P \
+            + P.T @ self._A_pos @ (PT - P) \
+            - h * h * (P.T @ L.gyroscopic_stiffness() @ PT)
+        if len(lam) and np.any(lam):                # the joint rows turn with the bodies
+            J = J - h * (P.T @ L.joint_stiffness(bilateral, unilateral, lam) @ PT)
+        rows = L.joint_rows(PT, np.zeros(L.n_all), h, 1.0)
+        return L.fmt(J), [g[2] for g in rows[0] + rows[1]]
+
+
+def _guess(scene, bilateral, unilateral, h):
+    """The last step's impulses (scaled to h) in the order of the groups: the first
+    Jacobian's joint stiffness (the merit starts from lambda = 0)."""
+    out, seen = [], {}
+    last = scene._impulses or {}
+    ratio = h / scene._last_h if scene._last_h else 0.0
+    for joint, _, _, c in bilateral + unilateral:
+        k = seen.get(joint, 0)
+        seen[joint] = k + 1
+        parts = last.get(joint, [])
+        lam = parts[k][1] if k < len(parts) and len(parts[k][1]) == len(c) else np.zeros(len(c))
+        out.append(ratio * np.asarray(lam, dtype=float))
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: int):
@@ -51,16 +138,8 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     (joint impulses as the step gives them, the merit after each Newton iteration, the
     first value included). Raises StepFailed when the line search or Newton fails (the
     scene then halves the step)."""
-    t1 = scene.t + h
-    targets = L.kinematic_targets(t1)
-    for body, (_, _, twist) in targets.items():
-        body.set_twist(twist)
-    P = L.prolongation()
-    z_k = L.known_velocities(h, targets)
-    M0 = L.mass_matrix()
-    z0 = L.current_velocities()
-    Mz0 = M0 @ z0
-    start = L.save()
+    system = NewtonSystem(scene, L, h)
+    P, z_k, targets, M0, z0 = system.P, system.z_k, system.targets, system.M0, system.z0
     diag = (M0.diagonal() if sparse.issparse(M0) else np.diag(M0))[L.master_rows]
     mass = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
 
@@ -68,16 +147,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
         L.advance(z_k, h, targets)
         return {}, []
 
-    def place(z_m):
-        L.restore(start)
-        L.advance(P @ z_m + z_k, h, targets)
-
-    def residual(z_m):
-        """(r_m, A_all, f_all, joint rows) at the trial state of z_m (placed)."""
-        A, _, f_all = L.dynamics(h, t1, linearized=False)
-        r = P.T @ (M0 @ (P @ z_m + z_k) - Mz0 - h * f_all)
-        bilateral, unilateral = L.joint_rows(P, np.zeros(L.n_all), h, 1.0)
-        return np.asarray(r).ravel(), A, f_all, bilateral, unilateral
+    place, residual = system.place, system.residual
 
     def merit(r, bilateral, unilateral, lam):
         groups = bilateral + unilateral
@@ -99,6 +169,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
         place(z_m)
     r, A, f_all, bilateral, unilateral = residual(z_m)
     lam = np.zeros(sum(len(g[-1]) for g in bilateral + unilateral))
+    lam_jacobian = _guess(scene, bilateral, unilateral, h)
     norm = merit(r, bilateral, unilateral, lam)
     norm0 = max(norm, atol)
     history = [norm]
@@ -111,14 +182,14 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
             if norm <= rtol * norm0 or norm <= atol:
                 converged = True
                 break
-            J = L.fmt(P.T @ A @ P)
-            if scene.geometric_stiffness:
-                J = J - h * h * L.geometric_stiffness(scene._with_reactions(f_all), P)
-            shifted = [(*g[:-1], g[-1] + np.asarray(g[2] @ z_m).ravel())
-                       for g in bilateral + unilateral]
+            J, rows = system.jacobian(z_m, A, bilateral, unilateral, lam_jacobian)
+            groups = bilateral + unilateral
+            shifted = [(*g[:-2], G, g[-1] + np.asarray(G @ z_m).ravel())
+                       for g, G in zip(groups, rows)]
             z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r,
                                                   shifted[:len(bilateral)],
-                                                  shifted[len(bilateral):], where)
+                                                  shifted[len(bilateral):], where,
+                                                  force_rows=[g[2] for g in groups])
             dz = z_new - z_m
             step, z_start = 1.0, z_m
             while step >= 1e-4:
@@ -135,6 +206,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                                  f"(|r| = {norm:.3e})")
             r, A, f_all, bilateral, unilateral = trial
             lam, norm = lam_new, norm_trial
+            lam_jacobian = lam
             history.append(norm)
             if step == 1.0 and np.abs(dz).max() <= 1e-14 * max(np.abs(z_m).max(), 1e-300):
                 converged = True

@@ -24,8 +24,8 @@ from artifem.incompressibility import hold_linearized
 from artifem.integrators import reduced_step_system, step_system
 from artifem.multibody.attachments import FemPoint, NodeAttachment, dof_positions, pose_gap
 from artifem.multibody.point_paths import PointPath
-from artifem.multibody.rigid_body import (Frame, RigidBody, exp_so3, orthonormalize, skew,
-                                          skews)
+from artifem.multibody.rigid_body import (Frame, RigidBody, dexp_so3, exp_so3, orthonormalize,
+                                          skew, skews)
 from artifem.reduction.rigid_lift import RigidLift
 from artifem.scene.direct_solver import DENSE_MAX
 
@@ -426,9 +426,10 @@ class Layout:
             z = self._chain(self.fmt(self._embedding_map + self._frame_matrix()), z)
         return z
 
-    def _rigid_wrenches(self, t1: float, h: float | None, A, b):
+    def _rigid_wrenches(self, t1: float, h: float | None, A, b, A_pos=None):
         """Force elements: wrenches into b (times h, or 1 for statics), Jacobian blocks into
-        A (-h D - h^2 K, or -K for statics); returns the wrench per body id."""
+        A (-h D - h^2 K, or -K for statics), and their position parts -h^2 K into ``A_pos``
+        if given; returns the wrench per body id."""
         scene = self.scene
         forces = {}
         known = {id(x) for x in scene.rigid_bodies}
@@ -448,25 +449,37 @@ class Layout:
                 else:
                     A.append((i, j, -h * D - h * h * K))
                     b[i:i + 6] -= h * D @ bj.twist
+                    if A_pos is not None:
+                        A_pos.append((i, j, -h * h * K))
         return forces
 
-    def dynamics(self, h: float, t1: float, linearized: bool = True):
+    def dynamics(self, h: float, t1: float, linearized: bool = True, positional: bool = False):
         """A_all, b_all (artifem.scene.scene docstring) and the applied forces f_all (for K_geo);
-        ``linearized=False`` at Newton's trial states (:func:`~artifem.integrators.step_system`)."""
+        ``linearized=False`` at Newton's trial states (:func:`~artifem.integrators.step_system`).
+        With ``positional``, a fourth item: the part of A_all that comes from the forces'
+        position derivatives, -h^2 df/dq (FEM and reduced h^2 K, force elements' and paths'
+        -h^2 K); A_all minus it is M - h df/dz (the implicit step's exact Jacobian)."""
         scene = self.scene
         blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
+        pos_blocks: list = []
         for body in self.fem_bodies:            # integrators.step_system: A, b, f - D v
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             A_body, b_body, applied = step_system(body, h, linearized)
             b[o:o + n] = b_body.array[:n]
             f_all[o:o + n] = applied.array[:n]
             blocks.append(_csr(A_body))
+            if positional:      # A = (1 + h alpha) M + (h beta + h^2) K: its h^2 K
+                pos_blocks.append((blocks[-1] - (1.0 + h * body.alpha) * _mass(body))
+                                  * (h * h / (h * body.beta + h * h)))
             b_body.destroy()
             applied.destroy()
         for body in self.reduced_bodies:       # the same, dense r x r
             o, r = self.reduced_offset[id(body)], body.r
             A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h, linearized)
             blocks.append(A_body)
+            if positional:
+                pos_blocks.append((A_body - (1.0 + h * body.alpha) * body.M)
+                                  * (h * h / (h * body.beta + h * h)))
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
@@ -480,22 +493,75 @@ class Layout:
             b[o:o + 6] += M @ u + h * (f - D @ u)
             f_all[o:o + 6] += f
         extra: list = []
-        element_wrenches = self._rigid_wrenches(t1, h, extra, b)
+        extra_pos: list | None = [] if positional else None
+        element_wrenches = self._rigid_wrenches(t1, h, extra, b, extra_pos)
         for key, wrench in element_wrenches.items():
             o = self.rigid_offset[key]
             f_all[o:o + 6] += wrench
         A = self._stack(blocks, rigid_blocks, extra)
+        if positional:
+            A_pos = self._stack(pos_blocks, [np.zeros((6, 6))] * len(rigid_blocks), extra_pos)
         if scene.paths:
             F, K, D = self.path_terms(t1, h)
             z = self.current_velocities()
             b += h * F - h * (D @ z)
             A = self.fmt(A - h * D - h * h * K)
+            if positional:
+                A_pos = self.fmt(A_pos - h * h * K)
             f_all += F
         if scene.loads:                     # explicit in the step: b += h F
             F = self.load_vector(t1)
             b += h * F
             f_all += F
-        return A, b, f_all
+        return (A, b, f_all, A_pos) if positional else (A, b, f_all)
+
+    def gyroscopic_stiffness(self):
+        """d f_gyro / dtheta of every dynamic rigid body (all-space, the rotation blocks):
+        f_gyro = -w x (R I R^T w) turns with the body, [w]x ([I_w w]x - I_w [w]x)."""
+        parts = []
+        for body in self.scene.rigid_bodies:
+            if body.dynamic and not body.massless:
+                w = body.angular_velocity
+                Iw = body.inertia_world()
+                K = skew(w) @ (skew(Iw @ w) - Iw @ skew(w))
+                o = self.rigid_offset[id(body)] + 3
+                r, c = np.meshgrid(o + np.arange(3), o + np.arange(3), indexing="ij")
+                parts.append((K.ravel(), r.ravel(), c.ravel()))
+        return self.triplets(parts, (self.n_all, self.n_all))
+
+    def joint_stiffness(self, bilateral: list, unilateral: list, lam: np.ndarray):
+        """d(G^T lambda)/dq (all-space, the rigid bodies' 6 x 6 blocks) of the joint rows
+        (joint, rows, G P, c) of :meth:`joint_rows` at fixed impulses ``lam`` (bilateral
+        first): the levers and axes of the rows turn with the bodies
+        (``Joint.constraint_stiffness``, ``Joint.limit_stiffness``)."""
+        parts, start = [], 0
+        for k, (joint, _, _, c) in enumerate(bilateral + unilateral):
+            part = lam[start:start + len(c)]
+            start += len(c)
+            if not np.any(part):
+                continue
+            K = joint.constraint_stiffness(part) if k < len(bilateral) else \
+                joint.limit_stiffness(part)
+            offsets = [None if b is None else self.rigid_offset[id(b)] for b in joint.bodies]
+            for i, oi in enumerate(offsets):
+                for j, oj in enumerate(offsets):
+                    if oi is None or oj is None:
+                        continue
+                    block = K[6 * i:6 * i + 6, 6 * j:6 * j + 6]
+                    r, cc = np.meshgrid(oi + np.arange(6), oj + np.arange(6), indexing="ij")
+                    parts.append((block.ravel(), r.ravel(), cc.ravel()))
+        return self.triplets(parts, (self.n_all, self.n_all))
+
+    def rotation_jacobian(self, z_m: np.ndarray, h: float):
+        """T (n_masters x n_masters): the master displacements of :meth:`advance` per unit
+        h z_m change, identity but on each dynamic root's rotation, whose update
+        R = exp(h [w]x) R_0 turns by dexp(h w) h dw (the left Jacobian)."""
+        T = np.eye(self.n_masters) if self.dense else sparse.identity(self.n_masters,
+                                                                       format="lil")
+        for body in self.roots:
+            c = self.master_col[id(body)] + 3
+            T[c:c + 3, c:c + 3] = dexp_so3(h * z_m[c:c + 3])
+        return self.fmt(T)
 
     @property
     def volume_constraints(self) -> list:
