@@ -187,6 +187,21 @@ class Joint:
             blocks.append(_rotation_rows(self.frame_a, self.frame_b, self.ROTATION))
         return _stack(*blocks)
 
+    def constraint_stiffness(self, lam) -> np.ndarray:
+        """d(G^T lambda)/dq of :meth:`Joint.constraint`'s rows at fixed impulses ``lam``
+        (12 x 12: [p_A, theta_A, p_B, theta_B], the order of the stiffness helpers at the
+        end of this module)."""
+        lam = np.asarray(lam, dtype=float)
+        K = np.zeros((12, 12))
+        n_t = len(self.TRANSLATION)
+        if n_t:
+            axes = self.frame_b.world_rotation()[:, list(self.TRANSLATION)]
+            K += _translation_stiffness(self.frame_a, self.frame_b, axes @ lam[:n_t])
+        if len(self.ROTATION):
+            K += _rotation_stiffness(self.frame_a, self.frame_b,
+                                     np.einsum("r,rij->ij", lam[n_t:], self.ROTATION))
+        return K
+
     def unilateral(self) -> ConstraintRows:
         """Limit rows [coordinate - lower, upper - coordinate] >= 0; none without limits."""
         if self.limits is None:
@@ -196,7 +211,17 @@ class Joint:
         return ConstraintRows(np.array([value - lower, upper - value]),
                               np.vstack([G_a, -G_a]), np.vstack([G_b, -G_b]))
 
+    def limit_stiffness(self, lam) -> np.ndarray:
+        """d(G^T lambda)/dq of :meth:`Joint.unilateral`'s two rows (+G, -G) at fixed ``lam``."""
+        lam = np.asarray(lam, dtype=float)
+        if self.limits is None or not lam.size:
+            return np.zeros((12, 12))
+        return self._coordinate_stiffness(float(lam[0] - lam[1]))
+
     def _coordinate_rows(self) -> tuple[float, np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _coordinate_stiffness(self, lam: float) -> np.ndarray:
         raise NotImplementedError
 
 
@@ -233,6 +258,32 @@ class RevoluteJoint(Joint):
         return (float(np.arctan2(s, c)), np.concatenate([zeros, row])[None],
                 np.concatenate([zeros, -row])[None])
 
+    def _coordinate_stiffness(self, lam: float) -> np.ndarray:
+        """The angle row g = (c (a_x x b_y) - s (a_x x b_x)) / (c^2 + s^2) on [0; g] (A) and
+        [0; -g] (B): d(lam g)/dtheta_A and /dtheta_B."""
+        K = np.zeros((12, 12))
+        a_x = self.frame_a.world_rotation()[:, 0]
+        B = self.frame_b.world_rotation()
+        b_x, b_y = B[:, 0], B[:, 1]
+        s, c = a_x @ b_y, a_x @ b_x
+        u, w = cross(a_x, b_y), cross(a_x, b_x)
+        n = c * c + s * s
+        g = (c * u - s * w) / n
+        dn = 2.0 * (c * w + s * u)                       # dn = dn . (dtheta_A - dtheta_B)
+        base = (np.outer(u, w) - np.outer(w, u) - np.outer(g, dn)) / n
+        Ax, By, Bx = skew(a_x), skew(b_y), skew(b_x)
+        dA = base + (c * By @ Ax - s * Bx @ Ax) / n
+        dB = -base + (-c * Ax @ By + s * Ax @ Bx) / n
+        a, b = self.frame_a.body is not None, self.frame_b.body is not None
+        for on, r, sign in ((a, 3, 1.0), (b, 9, -1.0)):
+            if not on:
+                continue
+            if a:
+                K[r:r + 3, 3:6] = sign * lam * dA
+            if b:
+                K[r:r + 3, 9:12] = sign * lam * dB
+        return K
+
 
 class SliderJoint(Joint):
     """A prismatic joint along the z axis of frame B: 5 rows; ``limits`` on the distance (m)."""
@@ -248,6 +299,10 @@ class SliderJoint(Joint):
     def _coordinate_rows(self):
         rows = _translation_rows(self.frame_a, self.frame_b, self.frame_b.world_rotation()[:, 2:].T)
         return float(rows.phi[0]), rows.G_a, rows.G_b
+
+    def _coordinate_stiffness(self, lam: float) -> np.ndarray:
+        return _translation_stiffness(self.frame_a, self.frame_b,
+                                      lam * self.frame_b.world_rotation()[:, 2])
 
 
 class PlanarJoint(Joint):
@@ -303,69 +358,3 @@ def _rotation_stiffness(fa: Frame, fb: Frame, M: np.ndarray) -> np.ndarray:
         if b:
             K[r:r + 3, 9:12] = sign * dB
     return K
-
-
-def _joint_constraint_stiffness(self, lam) -> np.ndarray:
-    """d(G^T lambda)/dq of :meth:`Joint.constraint`'s rows at fixed impulses ``lam``
-    (12 x 12: [p_A, theta_A, p_B, theta_B], see above)."""
-    lam = np.asarray(lam, dtype=float)
-    K = np.zeros((12, 12))
-    n_t = len(self.TRANSLATION)
-    if n_t:
-        axes = self.frame_b.world_rotation()[:, list(self.TRANSLATION)]
-        K += _translation_stiffness(self.frame_a, self.frame_b, axes @ lam[:n_t])
-    if len(self.ROTATION):
-        K += _rotation_stiffness(self.frame_a, self.frame_b,
-                                 np.einsum("r,rij->ij", lam[n_t:], self.ROTATION))
-    return K
-
-
-def _joint_limit_stiffness(self, lam) -> np.ndarray:
-    """d(G^T lambda)/dq of :meth:`Joint.unilateral`'s two rows (+G, -G) at fixed ``lam``."""
-    lam = np.asarray(lam, dtype=float)
-    if self.limits is None or not lam.size:
-        return np.zeros((12, 12))
-    return self._coordinate_stiffness(float(lam[0] - lam[1]))
-
-
-def _revolute_coordinate_stiffness(self, lam: float) -> np.ndarray:
-    """The angle row g = (c (a_x x b_y) - s (a_x x b_x)) / (c^2 + s^2) on [0; g] (A) and
-    [0; -g] (B): d(lam g)/dtheta_A and /dtheta_B."""
-    K = np.zeros((12, 12))
-    a_x = self.frame_a.world_rotation()[:, 0]
-    B = self.frame_b.world_rotation()
-    b_x, b_y = B[:, 0], B[:, 1]
-    s, c = a_x @ b_y, a_x @ b_x
-    u, w = cross(a_x, b_y), cross(a_x, b_x)
-    n = c * c + s * s
-    g = (c * u - s * w) / n
-    dn = 2.0 * (c * w + s * u)                       # dn = dn . (dtheta_A - dtheta_B)
-    base = (np.outer(u, w) - np.outer(w, u) - np.outer(g, dn)) / n
-    Ax, By, Bx = skew(a_x), skew(b_y), skew(b_x)
-    dA = base + (c * By @ Ax - s * Bx @ Ax) / n
-    dB = -base + (-c * Ax @ By + s * Ax @ Bx) / n
-    a, b = self.frame_a.body is not None, self.frame_b.body is not None
-    for on, r, sign in ((a, 3, 1.0), (b, 9, -1.0)):
-        if not on:
-            continue
-        if a:
-            K[r:r + 3, 3:6] = sign * lam * dA
-        if b:
-            K[r:r + 3, 9:12] = sign * lam * dB
-    return K
-
-
-def _slider_coordinate_stiffness(self, lam: float) -> np.ndarray:
-    return _translation_stiffness(self.frame_a, self.frame_b,
-                                  lam * self.frame_b.world_rotation()[:, 2])
-
-
-def _no_coordinate_stiffness(self, lam: float) -> np.ndarray:
-    raise NotImplementedError
-
-
-Joint.constraint_stiffness = _joint_constraint_stiffness
-Joint.limit_stiffness = _joint_limit_stiffness
-Joint._coordinate_stiffness = _no_coordinate_stiffness
-RevoluteJoint._coordinate_stiffness = _revolute_coordinate_stiffness
-SliderJoint._coordinate_stiffness = _slider_coordinate_stiffness
