@@ -10,6 +10,7 @@
     artifem study tongue --out DIR           reduced tongue models: speed versus error report
     artifem study scene MODULE:FUNCTION --out DIR   any scene's reduced model: train/test split
     artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
+    artifem study robustness MODEL --out DIR    random valid schedules of the hard kinds: what runs
     artifem demo --out DIR                   the main job (``make demo``)
 
 Each command lives in its own module, which declares its arguments
@@ -65,6 +66,10 @@ COMMANDS = {
     ("study", "scene"): ("artifem.scene_study",
                          "any scene's reduced model on training, motions and held-out "
                          "schedules (MODULE:FUNCTION returning a ReducibleScene)"),
+    ("study", "robustness"): ("artifem.robustness_study",
+                              "how often a model runs on random valid schedules of the hard "
+                              "kinds (co-activation, pulses, all at once, release): finished, "
+                              "cost against the semi-implicit step, det F, volume"),
     ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
                                      "tongue motions with the element penalty and with hard "
                                      "incompressibility: volume, landmarks, speed"),

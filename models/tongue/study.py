@@ -176,6 +176,12 @@ def reducible(config: TongueConfig, data=None) -> ReducibleScene:
                           motions={m: Tongue.motion(m) for m in MOTIONS})
 
 
+def reducible_at(level: int = 0) -> ReducibleScene:
+    """The tongue at ``level`` with its default settings (:func:`reducible`; ``artifem study
+    robustness tongue``, ``tongue-level1``)."""
+    return reducible(TongueConfig(level=level))
+
+
 class TongueStudy:
     """Runs the study (see the module docstring); each stage is a method."""
 
