@@ -238,6 +238,13 @@ COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
                                   "frame_attachments", "joints", "paths", "forces", "loads")
 
 
+def _merge_counts(a: list, b: list) -> list:
+    """The larger Newton iteration count of each increment over two islands (their
+    adaptive schedules may differ in length: the shorter is padded with zeros)."""
+    n = max(len(a), len(b))
+    return [max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0) for k in range(n)]
+
+
 @dataclass(frozen=True)
 class SceneState:
     """A scene's complete state (:meth:`Scene.save_state`): restore it to go back."""
@@ -796,30 +803,33 @@ class Scene:
     def master_count(self) -> int:
         return self._direct_layout("master_count").n_masters
 
-    def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
+    def solve_static(self, *, load_steps: int | str = 1, rtol: float = 1e-10, atol: float = 1e-12,
                      max_iterations: int = 30, progress=None) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
         ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
-        of each increment over the islands. ``progress`` (e.g. tqdm) is updated once per
+        of each increment over the islands. ``load_steps="auto"`` (or a count whose increments
+        are cut when they fail): :func:`~artifem.integrators.ramp_load`. ``progress`` (e.g. tqdm) is updated once per
         increment of each island."""
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]
-        counts = [0] * load_steps
+        counts = []
         options = dict(load_steps=load_steps, rtol=rtol, atol=atol,
                        max_iterations=max_iterations, progress=progress)
         for body in free_fem:
             body.v.x.array[:] = 0.0
-            counts = np.maximum(counts, solve_static(body, self.linear_solver_for(body),
-                                                     **options)).tolist()
+            counts = _merge_counts(counts, solve_static(body, self.linear_solver_for(body),
+                                                        **options))
         for body in free_reduced:
             body.qdot[:] = 0.0
-            counts = np.maximum(counts, solve_static_reduced(body, **options)).tolist()
+            counts = _merge_counts(counts, solve_static_reduced(body, **options))
         if L.n_all:
             L = self._direct_layout("solve_static")
-            counts = np.maximum(counts, self._solve_island_static(
-                L, load_steps, rtol, atol, max_iterations, progress)).tolist()
+            counts = _merge_counts(counts, self._solve_island_static(
+                L, load_steps, rtol, atol, max_iterations, progress))
+        if not counts and not isinstance(load_steps, str):
+            counts = [0] * int(load_steps)
         return [int(c) for c in counts]
 
     def _solve_island_static(self, L, load_steps, rtol, atol, max_iterations, progress):
