@@ -434,13 +434,15 @@ def _at_round_off(correction: PETSc.Vec, value: PETSc.Vec, tol: float = 1e-12) -
 
 class StaticCounts(list):
     """The Newton iteration count of each load increment a static solve took (a list of
-    ints), with ``factors``: the load factor each increment reached, and ``failed``: the
-    Newton iterations spent on increments that failed and were cut."""
+    ints), with ``factors``: the load factor each increment reached, ``failed``: the
+    Newton iterations spent on increments that failed and were cut, and ``residuals``:
+    |R| at each Newton iterate of each increment (when the solve records them)."""
 
-    def __init__(self, counts=(), factors=(), failed: int = 0):
+    def __init__(self, counts=(), factors=(), failed: int = 0, residuals=()):
         super().__init__(int(c) for c in counts)
         self.factors = [float(f) for f in factors]
         self.failed = int(failed)
+        self.residuals = [list(r) for r in residuals]
 
 
 #: Adaptive load stepping (``load_steps="auto"``, and the cuts of a fixed schedule): an
@@ -616,14 +618,18 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             return
         (f1, u1, p1), (f2, u2, p2) = converged[-2:]
         body.load_factor.value = factor
-        start = residual(tangent=False)
+        # A conservative body keeps the predictor when it lowers the energy (its merit);
+        # without a potential it is kept unless it inverts an element (the residual norm
+        # is no measure of closeness here: see _static_line_search).
+        start = body.potential_energy() if body.conservative else np.inf
         ratio = (factor - f2) / (f2 - f1)
         u.array[:] = u2 + ratio * (u2 - u1)
         _update_ghosts(u)
         if vc is not None:
             vc.p.x.array[:] = p2 + ratio * (p2 - p1)
             vc.p.x.scatter_forward()
-        if _has_inversion(body) or not residual(tangent=False) < start:
+        if _has_inversion(body) or not (body.potential_energy() if body.conservative
+                                        else residual(tangent=False)) < start:
             # the predictor inverts or is no closer in |R|: start from u_k
             u.array[:] = u2
             _update_ghosts(u)
@@ -631,7 +637,10 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 vc.p.x.array[:] = p2
                 vc.p.x.scatter_forward()
 
+    residuals = []
+
     def solve_increment(factor: float, limit: int) -> int:
+        residuals.append([])
         it = newton(factor, limit)
         converged.append((factor, u.array.copy(),
                           None if vc is None else vc.p.x.array.copy()))
@@ -648,6 +657,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         if vc is not None:
             vc.updates = 0
         while True:
+            residuals[-1].append(norm)
             if norm <= target and holds():
                 return it
             it += 1
@@ -657,12 +667,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 error.iterations = it - 1
                 raise error
             r.scale(-1.0)
+            r_plain = r.copy()
+            norm_plain = norm
             # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
             # of the Newton target is enough (it is never the last digits' limit).
             eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300),
                                                           1e-14))
             _linear_solve(solver, body.K, r, du, eta)
             body.zero_fixed(du)
+            p_start = None if vc is None else vc.p.x.array.copy()
             if vc is not None:          # Newton on the multipliers too (docstring)
                 _hold_volumes(body, 1.0, body.K, du, solver, inexact=NEWTON_PRESSURE_ITERATIONS)
                 body.zero_fixed(du)
@@ -694,6 +707,27 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                                        body.potential_energy if conservative else None, Pi0,
                                        slope, lambda: residual(tangent=False), norm,
                                        None if conservative else correction_ratio)
+            if step is None and vc is not None:
+                # Far from the solution (e.g. a large prescribed displacement at once) the
+                # linearized constraint can ask too much: this iteration is a plain Newton
+                # step on u at the old pressures instead (the next ones try again).
+                apply_step(0.0)
+                vc.p.x.array[:] = p_start
+                vc.p.x.scatter_forward()
+                residual(tangent=False)
+                _linear_solve(solver, body.K, r_plain, du, eta)
+                body.zero_fixed(du)
+                r_plain.copy(r)
+                norm, slope, du_norm = norm_plain, -r.dot(du), du.norm()
+                Pi0 = body.potential_energy() if conservative else 0.0
+                step = _static_line_search(apply_step, lambda: _has_inversion(body),
+                                           body.potential_energy if conservative else None,
+                                           Pi0, slope, lambda: residual(tangent=False), norm,
+                                           None if conservative else correction_ratio)
+                if step is not None:
+                    residual()
+                    vc.update()             # Uzawa on this iteration: p <- pi
+            r_plain.destroy()
             if step is None:
                 error = StepFailed(f"static solve: line search failed at load factor "
                                    f"{factor:g}, Newton iteration {it}")
@@ -714,8 +748,10 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             vc.p.x.scatter_forward()
 
     try:
-        return ramp_load(solve_increment, save, restore, load_steps, max_iterations,
-                         "static solve", progress)
+        counts = ramp_load(solve_increment, save, restore, load_steps, max_iterations,
+                           "static solve", progress)
+        counts.residuals = residuals[-len(counts):] if counts else []
+        return counts
     finally:
         for vec in (du, ds, r):
             vec.destroy()
