@@ -166,12 +166,14 @@ class SemiImplicitEuler:
 
 def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
                   solver: LinearSolver, base: PETSc.Vec | None = None,
-                  inexact: int | None = None) -> None:
+                  inexact: int | None = None,
+                  stop_when_indefinite: bool = False) -> int | None:
     """The linearized volume constraint of a linear solve A dv = b whose displacement
     change is h (base + dv) (the semi-implicit step: base = v; a Newton iteration of the
     implicit step: no base; of statics: h = 1), g + h G (base + dv) = 0 with A kept:
     :func:`~artifem.incompressibility.hold_linearized` corrects dv and the pressures;
-    StepFailed when it does not reach the tolerance (``inexact``: see there)."""
+    StepFailed when it does not reach the tolerance (``inexact``, ``stop_when_indefinite``
+    and the return value: see there)."""
     vc = body.volume_constraint
     v_new, w, y = dv.duplicate(), dv.duplicate(), dv.duplicate()
     dv.copy(v_new)
@@ -186,8 +188,9 @@ def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
         return [vc.rate_of(y, h)]
 
     try:
-        hold_linearized([vc], [vc.linearized(v_new, h)], respond,
-                        lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact)
+        return hold_linearized([vc], [vc.linearized(v_new, h)], respond,
+                               lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact,
+                               stop_when_indefinite)
     finally:
         for vec in (v_new, w, y):
             vec.destroy()
@@ -579,9 +582,14 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     Newton target), and full steps are taken whenever they pass one of the tests of
     :func:`_static_line_search` (energy for a conservative body; otherwise the residual
     norm or the natural monotonicity test). A hard-incompressible body takes a Newton
-    step on its multipliers in every iteration (the linearized constraint g + G du = 0
-    through the Schur complement G K^-1 G^T: :func:`_hold_volumes` with h = 1), so u
-    and p converge together quadratically (no Uzawa loop around Newton).
+    step on its multipliers too (the linearized constraint g + G du = 0 through the Schur
+    complement S = G K^-1 G^T: :func:`_hold_volumes` with h = 1), so u and p converge
+    together quadratically, in every iteration that follows a full step (inside Newton's
+    region). Elsewhere, or where S is indefinite (so is K: e.g. a large prescribed
+    displacement applied at once shears the elements next to it, whose tension
+    pi = p - kappa g / V makes the geometric tangent dominate), the saddle point in p has
+    no merit that the line search could trust: the iteration is a Newton step on the
+    augmented energy at fixed p (a minimization), with Uzawa p <- pi once that converged.
 
     Newton stops when |R| on the free dofs falls below rtol times the size of the loads
     (|R| with the reactions, at the start of the increment) or below atol, and the
@@ -654,12 +662,25 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
         target = max(rtol * scale, atol)
         it = 0
+        # whether the last iteration took the multiplier step, and whether the one before
+        # was a full step (inside Newton's region: docstring)
+        multiplier, near = vc is None, True
         if vc is not None:
             vc.updates = 0
         while True:
             residuals[-1].append(norm)
-            if norm <= target and holds():
-                return it
+            if norm <= target:
+                if holds():
+                    return it
+                if not multiplier:      # Uzawa on the converged penalty problem: p <- pi
+                    vc.update()
+                    vc.updates += 1
+                    if vc.updates > vc.spec.max_updates:
+                        raise StepFailed(f"static solve: {vc.describe()} after "
+                                         f"{vc.spec.max_updates} pressure updates at load "
+                                         f"factor {factor:g}")
+                    norm = residual()
+                    continue
             it += 1
             if it > limit:
                 error = StepFailed(f"static solve: Newton did not converge in {limit} "
@@ -667,23 +688,14 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 error.iterations = it - 1
                 raise error
             r.scale(-1.0)
-            r_plain = r.copy()
-            norm_plain = norm
             # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
             # of the Newton target is enough (it is never the last digits' limit).
             eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300),
                                                           1e-14))
             _linear_solve(solver, body.K, r, du, eta)
             body.zero_fixed(du)
-            p_start = None if vc is None else vc.p.x.array.copy()
-            if vc is not None:          # Newton on the multipliers too (docstring)
-                _hold_volumes(body, 1.0, body.K, du, solver, inexact=NEWTON_PRESSURE_ITERATIONS)
-                body.zero_fixed(du)
-                norm = residual(tangent=False)     # R at u with the new pressures
-                r.scale(-1.0)
-            slope = -r.dot(du)
-            du_norm = du.norm()
             u_start = u.array.copy()
+            du_norm = du.norm()
 
             def apply_step(s):
                 u.array[:] = u_start + s * du.array
@@ -701,39 +713,48 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 finally:
                     w.destroy()
 
-            conservative = body.conservative
-            Pi0 = body.potential_energy() if conservative else 0.0
-            step = _static_line_search(apply_step, lambda: _has_inversion(body),
-                                       body.potential_energy if conservative else None, Pi0,
-                                       slope, lambda: residual(tangent=False), norm,
-                                       None if conservative else correction_ratio)
-            if step is None and vc is not None:
-                # Far from the solution (e.g. a large prescribed displacement at once) the
-                # linearized constraint can ask too much: this iteration is a plain Newton
-                # step on u at the old pressures instead (the next ones try again).
-                apply_step(0.0)
-                vc.p.x.array[:] = p_start
-                vc.p.x.scatter_forward()
-                residual(tangent=False)
-                _linear_solve(solver, body.K, r_plain, du, eta)
-                body.zero_fixed(du)
-                r_plain.copy(r)
-                norm, slope, du_norm = norm_plain, -r.dot(du), du.norm()
-                Pi0 = body.potential_energy() if conservative else 0.0
-                step = _static_line_search(apply_step, lambda: _has_inversion(body),
-                                           body.potential_energy if conservative else None,
-                                           Pi0, slope, lambda: residual(tangent=False), norm,
-                                           None if conservative else correction_ratio)
-                if step is not None:
-                    residual()
-                    vc.update()             # Uzawa on this iteration: p <- pi
-            r_plain.destroy()
+            def line_search():
+                return _static_line_search(
+                    apply_step, lambda: _has_inversion(body),
+                    body.potential_energy if body.conservative else None,
+                    body.potential_energy() if body.conservative else 0.0,
+                    -r.dot(du), lambda: residual(tangent=False), norm,
+                    None if body.conservative else correction_ratio)
+
+            step = None
+            if vc is not None and near:     # Newton on the multipliers too (docstring)
+                plain = (du.copy(), r.copy(), norm, vc.p.x.array.copy())
+                multiplier = _hold_volumes(body, 1.0, body.K, du, solver,
+                                           inexact=NEWTON_PRESSURE_ITERATIONS,
+                                           stop_when_indefinite=True) is not None
+                if multiplier:
+                    body.zero_fixed(du)
+                    norm = residual(tangent=False)     # R at u with the new pressures
+                    r.scale(-1.0)
+                    du_norm = du.norm()
+                    step = line_search()
+                if step is None:        # S indefinite, or no step along it: plain Newton
+                    multiplier = False
+                    apply_step(0.0)
+                    plain[0].copy(du)
+                    plain[1].copy(r)
+                    norm, du_norm = plain[2], du.norm()
+                    vc.p.x.array[:] = plain[3]
+                    vc.p.x.scatter_forward()
+                    residual(tangent=False)
+                    step = line_search()
+                for vec in plain[:2]:
+                    vec.destroy()
+            else:
+                multiplier = False
+                step = line_search()
             if step is None:
                 error = StepFailed(f"static solve: line search failed at load factor "
                                    f"{factor:g}, Newton iteration {it}")
                 error.iterations = it
                 raise error
             norm = residual()
+            near = step == 1.0
             if step == 1.0 and _at_round_off(du, u) and holds():
                 norm = 0.0              # at round-off: converged
 
