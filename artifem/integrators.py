@@ -778,22 +778,24 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             vec.destroy()
 
 
-def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: float = 1e-10,
-                         atol: float = 1e-12, max_iterations: int = 30,
-                         progress=None) -> list[int]:
+def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
+                         rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
+                         progress=None) -> StaticCounts:
     """Static equilibrium f~(q) = 0 of a reduced body by Newton, K~(q) dq = f~(q),
-    in load increments of ``body.full.load_factor`` (dense r x r).
+    in load increments of ``body.full.load_factor`` (dense r x r; ``load_steps`` an
+    integer or ``"auto"``: :func:`ramp_load`, as :func:`solve_static`).
 
     Each Newton step is a backtracking line search on Pi~ (see :func:`_backtrack`).
     Newton stops when |f~| falls below rtol times |f~| at the start of the
     increment, below atol, or when a full correction is at round-off relative
     to q; q' is left as it is. Returns the Newton iteration count of each load
-    step. Raises :class:`StepFailed` if an increment fails.
+    increment (:class:`StaticCounts`). Raises :class:`StepFailed` if an increment fails
+    :data:`MAX_CUTS` times.
     """
     vc = body.volume_constraint
-    counts = []
-    for k in range(1, load_steps + 1):
-        body.full.load_factor.value = k / load_steps
+
+    def solve_increment(factor: float, limit: int) -> int:
+        body.full.load_factor.value = factor
         scale = []
 
         def newton() -> int:
@@ -804,10 +806,12 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
             it = 0
             while norm > max(rtol * scale[0], atol):
                 it += 1
-                if it > max_iterations:
-                    raise StepFailed(f"static solve (reduced): Newton did not converge in "
-                                     f"{max_iterations} iterations at load factor "
-                                     f"{k / load_steps:g} (|f| = {norm:.3e})")
+                if it > limit:
+                    error = StepFailed(f"static solve (reduced): Newton did not converge in "
+                                       f"{limit} iterations at load factor {factor:g} "
+                                       f"(|f| = {norm:.3e})")
+                    error.iterations = it - 1
+                    raise error
                 K = body.tangent()
                 dq = _dense_solve(K, f, "static solve (reduced)")
                 slope = -float(f @ dq)
@@ -822,8 +826,10 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
                                   body.potential_energy(), slope,
                                   lambda: float(np.linalg.norm(body.force())), norm)
                 if step is None:
-                    raise StepFailed(f"static solve (reduced): line search failed at load "
-                                     f"factor {k / load_steps:g}, Newton iteration {it}")
+                    error = StepFailed(f"static solve (reduced): line search failed at load "
+                                       f"factor {factor:g}, Newton iteration {it}")
+                    error.iterations = it
+                    raise error
                 f = body.force()
                 norm = float(np.linalg.norm(f))
                 if step == 1.0 and _round_off(dq, body.q):
@@ -833,7 +839,7 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
         it = newton()
         if vc is not None:
             it += _hold_volumes_newton(body, newton)
-        counts.append(it)
-        if progress is not None:
-            progress.update(1)
-    return counts
+        return it
+
+    return ramp_load(solve_increment, body.state, body.set_state, load_steps, max_iterations,
+                     "static solve (reduced)", progress)

@@ -208,7 +208,8 @@ from scipy import sparse
 from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
                             UnknownNameError)
 from artifem.fem_body import FemBody
-from artifem.integrators import ImplicitEuler, SemiImplicitEuler, solve_static, solve_static_reduced
+from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, ramp_load, solve_static,
+                                 solve_static_reduced)
 from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
@@ -843,18 +844,17 @@ class Scene:
                 body.set_twist(np.zeros(6))
         g = self.gravity.copy()
         self._reactions = None
-        counts = []
+
+        def solve_increment(factor: float, limit: int) -> int:
+            self._set_load_factor(factor, g)
+            return self._newton(L, rtol, atol, limit, factor) + \
+                self._hold_volumes_static(L, rtol, atol, limit, factor)
+
         try:
-            for k in range(1, load_steps + 1):
-                self._set_load_factor(k / load_steps, g)
-                counts.append(self._newton(L, rtol, atol, max_iterations, k / load_steps))
-                counts[-1] += self._hold_volumes_static(L, rtol, atol, max_iterations,
-                                                        k / load_steps)
-                if progress is not None:
-                    progress.update(1)
+            return ramp_load(solve_increment, self.save_state, self.restore_state, load_steps,
+                             max_iterations, "static solve (coupled island)", progress)
         finally:
             self._set_load_factor(1.0, g)
-        return counts
 
     def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while
