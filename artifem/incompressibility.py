@@ -15,9 +15,10 @@ whose force is f = G^T pi with G = dg/du and pi_i = p_i - kappa g_i / V_i (the
 current pressure), and whose tangent is K = kappa G^T V^-1 G - sum_i pi_i d^2 g_i.
 The multipliers are updated until max_i |g_i| / V_i <= ``tol``: within a semi-implicit
 step on the linearized constraint g + h G v+ (conjugate gradients on the pressure's
-Schur complement, the step matrix kept: :meth:`VolumeConstraint.hold_linearized`), in
-the implicit and static Newton solves on g(u) itself (Uzawa, p <- pi, an outer loop
-around Newton). kappa only sets how fast
+Schur complement, the step matrix kept: :func:`hold_linearized`), in the implicit
+Newton solve on g(u) itself (Uzawa, p <- pi, an outer loop around Newton), in statics by
+a Newton step on p in each iteration near the solution (Uzawa farther away:
+:func:`artifem.integrators.solve_static`). kappa only sets how fast
 that converges (and how well the step matrix is conditioned): the answer does not
 depend on it, unlike a penalty's, whose volume error is pressure / kappa.
 
@@ -297,7 +298,8 @@ class VolumeConstraint:
 
 
 def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], respond,
-                    accept, comm, inexact: int | None = None) -> int:
+                    accept, comm, inexact: int | None = None,
+                    stop_when_indefinite: bool = False) -> int | None:
     """The linearized constraints of a semi-implicit step, c = c0 + S dp = 0 to each one's
     ``tol``, for the pressure changes dp of one or more bodies stepped together:
 
@@ -317,6 +319,8 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     :func:`_conjugate_residuals` takes over. ``inexact=k`` (a Newton iteration, whose
     linearization is only as good as its iterate): at most k iterations and no error; the
     Newton loop and the pressure updates around it make the constraint hold in the end.
+    ``stop_when_indefinite``: at such a breakdown return None instead (what CG had
+    accepted stays applied: the caller undoes it), for a caller with a better fallback.
     """
     weight = [vc.kappa / vc.volume for vc in constraints]
     r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
@@ -336,6 +340,8 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
             Sd = respond(d)
             dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
             if not dSd > 0:         # S is indefinite (so is the step matrix): CR from here
+                if stop_when_indefinite:
+                    return None
                 return _conjugate_residuals(constraints, r, x, weight, respond, accept, comm,
                                             iterations, limit, inexact is not None)
             alpha = rz / dSd

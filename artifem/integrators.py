@@ -166,12 +166,14 @@ class SemiImplicitEuler:
 
 def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
                   solver: LinearSolver, base: PETSc.Vec | None = None,
-                  inexact: int | None = None) -> None:
+                  inexact: int | None = None,
+                  stop_when_indefinite: bool = False) -> int | None:
     """The linearized volume constraint of a linear solve A dv = b whose displacement
     change is h (base + dv) (the semi-implicit step: base = v; a Newton iteration of the
     implicit step: no base; of statics: h = 1), g + h G (base + dv) = 0 with A kept:
     :func:`~artifem.incompressibility.hold_linearized` corrects dv and the pressures;
-    StepFailed when it does not reach the tolerance (``inexact``: see there)."""
+    StepFailed when it does not reach the tolerance (``inexact``, ``stop_when_indefinite``
+    and the return value: see there)."""
     vc = body.volume_constraint
     v_new, w, y = dv.duplicate(), dv.duplicate(), dv.duplicate()
     dv.copy(v_new)
@@ -186,8 +188,9 @@ def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
         return [vc.rate_of(y, h)]
 
     try:
-        hold_linearized([vc], [vc.linearized(v_new, h)], respond,
-                        lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact)
+        return hold_linearized([vc], [vc.linearized(v_new, h)], respond,
+                               lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact,
+                               stop_when_indefinite)
     finally:
         for vec in (v_new, w, y):
             vec.destroy()
@@ -432,21 +435,175 @@ def _at_round_off(correction: PETSc.Vec, value: PETSc.Vec, tol: float = 1e-12) -
         value.norm(PETSc.NormType.INFINITY), np.finfo(float).tiny)
 
 
-def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
+class StaticCounts(list):
+    """The Newton iteration count of each load increment a static solve took (a list of
+    ints), with ``factors``: the load factor each increment reached, ``failed``: the
+    Newton iterations spent on increments that failed and were cut, and ``residuals``:
+    |R| at each Newton iterate of each increment (when the solve records them)."""
+
+    def __init__(self, counts=(), factors=(), failed: int = 0, residuals=()):
+        super().__init__(int(c) for c in counts)
+        self.factors = [float(f) for f in factors]
+        self.failed = int(failed)
+        self.residuals = [list(r) for r in residuals]
+
+
+#: Adaptive load stepping (``load_steps="auto"``, and the cuts of a fixed schedule): an
+#: increment that fails is halved, at most this many times in a row ...
+MAX_CUTS = 12
+#: ... an increment that converged in at most EASY_ITERATIONS Newton iterations doubles
+#: the next one (``"auto"`` only) ...
+EASY_ITERATIONS = 4
+#: ... and under ``"auto"`` an increment that needs more than this many iterations is cut
+#: (a full Newton converges in a handful from a good start; more means the increment is
+#: too large, and a smaller one is cheaper than a crawl).
+AUTO_MAX_ITERATIONS = 10
+
+
+def load_schedule(load_steps) -> tuple[list[float] | None, float]:
+    """The load factors an increment must land on (None: any, ``"auto"``) and the first
+    increment."""
+    if isinstance(load_steps, str):
+        if load_steps != "auto":
+            raise ValueError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
+        return None, 1.0
+    if int(load_steps) != load_steps or load_steps < 1:
+        raise ValueError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
+    n = int(load_steps)
+    return [k / n for k in range(1, n + 1)], 1.0 / n
+
+
+def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
+              what: str, progress=None) -> StaticCounts:
+    """Drive the load factor from 0 to 1 in increments, each solved by
+    ``solve_increment(factor, limit)`` (Newton iterations; StepFailed when it does not
+    converge in ``limit``). A failed increment is restored (``save``/``restore``) and
+    halved, up to :data:`MAX_CUTS` times; a fixed schedule (``load_steps`` an integer)
+    still lands on each of its factors k / n, ``"auto"`` doubles the increment after an
+    easy one (:data:`EASY_ITERATIONS`) and cuts one that needs more than
+    :data:`AUTO_MAX_ITERATIONS`."""
+    marks, increment = load_schedule(load_steps)
+    auto = marks is None
+    limit = min(max_iterations, AUTO_MAX_ITERATIONS) if auto else max_iterations
+    counts, factors, failed = [], [], 0
+    factor, cuts = 0.0, 0
+    while factor < 1.0 - 1e-14:
+        if auto:
+            goal = min(1.0, factor + increment)
+        else:
+            mark = next(m for m in marks if m > factor + 1e-14)
+            goal = min(mark, factor + increment)
+        if 1.0 - goal < 1e-12:
+            goal = 1.0
+        state = save()
+        try:
+            it = solve_increment(goal, limit)
+        except StepFailed as error:
+            failed += getattr(error, "iterations", 0)
+            restore(state)
+            cuts += 1
+            if cuts > MAX_CUTS:
+                raise StepFailed(f"{what}: the load increment {factor:g} -> {goal:g} failed "
+                                 f"after {MAX_CUTS} cuts ({error})") from error
+            increment = 0.5 * (goal - factor)
+            continue
+        counts.append(it)
+        factors.append(goal)
+        if progress is not None and (auto or goal in marks):
+            progress.update(1)
+        cuts = 0
+        if auto:
+            if it <= EASY_ITERATIONS:
+                increment *= 2.0
+        elif goal in marks:
+            increment = 1.0 / len(marks)        # back to the schedule after a cut
+        factor = goal
+    return StaticCounts(counts, factors, failed)
+
+
+def _static_line_search(apply_step, inverted, energy, energy0: float, slope: float,
+                        residual_norm, norm0: float, correction_ratio,
+                        min_step: float = 1e-4) -> float | None:
+    """The backtracking line search of the static Newton: the largest s in {1, 1/2, ...}
+    with no inverted element that passes one of
+
+    - Armijo on the energy (``energy`` not None: a conservative body, whose energy's
+      gradient is the residual): E(s) <= E(0) + 1e-4 s slope;
+    - a decrease of the residual norm: |R(s)| <= (1 - 1e-4 s) |R(0)|;
+    - (``correction_ratio`` not None: a body without a potential) Deuflhard's natural
+      monotonicity test theta(s) = |K_0^-1 R(s)| / |du| <= 1 - s/4, the next Newton
+      correction with the same tangent, small when Newton converges. It is affine
+      invariant: a full Newton step of a bending beam raises |R| (the linear step
+      stretches the rotating fibers: large stiff forces, small displacements) by
+      orders of magnitude while it is an excellent step, so the residual norm alone
+      refuses the steps that make Newton quadratic.
+    """
+    step = 1.0
+    while step >= min_step:
+        apply_step(step)
+        if not inverted():
+            if energy is not None:
+                value = energy()
+                if np.isfinite(value) and value <= energy0 + 1e-4 * step * slope:
+                    return step
+            trial = residual_norm()
+            if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
+                return step
+            if correction_ratio is not None:
+                theta = correction_ratio()
+                if np.isfinite(theta) and theta <= 1.0 - 0.25 * step:
+                    return step
+        step *= 0.5
+    return None
+
+
+def _linear_solve(solver, A, b, x, rtol: float | None) -> None:
+    """solver.solve with a per-solve relative tolerance when the solver takes one."""
+    if rtol is not None and isinstance(solver, LinearSolver):
+        solver.solve(A, b, x, rtol=rtol)
+    else:
+        solver.solve(A, b, x)
+
+
+def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str = 1,
                  rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
-                 progress=None) -> list[int]:
+                 progress=None) -> StaticCounts:
     """Static equilibrium R(u) = 0 by Newton, in load increments of the load factor.
 
-    Each Newton step is a backtracking line search on the potential energy Pi
-    (see :func:`_backtrack`). Newton stops when |R| on the free dofs falls below
-    rtol times the size of the loads (|R| with the reactions), below atol, or
-    when a full correction is at round-off relative to u. Fixed dofs keep their
-    prescribed displacement. Returns the Newton iteration
-    count of each load step. Raises :class:`StepFailed` if an increment fails.
+    ``load_steps``: n (increments 1/n; one that fails is halved and retried, and the
+    solve still passes through every k/n) or ``"auto"`` (the full load first; an
+    increment that fails or needs more than :data:`AUTO_MAX_ITERATIONS` iterations is
+    halved, one that converges in at most :data:`EASY_ITERATIONS` doubles the next):
+    :func:`ramp_load`.
+
+    Newton is exact: the tangent is dR/du (unsymmetric under a follower pressure: the
+    solver must then be built with ``symmetric=False``), an iterative linear solve is
+    tightened as |R| approaches the tolerance (its residual stays below a tenth of the
+    Newton target), and full steps are taken whenever they pass one of the tests of
+    :func:`_static_line_search` (energy for a conservative body; otherwise the residual
+    norm or the natural monotonicity test). A hard-incompressible body takes a Newton
+    step on its multipliers too (the linearized constraint g + G du = 0 through the Schur
+    complement S = G K^-1 G^T: :func:`_hold_volumes` with h = 1), so u and p converge
+    together quadratically, in every iteration that follows a full step (inside Newton's
+    region). Elsewhere, or where S is indefinite (so is K: e.g. a large prescribed
+    displacement applied at once shears the elements next to it, whose tension
+    pi = p - kappa g / V makes the geometric tangent dominate), the saddle point in p has
+    no merit that the line search could trust: the iteration is a Newton step on the
+    augmented energy at fixed p (a minimization), with Uzawa p <- pi once that converged.
+
+    Newton stops when |R| on the free dofs falls below rtol times the size of the loads
+    (|R| with the reactions, at the start of the increment) or below atol, and the
+    volumes hold to their tolerance; or when a full correction is at round-off relative
+    to u. Fixed dofs keep their prescribed displacement. Returns the Newton iteration
+    count of each load increment (:class:`StaticCounts`; with a fixed schedule and no
+    cut, one per load step). Raises :class:`StepFailed` if an increment fails
+    :data:`MAX_CUTS` times.
     """
     u = body.u.x.petsc_vec
     du = u.duplicate()
+    ds = u.duplicate()
     r = u.duplicate()
+    vc = body.volume_constraint
 
     def residual(tangent: bool = True) -> float:
         body.assemble(tangent=tangent, diag=1.0)
@@ -454,77 +611,191 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int = 1,
         body.zero_fixed(r)
         return r.norm()
 
-    vc = body.volume_constraint
-    counts = []
-    for k in range(1, load_steps + 1):
-        body.load_factor.value = k / load_steps
+    def holds() -> bool:            # the volumes as last assembled
+        return vc is None or vc.violation() <= vc.spec.tol
+
+    # The last two converged states (load factor, u, p): the secant predictor of the next
+    # increment, u = u_k + (lambda - lambda_k) / (lambda_k - lambda_{k-1}) (u_k - u_{k-1}),
+    # starts Newton near the new equilibrium (the first Newton step from u_k alone is the
+    # tangent predictor, which misses the path's curvature: a bending beam under a
+    # follower load leaves Newton's region of fast convergence with it).
+    converged = [(0.0, u.array.copy(), None if vc is None else vc.p.x.array.copy())]
+
+    def predict(factor: float) -> None:
+        if len(converged) < 2:
+            return
+        (f1, u1, p1), (f2, u2, p2) = converged[-2:]
+        body.load_factor.value = factor
+        # A conservative body keeps the predictor when it lowers the energy (its merit);
+        # without a potential it is kept unless it inverts an element (the residual norm
+        # is no measure of closeness here: see _static_line_search).
+        start = body.potential_energy() if body.conservative else np.inf
+        ratio = (factor - f2) / (f2 - f1)
+        u.array[:] = u2 + ratio * (u2 - u1)
+        _update_ghosts(u)
+        if vc is not None:
+            vc.p.x.array[:] = p2 + ratio * (p2 - p1)
+            vc.p.x.scatter_forward()
+        if _has_inversion(body) or not (body.potential_energy() if body.conservative
+                                        else residual(tangent=False)) < start:
+            # the predictor inverts or is no closer in |R|: start from u_k
+            u.array[:] = u2
+            _update_ghosts(u)
+            if vc is not None:
+                vc.p.x.array[:] = p2
+                vc.p.x.scatter_forward()
+
+    residuals = []
+
+    def solve_increment(factor: float, limit: int) -> int:
+        residuals.append([])
+        it = newton(factor, limit)
+        converged.append((factor, u.array.copy(),
+                          None if vc is None else vc.p.x.array.copy()))
+        del converged[:-2]
+        return it
+
+    def newton(factor: float, limit: int) -> int:
+        predict(factor)
+        body.load_factor.value = factor
         norm = residual()
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
-        it = newton_it = 0
+        target = max(rtol * scale, atol)
+        it = 0
+        # whether the last iteration took the multiplier step, and whether the one before
+        # was a full step (inside Newton's region: docstring)
+        multiplier, near = vc is None, True
         if vc is not None:
             vc.updates = 0
         while True:
-            if norm <= max(rtol * scale, atol):     # Newton converged; Uzawa around it
-                if vc is None:
-                    break
-                if vc.update() <= vc.spec.tol:
-                    break
-                vc.updates += 1
-                if vc.updates > vc.spec.max_updates:
-                    raise StepFailed(f"static solve: {vc.describe()} after "
-                                     f"{vc.spec.max_updates} pressure updates at load factor "
-                                     f"{k / load_steps:g}")
-                norm = residual()
-                newton_it = 0
-                continue
+            residuals[-1].append(norm)
+            if norm <= target:
+                if holds():
+                    return it
+                if not multiplier:      # Uzawa on the converged penalty problem: p <- pi
+                    vc.update()
+                    vc.updates += 1
+                    if vc.updates > vc.spec.max_updates:
+                        raise StepFailed(f"static solve: {vc.describe()} after "
+                                         f"{vc.spec.max_updates} pressure updates at load "
+                                         f"factor {factor:g}")
+                    norm = residual()
+                    continue
             it += 1
-            newton_it += 1
-            if newton_it > max_iterations:
-                raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
-                                 f"iterations at load factor {k / load_steps:g} (|R| = {norm:.3e})")
+            if it > limit:
+                error = StepFailed(f"static solve: Newton did not converge in {limit} "
+                                   f"iterations at load factor {factor:g} (|R| = {norm:.3e})")
+                error.iterations = it - 1
+                raise error
             r.scale(-1.0)
-            solver.solve(body.K, r, du)
+            # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
+            # of the Newton target is enough (it is never the last digits' limit).
+            eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300),
+                                                          1e-14))
+            _linear_solve(solver, body.K, r, du, eta)
             body.zero_fixed(du)
-            slope = -r.dot(du)
             u_start = u.array.copy()
+            du_norm = du.norm()
 
             def apply_step(s):
                 u.array[:] = u_start + s * du.array
                 _update_ghosts(u)
 
-            Pi0 = body.potential_energy()
-            step = _backtrack(apply_step, lambda: _has_inversion(body), body.potential_energy,
-                              Pi0, slope, lambda: residual(tangent=False), norm)
+            def correction_ratio() -> float:     # |K_0^-1 R(s)| / |du|, R(s) assembled
+                body.R.copy(ds)
+                body.zero_fixed(ds)
+                ds.scale(-1.0)
+                w = ds.duplicate()
+                try:
+                    _linear_solve(solver, body.K, ds, w, eta)
+                    body.zero_fixed(w)
+                    return w.norm() / max(du_norm, 1e-300)
+                finally:
+                    w.destroy()
+
+            def line_search():
+                return _static_line_search(
+                    apply_step, lambda: _has_inversion(body),
+                    body.potential_energy if body.conservative else None,
+                    body.potential_energy() if body.conservative else 0.0,
+                    -r.dot(du), lambda: residual(tangent=False), norm,
+                    None if body.conservative else correction_ratio)
+
+            step = None
+            if vc is not None and near:     # Newton on the multipliers too (docstring)
+                plain = (du.copy(), r.copy(), norm, vc.p.x.array.copy())
+                multiplier = _hold_volumes(body, 1.0, body.K, du, solver,
+                                           inexact=NEWTON_PRESSURE_ITERATIONS,
+                                           stop_when_indefinite=True) is not None
+                if multiplier:
+                    body.zero_fixed(du)
+                    norm = residual(tangent=False)     # R at u with the new pressures
+                    r.scale(-1.0)
+                    du_norm = du.norm()
+                    step = line_search()
+                if step is None:        # S indefinite, or no step along it: plain Newton
+                    multiplier = False
+                    apply_step(0.0)
+                    plain[0].copy(du)
+                    plain[1].copy(r)
+                    norm, du_norm = plain[2], du.norm()
+                    vc.p.x.array[:] = plain[3]
+                    vc.p.x.scatter_forward()
+                    residual(tangent=False)
+                    step = line_search()
+                for vec in plain[:2]:
+                    vec.destroy()
+            else:
+                multiplier = False
+                step = line_search()
             if step is None:
-                raise StepFailed(f"static solve: line search failed at load factor "
-                                 f"{k / load_steps:g}, Newton iteration {it}")
+                error = StepFailed(f"static solve: line search failed at load factor "
+                                   f"{factor:g}, Newton iteration {it}")
+                error.iterations = it
+                raise error
             norm = residual()
-            if step == 1.0 and _at_round_off(du, u):
+            near = step == 1.0
+            if step == 1.0 and _at_round_off(du, u) and holds():
                 norm = 0.0              # at round-off: converged
-        counts.append(it)
-        if progress is not None:
-            progress.update(1)
-    du.destroy()
-    r.destroy()
-    return counts
+
+    def save():
+        return (u.array.copy(), None if vc is None else vc.p.x.array.copy())
+
+    def restore(state):
+        u.array[:] = state[0]
+        _update_ghosts(u)
+        if vc is not None:
+            vc.p.x.array[:] = state[1]
+            vc.p.x.scatter_forward()
+
+    try:
+        counts = ramp_load(solve_increment, save, restore, load_steps, max_iterations,
+                           "static solve", progress)
+        counts.residuals = residuals[-len(counts):] if counts else []
+        return counts
+    finally:
+        for vec in (du, ds, r):
+            vec.destroy()
 
 
-def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: float = 1e-10,
-                         atol: float = 1e-12, max_iterations: int = 30,
-                         progress=None) -> list[int]:
+def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
+                         rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
+                         progress=None) -> StaticCounts:
     """Static equilibrium f~(q) = 0 of a reduced body by Newton, K~(q) dq = f~(q),
-    in load increments of ``body.full.load_factor`` (dense r x r).
+    in load increments of ``body.full.load_factor`` (dense r x r; ``load_steps`` an
+    integer or ``"auto"``: :func:`ramp_load`, as :func:`solve_static`).
 
     Each Newton step is a backtracking line search on Pi~ (see :func:`_backtrack`).
     Newton stops when |f~| falls below rtol times |f~| at the start of the
     increment, below atol, or when a full correction is at round-off relative
     to q; q' is left as it is. Returns the Newton iteration count of each load
-    step. Raises :class:`StepFailed` if an increment fails.
+    increment (:class:`StaticCounts`). Raises :class:`StepFailed` if an increment fails
+    :data:`MAX_CUTS` times.
     """
     vc = body.volume_constraint
-    counts = []
-    for k in range(1, load_steps + 1):
-        body.full.load_factor.value = k / load_steps
+
+    def solve_increment(factor: float, limit: int) -> int:
+        body.full.load_factor.value = factor
         scale = []
 
         def newton() -> int:
@@ -535,10 +806,12 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
             it = 0
             while norm > max(rtol * scale[0], atol):
                 it += 1
-                if it > max_iterations:
-                    raise StepFailed(f"static solve (reduced): Newton did not converge in "
-                                     f"{max_iterations} iterations at load factor "
-                                     f"{k / load_steps:g} (|f| = {norm:.3e})")
+                if it > limit:
+                    error = StepFailed(f"static solve (reduced): Newton did not converge in "
+                                       f"{limit} iterations at load factor {factor:g} "
+                                       f"(|f| = {norm:.3e})")
+                    error.iterations = it - 1
+                    raise error
                 K = body.tangent()
                 dq = _dense_solve(K, f, "static solve (reduced)")
                 slope = -float(f @ dq)
@@ -553,8 +826,10 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
                                   body.potential_energy(), slope,
                                   lambda: float(np.linalg.norm(body.force())), norm)
                 if step is None:
-                    raise StepFailed(f"static solve (reduced): line search failed at load "
-                                     f"factor {k / load_steps:g}, Newton iteration {it}")
+                    error = StepFailed(f"static solve (reduced): line search failed at load "
+                                       f"factor {factor:g}, Newton iteration {it}")
+                    error.iterations = it
+                    raise error
                 f = body.force()
                 norm = float(np.linalg.norm(f))
                 if step == 1.0 and _round_off(dq, body.q):
@@ -564,7 +839,7 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int = 1, *, rtol: flo
         it = newton()
         if vc is not None:
             it += _hold_volumes_newton(body, newton)
-        counts.append(it)
-        if progress is not None:
-            progress.update(1)
-    return counts
+        return it
+
+    return ramp_load(solve_increment, body.state, body.set_state, load_steps, max_iterations,
+                     "static solve (reduced)", progress)

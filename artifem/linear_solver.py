@@ -211,8 +211,18 @@ class LinearSolver:
 
     # ---- public ------------------------------------------------------------
 
-    def solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> None:
-        """Solve A x = b; A's values may change between calls, not its pattern."""
+    def solve(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec, rtol: float | None = None) -> None:
+        """Solve A x = b; A's values may change between calls, not its pattern.
+
+        ``rtol`` (iterative methods): this solve's relative residual instead of the
+        solver's, e.g. the forcing term of an inexact Newton iteration that must stay
+        quadratic (:func:`artifem.integrators.solve_static`); ignored by ``"mumps"``."""
+        if rtol is not None and self.iterative and rtol != self.rtol:
+            self.ksp.setTolerances(rtol=rtol)
+            try:
+                return self.solve(A, b, x)
+            finally:
+                self.ksp.setTolerances(rtol=self.rtol)
         if A is not self._operator:
             A.setOption(PETSc.Mat.Option.SYMMETRIC, self.symmetric)
             A.setOption(PETSc.Mat.Option.SYMMETRY_ETERNAL, self.symmetric)

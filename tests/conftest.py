@@ -188,3 +188,17 @@ def quick_tongue_study(tmp_path_factory) -> Path:
         assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
 
     return computed_once(tmp_path_factory, "study", make)
+
+
+@pytest.fixture
+def direct_solver():
+    """A factory of MUMPS LinearSolvers for one body (LU when its tangent is unsymmetric:
+    a follower pressure), so that Newton's convergence is not blurred by a linear
+    tolerance (test_static_newton)."""
+    from mpi4py import MPI
+
+    from artifem.linear_solver import LinearSolver
+
+    def make(body):
+        return LinearSolver(MPI.COMM_SELF, "mumps", V=body.V, symmetric=body.conservative)
+    return make

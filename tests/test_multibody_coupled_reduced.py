@@ -138,6 +138,21 @@ def test_static_equilibrium_on_a_hinged_bone_matches_the_full_scene():
     assert np.abs(b_red.rotation - b_full.rotation).max() < 1e-8
 
 
+def test_static_load_steps_chosen_by_the_solver_on_a_hinged_bone():
+    """load_steps="auto" (integrators.ramp_load) on the coupled island, full and reduced
+    body, with a joint (exact-penalty merit): the equilibrium of two fixed steps."""
+    for basis in (None, lifted_basis):
+        fixed, _, b_fixed, _ = hinged(basis)
+        auto, _, b_auto, _ = hinged(basis)
+        fixed.solve_static(load_steps=2)
+        counts = auto.solve_static(load_steps="auto")
+        assert 1 <= len(counts) <= 4 and max(counts) <= 10, counts
+        for a, b in zip(auto.bodies, fixed.bodies):
+            for x, y in zip(a.state(), b.state()):
+                assert np.abs(x - y).max() <= 1e-8 * max(np.abs(y).max(), 1e-3)
+        assert np.abs(b_auto.rotation - b_fixed.rotation).max() < 1e-8
+
+
 def test_static_tangent_with_a_lift_matches_finite_differences():
     """-dF_m/dq_m = P^T K P - K_geo with the lift's levers (the columns of R and the bone's
     offset from its root). Measured: 4e-10 / 6e-9 of |K dq| (all masters / a rotation);

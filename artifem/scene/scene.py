@@ -208,7 +208,8 @@ from scipy import sparse
 from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
                             UnknownNameError)
 from artifem.fem_body import FemBody
-from artifem.integrators import ImplicitEuler, SemiImplicitEuler, solve_static, solve_static_reduced
+from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, ramp_load, solve_static,
+                                 solve_static_reduced)
 from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
@@ -236,6 +237,13 @@ BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
 COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
                                   "embedded_attachments", "lift_attachments",
                                   "frame_attachments", "joints", "paths", "forces", "loads")
+
+
+def _merge_counts(a: list, b: list) -> list:
+    """The larger Newton iteration count of each increment over two islands (their
+    adaptive schedules may differ in length: the shorter is padded with zeros)."""
+    n = max(len(a), len(b))
+    return [max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0) for k in range(n)]
 
 
 @dataclass(frozen=True)
@@ -829,30 +837,33 @@ class Scene:
     def master_count(self) -> int:
         return self._direct_layout("master_count").n_masters
 
-    def solve_static(self, *, load_steps: int = 1, rtol: float = 1e-10, atol: float = 1e-12,
+    def solve_static(self, *, load_steps: int | str = 1, rtol: float = 1e-10, atol: float = 1e-12,
                      max_iterations: int = 30, progress=None) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
         ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
-        of each increment over the islands. ``progress`` (e.g. tqdm) is updated once per
+        of each increment over the islands. ``load_steps="auto"`` (or a count whose increments
+        are cut when they fail): :func:`~artifem.integrators.ramp_load`. ``progress`` (e.g. tqdm) is updated once per
         increment of each island."""
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]
-        counts = [0] * load_steps
+        counts = []
         options = dict(load_steps=load_steps, rtol=rtol, atol=atol,
                        max_iterations=max_iterations, progress=progress)
         for body in free_fem:
             body.v.x.array[:] = 0.0
-            counts = np.maximum(counts, solve_static(body, self.linear_solver_for(body),
-                                                     **options)).tolist()
+            counts = _merge_counts(counts, solve_static(body, self.linear_solver_for(body),
+                                                        **options))
         for body in free_reduced:
             body.qdot[:] = 0.0
-            counts = np.maximum(counts, solve_static_reduced(body, **options)).tolist()
+            counts = _merge_counts(counts, solve_static_reduced(body, **options))
         if L.n_all:
             L = self._direct_layout("solve_static")
-            counts = np.maximum(counts, self._solve_island_static(
-                L, load_steps, rtol, atol, max_iterations, progress)).tolist()
+            counts = _merge_counts(counts, self._solve_island_static(
+                L, load_steps, rtol, atol, max_iterations, progress))
+        if not counts and not isinstance(load_steps, str):
+            counts = [0] * int(load_steps)
         return [int(c) for c in counts]
 
     def _solve_island_static(self, L, load_steps, rtol, atol, max_iterations, progress):
@@ -866,18 +877,17 @@ class Scene:
                 body.set_twist(np.zeros(6))
         g = self.gravity.copy()
         self._reactions = None
-        counts = []
+
+        def solve_increment(factor: float, limit: int) -> int:
+            self._set_load_factor(factor, g)
+            return self._newton(L, rtol, atol, limit, factor) + \
+                self._hold_volumes_static(L, rtol, atol, limit, factor)
+
         try:
-            for k in range(1, load_steps + 1):
-                self._set_load_factor(k / load_steps, g)
-                counts.append(self._newton(L, rtol, atol, max_iterations, k / load_steps))
-                counts[-1] += self._hold_volumes_static(L, rtol, atol, max_iterations,
-                                                        k / load_steps)
-                if progress is not None:
-                    progress.update(1)
+            return ramp_load(solve_increment, self.save_state, self.restore_state, load_steps,
+                             max_iterations, "static solve (coupled island)", progress)
         finally:
             self._set_load_factor(1.0, g)
-        return counts
 
     def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while

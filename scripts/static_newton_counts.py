@@ -1,0 +1,96 @@
+"""Newton iterations per load step of the static solve on the cases of docs/verification.md
+("Static Newton"): the cantilever of tests/test_surface_loads.py under an open follower
+pressure, a 10:1 neo-Hookean beam under a follower pressure on its bottom face, and a
+nearly incompressible (hard) membrane under a dead traction.
+
+    OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py [case ...]
+
+Each case runs through Scene.solve_static with the scene's default linear solver and
+prints the per-increment Newton iteration counts (hard constraint: multiplier updates'
+Newton iterations included) or the failure.
+"""
+
+import sys
+import time
+
+import numpy as np
+from mpi4py import MPI
+
+import artifem as af
+from dolfinx import mesh as dmesh
+
+from artifem.errors import StepFailed
+from artifem.incompressibility import Incompressible
+from artifem.scene import Scene
+
+
+def box(n, size):
+    return dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array(size, dtype=float)], list(n),
+                            dmesh.CellType.hexahedron)
+
+
+def cantilever(p):
+    """tests/test_surface_loads.py cantilever(): 1 x 0.2 x 0.2, E = 1e5, nu = 0.3, open
+    follower pressure p on the top face."""
+    beam = af.FemBody(box((10, 2, 2), (1.0, 0.2, 0.2)),
+                      af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0)
+    beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
+    beam.add_pressure(p, where=lambda x: np.isclose(x[2], 0.2))
+    return beam
+
+
+def long_beam(p, n=(20, 2, 2)):
+    """10 x 1 x 1 neo-Hookean (E = 10, nu = 0.3), clamped at x = 0, follower pressure p on
+    its bottom face z = 0."""
+    beam = af.FemBody(box(n, (10.0, 1.0, 1.0)), af.NeoHookean.from_young_poisson(10.0, 0.3),
+                      1.0)
+    beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
+    beam.add_pressure(p, where=lambda x: np.isclose(x[2], 0.0))
+    return beam
+
+
+def membrane(n, traction=40.0):
+    """1 x 1 x 0.05 plate (n x n x 1 hexahedra), neo-Hookean mu = 1e3 (nu = 0.3 on its own)
+    made incompressible by the hard constraint (kappa = 10 mu), clamped on the edges
+    x = 0 and x = 1, dead traction (0, 0, -traction) on the top face."""
+    E, nu = 2.6e3, 0.3
+    body = af.FemBody(box((n, n, 1), (1.0, 1.0, 0.05)), af.NeoHookean.from_young_poisson(E, nu),
+                      1000.0, incompressibility=Incompressible(kappa=10 * E / 2.6))
+    body.fix_nodes(body.find_nodes(lambda x: (x[0] < 1e-12) | (x[0] > 1 - 1e-12)))
+    body.add_traction((0.0, 0.0, -traction), where=lambda x: np.isclose(x[2], 0.05))
+    return body
+
+
+def run(body, load_steps, **options):
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(body)
+    t = time.perf_counter()
+    try:
+        counts = scene.solve_static(load_steps=load_steps, **options)
+    except StepFailed as e:
+        return f"FAILED ({e})"[:200]
+    u = body.u.x.array.reshape(-1, 3)
+    return (f"{len(counts)} increments, iterations {counts} (max {max(counts)}), "
+            f"min u_z {u[:, 2].min():.4g}, {time.perf_counter() - t:.1f} s")
+
+
+CASES = {
+    "cantilever150": lambda s: run(cantilever(150.0), s or 12),
+    "cantilever600": lambda s: run(cantilever(600.0), s or 12),
+    "cantilever1200": lambda s: run(cantilever(1200.0), s or 12),
+    "beam5": lambda s: run(long_beam(0.004), s or 5),
+    "beam20": lambda s: run(long_beam(0.004), s or 20),
+    "beam_tenth": lambda s: run(long_beam(0.0004), s or 5),
+    "membrane8": lambda s: run(membrane(8), s or 4),
+    "membrane16": lambda s: run(membrane(16), s or 4),
+    "membrane32": lambda s: run(membrane(32), s or 4),
+}
+
+if __name__ == "__main__":
+    names = [a for a in sys.argv[1:] if not a.startswith("--")] or list(CASES)
+    steps = [a for a in sys.argv[1:] if a.startswith("--steps=")]
+    steps = steps[0].split("=")[1] if steps else None
+    if steps is not None and steps != "auto":
+        steps = int(steps)
+    for name in names:
+        print(f"{name}: {CASES[name](steps)}", flush=True)

@@ -1,0 +1,100 @@
+"""The static Newton (integrators.solve_static) converges quadratically and picks its own
+load steps: dead and follower loads, compressible and hard-incompressible bodies, and a
+10:1 beam under a follower pressure solved with load_steps="auto" (docs/verification.md,
+"Static Newton"; scripts/static_newton_counts.py measures the larger cases)."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import artifem as af
+from dolfinx import mesh as dmesh
+
+from artifem.incompressibility import Incompressible
+from artifem.integrators import solve_static
+from artifem.scene import Scene
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial checks")
+
+
+def box(n, size):
+    return dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array(size, dtype=float)], list(n),
+                            dmesh.CellType.hexahedron)
+
+
+def cantilever(hard: bool = False):
+    """1 x 0.2 x 0.2 (tests/test_surface_loads.py's cantilever, coarser), clamped at x = 0."""
+    E, nu = 1e5, 0.3
+    body = af.FemBody(box((6, 2, 2), (1.0, 0.2, 0.2)), af.NeoHookean.from_young_poisson(E, nu),
+                      1000.0, incompressibility=Incompressible(kappa=10 * E / 2.6) if hard
+                      else None)
+    body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
+    return body
+
+
+def top(x):
+    return np.isclose(x[2], 0.2)
+
+
+def assert_quadratic(residuals, counts):
+    """Each increment's residuals fall to the tolerance with r_{k+1} / r_k^2 bounded once
+    r_k is small (relative to the first residual of the increment)."""
+    assert max(counts) <= 10, counts     # target 6: not yet on the hard or first increments
+    for norms in residuals:
+        r0 = norms[0]
+        rel = [r / r0 for r in norms]
+        close = [(a, b) for a, b in zip(rel, rel[1:]) if a < 1e-2 and b > 1e-12]
+        for a, b in close:                  # the absolute ratio, as test_surface_loads
+            assert (b * r0) / (a * r0) ** 2 < 10.0, (norms, b * r0 / (a * r0) ** 2)
+
+
+@pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
+def test_quadratic_under_a_dead_traction(hard, direct_solver):
+    body = cantilever(hard)
+    body.add_traction((0.0, 0.0, -200.0), where=top)
+    counts = solve_static(body, direct_solver(body), load_steps=3)
+    assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
+    assert_quadratic(counts.residuals, counts)
+    if hard:
+        assert body.volume_constraint.violation() <= body.volume_constraint.spec.tol
+
+
+@pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
+def test_quadratic_under_a_follower_pressure(hard, direct_solver):
+    body = cantilever(hard)
+    body.add_pressure(200.0, where=top)
+    counts = solve_static(body, direct_solver(body), load_steps=3)
+    assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
+    assert_quadratic(counts.residuals, counts)
+    if hard:
+        assert body.volume_constraint.violation() <= body.volume_constraint.spec.tol
+
+
+def test_the_long_beam_is_solved_by_adaptive_load_steps():
+    """The 10:1 neo-Hookean beam (E = 10) under a follower pressure 0.004 on its bottom
+    face: load_steps="auto" chooses the increments (a failed one is cut) and solves the
+    full load; a fixed count still works, and its increments are cut where they fail."""
+    def beam():
+        body = af.FemBody(box((20, 2, 2), (10.0, 1.0, 1.0)),
+                          af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0)
+        body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
+        body.add_pressure(0.004, where=lambda x: np.isclose(x[2], 0.0))
+        return body
+
+    body = beam()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    counts = scene.solve_static(load_steps="auto")
+    assert body.load_factor.value == 1.0
+    tip = body.u.x.array.reshape(-1, 3)[:, 2].max()
+    assert tip > 2.0, tip                   # bent far up (large rotation)
+    assert max(counts) <= 10 and len(counts) <= 20, counts
+    body.assemble(tangent=False)
+    r = body.R.copy()
+    body.zero_fixed(r)
+    assert r.norm() < 1e-8 * body.R.norm()
+    fixed = beam()
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(fixed)
+    scene.solve_static(load_steps=1)        # one step: cut until it converges
+    assert np.abs(fixed.u.x.array - body.u.x.array).max() < 1e-6
