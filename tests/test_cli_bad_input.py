@@ -101,6 +101,10 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
     (["study", "jaw-tongue", "--out", "{tmp}/o", "--motions", "yawn"], "invalid choice: 'yawn'"),
     (["study", "jaw-tongue", "--out", "{tmp}/o", "--quick", "--duration", "-1"],
      "argument --duration: must be > 0"),
+    (["study", "robustness", "tongue-level2", "--out", "{tmp}/o"],
+     "unknown model 'tongue-level2'; choose one of ['jaw-tongue', 'tongue'"),
+    (["study", "robustness", "tongue", "--out", "{tmp}/o", "--schedules", "0"],
+     "argument --schedules: must be a positive integer"),
     (["demo", "--quick", "--out", "{tmp}/o", "--steps", "3"], "unrecognized arguments: --steps 3"),
     (["demo", "--quick", "--out", "file:{tmp}/taken"], "Not a directory"),
 ]

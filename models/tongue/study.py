@@ -176,10 +176,12 @@ def reducible(config: TongueConfig, data=None) -> ReducibleScene:
                           motions={m: Tongue.motion(m) for m in MOTIONS})
 
 
-def reducible_at(level: int = 0) -> ReducibleScene:
-    """The tongue at ``level`` with its default settings (:func:`reducible`; ``artifem study
-    robustness tongue``, ``tongue-level1``)."""
-    return reducible(TongueConfig(level=level))
+def reducible_at(level: int = 0, incompressibility: str = "hard") -> ReducibleScene:
+    """The tongue at ``level`` with its default settings, the hard incompressibility or
+    (``"penalty"``) the element penalty (:func:`reducible`; ``artifem study robustness
+    tongue``, ``tongue-level1``, ``tongue-penalty``)."""
+    return reducible(TongueConfig(level=level, incompressibility={
+        "hard": HARD, "penalty": PENALTY}[incompressibility]))
 
 
 class TongueStudy:
