@@ -20,8 +20,8 @@ Bad input ends in one line on stderr, ``artifem: error: ...``, and exit status 2
 status 1. ``ARTIFEM_TRACEBACK=1`` shows the Python traceback as well.
 
 Under ``mpiexec -n N`` (N > 1) each command runs, or refuses, as its entry in
-:data:`COMMANDS` says (``artifem --help`` lists none of this; ``tests/test_mpi_cli.py``
-launches every ``simulate`` model on 2 ranks):
+:data:`COMMANDS` says (``tests/test_mpi_cli.py`` launches every ``simulate`` model on
+2 ranks):
 
 - ``DISTRIBUTED``: on every rank, its FEM bodies distributed (output from rank 0);
 - ``ONE_RANK``: on rank 0 alone (a serial model, its meshes on ``MPI.COMM_SELF``), said on
