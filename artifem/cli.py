@@ -24,8 +24,8 @@ Under ``mpiexec -n N`` (N > 1) each command runs, or refuses, as its entry in
 2 ranks):
 
 - ``DISTRIBUTED``: on every rank, its FEM bodies distributed (output from rank 0);
-- ``ONE_RANK``: on rank 0 alone (a serial model, its meshes on ``MPI.COMM_SELF``), said on
-  stderr before the work; the other ranks sleep until it ends and exit with its status;
+- ``ONE_RANK``: a serial model, on rank 0 alone in a fresh serial process, said on stderr
+  before the work; the other ranks sleep until it ends and exit with its status;
 - a refusal (any other string, the reason): ``artifem COMMAND: error: ...`` on rank 0 and
   status 2 on every rank, before any work.
 
@@ -40,13 +40,12 @@ import argparse
 import importlib
 import os
 import sys
-import time
 import traceback
 
-import numpy as np
 from mpi4py import MPI
 
 from artifem.errors import SolverError
+from artifem.reduction.distributed import continue_alone
 
 #: how a command runs under ``mpiexec -n N``, N > 1 (module docstring); any other value
 #: of a command's entry is the reason it refuses.
@@ -151,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     if args._under_mpi == DISTRIBUTED:
         return _run(args, parser.prog, abort=comm)
     if args._under_mpi == ONE_RANK:
-        return _run_on_rank_0(args, parser.prog, comm)
+        return _run_on_rank_0(args, comm)
     if comm.rank == 0:
         print(f"{args._name}: error: refused under mpiexec ({comm.size} ranks): "
               f"{args._under_mpi}", file=sys.stderr)
@@ -186,26 +185,15 @@ def _run(args: argparse.Namespace, prog: str, abort: MPI.Comm | None = None) -> 
     return status
 
 
-def _run_on_rank_0(args: argparse.Namespace, prog: str, comm: MPI.Comm) -> int:
-    """Run a serial command on rank 0 while the other ranks sleep (a non-blocking
-    broadcast of its exit status, tested every 0.1 s: an idle rank takes no CPU time from
-    the working one); every rank exits with its status, or all end on a crash."""
-    status = np.zeros(1, dtype=np.intc)
+def _run_on_rank_0(args: argparse.Namespace, comm: MPI.Comm) -> int:
+    """Run a serial command on rank 0, said on stderr, in a fresh serial process while the
+    other ranks wait without spinning; every rank exits with its status. Not in rank 0's
+    own process: PETSc work done there alone would make the ranks' PETSc cleanups at exit
+    differ, and wait for each other for ever (artifem.reduction.distributed)."""
     if comm.rank == 0:
         print(f"{args._name}: runs on one MPI rank of {comm.size} (a serial model); the "
               f"others wait idle", file=sys.stderr, flush=True)
-        try:
-            status[0] = _run(args, prog)
-        except BaseException:
-            traceback.print_exc()
-            sys.stderr.flush()
-            comm.Abort(1)
-        comm.Ibcast(status, root=0).Wait()
-    else:
-        request = comm.Ibcast(status, root=0)
-        while not request.Test():
-            time.sleep(0.1)
-    return int(status[0])
+    return continue_alone(args._argv, comm)
 
 
 if __name__ == "__main__":

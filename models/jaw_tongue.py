@@ -267,15 +267,15 @@ class JawTongueScene:
 
 
 def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=None,
-                data=None, reduce=None, comm=MPI.COMM_SELF) -> JawTongueScene:
+                data=None, reduce=None, comm=MPI.COMM_WORLD) -> JawTongueScene:
     """The tongue, the aligned jaw, the TMJ hinge, the opener and the closer (docstring).
 
     ``reduce``, a reduced model of this scene (``ReducedModel`` of
     :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue_reduced.train``), puts the reduced
     tongue in place of the full one, riding on the jaw by a lift attachment. ``comm``: the
-    tongue mesh's communicator: by default ``MPI.COMM_SELF``, a serial scene on each rank (as
-    a reductor's training runs and :func:`simulate` need); a distributed tongue's coupled
-    island is stepped by the Schur complement (``artifem.scene.schur_island``).
+    tongue mesh's communicator (``MPI.COMM_SELF``: a serial scene on each rank, as a
+    reductor's training runs and :func:`simulate` need; on several ranks the coupled
+    island is stepped by the Schur complement of ``artifem.scene.schur_island``).
     """
     data = data or load_tongue_data(config.tongue.level)
     if config.tongue.level != 0:
@@ -353,8 +353,8 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     body = s.tongue.body
     if body.mesh.comm.size > 1:                 # the tip, u and the render are one rank's
         raise InputError(f"jaw_tongue.simulate: the tongue is distributed over "
-                         f"{body.mesh.comm.size} MPI ranks; it records a serial scene "
-                         f"(build_scene(comm=MPI.COMM_SELF), the default)")
+                         f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
+                         f"build_scene(comm=MPI.COMM_SELF)")
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
     control = s.tongue.bundle_schedule(motion).controller(body) if motion else None

@@ -3,9 +3,10 @@
 Each model is launched on 2 ranks with its shortest options that still take a few steps,
 under a timeout: a distributed model (artifem.cli.DISTRIBUTED) must exit 0 with its
 output written once, from 2 ranks; a serial model (ONE_RANK) must exit 0 with its output
-and say on stderr that it ran on one rank; a refused command must exit 2 before any work
-with its one-line reason. A run still going at its timeout fails the test (its processes
-are killed). The last test raises an error on one rank only: every rank must end.
+and say on stderr that it ran on one rank (a bad input: its one-line error, status 2 on
+every rank); a refused command must exit 2 before any work with its one-line reason. A
+run still going at its timeout fails the test (its processes are killed). An error raised
+on one rank only of a distributed command must end every rank.
 """
 
 import json
@@ -147,3 +148,15 @@ def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
     for rank in (0, 1):
         assert (f"rank {rank}: jaw_tongue.simulate: the tongue is distributed over 2 MPI "
                 f"ranks") in proc.stdout
+
+
+def test_serial_model_bad_input_exits_2_on_every_rank(tmp_path):
+    """The bad input of a model run on one rank ends it in its one-line error, and every
+    rank with its status."""
+    missing = tmp_path / "missing.json"
+    proc = mpirun(ARTIFEM + ["simulate", "jaw-tongue", "--schedule", str(missing),
+                             "--out", str(tmp_path / "out")], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert len(lines) == 1 and lines[0].startswith("artifem: error: ") and \
+        str(missing) in lines[0], proc.stderr
