@@ -19,6 +19,20 @@ Each command lives in its own module, which declares its arguments
 Bad input ends in one line on stderr, ``artifem: error: ...``, and exit status 2
 (as argparse's own errors); a failed solve in ``artifem: solver failed: ...`` and
 status 1. ``ARTIFEM_TRACEBACK=1`` shows the Python traceback as well.
+
+Under ``mpiexec -n N`` (N > 1) each command runs, or refuses, as its entry in
+:data:`COMMANDS` says (``tests/test_mpi_cli.py`` launches every ``simulate`` model on
+2 ranks):
+
+- ``DISTRIBUTED``: on every rank, its FEM bodies distributed (output from rank 0);
+- ``ONE_RANK``: a serial model, on rank 0 alone in a fresh serial process, said on stderr
+  before the work; the other ranks sleep until it ends and exit with its status;
+- a refusal (any other string, the reason): ``artifem COMMAND: error: ...`` on rank 0 and
+  status 2 on every rank, before any work.
+
+An error raised on some ranks only would leave the others waiting in a collective call
+for ever, so under ``mpiexec`` an error (after its message) or a crash on any rank of a
+distributed command ends every rank (``MPI_Abort``, the exit status of the error).
 """
 
 from __future__ import annotations
@@ -27,53 +41,78 @@ import argparse
 import importlib
 import os
 import sys
+import traceback
+
+from mpi4py import MPI
 
 from artifem.errors import SolverError
+from artifem.reduction.distributed import continue_alone
 
-#: subcommand path -> (module, help). The module provides ``add_arguments(parser)``
-#: and ``run(args) -> int``; "module:NAME" names ``add_NAME_arguments`` instead,
-#: for modules that serve several subcommands with one ``run``.``
+#: how a command runs under ``mpiexec -n N``, N > 1 (module docstring); any other value
+#: of a command's entry is the reason it refuses.
+DISTRIBUTED = "distributed"
+ONE_RANK = "one rank"
+#: the reason of the benchmarks that launch their own ``mpiexec`` runs.
+OWN_MPIEXEC = "launches its own mpiexec runs (1 and 2 ranks); run it without mpiexec"
+#: the reason of the benchmarks that time one process.
+ONE_PROCESS = "times the steps of one process; run it without mpiexec"
+
+#: subcommand path -> (module, help, under mpiexec). The module provides
+#: ``add_arguments(parser)`` and ``run(args) -> int``; "module:NAME" names
+#: ``add_NAME_arguments`` instead, for modules that serve several subcommands with one
+#: ``run``. The third entry: DISTRIBUTED, ONE_RANK or the reason it refuses.
 COMMANDS = {
-    ("mesh", "info"): ("artifem.io.mesh_info", "nodes, elements, volume, det J, bounding box"),
+    ("mesh", "info"): ("artifem.io.mesh_info", "nodes, elements, volume, det J, bounding box",
+                       ONE_RANK),
     ("material", "curves"): ("artifem.material_curves",
-                             "uniaxial / equibiaxial / shear stress-stretch curves to PNG"),
-    ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam"),
+                             "uniaxial / equibiaxial / shear stress-stretch curves to PNG",
+                             ONE_RANK),
+    ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam",
+                           DISTRIBUTED),
     ("simulate", "tongue"): ("artifem.models.tongue.simulate",
-                             "ArtiSynth hex tongue: protrusion, retroflexion, retraction"),
+                             "ArtiSynth hex tongue: protrusion, retroflexion, retraction",
+                             DISTRIBUTED),
     ("simulate", "beam-ellipsoid"): ("artifem.models.beam_ellipsoid",
-                                     "FEM beam with a rigid ellipsoid at its end (Fig. 11)"),
+                                     "FEM beam with a rigid ellipsoid at its end (Fig. 11)",
+                                     ONE_RANK),
     ("simulate", "jaw-tongue"): ("artifem.models.jaw_tongue",
-                                 "tongue on a hinged rigid jaw opened by a Hill muscle"),
+                                 "tongue on a hinged rigid jaw opened by a Hill muscle", ONE_RANK),
     ("simulate", "styloglossus"): ("artifem.models.styloglossus",
                                    "external styloglossus on 4 vs 24 support nodes: stress at "
-                                   "equal excitation and tension, w >= 0, reduced tongue"),
+                                   "equal excitation and tension, w >= 0, reduced tongue",
+                                   ONE_RANK),
     ("simulate", "airway"): ("artifem.models.airway",
                              "airway skin over tongue (full or --reduced), jaw and palate, "
-                             "with air pressure"),
+                             "with air pressure", ONE_RANK),
     ("simulate", "masseter"): ("artifem.models.masseter",
-                               "synthetic masseter: embedding vs conforming, aponeuroses"),
-    ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON"),
+                               "synthetic masseter: embedding vs conforming, aponeuroses",
+                               ONE_RANK),
+    ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON", OWN_MPIEXEC),
     ("bench", "tongue"): ("artifem.bench:tongue",
-                          "tongue step timings (protrusion, levels 0 and 1) to JSON"),
+                          "tongue step timings (protrusion, levels 0 and 1) to JSON", OWN_MPIEXEC),
     ("bench", "reduced"): ("artifem.bench_reduced",
-                           "reduced tongue step against its floating-point work to JSON"),
+                           "reduced tongue step against its floating-point work to JSON",
+                           ONE_PROCESS),
     ("bench", "scenes"): ("artifem.bench_scenes",
-                          "ms per coupled step: jaw-tongue full/reduced, airway, masseter"),
+                          "ms per coupled step: jaw-tongue full/reduced, airway, masseter",
+                          ONE_PROCESS),
     ("study", "tongue"): ("artifem.models.tongue.study",
-                          "reduced tongue models against the full one: speed versus error"),
+                          "reduced tongue models against the full one: speed versus error",
+                          DISTRIBUTED),
     ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",
-                              "jaw-tongue scene, full against reduced tongue: speed, error"),
+                              "jaw-tongue scene, full against reduced tongue: speed, error",
+                              ONE_RANK),
     ("study", "scene"): ("artifem.scene_study",
                          "any scene's reduced model on training, motions and held-out "
-                         "schedules (MODULE:FUNCTION returning a ReducibleScene)"),
+                         "schedules (MODULE:FUNCTION returning a ReducibleScene)", DISTRIBUTED),
     ("study", "robustness"): ("artifem.robustness_study",
                               "how often a model runs on random valid schedules of the hard "
                               "kinds (co-activation, pulses, all at once, release): finished, "
-                              "cost against the semi-implicit step, det F, volume"),
+                              "cost against the semi-implicit step, det F, volume", ONE_PROCESS),
     ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
                                      "tongue motions with the element penalty and with hard "
-                                     "incompressibility: volume, landmarks, speed"),
-    ("demo",): ("artifem.demo", "the main job: run it and say where the results are"),
+                                     "incompressibility: volume, landmarks, speed", DISTRIBUTED),
+    ("demo",): ("artifem.demo", "the main job: run it and say where the results are", DISTRIBUTED),
 }
 
 
@@ -88,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="artifem", description=__doc__.split("\n\n")[0])
     top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}
-    for path, (module, help_text) in COMMANDS.items():
+    for path, (module, help_text, under_mpi) in COMMANDS.items():
         if len(path) == 1:
             sub = top.add_parser(path[0], help=help_text, description=help_text)
         else:
@@ -98,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                        metavar="SUBCOMMAND")
             sub = groups[path[0]].add_parser(path[1], help=help_text, description=help_text)
         module, _, name = module.partition(":")
-        sub.set_defaults(_module=module)
+        sub.set_defaults(_module=module, _name=" ".join((parser.prog,) + path),
+                         _under_mpi=under_mpi)
         add_arguments = f"add_{name}_arguments" if name else "add_arguments"
         getattr(importlib.import_module(module), add_arguments)(sub)
     return parser
@@ -109,16 +149,56 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args._argv = list(argv)             # the command itself: to run it again (a study under MPI)
+    comm = MPI.COMM_WORLD
+    if comm.size == 1:
+        return _run(args, parser.prog)
+    if args._under_mpi == DISTRIBUTED:
+        return _run(args, parser.prog, abort=comm)
+    if args._under_mpi == ONE_RANK:
+        return _run_on_rank_0(args, comm)
+    if comm.rank == 0:
+        print(f"{args._name}: error: refused under mpiexec ({comm.size} ranks): "
+              f"{args._under_mpi}", file=sys.stderr)
+    return 2
+
+
+def _run(args: argparse.Namespace, prog: str, abort: MPI.Comm | None = None) -> int:
+    """The command's exit status; a bad input or a failed solve in one line on stderr.
+    ``abort``: under mpiexec, end every rank of it after an error or a crash on this one
+    (the others may be waiting for this rank in a collective call)."""
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except (ValueError, OSError, SolverError) as exc:
         # artifem's InputError (a ValueError) and SolverError, the materials' ValueError
         # (forms/ imports nothing of artifem) and unreadable or unwritable files
         if os.environ.get("ARTIFEM_TRACEBACK"):
-            raise
+            if abort is None:
+                raise
+            traceback.print_exc()
         kind = "solver failed" if isinstance(exc, SolverError) else "error"
-        print(f"{parser.prog}: {kind}: {exc}", file=sys.stderr)
-        return 1 if isinstance(exc, SolverError) else 2
+        on = f" (rank {abort.rank})" if abort is not None else ""
+        print(f"{prog}: {kind}{on}: {exc}", file=sys.stderr, flush=True)
+        status = 1 if isinstance(exc, SolverError) else 2
+    except BaseException:
+        if abort is None:
+            raise
+        traceback.print_exc()
+        sys.stderr.flush()
+        status = 1
+    if abort is not None:
+        abort.Abort(status)
+    return status
+
+
+def _run_on_rank_0(args: argparse.Namespace, comm: MPI.Comm) -> int:
+    """Run a serial command on rank 0, said on stderr, in a fresh serial process while the
+    other ranks wait without spinning; every rank exits with its status. Not in rank 0's
+    own process: PETSc work done there alone would make the ranks' PETSc cleanups at exit
+    differ, and wait for each other for ever (artifem.reduction.distributed)."""
+    if comm.rank == 0:
+        print(f"{args._name}: runs on one MPI rank of {comm.size} (a serial model); the "
+              f"others wait idle", file=sys.stderr, flush=True)
+    return continue_alone(args._argv, comm)
 
 
 if __name__ == "__main__":

@@ -37,8 +37,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mpi4py import MPI
-
 from artifem.arguments import positive_float, positive_int
 from artifem.errors import InputError, SolverError
 from artifem.excitation import ExcitationSchedule
@@ -283,9 +281,6 @@ def load(spec: str) -> ReducibleScene:
 
 
 def run(args: argparse.Namespace) -> int:
-    if MPI.COMM_WORLD.size > 1:
-        raise InputError("study robustness runs in one process (its figures are timings of "
-                         "the serial step): launch it without mpiexec")
     model = load(args.model)
     result = robustness_study(model, args.schedules, seed=args.seed, duration=args.duration,
                               dt=args.dt, progress=not args.no_progress)

@@ -274,7 +274,8 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue_reduced.train``), puts the reduced
     tongue in place of the full one, riding on the jaw by a lift attachment. ``comm``: the
     tongue mesh's communicator (``MPI.COMM_SELF``: a serial scene on each rank, as a
-    reductor's training runs need).
+    reductor's training runs and :func:`simulate` need; on several ranks the coupled
+    island is stepped by the Schur complement of ``artifem.scene.schur_island``).
     """
     data = data or load_tongue_data(config.tongue.level)
     if config.tongue.level != 0:
@@ -350,6 +351,10 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     the run. A step the scene cannot complete raises its ElementInversionError or
     StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
     body = s.tongue.body
+    if body.mesh.comm.size > 1:                 # the tip, u and the render are one rank's
+        raise InputError(f"jaw_tongue.simulate: the tongue is distributed over "
+                         f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
+                         f"build_scene(comm=MPI.COMM_SELF)")
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
     control = s.tongue.bundle_schedule(motion).controller(body) if motion else None

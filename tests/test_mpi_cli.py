@@ -1,0 +1,162 @@
+"""Every ``artifem simulate`` model under ``mpiexec -n 2`` runs or refuses, never hangs.
+
+Each model is launched on 2 ranks with its shortest options that still take a few steps,
+under a timeout: a distributed model (artifem.cli.DISTRIBUTED) must exit 0 with its
+output written once, from 2 ranks; a serial model (ONE_RANK) must exit 0 with its output
+and say on stderr that it ran on one rank (a bad input: its one-line error, status 2 on
+every rank); a refused command must exit 2 before any work with its one-line reason. A
+run still going at its timeout fails the test (its processes are killed). An error raised
+on one rank only of a distributed command must end every rank.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from artifem.cli import COMMANDS, DISTRIBUTED, ONE_RANK
+
+MPIEXEC = Path(sys.executable).parent / "mpiexec"
+ARTIFEM = [sys.executable, "-m", "artifem.cli"]
+#: seconds; the slowest model (airway) takes about 13 s on 2 ranks of an idle machine.
+TIMEOUT = 300
+
+#: model -> (the shortest options that take a few steps, files it must write in --out).
+MODELS = {
+    "beam": (["--duration", "0.03", "--cells", "8", "2", "2", "--no-progress"],
+             ["simulate.json", "beam.png", "beam.bp"]),
+    "tongue": (["--duration", "0.03", "--no-progress"],
+               ["protrusion/simulate.json", "protrusion/tongue.png"]),
+    "beam-ellipsoid": (["--duration", "0.03"], ["beam_ellipsoid.json", "beam_ellipsoid.png"]),
+    "jaw-tongue": (["--duration", "0.03"], ["jaw_tongue.json", "jaw_tongue.png"]),
+    "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
+    "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
+    "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),
+}
+
+pytestmark = pytest.mark.skipif(not MPIEXEC.exists(),
+                                reason=f"no mpiexec next to the interpreter ({MPIEXEC})")
+
+
+def mpirun(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """``mpiexec -n 2 command``; fails the test, killing every process of it, at TIMEOUT."""
+    full = [str(MPIEXEC), "-n", "2"] + command
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen(full, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=cwd, env=env, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=TIMEOUT)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        pytest.fail(f"{' '.join(full)} still running after {TIMEOUT} s (a hang):\n"
+                    f"{out[-2000:]}\n{err[-2000:]}")
+    return subprocess.CompletedProcess(full, proc.returncode, out, err)
+
+
+def test_every_simulate_model_is_launched():
+    assert set(MODELS) == {path[1] for path in COMMANDS if path[0] == "simulate"}
+
+
+@pytest.mark.slow                       # 5-15 s each, about 60 s in all
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_simulate_under_two_ranks(model, tmp_path):
+    options, outputs = MODELS[model]
+    out = tmp_path / "out"
+    proc = mpirun(ARTIFEM + ["simulate", model, "--out", str(out)] + options, tmp_path)
+    under_mpi = COMMANDS[("simulate", model)][2]
+    said = f"artifem simulate {model}: runs on one MPI rank of 2"
+    if under_mpi in (DISTRIBUTED, ONE_RANK):
+        assert proc.returncode == 0, f"{' '.join(proc.args)}:\n{proc.stdout}\n{proc.stderr}"
+        missing = [name for name in outputs if not (out / name).exists()]
+        assert not missing, f"{model} wrote no {missing} in {out}:\n{proc.stderr}"
+        assert (said in proc.stderr) == (under_mpi == ONE_RANK), proc.stderr
+        if under_mpi == DISTRIBUTED:
+            assert json.loads((out / outputs[0]).read_text())["ranks"] == 2
+        else:
+            assert proc.stderr.count(said) == 1         # said by rank 0 only
+    else:
+        assert proc.returncode == 2, f"{' '.join(proc.args)}:\n{proc.stdout}\n{proc.stderr}"
+        assert (f"artifem simulate {model}: error: refused under mpiexec (2 ranks): "
+                f"{under_mpi}") in proc.stderr
+        assert not out.exists()
+
+
+def test_refused_command_exits_2_before_any_work(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = mpirun(ARTIFEM + ["bench", "fom", "--out", str(out)], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    reason = COMMANDS[("bench", "fom")][2]
+    assert proc.stderr.strip() == (f"artifem bench fom: error: refused under mpiexec "
+                                   f"(2 ranks): {reason}")
+    assert not out.exists()
+
+
+def test_error_on_one_rank_ends_every_rank(tmp_path):
+    """A distributed command whose rank 1 fails while rank 0 waits in a collective call
+    (the jaw-tongue hang: an IndexError on one rank) ends with the error's status."""
+    (tmp_path / "one_rank_fails.py").write_text(textwrap.dedent('''
+        from mpi4py import MPI
+
+        def add_arguments(parser):
+            pass
+
+        def run(args):
+            comm = MPI.COMM_WORLD
+            if comm.rank == 1:
+                raise ValueError("bad input seen on rank 1 only")
+            comm.Barrier()
+            return 0
+    '''))
+    (tmp_path / "launch.py").write_text(textwrap.dedent('''
+        import sys                      # sys.path[0]: this directory, with one_rank_fails
+        from artifem import cli
+
+        cli.COMMANDS = {("fails",): ("one_rank_fails", "test", cli.DISTRIBUTED)}
+        sys.exit(cli.main(["fails"]))
+    '''))
+    proc = mpirun([sys.executable, str(tmp_path / "launch.py")], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "artifem: error (rank 1): bad input seen on rank 1 only" in proc.stderr
+
+
+@pytest.mark.slow                       # about 5 s: the jaw-tongue scene built on 2 ranks
+def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
+    """jaw_tongue.simulate records one rank's tongue (its tip, u, the render): on a tongue
+    built on 2 ranks it raises on every rank, where its tip lookup used to fail on the
+    rank without the tip and leave the other in the step's barrier."""
+    (tmp_path / "distributed.py").write_text(textwrap.dedent('''
+        import artifem  # noqa: F401  (before dolfinx)
+        from mpi4py import MPI
+
+        from artifem.errors import InputError
+        from artifem.models import jaw_tongue as jt
+
+        s = jt.build_scene(comm=MPI.COMM_WORLD)
+        try:
+            jt.simulate(s, "protrusion", 0.02)
+        except InputError as exc:
+            print(f"rank {MPI.COMM_WORLD.rank}: {exc}")
+    '''))
+    proc = mpirun([sys.executable, str(tmp_path / "distributed.py")], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    for rank in (0, 1):
+        assert (f"rank {rank}: jaw_tongue.simulate: the tongue is distributed over 2 MPI "
+                f"ranks") in proc.stdout
+
+
+def test_serial_model_bad_input_exits_2_on_every_rank(tmp_path):
+    """The bad input of a model run on one rank ends it in its one-line error, and every
+    rank with its status."""
+    missing = tmp_path / "missing.json"
+    proc = mpirun(ARTIFEM + ["simulate", "jaw-tongue", "--schedule", str(missing),
+                             "--out", str(tmp_path / "out")], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert len(lines) == 1 and lines[0].startswith("artifem: error: ") and \
+        str(missing) in lines[0], proc.stderr
