@@ -24,7 +24,14 @@ element blocks G^T D G are added to K after assembly). The
 internal-plus-external force is f = -dPi/du, the tangent K = d^2 Pi/du^2,
 both derived by ``ufl.derivative`` from the UFL energies of ``artifem.forms``.
 Mass is lumped (row sums of the consistent mass, ArtiSynth's default) or
-consistent; damping is Rayleigh, D = alpha M + beta K.
+consistent; damping is Rayleigh, D = alpha M + beta K_0, with K_0 the tangent of the
+body's material at rest (:meth:`FemBody.rest_stiffness`). K_0 is positive semi-definite, so
+the damping always dissipates. The current tangent K(u) would not: it loses definiteness
+where active fibers or large pressures destabilize the tissue (the tongue under a fast full
+co-activation: hundreds of negative eigenvalues down to -8e6 s^-2 in M's metric). beta K(u)
+would then be a negative damping that feeds exactly those modes, at a rate that grows as
+the step shrinks. The step matrix (1 + h alpha) M + h beta K(u) + h^2 K(u) would stay
+indefinite however small h is, and no step halving or Newton iteration would recover.
 
 Node and cell arguments are *input* indices (the order of the mesh file), so
 the same script runs in serial and under ``mpiexec``.
@@ -103,7 +110,7 @@ class FemBody:
         material: bulk material from ``artifem.forms`` (``strain_energy(F)``).
         density: rho in kg/m^3 (> 0).
         mass: ``"lumped"`` (default) or ``"consistent"``.
-        rayleigh: (alpha, beta) of D = alpha M + beta K.
+        rayleigh: (alpha, beta) of D = alpha M + beta K_0 (K_0: :meth:`rest_stiffness`).
         gravity: acceleration vector (m/s^2).
         quadrature_degree: degree of the energy integrals (default per cell type).
         incompressibility: kappa_inc (Pa) of the soft element-wise volume penalty, or
@@ -652,6 +659,42 @@ class FemBody:
         fem_petsc.assemble_vector(self.R, c["R"])
         self.R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.R.axpy(-self.load_factor.value, self.nodal_load)
+
+    def rest_stiffness(self) -> PETSc.Mat:
+        """K_0 = d^2/du^2 of the material energy (the matrix material and the element
+        penalty, no muscle, load or hard constraint) at u = 0: the stiffness of the
+        Rayleigh damping D = alpha M + beta K_0 (module docstring). Fixed rows and columns
+        are zero. It is assembled once with the forms; its sparsity is a subset of K's."""
+        self.compile()
+        c = self._compiled
+        if "K_rest" not in c:
+            rest = fem.Function(self.V)                 # u = 0
+            F = ufl.Identity(3) + ufl.grad(rest)
+            energy = sum(t.density(F, None) * ufl.Measure(
+                "dx", domain=self.mesh, metadata={"quadrature_degree": t.degree})
+                for t in self.energy_terms() if t.cells is None)
+            v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+            form = fem.form(ufl.derivative(ufl.derivative(energy, rest, v), rest, du))
+            c["K_rest"] = fem_petsc.assemble_matrix(form, bcs=self.bcs, diag=0.0)
+            c["K_rest"].assemble()
+        return c["K_rest"]
+
+    def damping_mult(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """y = D x = (alpha M + beta K_0) x."""
+        self.mass_mult(x, y)
+        y.scale(self.alpha)
+        if self.beta:
+            tmp = y.duplicate()
+            self.rest_stiffness().mult(x, tmp)
+            y.axpy(self.beta, tmp)
+            tmp.destroy()
+
+    def add_damping(self, A: PETSc.Mat, scale: float) -> None:
+        """A += scale * D (A's sparsity holds K's)."""
+        self.add_mass(A, scale * self.alpha)
+        if self.beta:
+            A.axpy(scale * self.beta, self.rest_stiffness(),
+                   structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
 
     def zero_fixed(self, vec: PETSc.Vec) -> None:
         """Zero the owned entries of fixed dofs in a blocked vector."""

@@ -1,7 +1,7 @@
 """Time integrators and the static solver for FEM bodies.
 
-Notation: M mass, D = alpha M + beta K Rayleigh damping, K = d^2 Pi/du^2 the
-tangent, R = dPi/du (so f = -R is the internal-plus-external force), h the
+Notation: M mass, D = alpha M + beta K_0 Rayleigh damping (K_0 the stiffness at rest,
+``FemBody.rest_stiffness``: always dissipative), K = d^2 Pi/du^2 the tangent, R = dPi/du (so f = -R is the internal-plus-external force), h the
 step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
 
 - :class:`SemiImplicitEuler` (ArtiSynth's ConstrainedBackwardEuler): backward
@@ -13,17 +13,17 @@ step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
 - :class:`ImplicitEuler`: the same equations solved exactly for v_{k+1} by
   Newton's method with a backtracking line search on the residual
 
-      r(v) = M (v - v_k) + h R(u_k + h v) + h D_k v,
-      J(v) = M + h D_k + h^2 K(u_k + h v),
+      r(v) = M (v - v_k) + h R(u_k + h v) + h D v,
+      J(v) = M + h D + h^2 K(u_k + h v),
 
-  with the damping matrix D_k taken at the start of the step.
+  the exact Jacobian (D is constant).
 - :func:`solve_static`: Newton with line search on R(u) = 0, optionally in
   load increments of the load factor lambda.
 
 Reduced bodies (:class:`~artifem.reduction.reduced_body.ReducedFemBody`,
 u = u_bar + U q) have dense r x r versions of each: ``advance_reduced(body, h)``
 and :func:`solve_static_reduced`, the same equations with M~, K~(q) =
-d^2 Pi~/dq^2, f~(q) = -dPi~/dq, D~ = alpha M~ + beta K~ and q, q' in place of
+d^2 Pi~/dq^2, f~(q) = -dPi~/dq, D~ = U^T D U and q, q' in place of
 M, K, f, D, u, v (numpy, no PETSc).
 
 An integrator raises :class:`StepFailed` when it cannot complete the step
@@ -93,10 +93,10 @@ def step_system(body: FemBody, h: float,
     """The semi-implicit step of an FEM body at its current state, A v+ = b (the one place
     it is formed: this integrator, the coupled island's direct and Schur solves):
 
-        A = (1 + h alpha) M + (h beta + h^2) K,    b = M v + h f,    f = -R,
+        A = M + h D + h^2 K,    b = M v + h f,    f = -R,
 
-    and the applied force f - D v (Rayleigh damping D = alpha M + beta K; the slaves'
-    loads in K_geo). A is ``body.K`` scaled in place: valid until the body is assembled
+    and the applied force f - D v (Rayleigh damping D = alpha M + beta K_0, K_0 the
+    stiffness at rest: ``FemBody.rest_stiffness``; the slaves' loads in K_geo). A is ``body.K`` scaled in place: valid until the body is assembled
     again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
     ``linearized=False`` (Newton's Jacobian at a trial state) takes the exact tangent of
     a hard-incompressible body (``FemBody.assemble``).
@@ -105,27 +105,22 @@ def step_system(body: FemBody, h: float,
     v = body.v.x.petsc_vec
     b, d = v.duplicate(), v.duplicate()
     body.mass_mult(v, b)                    # b = M v, then + h f
-    d.set(0.0)
-    if body.beta:
-        body.K.mult(v, d)
-        d.scale(body.beta)
-    d.axpy(body.alpha, b)
+    body.damping_mult(v, d)
     d.axpy(1.0, body.R)
     d.scale(-1.0)                           # f - D v = -R - D v
     b.axpy(-h, body.R)
-    body.K.scale(h * body.beta + h * h)     # K becomes the step matrix A
-    body.add_mass(body.K, 1.0 + h * body.alpha)
+    body.K.scale(h * h)                     # K becomes the step matrix A
+    body.add_damping(body.K, h)
+    body.add_mass(body.K, 1.0)
     return body.K, b, d
 
 
 def reduced_step_system(body: ReducedFemBody, h: float, linearized: bool = False):
     """:func:`step_system` in reduced coordinates (dense r x r): (A, b, f~ - D~ q') with
-    A = (1 + h alpha) M~ + (h beta + h^2) K~, b = M~ q' + h f~ (``linearized``: a hard body's
+    A = M~ + h D~ + h^2 K~, D~ = U^T D U, b = M~ q' + h f~ (``linearized``: a hard body's
     geometric tangent with its multipliers, as in :func:`step_system`)."""
-    K, f, M, v = body.tangent(linearized), body.force(), body.M, body.qdot
-    Mv = M @ v
-    return ((1.0 + h * body.alpha) * M + (h * body.beta + h * h) * K, Mv + h * f,
-            f - body.alpha * Mv - body.beta * (K @ v))
+    K, f, M, D, v = body.tangent(linearized), body.force(), body.M, body.D, body.qdot
+    return M + h * D + h * h * K, M @ v + h * f, f - D @ v
 
 
 class SemiImplicitEuler:
@@ -201,7 +196,7 @@ class ImplicitEuler:
 
     The line search is an Armijo backtracking on the incremental potential
 
-        E(v) = 1/2 (v - v_k)^T M (v - v_k) + Pi(u_k + h v) + h/2 v^T D_k v,
+        E(v) = 1/2 (v - v_k)^T M (v - v_k) + Pi(u_k + h v) + h/2 v^T D v,
 
     whose gradient is r(v), so every accepted step decreases E.
     """
@@ -215,8 +210,6 @@ class ImplicitEuler:
     def advance(self, body: FemBody, h: float, solver: LinearSolver) -> None:
         u, v = body.u.x.petsc_vec, body.v.x.petsc_vec
         u0, v0 = u.copy(), v.copy()
-        body.assemble(tangent=body.beta > 0)
-        K0 = body.K.copy() if body.beta > 0 else None
         r, w, dv = v.duplicate(), v.duplicate(), v.duplicate()
 
         def set_velocity(values) -> None:
@@ -224,22 +217,12 @@ class ImplicitEuler:
             u.array[:] = u0.array + h * v.array
             _update_ghosts(u, v)
 
-        def damping_mult(x: PETSc.Vec, y: PETSc.Vec) -> None:
-            """y = D_k x."""
-            body.mass_mult(x, y)
-            y.scale(body.alpha)
-            if K0 is not None:
-                tmp = y.duplicate()
-                K0.mult(x, tmp)
-                y.axpy(body.beta, tmp)
-                tmp.destroy()
-
         def incremental_potential() -> float:
             w.array[:] = v.array - v0.array
             Mw = w.duplicate()
             body.mass_mult(w, Mw)
             E = 0.5 * Mw.dot(w) + body.potential_energy()
-            damping_mult(v, Mw)
+            body.damping_mult(v, Mw)
             E += 0.5 * h * Mw.dot(v)
             Mw.destroy()
             return E
@@ -250,7 +233,7 @@ class ImplicitEuler:
             w.array[:] = v.array - v0.array
             body.mass_mult(w, r)
             r.axpy(h, body.R)
-            damping_mult(v, w)
+            body.damping_mult(v, w)
             r.axpy(h, w)
             body.zero_fixed(r)
             return r.norm()
@@ -272,9 +255,8 @@ class ImplicitEuler:
                     return it - 1
                 A = body.K
                 A.scale(h * h)
-                if K0 is not None:
-                    A.axpy(h * body.beta, K0, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-                body.add_mass(A, 1.0 + h * body.alpha)
+                body.add_damping(A, h)
+                body.add_mass(A, 1.0)
                 r.scale(-1.0)
                 solver.solve(A, r, dv)
                 body.zero_fixed(dv)
@@ -308,26 +290,21 @@ class ImplicitEuler:
         finally:
             for vec in (u0, v0, r, w, dv):
                 vec.destroy()
-            if K0 is not None:
-                K0.destroy()
 
 
     def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
         """The same Newton iteration in reduced coordinates (dense r x r), on
 
-            r(v) = M~ (v - q'_k) - h f~(q_k + h v) + h D~_k v,
-            J(v) = M~ + h D~_k + h^2 K~(q_k + h v),   D~_k = alpha M~ + beta K~(q_k),
+            r(v) = M~ (v - q'_k) - h f~(q_k + h v) + h D~ v,
+            J(v) = M~ + h D~ + h^2 K~(q_k + h v),   D~ = U^T D U,
 
         with the Armijo line search on E(v) = 1/2 (v - q'_k)^T M~ (v - q'_k)
-        + Pi~(q_k + h v) + h/2 v^T D~_k v. A hard-incompressible body: Newton-Lagrange (its
+        + Pi~(q_k + h v) + h/2 v^T D~ v. A hard-incompressible body: Newton-Lagrange (its
         multipliers solved with each iteration) and the Uzawa updates around Newton, as
         for the full body.
         """
         q0, v0 = body.q.copy(), body.qdot.copy()
-        M = body.M
-        D = body.alpha * M
-        if body.beta > 0:
-            D = D + body.beta * body.tangent()
+        M, D = body.M, body.D
 
         def set_velocity(v: np.ndarray) -> None:
             body.set_state((q0 + h * v, v))

@@ -51,7 +51,8 @@ constraint in every solve.
 
 Dynamics: a reduced body is a Scene body like a full one; the
 integrators of :mod:`artifem.integrators` advance it with dense r x r
-matrices, M~ = U^T M U and D~ = alpha M~ + beta K~ (``advance_reduced``).
+matrices, M~ = U^T M U and D~ = U^T D U = alpha M~ + beta U^T K_0 U (K_0 the full body's
+stiffness at rest, ``FemBody.rest_stiffness``; both offline), ``advance_reduced``.
 
 With the full basis and every point at weight 1 the reduced body reproduces
 the full body to round-off. Point indices refer to
@@ -184,6 +185,17 @@ class ReducedFemBody:
                 MU[:, j] = y.array
             self.M = U.T @ MU
         self.M = 0.5 * (self.M + self.M.T)
+        #: D~ = U^T (alpha M + beta K_0) U, the Rayleigh damping (FemBody.rest_stiffness)
+        self.D = self.alpha * self.M
+        if self.beta:
+            K0 = full.rest_stiffness()
+            x, y = K0.createVecs()
+            K0U = np.empty_like(U)
+            for j in range(self.r):
+                x.array[:] = U[:, j]
+                K0.mult(x, y)
+                K0U[:, j] = y.array
+            self.D = self.D + self.beta * 0.5 * (U.T @ K0U + K0U.T @ U)
         v = ufl.TestFunction(full.V)
         dx = ufl.Measure("dx", domain=full.mesh,
                          metadata={"quadrature_degree": full.quadrature_degree})

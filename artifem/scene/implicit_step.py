@@ -44,14 +44,12 @@ system's first row takes G_m^T (the residual's forces), its second G_x. The
 attachments' K_geo of the semi-implicit step is not a derivative of this residual
 (its P is the one at the start of the step) and is left out (it took Newton from 3
 to 5-6 iterations); ``Scene.geometric_stiffness`` does not change this step. Left
-out: the derivative of Rayleigh's beta K(q) v and of a path's damping D(q) by the
-configuration. Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5 -> 2e-11
+out: the derivative of a path's damping D(q) by the configuration (the bodies' Rayleigh
+damping D = alpha M + beta K_0 is constant). Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5 -> 2e-11
 (before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
 
 As in the semi-implicit step, M and the velocity map P are taken at the start of
-the step (a rigid body's world inertia turns with it). The Rayleigh damping
-D = alpha M + beta K is taken at the trial configuration (ImplicitEuler takes
-beta K at the start: the two agree exactly for beta = 0, and to O(h) otherwise).
+the step (a rigid body's world inertia turns with it).
 """
 
 from __future__ import annotations

@@ -468,9 +468,8 @@ class Layout:
             b[o:o + n] = b_body.array[:n]
             f_all[o:o + n] = applied.array[:n]
             blocks.append(_csr(A_body))
-            if positional:      # A = (1 + h alpha) M + (h beta + h^2) K: its h^2 K
-                pos_blocks.append((blocks[-1] - (1.0 + h * body.alpha) * _mass(body))
-                                  * (h * h / (h * body.beta + h * h)))
+            if positional:      # A = M + h D + h^2 K: its h^2 K
+                pos_blocks.append(blocks[-1] - _mass(body) - h * _damping(body))
             b_body.destroy()
             applied.destroy()
         for body in self.reduced_bodies:       # the same, dense r x r
@@ -478,8 +477,7 @@ class Layout:
             A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h, linearized)
             blocks.append(A_body)
             if positional:
-                pos_blocks.append((A_body - (1.0 + h * body.alpha) * body.M)
-                                  * (h * h / (h * body.beta + h * h)))
+                pos_blocks.append(A_body - body.M - h * body.D)
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
@@ -1014,3 +1012,9 @@ def _mass(body: FemBody) -> sparse.csr_matrix:
     if body.M_consistent is not None:
         return _csr(body.M_consistent)
     return sparse.diags(body.M_lumped.array.copy(), format="csr")
+
+
+def _damping(body: FemBody) -> sparse.csr_matrix:
+    """D = alpha M + beta K_0 (FemBody.rest_stiffness)."""
+    D = body.alpha * _mass(body)
+    return D + body.beta * _csr(body.rest_stiffness()) if body.beta else D

@@ -39,7 +39,8 @@ The step
 Each component gives a linear system A_c z+ = b_c for the velocities at the
 end of the step (backward Euler linearized at its start, one solve):
 
-    FEM:    A = (1 + h alpha) M + (h beta + h^2) K,     b = M v + h f,     f = -dPi/du,
+    FEM:    A = M + h D + h^2 K,                        b = M v + h f,     f = -dPi/du,
+            (D = alpha M + beta K_0, K_0 the stiffness at rest: FemBody.rest_stiffness)
             (``integrators.step_system``, which SemiImplicitEuler solves for dv = v+ - v)
     rigid:  A = M - h D - h^2 K_e,                      b = M u + h (f - D u),
             (gravity m g, the gyroscopic wrench, force elements; D and K_e the
@@ -131,7 +132,7 @@ as in FramePath (advanced once per new time t).
 
 Reduced bodies (:class:`~artifem.reduction.reduced_body.ReducedFemBody`): their
 coordinates q are all-space rows like an FEM body's nodal velocities, with the
-same backward-Euler block, dense r x r: A = (1 + h alpha) M~ + (h beta + h^2) K~,
+same backward-Euler block, dense r x r: A = M~ + h D~ + h^2 K~ (D~ = U^T D U),
 b = M~ q' + h f~ (``advance_reduced``). A point on a reduced body
 (:class:`FemPoint` with a reduced body) maps as G = sum_j w_j U_j. Nodes of a
 reduced body ride on a bone through the basis: 12 rigid-lift columns whose

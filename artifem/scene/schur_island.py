@@ -4,8 +4,8 @@ The coupled island's step (artifem.scene.scene docstring) on masters z_m = [v_f;
 the free FEM dofs v_f of each body and the twists u of the rigid roots (few:
 6 per root). An FEM node attached to a rigid body moves with it, v_s = G_s u, so
 the FEM velocity is z = v_f + W u, W's columns w_j the nodal velocities of a
-unit twist j (the rows of P on the FEM dofs). With A = (1 + h alpha) M +
-(h beta + h^2) K and b = M v + h f of a body (its semi-implicit step,
+unit twist j (the rows of P on the FEM dofs). With A = M + h D + h^2 K
+(D = alpha M + beta K_0) and b = M v + h f of a body (its semi-implicit step,
 ``integrators.step_system``), the master equations are
 
     A_ff v_f + (A W)_f u                        = b_f,
