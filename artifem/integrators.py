@@ -119,7 +119,7 @@ def reduced_step_system(body: ReducedFemBody, h: float, linearized: bool = False
     """:func:`step_system` in reduced coordinates (dense r x r): (A, b, f~ - D~ q') with
     A = M~ + h D~ + h^2 K~, D~ = U^T D U, b = M~ q' + h f~ (``linearized``: a hard body's
     geometric tangent with its multipliers, as in :func:`step_system`)."""
-    K, f, M, D, v = body.tangent(linearized), body.force(), body.M, body.D, body.qdot
+    K, f, M, D, v = body.tangent(linearized), body.force(), body.M, body.damping, body.qdot
     return M + h * D + h * h * K, M @ v + h * f, f - D @ v
 
 
@@ -304,7 +304,7 @@ class ImplicitEuler:
         for the full body.
         """
         q0, v0 = body.q.copy(), body.qdot.copy()
-        M, D = body.M, body.D
+        M, D = body.M, body.damping
 
         def set_velocity(v: np.ndarray) -> None:
             body.set_state((q0 + h * v, v))

@@ -186,7 +186,7 @@ class ReducedFemBody:
             self.M = U.T @ MU
         self.M = 0.5 * (self.M + self.M.T)
         #: D~ = U^T (alpha M + beta K_0) U, the Rayleigh damping (FemBody.rest_stiffness)
-        self.D = self.alpha * self.M
+        self.damping = self.alpha * self.M
         if self.beta:
             K0 = full.rest_stiffness()
             x, y = K0.createVecs()
@@ -195,7 +195,7 @@ class ReducedFemBody:
                 x.array[:] = U[:, j]
                 K0.mult(x, y)
                 K0U[:, j] = y.array
-            self.D = self.D + self.beta * 0.5 * (U.T @ K0U + K0U.T @ U)
+            self.damping = self.damping + self.beta * 0.5 * (U.T @ K0U + K0U.T @ U)
         v = ufl.TestFunction(full.V)
         dx = ufl.Measure("dx", domain=full.mesh,
                          metadata={"quadrature_degree": full.quadrature_degree})

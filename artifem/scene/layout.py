@@ -477,7 +477,7 @@ class Layout:
             A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h, linearized)
             blocks.append(A_body)
             if positional:
-                pos_blocks.append(A_body - body.M - h * body.D)
+                pos_blocks.append(A_body - body.M - h * body.damping)
         rigid_blocks = []
         for body in scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
