@@ -11,8 +11,12 @@ from artifem.models.tongue.hard_cases import CASES, build_case, run_built
 #: The cases with the element penalty (the tongue's default), and those on level 0.
 PENALTY = [name for name in CASES if not name.startswith("incompressible_")]
 LEVEL0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
-#: Landmark agreement documented (1e-4 mm), plus the 1e-4 mm rounding of run_built's figures.
-AGREE_MM = 2e-4
+#: Landmark agreement at t = 1 s (mm). With the Rayleigh damping D = 40 M + 0.03 K_0 (the
+#: stiffness at rest, FemBody.rest_stiffness) the protrusion's softest mode still creeps
+#: toward the static equilibrium at t = 1 s (about 3 s^-1: the step case's tip moves 0.02 mm
+#: between t = 1 and 2 s). Two integrators at one dt differ there by O(h) (measured at most
+#: 2.2e-3 mm), dt = 0.01 and 0.05 s by the creep's phase (measured 0.063 mm).
+AGREE_MM, AGREE_DT_MM = 5e-3, 0.1
 
 
 
@@ -62,20 +66,20 @@ def check_outcome(name, tongue, result):
 
 
 
-def assert_same_landmarks(a, b, what):
+def assert_same_landmarks(a, b, what, atol=AGREE_MM):
     for landmark in a["landmarks_mm"]:
         np.testing.assert_allclose(a["landmarks_mm"][landmark], b["landmarks_mm"][landmark],
-                                   rtol=0, atol=AGREE_MM, err_msg=f"{what}: {landmark}")
+                                   rtol=0, atol=atol, err_msg=f"{what}: {landmark}")
 
 
 def check_protrusion_variants(runs, integrator: str) -> None:
-    """``step`` (no ramp) and ``dt_0.05`` (five times the step) end on the same landmarks, at
-    the protrusion's documented end state (docs/tongue_hard_cases.md: tip (-1.40, 6.64) mm
-    in x, z)."""
+    """``step`` (no ramp) and ``dt_0.05`` (five times the step) end on the same landmarks, near
+    the protrusion's static equilibrium (tip (-1.40, 6.64) mm in x, z: where the runs arrive
+    at t = 2 s, to 2e-3 mm)."""
     step, coarse = runs("step", integrator)[1], runs("dt_0.05", integrator)[1]
     assert step["outcome"] == coarse["outcome"] == "finished"
     assert (step["dt"], coarse["dt"]) == (0.01, 0.05)
     assert coarse["steps"] == 20 and step["steps"] == 100
-    assert_same_landmarks(step, coarse, f"step vs dt_0.05 ({integrator})")
-    assert step["landmarks_mm"]["tip"][0] == pytest.approx(-1.40, abs=0.01)
-    assert step["landmarks_mm"]["tip"][2] == pytest.approx(6.64, abs=0.01)
+    assert_same_landmarks(step, coarse, f"step vs dt_0.05 ({integrator})", AGREE_DT_MM)
+    assert step["landmarks_mm"]["tip"][0] == pytest.approx(-1.40, abs=0.05)
+    assert step["landmarks_mm"]["tip"][2] == pytest.approx(6.64, abs=0.05)

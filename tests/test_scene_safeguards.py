@@ -202,10 +202,11 @@ def test_bad_time_step_and_controller_are_clear_errors():
         Scene(max_halvings=-1)
 
 
-def test_jaw_tongue_with_every_exciter_stepped_to_one_stops_with_the_inversion_error(tmp_path):
+def test_jaw_tongue_with_every_exciter_stepped_to_one_runs(tmp_path):
     """The hard case of the Scene issue: all eleven exciters stepped to 1.0 at dt = 0.05 s.
-    It used to return max |u| = 94 mm and det F = -65 silently; now the tongue's inverted
-    elements are named, and the scene stays at its last good state."""
+    It used to return max |u| = 94 mm and det F = -65 silently, then stopped naming the
+    tongue's inverted elements; with the Rayleigh damping on the stiffness at rest
+    (FemBody.rest_stiffness) and the implicit fallback it runs, every body sound."""
     from artifem.cli import main
     from artifem.models import jaw_tongue as jt
 
@@ -213,17 +214,16 @@ def test_jaw_tongue_with_every_exciter_stepped_to_one_stops_with_the_inversion_e
     exciters = sorted(s.tongue.data.exciters)
     schedule = ExcitationSchedule(np.array([0.0, 1e-3, 1.0]),
                                   {name: [0.0, 1.0, 1.0] for name in exciters})
-    with pytest.raises(ElementInversionError) as err:
-        jt.simulate(s, schedule, 0.5, 0.05)
-    assert err.value.body == "tongue" and err.value.min_det <= 0
-    assert err.value.elements.size > 0
-    assert s.scene.halvings >= s.scene.max_halvings
+    out = jt.simulate(s, schedule, 0.5, 0.05)
+    assert len(out["t"]) == 11 and out["t"][-1] == pytest.approx(0.5)
+    assert 0 < s.scene.min_det_F < 1
     assert all(b.inverted_elements()[0].size == 0 for b in s.scene.bodies)
     assert all(np.all(np.isfinite(a)) for b in s.scene.bodies for a in b.state())
+    assert np.abs(out["tip"][-1]).max() > 1e-3            # the muscles moved the tongue
 
-    # the command line: one line naming the tongue, exit status 1 (a solver failure)
+    # the command line runs it too
     path = tmp_path / "all.json"
     path.write_text(json.dumps({"times": [0.0, 1e-3, 1.0],
                                 "excitations": {n: [0.0, 1.0, 1.0] for n in exciters}}))
     assert main(["simulate", "jaw-tongue", "--schedule", str(path), "--dt", "0.05",
-                 "--duration", "0.5", "--out", str(tmp_path / "o")]) == 1
+                 "--duration", "0.5", "--out", str(tmp_path / "o")]) == 0

@@ -60,6 +60,9 @@ class Case:
     excitations: dict | None = None                 # exciter -> target; None: protrusion
     ramp: bool = True
     dt: float = DT
+    #: s: the exciters in two groups (alternate names) switched in antiphase between 0 and
+    #: their target every ``pulses`` seconds (each switch within 1 ms); None: no pulses
+    pulses: float | None = None
 
 
 #: The cases' TongueConfig before their overrides: the element penalty (module docstring).
@@ -88,12 +91,38 @@ CASES.update({
                                    {**CASES[name].config, **_INCOMPRESSIBLE},
                                    CASES[name].excitations, CASES[name].ramp, CASES[name].dt)
     for name in ("all_exciters", "step", "dt_0.05", "level_1")})
+#: The issue's hard schedules (the tongue's default, hard incompressibility): antagonists
+#: together, everything at once, fast pulses; each switched on at t = 0.
+CASES.update({
+    "incompressible_coactivation": Case(
+        "antagonists together at 1.0 from t = 0 (GGP against HG and STY), hard "
+        "incompressibility", _INCOMPRESSIBLE, {"GGP": 1.0, "HG": 1.0, "STY": 1.0}, ramp=False),
+    "incompressible_all_step": Case(
+        "all 11 exciters at 1.0 from t = 0, hard incompressibility", _INCOMPRESSIBLE, {},
+        ramp=False),
+    "incompressible_pulses": Case(
+        "all 11 exciters in two groups pulsed in antiphase at 0.8, switched every 0.05 s, "
+        "hard incompressibility", _INCOMPRESSIBLE, {}, ramp=False, pulses=0.05),
+})
+#: The level of the pulsed case's exciters.
+PULSE_LEVEL = 0.8
 
 
-def case_schedule(case: Case) -> ExcitationSchedule:
+def case_schedule(case: Case, duration: float = DURATION) -> ExcitationSchedule:
     targets = case.excitations if case.excitations is not None else PROTRUSION
     if case.excitations == {}:
         targets = _all_exciters()
+    if case.pulses is not None:             # interval i: group (i + k) % 2 == 0 on
+        n = int(np.ceil(duration / case.pulses - 1e-9))
+        switches = case.pulses * np.arange(1, n)
+        times = np.concatenate([[0.0], np.ravel(np.column_stack([switches, switches + 1e-3])),
+                                [duration]])
+        values = {}
+        for k, name in enumerate(sorted(targets)):
+            on = PULSE_LEVEL * (((np.arange(n) + k) % 2) == 0)
+            values[name] = np.concatenate([[on[0]], np.ravel(np.column_stack([on[:-1], on[1:]])),
+                                           [on[-1]]])
+        return ExcitationSchedule(times, values)
     if case.ramp:
         return ExcitationSchedule.ramp_and_hold(targets, RAMP_TIME)
     # Constant from t = 0: the controller applies the value at each step's end time,
