@@ -665,7 +665,7 @@ class Scene:
             controller(self, self.t, self.t + h)
         saved = self.save_state()
         failure = self._attempt(h, self.integrator)
-        if failure is not None and self.fallback is not None and self._schur is None:
+        if failure is not None and self._retries_with_fallback():
             self.restore_state(saved)
             retried = self._attempt(h, self.fallback)
             if retried is None:
@@ -681,6 +681,12 @@ class Scene:
         self.halvings += 1
         self._advance(h / 2, depth + 1)
         self._advance(h / 2, depth + 1)
+
+    def _retries_with_fallback(self) -> bool:
+        """A failed step is retried by the fallback: the scene has one, steps semi-
+        implicitly, and its coupled island is not the distributed Schur island."""
+        return (self.fallback is not None and self._schur is None
+                and getattr(self.integrator, "name", None) == "semi-implicit")
 
     def _attempt(self, h: float, integrator) -> _Failure | None:
         """One step by ``integrator`` and the health check: None, or what went wrong."""
