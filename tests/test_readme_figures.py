@@ -351,3 +351,22 @@ def test_hard_against_penalty_bullet_matches_its_jsons():
     assert f"lowers the error on {['no', 'one', 'two', 'three', 'four', 'five', 'all'][lower]} " \
            "of the six" in page
     assert [r["name"] for r in hard if r["full_failed"]] == ["held-out-1000-2"]
+
+
+def test_robustness_page_matches_its_jsons():
+    """docs/robustness.md's table: each row is docs/robustness/<directory>/robustness.json
+    (``artifem study robustness``)."""
+    page = (ROOT / "docs" / "robustness.md").read_text()
+    lines = page[page.index("| model (directory) |"):].splitlines()[2:]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines
+            if line.startswith("|")]
+    assert len(rows) >= 3
+    for name, finished, median, worst, fallbacks, halvings, det, volume in rows:
+        s = json.loads((ROOT / "docs" / "robustness" / name / "robustness.json").read_text()
+                       )["summary"]
+        assert finished.replace(" ", "") == f"{s['finished']}/{s['schedules']}", name
+        assert agrees(median, s["median_cost"]) and agrees(worst, s["worst_cost"]), name
+        assert (int(fallbacks), int(halvings)) == (s["fallbacks"], s["halvings"]), name
+        assert agrees(det, s["min_det_F"]), name
+        shown, exponent = volume.split("e")
+        assert agrees(shown, s["max_volume_change"] / 10.0 ** int(exponent)), name
