@@ -727,7 +727,11 @@ class Scene:
         return None
 
     def _raise(self, failure: _Failure, h: float) -> None:
-        detail = f"{failure.message}; step {h:.3g} s after {self.max_halvings} halvings"
+        retried = "semi-implicit, then implicit" if self._retries_with_fallback() else \
+            getattr(self.integrator, "name", "the integrator")
+        detail = (f"{failure.message}; step {h:.3g} s after {self.max_halvings} halvings "
+                  f"({retried} at each size); what to try: a smaller dt, more max_halvings, "
+                  "or the excitation or load ramped over a few steps")
         if failure.inverted:
             name, bad, min_det = min(failure.inverted, key=lambda x: x[2])
             raise ElementInversionError(self.t + h, bad, min_det, detail, body=name)

@@ -21,6 +21,10 @@ the element-wise incompressibility penalty
 - ``incompressible_*``: the all-exciters, step, dt = 0.05 s and level-1 cases with the
   hard incompressibility (:data:`~artifem.models.tongue.model.HARD`, element volumes held
   to 1e-4, with its solver; the tongue's default) instead of the element penalty.
+- ``incompressible_coactivation``, ``incompressible_all_step``, ``incompressible_pulses``:
+  the issue's hard schedules on the tongue's default, each from t = 0: GGP against HG and
+  STY at 1.0; all eleven exciters at 1.0; all eleven in two groups pulsed in antiphase at
+  0.8, switched every 0.05 s (within 1 ms).
 
 A run either finishes (no inverted element, every value finite) or the
 scene gives up after its step halvings with
@@ -246,56 +250,33 @@ def _passes(r: dict) -> bool:
 NOTES: list[str] = [
     "## Observations",
     "",
-    "- Every case with the element penalty passes with both integrators: no NaN, no "
-    "inverted element, no halving. "
-    "The outcome never depends on the integrator here, and neither does the end state: "
-    "Rayleigh damping D = 40 M (time constant 25 ms) brings every run to the static "
-    "equilibrium of its held excitation well before t = 1 s, so both integrators, and "
-    "dt = 0.01 or 0.05 s, end on the same landmark displacements to 1e-4 mm.",
-    "- `step` with the semi-implicit integrator needs the MUMPS LDL^T fallback of "
-    "`LinearSolver` (commit 7e85259): the full excitation on the first step moves the tip "
-    "3 mm in 0.01 s and leaves a tangent K with negative eigenvalues (lowest about -3 N/m "
-    "at t = 0.01 s, measured densely on level 0), so the step matrix "
-    "(1 + h alpha) M + (h beta + h^2) K is indefinite (lowest eigenvalue about -1e-3 at "
-    "h = 0.01 s) and CG stops with KSP_DIVERGED_INDEFINITE_MAT. The run took 8 direct "
-    "solves and passed. Before that commit the same run stopped at t = 0.01 s with "
-    "`StepFailed: linear solve (cg-gamg-lagged) failed: KSP reason -10` after 4 halvings "
-    "(a clear error, but not the inversion error). Halving cannot cure it: with stiffness "
-    "damping the step matrix is (1 + h alpha) M + h (beta + h) K, whose negative part "
-    "shrinks only in proportion to h, and CG with a freshly rebuilt AMG still reported an "
-    "indefinite matrix at h = 0.000625 s. Its min det F (0.19) is the lowest of the "
-    "level-0 protrusion variants (0.49 with the implicit integrator): the violent first "
-    "steps compress some elements more than the ramp does, and its tip leaves the mid-"
-    "sagittal plane by about 0.04 mm during the transient (y, which the symmetric model "
-    "should keep at 0).",
-    "- `all_exciters` comes closest to inversion (min det F 0.081, tip 25 mm forward): it "
-    "has the largest margin to lose if muscle strengths grow.",
-    "- Rows other than `step` were run just before commit 7e85259; none of them had a failed "
-    "linear solve (a failure was a halving then, and they have none), so the fallback "
-    "does not change them (their JSON rows have no `direct_solves` figure).",
-    "- `incompressible_*` (the hard incompressibility, element volumes held to 1e-4, "
-    "MUMPS): with the implicit integrator every case finishes (level 0 and 1), the volume "
-    "within 1e-7, on the same landmarks as the others of its kind (tip (-2.43, 5.31) mm "
-    "for the protrusion variants, 1 mm further forward and 1.3 mm lower than with the "
-    "penalty). The semi-implicit integrator alone (`Scene(fallback=None)`) finishes "
-    "`dt_0.05` and `level_1` but stops on `step` (t = 0.021 s) and `all_exciters` "
-    "(t = 0.27 s) with `StepFailed` naming the elements whose volume the step could not "
-    "hold: there the step matrix is indefinite (the tangent has lost its stability, as for "
-    "the penalty's `step`, which needed the LDL^T fallback), the pressure's Schur "
-    "complement is too, and neither CG nor conjugate residuals bring the linearized "
-    "constraint to 1e-4 in 50 iterations. Before stopping, its earlier steps had left "
-    "element volumes off by up to 28 % (`step`, first step) and 36 % (`all_exciters`): "
-    "it holds the constraint linearized at the start of the step, against at most 0.06 % "
-    "per step over a speech motion. With the default settings (the semi-implicit step, "
-    "retried by the implicit Newton step when it fails or leaves a volume off by more "
-    "than `Incompressible.step_tol` = 1 %) both finish with the semi-implicit cost per "
-    "step and the implicit integrator's end state (min det F 0.450 and 0.067, as in the "
-    "implicit rows): the `fallbacks` column counts the retried steps.",
-    "- Raising kappa (100 C10, 1000 C10) makes the tongue stiffer in volume and smaller "
-    "in motion (tip 6.8 -> 5.4 -> 4.1 mm) but not harder to integrate: min det F rises. "
-    "Their rows' wall time included a JIT compilation of the forms per kappa value "
-    "(about 35 s) when they were run; material constants are now run-time constants "
-    "of the forms (`fem_body.with_form_constants`), so a new kappa compiles nothing.",
+    "- Every case finishes with both integrators: no NaN, no inverted element. The Rayleigh "
+    "damping is D = 40 M + 0.03 K_0, K_0 the stiffness at rest (`FemBody.rest_stiffness`, "
+    "docs/robustness.md). With the element penalty the two integrators end within 2.2e-3 mm "
+    "of each other at t = 1 s, and dt = 0.01 and 0.05 s within 0.063 mm. The protrusion's "
+    "softest mode still creeps toward the static equilibrium then: the step case's tip moves "
+    "by 0.02 mm more between t = 1 and 2 s, to (-1.40, 6.64) mm. Under the earlier damping "
+    "on the current tangent (40 M + 0.03 K(u)) they agreed to 1e-4 mm at t = 1 s: it damped "
+    "less where the tangent softened.",
+    "- `step` with the semi-implicit integrator no longer needs `LinearSolver`'s MUMPS LDL^T "
+    "fallback (0 direct solves; 8 before). The full excitation on the first step leaves a "
+    "tangent K with negative eigenvalues. With the damping on the current tangent, the "
+    "step matrix (1 + h alpha) M + (h beta + h^2) K(u) was indefinite (lowest eigenvalue "
+    "about -1e-3 at h = 0.01 s), however small h was. With beta K_0 only h^2 K can make it "
+    "indefinite, and here it does not. Its min det F is 0.39 (0.19 before).",
+    "- `all_exciters` comes closest to inversion (min det F 0.076, tip 24.6 mm forward), and "
+    "with the penalty it loses 19 % of its volume. The hard constraint holds the volume "
+    "within 6e-6 (`incompressible_all_exciters`).",
+    "- `incompressible_*` (the hard incompressibility, element volumes held to 1e-4, MUMPS): "
+    "every case finishes with both integrators, level 0 and 1. This includes the issue's "
+    "three hard schedules switched on at t = 0: antagonists together (`coactivation`), "
+    "everything at once (`all_step`) and fast pulses (`pulses`). The semi-implicit "
+    "integrator is the tongue's default, and its fallback column counts the steps that "
+    "the implicit Newton step completed after a failed semi-implicit step "
+    "(`Scene.fallback`). The two integrators end on the same landmarks (tip (-2.43, 5.31) "
+    "mm for the protrusion variants).",
+    "- Raising kappa (100 C10, 1000 C10) makes the tongue stiffer in volume and smaller in "
+    "motion (tip 6.8 -> 5.4 -> 4.1 mm) but not harder to integrate: min det F rises.",
     "",
 ]
 
@@ -313,7 +294,9 @@ def write_docs(results: list[dict], out: Path) -> None:
         "(models/tongue/hard_cases.py); raw figures in `tongue_hard_cases.json`.",
         "",
         "Every case is a variation of the protrusion motion (level 0, 946 nodes, dt = 0.01 s, "
-        "1.0 s, excitations ramped over 0.5 s then held) run with both integrators. "
+        "1.0 s, excitations ramped over 0.5 s then held), or one of the hard schedules "
+        "switched on at t = 0 (`coactivation`, `all_step`, `pulses`), run with both "
+        "integrators (the semi-implicit one with its implicit fallback, the default). "
         "The kappa cases change only the Mooney-Rivlin bulk modulus `kappa` "
         "(default 10 C10 = 10,370 Pa). Every case but the `incompressible_*` ones uses the "
         "element-wise incompressibility penalty (100 C10); the `incompressible_*` cases "
