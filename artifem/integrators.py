@@ -382,26 +382,41 @@ def _hold_volumes_newton(body, newton) -> int:
 
 
 def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
-               residual_norm, norm0: float, min_step: float = 1e-4) -> float | None:
+               residual_norm, norm0: float, min_step: float = 1e-4,
+               correction_ratio=None) -> float | None:
     """Backtracking line search: the largest s in {1, 1/2, ...} with no inverted element
-    (``inverted()`` false) that decreases the merit (Armijo: merit(s) <= merit0 +
-    1e-4 s slope) or, failing that, the residual norm (|r(s)| <= (1 - 1e-4 s) |r(0)|);
-    None below min_step.
+    (``inverted()`` false) that passes one of
 
-    The energy is the natural merit of these potential problems, but near the
-    solution its changes fall below its round-off (it is a sum of terms much
+    - Armijo on the merit (``merit`` not None: an energy whose gradient is the residual):
+      merit(s) <= merit0 + 1e-4 s slope;
+    - a decrease of the residual norm: |r(s)| <= (1 - 1e-4 s) |r(0)|;
+    - (``correction_ratio`` not None: statics of a body without a potential) Deuflhard's
+      natural monotonicity test theta(s) = |K_0^-1 R(s)| / |du| <= 1 - s/4, the next
+      Newton correction with the same tangent, small when Newton converges. It is affine
+      invariant: a full Newton step of a bending beam raises |R| (the linear step stretches
+      the rotating fibers: large stiff forces, small displacements) by orders of magnitude
+      while it is an excellent step, so the residual norm alone refuses the steps that
+      make Newton quadratic;
+
+    None below min_step. The energy is the natural merit of these potential problems, but
+    near the solution its changes fall below its round-off (it is a sum of terms much
     larger than their differences); the residual norm then decides.
     """
     step = 1.0
     while step >= min_step:
         apply_step(step)
         if not inverted():
-            value = merit()
-            if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
-                return step
+            if merit is not None:
+                value = merit()
+                if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
+                    return step
             trial = residual_norm()
             if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
                 return step
+            if correction_ratio is not None:
+                theta = correction_ratio()
+                if np.isfinite(theta) and theta <= 1.0 - 0.25 * step:
+                    return step
         step *= 0.5
     return None
 
@@ -498,42 +513,6 @@ def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
     return StaticCounts(counts, factors, failed)
 
 
-def _static_line_search(apply_step, inverted, energy, energy0: float, slope: float,
-                        residual_norm, norm0: float, correction_ratio,
-                        min_step: float = 1e-4) -> float | None:
-    """The backtracking line search of the static Newton: the largest s in {1, 1/2, ...}
-    with no inverted element that passes one of
-
-    - Armijo on the energy (``energy`` not None: a conservative body, whose energy's
-      gradient is the residual): E(s) <= E(0) + 1e-4 s slope;
-    - a decrease of the residual norm: |R(s)| <= (1 - 1e-4 s) |R(0)|;
-    - (``correction_ratio`` not None: a body without a potential) Deuflhard's natural
-      monotonicity test theta(s) = |K_0^-1 R(s)| / |du| <= 1 - s/4, the next Newton
-      correction with the same tangent, small when Newton converges. It is affine
-      invariant: a full Newton step of a bending beam raises |R| (the linear step
-      stretches the rotating fibers: large stiff forces, small displacements) by
-      orders of magnitude while it is an excellent step, so the residual norm alone
-      refuses the steps that make Newton quadratic.
-    """
-    step = 1.0
-    while step >= min_step:
-        apply_step(step)
-        if not inverted():
-            if energy is not None:
-                value = energy()
-                if np.isfinite(value) and value <= energy0 + 1e-4 * step * slope:
-                    return step
-            trial = residual_norm()
-            if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
-                return step
-            if correction_ratio is not None:
-                theta = correction_ratio()
-                if np.isfinite(theta) and theta <= 1.0 - 0.25 * step:
-                    return step
-        step *= 0.5
-    return None
-
-
 def _linear_solve(solver, A, b, x, rtol: float | None) -> None:
     """solver.solve with a per-solve relative tolerance when the solver takes one."""
     if rtol is not None and isinstance(solver, LinearSolver):
@@ -557,7 +536,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     solver must then be built with ``symmetric=False``), an iterative linear solve is
     tightened as |R| approaches the tolerance (its residual stays below a tenth of the
     Newton target), and full steps are taken whenever they pass one of the tests of
-    :func:`_static_line_search` (energy for a conservative body; otherwise the residual
+    :func:`_backtrack` (energy for a conservative body; otherwise the residual
     norm or the natural monotonicity test). A hard-incompressible body takes a Newton
     step on its multipliers too (the linearized constraint g + G du = 0 through the Schur
     complement S = G K^-1 G^T: :func:`_hold_volumes` with h = 1), so u and p converge
@@ -605,7 +584,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         body.load_factor.value = factor
         # A conservative body keeps the predictor when it lowers the energy (its merit);
         # without a potential it is kept unless it inverts an element (the residual norm
-        # is no measure of closeness here: see _static_line_search).
+        # is no measure of closeness here: see _backtrack).
         start = body.potential_energy() if body.conservative else np.inf
         ratio = (factor - f2) / (f2 - f1)
         u.array[:] = u2 + ratio * (u2 - u1)
@@ -691,12 +670,12 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                     w.destroy()
 
             def line_search():
-                return _static_line_search(
+                return _backtrack(
                     apply_step, lambda: _has_inversion(body),
                     body.potential_energy if body.conservative else None,
                     body.potential_energy() if body.conservative else 0.0,
                     -r.dot(du), lambda: residual(tangent=False), norm,
-                    None if body.conservative else correction_ratio)
+                    correction_ratio=None if body.conservative else correction_ratio)
 
             step = None
             if vc is not None and near:     # Newton on the multipliers too (docstring)
