@@ -61,7 +61,12 @@ class SolverError(ArtifemError, RuntimeError):
 
 
 class StepFailed(SolverError):
-    """A step could not be completed at this step size."""
+    """A step could not be completed at this step size (``iterations``: the Newton
+    iterations spent on it, where a solve counts them)."""
+
+    def __init__(self, message: str = "", iterations: int = 0):
+        super().__init__(message)
+        self.iterations = int(iterations)
 
 
 class LinearSolveError(SolverError):

@@ -1,8 +1,8 @@
 """Time integrators and the static solver for FEM bodies.
 
 Notation: M mass, D = alpha M + beta K_0 Rayleigh damping (K_0 the stiffness at rest,
-``FemBody.rest_stiffness``: always dissipative), K = d^2 Pi/du^2 the tangent, R = dPi/du (so f = -R is the internal-plus-external force), h the
-step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
+``FemBody.rest_stiffness``: always dissipative), K = d^2 Pi/du^2 the tangent, R = dPi/du
+(so f = -R is the internal-plus-external force), h the step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
 
 - :class:`SemiImplicitEuler` (ArtiSynth's ConstrainedBackwardEuler): backward
   Euler linearized at the start of the step, one linear solve per step,
@@ -39,7 +39,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from artifem.errors import StepFailed
+from artifem.errors import InputError, StepFailed
 from artifem.fem_body import FemBody
 from artifem.incompressibility import hold_linearized
 from artifem.linear_solver import LinearSolver
@@ -96,8 +96,8 @@ def step_system(body: FemBody, h: float,
         A = M + h D + h^2 K,    b = M v + h f,    f = -R,
 
     and the applied force f - D v (Rayleigh damping D = alpha M + beta K_0, K_0 the
-    stiffness at rest: ``FemBody.rest_stiffness``; the slaves' loads in K_geo). A is ``body.K`` scaled in place: valid until the body is assembled
-    again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
+    stiffness at rest: ``FemBody.rest_stiffness``; the slaves' loads in K_geo). A is
+    ``body.K`` scaled in place: valid until the body is assembled again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
     ``linearized=False`` (Newton's Jacobian at a trial state) takes the exact tangent of
     a hard-incompressible body (``FemBody.assemble``).
     """
@@ -457,10 +457,11 @@ def load_schedule(load_steps) -> tuple[list[float] | None, float]:
     increment."""
     if isinstance(load_steps, str):
         if load_steps != "auto":
-            raise ValueError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
+            raise InputError(f"load_steps must be a positive integer or 'auto', got "
+                             f"{load_steps!r}")
         return None, 1.0
     if int(load_steps) != load_steps or load_steps < 1:
-        raise ValueError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
+        raise InputError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
     n = int(load_steps)
     return [k / n for k in range(1, n + 1)], 1.0 / n
 
@@ -491,7 +492,7 @@ def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
         try:
             it = solve_increment(goal, limit)
         except StepFailed as error:
-            failed += getattr(error, "iterations", 0)
+            failed += error.iterations
             restore(state)
             cuts += 1
             if cuts > MAX_CUTS:
@@ -511,14 +512,6 @@ def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
             increment = 1.0 / len(marks)        # back to the schedule after a cut
         factor = goal
     return StaticCounts(counts, factors, failed)
-
-
-def _linear_solve(solver, A, b, x, rtol: float | None) -> None:
-    """solver.solve with a per-solve relative tolerance when the solver takes one."""
-    if rtol is not None and isinstance(solver, LinearSolver):
-        solver.solve(A, b, x, rtol=rtol)
-    else:
-        solver.solve(A, b, x)
 
 
 def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str = 1,
@@ -639,16 +632,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                     continue
             it += 1
             if it > limit:
-                error = StepFailed(f"static solve: Newton did not converge in {limit} "
-                                   f"iterations at load factor {factor:g} (|R| = {norm:.3e})")
-                error.iterations = it - 1
-                raise error
+                raise StepFailed(f"static solve: Newton did not converge in {limit} "
+                                 f"iterations at load factor {factor:g} (|R| = {norm:.3e})",
+                                 iterations=it - 1)
             r.scale(-1.0)
             # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
             # of the Newton target is enough (it is never the last digits' limit).
             eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300),
                                                           1e-14))
-            _linear_solve(solver, body.K, r, du, eta)
+            solver.solve(body.K, r, du, rtol=eta)
             body.zero_fixed(du)
             u_start = u.array.copy()
             du_norm = du.norm()
@@ -663,7 +655,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 ds.scale(-1.0)
                 w = ds.duplicate()
                 try:
-                    _linear_solve(solver, body.K, ds, w, eta)
+                    solver.solve(body.K, ds, w, rtol=eta)
                     body.zero_fixed(w)
                     return w.norm() / max(du_norm, 1e-300)
                 finally:
@@ -705,10 +697,9 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 multiplier = False
                 step = line_search()
             if step is None:
-                error = StepFailed(f"static solve: line search failed at load factor "
-                                   f"{factor:g}, Newton iteration {it}")
-                error.iterations = it
-                raise error
+                raise StepFailed(f"static solve: line search failed at load factor "
+                                 f"{factor:g}, Newton iteration {it}",
+                                 iterations=it)
             norm = residual()
             near = step == 1.0
             if step == 1.0 and _at_round_off(du, u) and holds():
@@ -763,11 +754,10 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
             while norm > max(rtol * scale[0], atol):
                 it += 1
                 if it > limit:
-                    error = StepFailed(f"static solve (reduced): Newton did not converge in "
-                                       f"{limit} iterations at load factor {factor:g} "
-                                       f"(|f| = {norm:.3e})")
-                    error.iterations = it - 1
-                    raise error
+                    raise StepFailed(f"static solve (reduced): Newton did not converge in "
+                                     f"{limit} iterations at load factor {factor:g} "
+                                     f"(|f| = {norm:.3e})",
+                                     iterations=it - 1)
                 K = body.tangent()
                 dq = _dense_solve(K, f, "static solve (reduced)")
                 slope = -float(f @ dq)
@@ -782,10 +772,9 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
                                   body.potential_energy(), slope,
                                   lambda: float(np.linalg.norm(body.force())), norm)
                 if step is None:
-                    error = StepFailed(f"static solve (reduced): line search failed at load "
-                                       f"factor {factor:g}, Newton iteration {it}")
-                    error.iterations = it
-                    raise error
+                    raise StepFailed(f"static solve (reduced): line search failed at load "
+                                     f"factor {factor:g}, Newton iteration {it}",
+                                     iterations=it)
                 f = body.force()
                 norm = float(np.linalg.norm(f))
                 if step == 1.0 and _round_off(dq, body.q):

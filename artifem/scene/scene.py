@@ -848,15 +848,16 @@ class Scene:
     def master_count(self) -> int:
         return self._direct_layout("master_count").n_masters
 
-    def solve_static(self, *, load_steps: int | str = 1, rtol: float = 1e-10, atol: float = 1e-12,
-                     max_iterations: int = 30, progress=None) -> list[int]:
+    def solve_static(self, *, load_steps: int | str = 1, rtol: float = 1e-10,
+                     atol: float = 1e-12, max_iterations: int = 30,
+                     progress=None) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
         ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
-        of each increment over the islands. ``load_steps="auto"`` (or a count whose increments
-        are cut when they fail): :func:`~artifem.integrators.ramp_load`. ``progress`` (e.g. tqdm) is updated once per
-        increment of each island."""
+        of each increment over the islands. ``load_steps="auto"`` (or a count whose
+        increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
+        ``progress`` (e.g. tqdm) is updated once per increment of each island."""
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]
         counts = []
