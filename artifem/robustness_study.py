@@ -128,10 +128,15 @@ def hard_schedules(exciters, count: int, *, seed: int, duration: float
 
 def _run(model: ReducibleScene, scene, rest, schedule: ExcitationSchedule,
          duration: float, dt: float) -> dict:
-    """One schedule from the model at rest (``rest``: the scene's saved state)."""
+    """One schedule from the model at rest (``rest``: the scene's saved state), every input
+    the schedule leaves out held at 0: the excitations are inputs, not state, and the last
+    run's would otherwise stay on."""
     body = model.fem_body_or_full(scene)
     scene.restore_state(rest)
     scene.controllers.clear()
+    schedule = ExcitationSchedule(schedule.times, {
+        name: schedule.values.get(name, np.zeros_like(schedule.times))
+        for name in model.input_names(body)})
     scene.halvings = scene.fallbacks = 0
     scene.min_det_F = np.inf
     v0 = body.volume()
