@@ -59,11 +59,13 @@ class Incompressible:
             step is declared failed (and halved by the scene).
         step_tol: the largest relative volume change a completed step may leave. A
             semi-implicit step holds the constraint linearized at its start, g + h G v = 0,
-            so g(u) after it is off by O(h^2 |v|^2), corrected by the next step; a step
-            that leaves more than ``step_tol`` (a violent one: 28 % on the tongue when
-            every muscle is switched fully on at once, against at most 0.06 % over a
-            speech motion) counts as failed, and the scene retries it (``Scene.fallback``,
-            then halving) instead of going on from a state no step recovers from.
+            so g(u) after it is off by O(h^2 |v|^2), corrected by the next step. A step
+            that leaves more than ``step_tol`` (up to 8 % in a few tongue elements in a
+            fast motion, 28 % when every muscle is switched fully on at once, against at
+            most 0.06 % over a speech motion) is projected back onto g(u) = 0 (Newton with
+            the step matrix kept: ``integrators._project_volumes``); one still off after
+            that counts as failed, and the scene retries it (``Scene.fallback``, then
+            halving) instead of going on from a state no step recovers from.
     """
 
     kappa: float

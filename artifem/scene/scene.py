@@ -646,7 +646,8 @@ class Scene:
     def step(self, h: float) -> None:
         """Advance from t to t + h: the controllers, one linearized step (module docstring),
         then the health of every body (finite coordinates, det F > 0 at every quadrature
-        point; a reduced body's at its integration points). A failed step (unhealthy, or a
+        point, a reduced body's at its integration points; hard-incompressible volumes
+        within ``step_tol``, projected back by the step where they are not). A failed step (unhealthy, or a
         singular or failed solve) is undone (:meth:`restore_state`) and retried by the
         ``fallback`` integrator (Newton on the same backward Euler equations: it holds
         where the linearization at the start of the step does not, e.g. a full excitation
