@@ -105,16 +105,21 @@ symmetric (gyroscopic and geometric terms), so it is factored by a direct LU,
 MUMPS through petsc4py (one process, COMM_SELF), every step.
 
 Statics (:meth:`Scene.solve_static`): Newton on the master forces
-F_m = P^T f_all = 0 and phi = 0 on the free constraint rows (the joints' bilateral
-rows; limits are left out) with the same tangent without the inertia,
+F_m + G_m^T lambda = 0 with phi = 0 on the free rows and phi >= 0, lambda >= 0 on the
+bounded ones (joint limits), with the same tangent without the inertia,
 
-    [ P^T K_all P - K_geo   G_m^T ] [ dq ]   [ F_m  ]
-    [ G_m                   0     ] [ mu ] = [ -phi ],
+    [ P^T K_all P - K_geo   G_a^T ] [ dq ]   [ F_m  ]
+    [ G_a                   0     ] [ mu ] = [ -phi ],      lambda = -mu,
 
-K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the rigid ones, master
-displacements dq = free FEM du and [dp; dtheta] of each dynamic root
+G_a the free rows and the bounded rows an active set holds as equalities (the others
+at lambda = 0 while phi + G dq >= 0; :func:`~artifem.scene.constraints.solve_saddle`,
+one KKT factorization per trial), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the
+rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
-line search on |[F_m; phi]| refuses inverted elements.
+line search on |[F_m; phi]| refuses inverted elements. The tangent leaves out the
+rows' own turning d(G^T lambda)/dq, so a scene whose only stiffness in a joint's free
+direction would come from it (a rigid pendulum under gravity alone) has a singular
+tangent there.
 
 Path elements (:class:`PointPath`): a spring or muscle of
 :mod:`artifem.multibody.muscles` through points that are FEM points
@@ -866,7 +871,8 @@ class Scene:
                      progress=None) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
-        ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
+        ``solve_static_reduced``), then the coupled island, F_m + G^T lambda = 0 with
+        phi = 0 on the joints and phi >= 0, lambda >= 0 on their limits (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
         of each increment over the islands. ``load_steps="auto"`` (or a count whose
         increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
@@ -940,13 +946,12 @@ class Scene:
             body.load_factor.value = factor
 
     def _residual(self, L) -> tuple[np.ndarray, list]:
-        """(F_m, the constraints' free rows on the masters): statics asks phi + G dq = 0,
-        c = -phi (their right-hand side at h = beta = 1)."""
+        """(F_m, the constraints' rows on the masters): statics asks phi + G dq = 0 on the
+        free rows and >= 0 on the bounded ones, c = -phi (their right-hand side at
+        h = beta = 1)."""
         P = L.prolongation()
         F = P.T @ L.static_forces(self.t, tangent=False)[0]
-        # the bounded rows (joint limits) are not in statics yet
-        return F, [g for g in L.constraint_map.rows(P, np.zeros(L.n_all), 1.0, 1.0)
-                   if not g.block.bounded.any()]
+        return F, L.constraint_map.rows(P, np.zeros(L.n_all), 1.0, 1.0)
 
     @staticmethod
     def _merit(F: np.ndarray, rows: list, active: np.ndarray) -> float:
