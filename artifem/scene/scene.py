@@ -959,7 +959,7 @@ class Scene:
         (every free row and the limits the last solve pressed on) at the current
         configuration: the forces the constraints cannot balance, and their error (phi
         on free rows, the crossed part min(phi, 0) of bounded ones)."""
-        gap = np.concatenate([g.block.gap() for g in rows]) if rows else np.zeros(0)
+        gap = _gap(rows)
         if active.any():
             G = np.vstack([g.G.toarray() if sparse.issparse(g.G) else g.G for g in rows])
             G = G if active.all() else G[active]
@@ -980,10 +980,10 @@ class Scene:
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
             dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows, "static solve")
             if rows:                    # the constraints apply G^T lambda
-                self._reactions = L.constraint_map.forces(zip(
-                    [g.block for g in rows], np.split(lam, np.cumsum([len(g.c) for g in
-                                                                      rows])[:-1])))
-            gap = np.concatenate([g.block.gap() for g in rows]) if rows else np.zeros(0)
+                ends = np.cumsum([len(g.c) for g in rows])
+                self._reactions = L.constraint_map.forces(
+                    (g.block, lam[end - len(g.c):end]) for g, end in zip(rows, ends))
+            gap = _gap(rows)
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
             # exact penalty E + rho |gap|_1, rho > max |lambda|, whose slope along the step
@@ -1004,9 +1004,8 @@ class Scene:
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
                     F_new, rows_new = self._residual(L)
-                    energy = self.potential_energy() + rho * float(np.abs(np.concatenate(
-                        [g.block.gap() for g in rows_new] or [np.zeros(0)])).sum()) \
-                        if use_energy else np.inf
+                    energy = self.potential_energy() + rho * float(np.abs(
+                        _gap(rows_new)).sum()) if use_energy else np.inf
                     trial = self._merit(F_new, rows_new, active)
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
@@ -1024,3 +1023,8 @@ class Scene:
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                                 f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+
+
+def _gap(rows: list) -> np.ndarray:
+    """The constraint error of statics: phi on free rows, min(phi, 0) on bounded ones."""
+    return np.concatenate([g.block.gap() for g in rows]) if rows else np.zeros(0)
