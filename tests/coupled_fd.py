@@ -32,17 +32,16 @@ def implicit_jacobian_check(scene, h, z_m, lam, eps=1e-6):
     [d(r - G_m^T lam)/dz_m; d(phi / h)/dz_m]; the scene is left at its start.
 
     The equations are those Newton solves: r(z_m) - G_m(z_m)^T lam = 0 (G_m = G(q) P, P at
-    the start of the step) and phi(q(z_m)) / h = 0 (-c of the joint rows, c = -phi / h).
+    the start of the step) and phi(q(z_m)) / h = 0 (-c of the constraint rows, c = -phi / h).
     """
     layout = scene._ready()
     system = NewtonSystem(scene, layout, h)
 
     def equations(z):
-        r, A, _, bilateral, unilateral = system.residual(z)
-        groups = bilateral + unilateral
-        GP = np.vstack([_dense(g[2]) for g in groups]) if groups else np.zeros((0, z.size))
-        c = np.concatenate([g[3] for g in groups]) if groups else np.zeros(0)
-        return np.concatenate([r - GP.T @ lam, -c]), A, bilateral, unilateral
+        r, A, _, rows = system.residual(z)
+        GP = np.vstack([_dense(g.G) for g in rows]) if rows else np.zeros((0, z.size))
+        c = np.concatenate([g.c for g in rows]) if rows else np.zeros(0)
+        return np.concatenate([r - GP.T @ lam, -c]), A, rows
 
     n = z_m.size
     columns = []
@@ -51,9 +50,9 @@ def implicit_jacobian_check(scene, h, z_m, lam, eps=1e-6):
         e[j] = eps
         columns.append((equations(z_m + e)[0] - equations(z_m - e)[0]) / (2 * eps))
     FD = np.column_stack(columns)
-    _, A, bilateral, unilateral = equations(z_m)
-    J, rows = system.jacobian(z_m, A, bilateral, unilateral, lam)
-    Jac = np.vstack([_dense(J)] + [_dense(G) for G in rows])
+    _, A, rows = equations(z_m)
+    J, G_x = system.jacobian(z_m, A, rows, lam)
+    Jac = np.vstack([_dense(J)] + [_dense(G) for G in G_x])
     layout.restore(system.start)
     layout.place_slaves()
     return FD, Jac

@@ -336,15 +336,16 @@ def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
     h, touched = 1e-3, 0
     for _ in range(1500):
         L, P, z_k, _, A, b = scene._step_system(h)
-        bilateral, unilateral = L.joint_rows(P, z_k, h, scene.stabilization)
-        z, lam, _ = solve_constrained(DirectSolver(), A, b, bilateral, unilateral, "check")
-        Gm = np.vstack([g[2] for g in bilateral + unilateral])
-        c = np.concatenate([g[3] for g in bilateral + unilateral])
-        n_bi = sum(len(g[3]) for g in bilateral)
+        rows = L.constraint_map.rows(P, z_k, h, scene.stabilization)
+        z, lam, _ = solve_constrained(DirectSolver(), A, b, rows, "check")
+        Gm = np.vstack([g.G for g in rows])
+        c = np.concatenate([g.c for g in rows])
+        limit = np.concatenate([g.block.bounded for g in rows])
+        assert limit.sum() == 2                          # the knee's two limit rows
         scale = np.abs(b).max()
         assert np.abs(A @ z - Gm.T @ lam - b).max() < 1e-12 * scale
-        assert np.abs(Gm[:n_bi] @ z - c[:n_bi]).max() < 1e-12 * max(1.0, np.abs(c).max())
-        slack, lam_l = Gm[n_bi:] @ z - c[n_bi:], lam[n_bi:]
+        assert np.abs(Gm[~limit] @ z - c[~limit]).max() < 1e-12 * max(1.0, np.abs(c).max())
+        slack, lam_l = Gm[limit] @ z - c[limit], lam[limit]
         assert lam_l.min() >= -1e-9 * scale and slack.min() >= -1e-9
         assert np.abs(lam_l * slack).max() < 1e-9 * scale
         touched += int(lam_l.max() > 1e-9 * scale)

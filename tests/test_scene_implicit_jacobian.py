@@ -125,15 +125,13 @@ def test_joint_rows_stiffness_is_the_derivative_of_their_wrenches(rng, kind, on_
         if body is not None:
             body.position = body.position + 0.1 * rng.standard_normal(3)
             body.rotation = exp_so3(0.2 * rng.standard_normal(3)) @ body.rotation
-    kinds = [("constraint", joint.constraint_stiffness)]
-    if limits:
-        kinds.append(("unilateral", joint.limit_stiffness))
-    for rows_of, stiffness in kinds:
-        lam = rng.standard_normal(len(getattr(joint, rows_of)()))
+    blocks = joint.row_blocks()                         # bilateral rows, then the limits
+    assert [x.bounded.all() for x in blocks] == ([False, True] if limits else [False])
+    for k, block in enumerate(blocks):
+        lam = rng.standard_normal(len(block))
 
         def wrench():
-            rows = getattr(joint, rows_of)()
-            return np.concatenate([rows.G_a.T @ lam, rows.G_b.T @ lam])
+            return np.concatenate([G.T @ lam for _, G in joint.row_blocks()[k].jacobians])
 
         FD, eps = np.zeros((12, 12)), 1e-6
         for col in range(12 if b is not None else 6):
@@ -149,7 +147,7 @@ def test_joint_rows_stiffness_is_the_derivative_of_their_wrenches(rng, kind, on_
             FD[:, col] = (out[0] - out[1]) / (2 * eps)
         if b is None:
             FD[6:] = 0.0
-        assert np.abs(FD - stiffness(lam)).max() <= 1e-7 * np.abs(FD).max()
+        assert np.abs(FD - block.stiffness(lam)).max() <= 1e-7 * np.abs(FD).max()
 
 
 def quadratic(merits, C=100.0, floor=1e-12):

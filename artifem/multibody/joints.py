@@ -41,6 +41,7 @@ from typing import ClassVar
 import numpy as np
 
 from artifem.errors import InputError
+from artifem.multibody.constraint_rows import RowBlock
 from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew, skews
 
 __all__ = ["ConstraintRows", "FixedJoint", "Joint", "PlanarJoint", "RevoluteJoint",
@@ -176,6 +177,20 @@ class Joint:
     @property
     def bodies(self) -> tuple[RigidBody | None, RigidBody | None]:
         return self.frame_a.body, self.frame_b.body
+
+    def row_blocks(self) -> list[RowBlock]:
+        """The joint's rows in the constraint protocol (:mod:`~artifem.multibody.
+        constraint_rows`): its bilateral rows (:meth:`constraint`, impulses free) and, with
+        ``limits``, its limit rows (:meth:`unilateral`, impulses >= 0)."""
+        rows = self.constraint()
+        blocks = [RowBlock.bilateral(self, rows.phi, zip(self.bodies, (rows.G_a, rows.G_b)),
+                                     self.constraint_stiffness)]
+        if self.limits is not None:
+            rows = self.unilateral()
+            blocks.append(RowBlock.unilateral(self, rows.phi,
+                                              zip(self.bodies, (rows.G_a, rows.G_b)),
+                                              self.limit_stiffness))
+        return blocks
 
     def constraint(self) -> ConstraintRows:
         """phi(q) and its exact velocity Jacobians G_A, G_B at the current poses."""

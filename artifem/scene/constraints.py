@@ -1,96 +1,136 @@
-"""Velocities under joint rows: bilateral equalities and unilateral limits.
+"""Velocities under constraint rows with bounded impulses: the step's and statics' solve.
 
-The step's KKT system (artifem.scene.scene docstring; ArtiSynth's constrained
-backward Euler),
+Every constraint gives its rows as :class:`~artifem.multibody.constraint_rows.RowBlock`
+(bilateral rows: lambda free; limits: lambda >= 0); the layout maps them onto the
+solve's coordinates as :class:`StepRows` (G P and the right-hand side c). The step's
+KKT system (artifem.scene.scene docstring; ArtiSynth's constrained backward Euler),
 
     [ A   -G^T ] [ z      ]   [ b ]
     [ G    0   ] [ lambda ] = [ c ],      lambda the constraint impulses,
 
-is solved through its Schur complement: with a = A^-1 b and W = A^-1 G^T (one
-factorization of A, 1 + rows solves),
+holds on the active rows; a row with a finite bound is either active (G z = c, lambda
+within its bounds) or held at a bound (lambda = lo with G z >= c, or lambda = hi with
+G z <= c). The active set is found by a primal-dual active set
+(:func:`_active_set`: release the multiplier furthest out of its bounds, else activate
+the most violated row, repeat); rows with lo = -inf and hi = inf are always active.
 
-    S lambda = c - G a,   S = G W,   z = a + W lambda.
+:func:`solve_constrained` (the step) solves each trial through the Schur complement:
+with a = A^-1 b and W = A^-1 G^T (one factorization of A, 1 + rows solves),
 
-S is small and dense (a few rows per joint). It is solved by least squares on
-the active rows, so redundant rows (closed loops, a joint doubled) get the
-minimum-norm impulses instead of a singular matrix. Limits are unilateral rows
-G_l z >= c_l with lambda_l >= 0 and complementarity, solved by a primal-dual
-active set on the same S (add the most violated row, drop the most negative
-multiplier, repeat): no new factorization per trial.
+    S lambda = c - G a,   S = G W,   z = a + W lambda,
+
+by least squares on the active rows, so redundant rows (closed loops, a joint doubled)
+get the minimum-norm impulses instead of a singular matrix; no new factorization per
+trial. :func:`solve_saddle` (statics, where A may be singular until the rows fix it)
+factors the KKT matrix of the active rows for each trial.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 
 from artifem.errors import StepFailed
+from artifem.multibody.constraint_rows import RowBlock
 
-__all__ = ["solve_constrained"]
+__all__ = ["StepRows", "impulses_by_constraint", "solve_constrained", "solve_saddle"]
 
 
-def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: list,
-                      what: str, resolver: bool = False, force_rows: list | None = None):
-    """(z, lambda, active rows) of the system above.
+@dataclass(frozen=True, eq=False)
+class StepRows:
+    """A constraint's :class:`RowBlock` on the solve's coordinates: G (rows on the
+    masters, G P; dense or sparse) and c (the right-hand side, the known velocities'
+    G z_k taken off)."""
 
-    ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver);
-    ``bilateral`` and ``unilateral`` are lists of (..., G_rows, c_rows) whose last two
-    entries are the rows on z (sparse or dense) and their right-hand sides; lambda
-    is returned in that order (bilateral first). With ``resolver``, a fourth item:
-    ``resolve(b) -> (z, lambda)``, the same system for another right-hand side with
-    c = 0 and the active rows kept (the factorization reused; the pressure iterations
-    of :func:`artifem.incompressibility.hold_linearized`). ``force_rows`` (one block per
-    group, bilateral first; default the groups' own rows) are the rows F of the first
-    block row, A z - F^T lambda = b, when they differ from the constraint rows G (Newton
-    on a residual whose constraint forces and constraint values have different
-    derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
+    block: RowBlock
+    G: object
+    c: np.ndarray
+
+
+def _vstack(blocks: list):
+    return sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
+        np.vstack(blocks)
+
+
+def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str):
+    """(lambda, active mask, what ``trial`` gave last) of the primal-dual active set on
+    rows with bounds lo <= lambda <= hi (module docstring). ``trial(active, held)`` solves
+    with the active rows as equalities and the others at their ``held`` impulses, and
+    returns (lambda, slack of the bounded rows G z - c, extra)."""
+    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+    active = np.ones(lo.size, dtype=bool)
+    active[bounded] = False
+    held = np.zeros(lo.size)
+    held[bounded] = np.where(np.isfinite(lo[bounded]), lo[bounded], hi[bounded])
+    for _ in range(2 * bounded.size + 10):
+        lam, slack, extra = trial(active, held)
+        if not bounded.size:
+            break
+        on, l, low, high = active[bounded], lam[bounded], lo[bounded], hi[bounded]
+        outside = np.where(on, np.maximum(low - l, l - high), -np.inf)
+        at_low = held[bounded] == low
+        # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
+        violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
+        if outside.max() > tol:                     # release: hold at the crossed bound
+            k = int(np.argmax(outside))
+            active[bounded[k]] = False
+            held[bounded[k]] = low[k] if l[k] < low[k] else high[k]
+        elif violated.max() > tol:                  # activate the most violated row
+            active[bounded[int(np.argmax(violated))]] = True
+        else:
+            break
+    else:
+        raise StepFailed(f"{what}: the constraints' active set did not settle")
+    return lam, active, extra
+
+
+def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
+                      resolver: bool = False, force_rows: list | None = None):
+    """(z, lambda, number of active rows) of the system above, by the Schur complement.
+
+    ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver); ``rows`` a
+    list of :class:`StepRows` (lambda in their order). With ``resolver``, a fourth item:
+    ``resolve(b) -> (z, lambda)``, the same system for another right-hand side with c = 0,
+    the active rows kept and the others' impulses unchanged (the factorization reused;
+    the pressure iterations of :func:`artifem.incompressibility.hold_linearized`).
+    ``force_rows`` (one block per entry of ``rows``; default their own G) are the rows F
+    of the first block row, A z - F^T lambda = b, when they differ from the constraint
+    rows G (Newton on a residual whose constraint forces and constraint values have
+    different derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
     """
-    groups = bilateral + unilateral
     n = A.shape[0]
     solver.factor(A, what)
-    if not groups:
+    if not rows:
         z = solver.apply(b)
 
         def resolve(rhs):
             return solver.apply(rhs), np.zeros(0)
 
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
-    blocks = [g[-2] for g in groups]
-    G = sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
-        np.vstack(blocks)
-    c = np.concatenate([g[-1] for g in groups])
-    F = G
-    if force_rows is not None:
-        F = sparse.vstack(force_rows).tocsr() if any(sparse.issparse(x) for x in force_rows) \
-            else np.vstack(force_rows)
+    G = _vstack([g.G for g in rows])
+    c = np.concatenate([g.c for g in rows])
+    lo = np.concatenate([g.block.lo for g in rows])
+    hi = np.concatenate([g.block.hi for g in rows])
+    F = G if force_rows is None else _vstack(force_rows)
     X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
     a, W = X[:, 0], X[:, 1:]
     S = np.asarray(G @ W)
     r = c - G @ a
-    n_bi = sum(len(g[-1]) for g in bilateral)
-    limit = np.arange(n_bi, len(c))
-    active = np.zeros(len(c), dtype=bool)
-    active[:n_bi] = True
-    lam = np.zeros(len(c))
-    tol = 1e-10 * max(1.0, np.abs(c).max())
-    for _ in range(2 * limit.size + 10):
+    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+
+    def trial(active, held):
         on = np.flatnonzero(active)
-        lam[:] = 0.0
+        lam = np.where(active, 0.0, held)
         if on.size:
-            lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], r[on], rcond=1e-12)[0]
-        if not limit.size:
-            break
-        slack = S[limit] @ lam - r[limit]           # G_l z - c_l >= 0 wanted
-        negative = active[limit] & (lam[limit] < -tol)
-        violated = ~active[limit] & (slack < -tol)
-        if negative.any():
-            active[limit[np.argmin(np.where(negative, lam[limit], np.inf))]] = False
-        elif violated.any():
-            active[limit[np.argmin(np.where(violated, slack, np.inf))]] = True
-        else:
-            break
-    else:
-        raise StepFailed(f"{what}: the joint-limit active set did not settle")
+            rhs = r[on]
+            if np.any(lam):                         # rows held at a non-zero bound
+                rhs = rhs - S[np.ix_(on, ~active)] @ lam[~active]
+            lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], rhs, rcond=1e-12)[0]
+        return lam, S[bounded] @ lam - r[bounded], None
+
+    lam, active, _ = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what)
     z = a + W @ lam
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
@@ -109,12 +149,41 @@ def solve_constrained(solver, A, b: np.ndarray, bilateral: list, unilateral: lis
     return z, lam, int(active.sum()), resolve
 
 
-def impulses_by_joint(bilateral: list, unilateral: list, lam: np.ndarray) -> dict:
-    """joint -> [(rows, impulses)]: lambda of :func:`solve_constrained` split by the
-    (joint, rows, G, c) groups it was solved with (bilateral first)."""
+def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
+    """(z, lambda, active mask) of K z - G^T lambda = b under ``rows`` (:class:`StepRows`)
+    as in :func:`solve_constrained`, each trial one solve of the KKT matrix
+    ``kkt(K, G_active)`` = [[K, G_a^T], [G_a, 0]] (statics: K may be singular where the
+    rows fix it; ``solver.solve(M, rhs, what)``), the held rows' forces G^T lambda on the
+    right-hand side."""
+    n = K.shape[0]
+    if not rows:
+        return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
+    G = _vstack([g.G for g in rows])
+    c = np.concatenate([g.c for g in rows])
+    lo = np.concatenate([g.block.lo for g in rows])
+    hi = np.concatenate([g.block.hi for g in rows])
+    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+
+    def trial(active, held):
+        on = np.flatnonzero(active)
+        lam = np.where(active, 0.0, held)
+        force = b if not np.any(lam) else b + np.asarray(G.T @ lam).ravel()
+        G_on = G if on.size == len(c) else G[on]
+        x = solver.solve(kkt(K, G_on), np.concatenate([force, c[on]]), what)
+        z = x[:n]
+        lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
+        return lam, np.asarray(G[bounded] @ z).ravel() - c[bounded], z
+
+    lam, active, z = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what)
+    return z, lam, active
+
+
+def impulses_by_constraint(rows: list, lam: np.ndarray) -> dict:
+    """constraint -> [(RowBlock, impulses)]: lambda of :func:`solve_constrained` split by
+    the :class:`StepRows` it was solved with, under each block's owner."""
     out: dict = {}
     start = 0
-    for joint, rows, _, c in bilateral + unilateral:
-        out.setdefault(joint, []).append((rows, lam[start:start + len(c)]))
-        start += len(c)
+    for g in rows:
+        out.setdefault(g.block.owner, []).append((g.block, lam[start:start + len(g.c)]))
+        start += len(g.c)
     return out

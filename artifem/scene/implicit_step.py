@@ -37,9 +37,10 @@ moves by h P_t T dz_m, so
     G_x = G(q_t) P_t T                  (the rows of d(phi / h)/dz_m),
 
 A_pos the part of A from the forces' position derivatives (h^2 K), K_gyro the
-gyroscopic wrench's turn with the body, K_lambda = d(G^T lambda)/dq the joint and
-limit rows' geometric stiffness at the iterate's impulses (``Joint.constraint_stiffness``,
-``Joint.limit_stiffness``; the last step's on the first iteration), and the KKT
+gyroscopic wrench's turn with the body, K_lambda = d(G^T lambda)/dq the constraint
+rows' geometric stiffness at the iterate's impulses (each row block's ``stiffness``:
+``Joint.constraint_stiffness``, ``Joint.limit_stiffness``; the last step's on the first
+iteration), and the KKT
 system's first row takes G_m^T (the residual's forces), its second G_x. The
 attachments' K_geo of the semi-implicit step is not a derivative of this residual
 (its P is the one at the start of the step) and is left out (it took Newton from 3
@@ -58,7 +59,7 @@ import numpy as np
 from scipy import sparse
 
 from artifem.errors import StepFailed
-from artifem.scene.constraints import impulses_by_joint, solve_constrained
+from artifem.scene.constraints import StepRows, impulses_by_constraint, solve_constrained
 
 __all__ = ["NewtonSystem", "implicit_step"]
 
@@ -67,7 +68,7 @@ class NewtonSystem:
     """The residual of the step from t to t + h and its exact Jacobian (module docstring),
     at trial master velocities z_m; builds on ``L`` (the layout) at the start of the step.
     ``place(z_m)`` puts the scene at the trial state, ``residual(z_m)`` places and gives
-    (r, A_all, f_all, bilateral, unilateral) there, ``jacobian(z_m, lam)`` (at the placed
+    (r, A_all, f_all, constraint rows) there, ``jacobian(z_m, A, rows, lam)`` (at the placed
     trial state) the KKT blocks of Newton's step."""
 
     def __init__(self, scene, L, h: float):
@@ -90,18 +91,19 @@ class NewtonSystem:
         L.advance(self.P @ z_m + self.z_k, self.h, self.targets)
 
     def residual(self, z_m):
-        """(r_m, A_all, f_all, joint rows) at the trial state of z_m (placed)."""
+        """(r_m, A_all, f_all, constraint rows with c = -phi / h) at the trial state of z_m
+        (placed)."""
         L, P, h = self.L, self.P, self.h
         self.place(z_m)
         A, _, f_all, self._A_pos = L.dynamics(h, self.t1, linearized=False, positional=True)
         r = P.T @ (self.M0 @ (P @ z_m + self.z_k) - self.Mz0 - h * f_all)
-        bilateral, unilateral = L.joint_rows(P, np.zeros(L.n_all), h, 1.0)
-        return np.asarray(r).ravel(), A, f_all, bilateral, unilateral
+        rows = L.constraint_map.rows(P, np.zeros(L.n_all), h, 1.0)
+        return np.asarray(r).ravel(), A, f_all, rows
 
-    def jacobian(self, z_m, A, bilateral, unilateral, lam):
+    def jacobian(self, z_m, A, rows, lam):
         """(J, constraint rows) of Newton's KKT system at the trial state of z_m (the last
         one :meth:`residual` placed) for the impulses ``lam``: J = d(r - G_m^T lam)/dz_m and
-        the rows d(phi / h)/dz_m, one block per group of ``bilateral + unilateral``."""
+        the rows d(phi / h)/dz_m, one block per entry of ``rows``."""
         L, P, h = self.L, self.P, self.h
         # the master displacements per unit h dz_m at the trial state: P_t T
         PT = L.fmt(L.prolongation() @ L.rotation_jacobian(z_m, h))
@@ -110,30 +112,31 @@ class NewtonSystem:
         J = P.T @ (A - L.mass_matrix() + self.M0) @ P \
             + P.T @ self._A_pos @ (PT - P) \
             - h * h * (P.T @ L.gyroscopic_stiffness() @ PT)
-        if len(lam) and np.any(lam):                # the joint rows turn with the bodies
-            J = J - h * (P.T @ L.joint_stiffness(bilateral, unilateral, lam) @ PT)
-        rows = L.joint_rows(PT, np.zeros(L.n_all), h, 1.0)
-        return L.fmt(J), [g[2] for g in rows[0] + rows[1]]
+        if len(lam) and np.any(lam):                # the rows turn with the bodies
+            J = J - h * (P.T @ L.constraint_map.stiffness(rows, lam) @ PT)
+        return L.fmt(J), [g.G for g in L.constraint_map.rows(PT, np.zeros(L.n_all), h, 1.0)]
 
 
-def _guess(scene, bilateral, unilateral, h):
-    """The last step's impulses (scaled to h) in the order of the groups: the first
-    Jacobian's joint stiffness (the merit starts from lambda = 0)."""
+def _guess(scene, rows, h):
+    """The last step's impulses (scaled to h) in the order of ``rows``: the first
+    Jacobian's constraint stiffness (the merit starts from lambda = 0)."""
     out, seen = [], {}
     last = scene._impulses or {}
     ratio = h / scene._last_h if scene._last_h else 0.0
-    for joint, _, _, c in bilateral + unilateral:
-        k = seen.get(joint, 0)
-        seen[joint] = k + 1
-        parts = last.get(joint, [])
-        lam = parts[k][1] if k < len(parts) and len(parts[k][1]) == len(c) else np.zeros(len(c))
+    for g in rows:
+        owner = g.block.owner
+        k = seen.get(owner, 0)
+        seen[owner] = k + 1
+        parts = last.get(owner, [])
+        lam = parts[k][1] if k < len(parts) and len(parts[k][1]) == len(g.c) else \
+            np.zeros(len(g.c))
         out.append(ratio * np.asarray(lam, dtype=float))
     return np.concatenate(out) if out else np.zeros(0)
 
 
 def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: int):
     """Advance the coupled island of ``scene`` (layout ``L``) from t to t + h; returns
-    (joint impulses as the step gives them, the merit after each Newton iteration, the
+    (constraint impulses as the step gives them, the merit after each Newton iteration, the
     first value included). Raises StepFailed when the line search or Newton fails (the
     scene then halves the step)."""
     system = NewtonSystem(scene, L, h)
@@ -147,17 +150,15 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
 
     place, residual = system.place, system.residual
 
-    def merit(r, bilateral, unilateral, lam):
-        groups = bilateral + unilateral
+    def merit(r, rows, lam):
         force = r.copy()
-        start_row, gap = 0, []
-        for k, (_, _, GP, c) in enumerate(groups):
-            m = len(c)
-            force -= np.asarray(GP.T @ lam[start_row:start_row + m]).ravel()
-            # c = -phi / h: every bilateral row, and the crossed part of a limit
-            gap.append(c if k < len(bilateral) else np.maximum(c, 0.0))
+        start_row = 0
+        for g in rows:
+            m = len(g.c)
+            force -= np.asarray(g.G.T @ lam[start_row:start_row + m]).ravel()
             start_row += m
-        gap = np.concatenate(gap) if gap else np.zeros(0)
+        # phi / h on every free row, the crossed part of a bounded one
+        gap = np.concatenate([g.block.gap() for g in rows]) / h if rows else np.zeros(0)
         return float(np.linalg.norm(force) + mass * np.linalg.norm(gap))
 
     z_m = z0[L.master_rows].copy()          # first guess: the velocities at the start
@@ -165,10 +166,10 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     if L.inverted():
         z_m[:] = 0.0                        # ... unless that inverts: then the start
         place(z_m)
-    r, A, f_all, bilateral, unilateral = residual(z_m)
-    lam = np.zeros(sum(len(g[-1]) for g in bilateral + unilateral))
-    lam_jacobian = _guess(scene, bilateral, unilateral, h)
-    norm = merit(r, bilateral, unilateral, lam)
+    r, A, f_all, rows = residual(z_m)
+    lam = np.zeros(sum(len(g.c) for g in rows))
+    lam_jacobian = _guess(scene, rows, h)
+    norm = merit(r, rows, lam)
     norm0 = max(norm, atol)
     history = [norm]
     where = f"implicit step at t = {scene.t:g}"
@@ -180,14 +181,11 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
             if norm <= rtol * norm0 or norm <= atol:
                 converged = True
                 break
-            J, rows = system.jacobian(z_m, A, bilateral, unilateral, lam_jacobian)
-            groups = bilateral + unilateral
-            shifted = [(*g[:-2], G, g[-1] + np.asarray(G @ z_m).ravel())
-                       for g, G in zip(groups, rows)]
-            z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r,
-                                                  shifted[:len(bilateral)],
-                                                  shifted[len(bilateral):], where,
-                                                  force_rows=[g[2] for g in groups])
+            J, G_x = system.jacobian(z_m, A, rows, lam_jacobian)
+            shifted = [StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel())
+                       for g, G in zip(rows, G_x)]
+            z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r, shifted,
+                                                  where, force_rows=[g.G for g in rows])
             dz = z_new - z_m
             step, z_start = 1.0, z_m
             while step >= 1e-4:
@@ -195,14 +193,14 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 place(z_m)
                 if not L.inverted():
                     trial = residual(z_m)
-                    norm_trial = merit(trial[0], trial[3], trial[4], lam_new)
+                    norm_trial = merit(trial[0], trial[3], lam_new)
                     if np.isfinite(norm_trial) and norm_trial <= (1.0 - 1e-4 * step) * norm:
                         break
                 step *= 0.5
             else:
                 raise StepFailed(f"{where}: line search failed at Newton iteration {it} "
                                  f"(|r| = {norm:.3e})")
-            r, A, f_all, bilateral, unilateral = trial
+            r, A, f_all, rows = trial
             lam, norm = lam_new, norm_trial
             lam_jacobian = lam
             history.append(norm)
@@ -218,11 +216,11 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
         if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
             for vc in constrained:
                 vc.updates = updates
-            return impulses_by_joint(bilateral, unilateral, lam), history
+            return impulses_by_constraint(rows, lam), history
         updates += 1
         if updates > min(vc.spec.max_updates for vc in constrained):
             off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
                             if v > vc.spec.tol)
             raise StepFailed(f"{where}: {off} after {updates - 1} pressure updates")
-        r, A, f_all, bilateral, unilateral = residual(z_m)
-        norm = merit(r, bilateral, unilateral, lam)
+        r, A, f_all, rows = residual(z_m)
+        norm = merit(r, rows, lam)

@@ -5,8 +5,9 @@ the "all" vector z (FEM nodal velocities, reduced q', rigid twists), sorts
 masters from slaves and known coordinates, and builds what the step needs at
 the current configuration: the prolongation P, the known velocities z_k, the
 bodies' blocks A_all and b_all, the path and load terms, the geometric
-stiffness K_geo, and the joint rows. It also moves the scene (advance,
-displace, place the slaves, save and restore).
+stiffness K_geo; the constraints' rows on these coordinates are its
+:class:`~artifem.scene.constraint_map.ConstraintMap` (``constraint_map``). It also
+moves the scene (advance, displace, place the slaves, save and restore).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import (Frame, RigidBody, dexp_so3, exp_so3, orthonormalize,
                                           skew, skews)
 from artifem.reduction.rigid_lift import RigidLift
+from artifem.scene.constraint_map import ConstraintMap
 from artifem.scene.direct_solver import DENSE_MAX
 
 
@@ -131,6 +133,8 @@ class Layout:
                              zip(self.reduced_bodies, master_rows[len(fem_bodies):])]
         self._embedding_map = self._embedding_matrix()
         self._place_lifts()             # lift coordinates from the bodies' poses
+        #: the constraints' rows on these coordinates (joints and limits, one kind of rows)
+        self.constraint_map = ConstraintMap(self)
 
     # ---- matrices in the layout's format (dense when small, CSR otherwise) -------------
 
@@ -527,29 +531,6 @@ class Layout:
                 parts.append((K.ravel(), r.ravel(), c.ravel()))
         return self.triplets(parts, (self.n_all, self.n_all))
 
-    def joint_stiffness(self, bilateral: list, unilateral: list, lam: np.ndarray):
-        """d(G^T lambda)/dq (all-space, the rigid bodies' 6 x 6 blocks) of the joint rows
-        (joint, rows, G P, c) of :meth:`joint_rows` at fixed impulses ``lam`` (bilateral
-        first): the levers and axes of the rows turn with the bodies
-        (``Joint.constraint_stiffness``, ``Joint.limit_stiffness``)."""
-        parts, start = [], 0
-        for k, (joint, _, _, c) in enumerate(bilateral + unilateral):
-            part = lam[start:start + len(c)]
-            start += len(c)
-            if not np.any(part):
-                continue
-            K = joint.constraint_stiffness(part) if k < len(bilateral) else \
-                joint.limit_stiffness(part)
-            offsets = [None if b is None else self.rigid_offset[id(b)] for b in joint.bodies]
-            for i, oi in enumerate(offsets):
-                for j, oj in enumerate(offsets):
-                    if oi is None or oj is None:
-                        continue
-                    block = K[6 * i:6 * i + 6, 6 * j:6 * j + 6]
-                    r, cc = np.meshgrid(oi + np.arange(6), oj + np.arange(6), indexing="ij")
-                    parts.append((block.ravel(), r.ravel(), cc.ravel()))
-        return self.triplets(parts, (self.n_all, self.n_all))
-
     def rotation_jacobian(self, z_m: np.ndarray, h: float):
         """T (n_masters x n_masters): the master displacements of :meth:`advance` per unit
         h z_m change, identity but on each dynamic root's rotation, whose update
@@ -828,54 +809,6 @@ class Layout:
             rows.append(r.ravel()), cols.append(c.ravel()), vals.append(block.ravel())
         K_roots = self.triplets(list(zip(vals, rows, cols)), (self.n_masters, self.n_masters))
         return K_roots if K_frames is None else self.fmt(K_roots + K_frames)
-
-    def joint_forces(self, parts) -> np.ndarray:
-        """sum G^T lambda over (joint, ConstraintRows, lambda), on the all-space rigid rows."""
-        out = np.zeros(self.n_all)
-        for joint, rows, lam in parts:
-            for body, G in zip(joint.bodies, (rows.G_a, rows.G_b)):
-                if body is not None:
-                    o = self.rigid_offset[id(body)]
-                    out[o:o + 6] += G.T @ lam
-        return out
-
-    def joint_matrix(self, P):
-        """The bilateral joint rows on the masters, G P (static solve)."""
-        blocks = self.joint_rows(P, np.zeros(self.n_all), 1.0, 0.0)[0]
-        return self.vstack([g[2] for g in blocks])
-
-    def joint_rows(self, P, z_k, h, beta):
-        """(joint, rows, G P, c) of the bilateral and of the unilateral rows (artifem.scene.scene
-        docstring); all joints' rows are mapped by P in one product."""
-        groups, blocks, start = [], [], 0
-        for joint in self.scene.joints:
-            for kind, rows in (("bilateral", joint.constraint()), ("unilateral",
-                                                                    joint.unilateral())):
-                if not len(rows):
-                    continue
-                if kind == "bilateral":
-                    c = -beta * rows.phi / h
-                else:                               # reach the limit, never cross it
-                    c = np.where(rows.phi > 0, -rows.phi / h, -beta * rows.phi / h)
-                for body, G_body in zip(joint.bodies, (rows.G_a, rows.G_b)):
-                    if body is not None:
-                        o = self.rigid_offset[id(body)]
-                        r, k = np.meshgrid(start + np.arange(len(rows)), o + np.arange(6),
-                                           indexing="ij")
-                        blocks.append((G_body.ravel(), r.ravel(), k.ravel()))
-                groups.append((kind, joint, rows, start, c))
-                start += len(rows)
-        if not groups:
-            return [], []
-        vals, r, k = (np.concatenate(x) for x in zip(*blocks)) if blocks else \
-            (np.zeros(0), np.zeros(0, int), np.zeros(0, int))
-        G = self.matrix(vals, r, k, (start, self.n_all))
-        GP, Gz = self.fmt(G @ P), G @ z_k
-        out = {"bilateral": [], "unilateral": []}
-        for kind, joint, rows, s0, c in groups:
-            s1 = s0 + len(rows)
-            out[kind].append((joint, rows, GP[s0:s1], c - Gz[s0:s1]))
-        return out["bilateral"], out["unilateral"]
 
     # ---- updates -----------------------------------------------------------------------
 

@@ -48,15 +48,17 @@ end of the step (backward Euler linearized at its start, one solve):
             M at the start of the step)
 
 stacked into A_all, b_all (force elements add their off-diagonal blocks) and
-reduced by P, with the joint rows as Lagrange multipliers:
+reduced by P, with the constraint rows as Lagrange multipliers:
 
     [ P^T A_all P - h^2 K_geo    -G_m^T ] [ z_m+   ]   [ P^T (b_all - A_all z_k) ]
     [ G_m                         0     ] [ lambda ] = [ -beta phi / h - G z_k   ],
 
-G the joint rows on the all-space twists (joints.py), G_m = G P and lambda the
-joint impulses (force times h), solved through the Schur complement of the joint
+G the rows of every constraint (``Scene.constraints``: the joints and their limits,
+each a list of :class:`~artifem.multibody.constraint_rows.RowBlock` with bounds on
+lambda) on the all-space coordinates (:mod:`artifem.scene.constraint_map`), G_m = G P
+and lambda the impulses (force times h), solved through the Schur complement of the
 rows (:mod:`artifem.scene.constraints`: minimum-norm impulses for redundant rows,
-an active set for the joint limits, one factorization of the master block).
+an active set for the bounded rows, one factorization of the master block).
 
 Rigid bodies alone: with forces that have no Jacobians (gravity) the step is
 symplectic Euler (velocities from forces at q, positions from u+), so the energy
@@ -103,15 +105,21 @@ symmetric (gyroscopic and geometric terms), so it is factored by a direct LU,
 MUMPS through petsc4py (one process, COMM_SELF), every step.
 
 Statics (:meth:`Scene.solve_static`): Newton on the master forces
-F_m = P^T f_all = 0 and phi = 0 with the same tangent without the inertia,
+F_m + G_m^T lambda = 0 with phi = 0 on the free rows and phi >= 0, lambda >= 0 on the
+bounded ones (joint limits), with the same tangent without the inertia,
 
-    [ P^T K_all P - K_geo   G_m^T ] [ dq ]   [ F_m  ]
-    [ G_m                   0     ] [ mu ] = [ -phi ],
+    [ P^T K_all P - K_geo   G_a^T ] [ dq ]   [ F_m  ]
+    [ G_a                   0     ] [ mu ] = [ -phi ],      lambda = -mu,
 
-K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the rigid ones, master
-displacements dq = free FEM du and [dp; dtheta] of each dynamic root
+G_a the free rows and the bounded rows an active set holds as equalities (the others
+at lambda = 0 while phi + G dq >= 0; :func:`~artifem.scene.constraints.solve_saddle`,
+one KKT factorization per trial), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the
+rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
-line search on |[F_m; phi]| refuses inverted elements.
+line search on |[F_m; phi]| refuses inverted elements. The tangent leaves out the
+rows' own turning d(G^T lambda)/dq, so a scene whose only stiffness in a joint's free
+direction would come from it (a rigid pendulum under gravity alone) has a singular
+tangent there.
 
 Path elements (:class:`PointPath`): a spring or muscle of
 :mod:`artifem.multibody.muscles` through points that are FEM points
@@ -167,9 +175,10 @@ embedded ones), and K_geo adds d(J^T [f; tau])/dx. A massless body
 deformable bodies. The joints' reactions load such attachments like any force;
 they enter K_geo lagged by one step (or one Newton iteration).
 
-Statics with joints use the exact-penalty merit E + rho |phi|_1 (rho = 2 max |mu|)
-when every force has an energy, and otherwise the force residual left after the
-least-squares joint reactions.
+Statics with constraints use the exact-penalty merit E + rho |gap|_1 (rho = 2 max
+|lambda|; gap = phi on free rows, min(phi, 0) on bounded ones) when every force has an
+energy, and otherwise the force residual left after the least-squares reactions of the
+rows the last solve held active.
 
 Scenes of at most ``DENSE_MAX`` (direct_solver) coordinates (reduced and rigid bodies)
 are solved by a dense LU instead of MUMPS.
@@ -221,7 +230,7 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.force_elements import ForceElement
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.scene.constraints import impulses_by_joint, solve_constrained
+from artifem.scene.constraints import impulses_by_constraint, solve_constrained, solve_saddle
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
 from artifem.scene.schur_island import SchurIsland
@@ -593,14 +602,21 @@ class Scene:
         """max |phi| of each joint's bilateral rows (m and rad)."""
         return {j.name: float(np.abs(j.constraint().phi).max()) for j in self.joints}
 
-    def reaction(self, joint: Joint) -> tuple[np.ndarray, np.ndarray]:
-        """The wrenches the joint applied to its bodies A and B over the last step
-        (G_A^T lambda / h, G_B^T lambda / h, rows at the start of the step)."""
-        if not any(joint is j for j in self.joints):
+    @property
+    def constraints(self) -> list:
+        """The components that give constraint rows (:mod:`~artifem.multibody.
+        constraint_rows`): the joints, their limits included."""
+        return [*self.joints]
+
+    def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
+        """The wrenches the joint (any constraint) applied to each of its ``bodies`` over
+        the last step (G_k^T lambda / h, rows at the start of the step; a joint's
+        frame on the world gets the world's share)."""
+        if not any(joint is c for c in self.constraints):
             raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
-        return (sum((rows.G_a.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h,
-                sum((rows.G_b.T @ lam for rows, lam in parts), np.zeros(6)) / self._last_h)
+        return tuple(sum((block.jacobians[k][1].T @ lam for block, lam in parts),
+                         np.zeros(6)) / self._last_h for k in range(len(joint.bodies)))
 
     # ---- the step ------------------------------------------------------------------------
 
@@ -763,20 +779,21 @@ class Scene:
     def _step_island(self, h: float) -> None:
         """The coupled island's linearized step (module docstring)."""
         L, P, z_k, targets, A_m, b_m = self._step_system(h)
-        bilateral, unilateral = L.joint_rows(P, z_k, h, self.stabilization)
-        z_m, lam, resolve = self._solve(A_m, b_m, bilateral, unilateral)
+        rows = L.constraint_map.rows(P, z_k, h, self.stabilization)
+        z_m, lam, resolve = self._solve(A_m, b_m, rows)
         z = P @ z_m + z_k
         if L.volume_constraints:
             L.hold_volumes(z, lam, P, resolve, h)
         L.advance(z, h, targets)
-        self._record_impulses(L, impulses_by_joint(bilateral, unilateral, lam), h)
+        self._record_impulses(L, impulses_by_constraint(rows, lam), h)
 
     def _record_impulses(self, L, impulses: dict, h: float) -> None:
-        """Keep the joints' impulses of the step (reactions, and K_geo's lagged loads)."""
+        """Keep the constraints' impulses of the step (reactions, and K_geo's lagged
+        loads)."""
         self._impulses, self._last_h = impulses, h
-        self._reactions = L.joint_forces((joint, rows, lam / h)
-                                         for joint, parts in impulses.items()
-                                         for rows, lam in parts)
+        self._reactions = L.constraint_map.forces((block, lam / h)
+                                                  for parts in impulses.values()
+                                                  for block, lam in parts)
 
     def step_matrix(self, h: float) -> sparse.csr_matrix:
         """The masters' block P^T A_all P - h^2 K_geo of the coupled island's next KKT
@@ -802,17 +819,17 @@ class Scene:
         b_m = P.T @ (b - A @ z_k)
         return L, P, z_k, targets, A_m, b_m
 
-    def _solve(self, A_m, b_m, bilateral, unilateral):
-        """z_m+, the joint impulses lambda and the solve for another right-hand side
+    def _solve(self, A_m, b_m, rows):
+        """z_m+, the constraint impulses lambda and the solve for another right-hand side
         (:func:`~artifem.scene.constraints.solve_constrained`: the Schur complement of the
-        joint rows, minimum-norm for redundant rows, an active set for the limits)."""
+        constraint rows, minimum-norm for redundant rows, an active set for the bounded
+        ones)."""
         n = A_m.shape[0]
         if n == 0:                                  # everything fixed, prescribed or attached
             self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
             return np.zeros(0), np.zeros(0), lambda rhs: (np.zeros(0), np.zeros(0))
-        z_m, lam, active, resolve = solve_constrained(self._solver, A_m, b_m, bilateral,
-                                                      unilateral, f"t = {self.t:g}",
-                                                      resolver=True)
+        z_m, lam, active, resolve = solve_constrained(self._solver, A_m, b_m, rows,
+                                                      f"t = {self.t:g}", resolver=True)
         self.last_solve = {"masters": n, "constraint_rows": active, "factorizations": 1}
         return z_m, lam, resolve
 
@@ -854,7 +871,8 @@ class Scene:
                      progress=None) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
-        ``solve_static_reduced``), then the coupled island, F_m = 0 and phi = 0 (module
+        ``solve_static_reduced``), then the coupled island, F_m + G^T lambda = 0 with
+        phi = 0 on the joints and phi >= 0, lambda >= 0 on their limits (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
         of each increment over the islands. ``load_steps="auto"`` (or a count whose
         increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
@@ -927,50 +945,56 @@ class Scene:
         for body in self._full_bodies():
             body.load_factor.value = factor
 
-    def _residual(self, L) -> tuple[np.ndarray, np.ndarray]:
-        F = L.prolongation().T @ L.static_forces(self.t, tangent=False)[0]
-        phi = np.concatenate([j.constraint().phi for j in self.joints]) if self.joints \
-            else np.zeros(0)
-        return F, phi
+    def _residual(self, L) -> tuple[np.ndarray, list]:
+        """(F_m, the constraints' rows on the masters): statics asks phi + G dq = 0 on the
+        free rows and >= 0 on the bounded ones, c = -phi (their right-hand side at
+        h = beta = 1)."""
+        P = L.prolongation()
+        F = P.T @ L.static_forces(self.t, tangent=False)[0]
+        return F, L.constraint_map.rows(P, np.zeros(L.n_all), 1.0, 1.0)
 
-    def _merit(self, L, F: np.ndarray, phi: np.ndarray) -> float:
-        """|[F_m - G_m^T mu; phi]| with mu the least-squares joint reactions at the current
-        configuration: the forces the joints cannot balance, and the joints' error."""
-        if self.joints:
-            G = L.joint_matrix(L.prolongation())
-            G = G.toarray() if sparse.issparse(G) else G
+    @staticmethod
+    def _merit(F: np.ndarray, rows: list, active: np.ndarray) -> float:
+        """|[F_m - G_a^T mu; gap]| with mu the least-squares reactions of the active rows
+        (every free row and the limits the last solve pressed on) at the current
+        configuration: the forces the constraints cannot balance, and their error (phi
+        on free rows, the crossed part min(phi, 0) of bounded ones)."""
+        gap = _gap(rows)
+        if active.any():
+            G = np.vstack([g.G.toarray() if sparse.issparse(g.G) else g.G for g in rows])
+            G = G if active.all() else G[active]
             F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
-        return float(np.linalg.norm(np.concatenate([F, phi])))
+        return float(np.linalg.norm(np.concatenate([F, gap])))
 
     def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
-        F, phi = self._residual(L)
-        norm = self._merit(L, F, phi)
+        F, rows = self._residual(L)
+        # before the first solve: the free rows and the crossed bounded ones
+        active = np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) \
+            if rows else np.zeros(0, dtype=bool)
+        norm = self._merit(F, rows, active)
         scale = max(norm, atol)
         for it in range(1, max_iterations + 1):
             if norm <= max(rtol * scale, atol):
                 return it - 1
             K = L.fmt(self.static_tangent())
-            P = L.prolongation()
-            G = L.joint_matrix(P) if self.joints else L.zeros((0, K.shape[0]))
-            KKT = L.kkt(K, G)
-            x = self._solver.solve(KKT, np.concatenate([F, -phi]), "static solve")
-            dq, mu = x[:K.shape[0]], x[K.shape[0]:]
-            if self.joints:             # K dq = F - G^T mu: the joints apply -G^T mu
-                groups = L.joint_rows(P, np.zeros(L.n_all), 1.0, 0.0)[0]
-                cuts = np.cumsum([len(g[1]) for g in groups])[:-1]
-                self._reactions = L.joint_forces((g[0], g[1], m) for g, m in
-                                                 zip(groups, np.split(-mu, cuts)))
+            # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
+            dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows, "static solve")
+            if rows:                    # the constraints apply G^T lambda
+                ends = np.cumsum([len(g.c) for g in rows])
+                self._reactions = L.constraint_map.forces(
+                    (g.block, lam[end - len(g.c):end]) for g, end in zip(rows, ends))
+            gap = _gap(rows)
             saved = L.save()
-            # The energy is a merit when it is the whole potential; with joints, the exact
-            # penalty E + rho |phi|_1, rho > max |mu|, whose slope along the step is
-            # -F . dq - rho |phi|_1 = -dq^T K dq + mu . phi - rho |phi|_1 < 0.
+            # The energy is a merit when it is the whole potential; with constraints, the
+            # exact penalty E + rho |gap|_1, rho > max |lambda|, whose slope along the step
+            # is -F . dq - rho |gap|_1 = -dq^T K dq - lambda . phi - rho |gap|_1 < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
                 and all(p.conservative for p in self.paths) \
                 and all(b.conservative for b in L.fem_bodies)
-            rho = 2.0 * float(np.abs(mu).max()) if mu.size else 0.0
-            energy0 = self.potential_energy() + rho * float(np.abs(phi).sum()) \
+            rho = 2.0 * float(np.abs(lam).max()) if lam.size else 0.0
+            energy0 = self.potential_energy() + rho * float(np.abs(gap).sum()) \
                 if use_energy else 0.0
-            slope = -float(F @ dq) - rho * float(np.abs(phi).sum())
+            slope = -float(F @ dq) - rho * float(np.abs(gap).sum())
             step = 1.0
             while step >= 1e-4:
                 L.displace(step * dq)
@@ -979,10 +1003,10 @@ class Scene:
                     # while the free nodes beside them move on straight lines, so a large
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
-                    F_new, phi_new = self._residual(L)
-                    energy = self.potential_energy() + rho * float(np.abs(phi_new).sum()) \
-                        if use_energy else np.inf
-                    trial = self._merit(L, F_new, phi_new)
+                    F_new, rows_new = self._residual(L)
+                    energy = self.potential_energy() + rho * float(np.abs(
+                        _gap(rows_new)).sum()) if use_energy else np.inf
+                    trial = self._merit(F_new, rows_new, active)
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -992,10 +1016,15 @@ class Scene:
             else:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                         f"{factor:g}, Newton iteration {it}")
-            F, phi, norm = F_new, phi_new, trial
+            F, rows, norm = F_new, rows_new, trial
             if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
                 return it
         if norm <= max(rtol * scale, atol):
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                                 f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+
+
+def _gap(rows: list) -> np.ndarray:
+    """The constraint error of statics: phi on free rows, min(phi, 0) on bounded ones."""
+    return np.concatenate([g.block.gap() for g in rows]) if rows else np.zeros(0)

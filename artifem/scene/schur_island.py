@@ -46,7 +46,7 @@ from artifem.errors import InputError
 from artifem.integrators import step_system
 from artifem.multibody.attachments import dof_positions
 from artifem.multibody.rigid_body import skews
-from artifem.scene.constraints import impulses_by_joint, solve_constrained
+from artifem.scene.constraints import impulses_by_constraint, solve_constrained
 from artifem.scene.layout import Layout
 
 __all__ = ["SchurIsland"]
@@ -102,7 +102,7 @@ class SchurIsland:
     # ---- one step ----------------------------------------------------------------------
 
     def step(self, h: float) -> dict:
-        """Advance the island from t to t + h (module docstring); returns the joints'
+        """Advance the island from t to t + h (module docstring); returns the constraints'
         impulses, as the direct step records them."""
         scene, R = self.scene, self.rigid
         t1 = scene.t + h
@@ -124,15 +124,14 @@ class SchurIsland:
             S, rhs = S + part["S"], rhs + part["rhs"]
             if scene.geometric_stiffness:
                 S = S - h * h * part["K_geo"]
-        bilateral, unilateral = R.joint_rows(P, z_k, h, scene.stabilization)
-        u_m, lam, active = solve_constrained(scene._solver, S, rhs, bilateral, unilateral,
-                                             f"t = {scene.t:g}")
+        rows = R.constraint_map.rows(P, z_k, h, scene.stabilization)
+        u_m, lam, active = solve_constrained(scene._solver, S, rhs, rows, f"t = {scene.t:g}")
         scene.last_solve = {"masters": u_m.size, "constraint_rows": active,
                             "fem_solves": sum(p["solves"] for p in parts)}
         R.advance(P @ u_m + z_k, h, targets)
         for part in parts:
             self._advance_fem(part, u_m, h)
-        return impulses_by_joint(bilateral, unilateral, lam)
+        return impulses_by_constraint(rows, lam)
 
     def _fem_part(self, body, h: float, P: np.ndarray) -> dict:
         """One body's contributions to S and the right-hand side, and what its update

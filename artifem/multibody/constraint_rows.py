@@ -1,0 +1,104 @@
+"""The constraint protocol: rows on the bodies' coordinates, with bounds on their impulses.
+
+A constraint (a joint, its limits; contact next) names the bodies it touches
+(``bodies``) and gives, at the current state, its rows as blocks
+(``row_blocks() -> list[RowBlock]``). A block of m rows holds
+
+    phi (m,)             the constraint values: phi = 0 wanted on a free row,
+                         phi >= 0 on a bounded one;
+    G_k (m x n_k)        the rows on the coordinates of each touched body k (a rigid
+                         body's twist [v; w], a reduced body's q', FEM nodal
+                         velocities): phi' = sum_k G_k z_k;
+    lo <= lambda <= hi   bounds on the rows' impulses lambda (force times h), which act
+                         on body k as G_k^T lambda: bilateral rows (-inf, inf), limits
+                         and contact normals [0, inf);
+    K(lambda)            d(sum_k G_k^T lambda)/dq at fixed lambda: the rows' geometric
+                         stiffness (their levers and axes turn with the bodies).
+
+The step asks of each row, with z+ the velocities at the end of the step,
+
+    free row (lo = -inf, hi = inf):   G z+ = c,   c = -beta phi / h
+    bounded row:                      G z+ >= c,  c = -phi / h while phi > 0 (reach
+                                      phi = 0, never cross it), -beta phi / h once crossed,
+
+with complementarity on the bounded rows (lambda at lo where the row is slack);
+Baumgarte's beta (``Scene.stabilization``) removes the drift of the free rows. Statics
+asks phi + G dq = 0 (free) or >= 0 (bounded): the same right-hand side at h = beta = 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from artifem.errors import InputError
+
+__all__ = ["RowBlock"]
+
+
+@dataclass(frozen=True, eq=False)
+class RowBlock:
+    """m rows of one constraint at the current state (module docstring).
+
+    Args:
+        owner: the constraint that gave the rows (its impulses are recorded under it).
+        phi: (m,) constraint values.
+        jacobians: ((body, G_body), ...): the rows on each touched body's coordinates,
+            in the order of ``owner.bodies``; a body None is the world (no coordinates;
+            its G_body is the reaction on the world).
+        lo, hi: (m,) bounds on the impulses.
+        stiffness: lambda -> d(sum_k G_k^T lambda)/dq, square over the concatenated
+            columns of ``jacobians`` (the world's included, zero).
+    """
+
+    owner: object
+    phi: np.ndarray
+    jacobians: tuple
+    lo: np.ndarray
+    hi: np.ndarray
+    stiffness: Callable[[np.ndarray], np.ndarray]
+
+    def __post_init__(self):
+        m = self.phi.shape[0]
+        what = f"constraint {getattr(self.owner, 'name', self.owner)!r}"
+        if self.lo.shape != (m,) or self.hi.shape != (m,):
+            raise InputError(f"{what}: {m} rows need {m} lower and upper bounds")
+        if np.any(self.lo > self.hi) or np.any(self.lo == np.inf) or \
+                np.any(self.hi == -np.inf):
+            raise InputError(f"{what}: bounds need lo <= hi, lo < inf and hi > -inf")
+        for _, G in self.jacobians:
+            if G.shape[0] != m:
+                raise InputError(f"{what}: a Jacobian with {G.shape[0]} rows for {m} values")
+
+    @classmethod
+    def bilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:
+        """Equality rows phi = 0, lambda free."""
+        m = len(phi)
+        return cls(owner, np.asarray(phi, dtype=float), tuple(jacobians),
+                   np.full(m, -np.inf), np.full(m, np.inf), stiffness)
+
+    @classmethod
+    def unilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:
+        """Inequality rows phi >= 0, lambda >= 0 (limits, contact normals)."""
+        m = len(phi)
+        return cls(owner, np.asarray(phi, dtype=float), tuple(jacobians),
+                   np.zeros(m), np.full(m, np.inf), stiffness)
+
+    def __len__(self) -> int:
+        return self.phi.shape[0]
+
+    @property
+    def bounded(self) -> np.ndarray:
+        """(m,) bool: rows with a finite bound on lambda (inequalities phi >= 0)."""
+        return np.isfinite(self.lo) | np.isfinite(self.hi)
+
+    def rhs(self, h: float, beta: float) -> np.ndarray:
+        """c of the rows G z+ (= or >=) c (module docstring)."""
+        gain = np.where(self.bounded & (self.phi > 0), 1.0, beta)
+        return -gain * self.phi / h
+
+    def gap(self) -> np.ndarray:
+        """The part of phi the rows forbid: phi on free rows, min(phi, 0) on bounded ones."""
+        return np.where(self.bounded, np.minimum(self.phi, 0.0), self.phi)

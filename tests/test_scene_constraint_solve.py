@@ -1,0 +1,64 @@
+"""The solve of constraint rows with bounded impulses (artifem.scene.constraints):
+``solve_constrained`` (Schur complement) and ``solve_saddle`` (one KKT matrix per
+trial) agree and meet the complementarity conditions with general bounds
+lo <= lambda <= hi, checked against every active set of a small problem."""
+
+import itertools
+
+import numpy as np
+
+import artifem as af  # noqa: F401  (must precede dolfinx / petsc4py)
+
+from artifem.multibody.constraint_rows import RowBlock
+from artifem.scene.constraints import StepRows, solve_constrained, solve_saddle
+from artifem.scene.direct_solver import DirectSolver
+
+
+class _Owner:
+    name = "rows"
+
+
+def test_bounded_rows_solve_meets_complementarity_for_any_bounds(rng):
+    """Random SPD A, 2 free rows and 4 bounded ones ([0, inf), [-0.2, 0.3], (-inf, 0.1],
+    [0, 0]): both solves give the same z and lambda, and that is the one active set of all
+    3^4 whose equality solution keeps every multiplier within its bounds and every held row
+    on its side (the complementarity conditions of the bounded rows)."""
+    n = 8
+    X = rng.standard_normal((n, n))
+    A = X @ X.T + n * np.eye(n)
+    b = 3.0 * rng.standard_normal(n)
+    G = rng.standard_normal((6, n))
+    c = rng.standard_normal(6)
+    lo = np.array([-np.inf, -np.inf, 0.0, -0.2, -np.inf, 0.0])
+    hi = np.array([np.inf, np.inf, np.inf, 0.3, 0.1, 0.0])
+    block = RowBlock(_Owner(), np.zeros(6), ((None, G),), lo, hi, lambda lam: None)
+    rows = [StepRows(block, G, c)]
+    z1, lam1, _ = solve_constrained(DirectSolver(), A, b, rows, "test")
+    # the case meant: a multiplier held at a non-zero bound
+    assert np.any(((lam1 == lo) | (lam1 == hi)) & (lo != hi) & (lam1 != 0.0))
+    z2, lam2, _ = solve_saddle(DirectSolver(), lambda K, Ga: np.block(
+        [[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K, A, b, rows, "test")
+    np.testing.assert_allclose(z1, z2, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(lam1, lam2, rtol=1e-10, atol=1e-12)
+    # every state of the bounded rows: 0 active (equality), 1 held at lo, 2 held at hi
+    found = []
+    for states in itertools.product(range(3), repeat=4):
+        state = np.array([0, 0, *states])
+        if np.any((state == 1) & ~np.isfinite(lo)) or np.any((state == 2) & ~np.isfinite(hi)):
+            continue
+        lam = np.where(state == 1, lo, np.where(state == 2, hi, 0.0))
+        on = state == 0
+        # A z - G^T lam = b, G_on z = c_on
+        KKT = np.block([[A, -G[on].T], [G[on], np.zeros((on.sum(), on.sum()))]])
+        x = np.linalg.solve(KKT, np.concatenate([b + G[~on].T @ lam[~on], c[on]]))
+        z, lam[on] = x[:n], x[n:]
+        slack = G @ z - c
+        tol = 1e-9
+        ok = np.all(lam >= lo - tol) and np.all(lam <= hi + tol) \
+            and np.all(slack[state == 1] >= -tol) and np.all(slack[state == 2] <= tol)
+        if ok:
+            found.append((z, lam))
+    assert found, "no complementary solution"
+    for z, lam in found:                    # the solution is unique (A SPD, G full rank)
+        np.testing.assert_allclose(z, z1, rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(lam, lam1, rtol=1e-9, atol=1e-10)
