@@ -51,8 +51,6 @@ if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
 #: Pressure iterations per Newton iteration of a hard-incompressible body (its linearized
 #: constraint only as good as the iterate; the Uzawa updates around Newton finish the job).
 NEWTON_PRESSURE_ITERATIONS = 10
-#: Newton iterations of the post-stabilization of a semi-implicit step (:func:`_project_volumes`)
-PROJECTIONS = 3
 
 
 def _update_ghosts(*vecs: PETSc.Vec) -> None:
@@ -163,7 +161,7 @@ class SemiImplicitEuler:
         q = q + h * qdot
         body.set_state((q, qdot))
         vc = body.volume_constraint
-        for _ in range(PROJECTIONS if vc is not None else 0):
+        for _ in range(vc.spec.projections if vc is not None else 0):
             if vc.violation() <= vc.spec.step_tol:      # post-stabilization: _project_volumes
                 break
             dv = vc.hold_linearized(A, np.zeros_like(qdot), h, exact=False)
@@ -213,13 +211,13 @@ def _project_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
         g(u) + h^2 G A^-1 G^T dp = 0,    v += h A^-1 G^T dp,    u += h (that change),
 
     (G at the step's end; :func:`_hold_volumes` with no base), at most
-    ``PROJECTIONS`` times. The step stays the backward Euler step with the pressures
+    ``Incompressible.projections`` times. The step stays the backward Euler step with the pressures
     changed, at the cost of a few solves with the factorization already made, instead of
     the implicit fallback's Newton. What it does not bring under ``step_tol`` the scene's
     health check still sees. ``dv`` is scratch."""
     vc = body.volume_constraint
     u, v = body.u.x.petsc_vec, body.v.x.petsc_vec
-    for _ in range(PROJECTIONS):
+    for _ in range(vc.spec.projections):
         vc.assemble(tangent=True)
         if vc.violation() <= vc.spec.step_tol:
             return

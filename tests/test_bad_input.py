@@ -178,3 +178,10 @@ def test_duplicate_body_name(msh, body):
     scene.add(body)
     with pytest.raises(InputError, match=r"'cube' is already in the scene"):
         scene.add(FemBody(msh, MATERIAL, 1000.0, name="cube"))
+
+
+@pytest.mark.parametrize("projections", [-1, 1.5])
+def test_a_projection_count_that_is_not_a_count(projections):
+    from artifem.incompressibility import Incompressible
+    with pytest.raises(InputError, match=r"projections must be an integer >= 0, got "):
+        Incompressible(kappa=1e4, projections=projections)

@@ -211,25 +211,31 @@ def test_the_semi_implicit_step_holds_the_linearized_constraint():
     assert abs(coarse[1] - fine[1]) < 0.05 * abs(fine[1])       # the same motion
 
 
+def _spun_cube(projections: int, step_tol: float = 1e-6, name: str = "cube"):
+    """A free unit cube (2 x 2 x 2 hexahedra), hard-incompressible, spinning about z at
+    omega = 30 rad/s."""
+    body = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0, name=name,
+                   incompressibility=Incompressible(kappa=100 * MU, step_tol=step_tol,
+                                                    projections=projections))
+    X = body.V.tabulate_dof_coordinates()
+    v = np.zeros_like(X)
+    v[:, 0], v[:, 1] = -30.0 * (X[:, 1] - 0.5), 30.0 * (X[:, 0] - 0.5)
+    body.v.x.array[:] = v.ravel()
+    return body
+
+
 @pytest.mark.parametrize("projections", [0, 1, 2, 3])
-def test_a_step_that_leaves_the_volumes_off_is_projected_back(projections, monkeypatch):
+def test_a_step_that_leaves_the_volumes_off_is_projected_back(projections):
     """A free cube spun at h omega = 0.3: the rigid rotation keeps the linearized constraint
     (div v = 0), so the semi-implicit step alone leaves every element (hω)^2 = 9 % too large.
     The post-stabilization (``integrators._project_volumes``) is Newton on g(u) = 0 with
     the step matrix kept: each projection squares the violation (measured 9e-2, 2.5e-3,
     2.0e-6, 1.3e-12)."""
-    import artifem.integrators as integrators
+    from artifem.integrators import SemiImplicitEuler
     from artifem.linear_solver import LinearSolver
 
-    monkeypatch.setattr(integrators, "PROJECTIONS", projections)
-    body = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0,
-                   incompressibility=Incompressible(kappa=100 * MU, step_tol=1e-6))
-    X = body.V.tabulate_dof_coordinates()
-    omega, h = 30.0, 0.01
-    v = np.zeros_like(X)
-    v[:, 0], v[:, 1] = -omega * (X[:, 1] - 0.5), omega * (X[:, 0] - 0.5)
-    body.v.x.array[:] = v.ravel()
-    integrators.SemiImplicitEuler().advance(body, h, LinearSolver(MPI.COMM_WORLD, "mumps"))
+    body, omega, h = _spun_cube(projections), 30.0, 0.01
+    SemiImplicitEuler().advance(body, h, LinearSolver(MPI.COMM_WORLD, "mumps"))
     vc = body.volume_constraint
     vc.assemble(tangent=False)
     violation = vc.violation()
@@ -241,22 +247,14 @@ def test_a_step_that_leaves_the_volumes_off_is_projected_back(projections, monke
     assert _element_volume_change(body) == pytest.approx(violation, rel=1e-6, abs=1e-11)
 
 
-def test_a_step_still_off_after_its_projections_is_retried(monkeypatch):
+def test_a_step_still_off_after_its_projections_is_retried():
     """The scene's health check sees what the projections leave: with none allowed, the
     spun cube's step (9 % off) fails with an error naming the elements and ``step_tol``
     when nothing may retry it, and the implicit fallback completes it otherwise."""
-    import artifem.integrators as integrators
     from artifem.errors import StepFailed
 
-    monkeypatch.setattr(integrators, "PROJECTIONS", 0)
-
     def spun(fallback):
-        body = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0,
-                       incompressibility=Incompressible(kappa=100 * MU, step_tol=1e-2))
-        X = body.V.tabulate_dof_coordinates()
-        v = np.zeros_like(X)
-        v[:, 0], v[:, 1] = -30.0 * (X[:, 1] - 0.5), 30.0 * (X[:, 0] - 0.5)
-        body.v.x.array[:] = v.ravel()
+        body = _spun_cube(0, step_tol=1e-2)
         scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps", fallback=fallback,
                       max_halvings=0)
         scene.add(body)
@@ -270,6 +268,40 @@ def test_a_step_still_off_after_its_projections_is_retried(monkeypatch):
     scene, body = spun("implicit")
     scene.step(0.01)
     assert scene.fallbacks == 1 and _element_volume_change(body) < 1e-4
+
+
+@pytest.mark.parametrize("projections, step_tol", [(0, 1e-2), (3, 5e-3), (3, 1e-5),
+                                                    (3, 1e-6)])
+def test_the_coupled_island_projects_as_the_body_alone(projections, step_tol):
+    """The spun cube made part of the coupled island by an embedded twin of itself of
+    negligible mass and stiffness (1e-9 of the cube's: the island is the cube) is
+    projected back by the island's step as the cube alone is by its own
+    (``Layout.project_volumes``), one, two or three times until within ``step_tol``
+    (2.5e-3, 2.0e-6, 1.3e-12): the same state after the step. Without projections the
+    island's step fails its health check."""
+    from artifem.errors import StepFailed
+    from artifem.integrators import SemiImplicitEuler
+    from artifem.linear_solver import LinearSolver
+
+    alone = _spun_cube(projections, step_tol)
+    SemiImplicitEuler().advance(alone, 0.01, LinearSolver(MPI.COMM_WORLD, "mumps"))
+    master = _spun_cube(projections, step_tol, name="master")
+    twin = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(1e-9 * MU, 2e-9 * MU), 1e-9,
+                   name="twin")
+    scene = Scene(gravity=(0.0, 0.0, 0.0), fallback=None, max_halvings=0)
+    scene.add(master, twin, af.EmbeddedFemAttachment(twin, master))
+    assert scene.islands()[0] == []
+    if projections == 0:
+        with pytest.raises(StepFailed, match=r"'master': element volumes off by more than "
+                                             r"the step's 0\.01"):
+            scene.step(0.01)
+        return
+    scene.step(0.01)
+    expected = _element_volume_change(alone)
+    assert expected <= step_tol
+    assert _element_volume_change(master) == pytest.approx(expected, rel=1e-4, abs=1e-11)
+    np.testing.assert_allclose(master.u.x.array, alone.u.x.array, rtol=0,
+                               atol=1e-8 * np.abs(alone.u.x.array).max())
 
 
 def test_a_reduced_or_bad_constraint_is_refused():

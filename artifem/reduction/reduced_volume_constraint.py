@@ -178,6 +178,9 @@ class ReducedVolumeConstraint:
         """pi~ = lambda - kappa N^-1 c."""
         return self.lam - self.kappa * (self.N_inv @ self.values())
 
+    def at_current_state(self) -> None:
+        """Nothing to do: c and C are evaluated at the current q when asked."""
+
     def violation(self, c: np.ndarray | None = None) -> float:
         """max_k |c_k| / n_k (of c(q), or of ``c``)."""
         c = self.values() if c is None else c

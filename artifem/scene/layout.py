@@ -549,14 +549,17 @@ class Layout:
         return [(b, b.volume_constraint) for b in self.fem_bodies + self.reduced_bodies
                 if b.volume_constraint is not None]
 
-    def hold_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float) -> None:
+    def hold_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float,
+                     stop_when_indefinite: bool = False) -> int | None:
         """The linearized volume constraints of the step (:func:`~artifem.incompressibility.
         hold_linearized`) for every hard-incompressible body of the island together: a
         pressure change dp acts as the force h G^T dp on its body's coordinates (``force_rows``
         of its constraint), the island's KKT system (factored, joints' active rows kept:
         ``resolve``) gives the velocities of everything. ``z`` (all velocities) and ``lam``
         (joint impulses) are corrected in place; StepFailed when the tolerance is not
-        reached."""
+        reached (``stop_when_indefinite`` and the return value: see there). With z = 0 and
+        the constraints at the step's end (:meth:`project_volumes`) it is one Newton
+        iteration of the post-stabilization."""
         views = [(*self.span(body), vc) for body, vc in self.volume_constraints]
         last = {}
 
@@ -573,7 +576,29 @@ class Layout:
             lam[:] += alpha * last["mu"]
 
         c0 = [vc.linearized_rows(z[o:o + n], h) for o, n, vc in views]
-        hold_linearized([vc for *_, vc in views], c0, respond, accept, MPI.COMM_SELF)
+        return hold_linearized([vc for *_, vc in views], c0, respond, accept, MPI.COMM_SELF,
+                               stop_when_indefinite=stop_when_indefinite)
+
+    def project_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float,
+                        targets: dict, start) -> None:
+        """Post-stabilization of the island's step (``integrators._project_volumes`` for a
+        body alone): while a hard-incompressible body's volumes at the step's end are off
+        by more than its ``step_tol``, at most ``Incompressible.projections`` times, the
+        pressure impulses dp with g(u) + h^2 G A^-1 G^T dp = 0 (G at the end, the step's
+        KKT factorization kept: :meth:`hold_volumes` on z = 0) correct z, and the step is
+        redone from ``start`` (:meth:`save` before :meth:`advance`) with it. What is still
+        off the scene's health check sees."""
+        for _ in range(max(vc.spec.projections for _, vc in self.volume_constraints)):
+            for _, vc in self.volume_constraints:
+                vc.at_current_state()
+            if all(vc.violation() <= vc.spec.step_tol for _, vc in self.volume_constraints):
+                return
+            dz = np.zeros_like(z)
+            if self.hold_volumes(dz, lam, P, resolve, h, stop_when_indefinite=True) is None:
+                return
+            z += dz
+            self.restore(start)
+            self.advance(z, h, targets)
 
     def mass_matrix(self):
         """M_all: the bodies' mass blocks at the current configuration (FEM lumped or

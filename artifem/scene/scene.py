@@ -784,7 +784,10 @@ class Scene:
         z = P @ z_m + z_k
         if L.volume_constraints:
             L.hold_volumes(z, lam, P, resolve, h)
+        start = L.save()
         L.advance(z, h, targets)
+        if L.volume_constraints:
+            L.project_volumes(z, lam, P, resolve, h, targets, start)
         self._record_impulses(L, impulses_by_constraint(rows, lam), h)
 
     def _record_impulses(self, L, impulses: dict, h: float) -> None:
