@@ -25,6 +25,7 @@ the element-wise incompressibility penalty
   the issue's hard schedules on the tongue's default, each from t = 0: GGP against HG and
   STY at 1.0; all eleven exciters at 1.0; all eleven in two groups pulsed in antiphase at
   0.8, switched every 0.05 s (within 1 ms).
+- ``incompressible_level_1_*``: those three at level 1 (6,699 nodes).
 
 A run either finishes (no inverted element, every value finite) or the
 scene gives up after its step halvings with
@@ -108,6 +109,14 @@ CASES.update({
         "all 11 exciters in two groups pulsed in antiphase at 0.8, switched every 0.05 s, "
         "hard incompressibility", _INCOMPRESSIBLE, {}, ramp=False, pulses=0.05),
 })
+#: The same three at level 1 (6,699 nodes).
+CASES.update({
+    f"incompressible_level_1_{name}": Case(
+        CASES[f"incompressible_{name}"].description + ", level 1",
+        {**CASES[f"incompressible_{name}"].config, "level": 1},
+        CASES[f"incompressible_{name}"].excitations, False,
+        pulses=CASES[f"incompressible_{name}"].pulses)
+    for name in ("coactivation", "all_step", "pulses")})
 #: The level of the pulsed case's exciters.
 PULSE_LEVEL = 0.8
 
