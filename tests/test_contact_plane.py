@@ -8,7 +8,8 @@
     slides with g (sin 30 - mu cos 30) = 0.657 m/s^2 to 1e-3 (semi-implicit and implicit);
 (3) a 4 x 4 x 4 neo-Hookean block dropped on the plane: it joins the coupled island, comes
     to rest, the sum of its nodes' normal forces equals its weight to 1e-9, no node below
-    the plane beyond the tolerance at any step;
+    the plane beyond the tolerance at any step; on the incline, once settled, mu = 0.6
+    sticks (slip < 1e-9 m over 1 s) and mu = 0.5 slides with g (sin 30 - mu cos 30);
 (4) a point that comes from beyond the margin within one step fails the step (clear
     message); bad input before the run.
 """
@@ -44,12 +45,15 @@ def scene_of(*items, **kwargs):
     return scene
 
 
-def fem_block(lift=0.0, name="block"):
+def fem_block(lift=0.0, name="block", rotation=np.eye(3), rayleigh=(10.0, 1e-3)):
+    """A 0.1 m neo-Hookean cube of 4 x 4 x 4 hexahedra, 1 kg, its bottom face at z = lift
+    (then turned by ``rotation`` about the origin)."""
     msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
                                            np.array([0.1, 0.1, 0.1 + lift])],
                            [4, 4, 4], dmesh.CellType.hexahedron)
+    msh.geometry.x[:] = msh.geometry.x @ rotation.T
     return af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                      rayleigh=(10.0, 1e-3), name=name)
+                      rayleigh=rayleigh, name=name)
 
 
 def heights(body):
@@ -159,6 +163,43 @@ def test_fem_block_dropped_on_a_plane_comes_to_rest_on_its_bottom_nodes():
                                   np.sort(block.mesh.geometry.input_global_indices[bottom]))
     assert abs(forces.normal.sum() / weight - 1.0) < 1e-9
     assert np.abs(block.v.x.array).max() < 1e-9
+
+
+@pytest.mark.parametrize("mu", [0.6, 0.5])
+def test_fem_block_on_an_incline_sticks_or_slides_once_settled(mu):
+    """The cube put undeformed on the incline (stiffness damping only: mass damping would
+    brake the sliding) settles within 0.5 s: its uphill edge lifts (20 of 25 bottom nodes
+    press) and the low-pressure nodes slip locally while it settles. Then mu = 0.6 holds:
+    the bottom nodes slip 8e-11 m from 1 s to 2 s (measured); mu = 0.5 slides: the mean
+    velocity gains g (sin 30 - mu cos 30) per second from 0.5 s to 1 s (measured to 1e-9)."""
+    turn = np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
+    block = fem_block(rotation=turn, rayleigh=(0.0, 1e-3))
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=TOL,
+                              margin=0.02)
+    scene = scene_of(block, contact)
+    mass = block.total_mass()
+    bottom = np.flatnonzero(np.abs(block.V.tabulate_dof_coordinates() @ NORMAL) < 1e-12)
+    assert bottom.size == 25
+
+    def run(steps):
+        for _ in range(steps):
+            scene.step(H)
+            assert contact.distances().min() >= -TOL
+
+    if mu == 0.6:
+        run(100)
+        settled = block.u.x.array.reshape(-1, 3)[bottom].copy()
+        run(100)
+        assert np.abs(block.u.x.array.reshape(-1, 3)[bottom] - settled).max() < 1e-9
+    else:
+        run(50)
+        v0 = scene.momentum() @ UPHILL / mass
+        run(50)
+        a = G * (np.sin(THETA) - mu * np.cos(THETA))
+        assert abs((v0 - scene.momentum() @ UPHILL / mass) / (50 * H) / a - 1.0) < 1e-3
+    forces = scene.contact_forces(contact)
+    assert np.count_nonzero(forces.normal > 0) == 20
+    assert abs(forces.normal.sum() / (mass * G * np.cos(THETA)) - 1.0) < 1e-6
 
 
 # ---- (4) failures and bad input ------------------------------------------------------------
