@@ -70,11 +70,13 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     hi)``, for bounds that depend on the impulses (Coulomb friction on the normal
     impulses): the active set is found again with the bounds of its last impulses until
     they change by at most 1e-10 of the largest impulse (a fixed point; each pass reuses
-    ``trial``'s factorization)."""
+    ``trial``'s factorization and starts from the last pass's active set)."""
+    start = None
     for _ in range(BOUND_PASSES):
-        lam, active, extra = _active_set_at(lo, hi, tol, trial, what)
+        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start)
         if bounds is None:
             return lam, active, extra
+        start = (active, ~active & (held == hi) & (lo < hi), lo == hi)
         lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
         lo, hi = lo_new, hi_new
@@ -89,14 +91,25 @@ def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
     return float(np.abs(new[finite] - old[finite]).max(initial=0.0))
 
 
-def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str):
-    """:func:`_active_set` at fixed bounds. Rows with lo < 0 < hi (friction) start active,
-    the other bounded rows held at a bound (lo where finite)."""
+def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
+                   start=None):
+    """(lambda, active mask, held impulses, extra) of :func:`_active_set` at fixed bounds.
+    Rows with lo < 0 < hi (friction) start active, the other bounded rows held at lo
+    (where finite); ``start`` = (active, held at hi, lo = hi) of a previous pass with other
+    bounds begins from that pass's active set instead, its rows held at the same side of
+    the new bounds (rows whose bounds were equal start as without it)."""
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
     active = np.ones(lo.size, dtype=bool)
     active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0)
+    at_high = np.zeros(lo.size, dtype=bool)
+    if start is not None:
+        was_active, was_high, was_pinned = start
+        kept = bounded[~was_pinned[bounded]]
+        active[kept] = was_active[kept]
+        at_high[kept] = was_high[kept]
     held = np.zeros(lo.size)
-    held[bounded] = np.where(np.isfinite(lo[bounded]), lo[bounded], hi[bounded])
+    held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
+                             hi[bounded])
     for _ in range(2 * bounded.size + 10):
         lam, slack, extra = trial(active, held)
         if not bounded.size:
@@ -116,7 +129,7 @@ def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str)
             break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
-    return lam, active, extra
+    return lam, active, held, extra
 
 
 def _stacked(rows: list):
