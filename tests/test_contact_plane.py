@@ -110,7 +110,7 @@ UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])      # t_1 of the plane
 @pytest.mark.parametrize("mu", [0.6, 0.5])
 def test_rigid_box_on_an_incline_sticks_or_slides_with_coulomb_friction(mu, integrator):
     """At rest on the incline for 1 s (100 steps): tan 30 = 0.577 < 0.6 sticks (measured
-    slip 8e-17 m), 0.5 slides along the slope with g (sin 30 - mu cos 30) = 0.6571 m/s^2
+    slip below 1e-16 m), 0.5 slides along the slope with g (sin 30 - mu cos 30) = 0.6571 m/s^2
     (measured to 2e-15 relative: the friction bound takes the normal impulses of the same
     step, so the first step slides with friction too). The normal force is m g cos 30."""
     box = rigid_box(position=NORMAL * SIZE[2] / 2,
