@@ -243,3 +243,5 @@ def test_bad_contact_input_is_a_clear_error_before_the_run():
     scene = scene_of(box, af.PlaneContact(other, *plane, name="floor"))
     with pytest.raises(InputError, match="'floor' acts on 'other', which is not a body"):
         scene.check()
+    with pytest.raises(InputError, match="contact 'wall' is not in the scene"):
+        scene.contact_forces(af.PlaneContact(box, *plane, points=CORNERS, name="wall"))

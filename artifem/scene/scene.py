@@ -414,7 +414,7 @@ class Scene:
             if group not in COMPONENT_GROUPS:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
                                 "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a path, a force element with wrenches(t) or a load element "
+                                "a PlaneContact, a path, a force element with wrenches(t) or a load element "
                                 "with master_loads(t)")
             members = getattr(self, group)
             name = getattr(item, "name", "")
@@ -631,10 +631,10 @@ class Scene:
         return contact.forces(self._impulses.get(contact, []), self._last_h)
 
     def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
-        """The wrenches the joint (any constraint) applied to each of its ``bodies`` over
-        the last step (G_k^T lambda / h, rows at the start of the step; a joint's
-        frame on the world gets the world's share)."""
-        if not any(joint is c for c in self.constraints):
+        """The wrenches the joint applied to each of its ``bodies`` over the last step
+        (G_k^T lambda / h, rows at the start of the step; a joint's frame on the world gets
+        the world's share). A contact's forces: :meth:`contact_forces`."""
+        if not any(joint is c for c in self.joints):
             raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
         return tuple(sum((block.jacobians[k][1].T @ lam for block, lam in parts),
