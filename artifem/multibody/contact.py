@@ -214,6 +214,12 @@ class PlaneContact:
     def bodies(self) -> tuple:
         return (self.body,)
 
+    @property
+    def labels(self) -> np.ndarray:
+        """The contact points, in the order of :meth:`distances`: a rigid body's indices
+        into its points, an FEM body's input node indices."""
+        return self._points.labels
+
     def distances(self) -> np.ndarray:
         """phi = n . x_i - d of every contact point (negative: below the plane)."""
         return self._points.positions() @ self.normal - self.offset
@@ -270,4 +276,4 @@ class PlaneContact:
         if self.mu > 0:
             friction = (np.outer(lam[k:2 * k], self.tangents[0])
                         + np.outer(lam[2 * k:], self.tangents[1])) / h
-        return ContactForces(self._points.labels[block.points], lam[:k] / h, friction)
+        return ContactForces(self.labels[block.points], lam[:k] / h, friction)

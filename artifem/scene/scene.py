@@ -625,7 +625,8 @@ class Scene:
 
     def contact_forces(self, contact: PlaneContact) -> ContactForces:
         """The forces the contact applied at its points over the last step (impulses / h,
-        rows at the start of the step; :meth:`PlaneContact.forces`)."""
+        rows at the start of the step), or in the last static solve's last Newton
+        iteration (:meth:`PlaneContact.forces`)."""
         if not any(contact is c for c in self.contacts):
             raise UnknownNameError(f"contact {contact.name!r} is not in the scene")
         return contact.forces(self._impulses.get(contact, []), self._last_h)
@@ -633,7 +634,8 @@ class Scene:
     def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
         """The wrenches the joint applied to each of its ``bodies`` over the last step
         (G_k^T lambda / h, rows at the start of the step; a joint's frame on the world gets
-        the world's share). A contact's forces: :meth:`contact_forces`."""
+        the world's share), or in the last static solve. A contact's forces:
+        :meth:`contact_forces`."""
         if not any(joint is c for c in self.joints):
             raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
@@ -811,7 +813,7 @@ class Scene:
 
     def _record_impulses(self, L, impulses: dict, h: float) -> None:
         """Keep the constraints' impulses of the step (reactions, and K_geo's lagged
-        loads)."""
+        loads); statics keeps its forces as the impulses of a step h = 1."""
         self._impulses, self._last_h = impulses, h
         self._reactions = L.constraint_map.forces((block, lam / h)
                                                   for parts in impulses.values()
@@ -991,8 +993,7 @@ class Scene:
     def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
         F, rows = self._residual(L)
         # before the first solve: the free rows and the crossed bounded ones
-        active = np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) \
-            if rows else np.zeros(0, dtype=bool)
+        active = _crossed(rows)
         norm = self._merit(F, rows, active)
         scale = max(norm, atol)
         for it in range(1, max_iterations + 1):
@@ -1001,10 +1002,8 @@ class Scene:
             K = L.fmt(self.static_tangent())
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
             dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows, "static solve")
-            if rows:                    # the constraints apply G^T lambda
-                ends = np.cumsum([len(g.c) for g in rows])
-                self._reactions = L.constraint_map.forces(
-                    (g.block, lam[end - len(g.c):end]) for g, end in zip(rows, ends))
+            if rows:                    # the constraints apply G^T lambda (forces: h = 1)
+                self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
             gap = _gap(rows)
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
@@ -1028,7 +1027,9 @@ class Scene:
                     F_new, rows_new = self._residual(L)
                     energy = self.potential_energy() + rho * float(np.abs(
                         _gap(rows_new)).sum()) if use_energy else np.inf
-                    trial = self._merit(F_new, rows_new, active)
+                    # a contact point that entered or left its margin changes the rows
+                    same = [len(g.c) for g in rows_new] == [len(g.c) for g in rows]
+                    trial = self._merit(F_new, rows_new, active if same else _crossed(rows_new))
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -1045,6 +1046,12 @@ class Scene:
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                                 f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+
+
+def _crossed(rows: list) -> np.ndarray:
+    """The rows a merit holds before a solve: the free rows and the crossed bounded ones."""
+    return np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) if rows \
+        else np.zeros(0, dtype=bool)
 
 
 def _gap(rows: list) -> np.ndarray:
