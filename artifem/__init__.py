@@ -36,6 +36,7 @@ _PUBLIC = {
     **dict.fromkeys(["RigidBody", "Frame"], "artifem.multibody.rigid_body"),
     **dict.fromkeys(["FixedJoint", "SphericalJoint", "RevoluteJoint", "SliderJoint",
                      "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
+    **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
     **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
                      "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
                     "artifem.multibody.attachments"),

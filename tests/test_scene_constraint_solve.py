@@ -62,3 +62,36 @@ def test_bounded_rows_solve_meets_complementarity_for_any_bounds(rng):
     for z, lam in found:                    # the solution is unique (A SPD, G full rank)
         np.testing.assert_allclose(z, z1, rtol=1e-9, atol=1e-10)
         np.testing.assert_allclose(lam, lam1, rtol=1e-9, atol=1e-10)
+
+
+def _friction_bounds(mu):
+    """Bounds of a normal row and a friction row: [0, inf) and |lambda_t| <= mu lambda_n."""
+    def bounds(lam):
+        return np.array([0.0, -mu * max(lam[0], 0.0)]), np.array([np.inf, mu * max(lam[0], 0.0)])
+    return bounds
+
+
+def test_bounds_from_the_impulses_give_coulomb_friction():
+    """A point of mass m on a table (z = [v_x, v_z], rows v_z >= 0 and v_x = 0 with
+    |lambda_t| <= mu lambda_n from the same solve), pressed down by m g and pushed along x
+    by F: it sticks (lambda_t = -h F, v_x = 0) while F < mu m g and slides at
+    v_x = h (F - mu m g) / m otherwise, both solves alike; without the bounds from the
+    impulses (the first guess [0, 0] kept) it would slide frictionless."""
+    m, g, h, mu = 2.0, 9.81, 0.01, 0.5
+    A = m * np.eye(2)
+    G = np.eye(2)[[1, 0]]
+    lo, hi = np.array([0.0, 0.0]), np.array([np.inf, 0.0])
+    block = RowBlock(_Owner(), np.zeros(2), ((None, G),), lo, hi, lambda lam: None,
+                     bounds_from=_friction_bounds(mu))
+    rows = [StepRows(block, G, np.zeros(2))]
+    kkt = lambda K, Ga: np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) \
+        if len(Ga) else K                                            # noqa: E731
+    for F, v_x in ((0.8 * mu * m * g, 0.0), (1.5 * mu * m * g, h * 0.5 * mu * g)):
+        b = h * np.array([F, -m * g])
+        z, lam, _ = solve_constrained(DirectSolver(), A, b, rows, "test")
+        np.testing.assert_allclose(lam[0], h * m * g, rtol=1e-12)
+        np.testing.assert_allclose(z, [v_x, 0.0], atol=1e-14)
+        np.testing.assert_allclose(lam[1], -h * min(F, mu * m * g), rtol=1e-12)
+        z2, lam2, _ = solve_saddle(DirectSolver(), kkt, A, b, rows, "test")
+        np.testing.assert_allclose(z2, z, atol=1e-14)
+        np.testing.assert_allclose(lam2, lam, rtol=1e-12)

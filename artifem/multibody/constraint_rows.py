@@ -1,17 +1,23 @@
 """The constraint protocol: rows on the bodies' coordinates, with bounds on their impulses.
 
-A constraint (a joint, its limits; contact next) names the bodies it touches
+A constraint (a joint, its limits, a contact) names the bodies it touches
 (``bodies``) and gives, at the current state, its rows as blocks
-(``row_blocks() -> list[RowBlock]``). A block of m rows holds
+(``row_blocks() -> list[RowBlock]``); it may also give ``constraint_failure() ->
+str | None``, what is wrong with the state after a step (a contact point deeper than
+its tolerance), which fails the step like an inverted element. A block of m rows holds
 
     phi (m,)             the constraint values: phi = 0 wanted on a free row,
                          phi >= 0 on a bounded one;
     G_k (m x n_k)        the rows on the coordinates of each touched body k (a rigid
                          body's twist [v; w], a reduced body's q', FEM nodal
-                         velocities): phi' = sum_k G_k z_k;
+                         velocities; dense or sparse): phi' = sum_k G_k z_k;
     lo <= lambda <= hi   bounds on the rows' impulses lambda (force times h), which act
                          on body k as G_k^T lambda: bilateral rows (-inf, inf), limits
-                         and contact normals [0, inf);
+                         and contact normals [0, inf), friction [-mu lambda_n, mu lambda_n];
+    bounds_from(lambda)  optional: bounds that depend on the block's own impulses
+                         (Coulomb friction on its normal impulses); lo, hi are then the
+                         first guess, and the solve repeats its active set with the
+                         bounds of its last impulses until they no longer change;
     K(lambda)            d(sum_k G_k^T lambda)/dq at fixed lambda: the rows' geometric
                          stiffness (their levers and axes turn with the bodies).
 
@@ -21,7 +27,8 @@ The step asks of each row, with z+ the velocities at the end of the step,
     bounded row:                      G z+ >= c,  c = -phi / h while phi > 0 (reach
                                       phi = 0, never cross it), -beta phi / h once crossed,
 
-with complementarity on the bounded rows (lambda at lo where the row is slack);
+with complementarity on the bounded rows (lambda at lo where G z+ > c, at hi where
+G z+ < c: a friction row slides against the slip);
 Baumgarte's beta (``Scene.stabilization``) removes the drift of the free rows. Statics
 asks phi + G dq = 0 (free) or >= 0 (bounded): the same right-hand side at h = beta = 1.
 """
@@ -50,7 +57,9 @@ class RowBlock:
             its G_body is the reaction on the world).
         lo, hi: (m,) bounds on the impulses.
         stiffness: lambda -> d(sum_k G_k^T lambda)/dq, square over the concatenated
-            columns of ``jacobians`` (the world's included, zero).
+            columns of ``jacobians`` (the world's included, zero; dense or sparse).
+        bounds_from: None (fixed bounds), or lambda -> (lo, hi), the bounds at the
+            block's impulses lambda (module docstring).
     """
 
     owner: object
@@ -59,15 +68,12 @@ class RowBlock:
     lo: np.ndarray
     hi: np.ndarray
     stiffness: Callable[[np.ndarray], np.ndarray]
+    bounds_from: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
 
     def __post_init__(self):
         m = self.phi.shape[0]
         what = f"constraint {getattr(self.owner, 'name', self.owner)!r}"
-        if self.lo.shape != (m,) or self.hi.shape != (m,):
-            raise InputError(f"{what}: {m} rows need {m} lower and upper bounds")
-        if np.any(self.lo > self.hi) or np.any(self.lo == np.inf) or \
-                np.any(self.hi == -np.inf):
-            raise InputError(f"{what}: bounds need lo <= hi, lo < inf and hi > -inf")
+        _check_bounds(self.lo, self.hi, m, what)
         for _, G in self.jacobians:
             if G.shape[0] != m:
                 raise InputError(f"{what}: a Jacobian with {G.shape[0]} rows for {m} values")
@@ -89,6 +95,14 @@ class RowBlock:
     def __len__(self) -> int:
         return self.phi.shape[0]
 
+    def bounds(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) at the block's impulses ``lam`` (``bounds_from``; fixed without it)."""
+        if self.bounds_from is None:
+            return self.lo, self.hi
+        lo, hi = self.bounds_from(lam)
+        _check_bounds(lo, hi, len(self), f"constraint {getattr(self.owner, 'name', self.owner)!r}")
+        return lo, hi
+
     @property
     def bounded(self) -> np.ndarray:
         """(m,) bool: rows with a finite bound on lambda (inequalities phi >= 0)."""
@@ -102,3 +116,10 @@ class RowBlock:
     def gap(self) -> np.ndarray:
         """The part of phi the rows forbid: phi on free rows, min(phi, 0) on bounded ones."""
         return np.where(self.bounded, np.minimum(self.phi, 0.0), self.phi)
+
+
+def _check_bounds(lo: np.ndarray, hi: np.ndarray, m: int, what: str) -> None:
+    if lo.shape != (m,) or hi.shape != (m,):
+        raise InputError(f"{what}: {m} rows need {m} lower and upper bounds")
+    if np.any(lo > hi) or np.any(lo == np.inf) or np.any(hi == -np.inf):
+        raise InputError(f"{what}: bounds need lo <= hi, lo < inf and hi > -inf")

@@ -192,6 +192,10 @@ class Joint:
                                               self.limit_stiffness))
         return blocks
 
+    def constraint_failure(self) -> None:
+        """Nothing fails a step: the rows remove the joint's drift (Baumgarte)."""
+        return None
+
     def constraint(self) -> ConstraintRows:
         """phi(q) and its exact velocity Jacobians G_A, G_B at the current poses."""
         blocks = []

@@ -16,6 +16,7 @@ and their rows' turn as d(G^T lambda)/dq (:meth:`ConstraintMap.stiffness`).
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
 
 from artifem.errors import InputError
 from artifem.scene.constraints import StepRows
@@ -58,9 +59,8 @@ class ConstraintMap:
         parts, start = [], 0
         for block in blocks:
             for o, G_body in self._placed(block):
-                r, k = np.meshgrid(start + np.arange(len(block)), o + np.arange(G_body.shape[1]),
-                                   indexing="ij")
-                parts.append((G_body.ravel(), r.ravel(), k.ravel()))
+                G_body = sparse.coo_matrix(G_body)      # dense or sparse rows
+                parts.append((G_body.data, start + G_body.row, o + G_body.col))
             start += len(block)
         G = L.triplets(parts, (start, L.n_all))
         GP, Gz = L.fmt(G @ P), G @ z_k
@@ -76,12 +76,13 @@ class ConstraintMap:
         out = np.zeros(self.layout.n_all)
         for block, lam in impulses:
             for o, G in self._placed(block):
-                out[o:o + G.shape[1]] += G.T @ lam
+                out[o:o + G.shape[1]] += np.asarray(G.T @ lam).ravel()
         return out
 
     def stiffness(self, rows: list, lam: np.ndarray):
         """d(G^T lambda)/dq (all-space) of ``rows`` (:class:`StepRows`) at fixed impulses
-        ``lam`` (in their order): each block's ``stiffness(lambda)`` placed on its bodies."""
+        ``lam`` (in their order): each block's ``stiffness(lambda)`` (dense or sparse)
+        placed on its bodies."""
         L = self.layout
         parts, start = [], 0
         for g in rows:
@@ -97,8 +98,6 @@ class ConstraintMap:
                 for j, sj in enumerate(spans):
                     if si is None or sj is None:
                         continue
-                    sub = K[cols[i]:cols[i + 1], cols[j]:cols[j + 1]]
-                    r, c = np.meshgrid(si[0] + np.arange(si[1]), sj[0] + np.arange(sj[1]),
-                                       indexing="ij")
-                    parts.append((sub.ravel(), r.ravel(), c.ravel()))
+                    sub = sparse.coo_matrix(K[cols[i]:cols[i + 1], cols[j]:cols[j + 1]])
+                    parts.append((sub.data, si[0] + sub.row, sj[0] + sub.col))
         return L.triplets(parts, (L.n_all, L.n_all))

@@ -13,6 +13,9 @@ within its bounds) or held at a bound (lambda = lo with G z >= c, or lambda = hi
 G z <= c). The active set is found by a primal-dual active set
 (:func:`_active_set`: release the multiplier furthest out of its bounds, else activate
 the most violated row, repeat); rows with lo = -inf and hi = inf are always active.
+Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fixed
+point around it: the active set again with the bounds of its last impulses, until they
+settle.
 
 :func:`solve_constrained` (the step) solves each trial through the Schur complement:
 with a = A^-1 b and W = A^-1 G^T (one factorization of A, 1 + rows solves),
@@ -54,16 +57,59 @@ def _vstack(blocks: list):
         np.vstack(blocks)
 
 
-def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str):
+#: passes of the active set with bounds that depend on the impulses (friction), at most
+BOUND_PASSES = 50
+
+
+def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
+                bounds=None):
     """(lambda, active mask, what ``trial`` gave last) of the primal-dual active set on
     rows with bounds lo <= lambda <= hi (module docstring). ``trial(active, held)`` solves
     with the active rows as equalities and the others at their ``held`` impulses, and
-    returns (lambda, slack of the bounded rows G z - c, extra)."""
+    returns (lambda, slack of the bounded rows G z - c, extra). ``bounds(lambda) -> (lo,
+    hi)``, for bounds that depend on the impulses (Coulomb friction on the normal
+    impulses): the active set is found again with the bounds of its last impulses until
+    they change by at most 1e-10 of the largest impulse (a fixed point; each pass reuses
+    ``trial``'s factorization and starts from the last pass's active set)."""
+    start = None
+    for _ in range(BOUND_PASSES):
+        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start)
+        if bounds is None:
+            return lam, active, extra
+        start = (active, ~active & (held == hi) & (lo < hi), lo == hi)
+        lo_new, hi_new = bounds(lam)
+        change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
+        lo, hi = lo_new, hi_new
+        if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
+            return lam, active, extra
+    raise StepFailed(f"{what}: the bounds that depend on the impulses (friction) did not "
+                     f"settle in {BOUND_PASSES} passes of the active set")
+
+
+def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
+    finite = np.isfinite(old) | np.isfinite(new)
+    return float(np.abs(new[finite] - old[finite]).max(initial=0.0))
+
+
+def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
+                   start=None):
+    """(lambda, active mask, held impulses, extra) of :func:`_active_set` at fixed bounds.
+    Rows with lo < 0 < hi (friction) start active, the other bounded rows held at lo
+    (where finite); ``start`` = (active, held at hi, lo = hi) of a previous pass with other
+    bounds begins from that pass's active set instead, its rows held at the same side of
+    the new bounds (rows whose bounds were equal start as without it)."""
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
     active = np.ones(lo.size, dtype=bool)
-    active[bounded] = False
+    active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0)
+    at_high = np.zeros(lo.size, dtype=bool)
+    if start is not None:
+        was_active, was_high, was_pinned = start
+        kept = bounded[~was_pinned[bounded]]
+        active[kept] = was_active[kept]
+        at_high[kept] = was_high[kept]
     held = np.zeros(lo.size)
-    held[bounded] = np.where(np.isfinite(lo[bounded]), lo[bounded], hi[bounded])
+    held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
+                             hi[bounded])
     for _ in range(2 * bounded.size + 10):
         lam, slack, extra = trial(active, held)
         if not bounded.size:
@@ -83,7 +129,25 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str):
             break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
-    return lam, active, extra
+    return lam, active, held, extra
+
+
+def _stacked(rows: list):
+    """(G, c, lo, hi, bounds) of a list of :class:`StepRows`: bounds is None when every
+    block's bounds are fixed, else lambda -> (lo, hi) of the stacked rows."""
+    G = _vstack([g.G for g in rows])
+    c = np.concatenate([g.c for g in rows])
+    lo = np.concatenate([g.block.lo for g in rows])
+    hi = np.concatenate([g.block.hi for g in rows])
+    if all(g.block.bounds_from is None for g in rows):
+        return G, c, lo, hi, None
+    ends = np.cumsum([len(g.c) for g in rows])
+
+    def bounds(lam):
+        parts = [g.block.bounds(lam[end - len(g.c):end]) for g, end in zip(rows, ends)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+    return G, c, lo, hi, bounds
 
 
 def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
@@ -109,10 +173,7 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
             return solver.apply(rhs), np.zeros(0)
 
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
-    G = _vstack([g.G for g in rows])
-    c = np.concatenate([g.c for g in rows])
-    lo = np.concatenate([g.block.lo for g in rows])
-    hi = np.concatenate([g.block.hi for g in rows])
+    G, c, lo, hi, bounds = _stacked(rows)
     F = G if force_rows is None else _vstack(force_rows)
     X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
     a, W = X[:, 0], X[:, 1:]
@@ -130,7 +191,8 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
             lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], rhs, rcond=1e-12)[0]
         return lam, S[bounded] @ lam - r[bounded], None
 
-    lam, active, _ = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what)
+    lam, active, _ = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
+                                 bounds)
     z = a + W @ lam
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
@@ -158,10 +220,7 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
     n = K.shape[0]
     if not rows:
         return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
-    G = _vstack([g.G for g in rows])
-    c = np.concatenate([g.c for g in rows])
-    lo = np.concatenate([g.block.lo for g in rows])
-    hi = np.concatenate([g.block.hi for g in rows])
+    G, c, lo, hi, bounds = _stacked(rows)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
 
     def trial(active, held):
@@ -174,7 +233,8 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
         return lam, np.asarray(G[bounded] @ z).ravel() - c[bounded], z
 
-    lam, active, z = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what)
+    lam, active, z = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
+                                 bounds)
     return z, lam, active
 
 

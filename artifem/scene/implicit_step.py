@@ -19,11 +19,12 @@ state (artifem.scene.scene docstring: A = M + h D + h^2 K there):
     [ J      -G_m^T ] [ z_new  ]   [ J z_t - r(z_t)         ]
     [ G_x     0     ] [ lambda ] = [ G_x z_t - phi(q_t) / h ],     J, G_x below,
 
-with the joint limits by the same active set, then z_t += s (z_new - z_t), s the
-largest of 1, 1/2, ... whose configuration inverts no element and lowers the
-merit |r - G_m^T lambda| + m |phi| / h (m the mean master mass: one unit). It
-stops when the merit falls below ``rtol`` times its first value or ``atol``, or
-when a full step is at round-off.
+with the joint limits by the same active set (a contact whose rows change between
+iterates, a point crossing its margin, fails the step: it is halved), then
+z_t += s (z_new - z_t), s the largest of 1, 1/2, ... whose configuration inverts no
+element and lowers the merit |r - G_m^T lambda| + m |phi| / h (m the mean master mass:
+one unit). It stops when the merit falls below ``rtol`` times its first value or
+``atol``, or when a full step is at round-off.
 
 The Jacobian is the exact derivative of these equations as formed
 (:class:`NewtonSystem`; tests/test_scene_implicit_jacobian.py checks it against
@@ -134,6 +135,11 @@ def _guess(scene, rows, h):
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def _structure(rows) -> list:
+    """(constraint, row count) of each block: the rows Newton's iterates must share."""
+    return [(id(g.block.owner), len(g.c)) for g in rows]
+
+
 def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: int):
     """Advance the coupled island of ``scene`` (layout ``L``) from t to t + h; returns
     (constraint impulses as the step gives them, the merit after each Newton iteration, the
@@ -193,6 +199,9 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 place(z_m)
                 if not L.inverted():
                     trial = residual(z_m)
+                    if _structure(trial[3]) != _structure(rows):
+                        raise StepFailed(f"{where}: the constraint rows changed within the "
+                                         "step (a contact point crossed its margin)")
                     norm_trial = merit(trial[0], trial[3], lam_new)
                     if np.isfinite(norm_trial) and norm_trial <= (1.0 - 1e-4 * step) * norm:
                         break

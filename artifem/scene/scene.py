@@ -54,6 +54,7 @@ reduced by P, with the constraint rows as Lagrange multipliers:
     [ G_m                         0     ] [ lambda ] = [ -beta phi / h - G z_k   ],
 
 G the rows of every constraint (``Scene.constraints``: the joints and their limits,
+the contacts (:mod:`artifem.multibody.contact`),
 each a list of :class:`~artifem.multibody.constraint_rows.RowBlock` with bounds on
 lambda) on the all-space coordinates (:mod:`artifem.scene.constraint_map`), G_m = G P
 and lambda the impulses (force times h), solved through the Schur complement of the
@@ -185,9 +186,9 @@ are solved by a dense LU instead of MUMPS.
 
 Islands
 -------
-Bodies interact within a step only through attachments, paths, loads and joints.
-A deformable body that none of them names (``item.bodies``) is an island of its
-own and is advanced by the scene's integrator with its own solver: a full FEM
+Bodies interact within a step only through attachments, paths, loads, joints and
+contacts (``Scene.constraints``). A deformable body that none of them names
+(``item.bodies``) is an island of its own and is advanced by the scene's integrator with its own solver: a full FEM
 body by ``integrator.advance(body, h, solver)`` with a PETSc
 :class:`~artifem.linear_solver.LinearSolver` (CG with algebraic multigrid by
 default; distributed under ``mpiexec``), a reduced body by
@@ -224,6 +225,7 @@ from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
                                            dof_positions, pose_gap)
+from artifem.multibody.contact import ContactForces, PlaneContact
 from artifem.multibody.joints import Joint
 from artifem.multibody.loads import LoadElement
 from artifem.multibody.point_paths import PointPath
@@ -246,7 +248,8 @@ INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
 COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
                                   "embedded_attachments", "lift_attachments",
-                                  "frame_attachments", "joints", "paths", "forces", "loads")
+                                  "frame_attachments", "joints", "contacts", "paths", "forces",
+                                  "loads")
 
 
 def _merge_counts(a: list, b: list) -> list:
@@ -356,6 +359,7 @@ class Scene:
         self.lift_attachments: list[LiftAttachment] = []
         self.frame_attachments: list[FrameAttachment] = []
         self.joints: list[Joint] = []
+        self.contacts: list[PlaneContact] = []
         self.forces: list[ForceElement] = []
         self.paths: list[PointPath] = []
         self.loads: list = []
@@ -410,7 +414,7 @@ class Scene:
             if group not in COMPONENT_GROUPS:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
                                 "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a path, a force element with wrenches(t) or a load element "
+                                "a PlaneContact, a path, a force element with wrenches(t) or a load element "
                                 "with master_loads(t)")
             members = getattr(self, group)
             name = getattr(item, "name", "")
@@ -467,7 +471,8 @@ class Scene:
 
     def islands(self) -> tuple[list, list]:
         """(bodies stepped on their own, bodies of the coupled island): a deformable body
-        that no attachment, path or load names is its own island (module docstring)."""
+        that no attachment, path, load or constraint names is its own island (module
+        docstring)."""
         self._ready()
         free_fem, free_reduced, fem, reduced = self._islands
         return [*free_fem, *free_reduced], [*fem, *reduced, *self.rigid_bodies]
@@ -476,7 +481,8 @@ class Scene:
         if self._layout is None:
             coupled = {id(b) for item in [*self.node_attachments, *self.rigid_attachments,
                                           *self.embedded_attachments, *self.lift_attachments,
-                                          *self.frame_attachments, *self.paths, *self.loads]
+                                          *self.frame_attachments, *self.paths, *self.loads,
+                                          *self.constraints]
                        for b in item.bodies}
             known = {id(b) for b in self.bodies}
             for item in [*self.paths, *self.loads]:
@@ -500,6 +506,15 @@ class Scene:
             else:
                 self._schur = None
                 self._layout = Layout(self, self._islands[2], self._islands[3])
+            for constraint in self.constraints:     # the joints' bodies: checked by Layout
+                for body in constraint.bodies:
+                    if body is not None and id(body) not in known:
+                        raise InputError(f"constraint {constraint.name!r} acts on "
+                                         f"{getattr(body, 'name', body)!r}, which is not a "
+                                         "body of this scene")
+                failure = constraint.constraint_failure()
+                if failure is not None:
+                    raise InputError(f"at the start (t = {self.t:g}): {failure}")
             if self._layout.n_all and getattr(self.integrator, "name", None) not in INTEGRATORS:
                 raise InputError(
                     f"integrator {type(self.integrator).__name__}: the coupled island "
@@ -605,14 +620,23 @@ class Scene:
     @property
     def constraints(self) -> list:
         """The components that give constraint rows (:mod:`~artifem.multibody.
-        constraint_rows`): the joints, their limits included."""
-        return [*self.joints]
+        constraint_rows`): the joints, their limits included, and the contacts."""
+        return [*self.joints, *self.contacts]
+
+    def contact_forces(self, contact: PlaneContact) -> ContactForces:
+        """The forces the contact applied at its points over the last step (impulses / h,
+        rows at the start of the step), or in the last static solve's last Newton
+        iteration (:meth:`PlaneContact.forces`)."""
+        if not any(contact is c for c in self.contacts):
+            raise UnknownNameError(f"contact {contact.name!r} is not in the scene")
+        return contact.forces(self._impulses.get(contact, []), self._last_h)
 
     def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
-        """The wrenches the joint (any constraint) applied to each of its ``bodies`` over
-        the last step (G_k^T lambda / h, rows at the start of the step; a joint's
-        frame on the world gets the world's share)."""
-        if not any(joint is c for c in self.constraints):
+        """The wrenches the joint applied to each of its ``bodies`` over the last step
+        (G_k^T lambda / h, rows at the start of the step; a joint's frame on the world gets
+        the world's share), or in the last static solve. A contact's forces:
+        :meth:`contact_forces`."""
+        if not any(joint is c for c in self.joints):
             raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
         return tuple(sum((block.jacobians[k][1].T @ lam for block, lam in parts),
@@ -736,8 +760,8 @@ class Scene:
         if inverted:
             return _Failure("inverted elements in " + ", ".join(repr(n) for n, *_ in inverted),
                             inverted)
-        for body in self.bodies:
-            off = body.constraint_failure()
+        for item in [*self.bodies, *self.constraints]:
+            off = item.constraint_failure()
             if off is not None:
                 return _Failure(off, [])
         self.min_det_F = min(self.min_det_F, step_min)
@@ -792,7 +816,7 @@ class Scene:
 
     def _record_impulses(self, L, impulses: dict, h: float) -> None:
         """Keep the constraints' impulses of the step (reactions, and K_geo's lagged
-        loads)."""
+        loads); statics keeps its forces as the impulses of a step h = 1."""
         self._impulses, self._last_h = impulses, h
         self._reactions = L.constraint_map.forces((block, lam / h)
                                                   for parts in impulses.values()
@@ -972,8 +996,7 @@ class Scene:
     def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
         F, rows = self._residual(L)
         # before the first solve: the free rows and the crossed bounded ones
-        active = np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) \
-            if rows else np.zeros(0, dtype=bool)
+        active = _crossed(rows)
         norm = self._merit(F, rows, active)
         scale = max(norm, atol)
         for it in range(1, max_iterations + 1):
@@ -982,10 +1005,8 @@ class Scene:
             K = L.fmt(self.static_tangent())
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
             dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows, "static solve")
-            if rows:                    # the constraints apply G^T lambda
-                ends = np.cumsum([len(g.c) for g in rows])
-                self._reactions = L.constraint_map.forces(
-                    (g.block, lam[end - len(g.c):end]) for g, end in zip(rows, ends))
+            if rows:                    # the constraints apply G^T lambda (forces: h = 1)
+                self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
             gap = _gap(rows)
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
@@ -1009,7 +1030,9 @@ class Scene:
                     F_new, rows_new = self._residual(L)
                     energy = self.potential_energy() + rho * float(np.abs(
                         _gap(rows_new)).sum()) if use_energy else np.inf
-                    trial = self._merit(F_new, rows_new, active)
+                    # a contact point that entered or left its margin changes the rows
+                    same = [len(g.c) for g in rows_new] == [len(g.c) for g in rows]
+                    trial = self._merit(F_new, rows_new, active if same else _crossed(rows_new))
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -1026,6 +1049,12 @@ class Scene:
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                                 f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+
+
+def _crossed(rows: list) -> np.ndarray:
+    """The rows a merit holds before a solve: the free rows and the crossed bounded ones."""
+    return np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) if rows \
+        else np.zeros(0, dtype=bool)
 
 
 def _gap(rows: list) -> np.ndarray:

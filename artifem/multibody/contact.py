@@ -1,0 +1,279 @@
+"""Contact of a body's surface points with a fixed plane: hard normal rows, Coulomb friction.
+
+The plane holds the points x with n . x = d (n the unit normal, d = n . p_0); the free
+side is n . x > d. The contact points are a rigid body's points r_i (body frame, about
+the COM: x_i = p + R r_i) or a full FEM body's boundary nodes (x_i = X_i + u_i). Each
+point within ``margin`` of the plane (phi_i < margin) gives rows in the constraint
+protocol (:mod:`~artifem.multibody.constraint_rows`), one block per step:
+
+    normal:    phi_i = n . x_i - d >= 0,   lambda_n,i in [0, inf),
+    friction:  t_1, t_2 (the x and y axes of ``axis_rotation(n)``), phi = 0,
+               -mu lambda_n,i <= lambda_t,i <= mu lambda_n,i   (when mu > 0),
+
+each row a direction e (n, t_1 or t_2) at the point, phi' = e . x_i' with
+
+    rigid body (twist [v; w]):  G = [e^T, (r_i x e)^T],   r_i = R r_i (world),
+    FEM body (nodal velocities): G = e^T on the node's 3 velocity dofs.
+
+The step asks G z+ >= -phi / h while phi > 0: a point reaches the plane within the step
+and stops on it (an inelastic impact: no rebound, no energy gained), and a crossed point
+is pushed back by -beta phi / h. Friction rows ask G z+ = 0 (stick) while |lambda_t| <
+mu lambda_n, else hold lambda_t at the bound against the slip. Each tangent direction is
+bounded on its own: the friction pyramid, not the cone (sliding along a diagonal of t_1,
+t_2 meets up to sqrt(2) mu lambda_n, and its direction leans to the nearer axis). The
+bounds take the normal impulses of the same step (``RowBlock.bounds_from``: the active
+set is solved again with the bounds of its last normal impulses until they settle, on the
+same factorization), so friction holds from the first step of a contact: ArtiSynth's
+normal impulses of the previous step would let a body resting on an incline slip for
+one step (h^2 g sin(theta) there) and slide without friction in its first step.
+
+Penetration: the rows are linear in the velocities, so an FEM node (x+ = x + h v+) stops
+on the plane to round-off; a rigid body's point moves by h v + (exp(h [w]x) - 1) r, so a
+turning body crosses by O(h^2 |w|^2 |r|), pushed back in the next step. ``tolerance`` is
+the penetration allowed: deeper after a step fails the step (it is retried and halved
+like an inverted element), deeper at the start is an error before the run. A point that
+comes from beyond ``margin`` within one step has no row and may cross: give a margin of at
+least the largest approach speed times the step.
+
+The rows' geometric stiffness (their levers turn with a rigid body): the force f = lambda e
+at r_i gives the torque r_i x f, d(r_i x f)/dtheta = [f]x [r_i]x; an FEM node's rows do
+not turn (zero).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from scipy import sparse
+
+from artifem.errors import InputError
+from artifem.fem_body import FemBody
+from artifem.multibody.attachments import dof_positions
+from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.joints import axis_rotation
+from artifem.multibody.rigid_body import RigidBody, cross, skews
+
+__all__ = ["ContactForces", "PlaneContact"]
+
+
+class ContactForces(NamedTuple):
+    """The forces the plane applied at the contact points over the last step (lambda / h).
+
+    points: the points that had rows (a rigid body's: indices into its contact points;
+        an FEM body's: input node indices); normal: (k,) the normal force of each (N, >= 0);
+        friction: (k, 3) the friction force of each (world, N).
+    """
+
+    points: np.ndarray
+    normal: np.ndarray
+    friction: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PlaneContactRows(RowBlock):
+    """A :class:`PlaneContact`'s rows: k normal rows, then k along t_1 and k along t_2
+    (with friction) at its ``points`` (indices into the contact's points)."""
+
+    points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+
+
+class _RigidPoints:
+    """Points r_i fixed in a rigid body's frame (about the COM)."""
+
+    def __init__(self, body: RigidBody, points):
+        if points is None:
+            if body.surface is None:
+                raise InputError(f"rigid body {body.name!r} has no surface: give the contact "
+                                 "points (body frame, about the COM)")
+            points = body.surface[0]
+        self.body = body
+        self.local = np.asarray(points, dtype=float)
+        if self.local.ndim != 2 or self.local.shape[1] != 3 or not len(self.local) \
+                or not np.all(np.isfinite(self.local)):
+            raise InputError(f"rigid body {body.name!r}: contact points must be a finite "
+                             f"(n >= 1, 3) array, got shape {self.local.shape}")
+        self.labels = np.arange(len(self.local))
+
+    def positions(self) -> np.ndarray:
+        return self.body.position + self.local @ self.body.rotation.T
+
+    def describe(self, i: int) -> str:
+        return f"point {i} (body frame {self.local[i].tolist()})"
+
+    def rows(self, idx: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """G = [e^T, (r x e)^T] per row (module docstring)."""
+        r = self.local[idx] @ self.body.rotation.T
+        return np.hstack([directions, cross(r, directions)])
+
+    def stiffness(self, idx: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """d(G^T lambda)/dq: sum_j [f_j]x [r_j]x on the rotation (module docstring)."""
+        r = self.local[idx] @ self.body.rotation.T
+        K = np.zeros((6, 6))
+        K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(r))
+        return K
+
+
+class _FemNodes:
+    """The boundary nodes of a full FEM body (or the given input nodes)."""
+
+    def __init__(self, body: FemBody, nodes):
+        self.body = body
+        inverse = {d: n for n, d in body._node_to_dof.items()}
+        if nodes is None:
+            domain = body.mesh
+            fdim = domain.topology.dim - 1
+            domain.topology.create_connectivity(fdim, fdim + 1)
+            facets = dmesh.exterior_facet_indices(domain.topology)
+            self.dofs = np.sort(fem.locate_dofs_topological(body.V, fdim, facets))
+        else:
+            nodes = np.asarray(nodes).ravel()
+            if not np.issubdtype(nodes.dtype, np.integer) or not nodes.size:
+                raise InputError(f"FEM body {body.name!r}: contact nodes must be input node "
+                                 "indices")
+            missing = [int(n) for n in nodes if int(n) not in body._node_to_dof]
+            if missing:
+                raise InputError(f"FEM body {body.name!r} has no nodes {missing[:10]}")
+            self.dofs = body.local_dofs(nodes)
+        self.labels = np.array([inverse[int(d)] for d in self.dofs], dtype=int)
+        self.n = 3 * (body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts)
+
+    def positions(self) -> np.ndarray:
+        return dof_positions(self.body)[self.dofs]
+
+    def describe(self, i: int) -> str:
+        return f"node {self.labels[i]}"
+
+    def rows(self, idx: np.ndarray, directions: np.ndarray) -> sparse.csr_matrix:
+        """G = e^T on the node's velocity dofs (module docstring)."""
+        m = len(idx)
+        cols = 3 * self.dofs[idx][:, None] + np.arange(3)
+        return sparse.csr_matrix((directions.ravel(), (np.repeat(np.arange(m), 3),
+                                                       cols.ravel())), shape=(m, self.n))
+
+    def stiffness(self, idx: np.ndarray, forces: np.ndarray) -> sparse.csr_matrix:
+        return sparse.csr_matrix((self.n, self.n))
+
+
+class PlaneContact:
+    """A body's surface points against the fixed plane through ``point`` with unit
+    normal along ``normal`` (module docstring).
+
+    Args:
+        body: a :class:`RigidBody` or a full :class:`FemBody` (reduced and embedded bodies
+            not yet).
+        point, normal: a point of the plane and its normal (towards the free side).
+        mu: the Coulomb friction coefficient (>= 0; 0: frictionless, no friction rows).
+        points: a rigid body's contact points (n, 3) in its body frame about the COM
+            (default: its surface's vertices); an FEM body's input node indices (default:
+            every boundary node).
+        tolerance: the penetration allowed (m): deeper fails a step, or the start.
+        margin: points closer to the plane than this (m) get rows.
+        name: used in errors.
+    """
+
+    #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
+    scene_group = "contacts"
+
+    def __init__(self, body, point, normal, *, mu: float = 0.0, points=None,
+                 tolerance: float = 1e-5, margin: float = 1e-2, name: str = ""):
+        self.name = name or f"contact of {getattr(body, 'name', body)!r}"
+        what = f"contact {self.name!r}"
+        n = np.asarray(normal, dtype=float)
+        norm = np.linalg.norm(n) if n.shape == (3,) and np.all(np.isfinite(n)) else 0.0
+        if not norm > 0:
+            raise InputError(f"{what}: the plane normal must be a non-zero finite 3-vector, "
+                             f"got {normal!r}")
+        p0 = np.asarray(point, dtype=float)
+        if p0.shape != (3,) or not np.all(np.isfinite(p0)):
+            raise InputError(f"{what}: the plane point must be 3 finite numbers, got {point!r}")
+        if not (np.isfinite(mu) and mu >= 0):
+            raise InputError(f"{what}: the friction coefficient mu must be >= 0, got {mu!r}")
+        if not (np.isfinite(tolerance) and tolerance > 0):
+            raise InputError(f"{what}: tolerance must be > 0, got {tolerance!r}")
+        if not (np.isfinite(margin) and margin > tolerance):
+            raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
+                             f"got {margin!r}")
+        if isinstance(body, RigidBody):
+            self._points = _RigidPoints(body, points)
+        elif isinstance(body, FemBody):
+            self._points = _FemNodes(body, points)
+        else:
+            raise InputError(f"{what}: contact is for rigid bodies and full FEM bodies so far, "
+                             f"got {type(body).__name__}")
+        self.body = body
+        basis = axis_rotation(n)
+        self.normal, self.tangents = basis[:, 2], basis[:, :2].T
+        self.offset = float(self.normal @ p0)
+        self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
+
+    @property
+    def bodies(self) -> tuple:
+        return (self.body,)
+
+    @property
+    def labels(self) -> np.ndarray:
+        """The contact points, in the order of :meth:`distances`: a rigid body's indices
+        into its points, an FEM body's input node indices."""
+        return self._points.labels
+
+    def distances(self) -> np.ndarray:
+        """phi = n . x_i - d of every contact point (negative: below the plane)."""
+        return self._points.positions() @ self.normal - self.offset
+
+    def row_blocks(self) -> list[RowBlock]:
+        """One block: the normal rows and, with mu > 0, the friction rows of the points
+        within ``margin`` (module docstring); none when no point is that close."""
+        phi = self.distances()
+        near = np.flatnonzero(phi < self.margin)
+        k = near.size
+        if not k:
+            return []
+        directions = np.vstack([np.tile(self.normal, (k, 1))]
+                               + ([np.repeat(t[None], k, axis=0) for t in self.tangents]
+                                  if self.mu > 0 else []))
+        idx = np.tile(near, len(directions) // k)
+        m = len(idx)
+        lo = np.zeros(m)
+        hi = np.zeros(m)
+        hi[:k] = np.inf
+        G = self._points.rows(idx, directions)
+        mu = self.mu
+
+        def friction_bounds(lam):
+            """|lambda_t| <= mu lambda_n on both tangent rows of each point."""
+            cap = np.tile(mu * np.maximum(lam[:k], 0.0), 2)
+            return np.concatenate([np.zeros(k), -cap]), np.concatenate([np.full(k, np.inf), cap])
+
+        return [PlaneContactRows(
+            self, np.concatenate([phi[near], np.zeros(m - k)]), ((self.body, G),), lo, hi,
+            lambda lam: self._points.stiffness(idx, lam[:, None] * directions),
+            friction_bounds if mu > 0 else None, points=near)]
+
+    def constraint_failure(self) -> str | None:
+        """The first point deeper than ``tolerance`` below the plane, if any."""
+        phi = self.distances()
+        deep = np.flatnonzero(phi < -self.tolerance)
+        if not deep.size:
+            return None
+        i = int(deep[0])
+        return (f"contact {self.name!r}: {self._points.describe(i)} of {self.body.name!r} is "
+                f"{-phi[i]:.3g} below the plane ({deep.size} points deeper than the tolerance "
+                f"{self.tolerance:g}, the deepest {-phi.min():.3g}; a point that comes from "
+                f"beyond the margin {self.margin:g} within one step has no row: the margin "
+                "should be at least the largest approach speed times the step)")
+
+    def forces(self, parts: list, h: float) -> ContactForces:
+        """The forces of the impulses ``parts`` [(block, lambda)] of a step of size h."""
+        if not parts:
+            return ContactForces(np.zeros(0, dtype=int), np.zeros(0), np.zeros((0, 3)))
+        (block, lam), = parts
+        k = len(block.points)
+        friction = np.zeros((k, 3))
+        if self.mu > 0:
+            friction = (np.outer(lam[k:2 * k], self.tangents[0])
+                        + np.outer(lam[2 * k:], self.tangents[1])) / h
+        return ContactForces(self.labels[block.points], lam[:k] / h, friction)

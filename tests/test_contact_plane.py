@@ -1,0 +1,284 @@
+"""Contact of a rigid body's points and an FEM body's boundary nodes with a fixed plane
+(artifem.multibody.contact): hard normal rows and Coulomb friction in the step's KKT.
+
+(1) a rigid box dropped flat on a horizontal plane: no rebound, the normal force at rest
+    equals m g to 1e-9, no penetration beyond the tolerance, the same active rows and
+    forces for 1,000 steps at rest;
+(2) a rigid box on a 30-degree incline: mu = 0.6 sticks (slip < 1e-9 m over 1 s), mu = 0.5
+    slides with g (sin 30 - mu cos 30) = 0.657 m/s^2 to 1e-3 (semi-implicit and implicit);
+(3) a 4 x 4 x 4 neo-Hookean block dropped on the plane: it joins the coupled island, comes
+    to rest, the sum of its nodes' normal forces equals its weight to 1e-9, no node below
+    the plane beyond the tolerance at any step; on the incline, once settled, mu = 0.6
+    sticks (slip < 1e-9 m over 1 s) and mu = 0.5 slides with g (sin 30 - mu cos 30);
+(4) statics: a clamped beam's free end rests on the plane;
+(5) a point that comes from beyond the margin within one step fails the step (clear
+    message); bad input before the run.
+"""
+
+import numpy as np
+import pytest
+
+import artifem as af  # (must precede dolfinx / petsc4py)
+from dolfinx import mesh as dmesh
+from mpi4py import MPI
+
+from artifem.errors import InputError, StepFailed
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
+
+G, H = 9.81, 0.01
+SIZE = np.array([0.2, 0.2, 0.1])                    # the box (m), 2 kg
+MASS = 2.0
+CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) \
+    * SIZE / 2
+TOL = 1e-6
+
+
+def rigid_box(**kwargs):
+    a, b, c = SIZE
+    inertia = MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+    return af.RigidBody("box", MASS, inertia, **kwargs)
+
+
+def scene_of(*items, **kwargs):
+    scene = af.Scene(gravity=(0.0, 0.0, -G), **kwargs)
+    scene.add(*items)
+    return scene
+
+
+def fem_block(lift=0.0, name="block", rotation=np.eye(3), rayleigh=(10.0, 1e-3)):
+    """A 0.1 m neo-Hookean cube of 4 x 4 x 4 hexahedra, 1 kg, its bottom face at z = lift
+    (then turned by ``rotation`` about the origin)."""
+    msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
+                                           np.array([0.1, 0.1, 0.1 + lift])],
+                           [4, 4, 4], dmesh.CellType.hexahedron)
+    msh.geometry.x[:] = msh.geometry.x @ rotation.T
+    return af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
+                      rayleigh=rayleigh, name=name)
+
+
+def heights(body):
+    return (body.V.tabulate_dof_coordinates() + body.u.x.array.reshape(-1, 3))[:, 2]
+
+
+# ---- (1) a rigid box dropped on a horizontal plane -----------------------------------------
+
+def test_rigid_box_dropped_on_a_plane_comes_to_rest_without_rebound():
+    """Dropped flat from 5 cm (1 m/s at impact, 0.01 m per step; margin 5 cm): it lands in
+    the step that reaches the plane and stops (an inelastic impact). Measured: no rebound
+    (height after impact = rest height), |sum N / (m g) - 1| = 0 after the impact step,
+    penetration 0, 2 active normal rows (of the 4 bottom corners: the impulses of the
+    redundant rows are indeterminate) and the same forces for 1,000 steps."""
+    box = rigid_box(position=(0.0, 0.0, SIZE[2] / 2 + 0.05))
+    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS,
+                              tolerance=TOL, margin=0.05)
+    scene = scene_of(box, contact)
+    rest = SIZE[2] / 2
+    landed = None
+    for k in range(60):
+        scene.step(H)
+        assert contact.distances().min() >= -TOL
+        if landed is None and box.position[2] - rest < 1e-12:
+            landed = k
+        if landed is not None:                      # no rebound
+            assert box.position[2] - rest < TOL
+    assert landed is not None and landed < 15
+    first = scene.contact_forces(contact)
+    np.testing.assert_array_equal(np.sort(first.points), [0, 2, 4, 6])    # the bottom corners
+    active = first.normal > 0
+    rows = scene.last_solve["constraint_rows"]
+    for _ in range(1000):
+        scene.step(H)
+        forces = scene.contact_forces(contact)
+        np.testing.assert_array_equal(forces.points, first.points)
+        np.testing.assert_array_equal(forces.normal > 0, active)
+        assert scene.last_solve["constraint_rows"] == rows
+        assert abs(forces.normal.sum() / (MASS * G) - 1.0) < 1e-9
+        assert np.all(forces.normal >= 0.0) and not forces.friction.any()
+        assert abs(box.position[2] - rest) < TOL
+    assert contact.distances().min() >= -TOL
+    assert np.abs(box.twist).max() < 1e-12
+
+
+# ---- (2) a rigid box on a 30-degree incline -----------------------------------------------
+
+THETA = np.radians(30.0)
+NORMAL = np.array([-np.sin(THETA), 0.0, np.cos(THETA)])
+UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])      # t_1 of the plane
+
+
+@pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
+@pytest.mark.parametrize("mu", [0.6, 0.5])
+def test_rigid_box_on_an_incline_sticks_or_slides_with_coulomb_friction(mu, integrator):
+    """At rest on the incline for 1 s (100 steps): tan 30 = 0.577 < 0.6 sticks (measured
+    slip below 1e-16 m), 0.5 slides along the slope with g (sin 30 - mu cos 30) = 0.6571 m/s^2
+    (measured to 2e-15 relative: the friction bound takes the normal impulses of the same
+    step, so the first step slides with friction too). The normal force is m g cos 30."""
+    box = rigid_box(position=NORMAL * SIZE[2] / 2,
+                    rotation=np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL]))
+    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), NORMAL, mu=mu, points=CORNERS,
+                              tolerance=TOL, margin=0.05)
+    scene = scene_of(box, contact, integrator=integrator)
+    start = box.position.copy()
+    for _ in range(100):
+        scene.step(H)
+    forces = scene.contact_forces(contact)
+    assert abs(forces.normal.sum() / (MASS * G * np.cos(THETA)) - 1.0) < 1e-9
+    slip = box.position - start
+    if mu == 0.6:
+        assert np.linalg.norm(slip) < 1e-9
+        np.testing.assert_allclose(forces.friction.sum(axis=0) @ UPHILL,
+                                   MASS * G * np.sin(THETA), rtol=1e-9)
+    else:
+        a = G * (np.sin(THETA) - mu * np.cos(THETA))
+        assert abs(a - 0.657) < 1e-3
+        assert abs(-box.velocity @ UPHILL / (100 * H) / a - 1.0) < 1e-3
+        assert abs(slip @ NORMAL) < TOL and abs(slip[1]) < 1e-12
+        np.testing.assert_allclose(forces.friction.sum(axis=0) @ UPHILL,
+                                   mu * MASS * G * np.cos(THETA), rtol=1e-9)
+    assert contact.distances().min() >= -TOL
+
+
+# ---- (3) an FEM block dropped on the plane -------------------------------------------------
+
+def test_fem_block_dropped_on_a_plane_comes_to_rest_on_its_bottom_nodes():
+    """A 0.1 m cube (1 kg, E = 1e5 Pa, Rayleigh (10, 1e-3)) dropped from 1 cm: the contact
+    puts it in the coupled island; its 25 bottom nodes take rows and it comes to rest.
+    Measured: |sum N / (m g) - 1| = 3e-16 and max |v| = 5e-16 m/s after 0.5 s, lowest
+    node at -3e-18 m; the same 25 active rows for the last 100 steps."""
+    block = fem_block(lift=0.01)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
+                              margin=0.02)
+    scene = scene_of(block, contact)
+    assert scene.islands() == ([], [block])
+    weight = block.total_mass() * G
+    for k in range(150):
+        scene.step(H)
+        assert heights(block).min() >= -TOL
+        if k >= 50:
+            forces = scene.contact_forces(contact)
+            assert np.count_nonzero(forces.normal > 0) == 25
+            assert scene.last_solve["constraint_rows"] == 25
+    bottom = np.flatnonzero(np.isclose(block.mesh.geometry.x[:, 2], 0.01))
+    np.testing.assert_array_equal(np.sort(forces.points),
+                                  np.sort(block.mesh.geometry.input_global_indices[bottom]))
+    assert abs(forces.normal.sum() / weight - 1.0) < 1e-9
+    assert np.abs(block.v.x.array).max() < 1e-9
+
+
+@pytest.mark.parametrize("mu", [0.6, 0.5])
+def test_fem_block_on_an_incline_sticks_or_slides_once_settled(mu):
+    """The cube put undeformed on the incline (stiffness damping only: mass damping would
+    brake the sliding) settles within 0.5 s: its uphill edge lifts (20 of 25 bottom nodes
+    press) and the low-pressure nodes slip locally while it settles. Then mu = 0.6 holds:
+    the bottom nodes slip 8e-11 m from 1 s to 2 s (measured); mu = 0.5 slides: the mean
+    velocity gains g (sin 30 - mu cos 30) per second from 0.5 s to 1 s (measured to 1e-9)."""
+    turn = np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
+    block = fem_block(rotation=turn, rayleigh=(0.0, 1e-3))
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=TOL,
+                              margin=0.02)
+    scene = scene_of(block, contact)
+    mass = block.total_mass()
+    bottom = np.flatnonzero(np.abs(block.V.tabulate_dof_coordinates() @ NORMAL) < 1e-12)
+    assert bottom.size == 25
+
+    def run(steps):
+        for _ in range(steps):
+            scene.step(H)
+            assert contact.distances().min() >= -TOL
+
+    if mu == 0.6:
+        run(100)
+        settled = block.u.x.array.reshape(-1, 3)[bottom].copy()
+        run(100)
+        assert np.abs(block.u.x.array.reshape(-1, 3)[bottom] - settled).max() < 1e-9
+    else:
+        run(50)
+        v0 = scene.momentum() @ UPHILL / mass
+        run(50)
+        a = G * (np.sin(THETA) - mu * np.cos(THETA))
+        assert abs((v0 - scene.momentum() @ UPHILL / mass) / (50 * H) / a - 1.0) < 1e-3
+    forces = scene.contact_forces(contact)
+    assert np.count_nonzero(forces.normal > 0) == 20
+    assert abs(forces.normal.sum() / (mass * G * np.cos(THETA)) - 1.0) < 1e-6
+
+
+# ---- (4) statics ----------------------------------------------------------------------------
+
+def test_static_cantilever_rests_its_free_end_on_the_plane():
+    """A clamped 0.3 m beam (E = 1e6 Pa) whose free equilibrium sags 8.5 cm, over a plane
+    1 cm below it: the static solve (the contact's rows in the Newton's active set, rows
+    entering the margin between iterations) leaves every node at or above the plane,
+    only nodes on it press (measured: 6 nodes of the free end, 0.90 N of the 2.65 N
+    weight; the clamp takes the rest), and the contact forces are the static solve's."""
+    def beam():
+        msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.3, 0.03, 0.03])],
+                               [10, 2, 2], dmesh.CellType.hexahedron)
+        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e6, 0.3), 1000.0,
+                          name="beam")
+        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+        return body
+
+    free = beam()
+    scene_of(free).solve_static()
+    assert heights(free).min() < -0.05
+    body = beam()
+    contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), tolerance=TOL,
+                              margin=0.03)
+    scene = scene_of(body, contact)
+    scene.solve_static(load_steps=4)
+    phi = contact.distances()
+    assert phi.min() >= -TOL
+    forces = scene.contact_forces(contact)
+    pressing = forces.points[forces.normal > 1e-9]
+    assert pressing.size >= 2
+    on_plane = contact.labels[phi < 1e-12]
+    assert set(pressing.tolist()) <= set(on_plane.tolist())
+    assert np.all(forces.normal >= -1e-12)
+    weight = body.total_mass() * G
+    assert 0.1 * weight < forces.normal.sum() < weight
+
+
+# ---- (5) failures and bad input ------------------------------------------------------------
+
+def test_a_point_from_beyond_the_margin_fails_the_step_with_a_clear_message():
+    """1 m/s at 1 cm per step against a 1 mm margin: the corners cross the plane by up to
+    0.01 m within a step that had no rows for them; with no fallback and no halving the
+    step fails and says what to change."""
+    box = rigid_box(position=(0.0, 0.0, SIZE[2] / 2 + 0.002), velocity=(0.0, 0.0, -1.0))
+    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS,
+                              tolerance=TOL, margin=1e-3)
+    scene = scene_of(box, contact, fallback=None, max_halvings=0)
+    with pytest.raises(StepFailed, match="below the plane.*margin should be at least"):
+        scene.step(H)
+    assert scene.t == 0.0 and box.position[2] > SIZE[2] / 2
+
+
+def test_bad_contact_input_is_a_clear_error_before_the_run():
+    box = rigid_box(position=(0.0, 0.0, SIZE[2] / 2))
+    plane = ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    with pytest.raises(InputError, match="mu must be >= 0"):
+        af.PlaneContact(box, *plane, mu=-0.1, points=CORNERS)
+    with pytest.raises(InputError, match="normal must be a non-zero"):
+        af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), points=CORNERS)
+    with pytest.raises(InputError, match="no surface: give the contact points"):
+        af.PlaneContact(box, *plane)
+    with pytest.raises(InputError, match="margin must be"):
+        af.PlaneContact(box, *plane, points=CORNERS, tolerance=1e-3, margin=1e-4)
+    # a start in intersection: the body and its first offending point are named
+    sunk = rigid_box(position=(0.0, 0.0, SIZE[2] / 2 - 1e-3))
+    scene = scene_of(sunk, af.PlaneContact(sunk, *plane, points=CORNERS, tolerance=TOL))
+    with pytest.raises(InputError, match=r"at the start .*point 0 .* of 'box' is 0.001 below"):
+        scene.step(H)
+    block = fem_block(lift=-1e-3)
+    scene = scene_of(block, af.PlaneContact(block, *plane, tolerance=TOL))
+    with pytest.raises(InputError, match=r"node \d+ of 'block' is 0.001 below the plane "
+                                         r"\(25 points"):
+        scene.check()
+    # a contact on a body that is not in the scene
+    other = fem_block(name="other")
+    scene = scene_of(box, af.PlaneContact(other, *plane, name="floor"))
+    with pytest.raises(InputError, match="'floor' acts on 'other', which is not a body"):
+        scene.check()
+    with pytest.raises(InputError, match="contact 'wall' is not in the scene"):
+        scene.contact_forces(af.PlaneContact(box, *plane, points=CORNERS, name="wall"))
