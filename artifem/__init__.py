@@ -37,6 +37,7 @@ _PUBLIC = {
     **dict.fromkeys(["FixedJoint", "SphericalJoint", "RevoluteJoint", "SliderJoint",
                      "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
     **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
+    **dict.fromkeys(["MeshContact", "MeshContactForces"], "artifem.multibody.mesh_contact"),
     **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
                      "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
                     "artifem.multibody.attachments"),

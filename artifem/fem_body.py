@@ -47,6 +47,7 @@ import basix
 import basix.ufl
 import numpy as np
 import ufl
+from scipy import sparse
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -175,6 +176,7 @@ class FemBody:
         #: the hard incompressibility (pressure field, multipliers), or None
         self.volume_constraint = VolumeConstraint(self, incompressibility) if hard else None
         self._compiled = None
+        self._contact_surface = None    # (boundary dofs, triangles into them)
 
     # ---- model definition -------------------------------------------------
 
@@ -193,6 +195,49 @@ class FemBody:
         """Local block dofs of the given input node indices present on this rank."""
         return np.array([self._node_to_dof[n] for n in np.asarray(nodes).ravel().tolist()
                          if n in self._node_to_dof], dtype=np.int32)
+
+    def contact_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(x, triangles): the boundary nodes' current positions x = X + u (n, 3) and the
+        exterior facets as outward triangles into them (a quadrilateral facet split along
+        its 0-3 diagonal); the topology is fixed, the order that of :meth:`point_rows`."""
+        if self._contact_surface is None:
+            domain = self.mesh
+            tdim = domain.topology.dim
+            domain.topology.create_connectivity(tdim - 1, tdim)
+            facets = dmesh.exterior_facet_indices(domain.topology)
+            nodes = dmesh.entities_to_geometry(domain, tdim - 1, facets)
+            split = [[0, 1, 2]] if nodes.shape[1] == 3 else [[0, 1, 3], [0, 3, 2]]
+            tris = np.vstack([nodes[:, s] for s in split])
+            cells = domain.topology.connectivity(tdim - 1, tdim)
+            owner = np.array([cells.links(f)[0] for f in facets])
+            x = domain.geometry.x
+            inside = x[domain.geometry.dofmaps[0][owner]].mean(axis=1)
+            inside = np.tile(inside, (len(split), 1))
+            a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
+            flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), (a + b + c) / 3 - inside) < 0
+            tris[flip] = tris[flip][:, ::-1]
+            dofs = self._geometry_node_dofs()[tris]
+            self._contact_surface = np.unique(dofs, return_inverse=True)
+        dofs, inverse = self._contact_surface
+        x = self.V.tabulate_dof_coordinates()[dofs] + self.u.x.array.reshape(-1, 3)[dofs]
+        return x, inverse.reshape(-1, 3)
+
+    def point_rows(self, weights, directions: np.ndarray):
+        """Rows k along e_k at the point sum_j W_kj x_j of the contact surface's nodes x_j:
+        G_k = e_k^T W_kj on node j's three velocity dofs (sparse, m x 3 n_nodes)."""
+        dofs, _ = self._contact_surface
+        W = sparse.coo_matrix(weights)
+        cols = 3 * dofs[W.col][:, None] + np.arange(3)
+        vals = W.data[:, None] * directions[W.row]
+        n = 3 * (self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts)
+        return sparse.csr_matrix((vals.ravel(), (np.repeat(W.row, 3), cols.ravel())),
+                                 shape=(W.shape[0], n))
+
+    def point_stiffness(self, weights, forces: np.ndarray):
+        """d(G^T lambda)/du of :meth:`point_rows` at fixed directions: zero (a node's rows
+        do not turn with it)."""
+        n = 3 * (self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts)
+        return sparse.csr_matrix((n, n))
 
     def find_nodes(self, marker) -> np.ndarray:
         """Input indices of the nodes whose reference position satisfies ``marker``.

@@ -390,6 +390,30 @@ class RigidBody:
         self.position, self.rotation = state.position, state.rotation
         self.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
 
+    def contact_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(x, triangles): the surface's vertices in the world, x_j = p + R r_j, and its
+        triangles (an InputError when the body has no surface)."""
+        if self.surface is None:
+            raise InputError(f"rigid body {self.name!r} has no surface for contact: give "
+                             "surface=(vertices, triangles) or use RigidBody.from_surface")
+        return self.to_world(self.surface[0]), np.asarray(self.surface[1])
+
+    def point_rows(self, weights, directions: np.ndarray) -> np.ndarray:
+        """Rows k along e_k at the point sum_j W_kj x_j of the surface's vertices (W sparse):
+        G_k = [w_k e_k^T, (r_k x e_k)^T], w_k = sum_j W_kj, r_k = sum_j W_kj R r_j."""
+        W = weights.toarray()
+        r = W @ (np.asarray(self.surface[0], dtype=float) @ self.rotation.T)
+        return np.hstack([W.sum(axis=1)[:, None] * directions, cross(r, directions)])
+
+    def point_stiffness(self, weights, forces: np.ndarray) -> np.ndarray:
+        """d(G^T lambda)/dq of :meth:`point_rows` at fixed directions, the forces f_k =
+        lambda_k e_k turning with the levers r_k: sum_k [f_k]x [r_k]x on the rotation."""
+        W = weights.toarray()
+        r = W @ (np.asarray(self.surface[0], dtype=float) @ self.rotation.T)
+        K = np.zeros((6, 6))
+        K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(r))
+        return K
+
     def to_world(self, points) -> np.ndarray:
         """World positions of body-coordinate points (n, 3): p + R r_b."""
         return self.position + np.asarray(points, dtype=float) @ self.rotation.T
