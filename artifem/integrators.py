@@ -218,9 +218,10 @@ def _project_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
     vc = body.volume_constraint
     u, v = body.u.x.petsc_vec, body.v.x.petsc_vec
     for _ in range(vc.spec.projections):
-        vc.assemble(tangent=True)
+        vc.at_current_state()
         if vc.violation() <= vc.spec.step_tol:
             return
+        vc.at_current_state(rows=True)
         dv.zeroEntries()
         if _hold_volumes(body, h, A, dv, solver, stop_when_indefinite=True) is None:
             return

@@ -188,8 +188,8 @@ Islands
 -------
 Bodies interact within a step only through attachments, paths, loads, joints and
 contacts (``Scene.constraints``). A deformable body that none of them names
-(``item.bodies``) is an island of its own and is advanced by the scene's integrator with its own solver: a full FEM
-body by ``integrator.advance(body, h, solver)`` with a PETSc
+(``item.bodies``) is an island of its own and is advanced by the scene's integrator
+with its own solver: a full FEM body by ``integrator.advance(body, h, solver)`` with a PETSc
 :class:`~artifem.linear_solver.LinearSolver` (CG with algebraic multigrid by
 default; distributed under ``mpiexec``), a reduced body by
 ``integrator.advance_reduced(body, h)``; semi-implicit (the equations above,
@@ -414,8 +414,8 @@ class Scene:
             if group not in COMPONENT_GROUPS:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
                                 "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a PlaneContact, a path, a force element with wrenches(t) or a load element "
-                                "with master_loads(t)")
+                                "a PlaneContact, a path, a force element with wrenches(t) or a "
+                                "load element with master_loads(t)")
             members = getattr(self, group)
             name = getattr(item, "name", "")
             if group in BODY_GROUPS and any(name == b.name for b in self.bodies):
@@ -687,12 +687,12 @@ class Scene:
         """Advance from t to t + h: the controllers, one linearized step (module docstring),
         then the health of every body (finite coordinates, det F > 0 at every quadrature
         point, a reduced body's at its integration points; hard-incompressible volumes
-        within ``step_tol``, projected back by the step where they are not). A failed step (unhealthy, or a
-        singular or failed solve) is undone (:meth:`restore_state`) and retried by the
-        ``fallback`` integrator (Newton on the same backward Euler equations: it holds
-        where the linearization at the start of the step does not, e.g. a full excitation
-        switched on at once; ``fallbacks`` counts the steps it completed), so the cost is
-        the semi-implicit step's wherever that succeeds. A step that fails both ways is
+        within ``step_tol``, projected back by the step where they are not). A failed step
+        (unhealthy, or a singular or failed solve) is undone (:meth:`restore_state`) and
+        retried by the ``fallback`` integrator (Newton on the same backward Euler
+        equations: it holds where the linearization at the start of the step does not,
+        e.g. a full excitation switched on at once; ``fallbacks`` counts the steps it
+        completed), so the cost is the semi-implicit step's wherever that succeeds. A step that fails both ways is
         retried as two steps of half the size, recursively up to ``max_halvings`` times;
         beyond that it raises :class:`~artifem.errors.ElementInversionError` (body, time,
         elements, smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left
@@ -806,11 +806,12 @@ class Scene:
         rows = L.constraint_map.rows(P, z_k, h, self.stabilization)
         z_m, lam, resolve = self._solve(A_m, b_m, rows)
         z = P @ z_m + z_k
-        if L.volume_constraints:
+        if not L.volume_constraints:
+            L.advance(z, h, targets)
+        else:
             L.hold_volumes(z, lam, P, resolve, h)
-        start = L.save()
-        L.advance(z, h, targets)
-        if L.volume_constraints:
+            start = L.save()                # the projection redoes the step from here
+            L.advance(z, h, targets)
             L.project_volumes(z, lam, P, resolve, h, targets, start)
         self._record_impulses(L, impulses_by_constraint(rows, lam), h)
 
