@@ -219,8 +219,8 @@ from scipy import sparse
 from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
                             UnknownNameError)
 from artifem.fem_body import FemBody
-from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, ramp_load, solve_static,
-                                 solve_static_reduced)
+from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, StaticCounts, ramp_load,
+                                 solve_static, solve_static_reduced)
 from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
@@ -252,11 +252,14 @@ COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
                                   "loads")
 
 
-def _merge_counts(a: list, b: list) -> list:
+def _merge_counts(a: list, b: list) -> StaticCounts:
     """The larger Newton iteration count of each increment over two islands (their
-    adaptive schedules may differ in length: the shorter is padded with zeros)."""
+    adaptive schedules may differ in length: the shorter is padded with zeros), and the
+    iterations both spent on failed increments."""
     n = max(len(a), len(b))
-    return [max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0) for k in range(n)]
+    return StaticCounts([max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0)
+                         for k in range(n)],
+                        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0))
 
 
 @dataclass(frozen=True)
@@ -902,7 +905,8 @@ class Scene:
         ``solve_static_reduced``), then the coupled island, F_m + G^T lambda = 0 with
         phi = 0 on the joints and phi >= 0, lambda >= 0 on their limits (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
-        of each increment over the islands. ``load_steps="auto"`` (or a count whose
+        of each increment over the islands (a :class:`~artifem.integrators.StaticCounts`,
+        whose ``failed`` adds the iterations of the increments that failed and were cut). ``load_steps="auto"`` (or a count whose
         increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
         ``progress`` (e.g. tqdm) is updated once per increment of each island."""
         L = self._ready()
@@ -922,8 +926,8 @@ class Scene:
             counts = _merge_counts(counts, self._solve_island_static(
                 L, load_steps, rtol, atol, max_iterations, progress))
         if not counts and not isinstance(load_steps, str):
-            counts = [0] * int(load_steps)
-        return [int(c) for c in counts]
+            counts = StaticCounts([0] * int(load_steps))
+        return counts
 
     def _solve_island_static(self, L, load_steps, rtol, atol, max_iterations, progress):
         """The coupled island's static Newton (module docstring: statics)."""
