@@ -193,9 +193,10 @@ class VolumeConstraint:
             else:
                 self.D.PtAP(self.G, self.GtDG)
 
-    def at_current_state(self) -> None:
-        """g and G (rows of the coupled island's projection) at the body's current u."""
-        self.assemble(tangent=True)
+    def at_current_state(self, rows: bool = False) -> None:
+        """g at the body's current u; with ``rows``, G too (a projection's rows: the
+        check that comes first, every step, needs only g)."""
+        self.assemble(tangent=rows)
 
     def violation(self, g: np.ndarray | None = None) -> float:
         """max_i |g_i| / V_i over every rank (of the assembled g, or of ``g``)."""

@@ -218,9 +218,10 @@ def _project_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
     vc = body.volume_constraint
     u, v = body.u.x.petsc_vec, body.v.x.petsc_vec
     for _ in range(vc.spec.projections):
-        vc.assemble(tangent=True)
+        vc.at_current_state()
         if vc.violation() <= vc.spec.step_tol:
             return
+        vc.at_current_state(rows=True)
         dv.zeroEntries()
         if _hold_volumes(body, h, A, dv, solver, stop_when_indefinite=True) is None:
             return
@@ -443,20 +444,36 @@ def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
     step = 1.0
     while step >= min_step:
         apply_step(step)
-        if not inverted():
-            if merit is not None:
-                value = merit()
-                if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
-                    return step
-            trial = residual_norm()
-            if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
-                return step
-            if correction_ratio is not None:
-                theta = correction_ratio()
-                if np.isfinite(theta) and theta <= 1.0 - 0.25 * step:
-                    return step
+        if not inverted() and _acceptable(step, merit, merit0, slope, residual_norm, norm0,
+                                          correction_ratio):
+            return step
         step *= 0.5
     return None
+
+
+def _acceptable(step: float, merit, merit0: float, slope: float, residual_norm,
+                norm0: float, correction_ratio=None) -> bool:
+    """Whether the step just applied passes one of :func:`_backtrack`'s tests."""
+    if merit is not None:
+        value = merit()
+        if np.isfinite(value) and value <= merit0 + 1e-4 * step * slope:
+            return True
+    trial = residual_norm()
+    if np.isfinite(trial) and trial <= (1.0 - 1e-4 * step) * norm0:
+        return True
+    if correction_ratio is not None:
+        theta = correction_ratio()
+        if np.isfinite(theta) and theta <= 1.0 - 0.25 * step:
+            return True
+    return False
+
+
+def _extrapolation_weights(nodes, x: float) -> np.ndarray:
+    """The Lagrange weights w_j of the polynomial through the values at ``nodes``,
+    evaluated at ``x``: p(x) = sum_j w_j y_j, w_j = prod_{m != j} (x - x_m) / (x_j - x_m)."""
+    nodes = np.asarray(nodes, dtype=float)
+    return np.array([np.prod([(x - xm) / (xj - xm) for m, xm in enumerate(nodes) if m != j])
+                     for j, xj in enumerate(nodes)])
 
 
 def _at_round_off(correction: PETSc.Vec, value: PETSc.Vec, tol: float = 1e-12) -> bool:
@@ -477,6 +494,19 @@ class StaticCounts(list):
         self.failed = int(failed)
         self.residuals = [list(r) for r in residuals]
 
+
+#: The watchdog of the static Newton solve (Chamberlain et al. 1982, adapted): a full
+#: step that fails the line search's tests, but inverts no element, is taken anyway, and
+#: Newton goes on with full steps; if after this many of them (the first included) |R|
+#: (or, for a conservative body, the energy) is not below its value where the watch
+#: began, Newton returns there and backtracks instead. Newton's first step on a bending
+#: beam raises |R| a hundredfold and fails every test while the steps after it converge
+#: quadratically; backtracking it costs two iterations.
+WATCHDOG_ITERATIONS = 3
+
+#: The predictor of the next load increment: the polynomial in the load factor through
+#: this many converged states (quadratic), extrapolated.
+PREDICTOR_POINTS = 3
 
 #: Adaptive load stepping (``load_steps="auto"``, and the cuts of a fixed schedule): an
 #: increment that fails is halved, at most this many times in a row ...
@@ -568,7 +598,10 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     tightened as |R| approaches the tolerance (its residual stays below a tenth of the
     Newton target), and full steps are taken whenever they pass one of the tests of
     :func:`_backtrack` (energy for a conservative body; otherwise the residual
-    norm or the natural monotonicity test). A hard-incompressible body takes a Newton
+    norm or the natural monotonicity test), or under the watchdog
+    (:data:`WATCHDOG_ITERATIONS`) when the steps after them pay off. Each increment
+    starts from the quadratic extrapolation of the last three converged states
+    (:data:`PREDICTOR_POINTS`). A hard-incompressible body takes a Newton
     step on its multipliers too (the linearized constraint g + G du = 0 through the Schur
     complement S = G K^-1 G^T: :func:`_hold_volumes` with h = 1), so u and p converge
     together quadratically, in every iteration that follows a full step (inside Newton's
@@ -601,45 +634,44 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     def holds() -> bool:            # the volumes as last assembled
         return vc is None or vc.violation() <= vc.spec.tol
 
-    # The last two converged states (load factor, u, p): the secant predictor of the next
-    # increment, u = u_k + (lambda - lambda_k) / (lambda_k - lambda_{k-1}) (u_k - u_{k-1}),
-    # starts Newton near the new equilibrium (the first Newton step from u_k alone is the
-    # tangent predictor, which misses the path's curvature: a bending beam under a
-    # follower load leaves Newton's region of fast convergence with it).
-    converged = [(0.0, u.array.copy(), None if vc is None else vc.p.x.array.copy())]
+    # The last PREDICTOR_POINTS converged states (load factor, u): the polynomial through
+    # them, extrapolated to the next load factor, starts Newton near the new equilibrium
+    # (the first Newton step from u_k alone is the tangent predictor, which misses the
+    # path's curvature: a bending beam under a follower load leaves Newton's region of
+    # fast convergence with it). With fewer states Newton starts from u_k: the secant
+    # through two states stretches a rotating beam's fibers (the 1,200 Pa cantilever of
+    # scripts/static_newton_counts.py: 7 iterations from it, 6 from u_k; the quadratic
+    # predictor's error is a quarter of the secant's there, and Newton takes 4-5).
+    converged = [(0.0, u.array.copy())]
 
     def predict(factor: float) -> None:
-        if len(converged) < 2:
+        if len(converged) < PREDICTOR_POINTS:
             return
-        (f1, u1, p1), (f2, u2, p2) = converged[-2:]
+        factors = [c[0] for c in converged]
+        weights = _extrapolation_weights(factors, factor)
+        u2 = converged[-1][1]
         body.load_factor.value = factor
         # A conservative body keeps the predictor when it lowers the energy (its merit);
         # without a potential it is kept unless it inverts an element (the residual norm
         # is no measure of closeness here: see _backtrack).
         start = body.potential_energy() if body.conservative else np.inf
-        ratio = (factor - f2) / (f2 - f1)
-        u.array[:] = u2 + ratio * (u2 - u1)
+        # (the pressures of a hard constraint stay: the multiplier step finds them, and the
+        # energy compares starts only at equal pressures)
+        u.array[:] = sum(w * c[1] for w, c in zip(weights, converged))
         _update_ghosts(u)
-        if vc is not None:
-            vc.p.x.array[:] = p2 + ratio * (p2 - p1)
-            vc.p.x.scatter_forward()
         if _has_inversion(body) or not (body.potential_energy() if body.conservative
                                         else residual(tangent=False)) < start:
             # the predictor inverts or is no closer in |R|: start from u_k
             u.array[:] = u2
             _update_ghosts(u)
-            if vc is not None:
-                vc.p.x.array[:] = p2
-                vc.p.x.scatter_forward()
 
     residuals = []
 
     def solve_increment(factor: float, limit: int) -> int:
         residuals.append([])
         it = newton(factor, limit)
-        converged.append((factor, u.array.copy(),
-                          None if vc is None else vc.p.x.array.copy()))
-        del converged[:-2]
+        converged.append((factor, u.array.copy()))
+        del converged[:-PREDICTOR_POINTS]
         return it
 
     def newton(factor: float, limit: int) -> int:
@@ -654,6 +686,9 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         multiplier, near = vc is None, True
         if vc is not None:
             vc.updates = 0
+        # the watchdog (WATCHDOG_ITERATIONS): (iteration, state, |R|, energy or None) where
+        # it began, and whether this increment may start one (not after one has failed)
+        watch, may_watch = None, True
         while True:
             residuals[-1].append(norm)
             if norm <= target:
@@ -668,6 +703,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                                          f"factor {factor:g}")
                     norm = residual()
                     continue
+            if watch is not None:
+                if norm <= (1.0 - 1e-4) * watch[2] or (
+                        watch[3] is not None and body.potential_energy() < watch[3]):
+                    watch = None                # the full steps paid off
+                elif it - watch[0] >= WATCHDOG_ITERATIONS - 1:
+                    restore(watch[1])           # they did not: backtrack from there
+                    watch, may_watch, multiplier, near = None, False, vc is None, False
+                    norm = residual()
+                    continue
             it += 1
             if it > limit:
                 raise StepFailed(f"static solve: Newton did not converge in {limit} "
@@ -680,7 +724,8 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                                                           1e-14))
             solver.solve(body.K, r, du, rtol=eta)
             body.zero_fixed(du)
-            u_start = u.array.copy()
+            start = save()
+            u_start = start[0]
             du_norm = du.norm()
 
             def apply_step(s):
@@ -700,12 +745,23 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                     w.destroy()
 
             def line_search():
-                return _backtrack(
-                    apply_step, lambda: _has_inversion(body),
-                    body.potential_energy if body.conservative else None,
-                    body.potential_energy() if body.conservative else 0.0,
-                    -r.dot(du), lambda: residual(tangent=False), norm,
-                    correction_ratio=None if body.conservative else correction_ratio)
+                nonlocal watch
+                energy = body.potential_energy() if body.conservative else 0.0
+                tests = (body.potential_energy if body.conservative else None, energy,
+                         -r.dot(du), lambda: residual(tangent=False), norm,
+                         None if body.conservative else correction_ratio)
+                # the watchdog: full steps first (not for the multiplier step, a saddle
+                # point whose full steps from far off measured worse: 10 against 7
+                # iterations on the membrane of scripts/static_newton_counts.py)
+                if (watch is not None or may_watch) and not multiplier:
+                    apply_step(1.0)
+                    if not _has_inversion(body):
+                        if watch is None and not _acceptable(1.0, *tests):
+                            watch = (it, start, norm, energy if body.conservative
+                                     and vc is None else None)
+                        return 1.0
+                return _backtrack(apply_step, lambda: _has_inversion(body), *tests[:5],
+                                  correction_ratio=tests[5])
 
             step = None
             if vc is not None and near:     # Newton on the multipliers too (docstring)

@@ -3,15 +3,19 @@
 pressure, a 10:1 neo-Hookean beam under a follower pressure on its bottom face, and a
 nearly incompressible (hard) membrane under a dead traction.
 
-    OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py [case ...]
+    OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py [case ...] [--steps=N|auto]
+    OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py --json
+
 
 Each case runs through Scene.solve_static with the scene's default linear solver and
 prints the per-increment Newton iteration counts (hard constraint: multiplier updates'
-Newton iterations included) or the failure.
+Newton iterations included) or the failure; ``--json`` runs every case and writes
+docs/benchmarks/static_newton.json, whose figures docs/verification.md quotes.
 """
 
+import json
+import pathlib
 import sys
-import time
 
 import numpy as np
 from mpi4py import MPI
@@ -22,6 +26,8 @@ from dolfinx import mesh as dmesh
 from artifem.errors import StepFailed
 from artifem.incompressibility import Incompressible
 from artifem.scene import Scene
+
+OUT = pathlib.Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "static_newton.json"
 
 
 def box(n, size):
@@ -62,16 +68,57 @@ def membrane(n, traction=40.0):
 
 
 def run(body, load_steps, **options):
+    """Solve; a dict of the per-increment counts, the Newton iterations spent on failed
+    increments, the load factors reached and min u_z (or the failure)."""
     scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body)
-    t = time.perf_counter()
     try:
         counts = scene.solve_static(load_steps=load_steps, **options)
     except StepFailed as e:
-        return f"FAILED ({e})"[:200]
+        return {"load_steps": load_steps, "failed_with": str(e)[:200]}
     u = body.u.x.array.reshape(-1, 3)
-    return (f"{len(counts)} increments, iterations {counts} (max {max(counts)}), "
-            f"min u_z {u[:, 2].min():.4g}, {time.perf_counter() - t:.1f} s")
+    return {"load_steps": load_steps, "counts": list(counts), "failed": counts.failed,
+            "total": sum(counts) + counts.failed, "max": max(counts),
+            "factors": counts.factors, "min_uz": float(u[:, 2].min())}
+
+
+def first_increment(n=16, traction=10.0):
+    """Why the membrane's first increment is hard: min u_z of the first Newton step from
+    the flat plate (its linear, bending response to the first quarter of the load) and
+    of the equilibrium under that load (a stretched membrane)."""
+    body = membrane(n, traction)
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(body)
+    solver = scene.linear_solver_for(body)
+    body.load_factor.value = 1.0
+    body.assemble(tangent=True, diag=1.0)
+    rhs = body.R.copy()
+    body.zero_fixed(rhs)
+    rhs.scale(-1.0)
+    step = rhs.duplicate()
+    solver.solve(body.K, rhs, step)
+    body.zero_fixed(step)
+    counts = scene.solve_static(load_steps=1)
+    return {"mesh": n, "traction": traction,
+            "linear_step_min_uz": float(step.array.reshape(-1, 3)[:, 2].min()),
+            "equilibrium_min_uz": float(body.u.x.array.reshape(-1, 3)[:, 2].min()),
+            "counts": list(counts)}
+
+
+def render(result) -> str:
+    """The table cell of docs/verification.md: the counts (runs of equal counts as
+    'c (xk)'), their max and the iterations in all, failed increments included."""
+    if "counts" not in result:
+        return "fails"
+    runs = []
+    for c in result["counts"]:
+        if runs and runs[-1][0] == c:
+            runs[-1][1] += 1
+        else:
+            runs.append([c, 1])
+    text = ", ".join(f"{c} (x{k})" if k > 2 else ", ".join([str(c)] * k) for c, k in runs)
+    failed = f", {result['failed']} in failed increments" if result["failed"] else ""
+    return f"{text} (max {result['max']}; {result['total']} in all{failed})"
 
 
 CASES = {
@@ -80,10 +127,16 @@ CASES = {
     "cantilever1200": lambda s: run(cantilever(1200.0), s or 12),
     "beam5": lambda s: run(long_beam(0.004), s or 5),
     "beam20": lambda s: run(long_beam(0.004), s or 20),
+    "beam_auto": lambda s: run(long_beam(0.004), s or "auto"),
+    "beam_auto_max6": lambda s: run(long_beam(0.004), s or "auto", max_iterations=6),
     "beam_tenth": lambda s: run(long_beam(0.0004), s or 5),
     "membrane8": lambda s: run(membrane(8), s or 4),
+    "membrane8_auto": lambda s: run(membrane(8), s or "auto"),
     "membrane16": lambda s: run(membrane(16), s or 4),
+    "membrane16_auto": lambda s: run(membrane(16), s or "auto"),
+    "membrane16_auto_max6": lambda s: run(membrane(16), s or "auto", max_iterations=6),
     "membrane32": lambda s: run(membrane(32), s or 4),
+    "membrane32_auto": lambda s: run(membrane(32), s or "auto"),
 }
 
 if __name__ == "__main__":
@@ -92,5 +145,14 @@ if __name__ == "__main__":
     steps = steps[0].split("=")[1] if steps else None
     if steps is not None and steps != "auto":
         steps = int(steps)
+    results = {}
     for name in names:
-        print(f"{name}: {CASES[name](steps)}", flush=True)
+        results[name] = CASES[name](steps)
+        print(f"{name}: {render(results[name])}", flush=True)
+    if "--json" in sys.argv:
+        results["membrane16_first_increment"] = first_increment()
+        print(f"membrane16_first_increment: {results['membrane16_first_increment']}")
+        if steps is not None or set(names) != set(CASES):
+            sys.exit("--json writes every case at its own load steps: give no case or --steps")
+        OUT.write_text(json.dumps(results, indent=1) + "\n")
+        print(f"wrote {OUT}")

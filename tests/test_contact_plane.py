@@ -282,3 +282,16 @@ def test_bad_contact_input_is_a_clear_error_before_the_run():
         scene.check()
     with pytest.raises(InputError, match="contact 'wall' is not in the scene"):
         scene.contact_forces(af.PlaneContact(box, *plane, points=CORNERS, name="wall"))
+
+
+def test_the_distributed_island_refuses_a_contact_on_an_fem_body():
+    """island_solver="schur" keeps FEM rows on their ranks and takes constraints on rigid
+    bodies only: a contact on an FEM body is refused at the first step, before any work,
+    saying what to run instead."""
+    block = fem_block(lift=0.01)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), margin=0.02)
+    scene = scene_of(block, contact, island_solver="schur")
+    with pytest.raises(InputError, match=r"constraints on FEM bodies \(contact\) \(run it in "
+                                         r"serial with island_solver='direct'\)"):
+        scene.step(H)
+    assert scene.t == 0.0 and np.abs(block.u.x.array).max() == 0.0

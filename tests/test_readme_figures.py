@@ -370,3 +370,31 @@ def test_robustness_page_matches_its_jsons():
         assert agrees(det, s["min_det_F"]), name
         shown, exponent = volume.split("e")
         assert agrees(shown, s["max_volume_change"] / 10.0 ** int(exponent)), name
+
+
+def test_static_newton_counts_on_the_verification_page_match_their_json():
+    """docs/verification.md's table of static Newton iterations: the "now" column is
+    scripts/static_newton_counts.py's rendering of docs/benchmarks/static_newton.json, and
+    the membrane's first-increment deflections are that file's."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(
+        "static_newton_counts", ROOT / "scripts" / "static_newton_counts.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    results = load("static_newton.json")
+    page = (ROOT / "docs" / "verification.md").read_text()
+    section = page[page.index("## Static Newton"):]
+    section = section[:section.index("\n## ")] if "\n## " in section else section
+    rows = [line for line in section.splitlines() if line.startswith("| ")][1:]
+    now = {line.strip("|").split("|")[-1].strip() for line in rows}
+    for name in script.CASES:
+        assert script.render(results[name]) in now, name
+    first = results["membrane16_first_increment"]
+    text = re.sub(r"\s+", " ", section)
+    m = re.search(r"deflects it ([\d.]+) m \(16 x 16\), (\w+) times its equilibrium "
+                  r"deflection of ([\d.]+) m", text)
+    assert m, "the membrane sentence changed: update this test with it"
+    assert agrees(m[1], -first["linear_step_min_uz"])
+    assert agrees(m[3], -first["equilibrium_min_uz"])
+    assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first[
+        "equilibrium_min_uz"] < 4.5

@@ -11,7 +11,7 @@ import artifem as af
 from dolfinx import mesh as dmesh
 
 from artifem.incompressibility import Incompressible
-from artifem.integrators import solve_static
+from artifem.integrators import _extrapolation_weights, solve_static
 from artifem.scene import Scene
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial checks")
@@ -70,18 +70,40 @@ def test_quadratic_under_a_follower_pressure(hard, direct_solver):
         assert body.volume_constraint.violation() <= body.volume_constraint.spec.tol
 
 
+def long_beam():
+    """10 x 1 x 1 neo-Hookean (E = 10, nu = 0.3), clamped at x = 0, follower pressure 0.004
+    on its bottom face (docs/verification.md's 10:1 beam)."""
+    body = af.FemBody(box((20, 2, 2), (10.0, 1.0, 1.0)),
+                      af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0)
+    body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
+    body.add_pressure(0.004, where=lambda x: np.isclose(x[2], 0.0))
+    return body
+
+
+def test_the_long_beam_takes_at_most_six_iterations_per_load_step(direct_solver):
+    """Five load steps of the 10:1 beam, each in at most 6 Newton iterations with none cut:
+    the first step's linear solution fails every line search test (theta = 11) and is
+    taken under the watchdog (backtracking it: 8 iterations); the later increments start
+    from the quadratic predictor (4 iterations; the secant: 5)."""
+    body = long_beam()
+    counts = solve_static(body, direct_solver(body), load_steps=5)
+    assert counts.failed == 0 and len(counts) == 5, counts
+    assert max(counts) <= 6 and max(counts[2:]) <= 4, list(counts)
+
+
+def test_the_predictor_extrapolates_a_quadratic_exactly():
+    nodes, x = [0.1, 0.25, 0.5], 0.8
+    w = _extrapolation_weights(nodes, x)
+    for poly in ([1.0], [2.0, -3.0], [0.5, 1.0, -4.0]):
+        assert abs(w @ np.polyval(poly, nodes) - np.polyval(poly, x)) < 1e-12
+    assert abs(w @ np.power(nodes, 3) - x ** 3) > 1e-3      # not a cubic
+
+
 def test_the_long_beam_is_solved_by_adaptive_load_steps():
     """The 10:1 neo-Hookean beam (E = 10) under a follower pressure 0.004 on its bottom
     face: load_steps="auto" chooses the increments (a failed one is cut) and solves the
     full load; a fixed count still works, and its increments are cut where they fail."""
-    def beam():
-        body = af.FemBody(box((20, 2, 2), (10.0, 1.0, 1.0)),
-                          af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0)
-        body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
-        body.add_pressure(0.004, where=lambda x: np.isclose(x[2], 0.0))
-        return body
-
-    body = beam()
+    body = long_beam()
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     counts = scene.solve_static(load_steps="auto")
@@ -93,7 +115,7 @@ def test_the_long_beam_is_solved_by_adaptive_load_steps():
     r = body.R.copy()
     body.zero_fixed(r)
     assert r.norm() < 1e-8 * body.R.norm()
-    fixed = beam()
+    fixed = long_beam()
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(fixed)
     scene.solve_static(load_steps=1)        # one step: cut until it converges

@@ -178,7 +178,7 @@ class ReducedVolumeConstraint:
         """pi~ = lambda - kappa N^-1 c."""
         return self.lam - self.kappa * (self.N_inv @ self.values())
 
-    def at_current_state(self) -> None:
+    def at_current_state(self, rows: bool = False) -> None:
         """Nothing to do: c and C are evaluated at the current q when asked."""
 
     def violation(self, c: np.ndarray | None = None) -> float:

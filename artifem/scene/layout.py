@@ -593,6 +593,8 @@ class Layout:
                 vc.at_current_state()
             if all(vc.violation() <= vc.spec.step_tol for _, vc in self.volume_constraints):
                 return
+            for _, vc in self.volume_constraints:
+                vc.at_current_state(rows=True)
             dz = np.zeros_like(z)
             if self.hold_volumes(dz, lam, P, resolve, h, stop_when_indefinite=True) is None:
                 return

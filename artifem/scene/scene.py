@@ -188,8 +188,8 @@ Islands
 -------
 Bodies interact within a step only through attachments, paths, loads, joints and
 contacts (``Scene.constraints``). A deformable body that none of them names
-(``item.bodies``) is an island of its own and is advanced by the scene's integrator with its own solver: a full FEM
-body by ``integrator.advance(body, h, solver)`` with a PETSc
+(``item.bodies``) is an island of its own and is advanced by the scene's integrator
+with its own solver: a full FEM body by ``integrator.advance(body, h, solver)`` with a PETSc
 :class:`~artifem.linear_solver.LinearSolver` (CG with algebraic multigrid by
 default; distributed under ``mpiexec``), a reduced body by
 ``integrator.advance_reduced(body, h)``; semi-implicit (the equations above,
@@ -219,8 +219,8 @@ from scipy import sparse
 from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
                             UnknownNameError)
 from artifem.fem_body import FemBody
-from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, ramp_load, solve_static,
-                                 solve_static_reduced)
+from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, StaticCounts, ramp_load,
+                                 solve_static, solve_static_reduced)
 from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
 from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
                                            LiftAttachment, NodeAttachment, RigidAttachment,
@@ -252,11 +252,14 @@ COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
                                   "loads")
 
 
-def _merge_counts(a: list, b: list) -> list:
+def _merge_counts(a: list, b: list) -> StaticCounts:
     """The larger Newton iteration count of each increment over two islands (their
-    adaptive schedules may differ in length: the shorter is padded with zeros)."""
+    adaptive schedules may differ in length: the shorter is padded with zeros), and the
+    iterations both spent on failed increments."""
     n = max(len(a), len(b))
-    return [max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0) for k in range(n)]
+    return StaticCounts([max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0)
+                         for k in range(n)],
+                        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0))
 
 
 @dataclass(frozen=True)
@@ -414,8 +417,8 @@ class Scene:
             if group not in COMPONENT_GROUPS:
                 raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
                                 "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a PlaneContact, a path, a force element with wrenches(t) or a load element "
-                                "with master_loads(t)")
+                                "a PlaneContact, a path, a force element with wrenches(t) or a "
+                                "load element with master_loads(t)")
             members = getattr(self, group)
             name = getattr(item, "name", "")
             if group in BODY_GROUPS and any(name == b.name for b in self.bodies):
@@ -687,12 +690,12 @@ class Scene:
         """Advance from t to t + h: the controllers, one linearized step (module docstring),
         then the health of every body (finite coordinates, det F > 0 at every quadrature
         point, a reduced body's at its integration points; hard-incompressible volumes
-        within ``step_tol``, projected back by the step where they are not). A failed step (unhealthy, or a
-        singular or failed solve) is undone (:meth:`restore_state`) and retried by the
-        ``fallback`` integrator (Newton on the same backward Euler equations: it holds
-        where the linearization at the start of the step does not, e.g. a full excitation
-        switched on at once; ``fallbacks`` counts the steps it completed), so the cost is
-        the semi-implicit step's wherever that succeeds. A step that fails both ways is
+        within ``step_tol``, projected back by the step where they are not). A failed step
+        (unhealthy, or a singular or failed solve) is undone (:meth:`restore_state`) and
+        retried by the ``fallback`` integrator (Newton on the same backward Euler
+        equations: it holds where the linearization at the start of the step does not,
+        e.g. a full excitation switched on at once; ``fallbacks`` counts the steps it
+        completed), so the cost is the semi-implicit step's wherever that succeeds. A step that fails both ways is
         retried as two steps of half the size, recursively up to ``max_halvings`` times;
         beyond that it raises :class:`~artifem.errors.ElementInversionError` (body, time,
         elements, smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left
@@ -806,11 +809,12 @@ class Scene:
         rows = L.constraint_map.rows(P, z_k, h, self.stabilization)
         z_m, lam, resolve = self._solve(A_m, b_m, rows)
         z = P @ z_m + z_k
-        if L.volume_constraints:
+        if not L.volume_constraints:
+            L.advance(z, h, targets)
+        else:
             L.hold_volumes(z, lam, P, resolve, h)
-        start = L.save()
-        L.advance(z, h, targets)
-        if L.volume_constraints:
+            start = L.save()                # the projection redoes the step from here
+            L.advance(z, h, targets)
             L.project_volumes(z, lam, P, resolve, h, targets, start)
         self._record_impulses(L, impulses_by_constraint(rows, lam), h)
 
@@ -901,7 +905,8 @@ class Scene:
         ``solve_static_reduced``), then the coupled island, F_m + G^T lambda = 0 with
         phi = 0 on the joints and phi >= 0, lambda >= 0 on their limits (module
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
-        of each increment over the islands. ``load_steps="auto"`` (or a count whose
+        of each increment over the islands (a :class:`~artifem.integrators.StaticCounts`,
+        whose ``failed`` adds the iterations of the increments that failed and were cut). ``load_steps="auto"`` (or a count whose
         increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
         ``progress`` (e.g. tqdm) is updated once per increment of each island."""
         L = self._ready()
@@ -921,8 +926,8 @@ class Scene:
             counts = _merge_counts(counts, self._solve_island_static(
                 L, load_steps, rtol, atol, max_iterations, progress))
         if not counts and not isinstance(load_steps, str):
-            counts = [0] * int(load_steps)
-        return [int(c) for c in counts]
+            counts = StaticCounts([0] * int(load_steps))
+        return counts
 
     def _solve_island_static(self, L, load_steps, rtol, atol, max_iterations, progress):
         """The coupled island's static Newton (module docstring: statics)."""

@@ -76,6 +76,9 @@ class SchurIsland:
                        "point paths": scene.paths, "load elements": scene.loads}
         unsupported["bodies with the hard incompressibility"] = [
             b for b in fem_bodies if b.volume_constraint is not None]
+        # the FEM bodies' rows stay on their ranks here: constraints act on rigid bodies only
+        unsupported["constraints on FEM bodies (contact)"] = [
+            c for c in scene.constraints if any(b is f for b in c.bodies for f in fem_bodies)]
         found = [what for what, items in unsupported.items() if items]
         if found:
             raise InputError(f"the distributed (Schur) island takes FEM bodies, rigid bodies, "

@@ -289,6 +289,12 @@ NOTES: list[str] = [
     "`pulses`, whose 33 halvings are pulses switched on within 1 ms at h = 10 ms, where the "
     "implicit Newton step does not converge either. The two integrators end on the same "
     "landmarks (tip (-2.43, 5.31) mm for the protrusion variants).",
+    "- `incompressible_level_1_*`: the three hard schedules at level 1 (6,699 nodes), run "
+    "with the default (semi-implicit with its fallback) only, with other work on the "
+    "machine: all three finish. The pulses take 42 halvings (34 min of wall time): at each "
+    "switch within 1 ms both the semi-implicit step and the implicit Newton step fail at "
+    "h = 10 ms, and the failing Newton runs its 25 iterations (docs/robustness.md, what is "
+    "left).",
     "- Raising kappa (100 C10, 1000 C10) makes the tongue stiffer in volume and smaller in "
     "motion (tip 6.8 -> 5.4 -> 4.1 mm) but not harder to integrate: min det F rises.",
     "",
