@@ -202,3 +202,33 @@ def direct_solver():
     def make(body):
         return LinearSolver(MPI.COMM_SELF, "mumps", V=body.V, symmetric=body.conservative)
     return make
+
+
+@pytest.fixture(scope="session")
+def icosphere():
+    """``icosphere(level, radius)`` -> (vertices, triangles): a sphere of radius ``radius``,
+    an icosahedron subdivided ``level`` times, outward."""
+    def build(level, radius=1.0):
+        p = (1 + 5 ** 0.5) / 2
+        vertices = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p),
+                    (0, -1, -p), (0, 1, -p), (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
+        vertices = [np.array(v, float) / np.linalg.norm(v) for v in vertices]
+        faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9),
+                 (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6),
+                 (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+        for _ in range(level):
+            midpoints = {}
+
+            def midpoint(i, j):
+                key = (min(i, j), max(i, j))
+                if key not in midpoints:
+                    m = vertices[i] + vertices[j]
+                    vertices.append(m / np.linalg.norm(m))
+                    midpoints[key] = len(vertices) - 1
+                return midpoints[key]
+            faces = [f for a, b, c in faces
+                     for ab, bc, ca in [(midpoint(a, b), midpoint(b, c), midpoint(c, a))]
+                     for f in ((a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca))]
+        return radius * np.array(vertices), np.array(faces)
+
+    return build

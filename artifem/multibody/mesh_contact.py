@@ -2,43 +2,35 @@
 
 Each body gives its surface (``contact_surface() -> (x, triangles)``: a rigid body's
 surface at its pose, an FEM body's exterior facets at x = X + u) and the rows of points on
-it (``point_rows(W, e)``: a point sum_j W_kj x_j moved along e_k). The IPC Toolkit
-(``ipctk``, pinned) finds the pairs of the two surfaces within ``margin`` (its BVH broad
-phase and its vertex-face, edge-edge, edge-vertex and vertex-vertex stencils, the pairs
-within one body filtered out): each pair's closest points are x_1 = sum_i c_i x_i over its
-positive coefficients and x_2 over its negative ones, d = sum_i c_i x_i = x_1 - x_2. One
-block of rows per step:
+it (``point_rows(W, e)``: a point sum_j W_kj x_j moved along e_k). The pairs are vertex
+penetration pairs, both ways (ArtiSynth's vertex-penetration collider, the node-to-surface
+pairs of two-pass FEM contact): each vertex x_v of one surface within ``margin`` of the
+other, its signed distance s, closest point c = sum_i b_i y_i (b the barycentric
+coordinates on the closest triangle's vertices y_i) and direction e out of the other
+surface come from libigl's signed distance (``igl.signed_distance``, AABB tree, sign by
+the angle-weighted pseudonormal; pinned):
 
-    normal:    phi = e . d >= 0,   lambda_n in [0, inf),
+    e = (x_v - c) / s   (|s| above 1e-3 tolerance: the face normal where c is inside a face,
+                         along x_v - c at an edge or corner), else the pseudonormal at c;
+    normal:    phi = e . (x_v - c) = s >= 0,   lambda_n in [0, inf),
     friction:  t_1, t_2 (the x and y axes of ``axis_rotation(e)``), phi = 0,
                -mu lambda_n <= lambda_t <= mu lambda_n   (when mu > 0),
 
-with W_kj = c_i on the stencil's vertices (each body's share in its own rows: rigid
-G = [w e^T, (r x e)^T], r = sum_j W_kj R r_j the lever of the closest point, w = +-1;
-FEM G = e^T W_kj on the nodes' dofs). The direction e points from x_2 to x_1, from
-the surfaces' outward normals so that it stays defined at contact (d = 0) and phi is
-signed (negative: crossed):
-
-    vertex-face (the closest point inside the face): e = its outward unit normal;
-    edge-edge (closest points inside both, not parallel): e = +-(a x b) / |a x b| (a, b the edges), the sign along
-                  m_2 - m_1 (m the stencil's vertex normals, weighted by |c_i|);
-    otherwise:    e = d / |d| (phi = |d|), or (m_2 - m_1) normalized when |d| is below
-                  1e-3 tolerance.
-
-The step's rows are those of :mod:`~artifem.multibody.constraint_rows` (as a plane
-contact's: reach phi = 0 within the step, pushed back by -beta phi / h once crossed);
-friction bounds take the same step's normal impulses (``bounds_from``).
+with W = +1 on the vertex and -b_i on the triangle's vertices (each body's share in its
+own rows: rigid G = [w e^T, (r x e)^T], r = sum_j W_kj R r_j the lever of the point,
+w = +-1; FEM G = e^T W_kj on the nodes' dofs). The step's rows are those of
+:mod:`~artifem.multibody.constraint_rows` (as a plane contact's: reach phi = 0 within the
+step, pushed back by -beta phi / h once crossed); friction bounds take the same step's
+normal impulses (``bounds_from``). A vertex inside the other body at any depth is found
+(every vertex within the other's bounding box is queried): deeper than ``tolerance``
+after a step fails the step (halved, like an inverted element), at the start it is an
+InputError naming both bodies, the vertex and the triangle.
 
 Checks: a surface must be closed and outward (an edge with one triangle, or a negative
-enclosed volume, is an InputError naming the body). After a step (and at the start, an
-InputError then) a pair deeper than ``tolerance`` (phi < -tolerance) fails the step, and
-so do surfaces that pass through each other: each surface pulled in by tolerance / 2
-along its vertex normals, an edge of one through a triangle of the other (ipctk's
-edge-triangle test on its candidates) is a failure naming both bodies and the two
-elements. Not checked: a body that passes wholly through the other within one step
-(no continuous collision detection: at resting contact, d = 0, ipctk's CCD reports a
-collision on every step); give a margin of at least the largest approach speed times
-the step, as for a plane.
+enclosed volume, is an InputError naming the body). Not caught: two edges crossing with
+no vertex of either surface inside the other (coarse meshes meeting edge on edge), and a
+body that passes wholly through a thin one within one step; give a margin of at least the
+largest approach speed times the step, as for a plane.
 """
 
 from __future__ import annotations
@@ -46,9 +38,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-import ipctk
+import igl
 import numpy as np
 from scipy import sparse
+from scipy.spatial import cKDTree
 
 from artifem.errors import InputError
 from artifem.multibody.constraint_rows import RowBlock
@@ -88,17 +81,29 @@ class MeshContactRows(RowBlock):
     tangents: tuple = ()
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(k, 3) barycentric coordinates of the points p (k, 3) in the triangles (a, b, c)."""
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (np.einsum("ij,ij->i", u, w) for u, w in ((v0, v0), (v0, v1), (v1, v1)))
+    d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    beta, gamma = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
+    return np.column_stack([1.0 - beta - gamma, beta, gamma])
 
 
-def _vertex_normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Area-weighted unit normals of the vertices of an outward triangle surface."""
-    n = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
-    out = np.zeros_like(x)
-    for k in range(3):
-        np.add.at(out, tris[:, k], n)
-    return _unit(out)
+class _Pairs(NamedTuple):
+    """Vertex-penetration pairs: W (k x n_all) the coefficients (+1 on the vertex, -b_i on
+    the triangle's), e (k, 3), phi (k,) the signed distances, and per pair (the body whose
+    vertex it is (0: a, 1: b), that vertex, the other's triangle), all within the margin;
+    ``deepest``: (phi, side, vertex, triangle) of the deepest vertex of all, or None; x
+    (n_all, 3) the surfaces' vertices, a's then b's."""
+
+    W: sparse.csr_matrix
+    e: np.ndarray
+    phi: np.ndarray
+    which: np.ndarray
+    deepest: tuple | None
+    x: np.ndarray
 
 
 def _check_closed(x: np.ndarray, tris: np.ndarray, name: str) -> None:
@@ -150,74 +155,100 @@ class MeshContact:
         _check_closed(xa, ta, a.name)
         _check_closed(xb, tb, b.name)
         self._na = len(xa)
-        self._tris = np.vstack([ta, tb + self._na]).astype(np.int32)
-        self._owner = np.r_[np.zeros(len(xa), int), np.ones(len(xb), int)]
-        self._mesh = ipctk.CollisionMesh(np.vstack([xa, xb]), ipctk.edges(self._tris),
-                                         self._tris)
-        self._mesh.can_collide = ipctk.make_connected_components_filter(self._tris)
 
     @property
     def bodies(self) -> tuple:
         return (self.a, self.b)
 
-    def _positions(self) -> np.ndarray:
-        return np.vstack([self.a.contact_surface()[0], self.b.contact_surface()[0]])
-
-    def _pairs(self, x: np.ndarray):
-        """(W (k x n) coefficients, e (k, 3), phi (k,), descriptions) of the pairs of a and
-        b within ``margin`` (module docstring)."""
-        mesh, tris = self._mesh, self._tris
-        edges = mesh.edges
-        collisions = ipctk.NormalCollisions()
-        collisions.build(mesh, x, self.margin)
-        normals = _vertex_normals(x, tris)
-        rows, cols, vals, dirs, phis, names = [], [], [], [], [], []
-        for i in range(len(collisions)):
-            c = collisions[i]
-            ids = np.array(c.vertex_ids(edges, tris))
-            ids = ids[ids >= 0]
-            coef = np.asarray(c.compute_coefficients(c.dof(x, edges, tris))).ravel()[:len(ids)]
-            if np.all(self._owner[ids] == self._owner[ids[0]]):
-                continue                        # within one body
-            d = coef @ x[ids]
-            m = coef @ normals[ids]                 # m_1 - m_2
-            interior = len(ids) == 4 and np.all(np.abs(coef) > 1e-12)
-            e = None
-            if interior and isinstance(c, ipctk.FaceVertexNormalCollision):
-                f = tris[c.face_id]
-                e = _unit(np.cross(x[f[1]] - x[f[0]], x[f[2]] - x[f[0]]))
-            elif interior:                          # edge-edge, both closest points inside
-                axb = np.cross(x[ids[1]] - x[ids[0]], x[ids[3]] - x[ids[2]])
-                if np.linalg.norm(axb) > 1e-6 * np.linalg.norm(x[ids[1]] - x[ids[0]]) \
-                        * np.linalg.norm(x[ids[3]] - x[ids[2]]):
-                    e = _unit(axb) * (-1.0 if axb @ m > 0 else 1.0)
-            if e is None:
-                dist = np.linalg.norm(d)
-                e = d / dist if dist > 1e-3 * self.tolerance else _unit(-m)
-            k = len(dirs)
-            rows += [k] * len(ids)
-            cols += ids.tolist()
-            vals += coef.tolist()
+    def _pairs(self) -> _Pairs:
+        """The vertex-penetration pairs of the current state, both ways (module
+        docstring)."""
+        xa, ta = self.a.contact_surface()
+        xb, tb = self.b.contact_surface()
+        surfaces, offsets = ((xa, ta), (xb, tb)), (0, len(xa))
+        n = len(xa) + len(xb)
+        rows, cols, vals, dirs, phis, which = [], [], [], [], [], []
+        deepest = None
+        for side in (0, 1):
+            (xp, _), (xq, tq) = surfaces[side], surfaces[1 - side]
+            lo, hi = xq.min(axis=0) - self.margin, xq.max(axis=0) + self.margin
+            near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
+            if not near.size:
+                continue
+            S, I, C, N = igl.signed_distance(xp[near], xq, tq.astype(np.int64),
+                                             sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+            j = int(np.argmin(S))
+            if deepest is None or S[j] < deepest[0]:
+                deepest = (float(S[j]), side, int(near[j]), int(I[j]))
+            keep = S < self.margin
+            if not np.any(keep):
+                continue
+            v, f, s, c, pn = near[keep], I[keep], S[keep], C[keep], N[keep]
+            d = xp[v] - c
+            small = np.abs(s) <= 1e-3 * self.tolerance
+            e = np.where(small[:, None], pn / np.linalg.norm(pn, axis=1, keepdims=True),
+                         d / np.where(small, 1.0, s)[:, None])
+            extra = self._face_pairs(xp, v, f, xq, tq)
+            v, f = np.r_[v, extra[0]], np.r_[f, extra[1]]
+            s, c, e = np.r_[s, extra[2]], np.vstack([c, extra[3]]), np.vstack([e, extra[4]])
+            tri = tq[f]
+            bary = _barycentric(c, xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
+            k0 = sum(len(q) for q in phis)
+            k = np.arange(k0, k0 + len(v))
+            rows += [k, np.repeat(k, 3)]
+            cols += [offsets[side] + v, offsets[1 - side] + tri.ravel()]
+            vals += [np.ones(len(v)), -bary.ravel()]
             dirs.append(e)
-            phis.append(e @ d)
-            names.append(self._describe(ids))
-        W = sparse.csr_matrix((vals, (rows, cols)), shape=(len(dirs), len(x)))
-        return W, np.reshape(dirs, (-1, 3)), np.array(phis), names
+            phis.append(s)
+            which.append(np.column_stack([np.full(len(v), side), v, f]))
+        if not phis:
+            return _Pairs(sparse.csr_matrix((0, n)), np.zeros((0, 3)), np.zeros(0),
+                          np.zeros((0, 3), int), deepest, np.vstack([xa, xb]))
+        phi = np.concatenate(phis)
+        W = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                      np.concatenate(cols))), shape=(len(phi), n))
+        return _Pairs(W, np.vstack(dirs), phi, np.vstack(which), deepest,
+                      np.vstack([xa, xb]))
 
-    def _describe(self, ids: np.ndarray) -> str:
-        """The stencil's vertices, per body (surface vertex indices)."""
-        parts = []
-        for body, k in ((self.a, 0), (self.b, 1)):
-            mine = ids[self._owner[ids] == k] - (self._na if k else 0)
-            if mine.size:
-                parts.append(f"vertices {mine.tolist()} of {body.name!r}")
-        return " and ".join(parts)
+    def _face_pairs(self, xp, vertices, closest, xq, tq):
+        """The other faces a vertex is over: for each of ``vertices`` (closest triangle
+        ``closest``), every triangle f of (xq, tq) whose plane it is within ``margin`` above
+        (-tolerance <= s_f = n_f . (x_v - y_f) < margin) and onto whose interior it projects,
+        c = x_v - s_f n_f. A vertex sliding across a concave edge (a bowl's facets) meets the
+        next facet within the step; with its row only for the closest facet it would cross
+        it by about h v sin(angle between the facets). Candidates from a k-d tree of the
+        triangles' centroids (scipy). Returns (vertex, triangle, s, c, e = n_f)."""
+        empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros((0, 3)),
+                 np.zeros((0, 3)))
+        if not len(vertices):
+            return empty
+        y = xq[tq]
+        centroids = y.mean(axis=1)
+        reach = np.linalg.norm(y - centroids[:, None], axis=2).max() + self.margin
+        lists = cKDTree(centroids).query_ball_point(xp[vertices], reach)
+        v = np.repeat(vertices, [len(q) for q in lists])
+        f = np.fromiter((t for q in lists for t in q), dtype=int, count=len(v))
+        other = f != np.repeat(closest, [len(q) for q in lists])
+        v, f = v[other], f[other]
+        n = np.cross(y[f, 1] - y[f, 0], y[f, 2] - y[f, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        s = np.einsum("ij,ij->i", xp[v] - y[f, 0], n)
+        c = xp[v] - s[:, None] * n
+        bary = _barycentric(c, y[f, 0], y[f, 1], y[f, 2])
+        keep = (s >= -self.tolerance) & (s < self.margin) & np.all(bary >= -1e-12, axis=1)
+        return v[keep], f[keep], s[keep], c[keep], n[keep]
+
+    def _describe(self, side: int, vertex: int, triangle: int) -> str:
+        """Vertex ``vertex`` of one body's surface and the other's triangle."""
+        bodies = (self.a, self.b)
+        return (f"vertex {vertex} of {bodies[side].name!r} and triangle {triangle} of "
+                f"{bodies[1 - side].name!r}")
 
     def row_blocks(self) -> list[RowBlock]:
         """One block: the normal rows and, with mu > 0, the friction rows of the pairs
         within ``margin``; none when no pair is that close."""
-        x = self._positions()
-        W, e, phi, _ = self._pairs(x)
+        pairs = self._pairs()
+        W, e, phi, x = pairs.W, pairs.e, pairs.phi, pairs.x
         k = len(phi)
         if not k:
             return []
@@ -252,26 +283,15 @@ class MeshContact:
             tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else ())]
 
     def constraint_failure(self) -> str | None:
-        """A pair deeper than ``tolerance``, or surfaces through each other (module
-        docstring), if any."""
-        x = self._positions()
-        _, _, phi, names = self._pairs(x)
-        if phi.size and phi.min() < -self.tolerance:
-            i = int(np.argmin(phi))
-            return (f"contact {self.name!r}: {names[i]} are {-phi[i]:.3g} deep (the "
-                    f"tolerance is {self.tolerance:g}; a pair that comes from beyond the "
-                    f"margin {self.margin:g} within one step has no row: the margin should be "
-                    "at least the largest approach speed times the step)")
-        shrunk = x - 0.5 * self.tolerance * _vertex_normals(x, self._tris)
-        if not ipctk.has_intersections(self._mesh, shrunk):
+        """A vertex of either surface deeper than ``tolerance`` inside the other, if any."""
+        deepest = self._pairs().deepest
+        if deepest is None or deepest[0] >= -self.tolerance:
             return None
-        for ei, fi in _edges_through_triangles(self._mesh.edges, self._tris, shrunk,
-                                               self._owner):
-            return (f"contact {self.name!r}: the surfaces of {self.a.name!r} and "
-                    f"{self.b.name!r} pass through each other (by more than the tolerance "
-                    f"{self.tolerance:g}): the edge of {self._describe(self._mesh.edges[ei])} "
-                    f"through the triangle of {self._describe(self._tris[fi])}")
-        return None
+        depth, side, vertex, triangle = deepest
+        return (f"contact {self.name!r}: {self._describe(side, vertex, triangle)}: the vertex "
+                f"is {-depth:.3g} inside (the tolerance is {self.tolerance:g}; a vertex that "
+                f"comes from beyond the margin {self.margin:g} within one step has no row: "
+                "the margin should be at least the largest approach speed times the step)")
 
     def forces(self, parts: list, h: float) -> MeshContactForces:
         """The forces of the impulses ``parts`` [(block, lambda)] of a step of size h."""
@@ -286,23 +306,3 @@ class MeshContact:
             friction = side * (lam[k:2 * k, None] * block.tangents[0]
                                + lam[2 * k:, None] * block.tangents[1]) / h
         return MeshContactForces(block.points, lam[:k] / h, side * block.normals, friction)
-
-
-def _edges_through_triangles(edges: np.ndarray, tris: np.ndarray, x: np.ndarray,
-                             owner: np.ndarray):
-    """(edge, triangle) pairs of different bodies where the edge crosses the triangle
-    (bounding boxes first, then ipctk's exact edge-triangle test)."""
-    for k in (0, 1):
-        E = edges[owner[edges[:, 0]] == k]
-        eid = np.flatnonzero(owner[edges[:, 0]] == k)
-        fid = np.flatnonzero(owner[tris[:, 0]] != k)
-        elo, ehi = np.minimum(x[E[:, 0]], x[E[:, 1]]), np.maximum(x[E[:, 0]], x[E[:, 1]])
-        tx = x[tris[fid]]
-        tlo, thi = tx.min(axis=1), tx.max(axis=1)
-        for i in range(len(E)):
-            hit = np.flatnonzero(np.all((elo[i] <= thi) & (tlo <= ehi[i]), axis=1))
-            for j in hit:
-                t = tris[fid[j]]
-                if ipctk.is_edge_intersecting_triangle(x[E[i, 0]], x[E[i, 1]], x[t[0]],
-                                                       x[t[1]], x[t[2]]):
-                    yield eid[i], fid[j]
