@@ -47,13 +47,13 @@ import basix
 import basix.ufl
 import numpy as np
 import ufl
-from scipy import sparse
 from mpi4py import MPI
 from petsc4py import PETSc
 
 from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
+from artifem.contact_points import FemNodes
 from artifem.errors import InputError, UnknownNameError
 from artifem.incompressibility import Incompressible, VolumeConstraint
 from artifem.muscle_layers import MuscleLayers
@@ -196,10 +196,10 @@ class FemBody:
         return np.array([self._node_to_dof[n] for n in np.asarray(nodes).ravel().tolist()
                          if n in self._node_to_dof], dtype=np.int32)
 
-    def contact_surface(self) -> tuple[np.ndarray, np.ndarray]:
-        """(x, triangles): the boundary nodes' current positions x = X + u (n, 3) and the
+    def _surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(dofs, triangles): the local blocked dofs of the boundary nodes (sorted) and the
         exterior facets as outward triangles into them (a quadrilateral facet split along
-        its 0-3 diagonal); the topology is fixed, the order that of :meth:`point_rows`."""
+        its 0-3 diagonal); cached, the topology is fixed."""
         if self._contact_surface is None:
             domain = self.mesh
             tdim = domain.topology.dim
@@ -216,28 +216,35 @@ class FemBody:
             a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
             flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), (a + b + c) / 3 - inside) < 0
             tris[flip] = tris[flip][:, ::-1]
-            dofs = self._geometry_node_dofs()[tris]
-            self._contact_surface = np.unique(dofs, return_inverse=True)
-        dofs, inverse = self._contact_surface
-        x = self.V.tabulate_dof_coordinates()[dofs] + self.u.x.array.reshape(-1, 3)[dofs]
-        return x, inverse.reshape(-1, 3)
+            dofs, inverse = np.unique(self._geometry_node_dofs()[tris], return_inverse=True)
+            self._contact_surface = (dofs, inverse.reshape(-1, 3))
+        return self._contact_surface
 
-    def point_rows(self, weights, directions: np.ndarray):
-        """Rows k along e_k at the point sum_j W_kj x_j of the contact surface's nodes x_j:
-        G_k = e_k^T W_kj on node j's three velocity dofs (sparse, m x 3 n_nodes)."""
-        dofs, _ = self._contact_surface
-        W = sparse.coo_matrix(weights)
-        cols = 3 * dofs[W.col][:, None] + np.arange(3)
-        vals = W.data[:, None] * directions[W.row]
-        n = 3 * (self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts)
-        return sparse.csr_matrix((vals.ravel(), (np.repeat(W.row, 3), cols.ravel())),
-                                 shape=(W.shape[0], n))
+    def contact_node_dofs(self, nodes=None) -> tuple[np.ndarray, np.ndarray]:
+        """(local blocked dofs, input node indices) of the given input nodes, or of every
+        boundary node (None); an InputError for nodes the body does not have."""
+        inverse = {d: n for n, d in self._node_to_dof.items()}
+        if nodes is None:
+            dofs = self._surface()[0]
+        else:
+            nodes = np.asarray(nodes).ravel()
+            if not np.issubdtype(nodes.dtype, np.integer) or not nodes.size:
+                raise InputError(f"FEM body {self.name!r}: contact nodes must be input node "
+                                 "indices")
+            missing = [int(n) for n in nodes if int(n) not in self._node_to_dof]
+            if missing:
+                raise InputError(f"FEM body {self.name!r} has no nodes {missing[:10]}")
+            dofs = self.local_dofs(nodes)
+        return dofs, np.array([inverse[int(d)] for d in dofs], dtype=int)
 
-    def point_stiffness(self, weights, forces: np.ndarray):
-        """d(G^T lambda)/du of :meth:`point_rows` at fixed directions: zero (a node's rows
-        do not turn with it)."""
-        n = 3 * (self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts)
-        return sparse.csr_matrix((n, n))
+    def contact_points(self, nodes=None) -> FemNodes:
+        """The nodes contact may push (:mod:`artifem.contact_points`): the given input
+        nodes, or every boundary node."""
+        return FemNodes(self, *self.contact_node_dofs(nodes))
+
+    def contact_surface(self) -> tuple[FemNodes, np.ndarray]:
+        """(the boundary nodes, the exterior facets as outward triangles into them)."""
+        return self.contact_points(None), self._surface()[1]
 
     def find_nodes(self, marker) -> np.ndarray:
         """Input indices of the nodes whose reference position satisfies ``marker``.

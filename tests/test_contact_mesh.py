@@ -257,3 +257,28 @@ def test_colliding_fem_blocks_keep_momentum_and_never_gain_energy():
            ).min() - (left.u.x.array.reshape(-1, 3)[:, 0]
                       + left.V.tabulate_dof_coordinates()[:, 0]).max()
     assert gap > -TOL
+
+
+def test_a_reduced_block_on_the_rigid_floor_is_the_full_block():
+    """The FEM block on the rigid floor, full and reduced with the complete basis (its
+    contact by ``MeshContact.onto_reduced``): the same motion to round-off (rows
+    e^T b_i U_i on q from the block's vertices and the floor's triangles)."""
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+
+    block, twin = fem_block(0.005), fem_block(0.005)
+    ground, twin_ground = floor(), floor()
+    contact = af.MeshContact(block, ground, tolerance=TOL, margin=0.02)
+    n = 3 * twin.V.dofmap.index_map.size_local
+    reduced = ReducedFemBody(twin, np.eye(n), all_points(twin), name="reduced block")
+    twin_contact = af.MeshContact(twin, twin_ground, tolerance=TOL,
+                                  margin=0.02).onto_reduced(reduced)
+    assert twin_contact.bodies == (reduced, twin_ground)
+    scene, reduced_scene = scene_of(block, ground, contact), scene_of(reduced, twin_ground,
+                                                                       twin_contact)
+    for _ in range(30):
+        scene.step(H)
+        reduced_scene.step(H)
+    u = block.u.x.array[:n]
+    assert len(scene.contact_forces(contact).normal) >= 25          # landed
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
+                               atol=1e-10 * np.abs(u).max())

@@ -295,3 +295,33 @@ def test_the_distributed_island_refuses_a_contact_on_an_fem_body():
                                          r"serial with island_solver='direct'\)"):
         scene.step(H)
     assert scene.t == 0.0 and np.abs(block.u.x.array).max() == 0.0
+
+
+def test_a_reduced_block_with_the_complete_basis_is_the_full_block():
+    """The cube dropped on the plane with friction, full and reduced (the identity basis,
+    every integration point; its contact made by ``PlaneContact.onto_reduced``, as the
+    reductor does): the reduced body's contact rows are U_i^T e on q, and it falls,
+    lands and rests as the full body to round-off, with the same contact forces."""
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+
+    block, twin = fem_block(lift=0.005), fem_block(lift=0.005)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
+                              tolerance=TOL, margin=0.02)
+    n = 3 * twin.V.dofmap.index_map.size_local
+    reduced = ReducedFemBody(twin, np.eye(n), all_points(twin), name="reduced block")
+    twin_contact = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
+                                   tolerance=TOL, margin=0.02).onto_reduced(reduced)
+    assert twin_contact.bodies == (reduced,)
+    scene, reduced_scene = scene_of(block, contact), scene_of(reduced, twin_contact)
+    for _ in range(40):
+        scene.step(H)
+        reduced_scene.step(H)
+    u = block.u.x.array[:n]
+    assert heights(block).min() < 1e-6                    # landed
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
+                               atol=1e-10 * np.abs(u).max())
+    full_forces = scene.contact_forces(contact)
+    reduced_forces = reduced_scene.contact_forces(twin_contact)
+    np.testing.assert_array_equal(full_forces.points, reduced_forces.points)
+    np.testing.assert_allclose(reduced_forces.normal, full_forces.normal, rtol=0,
+                               atol=1e-9 * block.total_mass() * G)

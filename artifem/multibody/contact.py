@@ -1,8 +1,9 @@
 """Contact of a body's surface points with a fixed plane: hard normal rows, Coulomb friction.
 
 The plane holds the points x with n . x = d (n the unit normal, d = n . p_0); the free
-side is n . x > d. The contact points are a rigid body's points r_i (body frame, about
-the COM: x_i = p + R r_i) or a full FEM body's boundary nodes (x_i = X_i + u_i). Each
+side is n . x > d. The contact points are the body's (:mod:`artifem.contact_points`): a
+rigid body's points r_i (body frame, about the COM: x_i = p + R r_i), a full FEM body's
+boundary nodes (x_i = X_i + u_i) or a reduced body's (x_i = X_i + u_bar_i + U_i q). Each
 point within ``margin`` of the plane (phi_i < margin) gives rows in the constraint
 protocol (:mod:`~artifem.multibody.constraint_rows`), one block per step:
 
@@ -13,7 +14,8 @@ protocol (:mod:`~artifem.multibody.constraint_rows`), one block per step:
 each row a direction e (n, t_1 or t_2) at the point, phi' = e . x_i' with
 
     rigid body (twist [v; w]):  G = [e^T, (r_i x e)^T],   r_i = R r_i (world),
-    FEM body (nodal velocities): G = e^T on the node's 3 velocity dofs.
+    FEM body (nodal velocities): G = e^T on the node's 3 velocity dofs,
+    reduced body (q'):           G = e^T U_i (the reaction reaches q through U_i^T e).
 
 The step asks G z+ >= -phi / h while phi > 0: a point reaches the plane within the step
 and stops on it (an inelastic impact: no rebound, no energy gained), and a crossed point
@@ -46,16 +48,11 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from dolfinx import fem
-from dolfinx import mesh as dmesh
 from scipy import sparse
 
 from artifem.errors import InputError
-from artifem.fem_body import FemBody
-from artifem.multibody.attachments import dof_positions
 from artifem.multibody.constraint_rows import RowBlock
 from artifem.multibody.joints import axis_rotation
-from artifem.multibody.rigid_body import RigidBody, cross, skews
 
 __all__ = ["ContactForces", "PlaneContact"]
 
@@ -81,95 +78,18 @@ class PlaneContactRows(RowBlock):
     points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
-class _RigidPoints:
-    """Points r_i fixed in a rigid body's frame (about the COM)."""
-
-    def __init__(self, body: RigidBody, points):
-        if points is None:
-            if body.surface is None:
-                raise InputError(f"rigid body {body.name!r} has no surface: give the contact "
-                                 "points (body frame, about the COM)")
-            points = body.surface[0]
-        self.body = body
-        self.local = np.asarray(points, dtype=float)
-        if self.local.ndim != 2 or self.local.shape[1] != 3 or not len(self.local) \
-                or not np.all(np.isfinite(self.local)):
-            raise InputError(f"rigid body {body.name!r}: contact points must be a finite "
-                             f"(n >= 1, 3) array, got shape {self.local.shape}")
-        self.labels = np.arange(len(self.local))
-
-    def positions(self) -> np.ndarray:
-        return self.body.position + self.local @ self.body.rotation.T
-
-    def describe(self, i: int) -> str:
-        return f"point {i} (body frame {self.local[i].tolist()})"
-
-    def rows(self, idx: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """G = [e^T, (r x e)^T] per row (module docstring)."""
-        r = self.local[idx] @ self.body.rotation.T
-        return np.hstack([directions, cross(r, directions)])
-
-    def stiffness(self, idx: np.ndarray, forces: np.ndarray) -> np.ndarray:
-        """d(G^T lambda)/dq: sum_j [f_j]x [r_j]x on the rotation (module docstring)."""
-        r = self.local[idx] @ self.body.rotation.T
-        K = np.zeros((6, 6))
-        K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(r))
-        return K
-
-
-class _FemNodes:
-    """The boundary nodes of a full FEM body (or the given input nodes)."""
-
-    def __init__(self, body: FemBody, nodes):
-        self.body = body
-        inverse = {d: n for n, d in body._node_to_dof.items()}
-        if nodes is None:
-            domain = body.mesh
-            fdim = domain.topology.dim - 1
-            domain.topology.create_connectivity(fdim, fdim + 1)
-            facets = dmesh.exterior_facet_indices(domain.topology)
-            self.dofs = np.sort(fem.locate_dofs_topological(body.V, fdim, facets))
-        else:
-            nodes = np.asarray(nodes).ravel()
-            if not np.issubdtype(nodes.dtype, np.integer) or not nodes.size:
-                raise InputError(f"FEM body {body.name!r}: contact nodes must be input node "
-                                 "indices")
-            missing = [int(n) for n in nodes if int(n) not in body._node_to_dof]
-            if missing:
-                raise InputError(f"FEM body {body.name!r} has no nodes {missing[:10]}")
-            self.dofs = body.local_dofs(nodes)
-        self.labels = np.array([inverse[int(d)] for d in self.dofs], dtype=int)
-        self.n = 3 * (body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts)
-
-    def positions(self) -> np.ndarray:
-        return dof_positions(self.body)[self.dofs]
-
-    def describe(self, i: int) -> str:
-        return f"node {self.labels[i]}"
-
-    def rows(self, idx: np.ndarray, directions: np.ndarray) -> sparse.csr_matrix:
-        """G = e^T on the node's velocity dofs (module docstring)."""
-        m = len(idx)
-        cols = 3 * self.dofs[idx][:, None] + np.arange(3)
-        return sparse.csr_matrix((directions.ravel(), (np.repeat(np.arange(m), 3),
-                                                       cols.ravel())), shape=(m, self.n))
-
-    def stiffness(self, idx: np.ndarray, forces: np.ndarray) -> sparse.csr_matrix:
-        return sparse.csr_matrix((self.n, self.n))
-
-
 class PlaneContact:
     """A body's surface points against the fixed plane through ``point`` with unit
     normal along ``normal`` (module docstring).
 
     Args:
-        body: a :class:`RigidBody` or a full :class:`FemBody` (reduced and embedded bodies
-            not yet).
+        body: a rigid, full FEM or reduced FEM body (one with ``contact_points``; embedded
+            bodies not yet).
         point, normal: a point of the plane and its normal (towards the free side).
         mu: the Coulomb friction coefficient (>= 0; 0: frictionless, no friction rows).
         points: a rigid body's contact points (n, 3) in its body frame about the COM
-            (default: its surface's vertices); an FEM body's input node indices (default:
-            every boundary node).
+            (default: its surface's vertices); an FEM or reduced body's input node indices
+            (default: every boundary node).
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
         margin: points closer to the plane than this (m) get rows.
         name: used in errors.
@@ -197,14 +117,11 @@ class PlaneContact:
         if not (np.isfinite(margin) and margin > tolerance):
             raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
                              f"got {margin!r}")
-        if isinstance(body, RigidBody):
-            self._points = _RigidPoints(body, points)
-        elif isinstance(body, FemBody):
-            self._points = _FemNodes(body, points)
-        else:
-            raise InputError(f"{what}: contact is for rigid bodies and full FEM bodies so far, "
-                             f"got {type(body).__name__}")
-        self.body = body
+        if not callable(getattr(body, "contact_points", None)):
+            raise InputError(f"{what}: {type(body).__name__} {getattr(body, 'name', '')!r} "
+                             "has no contact points (rigid, full and reduced FEM bodies do)")
+        self._points = body.contact_points(points)
+        self.body, self._given = body, points
         basis = axis_rotation(n)
         self.normal, self.tangents = basis[:, 2], basis[:, :2].T
         self.offset = float(self.normal @ p0)
@@ -213,6 +130,13 @@ class PlaneContact:
     @property
     def bodies(self) -> tuple:
         return (self.body,)
+
+    def onto_reduced(self, reduced, lift=None) -> PlaneContact:
+        """The same contact on the reduced body that replaces this one's (the reductor:
+        :mod:`artifem.reduction.reductor`), on the same nodes."""
+        return PlaneContact(reduced, self.offset * self.normal, self.normal, mu=self.mu,
+                            points=self._given, tolerance=self.tolerance, margin=self.margin,
+                            name=self.name)
 
     @property
     def labels(self) -> np.ndarray:
@@ -240,7 +164,8 @@ class PlaneContact:
         lo = np.zeros(m)
         hi = np.zeros(m)
         hi[:k] = np.inf
-        G = self._points.rows(idx, directions)
+        W = sparse.csr_matrix((np.ones(m), (np.arange(m), idx)), shape=(m, len(self._points)))
+        G = self._points.rows(W, directions)
         mu = self.mu
 
         def friction_bounds(lam):
@@ -250,7 +175,7 @@ class PlaneContact:
 
         return [PlaneContactRows(
             self, np.concatenate([phi[near], np.zeros(m - k)]), ((self.body, G),), lo, hi,
-            lambda lam: self._points.stiffness(idx, lam[:, None] * directions),
+            lambda lam: self._points.stiffness(W, lam[:, None] * directions),
             friction_bounds if mu > 0 else None, points=near)]
 
     def constraint_failure(self) -> str | None:

@@ -1,8 +1,9 @@
 """Contact between two bodies' closed triangle surfaces: hard normal rows, Coulomb friction.
 
-Each body gives its surface (``contact_surface() -> (x, triangles)``: a rigid body's
-surface at its pose, an FEM body's exterior facets at x = X + u) and the rows of points on
-it (``point_rows(W, e)``: a point sum_j W_kj x_j moved along e_k). The pairs are vertex
+Each body gives its surface (``contact_surface() -> (points, triangles)``: a rigid body's
+surface, an FEM or reduced body's exterior facets) whose point set
+(:mod:`artifem.contact_points`) gives the vertices now and the rows of points on it
+(``rows(W, e)``: a point sum_j W_kj x_j moved along e_k). The pairs are vertex
 penetration pairs, both ways (ArtiSynth's vertex-penetration collider, the node-to-surface
 pairs of two-pass FEM contact): each vertex x_v of one surface within ``margin`` of the
 other, its signed distance s, closest point c = sum_i b_i y_i (b the barycentric
@@ -125,7 +126,8 @@ class MeshContact:
     """Contact between the closed surfaces of bodies a and b (module docstring).
 
     Args:
-        a, b: rigid bodies (with a ``surface``) or full FEM bodies (their exterior facets).
+        a, b: rigid bodies (with a ``surface``), full or reduced FEM bodies (their exterior
+            facets).
         mu: the Coulomb friction coefficient (>= 0; 0: no friction rows).
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
         margin: pairs closer than this (m) get rows.
@@ -150,8 +152,13 @@ class MeshContact:
                              f"got {margin!r}")
         self.a, self.b = a, b
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
-        xa, ta = a.contact_surface()
-        xb, tb = b.contact_surface()
+        for body in (a, b):
+            if not callable(getattr(body, "contact_surface", None)):
+                raise InputError(f"{what}: {type(body).__name__} {body.name!r} has no contact "
+                                 "surface (rigid bodies with a surface, full and reduced FEM "
+                                 "bodies do)")
+        (pa, ta), (pb, tb) = self._surfaces = (a.contact_surface(), b.contact_surface())
+        xa, xb = pa.positions(), pb.positions()
         _check_closed(xa, ta, a.name)
         _check_closed(xb, tb, b.name)
         self._na = len(xa)
@@ -160,11 +167,19 @@ class MeshContact:
     def bodies(self) -> tuple:
         return (self.a, self.b)
 
+    def onto_reduced(self, reduced, lift=None) -> MeshContact:
+        """The same contact with the reduced body in place of the full body it replaces
+        (the reductor: :mod:`artifem.reduction.reductor`)."""
+        a, b = (reduced if getattr(reduced, "full", None) is body else body
+                for body in (self.a, self.b))
+        return MeshContact(a, b, mu=self.mu, tolerance=self.tolerance, margin=self.margin,
+                           name=self.name)
+
     def _pairs(self) -> _Pairs:
         """The vertex-penetration pairs of the current state, both ways (module
         docstring)."""
-        xa, ta = self.a.contact_surface()
-        xb, tb = self.b.contact_surface()
+        (pa, ta), (pb, tb) = self._surfaces
+        xa, xb = pa.positions(), pb.positions()
         surfaces, offsets = ((xa, ta), (xb, tb)), (0, len(xa))
         n = len(xa) + len(xb)
         rows, cols, vals, dirs, phis, which = [], [], [], [], [], []
@@ -249,6 +264,7 @@ class MeshContact:
         within ``margin``; none when no pair is that close."""
         pairs = self._pairs()
         W, e, phi, x = pairs.W, pairs.e, pairs.phi, pairs.x
+        (pa, _), (pb, _) = self._surfaces
         k = len(phi)
         if not k:
             return []
@@ -269,15 +285,14 @@ class MeshContact:
 
         def stiffness(lam):
             f = lam[:, None] * directions
-            return sparse.block_diag([sparse.csr_matrix(self.a.point_stiffness(Wa, f)),
-                                      sparse.csr_matrix(self.b.point_stiffness(Wb, f))],
+            return sparse.block_diag([sparse.csr_matrix(pa.stiffness(Wa, f)),
+                                      sparse.csr_matrix(pb.stiffness(Wb, f))],
                                      format="csr")
 
         side_a = np.asarray(W[:, :na].sum(axis=1)).ravel()
         return [MeshContactRows(
             self, np.concatenate([phi, np.zeros(m - k)]),
-            ((self.a, self.a.point_rows(Wa, directions)),
-             (self.b, self.b.point_rows(Wb, directions))),
+            ((self.a, pa.rows(Wa, directions)), (self.b, pb.rows(Wb, directions))),
             lo, hi, stiffness, friction_bounds if mu > 0 else None,
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
             tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else ())]

@@ -41,10 +41,11 @@ from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
 
 import numpy as np
+from scipy import sparse
 
 from artifem.errors import InputError
 
-__all__ = ["BodyState", "Frame", "MassProperties", "RigidBody", "cross", "exp_so3",
+__all__ = ["BodyPoints", "BodyState", "Frame", "MassProperties", "RigidBody", "cross", "exp_so3",
            "orthonormalize", "skew"]
 
 MOTIONS = ("dynamic", "fixed", "prescribed")
@@ -390,29 +391,22 @@ class RigidBody:
         self.position, self.rotation = state.position, state.rotation
         self.set_twist(np.concatenate([state.velocity, state.angular_velocity]))
 
-    def contact_surface(self) -> tuple[np.ndarray, np.ndarray]:
-        """(x, triangles): the surface's vertices in the world, x_j = p + R r_j, and its
-        triangles (an InputError when the body has no surface)."""
+    def contact_points(self, points=None) -> BodyPoints:
+        """The points contact may push (:mod:`artifem.contact_points`): ``points`` (n, 3) in
+        the body frame about the COM, or the surface's vertices."""
+        if points is None:
+            if self.surface is None:
+                raise InputError(f"rigid body {self.name!r} has no surface: give the contact "
+                                 "points (body frame, about the COM)")
+            points = self.surface[0]
+        return BodyPoints(self, points)
+
+    def contact_surface(self) -> tuple[BodyPoints, np.ndarray]:
+        """(the surface's vertices, its triangles); an InputError without a surface."""
         if self.surface is None:
             raise InputError(f"rigid body {self.name!r} has no surface for contact: give "
                              "surface=(vertices, triangles) or use RigidBody.from_surface")
-        return self.to_world(self.surface[0]), np.asarray(self.surface[1])
-
-    def point_rows(self, weights, directions: np.ndarray) -> np.ndarray:
-        """Rows k along e_k at the point sum_j W_kj x_j of the surface's vertices (W sparse):
-        G_k = [w_k e_k^T, (r_k x e_k)^T], w_k = sum_j W_kj, r_k = sum_j W_kj R r_j."""
-        W = weights.toarray()
-        r = W @ (np.asarray(self.surface[0], dtype=float) @ self.rotation.T)
-        return np.hstack([W.sum(axis=1)[:, None] * directions, cross(r, directions)])
-
-    def point_stiffness(self, weights, forces: np.ndarray) -> np.ndarray:
-        """d(G^T lambda)/dq of :meth:`point_rows` at fixed directions, the forces f_k =
-        lambda_k e_k turning with the levers r_k: sum_k [f_k]x [r_k]x on the rotation."""
-        W = weights.toarray()
-        r = W @ (np.asarray(self.surface[0], dtype=float) @ self.rotation.T)
-        K = np.zeros((6, 6))
-        K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(r))
-        return K
+        return BodyPoints(self, self.surface[0]), np.asarray(self.surface[1])
 
     def to_world(self, points) -> np.ndarray:
         """World positions of body-coordinate points (n, 3): p + R r_b."""
@@ -484,4 +478,43 @@ class Frame:
         """
         K = np.zeros((6, 6))
         K[3:, 3:] = skew(np.asarray(force, dtype=float)) @ skew(self.lever())
+        return K
+
+
+class BodyPoints:
+    """Points r_j fixed in a rigid body's frame (about the COM), x_j = p + R r_j: a point
+    set of :mod:`artifem.contact_points`, rows on the twist [v; w]."""
+
+    def __init__(self, body: RigidBody, points):
+        self.body = body
+        self.local = np.asarray(points, dtype=float)
+        if self.local.ndim != 2 or self.local.shape[1] != 3 or not len(self.local) \
+                or not np.all(np.isfinite(self.local)):
+            raise InputError(f"rigid body {body.name!r}: contact points must be a finite "
+                             f"(n >= 1, 3) array, got shape {self.local.shape}")
+        self.labels = np.arange(len(self.local))
+
+    def __len__(self) -> int:
+        return len(self.local)
+
+    def positions(self) -> np.ndarray:
+        return self.body.to_world(self.local)
+
+    def describe(self, i: int) -> str:
+        return f"point {i} (body frame {self.local[i].tolist()})"
+
+    def _levers(self, W) -> tuple[np.ndarray, np.ndarray]:
+        """(w_k = sum_j W_kj, r_k = sum_j W_kj R r_j) of the combined points."""
+        W = sparse.csr_matrix(W)
+        return np.asarray(W.sum(axis=1)).ravel(), W @ (self.local @ self.body.rotation.T)
+
+    def rows(self, W, directions: np.ndarray) -> np.ndarray:
+        """G_k = [w_k e_k^T, (r_k x e_k)^T]."""
+        w, r = self._levers(W)
+        return np.hstack([w[:, None] * directions, cross(r, directions)])
+
+    def stiffness(self, W, forces: np.ndarray) -> np.ndarray:
+        """sum_k [f_k]x [r_k]x on the rotation (the levers turn with the body)."""
+        K = np.zeros((6, 6))
+        K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(self._levers(W)[1]))
         return K

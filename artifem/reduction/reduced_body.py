@@ -68,6 +68,7 @@ from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 from ufl.algorithms.analysis import extract_constants
 
+from artifem.contact_points import ReducedNodes
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.reduction.cubature import IntegrationPoints
@@ -473,6 +474,15 @@ class ReducedFemBody:
         self.set_q(q)
         if self.volume_constraint is not None and len(state) > 2:
             self.volume_constraint.lam = np.array(state[2], dtype=float)
+
+    def contact_points(self, nodes=None) -> ReducedNodes:
+        """The full body's nodes contact may push (:meth:`FemBody.contact_points`), as
+        they move with q: rows U_j^T e on q (:mod:`artifem.contact_points`)."""
+        return ReducedNodes(self, *self.full.contact_node_dofs(nodes))
+
+    def contact_surface(self) -> tuple[ReducedNodes, np.ndarray]:
+        """(the boundary nodes, the full body's exterior triangles into them)."""
+        return self.contact_points(None), self.full.contact_surface()[1]
 
     def nodal_displacement(self) -> np.ndarray:
         """u = u_bar + U q on all full dofs (O(n r), on demand), block-interleaved."""

@@ -314,7 +314,8 @@ def _couplings_of(scene: Scene, body, model: str) -> list:
                 f"model {model!r}: {type(item).__name__} {getattr(item, 'name', '')!r} "
                 f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
                 "body (those that can: NodeAttachment, PointPath, FrameAttachment, "
-                "EmbeddedFemAttachment with the body as its master)")
+                "EmbeddedFemAttachment with the body as its master, PlaneContact, "
+                "MeshContact)")
         refusal = getattr(item, "refusal", None)
         reason = refusal(body) if callable(refusal) else None
         if reason is not None:

@@ -1,0 +1,85 @@
+"""The points of a body that contact can push: where they are, and their rows.
+
+A contact (:mod:`artifem.multibody.contact`, :mod:`artifem.multibody.mesh_contact`)
+asks a body for a set of points (``body.contact_points(...)``) or for its closed surface
+(``body.contact_surface() -> (points, triangles)``) and never looks at the body's kind.
+A point set gives
+
+    positions() -> (n, 3)   the points x_j in the world, now;
+    rows(W, e) -> G          (k, n_coordinates): the rates e_k . sum_j W_kj x_j' of k
+                             points, each a combination of the set's points (W sparse
+                             k x n) moved along e_k (k, 3), on the body's coordinates;
+    stiffness(W, f)          d(G^T lambda)/dq with forces f_k = lambda_k e_k held fixed
+                             in the world (the levers of a rigid body turn with it);
+    labels, describe(i)      the points' names for output and errors.
+
+This module holds the sets of FEM nodes, full (x_j = X_j + u_j, G = e^T W on the nodes'
+velocity dofs) and reduced (x_j = X_j + u_bar_j + U_j q, G = e^T W U: k x r, dense, only
+the rows U_j of the set's nodes are read). A rigid body's points are
+:class:`artifem.multibody.rigid_body.BodyPoints`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+__all__ = ["FemNodes", "ReducedNodes"]
+
+
+class FemNodes:
+    """Nodes of a full FEM body: its local blocked dofs ``dofs`` (P1: nodes), named by
+    their input indices ``labels``."""
+
+    def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
+        self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        index_map = body.V.dofmap.index_map
+        self.n = 3 * (index_map.size_local + index_map.num_ghosts)
+
+    def __len__(self) -> int:
+        return len(self.dofs)
+
+    def positions(self) -> np.ndarray:
+        X = self.body.V.tabulate_dof_coordinates()[self.dofs]
+        return X + self.body.u.x.array.reshape(-1, 3)[self.dofs]
+
+    def describe(self, i: int) -> str:
+        return f"node {self.labels[i]}"
+
+    def rows(self, W, directions: np.ndarray) -> sparse.csr_matrix:
+        """G_k = e_k^T W_kj on node j's three velocity dofs (m x 3 n_nodes, sparse)."""
+        W = sparse.coo_matrix(W)
+        cols = 3 * self.dofs[W.col][:, None] + np.arange(3)
+        vals = W.data[:, None] * directions[W.row]
+        return sparse.csr_matrix((vals.ravel(), (np.repeat(W.row, 3), cols.ravel())),
+                                 shape=(W.shape[0], self.n))
+
+    def stiffness(self, W, forces: np.ndarray) -> sparse.csr_matrix:
+        """Zero: a node's rows do not turn with it."""
+        return sparse.csr_matrix((self.n, self.n))
+
+
+class ReducedNodes(FemNodes):
+    """Nodes of a reduced FEM body (its full body's dofs ``dofs``): x = X + u_bar + U q."""
+
+    def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
+        self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        rows = (3 * self.dofs[:, None] + np.arange(3)).ravel()
+        self._X = body.full.V.tabulate_dof_coordinates()[self.dofs]
+        self._u_bar = body.u_bar[rows].reshape(-1, 3)
+        self._U = body.U[rows].reshape(len(self.dofs), 3, -1)      # (n, 3, r)
+        self.n = body.U.shape[1]
+
+    def positions(self) -> np.ndarray:
+        return self._X + self._u_bar + self._U @ self.body.q
+
+    def rows(self, W, directions: np.ndarray) -> np.ndarray:
+        """G_k = sum_j W_kj e_k^T U_j (k x r, dense)."""
+        W = sparse.csr_matrix(W)
+        return np.einsum("ka,kar->kr", directions,
+                         np.asarray((W @ self._U.reshape(len(self.dofs), -1)))
+                         .reshape(W.shape[0], 3, -1))
+
+    def stiffness(self, W, forces: np.ndarray) -> np.ndarray:
+        """Zero: the basis does not turn."""
+        return np.zeros((self.n, self.n))
