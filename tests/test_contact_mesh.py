@@ -282,3 +282,37 @@ def test_a_reduced_block_on_the_rigid_floor_is_the_full_block():
     assert len(scene.contact_forces(contact).normal) >= 25          # landed
     np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
                                atol=1e-10 * np.abs(u).max())
+
+
+# ---- (6) a stack of boxes -------------------------------------------------------------------
+
+@pytest.mark.parametrize("turn", [0.0, 0.3], ids=["aligned", "turned"])
+def test_a_stack_of_four_boxes_carries_the_weight_above_each_interface(turn):
+    """Four rigid boxes (2 kg each) stacked on a plane, each on the one below through a
+    mesh contact (aligned: their corners and edges coincide; turned: each 0.3 rad about z
+    from the one below), dropped from 1 mm gaps: at rest the normal force of each
+    interface carries the weight above it to 1e-9 and the stack stands still."""
+    boxes = []
+    for k in range(4):
+        a, b, c = SIZE
+        boxes.append(af.RigidBody(f"box {k}", MASS, MASS / 12 * np.diag(
+            [b * b + c * c, a * a + c * c, a * a + b * b]),
+            position=(0.0, 0.0, (k + 0.5) * SIZE[2] + (k + 1) * 0.001),
+            surface=box_surface(SIZE, turn * k)))
+    plane = af.PlaneContact(boxes[0], (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
+                            margin=0.02)
+    contacts = [af.MeshContact(upper, lower, tolerance=TOL, margin=0.02)
+                for lower, upper in zip(boxes, boxes[1:])]
+    scene = scene_of(*boxes, plane, *contacts)
+    for _ in range(60):
+        scene.step(H)
+        assert all(c.constraint_failure() is None for c in contacts)
+    weight = MASS * G
+    assert abs(scene.contact_forces(plane).normal.sum() / (4 * weight) - 1.0) < 1e-9
+    for k, contact in enumerate(contacts):                  # box k + 1 on box k
+        resultant = scene.contact_forces(contact).resultant
+        np.testing.assert_allclose(resultant, [0.0, 0.0, (3 - k) * weight],
+                                   atol=1e-9 * weight)
+    for box in boxes:
+        assert np.abs(box.twist).max() < 1e-9
+        np.testing.assert_allclose(box.position[:2], 0.0, atol=1e-9)

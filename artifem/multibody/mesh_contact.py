@@ -3,35 +3,42 @@
 Each body gives its surface (``contact_surface() -> (points, triangles)``: a rigid body's
 surface, an FEM or reduced body's exterior facets) whose point set
 (:mod:`artifem.contact_points`) gives the vertices now and the rows of points on it
-(``rows(W, e)``: a point sum_j W_kj x_j moved along e_k). The pairs are vertex
-penetration pairs, both ways (ArtiSynth's vertex-penetration collider, the node-to-surface
-pairs of two-pass FEM contact): each vertex x_v of one surface within ``margin`` of the
-other, its signed distance s, closest point c = sum_i b_i y_i (b the barycentric
-coordinates on the closest triangle's vertices y_i) and direction e out of the other
-surface come from libigl's signed distance (``igl.signed_distance``, AABB tree, sign by
-the angle-weighted pseudonormal; pinned):
+(``rows(W, e)``: a point sum_j W_kj x_j moved along e_k). Each step's pairs, within
+``margin``:
 
-    e = (x_v - c) / s   (|s| above 1e-3 tolerance: the face normal where c is inside a face,
-                         along x_v - c at an edge or corner), else the pseudonormal at c;
-    normal:    phi = e . (x_v - c) = s >= 0,   lambda_n in [0, inf),
+- vertex over triangle, both ways (ArtiSynth's vertex-penetration collider, the two-pass
+  node-to-surface pairs of FEM contact): a vertex x_v of one surface and a triangle of the
+  other that it projects into and faces, c = sum_i b_i y_i its foot (barycentric b_i),
+  e the triangle's normal, phi = e . (x_v - c); a vertex over no such triangle takes its
+  closest point's pair from libigl's signed distance (``igl.signed_distance``: AABB tree,
+  sign by the angle-weighted pseudonormal; pinned), e = (x_v - c) / s, or the
+  pseudonormal at contact;
+- edge across edge, between sharp convex edges (two boxes turned against each other meet
+  edge on edge with no vertex of either over the other): the closest points p_a, p_b
+  inside both edges, e = +-(u x v) / |u x v| out of b, phi = e . (p_a - p_b);
+
+one block of rows per step:
+
+    normal:    phi >= 0,   lambda_n in [0, inf),
     friction:  t_1, t_2 (the x and y axes of ``axis_rotation(e)``), phi = 0,
                -mu lambda_n <= lambda_t <= mu lambda_n   (when mu > 0),
 
-with W = +1 on the vertex and -b_i on the triangle's vertices (each body's share in its
-own rows: rigid G = [w e^T, (r x e)^T], r = sum_j W_kj R r_j the lever of the point,
-w = +-1; FEM G = e^T W_kj on the nodes' dofs). The step's rows are those of
+with W the pair's coefficients on the surfaces' vertices (+1 on a vertex and -b_i on the
+triangle's; 1 - s, s on a's edge and -(1 - t), -t on b's), summing to zero over each pair
+(equal and opposite impulses). Each body's share is its own rows (rigid G = [w e^T,
+(r x e)^T], r = sum_j W_kj R r_j the lever of the point, w = +-1; FEM G = e^T W_kj on the
+nodes' dofs; reduced e^T W_kj U_j). The step's rows are those of
 :mod:`~artifem.multibody.constraint_rows` (as a plane contact's: reach phi = 0 within the
 step, pushed back by -beta phi / h once crossed); friction bounds take the same step's
 normal impulses (``bounds_from``). A vertex inside the other body at any depth is found
-(every vertex within the other's bounding box is queried): deeper than ``tolerance``
-after a step fails the step (halved, like an inverted element), at the start it is an
-InputError naming both bodies, the vertex and the triangle.
+(every vertex within the other's bounding box is queried), and so are crossed sharp edges
+within the margin: deeper than ``tolerance`` after a step fails the step (halved, like an
+inverted element), at the start it is an InputError naming both bodies and the pair.
 
 Checks: a surface must be closed and outward (an edge with one triangle, or a negative
-enclosed volume, is an InputError naming the body). Not caught: two edges crossing with
-no vertex of either surface inside the other (coarse meshes meeting edge on edge), and a
-body that passes wholly through a thin one within one step; give a margin of at least the
-largest approach speed times the step, as for a plane.
+enclosed volume, is an InputError naming the body). Not caught: a body that passes wholly
+through a thin one within one step (no continuous collision detection); give a margin of
+at least the largest approach speed times the step, as for a plane.
 """
 
 from __future__ import annotations
@@ -93,11 +100,12 @@ def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> 
 
 
 class _Pairs(NamedTuple):
-    """Vertex-penetration pairs: W (k x n_all) the coefficients (+1 on the vertex, -b_i on
-    the triangle's), e (k, 3), phi (k,) the signed distances, and per pair (the body whose
-    vertex it is (0: a, 1: b), that vertex, the other's triangle), all within the margin;
-    ``deepest``: (phi, side, vertex, triangle) of the deepest vertex of all, or None; x
-    (n_all, 3) the surfaces' vertices, a's then b's."""
+    """The pairs within the margin: W (k x n_all) their coefficients on the surfaces'
+    vertices (a's then b's; summing to zero over each pair), e (k, 3), phi (k,) the signed
+    distances, which (k, 3) = (kind, i, j): kind 0 a's vertex i over b's triangle j, 1 b's
+    vertex i over a's triangle j, 2 a's edge i across b's edge j; ``deepest``: (phi, kind,
+    i, j) of the deepest penetration found (every vertex in the other's bounding box,
+    every crossing edge pair), or None; x (n_all, 3) the vertices."""
 
     W: sparse.csr_matrix
     e: np.ndarray
@@ -105,6 +113,66 @@ class _Pairs(NamedTuple):
     which: np.ndarray
     deepest: tuple | None
     x: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+
+
+def _face_normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    return _unit(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]))
+
+
+def _vertex_normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Area-weighted unit normals of the vertices of an outward triangle surface."""
+    n = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
+    out = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(out, tris[:, k], n)
+    return _unit(out)
+
+
+def _edges(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(edges (m, 2) vertex pairs, the two triangles of each (m, 2)) of a closed surface."""
+    half = np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    face = np.tile(np.arange(len(tris)), 3)
+    key = np.sort(half, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, face = key[order], face[order]
+    return key[::2], np.column_stack([face[::2], face[1::2]])
+
+
+#: An edge is sharp, and meets the other surface's sharp edges edge on edge, where its two
+#: triangles' normals differ by more than this angle and it is convex (a ridge).
+SHARP_ANGLE = np.radians(30.0)
+
+
+def _sharp(x: np.ndarray, tris: np.ndarray, edges: np.ndarray, faces: np.ndarray,
+           normals: np.ndarray) -> np.ndarray:
+    """(m,) bool: the convex edges whose triangles' normals differ by more than
+    :data:`SHARP_ANGLE` (a box's edges; not the facets of a smooth surface, whose crossing
+    edges leave vertices of one over triangles of the other, nor a split quadrilateral's
+    diagonal)."""
+    n0, n1 = normals[faces[:, 0]], normals[faces[:, 1]]
+    # the vertex of the second triangle off the edge, below the first's plane: a ridge
+    t1 = tris[faces[:, 1]]
+    off = np.where(t1 != edges[:, [0]], t1, -1)
+    off = np.where(off != edges[:, [1]], off, -1).max(axis=1)
+    convex = np.einsum("ij,ij->i", x[off] - x[edges[:, 0]], n0) < 0
+    return convex & (np.einsum("ij,ij->i", n0, n1) < np.cos(SHARP_ANGLE))
+
+
+def _segment_closest(a0, a1, b0, b1):
+    """(s, t) of the closest points a0 + s (a1 - a0), b0 + t (b1 - b0) of the lines through
+    the segments (not clamped; NaN for parallel ones)."""
+    u, v, w = a1 - a0, b1 - b0, a0 - b0
+    uu, uv, vv = (np.einsum("ij,ij->i", p, q) for p, q in ((u, u), (u, v), (v, v)))
+    uw, vw = np.einsum("ij,ij->i", u, w), np.einsum("ij,ij->i", v, w)
+    den = uu * vv - uv * uv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(den > 1e-12 * uu * vv, (uv * vw - vv * uw) / den, np.nan)
+        t = np.where(den > 1e-12 * uu * vv, (uu * vw - uv * uw) / den, np.nan)
+    return s, t
 
 
 def _check_closed(x: np.ndarray, tris: np.ndarray, name: str) -> None:
@@ -162,6 +230,7 @@ class MeshContact:
         _check_closed(xa, ta, a.name)
         _check_closed(xb, tb, b.name)
         self._na = len(xa)
+        self._edges = (_edges(ta), _edges(tb))
 
     @property
     def bodies(self) -> tuple:
@@ -176,88 +245,153 @@ class MeshContact:
                            name=self.name)
 
     def _pairs(self) -> _Pairs:
-        """The vertex-penetration pairs of the current state, both ways (module
-        docstring)."""
+        """The pairs of the current state (module docstring): vertex over triangle both
+        ways, and edge across edge."""
         (pa, ta), (pb, tb) = self._surfaces
-        xa, xb = pa.positions(), pb.positions()
-        surfaces, offsets = ((xa, ta), (xb, tb)), (0, len(xa))
-        n = len(xa) + len(xb)
-        rows, cols, vals, dirs, phis, which = [], [], [], [], [], []
-        deepest = None
+        surfaces = ((pa.positions(), ta), (pb.positions(), tb))
+        offsets = (0, len(surfaces[0][0]))
+        x = np.vstack([surfaces[0][0], surfaces[1][0]])
+        parts, deepest = [], None
         for side in (0, 1):
-            (xp, _), (xq, tq) = surfaces[side], surfaces[1 - side]
-            lo, hi = xq.min(axis=0) - self.margin, xq.max(axis=0) + self.margin
-            near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
-            if not near.size:
-                continue
-            S, I, C, N = igl.signed_distance(xp[near], xq, tq.astype(np.int64),
-                                             sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
-            j = int(np.argmin(S))
-            if deepest is None or S[j] < deepest[0]:
-                deepest = (float(S[j]), side, int(near[j]), int(I[j]))
-            keep = S < self.margin
-            if not np.any(keep):
-                continue
-            v, f, s, c, pn = near[keep], I[keep], S[keep], C[keep], N[keep]
-            d = xp[v] - c
-            small = np.abs(s) <= 1e-3 * self.tolerance
-            e = np.where(small[:, None], pn / np.linalg.norm(pn, axis=1, keepdims=True),
-                         d / np.where(small, 1.0, s)[:, None])
-            extra = self._face_pairs(xp, v, f, xq, tq)
-            v, f = np.r_[v, extra[0]], np.r_[f, extra[1]]
-            s, c, e = np.r_[s, extra[2]], np.vstack([c, extra[3]]), np.vstack([e, extra[4]])
-            tri = tq[f]
-            bary = _barycentric(c, xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
-            k0 = sum(len(q) for q in phis)
-            k = np.arange(k0, k0 + len(v))
-            rows += [k, np.repeat(k, 3)]
-            cols += [offsets[side] + v, offsets[1 - side] + tri.ravel()]
-            vals += [np.ones(len(v)), -bary.ravel()]
-            dirs.append(e)
-            phis.append(s)
-            which.append(np.column_stack([np.full(len(v), side), v, f]))
-        if not phis:
-            return _Pairs(sparse.csr_matrix((0, n)), np.zeros((0, 3)), np.zeros(0),
-                          np.zeros((0, 3), int), deepest, np.vstack([xa, xb]))
-        phi = np.concatenate(phis)
-        W = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                      np.concatenate(cols))), shape=(len(phi), n))
-        return _Pairs(W, np.vstack(dirs), phi, np.vstack(which), deepest,
-                      np.vstack([xa, xb]))
+            part, deep = self._vertex_pairs(surfaces[side], surfaces[1 - side])
+            part[0][:, 0] += offsets[side]
+            part[0][:, 1:] += offsets[1 - side]
+            part[4][:, 0] = side
+            parts.append(part)
+            if deep is not None and (deepest is None or deep[0] < deepest[0]):
+                deepest = (deep[0], side, deep[1], deep[2])
+        part, deep = self._edge_pairs(surfaces)
+        part[0][:, 2:] += offsets[1]
+        parts.append(part)
+        if deep is not None and (deepest is None or deep[0] < deepest[0]):
+            deepest = deep
+        cols = [p[0] for p in parts]
+        k = sum(len(c) for c in cols)
+        rows = np.concatenate([np.repeat(np.arange(len(c)), c.shape[1]) + sum(
+            len(q) for q in cols[:i]) for i, c in enumerate(cols)]) if k else np.zeros(0, int)
+        W = sparse.csr_matrix((np.concatenate([p[1].ravel() for p in parts]),
+                               (rows, np.concatenate([c.ravel() for c in cols]))),
+                              shape=(k, len(x)))
+        return _Pairs(W, np.vstack([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
+                      np.vstack([p[4] for p in parts]), deepest, x)
 
-    def _face_pairs(self, xp, vertices, closest, xq, tq):
-        """The other faces a vertex is over: for each of ``vertices`` (closest triangle
-        ``closest``), every triangle f of (xq, tq) whose plane it is within ``margin`` above
-        (-tolerance <= s_f = n_f . (x_v - y_f) < margin) and onto whose interior it projects,
-        c = x_v - s_f n_f. A vertex sliding across a concave edge (a bowl's facets) meets the
-        next facet within the step; with its row only for the closest facet it would cross
-        it by about h v sin(angle between the facets). Candidates from a k-d tree of the
-        triangles' centroids (scipy). Returns (vertex, triangle, s, c, e = n_f)."""
-        empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros((0, 3)),
-                 np.zeros((0, 3)))
-        if not len(vertices):
-            return empty
+    def _vertex_pairs(self, own, other):
+        """(cols (k, 4): the vertex then the triangle's vertices, weights (k, 4): 1, -b_i,
+        e, phi, which (k, 3): (side, vertex, triangle)), and (depth, vertex, triangle) of
+        the deepest vertex, for the vertices of ``own`` over the triangles of ``other``:
+
+        - every triangle f whose interior the vertex projects onto, within -tolerance <=
+          s_f = n_f . (x_v - y_f) < margin, and that faces it (n_f . m_v < 0, m_v the
+          vertex's own normal: a box's corner on another's is over its top face, not its
+          side): e = n_f, c = x_v - s_f n_f. A vertex sliding across a concave edge (a
+          bowl's facets) meets the next facet within the step; with its closest facet's
+          row alone it would cross the next by about h v sin(angle between them);
+        - a vertex over no such triangle gets its closest point's pair (libigl), e =
+          (x_v - c) / s, or the pseudonormal at contact (|s| below 1e-3 tolerance).
+        """
+        (xp, tp), (xq, tq) = own, other
+        empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
+                 np.zeros((0, 3), int))
+        lo, hi = xq.min(axis=0) - self.margin, xq.max(axis=0) + self.margin
+        near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
+        if not near.size:
+            return empty, None
+        S, I, C, N = igl.signed_distance(xp[near], xq, tq.astype(np.int64),
+                                         sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+        j = int(np.argmin(S))
+        deepest = (float(S[j]), int(near[j]), int(I[j]))
+        close = S < self.margin
+        if not np.any(close):
+            return empty, deepest
+        near, S, I, C, N = near[close], S[close], I[close], C[close], N[close]
         y = xq[tq]
         centroids = y.mean(axis=1)
         reach = np.linalg.norm(y - centroids[:, None], axis=2).max() + self.margin
-        lists = cKDTree(centroids).query_ball_point(xp[vertices], reach)
-        v = np.repeat(vertices, [len(q) for q in lists])
-        f = np.fromiter((t for q in lists for t in q), dtype=int, count=len(v))
-        other = f != np.repeat(closest, [len(q) for q in lists])
-        v, f = v[other], f[other]
-        n = np.cross(y[f, 1] - y[f, 0], y[f, 2] - y[f, 0])
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        lists = cKDTree(centroids).query_ball_point(xp[near], reach)
+        counts = np.array([len(q) for q in lists])
+        v = np.repeat(near, counts)
+        f = np.fromiter((t for q in lists for t in q), dtype=int, count=int(counts.sum()))
+        n = _face_normals(xq, tq)[f]
         s = np.einsum("ij,ij->i", xp[v] - y[f, 0], n)
         c = xp[v] - s[:, None] * n
         bary = _barycentric(c, y[f, 0], y[f, 1], y[f, 2])
-        keep = (s >= -self.tolerance) & (s < self.margin) & np.all(bary >= -1e-12, axis=1)
-        return v[keep], f[keep], s[keep], c[keep], n[keep]
+        facing = np.einsum("ij,ij->i", n, _vertex_normals(xp, tp)[v]) < 0
+        keep = (s >= -self.tolerance) & (s < self.margin) & np.all(bary >= -1e-12, axis=1) \
+            & facing
+        v, f, s, n, bary = v[keep], f[keep], s[keep], n[keep], bary[keep]
+        alone = ~np.isin(near, v)                       # over no facing triangle
+        d = xp[near[alone]] - C[alone]
+        small = np.abs(S[alone]) <= 1e-3 * self.tolerance
+        e = np.where(small[:, None], _unit(N[alone]),
+                     d / np.where(small, 1.0, S[alone])[:, None])
+        tri = tq[I[alone]]
+        b = _barycentric(C[alone], xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
+        v, f = np.r_[v, near[alone]], np.r_[f, I[alone]]
+        bary, e, s = np.vstack([bary, b]), np.vstack([n, e]), np.r_[s, S[alone]]
+        cols = np.column_stack([v, tq[f]])
+        weights = np.column_stack([np.ones(len(v)), -bary])
+        return (cols, weights, e, s, np.column_stack([np.zeros(len(v), int), v, f])), deepest
 
-    def _describe(self, side: int, vertex: int, triangle: int) -> str:
-        """Vertex ``vertex`` of one body's surface and the other's triangle."""
-        bodies = (self.a, self.b)
-        return (f"vertex {vertex} of {bodies[side].name!r} and triangle {triangle} of "
-                f"{bodies[1 - side].name!r}")
+    def _edge_pairs(self, surfaces):
+        """(cols (k, 4): a's edge's vertices then b's, weights (k, 4): 1 - s, s, -(1 - t),
+        -t, e, phi, which (k, 3): (2, a's edge, b's edge)), and (depth, 2, edge, edge) of
+        the deepest crossing, for the edges of a and b whose closest points are inside both
+        (not parallel) within the margin, facing (e . m_b > 0 > e . m_a, m the edges'
+        normals, the sums of their two triangles'): e = +-(u x v) / |u x v| (u, v the edges)
+        out of b, phi = e . (p_a - p_b), between sharp edges of both (:func:`_sharp`). Two
+        boxes turned against each other meet edge on edge, with no vertex of either over
+        the other."""
+        (xa, ta), (xb, tb) = surfaces
+        (ea, fa), (eb, fb) = self._edges
+        empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
+                 np.zeros((0, 3), int))
+        lo, hi = xb.min(axis=0) - self.margin, xb.max(axis=0) + self.margin
+        mid_a, mid_b = xa[ea].mean(axis=1), xb[eb].mean(axis=1)
+        half_a = 0.5 * np.linalg.norm(xa[ea[:, 1]] - xa[ea[:, 0]], axis=1)
+        half_b = 0.5 * np.linalg.norm(xb[eb[:, 1]] - xb[eb[:, 0]], axis=1)
+        cand = np.flatnonzero(np.all((mid_a + half_a[:, None] >= lo)
+                                     & (mid_a - half_a[:, None] <= hi), axis=1))
+        if not cand.size:
+            return empty, None
+        lists = cKDTree(mid_b).query_ball_point(mid_a[cand], half_a.max() + half_b.max()
+                                                + self.margin)
+        counts = np.array([len(q) for q in lists])
+        i = np.repeat(cand, counts)
+        j = np.fromiter((t for q in lists for t in q), dtype=int, count=int(counts.sum()))
+        a0, a1, b0, b1 = xa[ea[i, 0]], xa[ea[i, 1]], xb[eb[j, 0]], xb[eb[j, 1]]
+        s, t = _segment_closest(a0, a1, b0, b1)
+        inside = (s > 1e-9) & (s < 1 - 1e-9) & (t > 1e-9) & (t < 1 - 1e-9)
+        na, nb = _face_normals(xa, ta), _face_normals(xb, tb)
+        inside &= _sharp(xa, ta, ea, fa, na)[i] & _sharp(xb, tb, eb, fb, nb)[j]
+        i, j, s, t = i[inside], j[inside], s[inside], t[inside]
+        a0, a1, b0, b1 = a0[inside], a1[inside], b0[inside], b1[inside]
+        pa, pb = a0 + s[:, None] * (a1 - a0), b0 + t[:, None] * (b1 - b0)
+        ma, mb = na[fa[i]].sum(axis=1), nb[fb[j]].sum(axis=1)
+        e = _unit(np.cross(a1 - a0, b1 - b0))
+        e *= np.where(np.einsum("ij,ij->i", e, mb - ma) < 0, -1.0, 1.0)[:, None]
+        phi = np.einsum("ij,ij->i", e, pa - pb)
+        keep = (np.linalg.norm(pa - pb, axis=1) < self.margin) \
+            & (np.einsum("ij,ij->i", e, mb) > 0) & (np.einsum("ij,ij->i", e, ma) < 0)
+        i, j, s, t, e, phi = i[keep], j[keep], s[keep], t[keep], e[keep], phi[keep]
+        deepest = None
+        if phi.size:
+            k = int(np.argmin(phi))
+            deepest = (float(phi[k]), 2, int(i[k]), int(j[k]))
+        close = phi < self.margin
+        i, j, s, t, e, phi = i[close], j[close], s[close], t[close], e[close], phi[close]
+        cols = np.column_stack([ea[i], eb[j]])
+        weights = np.column_stack([1.0 - s, s, -(1.0 - t), -t])
+        return (cols, weights, e, phi, np.column_stack([np.full(len(i), 2), i, j])), deepest
+
+    def _describe(self, kind: int, i: int, j: int) -> str:
+        """A pair (:class:`_Pairs` ``which``) in words."""
+        a, b = self.a.name, self.b.name
+        if kind == 2:
+            (ea, _), (eb, _) = self._edges
+            return (f"the edge of vertices {ea[i].tolist()} of {a!r} and the edge of vertices "
+                    f"{eb[j].tolist()} of {b!r}")
+        own, other = (a, b) if kind == 0 else (b, a)
+        return f"vertex {i} of {own!r} and triangle {j} of {other!r}"
 
     def row_blocks(self) -> list[RowBlock]:
         """One block: the normal rows and, with mu > 0, the friction rows of the pairs
@@ -298,15 +432,17 @@ class MeshContact:
             tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else ())]
 
     def constraint_failure(self) -> str | None:
-        """A vertex of either surface deeper than ``tolerance`` inside the other, if any."""
+        """A vertex of either surface deeper than ``tolerance`` inside the other, or two
+        edges crossed by more, if any."""
         deepest = self._pairs().deepest
         if deepest is None or deepest[0] >= -self.tolerance:
             return None
-        depth, side, vertex, triangle = deepest
-        return (f"contact {self.name!r}: {self._describe(side, vertex, triangle)}: the vertex "
-                f"is {-depth:.3g} inside (the tolerance is {self.tolerance:g}; a vertex that "
-                f"comes from beyond the margin {self.margin:g} within one step has no row: "
-                "the margin should be at least the largest approach speed times the step)")
+        depth, kind, i, j = deepest
+        what = "the vertex is" if kind < 2 else "they are crossed by"
+        return (f"contact {self.name!r}: {self._describe(kind, i, j)}: {what} {-depth:.3g} "
+                f"inside (the tolerance is {self.tolerance:g}; a pair that comes from beyond "
+                f"the margin {self.margin:g} within one step has no row: the margin should be "
+                "at least the largest approach speed times the step)")
 
     def forces(self, parts: list, h: float) -> MeshContactForces:
         """The forces of the impulses ``parts`` [(block, lambda)] of a step of size h."""
