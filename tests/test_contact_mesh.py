@@ -316,3 +316,40 @@ def test_a_stack_of_four_boxes_carries_the_weight_above_each_interface(turn):
     for box in boxes:
         assert np.abs(box.twist).max() < 1e-9
         np.testing.assert_allclose(box.position[:2], 0.0, atol=1e-9)
+
+
+# ---- (7) friction between meshes -------------------------------------------------------------
+
+@pytest.mark.parametrize("mu", [0.6, 0.5])
+def test_rigid_box_on_an_inclined_rigid_slab_sticks_or_slides(mu):
+    """A rigid box resting on a fixed rigid slab inclined at 30 degrees (its top face the
+    incline; the box turned about the normal so that no edges line up), friction between the
+    meshes: tan 30 = 0.577 < 0.6 sticks (slip below 1e-9 m over 1 s); 0.5 slides down the
+    slope with g (sin 30 - mu cos 30) = 0.657 m/s^2 to 1e-3 relative (the same checks as
+    the plane's, tests/test_contact_plane.py)."""
+    theta = np.radians(30.0)
+    normal = np.array([-np.sin(theta), 0.0, np.cos(theta)])
+    uphill = np.array([np.cos(theta), 0.0, np.sin(theta)])
+    frame = np.column_stack([uphill, [0.0, 1.0, 0.0], normal])
+    slab = af.RigidBody("slab", 1.0, np.eye(3), position=-0.5 * normal, rotation=frame,
+                        motion="fixed", surface=box_surface([3.0, 2.0, 1.0]))
+    box = rigid_box(0.0)
+    box.rotation = frame @ np.array([[np.cos(0.2), -np.sin(0.2), 0.0],
+                                     [np.sin(0.2), np.cos(0.2), 0.0], [0.0, 0.0, 1.0]])
+    box.position = 0.5 * SIZE[2] * normal
+    contact = af.MeshContact(box, slab, mu=mu, tolerance=TOL, margin=0.05)
+    scene = scene_of(box, slab, contact)
+    start = box.position.copy()
+    for _ in range(100):
+        scene.step(H)
+        assert contact.constraint_failure() is None
+    slip = box.position - start
+    forces = scene.contact_forces(contact)
+    assert abs((forces.normal @ forces.directions) @ normal / (MASS * G * np.cos(theta))
+               - 1.0) < 1e-9
+    if mu == 0.6:
+        assert np.linalg.norm(slip) < 1e-9
+    else:
+        a = G * (np.sin(theta) - mu * np.cos(theta))
+        assert abs(-box.velocity @ uphill / (100 * H) / a - 1.0) < 1e-3
+        assert abs(slip @ normal) < TOL
