@@ -119,14 +119,16 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
                   titles: Sequence[str] | None = None, camera="iso",
                   window_size: tuple[int, int] = (1200, 800), overlay: bool = False,
                   show_rest: bool = False, scalar_name: str = "value",
-                  cmap: str = "viridis") -> Path:
+                  cmap: str = "viridis", surfaces: Sequence = ()) -> Path:
     """Render bodies to ``png``: side by side (one subplot each) or ``overlay``-ed in one view.
 
     ``scalars`` is one coloring for all bodies, which then share one color
     range, or a list with one per body, each with its own range (see Scalars).
     Edges are drawn; ``show_rest`` adds the undeformed shape as a faint
     wireframe.  ``camera`` is "iso", "xy", "xz", "yz" (and reversed) or a
-    pyvista camera position.  Returns the PNG path.
+    pyvista camera position.  ``surfaces``: triangle surfaces (vertices (n, 3), triangles
+    (m, 3)) drawn in every view in light gray, e.g. a rigid body's at its pose,
+    ``(body.to_world(body.surface[0]), body.surface[1])``.  Returns the PNG path.
     """
     if isinstance(bodies, dolfinx.mesh.Mesh) or (
             isinstance(bodies, tuple) and len(bodies) == 2
@@ -151,7 +153,13 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
     ranges = [g.get_data_range(scalar_name) for (g, _), c in zip(grids, colored) if c]
     shared_clim = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else None
 
-    boxes = np.array([g.bounds for pair in grids for g in pair]).reshape(-1, 3, 2)
+    solids = []
+    for vertices, triangles in surfaces:
+        triangles = np.asarray(triangles, dtype=np.int64)
+        faces = np.column_stack([np.full(len(triangles), 3), triangles]).ravel()
+        solids.append(pv.PolyData(np.asarray(vertices, dtype=float), faces))
+    boxes = np.array([g.bounds for pair in grids for g in pair]
+                     + [m.bounds for m in solids]).reshape(-1, 3, 2)
     bounds = np.column_stack([boxes[:, :, 0].min(axis=0), boxes[:, :, 1].max(axis=0)]).ravel()
 
     png = Path(png)
@@ -176,6 +184,8 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
                                  show_edges=True, edge_color="black", label=label)
             if show_rest:
                 plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.3)
+            for solid in solids:
+                plotter.add_mesh(solid, color="gainsboro", show_edges=True, edge_color="gray")
             if titles is not None and not overlay:
                 plotter.add_text(titles[i], font_size=12, color="black")
             _set_camera(plotter, camera, bounds)

@@ -434,6 +434,22 @@ def test_render_png(tmp_path, tongue):
     assert pixels.std() > 10  # not a blank image
 
 
+def test_render_draws_rigid_surfaces_beside_the_bodies(tmp_path, tongue, icosphere):
+    """``surfaces``: a triangle surface (a rigid ball under the tongue) drawn in the view:
+    the picture changes, and the view takes in the surface's extent."""
+    import pyvista as pv
+
+    msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
+    vertices, triangles = icosphere(2, 0.02)
+    ball = (vertices + [0.05, 0.0, -0.04], triangles)
+    plain = render_bodies(tmp_path / "plain.png", msh, window_size=(600, 400), camera="xz")
+    with_ball = render_bodies(tmp_path / "ball.png", msh, window_size=(600, 400), camera="xz",
+                              surfaces=[ball])
+    a = np.asarray(pv.read(plain).point_data.active_scalars, dtype=float)
+    b = np.asarray(pv.read(with_ball).point_data.active_scalars, dtype=float)
+    assert a.shape == b.shape and np.abs(a - b).mean() > 1.0
+
+
 def test_node_and_cell_rows_by_file_id(tongue):
     rows = tongue.node_rows([1, 920, 946])
     assert np.array_equal(tongue.node_ids[rows], [1, 920, 946])
