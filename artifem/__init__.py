@@ -37,6 +37,8 @@ _PUBLIC = {
     **dict.fromkeys(["FixedJoint", "SphericalJoint", "RevoluteJoint", "SliderJoint",
                      "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
     **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
+    **dict.fromkeys(["contact_pressure", "ContactPressure"],
+                    "artifem.multibody.contact_pressure"),
     **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
                      "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
                     "artifem.multibody.attachments"),
