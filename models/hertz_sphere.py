@@ -95,12 +95,14 @@ class HertzResult:
     fit_scatter: float          # the area-weighted rms of f_n / A about the fit, / p0
     peak_pressure: float        # the largest nodal pressure max f_n / A (Pa)
     pressing: int               # nodes with f_n > 0
-    secant_iterations: int
-    newton_iterations: int
+    static_solves: int          # Scene.solve_static calls of the secant
+    newton_iterations: int      # their Newton iterations, in all
 
 
 class HertzModel:
-    """The scene: the hemisphere (neo-Hookean, E, nu), its clamped flat face, the plane."""
+    """The scene: the hemisphere (neo-Hookean, E, nu), its clamped flat face, the plane.
+    ``margin`` (of the contact) must exceed the approach delta (about 0.18 mm): the first
+    solve starts from the flat face moved down and every other node in place."""
 
     def __init__(self, h_pole: float, h_far: float = 2.5e-3, refine_radius: float = 2.5e-3,
                  margin: float = 3e-4):
@@ -123,7 +125,8 @@ class HertzModel:
         return float(self.scene.contact_forces(self.contact).normal.sum())
 
     def solve(self, force: float = FORCE, rtol: float = 1e-4, max_iterations: int = 12):
-        """Secant on log F(log delta) to sum f_n = force (module docstring)."""
+        """Secant on log F(log delta) to sum f_n = force to ``rtol`` (module docstring);
+        the number of static solves."""
         d0 = 1.2 * hertz(force)[2]
         f0 = self.press(d0)
         d1 = d0 * (force / f0) ** (2.0 / 3.0)
@@ -136,7 +139,7 @@ class HertzModel:
             d1 = d1 * (force / f1) ** (1.0 / k)
         raise RuntimeError(f"Hertz: the secant did not reach {force} N: {f1} N at delta {d1}")
 
-    def measure(self, secant_iterations: int = 0) -> HertzResult:
+    def measure(self, static_solves: int = 0) -> HertzResult:
         forces = self.scene.contact_forces(self.contact)
         x = self.body.mesh.geometry.x
         dofs = self.body.local_dofs(forces.points)
@@ -155,7 +158,7 @@ class HertzModel:
             radius_moment=float(math.sqrt(2.5 * (f * r * r).sum() / f.sum())),
             radius_outer=float(r[on].max()), fit_radius=a_fit, fit_pressure=p_fit,
             fit_scatter=scatter, peak_pressure=float(cp.pressure.max()),
-            pressing=int(on.sum()), secant_iterations=secant_iterations,
+            pressing=int(on.sum()), static_solves=static_solves,
             newton_iterations=self.newton)
 
 
