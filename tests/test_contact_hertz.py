@@ -132,3 +132,30 @@ def test_contact_pressure_refuses_a_rigid_body():
     with pytest.raises(InputError, match="FEM bodies"):
         contact_pressure(contact, af.ContactForces(np.zeros(0, int), np.zeros(0),
                                                    np.zeros((0, 3))))
+
+
+def test_the_hertz_table_on_the_contact_page_is_the_benchmark_json():
+    """docs/contact.md's Hertz section (docs/contact_hertz_section.md until it is merged
+    there): its table is scripts/hertz_contact.py's rendering of
+    docs/benchmarks/contact_hertz.json, and the errors there fall with every refinement."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("hertz_contact",
+                                                  root / "scripts" / "hertz_contact.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    page = (root / "docs" / "contact.md").read_text()
+    if "## Hertz" not in page:
+        page = (root / "docs" / "contact_hertz_section.md").read_text()
+    section = page[page.index("## Hertz"):]
+    section = section[:section.index("\n## ", 1)] if "\n## " in section[1:] else section
+    rows = json.loads((root / "docs" / "benchmarks" / "contact_hertz.json").read_text())["meshes"]
+    assert script.HEADER in section
+    for row in rows:
+        assert script.render(row) in section, row["h_pole_mm"]
+    for key in ("radius_moment_error", "pressure_fit_error"):
+        errors = [abs(row[key]) for row in rows]
+        assert all(e1 < e0 for e0, e1 in zip(errors, errors[1:])), key
