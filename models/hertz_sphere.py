@@ -140,12 +140,11 @@ class HertzModel:
         raise RuntimeError(f"Hertz: the secant did not reach {force} N: {f1} N at delta {d1}")
 
     def measure(self, static_solves: int = 0) -> HertzResult:
+        """The radii and pressures of the last solve (module docstring), at the nodes'
+        reference radii r = |(x, y)|."""
         forces = self.scene.contact_forces(self.contact)
-        x = self.body.mesh.geometry.x
-        dofs = self.body.local_dofs(forces.points)
-        node_of_dof = np.empty(len(x), dtype=int)
-        node_of_dof[self.body._geometry_node_dofs()] = np.arange(len(x))
-        r = np.hypot(*x[node_of_dof[dofs], :2].T)
+        x = self.body.V.tabulate_dof_coordinates()[self.body.local_dofs(forces.points)]
+        r = np.hypot(x[:, 0], x[:, 1])
         f = forces.normal
         on = f > 1e-12 * f.max()
         cp = contact_pressure(self.contact, forces)
