@@ -38,6 +38,8 @@ _PUBLIC = {
                      "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
     **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
     **dict.fromkeys(["MeshContact", "MeshContactForces"], "artifem.multibody.mesh_contact"),
+    **dict.fromkeys(["contact_pressure", "ContactPressure"],
+                    "artifem.multibody.contact_pressure"),
     **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
                      "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
                     "artifem.multibody.attachments"),

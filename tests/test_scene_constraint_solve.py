@@ -95,3 +95,50 @@ def test_bounds_from_the_impulses_give_coulomb_friction():
         z2, lam2, _ = solve_saddle(DirectSolver(), kkt, A, b, rows, "test")
         np.testing.assert_allclose(z2, z, atol=1e-14)
         np.testing.assert_allclose(lam2, lam, rtol=1e-12)
+
+
+def _counting_kkt():
+    calls = []
+
+    def kkt(K, Ga):
+        calls.append(len(Ga))
+        return np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K
+
+    return kkt, calls
+
+
+def test_saddle_starts_from_the_schur_complement_active_set(rng):
+    """30 rows lambda >= 0 on an SPD K (a contact of many points): solve_saddle's KKT trials
+    start from the active set of the Schur complement and confirm it with one KKT
+    factorization (one per row activated before), giving solve_constrained's z and lambda;
+    with a K singular until a bilateral row fixes it, the trials go the old way (no start)
+    and still meet the conditions."""
+    n, m = 40, 30
+    X = rng.standard_normal((n, n))
+    K = X @ X.T + n * np.eye(n)
+    b = 5.0 * rng.standard_normal(n)
+    G = rng.standard_normal((m, n))
+    c = rng.standard_normal(m)
+    lo, hi = np.zeros(m), np.full(m, np.inf)
+    rows = [StepRows(RowBlock(_Owner(), np.zeros(m), ((None, G),), lo, hi, lambda lam: None),
+                     G, c)]
+    z1, lam1, _ = solve_constrained(DirectSolver(), K, b, rows, "test")
+    assert 3 < np.count_nonzero(lam1) < m - 3         # the case meant: some rows active
+    kkt, calls = _counting_kkt()
+    z2, lam2, active = solve_saddle(DirectSolver(), kkt, K, b, rows, "test")
+    assert len(calls) == 1 and calls[0] == np.count_nonzero(active)
+    np.testing.assert_allclose(z2, z1, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(lam2, lam1, rtol=1e-9, atol=1e-10)
+    # K singular along e_0, fixed by a bilateral row z_0 = 0.1, and a bounded row z_0 + z_1 >= 1
+    K = np.diag([0.0, 2.0, 3.0])
+    b = np.array([0.0, 1.0, 1.0])
+    G = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    rows = [StepRows(RowBlock(_Owner(), np.zeros(2), ((None, G),), np.array([-np.inf, 0.0]),
+                              np.array([np.inf, np.inf]), lambda lam: None), G,
+                     np.array([0.1, 1.0]))]
+    kkt, calls = _counting_kkt()
+    z, lam, active = solve_saddle(DirectSolver(), kkt, K, b, rows, "test")
+    assert len(calls) == 2                            # held at 0 first, then active
+    np.testing.assert_allclose(z, [0.1, 0.9, 1.0 / 3.0], atol=1e-12)
+    assert active.all() and lam[1] > 0
+    np.testing.assert_allclose(K @ z - G.T @ lam, b, atol=1e-12)

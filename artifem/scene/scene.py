@@ -114,7 +114,8 @@ bounded ones (joint limits), with the same tangent without the inertia,
 
 G_a the free rows and the bounded rows an active set holds as equalities (the others
 at lambda = 0 while phi + G dq >= 0; :func:`~artifem.scene.constraints.solve_saddle`,
-one KKT factorization per trial), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the
+one KKT factorization per trial, the trials starting from the active set of the Schur
+complement of the tangent when it factors alone), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the
 rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
 line search on |[F_m; phi]| refuses inverted elements. The tangent leaves out the
