@@ -156,3 +156,34 @@ def test_the_hertz_table_on_the_contact_page_is_the_benchmark_json():
     for key in ("radius_moment_error", "pressure_fit_error"):
         errors = [abs(row[key]) for row in rows]
         assert all(e1 < e0 for e0, e1 in zip(errors, errors[1:])), key
+
+
+def test_a_reduced_hemisphere_with_the_complete_basis_is_the_full_one():
+    """A coarse hemisphere (1 mm at the pole) pressed by the closed form's delta, full and
+    reduced with the complete basis (identity on the free dofs, every integration point;
+    its contact by ``PlaneContact.onto_reduced``): the static solves give the same contact
+    forces to round-off."""
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+
+    delta = hs.hertz()[2]
+    full = hs.HertzModel(1e-3, h_far=4e-3)
+    assert full.press(delta) > 0.01
+    reference = full.scene.contact_forces(full.contact)
+    twin = hs.HertzModel(1e-3, h_far=4e-3)
+    twin.body.fix_nodes(twin.top, displacement=lambda x: np.vstack(
+        [np.zeros(x.shape[1]), np.zeros(x.shape[1]), np.full(x.shape[1], -delta)]))
+    n = 3 * twin.body.V.dofmap.index_map.size_local
+    fixed = (3 * twin.body.fixed_dofs[:, None] + np.arange(3)).ravel()
+    free = np.setdiff1d(np.arange(n), fixed)
+    U = np.zeros((n, free.size))
+    U[free, np.arange(free.size)] = 1.0
+    reduced = ReducedFemBody(twin.body, U, all_points(twin.body), name="reduced hemisphere")
+    contact = twin.contact.onto_reduced(reduced)
+    scene = af.Scene()
+    scene.add(reduced, contact)
+    scene.solve_static()
+    forces = scene.contact_forces(contact)
+    order, ref_order = np.argsort(forces.points), np.argsort(reference.points)
+    np.testing.assert_array_equal(forces.points[order], reference.points[ref_order])
+    np.testing.assert_allclose(forces.normal[order], reference.normal[ref_order], rtol=0,
+                               atol=1e-9 * hs.FORCE)
