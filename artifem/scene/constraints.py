@@ -38,7 +38,8 @@ from scipy import sparse
 from artifem.errors import StepFailed
 from artifem.multibody.constraint_rows import RowBlock
 
-__all__ = ["StepRows", "impulses_by_constraint", "solve_constrained", "solve_saddle"]
+__all__ = ["ActiveSetMemory", "StepRows", "impulses_by_constraint", "solve_constrained",
+           "solve_saddle", "use_kkt"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,26 +63,36 @@ BOUND_PASSES = 50
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                bounds=None):
-    """(lambda, active mask, what ``trial`` gave last) of the primal-dual active set on
-    rows with bounds lo <= lambda <= hi (module docstring). ``trial(active, held)`` solves
-    with the active rows as equalities and the others at their ``held`` impulses, and
-    returns (lambda, slack of the bounded rows G z - c, extra). ``bounds(lambda) -> (lo,
-    hi)``, for bounds that depend on the impulses (Coulomb friction on the normal
-    impulses): the active set is found again with the bounds of its last impulses until
-    they change by at most 1e-10 of the largest impulse (a fixed point; each pass reuses
-    ``trial``'s factorization and starts from the last pass's active set)."""
-    start = None
+                bounds=None, warm=None, batch: bool = False):
+    """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
+    active set on rows with bounds lo <= lambda <= hi (module docstring). ``trial(active,
+    held)`` solves with the active rows as equalities and the others at their ``held``
+    impulses, and returns (lambda, slack of the bounded rows G z - c, extra).
+    ``bounds(lambda) -> (lo, hi)``, for bounds that depend on the impulses (Coulomb
+    friction on the normal impulses): the active set is found again with the bounds of
+    its last impulses until they change by at most 1e-10 of the largest impulse (a fixed
+    point; each pass starts from the last pass's active set). ``warm`` = (active, held at
+    hi, known) of the previous step (:class:`ActiveSetMemory`): the rows it knows start
+    from it, in the first pass and, where the last pass's bounds were equal (friction
+    before its normal impulses), in the next. ``batch``: many rows at once
+    (:func:`_active_set_at`)."""
+    start = warm
     for _ in range(BOUND_PASSES):
-        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start)
+        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start, batch)
+        at_high = ~active & (held == hi) & (lo < hi)
         if bounds is None:
-            return lam, active, extra
-        start = (active, ~active & (held == hi) & (lo < hi), lo == hi)
+            return lam, active, at_high, extra
+        use = lo != hi
+        start = (active, at_high, use)
+        if warm is not None:
+            take = ~use & warm[2]
+            start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high),
+                     use | take)
         lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
         lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
-            return lam, active, extra
+            return lam, active, at_high, extra
     raise StepFailed(f"{what}: the bounds that depend on the impulses (friction) did not "
                      f"settle in {BOUND_PASSES} passes of the active set")
 
@@ -91,26 +102,36 @@ def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
     return float(np.abs(new[finite] - old[finite]).max(initial=0.0))
 
 
+#: many-at-once trials of the active set before it changes one row per trial
+BATCH_TRIALS = 12
+
+
 def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                   start=None):
+                   start=None, batch: bool = False):
     """(lambda, active mask, held impulses, extra) of :func:`_active_set` at fixed bounds.
     Rows with lo < 0 < hi (friction) start active, the other bounded rows held at lo
-    (where finite); ``start`` = (active, held at hi, lo = hi) of a previous pass with other
-    bounds begins from that pass's active set instead, its rows held at the same side of
-    the new bounds (rows whose bounds were equal start as without it)."""
+    (where finite); ``start`` = (active, held at hi, use): the rows of ``use`` begin from
+    that set instead (a previous pass's or step's), held at the same side of the current
+    bounds. One row per trial: release the multiplier furthest outside its bounds, else
+    activate the most violated row. ``batch`` (Hintermueller, Ito and Kunisch's
+    primal-dual active set): release every multiplier outside its bounds and activate
+    every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
+    comes back (cycling), one row per trial from there."""
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
     active = np.ones(lo.size, dtype=bool)
     active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0)
     at_high = np.zeros(lo.size, dtype=bool)
     if start is not None:
-        was_active, was_high, was_pinned = start
-        kept = bounded[~was_pinned[bounded]]
+        was_active, was_high, use = start
+        kept = bounded[use[bounded]]
         active[kept] = was_active[kept]
         at_high[kept] = was_high[kept]
     held = np.zeros(lo.size)
     held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
                              hi[bounded])
-    for _ in range(2 * bounded.size + 10):
+    batches = BATCH_TRIALS if batch else 0
+    seen = set()
+    for _ in range(2 * bounded.size + 10 + batches):
         lam, slack, extra = trial(active, held)
         if not bounded.size:
             break
@@ -119,7 +140,16 @@ def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         at_low = held[bounded] == low
         # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
         violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
-        if outside.max() > tol:                     # release: hold at the crossed bound
+        if batches > 0 and max(outside.max(), violated.max()) > tol:
+            out, bad = outside > tol, violated > tol
+            rel = bounded[out]
+            active[rel] = False
+            held[rel] = np.where(l[out] < low[out], low[out], high[out])
+            active[bounded[bad]] = True
+            state = active.tobytes() + held.tobytes()
+            batches = batches - 1 if state not in seen else 0
+            seen.add(state)
+        elif outside.max() > tol:                   # release: hold at the crossed bound
             k = int(np.argmax(outside))
             active[bounded[k]] = False
             held[bounded[k]] = low[k] if l[k] < low[k] else high[k]
@@ -150,9 +180,82 @@ def _stacked(rows: list):
     return G, c, lo, hi, bounds
 
 
+#: the sparse KKT path (:func:`solve_constrained`) from this many rows on, where A is sparse
+#: and larger than the dense limit; below, the Schur complement
+KKT_ROWS = 64
+#: the KKT's multiplier block on an active row: -KKT_REGULARIZATION times an estimate of
+#: the row's diagonal of S (sum_j G_ij^2 / |A_jj|), removed by iterative refinement
+KKT_REGULARIZATION = 1e-10
+#: iterative refinement steps of the regularized KKT solve, at most
+KKT_REFINEMENT = 4
+
+
+def use_kkt(A, rows: int) -> bool:
+    """Whether :func:`solve_constrained` takes the sparse KKT path: ``rows`` at least
+    KKT_ROWS and A sparse and larger than the dense solver's limit (DENSE_MAX). The
+    Schur complement's cost grows with one back-substitution per row and a dense S; the
+    KKT's is a factorization of n + rows unknowns per change of the active set. Small
+    dense A (rigid and reduced bodies) keep the Schur complement at any number of rows."""
+    from artifem.scene.direct_solver import DENSE_MAX
+    return rows >= KKT_ROWS and sparse.issparse(A) and A.shape[0] > DENSE_MAX
+
+
+class ActiveSetMemory:
+    """The active set of the last solve by row keys (``RowBlock.keys``), per constraint:
+    the next step's first trial starts from it (a warm start). Rows whose block has no
+    keys, and rows it has not seen, start as without it."""
+
+    def __init__(self):
+        self._sets: dict = {}
+
+    @staticmethod
+    def _keys(block):
+        keys = block.keys
+        if keys is None:
+            return None
+        keys = np.ascontiguousarray(np.asarray(keys, dtype=np.int64).reshape(len(block), -1))
+        return keys.view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
+
+    def start(self, rows: list):
+        """(active, held at hi, known) over the stacked rows, or None when no row is known."""
+        parts, any_known = [], False
+        for g in rows:
+            m = len(g.c)
+            keys = self._keys(g.block)
+            mem = self._sets.get(id(g.block.owner))
+            if keys is None or mem is None or mem[0].dtype != keys.dtype:
+                parts.append((np.zeros(m, bool),) * 3)
+                continue
+            known = np.isin(keys, mem[0])
+            any_known |= bool(known.any())
+            parts.append((np.isin(keys, mem[1]), np.isin(keys, mem[2]), known))
+        if not any_known:
+            return None
+        return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray) -> None:
+        """Remember the solve's active set and rows held at hi under their keys."""
+        self._sets = {}
+        start = 0
+        by_owner: dict = {}
+        for g in rows:
+            m = len(g.c)
+            keys = self._keys(g.block)
+            if keys is not None:
+                sl = slice(start, start + m)
+                by_owner.setdefault(id(g.block.owner), []).append(
+                    (keys, keys[active[sl]], keys[at_high[sl]]))
+            start += m
+        for owner, parts in by_owner.items():
+            self._sets[owner] = tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
 def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
-                      resolver: bool = False, force_rows: list | None = None):
-    """(z, lambda, number of active rows) of the system above, by the Schur complement.
+                      resolver: bool = False, force_rows: list | None = None,
+                      memory: ActiveSetMemory | None = None, path: str = "auto",
+                      info: dict | None = None):
+    """(z, lambda, number of active rows) of the system above, by the Schur complement
+    or, for many rows on a large sparse A (:func:`use_kkt`), the sparse KKT matrix.
 
     ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver); ``rows`` a
     list of :class:`StepRows` (lambda in their order). With ``resolver``, a fourth item:
@@ -163,11 +266,16 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     of the first block row, A z - F^T lambda = b, when they differ from the constraint
     rows G (Newton on a residual whose constraint forces and constraint values have
     different derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
+    ``memory``: an :class:`ActiveSetMemory`, the warm start (read, then updated).
+    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt". ``info``: a dict, filled with
+    the path, the trials of the active set and the factorizations.
     """
     n = A.shape[0]
-    solver.factor(A, what)
     if not rows:
+        solver.factor(A, what)
         z = solver.apply(b)
+        if info is not None:
+            info.update(path="none", trials=1, factorizations=1)
 
         def resolve(rhs):
             return solver.apply(rhs), np.zeros(0)
@@ -175,13 +283,43 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
     G, c, lo, hi, bounds = _stacked(rows)
     F = G if force_rows is None else _vstack(force_rows)
-    X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
-    a, W = X[:, 0], X[:, 1:]
-    S = np.asarray(G @ W)
-    r = c - G @ a
-    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+    if path == "auto":
+        path = "kkt" if use_kkt(A, len(c)) else "schur"
+    warm = memory.start(rows) if memory is not None else None
+    tol = 1e-10 * max(1.0, np.abs(c).max())
+    kind = _KKT if path == "kkt" else _Schur
+    system = kind(solver, A, b, G, F, c, lo, hi, what)
+    lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm,
+                                          batch=path == "kkt")
+    if not np.all(np.isfinite(z)):
+        raise StepFailed(f"{what}: non-finite velocities")
+    assert z.shape == (n,)
+    if memory is not None:
+        memory.keep(rows, active, at_high)
+    if info is not None:
+        info.update(path=path, trials=system.trials, factorizations=system.factorizations)
+    if not resolver:
+        return z, lam, int(active.sum())
+    return z, lam, int(active.sum()), system.resolver(active)
 
-    def trial(active, held):
+
+class _Schur:
+    """Trials of the active set by the Schur complement (module docstring): A factored
+    once, W = A^-1 F^T, S = G W, least squares on the active rows."""
+
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+        solver.factor(A, what)
+        X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
+        self.solver, self.G = solver, G
+        self.a, self.W = X[:, 0], X[:, 1:]
+        self.S = np.asarray(G @ self.W)
+        self.r = c - G @ self.a
+        self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+        self.trials, self.factorizations = 0, 1
+
+    def trial(self, active, held):
+        self.trials += 1
+        S, r = self.S, self.r
         on = np.flatnonzero(active)
         lam = np.where(active, 0.0, held)
         if on.size:
@@ -189,26 +327,97 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
             if np.any(lam):                         # rows held at a non-zero bound
                 rhs = rhs - S[np.ix_(on, ~active)] @ lam[~active]
             lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], rhs, rcond=1e-12)[0]
-        return lam, S[bounded] @ lam - r[bounded], None
+        return lam, S[self.bounded] @ lam - r[self.bounded], self.a + self.W @ lam
 
-    lam, active, _ = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
-                                 bounds)
-    z = a + W @ lam
-    if not np.all(np.isfinite(z)):
-        raise StepFailed(f"{what}: non-finite velocities")
-    assert z.shape == (n,)
-    if not resolver:
-        return z, lam, int(active.sum())
-    on = np.flatnonzero(active)
+    def resolver(self, active):
+        on = np.flatnonzero(active)
+        S, G, W, solver = self.S, self.G, self.W, self.solver
 
-    def resolve(rhs):
-        a = solver.apply(rhs)
-        mu = np.zeros(len(c))
-        if on.size:
-            mu[on] = np.linalg.lstsq(S[np.ix_(on, on)], -(G @ a)[on], rcond=1e-12)[0]
-        return a + W @ mu, mu
+        def resolve(rhs):
+            a = solver.apply(rhs)
+            mu = np.zeros(S.shape[0])
+            if on.size:
+                mu[on] = np.linalg.lstsq(S[np.ix_(on, on)], -(G @ a)[on], rcond=1e-12)[0]
+            return a + W @ mu, mu
 
-    return z, lam, int(active.sum()), resolve
+        return resolve
+
+
+class _KKT:
+    """Trials of the active set on the sparse KKT matrix of all rows,
+
+        [ A   -F^T ] [ z      ]   [ b           ]
+        [ D G  E   ] [ lambda ] = [ c or held   ],
+
+    D = 1, E = -eps on the active rows (G z - eps lambda = c), D = 0, E = 1 on the others
+    (lambda = held): one pattern for every active set, so each factorization after the
+    first reuses MUMPS' analysis, and a trial whose active set is that of the last
+    factorization only solves. eps (KKT_REGULARIZATION times the row's diagonal of S
+    estimated from diag A) lets redundant active rows solve, and iterative refinement on
+    the matrix with eps = 0 removes it (a proximal point iteration: the redundant rows'
+    impulses stay near the minimum-norm ones)."""
+
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+        n, m = A.shape[0], len(c)
+        Gs, Fs = sparse.csr_matrix(G), sparse.csr_matrix(F)
+        K = sparse.bmat([[sparse.csr_matrix(A), -Fs.T], [Gs, sparse.identity(m)]],
+                        format="csr")
+        K.sort_indices()
+        self.K, self.n, self.m = K, n, m
+        start = K.indptr[n]
+        row = np.repeat(np.arange(m), np.diff(K.indptr[n:]))
+        self._bottom = (start, row, K.indices[start:] == n + row, K.data[start:].copy())
+        diag = np.abs(sparse.csr_matrix(A).diagonal())
+        diag = np.where(diag > 0, diag, max(diag.max(initial=0.0), 1e-300))
+        s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
+        self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
+        self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
+        self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+        self.trials, self.factorizations = 0, 0
+        self._factored = None
+
+    def _matrices(self, active):
+        """(regularized K, K with eps = 0) of an active set."""
+        start, row, diag, data = self._bottom
+        on = active[row]
+        K, K0 = self.K.copy(), self.K.copy()
+        K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
+        K0.data[start:] = np.where(diag, np.where(on, 0.0, 1.0), data * on)
+        return K, K0
+
+    def _solve(self, active, rhs):
+        key = active.tobytes()
+        if self._factored is None or self._factored[0] != key:
+            K, K0 = self._matrices(active)
+            self.solver.factor(K, self.what)
+            self.factorizations += 1
+            self._factored = (key, K0)
+        K0 = self._factored[1]
+        x = self.solver.apply(rhs)
+        scale = np.abs(rhs).max(initial=0.0)
+        for _ in range(KKT_REFINEMENT):
+            res = rhs - K0 @ x
+            if np.abs(res).max(initial=0.0) <= 1e-15 * max(scale, 1e-300):
+                break
+            x = x + self.solver.apply(res)
+        return x
+
+    def trial(self, active, held):
+        self.trials += 1
+        n = self.n
+        x = self._solve(active, np.concatenate([self.b, np.where(active, self.c, held)]))
+        z, lam = x[:n], x[n:]
+        lam = np.where(active, lam, held)
+        return lam, np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded], z
+
+    def resolver(self, active):
+        n, m = self.n, self.m
+
+        def resolve(rhs):
+            x = self._solve(active, np.concatenate([rhs, np.zeros(m)]))
+            return x[:n], np.where(active, x[n:], 0.0)
+
+        return resolve
 
 
 def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
@@ -233,8 +442,8 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
         return lam, np.asarray(G[bounded] @ z).ravel() - c[bounded], z
 
-    lam, active, z = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
-                                 bounds)
+    lam, active, _, z = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
+                                    bounds)
     return z, lam, active
 
 
