@@ -72,11 +72,14 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     friction on the normal impulses): the active set is found again with the bounds of
     its last impulses until they change by at most 1e-10 of the largest impulse (a fixed
     point; each pass starts from the last pass's active set). ``warm`` = (active, held at
-    hi, known) of the previous step (:class:`ActiveSetMemory`): the rows it knows start
-    from it, in the first pass and, where the last pass's bounds were equal (friction
-    before its normal impulses), in the next. ``batch``: many rows at once
+    hi, known, lambda) of the previous step (:class:`ActiveSetMemory`): the first pass
+    takes the bounds of those impulses (0 on rows it does not know), and the rows it knows
+    start from it, in the first pass where their bounds differ and, where the last pass's
+    bounds were equal, in the next. ``batch``: many rows at once
     (:func:`_active_set_at`)."""
-    start = warm
+    if warm is not None and bounds is not None:
+        lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
+    start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
     for _ in range(BOUND_PASSES):
         lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start, batch)
         at_high = ~active & (held == hi) & (lo < hi)
@@ -188,6 +191,9 @@ KKT_ROWS = 64
 KKT_REGULARIZATION = 1e-10
 #: iterative refinement steps of the regularized KKT solve, at most
 KKT_REFINEMENT = 4
+#: the path of :func:`solve_constrained` when its caller does not choose: "auto"
+#: (:func:`use_kkt`), "kkt" or "schur" (set by benchmarks and tests to compare them)
+DEFAULT_PATH = "auto"
 
 
 def use_kkt(A, rows: int) -> bool:
@@ -201,9 +207,10 @@ def use_kkt(A, rows: int) -> bool:
 
 
 class ActiveSetMemory:
-    """The active set of the last solve by row keys (``RowBlock.keys``), per constraint:
-    the next step's first trial starts from it (a warm start). Rows whose block has no
-    keys, and rows it has not seen, start as without it."""
+    """The active set and impulses of the last solve by row keys (``RowBlock.keys``), per
+    constraint: the next solve's first trial starts from them (a warm start; the bounds
+    that depend on the impulses from the last impulses). Rows whose block has no keys,
+    and rows it has not seen, start as without it."""
 
     def __init__(self):
         self._sets: dict = {}
@@ -217,24 +224,30 @@ class ActiveSetMemory:
         return keys.view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
 
     def start(self, rows: list):
-        """(active, held at hi, known) over the stacked rows, or None when no row is known."""
+        """(active, held at hi, known, lambda) over the stacked rows (False and 0 where
+        not known), or None when no row is known."""
         parts, any_known = [], False
         for g in rows:
             m = len(g.c)
             keys = self._keys(g.block)
             mem = self._sets.get(id(g.block.owner))
             if keys is None or mem is None or mem[0].dtype != keys.dtype:
-                parts.append((np.zeros(m, bool),) * 3)
+                parts.append((*(np.zeros(m, bool),) * 3, np.zeros(m)))
                 continue
-            known = np.isin(keys, mem[0])
+            order = np.argsort(mem[0])
+            where = np.minimum(np.searchsorted(mem[0], keys, sorter=order), len(order) - 1)
+            found = order[where]
+            known = mem[0][found] == keys
             any_known |= bool(known.any())
-            parts.append((np.isin(keys, mem[1]), np.isin(keys, mem[2]), known))
+            parts.append((known & mem[1][found], known & mem[2][found], known,
+                          np.where(known, mem[3][found], 0.0)))
         if not any_known:
             return None
-        return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+        return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
-    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray) -> None:
-        """Remember the solve's active set and rows held at hi under their keys."""
+    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray,
+             lam: np.ndarray) -> None:
+        """Remember the solve's active set, rows held at hi and impulses under their keys."""
         self._sets = {}
         start = 0
         by_owner: dict = {}
@@ -244,15 +257,15 @@ class ActiveSetMemory:
             if keys is not None:
                 sl = slice(start, start + m)
                 by_owner.setdefault(id(g.block.owner), []).append(
-                    (keys, keys[active[sl]], keys[at_high[sl]]))
+                    (keys, active[sl], at_high[sl], lam[sl]))
             start += m
         for owner, parts in by_owner.items():
-            self._sets[owner] = tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+            self._sets[owner] = tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 
 def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
                       resolver: bool = False, force_rows: list | None = None,
-                      memory: ActiveSetMemory | None = None, path: str = "auto",
+                      memory: ActiveSetMemory | None = None, path: str | None = None,
                       info: dict | None = None):
     """(z, lambda, number of active rows) of the system above, by the Schur complement
     or, for many rows on a large sparse A (:func:`use_kkt`), the sparse KKT matrix.
@@ -267,7 +280,7 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     rows G (Newton on a residual whose constraint forces and constraint values have
     different derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
     ``memory``: an :class:`ActiveSetMemory`, the warm start (read, then updated).
-    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt". ``info``: a dict, filled with
+    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt" (default DEFAULT_PATH). ``info``: a dict, filled with
     the path, the trials of the active set and the factorizations.
     """
     n = A.shape[0]
@@ -283,19 +296,27 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
     G, c, lo, hi, bounds = _stacked(rows)
     F = G if force_rows is None else _vstack(force_rows)
+    path = path or DEFAULT_PATH
     if path == "auto":
         path = "kkt" if use_kkt(A, len(c)) else "schur"
     warm = memory.start(rows) if memory is not None else None
     tol = 1e-10 * max(1.0, np.abs(c).max())
-    kind = _KKT if path == "kkt" else _Schur
-    system = kind(solver, A, b, G, F, c, lo, hi, what)
-    lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm,
-                                          batch=path == "kkt")
+    system = None
+    if path == "kkt":
+        system = _KKT(solver, A, b, G, F, c, lo, hi, what)
+        try:
+            lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds,
+                                                  warm, batch=True)
+        except _Inconsistent:       # redundant active rows that disagree: least squares
+            path, system = "schur", None
+    if system is None:
+        system = _Schur(solver, A, b, G, F, c, lo, hi, what)
+        lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm)
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
     if memory is not None:
-        memory.keep(rows, active, at_high)
+        memory.keep(rows, active, at_high, lam)
     if info is not None:
         info.update(path=path, trials=system.trials, factorizations=system.factorizations)
     if not resolver:
@@ -343,6 +364,12 @@ class _Schur:
         return resolve
 
 
+class _Inconsistent(Exception):
+    """The KKT's refinement did not converge: redundant active rows whose right-hand
+    sides disagree (no z meets them all), which the Schur complement's least squares
+    takes."""
+
+
 class _KKT:
     """Trials of the active set on the sparse KKT matrix of all rows,
 
@@ -355,7 +382,9 @@ class _KKT:
     factorization only solves. eps (KKT_REGULARIZATION times the row's diagonal of S
     estimated from diag A) lets redundant active rows solve, and iterative refinement on
     the matrix with eps = 0 removes it (a proximal point iteration: the redundant rows'
-    impulses stay near the minimum-norm ones)."""
+    impulses stay near the minimum-norm ones). Redundant active rows that disagree
+    (no z meets them all) leave a residual the refinement cannot remove: the solve then
+    falls back to the Schur complement (:class:`_Inconsistent`)."""
 
     def __init__(self, solver, A, b, G, F, c, lo, hi, what):
         n, m = A.shape[0], len(c)
@@ -394,12 +423,16 @@ class _KKT:
             self._factored = (key, K0)
         K0 = self._factored[1]
         x = self.solver.apply(rhs)
-        scale = np.abs(rhs).max(initial=0.0)
+        scale = max(np.abs(rhs).max(initial=0.0), 1e-300)
         for _ in range(KKT_REFINEMENT):
-            res = rhs - K0 @ x
-            if np.abs(res).max(initial=0.0) <= 1e-15 * max(scale, 1e-300):
+            res = np.abs(rhs - K0 @ x).max(initial=0.0)
+            if res <= 1e-15 * scale:
                 break
-            x = x + self.solver.apply(res)
+            x = x + self.solver.apply(rhs - K0 @ x)
+        else:
+            res = np.abs(rhs - K0 @ x).max(initial=0.0)
+        if res > 1e-9 * scale:
+            raise _Inconsistent
         return x
 
     def trial(self, active, held):
