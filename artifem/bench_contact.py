@@ -5,15 +5,20 @@ steps untimed, then the median over the timed steps of the step's wall time and 
 parts (``Scene.last_solve["seconds"]``: the detection, the constraints' ``row_blocks``;
 the mapping, G P and c; the solve, :func:`~artifem.scene.constraints.solve_constrained`
 with its active set), with the path the rule took (:func:`~artifem.scene.constraints.use_kkt`),
-the trials of the active set and the factorizations of the step:
+the trials of the active set and the factorizations of the step (medians, and those of
+the first step, from a cold start). Each case is timed
+with its reference, the same scene without rows, their steps interleaved (the machine
+may be shared: both see the same load); ``ratio_to_no_contact`` is their ratio:
 
 - ``rigid``: a rigid box (0.2 x 0.2 x 0.1 m, 2 kg) resting on a PlaneContact through an
   n x n grid of points on its bottom face (n^2 normal rows; with friction 3 n^2), against
-  the same box with no rows (the plane far below);
+  the same box with no rows (the plane 10 m below: it falls freely);
 - ``fem``: a neo-Hookean hex block of ``--fem`` elements (default 21 x 21 x 20, 10,164
   nodes) resting on a PlaneContact through its bottom nodes nearest the centre (N normal
   rows, 3 N with friction), against the same block with no rows; with ``--schur-max``,
-  the same step on the Schur complement path too where the rows are that few or fewer;
+  the same step on the path the rule did not take too where the rows are that few or
+  fewer (the cases marked ``forced_path``); ``fem-mid``: the same on a 10 x 10 x 6 block
+  (847 nodes), where the paths cross;
 - ``plate``: a thin block (default 44 x 44 x 4 elements, 10,125 nodes) on all its 2,025
   bottom nodes.
 
@@ -39,6 +44,9 @@ BOX = np.array([0.2, 0.2, 0.1])
 RIGID_GRIDS = (4, 8, 16, 24, 32, 45)
 FEM_POINTS = (9, 25, 49, 100, 225, 484)
 FEM_BLOCK = (21, 21, 20)
+#: a mid-size block (847 nodes) for the crossover of the two paths
+MID_BLOCK = (10, 10, 6)
+MID_POINTS = (9, 25, 49, 121)
 PLATE = (44, 44, 4)
 QUICK = {"rigid": (3, 6), "fem_points": (9, 36), "fem": (5, 5, 3), "plate": (7, 7, 2)}
 
@@ -50,9 +58,9 @@ def add_arguments(parser) -> None:
                         help="timed steps per case (default: %(default)s)")
     parser.add_argument("--warmup", type=positive_int, default=2,
                         help="untimed steps before (default: %(default)s)")
-    parser.add_argument("--schur-max", type=int, default=100,
+    parser.add_argument("--schur-max", type=int, default=500,
                         help="FEM cases of at most this many rows are also timed on the "
-                             "Schur complement path (default: %(default)s; 0: none)")
+                             "path the rule did not take (default: %(default)s; 0: none)")
     parser.add_argument("--quick", action="store_true",
                         help="small sizes (seconds), with the KKT-Schur agreement check")
 
@@ -113,30 +121,41 @@ def fem_scene(cells, points: int | None = None, mu: float = 0.0, contact: bool =
     return scene, body, pc
 
 
-def time_case(scene, steps: int, warmup: int, path: str | None = None) -> dict:
-    """Medians (ms) of the step and its parts over ``steps`` timed steps after ``warmup``."""
-    with forced_path(path):
-        for _ in range(warmup):
-            scene.step(H)
-        rec = {"step": [], "detection": [], "mapping": [], "solve": [], "trials": [],
-               "factorizations": [], "active": []}
-        for _ in range(steps):
-            tic = time.perf_counter()
-            scene.step(H)
-            rec["step"].append(time.perf_counter() - tic)
+def time_cases(scenes: list, steps: int, warmup: int) -> list[dict]:
+    """Medians (ms) of the step and its parts over ``steps`` timed steps after ``warmup``,
+    of each (scene, path) of ``scenes``, their steps interleaved (one step of each in
+    turn: the cases of one row see the same machine, other processes included)."""
+    recs = [{"step": [], "detection": [], "mapping": [], "solve": [], "trials": [],
+             "factorizations": [], "active": []} for _ in scenes]
+    for k in range(warmup + steps):
+        for (scene, path), rec in zip(scenes, recs):
+            with forced_path(path):
+                tic = time.perf_counter()
+                scene.step(H)
+                toc = time.perf_counter()
+            if k == 0:
+                rec["first"] = (scene.last_solve.get("trials", 0),
+                                scene.last_solve.get("factorizations", 0))
+            if k < warmup:
+                continue
+            rec["step"].append(toc - tic)
             info = scene.last_solve
             for part in ("detection", "mapping", "solve"):
                 rec[part].append(info.get("seconds", {}).get(part, 0.0))
             rec["trials"].append(info.get("trials", 0))
             rec["factorizations"].append(info.get("factorizations", 0))
             rec["active"].append(info.get("constraint_rows", 0))
-    out = {f"{k}_ms": 1e3 * float(np.median(rec[k]))
-           for k in ("step", "detection", "mapping", "solve")}
-    out["trials_per_step"] = float(np.median(rec["trials"]))
-    out["factorizations_per_step"] = float(np.median(rec["factorizations"]))
-    out["active_rows"] = int(np.median(rec["active"]))
-    out["path"] = scene.last_solve.get("path", "none")
-    out["masters"] = scene.last_solve.get("masters", 0)
+    out = []
+    for (scene, path), rec in zip(scenes, recs):
+        case = {f"{k}_ms": 1e3 * float(np.median(rec[k]))
+                for k in ("step", "detection", "mapping", "solve")}
+        case["first_step_trials"], case["first_step_factorizations"] = rec["first"]
+        case["trials_per_step"] = float(np.median(rec["trials"]))
+        case["factorizations_per_step"] = float(np.median(rec["factorizations"]))
+        case["active_rows"] = int(np.median(rec["active"]))
+        case["path"] = scene.last_solve.get("path", "none")
+        case["masters"] = scene.last_solve.get("masters", 0)
+        out.append(case)
     return out
 
 
@@ -145,22 +164,40 @@ def _rows(contact) -> int:
 
 
 def _say(case: dict) -> None:
-    print(f"[bench contact] {case['kind']:5s} {case['label']:28s} rows {case['rows']:5d} "
-          f"active {case['active_rows']:5d} {case['path'] + ('*' if 'forced_path' in case else ''):6s} {case['step_ms']:9.1f} ms/step "
+    mark = "*" if "forced_path" in case else ""
+    print(f"[bench contact] {case['kind']:7s} {case['label']:28s} rows {case['rows']:5d} "
+          f"active {case['active_rows']:5d} {case['path'] + mark:6s} "
+          f"{case['step_ms']:9.1f} ms/step, x{case['ratio_to_no_contact']:.2f} "
           f"(detection {case['detection_ms']:.1f}, mapping {case['mapping_ms']:.1f}, "
           f"solve {case['solve_ms']:.1f}; {case['trials_per_step']:g} trials, "
-          f"{case['factorizations_per_step']:g} factorizations)", flush=True)
+          f"{case['factorizations_per_step']:g} factorizations; first step "
+          f"{case['first_step_trials']}, {case['first_step_factorizations']})", flush=True)
 
 
-def _case(kind, label, make, steps, warmup, path=None, **extra) -> dict:
-    scene, body, pc = make()
+def _row(kind, label, make, make_ref, steps, warmup, other=False, **extra) -> list[dict]:
+    """The case of ``make()`` (the rule's path), the same without rows (``make_ref``) and,
+    with ``other``, on the path the rule did not take: interleaved (:func:`time_cases`)."""
+    scene, _, pc = make()
     rows = _rows(pc)
-    case = {"kind": kind, "label": label, "rows": rows, **extra,
-            **time_case(scene, steps, warmup, path)}
-    if path is not None:
-        case["forced_path"] = path
-    _say(case)
-    return case
+    from artifem.scene.constraints import use_kkt
+    scenes = [(scene, None), (make_ref()[0], None)]
+    if other:
+        taken = "kkt" if use_kkt(scene.step_matrix(H), rows) else "schur"
+        scenes.append((make()[0], "schur" if taken == "kkt" else "kkt"))
+    timed = time_cases(scenes, steps, warmup)
+    ref = dict(timed[1])
+    cases = []
+    for (_, path), t in zip(scenes, timed):
+        if t is timed[1]:
+            continue
+        case = {"kind": kind, "label": label, "rows": rows, **extra, **t,
+                "no_contact_step_ms": ref["step_ms"],
+                "ratio_to_no_contact": t["step_ms"] / ref["step_ms"]}
+        if path is not None:
+            case["forced_path"] = path
+        _say(case)
+        cases.append(case)
+    return cases
 
 
 def agreement(steps: int = 3) -> dict:
@@ -209,35 +246,27 @@ def run(args) -> int:
     steps, warmup = args.steps, args.warmup
     cases = []
     tic = time.perf_counter()
-    cases.append(_case("rigid", "no contact", lambda: rigid_scene(4, contact=False),
-                       steps, warmup, points=0, mu=0.0))
     for n in grids:
         for mu in (0.0, 0.5):
-            cases.append(_case("rigid", f"{n}x{n} points, mu {mu:g}",
-                               lambda: rigid_scene(n, mu), steps, warmup, points=n * n, mu=mu))
-    nodes = int(np.prod(np.array(block) + 1))
-    cases.append(_case("fem", f"{nodes} nodes, no contact",
-                       lambda: fem_scene(block, 9, contact=False), steps, warmup, points=0,
-                       mu=0.0, nodes=nodes))
-    for npts in points:
-        for mu in (0.0, 0.5) if npts == points[-1] else (0.0,):
-            cases.append(_case("fem", f"{nodes} nodes, {npts} points, mu {mu:g}",
-                               lambda: fem_scene(block, npts, mu), steps, warmup,
-                               points=npts, mu=mu, nodes=nodes))
-            if npts * (3 if mu else 1) <= args.schur_max:
-                cases.append(_case("fem", f"{nodes} nodes, {npts} points, mu {mu:g}",
-                                   lambda: fem_scene(block, npts, mu), steps, warmup,
-                                   path="schur", points=npts, mu=mu, nodes=nodes))
+            cases += _row("rigid", f"{n}x{n} points, mu {mu:g}", lambda: rigid_scene(n, mu),
+                          lambda: rigid_scene(n, mu, contact=False), steps, warmup,
+                          points=n * n, mu=mu)
+    sweeps = [("fem", block, points, True)]
+    if not quick:
+        sweeps.append(("fem-mid", MID_BLOCK, MID_POINTS, False))
+    for kind, cells, pts, friction in sweeps:
+        nodes = int(np.prod(np.array(cells) + 1))
+        for npts in pts:
+            for mu in (0.0, 0.5) if friction and npts == pts[-1] else (0.0,):
+                cases += _row(kind, f"{nodes} nodes, {npts} points, mu {mu:g}",
+                              lambda: fem_scene(cells, npts, mu),
+                              lambda: fem_scene(cells, npts, mu, contact=False), steps,
+                              warmup, other=npts * (3 if mu else 1) <= args.schur_max,
+                              points=npts, mu=mu, nodes=nodes)
     pnodes = int(np.prod(np.array(plate) + 1))
-    cases.append(_case("plate", f"{pnodes} nodes, no contact",
-                       lambda: fem_scene(plate, 9, contact=False), steps, warmup, points=0,
-                       mu=0.0, nodes=pnodes))
-    cases.append(_case("plate", f"{pnodes} nodes, all bottom",
-                       lambda: fem_scene(plate, None), steps, warmup,
-                       points=(plate[0] + 1) * (plate[1] + 1), mu=0.0, nodes=pnodes))
-    for case in cases:
-        ref = next(c for c in cases if c["kind"] == case["kind"] and c["points"] == 0)
-        case["ratio_to_no_contact"] = case["step_ms"] / ref["step_ms"]
+    cases += _row("plate", f"{pnodes} nodes, all bottom", lambda: fem_scene(plate, None),
+                  lambda: fem_scene(plate, None, contact=False), steps, warmup,
+                  points=(plate[0] + 1) * (plate[1] + 1), mu=0.0, nodes=pnodes)
     extra = {}
     if quick:
         print("[bench contact] agreement of the KKT and Schur paths ...", flush=True)

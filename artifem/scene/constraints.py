@@ -17,15 +17,33 @@ Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fi
 point around it: the active set again with the bounds of its last impulses, until they
 settle.
 
-:func:`solve_constrained` (the step) solves each trial through the Schur complement:
-with a = A^-1 b and W = A^-1 G^T (one factorization of A, 1 + rows solves),
+:func:`solve_constrained` (the step) solves each trial by one of two paths, chosen by
+:func:`use_kkt` (at least KKT_ROWS = 64 rows on a sparse A of more than DENSE_MAX
+unknowns: the sparse KKT; else the Schur complement):
 
-    S lambda = c - G a,   S = G W,   z = a + W lambda,
+- the Schur complement (:class:`_Schur`): with a = A^-1 b and W = A^-1 G^T (one
+  factorization of A, 1 + rows solves),
 
-by least squares on the active rows, so redundant rows (closed loops, a joint doubled)
-get the minimum-norm impulses instead of a singular matrix; no new factorization per
-trial. :func:`solve_saddle` (statics, where A may be singular until the rows fix it)
-factors the KKT matrix of the active rows for each trial.
+      S lambda = c - G a,   S = G W,   z = a + W lambda,
+
+  by least squares on the active rows, so redundant rows (closed loops, a joint
+  doubled, a rigid box's corners) get the minimum-norm impulses of the active rows
+  instead of a singular matrix; no new factorization per trial; the active set changes
+  one row per trial. Where the rows far outnumber the coordinates (a rigid body on a
+  fine contact grid) S is not formed: only its active block and S lambda = G (W lambda);
+- the sparse KKT (:class:`_KKT`): the matrix above over all rows, the held rows
+  lambda = held, factored by MUMPS with one pattern for every active set (its analysis
+  reused), a tiny regularization -eps of the active multipliers removed by iterative
+  refinement (redundant rows solve; rows that disagree fall back to the Schur path); the
+  active set changes many rows per trial (Hintermueller-Ito-Kunisch, one row per trial
+  after BATCH_TRIALS or a repeated set), and a trial on the last factorization's active
+  set only solves (the friction passes).
+
+Both start from the last solve's active set and impulses when given an
+:class:`ActiveSetMemory` (the scene's: rows named by ``RowBlock.keys``, a contact's point
+and direction), so a body at rest takes one trial per step. :func:`solve_saddle` (statics,
+where A may be singular until the rows fix it) factors the KKT matrix of the active rows
+for each trial.
 """
 
 from __future__ import annotations
@@ -326,39 +344,56 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
 
 class _Schur:
     """Trials of the active set by the Schur complement (module docstring): A factored
-    once, W = A^-1 F^T, S = G W, least squares on the active rows."""
+    once, W = A^-1 F^T, S = G W, least squares on the active rows. Many more rows than
+    coordinates (rigid bodies on fine contact grids: S of rank n at most, m x m): S is
+    not formed, only its active block G_a W_a, and S lambda as G (W lambda)."""
 
     def __init__(self, solver, A, b, G, F, c, lo, hi, what):
         solver.factor(A, what)
         X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
         self.solver, self.G = solver, G
         self.a, self.W = X[:, 0], X[:, 1:]
-        self.S = np.asarray(G @ self.W)
+        m, n = self.W.shape[1], self.W.shape[0]
+        self.S = None if m >= KKT_ROWS and m > 4 * n else np.asarray(G @ self.W)
         self.r = c - G @ self.a
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.trials, self.factorizations = 0, 1
 
+    def _block(self, on, cols):
+        """S[on, cols]."""
+        if self.S is not None:
+            return self.S[np.ix_(on, cols)]
+        return np.asarray(self.G[on] @ self.W[:, cols])
+
     def trial(self, active, held):
         self.trials += 1
-        S, r = self.S, self.r
+        r = self.r
         on = np.flatnonzero(active)
         lam = np.where(active, 0.0, held)
         if on.size:
             rhs = r[on]
             if np.any(lam):                         # rows held at a non-zero bound
-                rhs = rhs - S[np.ix_(on, ~active)] @ lam[~active]
-            lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], rhs, rcond=1e-12)[0]
-        return lam, S[self.bounded] @ lam - r[self.bounded], self.a + self.W @ lam
+                off = np.flatnonzero(~active)
+                rhs = rhs - (self._block(on, off) @ lam[off] if self.S is not None else
+                             np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel())
+            lam[on] = np.linalg.lstsq(self._block(on, on), rhs, rcond=1e-12)[0]
+        Wl = self.W @ lam
+        if self.S is not None:
+            slack = self.S[self.bounded] @ lam - r[self.bounded]
+        else:
+            slack = np.asarray(self.G[self.bounded] @ Wl).ravel() - r[self.bounded]
+        return lam, slack, self.a + Wl
 
     def resolver(self, active):
         on = np.flatnonzero(active)
-        S, G, W, solver = self.S, self.G, self.W, self.solver
+        G, W, solver = self.G, self.W, self.solver
+        S_on = self._block(on, on) if on.size else None
 
         def resolve(rhs):
             a = solver.apply(rhs)
-            mu = np.zeros(S.shape[0])
+            mu = np.zeros(W.shape[1])
             if on.size:
-                mu[on] = np.linalg.lstsq(S[np.ix_(on, on)], -(G @ a)[on], rcond=1e-12)[0]
+                mu[on] = np.linalg.lstsq(S_on, -(G @ a)[on], rcond=1e-12)[0]
             return a + W @ mu, mu
 
         return resolve

@@ -857,8 +857,10 @@ class Scene:
     def _solve(self, A_m, b_m, rows):
         """z_m+, the constraint impulses lambda and the solve for another right-hand side
         (:func:`~artifem.scene.constraints.solve_constrained`: the Schur complement of the
-        constraint rows, minimum-norm for redundant rows, an active set for the bounded
-        ones)."""
+        constraint rows, minimum-norm for redundant rows, or the sparse KKT for many rows
+        on a large FEM island; an active set for the bounded ones, warm-started from the
+        last solve's). ``last_solve`` gives the path, the trials of the active set, the
+        factorizations and the seconds of detection, mapping and solve."""
         n = A_m.shape[0]
         if n == 0:                                  # everything fixed, prescribed or attached
             self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
