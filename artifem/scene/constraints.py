@@ -298,8 +298,9 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     rows G (Newton on a residual whose constraint forces and constraint values have
     different derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
     ``memory``: an :class:`ActiveSetMemory`, the warm start (read, then updated).
-    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt" (default DEFAULT_PATH). ``info``: a dict, filled with
-    the path, the trials of the active set and the factorizations.
+    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt" (default DEFAULT_PATH).
+    ``info``: a dict, filled with the path, the trials of the active set and the
+    factorizations.
     """
     n = A.shape[0]
     if not rows:
