@@ -437,6 +437,7 @@ class _KKT:
         s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
         self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
         self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
+        self._abs_A = abs(sparse.csr_matrix(A))
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.trials, self.factorizations = 0, 0
         self._factored = None
@@ -459,16 +460,19 @@ class _KKT:
             self._factored = (key, K0)
         K0 = self._factored[1]
         x = self.solver.apply(rhs)
-        scale = max(np.abs(rhs).max(initial=0.0), 1e-300)
-        for _ in range(KKT_REFINEMENT):
-            res = np.abs(rhs - K0 @ x).max(initial=0.0)
-            if res <= 1e-15 * scale:
+        # the residual against the rhs and |A| |z| (not the multipliers' columns: those of
+        # disagreeing redundant rows grow as 1 / eps)
+        scale = max(np.abs(rhs).max(initial=0.0),
+                    float((self._abs_A @ np.abs(x[:self.n])).max(initial=0.0)), 1e-300)
+        for k in range(KKT_REFINEMENT + 1):
+            res = rhs - K0 @ x
+            if np.abs(res).max(initial=0.0) <= 1e-15 * scale:
                 break
-            x = x + self.solver.apply(rhs - K0 @ x)
-        else:
-            res = np.abs(rhs - K0 @ x).max(initial=0.0)
-        if res > 1e-9 * scale:
-            raise _Inconsistent
+            if k == KKT_REFINEMENT:
+                if np.abs(res).max() > 1e-9 * scale:
+                    raise _Inconsistent
+                break
+            x = x + self.solver.apply(res)
         return x
 
     def trial(self, active, held):
