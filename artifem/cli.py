@@ -7,6 +7,7 @@
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem bench reduced --out FILE.json    reduced tongue step: parts, FLOPs, GFLOP/s
+    artifem bench contact --out FILE.json    ms per step against the contact rows
     artifem study tongue --out DIR           reduced tongue models: speed versus error report
     artifem study scene MODULE:FUNCTION --out DIR   any scene's reduced model: train/test split
     artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
@@ -96,6 +97,9 @@ COMMANDS = {
     ("bench", "scenes"): ("artifem.bench_scenes",
                           "ms per coupled step: jaw-tongue full/reduced, airway, masseter",
                           ONE_PROCESS),
+    ("bench", "contact"): ("artifem.bench_contact",
+                           "ms per step against the number of contact rows: rigid, FEM",
+                           ONE_PROCESS),
     ("study", "tongue"): ("artifem.models.tongue.study",
                           "reduced tongue models against the full one: speed versus error",
                           DISTRIBUTED),

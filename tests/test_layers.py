@@ -32,7 +32,8 @@ LAYERS = {
     "artifem.reduction": 6,
     # 7: models and commands
     "artifem.models": 7, "artifem.cli": 7, "artifem.bench": 7, "artifem.bench_scenes": 7,
-    "artifem.bench_reduced": 7, "artifem.scene_study": 7, "artifem.robustness_study": 7,
+    "artifem.bench_reduced": 7, "artifem.bench_contact": 7, "artifem.scene_study": 7,
+    "artifem.robustness_study": 7,
     "artifem.bench_worker": 7, "artifem.demo": 7, "artifem.material_curves": 7,
 }
 

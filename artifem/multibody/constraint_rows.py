@@ -60,6 +60,10 @@ class RowBlock:
             columns of ``jacobians`` (the world's included, zero; dense or sparse).
         bounds_from: None (fixed bounds), or lambda -> (lo, hi), the bounds at the
             block's impulses lambda (module docstring).
+        keys: None, or (m, d) integers naming each row stably from step to step (a
+            contact's point and direction): the next step's active set starts from the
+            last one's rows of the same keys (a warm start,
+            :class:`~artifem.scene.constraints.ActiveSetMemory`).
     """
 
     owner: object
@@ -69,6 +73,7 @@ class RowBlock:
     hi: np.ndarray
     stiffness: Callable[[np.ndarray], np.ndarray]
     bounds_from: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+    keys: np.ndarray | None = None
 
     def __post_init__(self):
         m = self.phi.shape[0]
@@ -77,6 +82,8 @@ class RowBlock:
         for _, G in self.jacobians:
             if G.shape[0] != m:
                 raise InputError(f"{what}: a Jacobian with {G.shape[0]} rows for {m} values")
+        if self.keys is not None and len(self.keys) != m:
+            raise InputError(f"{what}: {len(self.keys)} row keys for {m} rows")
 
     @classmethod
     def bilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:

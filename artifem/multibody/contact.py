@@ -73,7 +73,8 @@ class ContactForces(NamedTuple):
 @dataclass(frozen=True, eq=False)
 class PlaneContactRows(RowBlock):
     """A :class:`PlaneContact`'s rows: k normal rows, then k along t_1 and k along t_2
-    (with friction) at its ``points`` (indices into the contact's points)."""
+    (with friction) at its ``points`` (indices into the contact's points); the rows' keys
+    are (point, direction: 0 normal, 1 t_1, 2 t_2)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
@@ -176,7 +177,8 @@ class PlaneContact:
         return [PlaneContactRows(
             self, np.concatenate([phi[near], np.zeros(m - k)]), ((self.body, G),), lo, hi,
             lambda lam: self._points.stiffness(W, lam[:, None] * directions),
-            friction_bounds if mu > 0 else None, points=near)]
+            friction_bounds if mu > 0 else None,
+            np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near)]
 
     def constraint_failure(self) -> str | None:
         """The first point deeper than ``tolerance`` below the plane, if any."""

@@ -81,7 +81,8 @@ class MeshContactForces(NamedTuple):
 class MeshContactRows(RowBlock):
     """A :class:`MeshContact`'s rows: k normal rows, then k along t_1 and k along t_2
     (with friction); per pair its contact point on b, normal e, the sign of a's share
-    (+1: a holds the positive coefficients, the force on a is +lambda e) and tangents."""
+    (+1: a holds the positive coefficients, the force on a is +lambda e) and tangents; the
+    rows' keys are (side, vertex, triangle, direction: 0 normal, 1 t_1, 2 t_2)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -428,6 +429,7 @@ class MeshContact:
             self, np.concatenate([phi, np.zeros(m - k)]),
             ((self.a, pa.rows(Wa, directions)), (self.b, pb.rows(Wb, directions))),
             lo, hi, stiffness, friction_bounds if mu > 0 else None,
+            np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
             tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else ())]
 

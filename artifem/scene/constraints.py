@@ -17,16 +17,34 @@ Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fi
 point around it: the active set again with the bounds of its last impulses, until they
 settle.
 
-:func:`solve_constrained` (the step) solves each trial through the Schur complement:
-with a = A^-1 b and W = A^-1 G^T (one factorization of A, 1 + rows solves),
+:func:`solve_constrained` (the step) solves each trial by one of two paths, chosen by
+:func:`use_kkt` (at least KKT_ROWS = 64 rows on a sparse A of more than DENSE_MAX
+unknowns: the sparse KKT; else the Schur complement):
 
-    S lambda = c - G a,   S = G W,   z = a + W lambda,
+- the Schur complement (:class:`_Schur`): with a = A^-1 b and W = A^-1 G^T (one
+  factorization of A, 1 + rows solves),
 
-by least squares on the active rows, so redundant rows (closed loops, a joint doubled)
-get the minimum-norm impulses instead of a singular matrix; no new factorization per
-trial. :func:`solve_saddle` (statics, where A may be singular until the rows fix it)
-factors the KKT matrix of the active rows for each trial, starting from the active set
-of the Schur complement when A factors alone.
+      S lambda = c - G a,   S = G W,   z = a + W lambda,
+
+  by least squares on the active rows, so redundant rows (closed loops, a joint
+  doubled, a rigid box's corners) get the minimum-norm impulses of the active rows
+  instead of a singular matrix; no new factorization per trial; the active set changes
+  one row per trial. Where the rows far outnumber the coordinates (a rigid body on a
+  fine contact grid) S is not formed: only its active block and S lambda = G (W lambda);
+- the sparse KKT (:class:`_KKT`): the matrix above over all rows, the held rows
+  lambda = held, factored by MUMPS with one pattern for every active set (its analysis
+  reused), a tiny regularization -eps of the active multipliers removed by iterative
+  refinement (redundant rows solve; rows that disagree fall back to the Schur path); the
+  active set changes many rows per trial (Hintermueller-Ito-Kunisch, one row per trial
+  after BATCH_TRIALS or a repeated set), and a trial on the last factorization's active
+  set only solves (the friction passes).
+
+Both start from the last solve's active set and impulses when given an
+:class:`ActiveSetMemory` (the scene's: rows named by ``RowBlock.keys``, a contact's point
+and direction), so a body at rest takes one trial per step. :func:`solve_saddle` (statics,
+where A may be singular until the rows fix it) factors the KKT matrix of the active rows
+for each trial, starting from the active set of the Schur complement when A factors
+alone.
 """
 
 from __future__ import annotations
@@ -39,7 +57,8 @@ from scipy import sparse
 from artifem.errors import StepFailed
 from artifem.multibody.constraint_rows import RowBlock
 
-__all__ = ["StepRows", "impulses_by_constraint", "solve_constrained", "solve_saddle"]
+__all__ = ["ActiveSetMemory", "StepRows", "impulses_by_constraint", "solve_constrained",
+           "solve_saddle", "use_kkt"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,26 +82,39 @@ BOUND_PASSES = 50
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                bounds=None, start=None):
-    """(lambda, active mask, what ``trial`` gave last) of the primal-dual active set on
-    rows with bounds lo <= lambda <= hi (module docstring). ``trial(active, held)`` solves
-    with the active rows as equalities and the others at their ``held`` impulses, and
-    returns (lambda, slack of the bounded rows G z - c, extra). ``bounds(lambda) -> (lo,
-    hi)``, for bounds that depend on the impulses (Coulomb friction on the normal
-    impulses): the active set is found again with the bounds of its last impulses until
-    they change by at most 1e-10 of the largest impulse (a fixed point; each pass reuses
-    ``trial``'s factorization and starts from the last pass's active set). ``start``:
-    the first pass's starting active set, as :func:`_active_set_at` takes it."""
+                bounds=None, warm=None, batch: bool = False):
+    """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
+    active set on rows with bounds lo <= lambda <= hi (module docstring). ``trial(active,
+    held)`` solves with the active rows as equalities and the others at their ``held``
+    impulses, and returns (lambda, slack of the bounded rows G z - c, extra).
+    ``bounds(lambda) -> (lo, hi)``, for bounds that depend on the impulses (Coulomb
+    friction on the normal impulses): the active set is found again with the bounds of
+    its last impulses until they change by at most 1e-10 of the largest impulse (a fixed
+    point; each pass starts from the last pass's active set). ``warm`` = (active, held at
+    hi, known, lambda) of the previous step (:class:`ActiveSetMemory`): the first pass
+    takes the bounds of those impulses (0 on rows it does not know), and the rows it knows
+    start from it, in the first pass where their bounds differ and, where the last pass's
+    bounds were equal, in the next. ``batch``: many rows at once
+    (:func:`_active_set_at`)."""
+    if warm is not None and bounds is not None:
+        lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
+    start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
     for _ in range(BOUND_PASSES):
-        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start)
+        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start, batch)
+        at_high = ~active & (held == hi) & (lo < hi)
         if bounds is None:
-            return lam, active, extra
-        start = (active, ~active & (held == hi) & (lo < hi), lo == hi)
+            return lam, active, at_high, extra
+        use = lo != hi
+        start = (active, at_high, use)
+        if warm is not None:
+            take = ~use & warm[2]
+            start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high),
+                     use | take)
         lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
         lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
-            return lam, active, extra
+            return lam, active, at_high, extra
     raise StepFailed(f"{what}: the bounds that depend on the impulses (friction) did not "
                      f"settle in {BOUND_PASSES} passes of the active set")
 
@@ -92,26 +124,36 @@ def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
     return float(np.abs(new[finite] - old[finite]).max(initial=0.0))
 
 
+#: many-at-once trials of the active set before it changes one row per trial
+BATCH_TRIALS = 12
+
+
 def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                   start=None):
+                   start=None, batch: bool = False):
     """(lambda, active mask, held impulses, extra) of :func:`_active_set` at fixed bounds.
     Rows with lo < 0 < hi (friction) start active, the other bounded rows held at lo
-    (where finite); ``start`` = (active, held at hi, lo = hi) of a previous pass with other
-    bounds begins from that pass's active set instead, its rows held at the same side of
-    the new bounds (rows whose bounds were equal start as without it)."""
+    (where finite); ``start`` = (active, held at hi, use): the rows of ``use`` begin from
+    that set instead (a previous pass's or step's), held at the same side of the current
+    bounds. One row per trial: release the multiplier furthest outside its bounds, else
+    activate the most violated row. ``batch`` (Hintermueller, Ito and Kunisch's
+    primal-dual active set): release every multiplier outside its bounds and activate
+    every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
+    comes back (cycling), one row per trial from there."""
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
     active = np.ones(lo.size, dtype=bool)
     active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0)
     at_high = np.zeros(lo.size, dtype=bool)
     if start is not None:
-        was_active, was_high, was_pinned = start
-        kept = bounded[~was_pinned[bounded]]
+        was_active, was_high, use = start
+        kept = bounded[use[bounded]]
         active[kept] = was_active[kept]
         at_high[kept] = was_high[kept]
     held = np.zeros(lo.size)
     held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
                              hi[bounded])
-    for _ in range(2 * bounded.size + 10):
+    batches = BATCH_TRIALS if batch else 0
+    seen = set()
+    for _ in range(2 * bounded.size + 10 + batches):
         lam, slack, extra = trial(active, held)
         if not bounded.size:
             break
@@ -120,7 +162,16 @@ def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         at_low = held[bounded] == low
         # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
         violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
-        if outside.max() > tol:                     # release: hold at the crossed bound
+        if batches > 0 and max(outside.max(), violated.max()) > tol:
+            out, bad = outside > tol, violated > tol
+            rel = bounded[out]
+            active[rel] = False
+            held[rel] = np.where(l[out] < low[out], low[out], high[out])
+            active[bounded[bad]] = True
+            state = active.tobytes() + held.tobytes()
+            batches = batches - 1 if state not in seen else 0
+            seen.add(state)
+        elif outside.max() > tol:                   # release: hold at the crossed bound
             k = int(np.argmax(outside))
             active[bounded[k]] = False
             held[bounded[k]] = low[k] if l[k] < low[k] else high[k]
@@ -151,25 +202,92 @@ def _stacked(rows: list):
     return G, c, lo, hi, bounds
 
 
-def _schur_trial(S: np.ndarray, r: np.ndarray, bounded: np.ndarray):
-    """The active set's ``trial`` on the Schur complement S = G A^-1 F^T, r = c - G A^-1 b:
-    S_aa lambda_a = r_a - S_ah lambda_h by least squares (module docstring)."""
-    def trial(active, held):
-        on = np.flatnonzero(active)
-        lam = np.where(active, 0.0, held)
-        if on.size:
-            rhs = r[on]
-            if np.any(lam):                         # rows held at a non-zero bound
-                rhs = rhs - S[np.ix_(on, ~active)] @ lam[~active]
-            lam[on] = np.linalg.lstsq(S[np.ix_(on, on)], rhs, rcond=1e-12)[0]
-        return lam, S[bounded] @ lam - r[bounded], None
+#: the sparse KKT path (:func:`solve_constrained`) from this many rows on, where A is sparse
+#: and larger than the dense limit; below, the Schur complement
+KKT_ROWS = 64
+#: the KKT's multiplier block on an active row: -KKT_REGULARIZATION times an estimate of
+#: the row's diagonal of S (sum_j G_ij^2 / |A_jj|), removed by iterative refinement
+KKT_REGULARIZATION = 1e-10
+#: iterative refinement steps of the regularized KKT solve, at most
+KKT_REFINEMENT = 4
+#: the path of :func:`solve_constrained` when its caller does not choose: "auto"
+#: (:func:`use_kkt`), "kkt" or "schur" (set by benchmarks and tests to compare them)
+DEFAULT_PATH = "auto"
 
-    return trial
+
+def use_kkt(A, rows: int) -> bool:
+    """Whether :func:`solve_constrained` takes the sparse KKT path: ``rows`` at least
+    KKT_ROWS and A sparse and larger than the dense solver's limit (DENSE_MAX). The
+    Schur complement's cost grows with one back-substitution per row and a dense S; the
+    KKT's is a factorization of n + rows unknowns per change of the active set. Small
+    dense A (rigid and reduced bodies) keep the Schur complement at any number of rows."""
+    from artifem.scene.direct_solver import DENSE_MAX
+    return rows >= KKT_ROWS and sparse.issparse(A) and A.shape[0] > DENSE_MAX
+
+
+class ActiveSetMemory:
+    """The active set and impulses of the last solve by row keys (``RowBlock.keys``), per
+    constraint: the next solve's first trial starts from them (a warm start; the bounds
+    that depend on the impulses from the last impulses). Rows whose block has no keys,
+    and rows it has not seen, start as without it."""
+
+    def __init__(self):
+        self._sets: dict = {}
+
+    @staticmethod
+    def _keys(block):
+        keys = block.keys
+        if keys is None:
+            return None
+        keys = np.ascontiguousarray(np.asarray(keys, dtype=np.int64).reshape(len(block), -1))
+        return keys.view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
+
+    def start(self, rows: list):
+        """(active, held at hi, known, lambda) over the stacked rows (False and 0 where
+        not known), or None when no row is known."""
+        parts, any_known = [], False
+        for g in rows:
+            m = len(g.c)
+            keys = self._keys(g.block)
+            mem = self._sets.get(id(g.block.owner))
+            if keys is None or mem is None or mem[0].dtype != keys.dtype:
+                parts.append((*(np.zeros(m, bool),) * 3, np.zeros(m)))
+                continue
+            order = np.argsort(mem[0])
+            where = np.minimum(np.searchsorted(mem[0], keys, sorter=order), len(order) - 1)
+            found = order[where]
+            known = mem[0][found] == keys
+            any_known |= bool(known.any())
+            parts.append((known & mem[1][found], known & mem[2][found], known,
+                          np.where(known, mem[3][found], 0.0)))
+        if not any_known:
+            return None
+        return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
+
+    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray,
+             lam: np.ndarray) -> None:
+        """Remember the solve's active set, rows held at hi and impulses under their keys."""
+        self._sets = {}
+        start = 0
+        by_owner: dict = {}
+        for g in rows:
+            m = len(g.c)
+            keys = self._keys(g.block)
+            if keys is not None:
+                sl = slice(start, start + m)
+                by_owner.setdefault(id(g.block.owner), []).append(
+                    (keys, active[sl], at_high[sl], lam[sl]))
+            start += m
+        for owner, parts in by_owner.items():
+            self._sets[owner] = tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 
 def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
-                      resolver: bool = False, force_rows: list | None = None):
-    """(z, lambda, number of active rows) of the system above, by the Schur complement.
+                      resolver: bool = False, force_rows: list | None = None,
+                      memory: ActiveSetMemory | None = None, path: str | None = None,
+                      info: dict | None = None):
+    """(z, lambda, number of active rows) of the system above, by the Schur complement
+    or, for many rows on a large sparse A (:func:`use_kkt`), the sparse KKT matrix.
 
     ``solver`` factors A (``factor(A, what).apply(B)``, e.g. DirectSolver); ``rows`` a
     list of :class:`StepRows` (lambda in their order). With ``resolver``, a fourth item:
@@ -180,11 +298,17 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     of the first block row, A z - F^T lambda = b, when they differ from the constraint
     rows G (Newton on a residual whose constraint forces and constraint values have
     different derivatives: :mod:`artifem.scene.implicit_step`); W = A^-1 F^T, S = G W.
+    ``memory``: an :class:`ActiveSetMemory`, the warm start (read, then updated).
+    ``path``: "auto" (:func:`use_kkt`), "schur" or "kkt" (default DEFAULT_PATH).
+    ``info``: a dict, filled with the path, the trials of the active set and the
+    factorizations.
     """
     n = A.shape[0]
-    solver.factor(A, what)
     if not rows:
+        solver.factor(A, what)
         z = solver.apply(b)
+        if info is not None:
+            info.update(path="none", trials=1, factorizations=1)
 
         def resolve(rhs):
             return solver.apply(rhs), np.zeros(0)
@@ -192,29 +316,182 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
     G, c, lo, hi, bounds = _stacked(rows)
     F = G if force_rows is None else _vstack(force_rows)
-    X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
-    a, W = X[:, 0], X[:, 1:]
-    S = np.asarray(G @ W)
-    r = c - G @ a
-    trial = _schur_trial(S, r, np.flatnonzero(np.isfinite(lo) | np.isfinite(hi)))
-    lam, active, _ = _active_set(lo, hi, 1e-10 * max(1.0, np.abs(c).max()), trial, what,
-                                 bounds)
-    z = a + W @ lam
+    path = path or DEFAULT_PATH
+    if path == "auto":
+        path = "kkt" if use_kkt(A, len(c)) else "schur"
+    warm = memory.start(rows) if memory is not None else None
+    tol = 1e-10 * max(1.0, np.abs(c).max())
+    system = None
+    if path == "kkt":
+        system = _KKT(solver, A, b, G, F, c, lo, hi, what)
+        try:
+            lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds,
+                                                  warm, batch=True)
+        except _Inconsistent:       # redundant active rows that disagree: least squares
+            path, system = "schur", None
+    if system is None:
+        system = _Schur(solver, A, b, G, F, c, lo, hi, what)
+        lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm)
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
+    if memory is not None:
+        memory.keep(rows, active, at_high, lam)
+    if info is not None:
+        info.update(path=path, trials=system.trials, factorizations=system.factorizations)
     if not resolver:
         return z, lam, int(active.sum())
-    on = np.flatnonzero(active)
+    return z, lam, int(active.sum()), system.resolver(active)
 
-    def resolve(rhs):
-        a = solver.apply(rhs)
-        mu = np.zeros(len(c))
+
+class _Schur:
+    """Trials of the active set by the Schur complement (module docstring): A factored
+    once, W = A^-1 F^T, S = G W, least squares on the active rows. Many more rows than
+    coordinates (rigid bodies on fine contact grids: S of rank n at most, m x m): S is
+    not formed, only its active block G_a W_a, and S lambda as G (W lambda)."""
+
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+        solver.factor(A, what)
+        X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
+        self.solver, self.G = solver, G
+        self.a, self.W = X[:, 0], X[:, 1:]
+        m, n = self.W.shape[1], self.W.shape[0]
+        self.S = None if m >= KKT_ROWS and m > 4 * n else np.asarray(G @ self.W)
+        self.r = c - G @ self.a
+        self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+        self.trials, self.factorizations = 0, 1
+
+    def _block(self, on, cols):
+        """S[on, cols]."""
+        if self.S is not None:
+            return self.S[np.ix_(on, cols)]
+        return np.asarray(self.G[on] @ self.W[:, cols])
+
+    def trial(self, active, held):
+        self.trials += 1
+        r = self.r
+        on = np.flatnonzero(active)
+        lam = np.where(active, 0.0, held)
         if on.size:
-            mu[on] = np.linalg.lstsq(S[np.ix_(on, on)], -(G @ a)[on], rcond=1e-12)[0]
-        return a + W @ mu, mu
+            rhs = r[on]
+            if np.any(lam):                         # rows held at a non-zero bound
+                off = np.flatnonzero(~active)
+                rhs = rhs - (self._block(on, off) @ lam[off] if self.S is not None else
+                             np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel())
+            lam[on] = np.linalg.lstsq(self._block(on, on), rhs, rcond=1e-12)[0]
+        Wl = self.W @ lam
+        if self.S is not None:
+            slack = self.S[self.bounded] @ lam - r[self.bounded]
+        else:
+            slack = np.asarray(self.G[self.bounded] @ Wl).ravel() - r[self.bounded]
+        return lam, slack, self.a + Wl
 
-    return z, lam, int(active.sum()), resolve
+    def resolver(self, active):
+        on = np.flatnonzero(active)
+        G, W, solver = self.G, self.W, self.solver
+        S_on = self._block(on, on) if on.size else None
+
+        def resolve(rhs):
+            a = solver.apply(rhs)
+            mu = np.zeros(W.shape[1])
+            if on.size:
+                mu[on] = np.linalg.lstsq(S_on, -(G @ a)[on], rcond=1e-12)[0]
+            return a + W @ mu, mu
+
+        return resolve
+
+
+class _Inconsistent(Exception):
+    """The KKT's refinement did not converge: redundant active rows whose right-hand
+    sides disagree (no z meets them all), which the Schur complement's least squares
+    takes."""
+
+
+class _KKT:
+    """Trials of the active set on the sparse KKT matrix of all rows,
+
+        [ A   -F^T ] [ z      ]   [ b           ]
+        [ D G  E   ] [ lambda ] = [ c or held   ],
+
+    D = 1, E = -eps on the active rows (G z - eps lambda = c), D = 0, E = 1 on the others
+    (lambda = held): one pattern for every active set, so each factorization after the
+    first reuses MUMPS' analysis, and a trial whose active set is that of the last
+    factorization only solves. eps (KKT_REGULARIZATION times the row's diagonal of S
+    estimated from diag A) lets redundant active rows solve, and iterative refinement on
+    the matrix with eps = 0 removes it (a proximal point iteration: the redundant rows'
+    impulses stay near the minimum-norm ones). Redundant active rows that disagree
+    (no z meets them all) leave a residual the refinement cannot remove: the solve then
+    falls back to the Schur complement (:class:`_Inconsistent`)."""
+
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+        n, m = A.shape[0], len(c)
+        Gs, Fs = sparse.csr_matrix(G), sparse.csr_matrix(F)
+        K = sparse.bmat([[sparse.csr_matrix(A), -Fs.T], [Gs, sparse.identity(m)]],
+                        format="csr")
+        K.sort_indices()
+        self.K, self.n, self.m = K, n, m
+        start = K.indptr[n]
+        row = np.repeat(np.arange(m), np.diff(K.indptr[n:]))
+        self._bottom = (start, row, K.indices[start:] == n + row, K.data[start:].copy())
+        diag = np.abs(sparse.csr_matrix(A).diagonal())
+        diag = np.where(diag > 0, diag, max(diag.max(initial=0.0), 1e-300))
+        s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
+        self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
+        self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
+        self._abs_A = abs(sparse.csr_matrix(A))
+        self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+        self.trials, self.factorizations = 0, 0
+        self._factored = None
+
+    def _matrices(self, active):
+        """(regularized K, K with eps = 0) of an active set."""
+        start, row, diag, data = self._bottom
+        on = active[row]
+        K, K0 = self.K.copy(), self.K.copy()
+        K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
+        K0.data[start:] = np.where(diag, np.where(on, 0.0, 1.0), data * on)
+        return K, K0
+
+    def _solve(self, active, rhs):
+        key = active.tobytes()
+        if self._factored is None or self._factored[0] != key:
+            K, K0 = self._matrices(active)
+            self.solver.factor(K, self.what)
+            self.factorizations += 1
+            self._factored = (key, K0)
+        K0 = self._factored[1]
+        x = self.solver.apply(rhs)
+        # the residual against the rhs and |A| |z| (not the multipliers' columns: those of
+        # disagreeing redundant rows grow as 1 / eps)
+        scale = max(np.abs(rhs).max(initial=0.0),
+                    float((self._abs_A @ np.abs(x[:self.n])).max(initial=0.0)), 1e-300)
+        for k in range(KKT_REFINEMENT + 1):
+            res = rhs - K0 @ x
+            if np.abs(res).max(initial=0.0) <= 1e-15 * scale:
+                break
+            if k == KKT_REFINEMENT:
+                if np.abs(res).max() > 1e-9 * scale:
+                    raise _Inconsistent
+                break
+            x = x + self.solver.apply(res)
+        return x
+
+    def trial(self, active, held):
+        self.trials += 1
+        n = self.n
+        x = self._solve(active, np.concatenate([self.b, np.where(active, self.c, held)]))
+        z, lam = x[:n], x[n:]
+        lam = np.where(active, lam, held)
+        return lam, np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded], z
+
+    def resolver(self, active):
+        n, m = self.n, self.m
+
+        def resolve(rhs):
+            x = self._solve(active, np.concatenate([rhs, np.zeros(m)]))
+            return x[:n], np.where(active, x[n:], 0.0)
+
+        return resolve
 
 
 def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
@@ -225,18 +502,15 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
     right-hand side.
 
     When K alone factors (the body held without the bounded rows: a clamp, joints), the
-    active set is first found on the Schur complement of K (:func:`_schur_trial`: one
-    factorization, the trials dense and small) and the KKT trials start from it, so they
-    confirm it in one factorization instead of one per row activated (a contact of
-    hundreds of nodes); their result is the answer either way."""
+    active set is first found on the Schur complement of K (one factorization, the trials
+    dense and small) and the KKT trials start from it, so they confirm it in one
+    factorization instead of one per row activated (a contact of hundreds of nodes); their
+    result is the answer either way."""
     n = K.shape[0]
     if not rows:
         return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
     G, c, lo, hi, bounds = _stacked(rows)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
-    tol = 1e-10 * max(1.0, np.abs(c).max())
-    start = _schur_start(solver, K, b, G, c, lo, hi, bounded, tol, what, bounds) \
-        if bounded.size else None
 
     def trial(active, held):
         on = np.flatnonzero(active)
@@ -248,36 +522,29 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
         return lam, np.asarray(G[bounded] @ z).ravel() - c[bounded], z
 
+    tol = 1e-10 * max(1.0, np.abs(c).max())
+    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds) \
+        if bounded.size else None
     if start is not None:
         try:
-            lam, active, z = _active_set(lo, hi, tol, trial, what, bounds, start)
+            lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds, warm=start)
             return z, lam, active
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
-    lam, active, z = _active_set(lo, hi, tol, trial, what, bounds)
+    lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds)
     return z, lam, active
 
 
-def _schur_start(solver, K, b, G, c, lo, hi, bounded, tol, what, bounds):
-    """The starting active set of :func:`solve_saddle` from the Schur complement of K
-    (``start`` of :func:`_active_set_at`), or None when K is singular or the active set
-    there does not settle."""
+def _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds):
+    """The starting active set of :func:`solve_saddle` (``warm`` of :func:`_active_set`)
+    from the Schur complement of K (:class:`_Schur`: one factorization, small dense
+    trials), or None when K is singular or the active set there does not settle."""
     try:
-        solver.factor(K, what)
-        X = solver.apply(np.column_stack([b, G.T.toarray() if sparse.issparse(G) else G.T]))
-    except StepFailed:
-        return None
-    S = np.asarray(G @ X[:, 1:])
-    r = c - G @ X[:, 0]
-    try:
-        lam, active, _ = _active_set(lo, hi, tol, _schur_trial(S, r, bounded), what, bounds)
+        schur = _Schur(solver, K, b, G, G, c, lo, hi, what)
+        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, bounds)
     except (StepFailed, np.linalg.LinAlgError):
         return None
-    # rows whose given bounds are equal (friction before the normal impulses) start as
-    # without a start, the others as the Schur complement's last pass left them
-    last_lo, last_hi = bounds(lam) if bounds is not None else (lo, hi)
-    at_high = ~active & np.isfinite(last_hi) & (lam >= last_hi) & (last_lo < last_hi)
-    return active, at_high, lo == hi
+    return active, at_high, np.ones(lo.size, dtype=bool), lam
 
 
 def impulses_by_constraint(rows: list, lam: np.ndarray) -> dict:

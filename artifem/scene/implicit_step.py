@@ -191,7 +191,8 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
             shifted = [StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel())
                        for g, G in zip(rows, G_x)]
             z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r, shifted,
-                                                  where, force_rows=[g.G for g in rows])
+                                                  where, force_rows=[g.G for g in rows],
+                                                  memory=scene._active_sets)
             dz = z_new - z_m
             step, z_start = 1.0, z_m
             while step >= 1e-4:

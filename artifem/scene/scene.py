@@ -210,6 +210,8 @@ the coupled island. Controllers, the health check, halving and
 
 from __future__ import annotations
 
+import time
+
 from dataclasses import dataclass
 from typing import Callable
 
@@ -233,7 +235,8 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.force_elements import ForceElement
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.scene.constraints import impulses_by_constraint, solve_constrained, solve_saddle
+from artifem.scene.constraints import (ActiveSetMemory, impulses_by_constraint,
+                                      solve_constrained, solve_saddle)
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
 from artifem.scene.schur_island import SchurIsland
@@ -369,6 +372,7 @@ class Scene:
         self.loads: list = []
         self._layout = None
         self._solver = DirectSolver()
+        self._active_sets = ActiveSetMemory()   # the last solve's active rows (warm start)
         self._impulses: dict = {}
         self._last_h = 1.0
         self._reactions = None          # the joints' last forces, all-space (for K_geo)
@@ -854,15 +858,25 @@ class Scene:
     def _solve(self, A_m, b_m, rows):
         """z_m+, the constraint impulses lambda and the solve for another right-hand side
         (:func:`~artifem.scene.constraints.solve_constrained`: the Schur complement of the
-        constraint rows, minimum-norm for redundant rows, an active set for the bounded
-        ones)."""
+        constraint rows, minimum-norm for redundant rows, or the sparse KKT for many rows
+        on a large FEM island; an active set for the bounded ones, warm-started from the
+        last solve's). ``last_solve`` gives the path, the trials of the active set, the
+        factorizations and the seconds of detection, mapping and solve."""
         n = A_m.shape[0]
         if n == 0:                                  # everything fixed, prescribed or attached
             self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
             return np.zeros(0), np.zeros(0), lambda rhs: (np.zeros(0), np.zeros(0))
+        info: dict = {}
+        tic = time.perf_counter()
         z_m, lam, active, resolve = solve_constrained(self._solver, A_m, b_m, rows,
-                                                      f"t = {self.t:g}", resolver=True)
-        self.last_solve = {"masters": n, "constraint_rows": active, "factorizations": 1}
+                                                      f"t = {self.t:g}", resolver=True,
+                                                      memory=self._active_sets, info=info)
+        seconds = dict(self._layout.constraint_map.seconds) if self._layout is not None \
+            else {}
+        seconds["solve"] = time.perf_counter() - tic
+        self.last_solve = {"masters": n, "constraint_rows": active,
+                           "factorizations": info["factorizations"], "path": info["path"],
+                           "trials": info["trials"], "seconds": seconds}
         return z_m, lam, resolve
 
     # ---- statics -------------------------------------------------------------------------

@@ -128,7 +128,8 @@ class SchurIsland:
             if scene.geometric_stiffness:
                 S = S - h * h * part["K_geo"]
         rows = R.constraint_map.rows(P, z_k, h, scene.stabilization)
-        u_m, lam, active = solve_constrained(scene._solver, S, rhs, rows, f"t = {scene.t:g}")
+        u_m, lam, active = solve_constrained(scene._solver, S, rhs, rows, f"t = {scene.t:g}",
+                                             memory=scene._active_sets)
         scene.last_solve = {"masters": u_m.size, "constraint_rows": active,
                             "fem_solves": sum(p["solves"] for p in parts)}
         R.advance(P @ u_m + z_k, h, targets)
