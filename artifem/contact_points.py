@@ -11,7 +11,10 @@ A point set gives
                              k x n) moved along e_k (k, 3), on the body's coordinates;
     stiffness(W, f)          d(G^T lambda)/dq with forces f_k = lambda_k e_k held fixed
                              in the world (the levers of a rigid body turn with it);
-    labels, describe(i)      the points' names for output and errors.
+    labels, describe(i)      the points' names for output and errors;
+    mesh_body                the FEM body whose mesh nodes the points are (a reduced
+                             body's full body), or None (a rigid body): where a contact
+                             pressure can be given (:mod:`artifem.multibody.contact_pressure`).
 
 This module holds the sets of FEM nodes, full (x_j = X_j + u_j, G = e^T W on the nodes'
 velocity dofs) and reduced (x_j = X_j + u_bar_j + U_j q, G = e^T W U: k x r, dense, only
@@ -33,6 +36,7 @@ class FemNodes:
 
     def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
         self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        self.mesh_body = body
         index_map = body.V.dofmap.index_map
         self.n = 3 * (index_map.size_local + index_map.num_ghosts)
 
@@ -64,6 +68,7 @@ class ReducedNodes(FemNodes):
 
     def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
         self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        self.mesh_body = body.full
         rows = (3 * self.dofs[:, None] + np.arange(3)).ravel()
         self._X = body.full.V.tabulate_dof_coordinates()[self.dofs]
         self._u_bar = body.u_bar[rows].reshape(-1, 3)

@@ -146,6 +146,13 @@ def test_fem_block_rests_on_a_rigid_floor_like_on_a_plane():
     weight = block.total_mass() * G
     np.testing.assert_allclose(forces.resultant, [0.0, 0.0, weight], atol=1e-6 * weight)
     np.testing.assert_allclose(block.u.x.array, twin.u.x.array, rtol=0, atol=TOL)
+    # the contact pressure on the block's nodes (the floor is rigid: none there) is the
+    # plane's, and integrates to the weight
+    pressure = scene.contact_pressure(contact)
+    assert list(pressure) == [block.name]
+    p, p_plane = pressure[block.name], plane_scene.contact_pressure(plane)[twin.name]
+    assert abs((p.pressure * p.area).sum() / weight - 1.0) < 1e-6
+    np.testing.assert_allclose(p.nodal, p_plane.nodal, rtol=0, atol=1e-4 * p.nodal.max())
 
 
 # ---- (4) bone on bone: a ball in a cup --------------------------------------------------------
