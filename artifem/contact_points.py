@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["FemNodes", "ReducedNodes"]
+__all__ = ["EmbeddedPoints", "FemNodes", "ReducedNodes"]
 
 
 class FemNodes:
@@ -88,3 +88,38 @@ class ReducedNodes(FemNodes):
     def stiffness(self, W, forces: np.ndarray) -> np.ndarray:
         """Zero: the basis does not turn."""
         return np.zeros((self.n, self.n))
+
+
+class EmbeddedPoints:
+    """The vertices of a mesh embedded in a full or reduced FEM body
+    (:class:`~artifem.embedding.embedded_mesh.EmbeddedMesh`: x_j = sum_i N_i(X_j) x_i, its
+    ``jacobian`` J = dx/dq on the master's coordinates): G_k = sum_j W_kj e_k^T J_j."""
+
+    def __init__(self, embedded):
+        self.embedded, self.body = embedded, embedded.body
+        self.labels = np.arange(embedded.num_points)
+        self.mesh_body = None                       # the embedded mesh has no FEM areas
+        self.n = embedded.jacobian.shape[1]
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def positions(self) -> np.ndarray:
+        return self.embedded.positions()
+
+    def describe(self, i: int) -> str:
+        return f"vertex {i} of embedded mesh {self.embedded.name!r}"
+
+    def rows(self, W, directions: np.ndarray):
+        """E J, E_k = W_kj e_k^T on the vertices' three coordinates (sparse k x 3 p)."""
+        W = sparse.coo_matrix(W)
+        cols = 3 * W.col[:, None] + np.arange(3)
+        E = sparse.csr_matrix(((W.data[:, None] * directions[W.row]).ravel(),
+                               (np.repeat(W.row, 3), cols.ravel())),
+                              shape=(W.shape[0], 3 * len(self)))
+        G = E @ self.embedded.jacobian
+        return G if sparse.issparse(G) else np.asarray(G)
+
+    def stiffness(self, W, forces: np.ndarray):
+        """Zero: J is fixed (the master's nodes carry the vertices on fixed weights)."""
+        return sparse.csr_matrix((self.n, self.n))

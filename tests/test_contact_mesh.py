@@ -379,3 +379,43 @@ def test_a_pad_draped_over_a_ball_with_friction_settles_its_friction_passes():
     assert scene.t > 0.075 and scene.halvings == 0
     lift = scene.contact_forces(contact).resultant[2]
     assert 0.2 < lift / (pad.total_mass() * G) < 5.0        # landed, pressing
+
+
+# ---- (8) a surface embedded in an FEM grid --------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["plane", "mesh"])
+def test_an_embedded_surface_carries_its_grid_on_the_floor(kind, icosphere):
+    """A ball's surface (radius 35 mm) embedded in a coarse 0.1 m FEM grid, the grid dropped
+    on a floor, a plane or the rigid floor mesh: the contact is the embedded surface's (its
+    rows act on the grid through the embedding weights, G = e^T W J), so the grid's own
+    bottom sinks below the floor while the ball's surface rests on it, carrying the weight."""
+    from artifem.embedding.embedded_mesh import EmbeddedMesh
+
+    grid = fem_block(0.0)
+    V, F = icosphere(2, 0.035)
+    ball = EmbeddedMesh(grid, V + [0.05, 0.05, 0.05], F, "triangle", name="ball")
+    lowest = ball.positions()[:, 2].min()
+    floor_at = lowest - 0.002
+    if kind == "plane":
+        contact = af.PlaneContact(ball, (0.0, 0.0, floor_at), (0.0, 0.0, 1.0), tolerance=TOL,
+                                  margin=0.02)
+        scene = scene_of(grid, contact)
+    else:
+        ground = floor(floor_at)
+        contact = af.MeshContact(ball, ground, tolerance=TOL, margin=0.02)
+        scene = scene_of(grid, ground, contact)
+    assert contact.bodies[0] is grid
+    for _ in range(100):
+        scene.step(H)
+        assert contact.constraint_failure() is None
+    heights = ball.positions()[:, 2] - floor_at
+    assert heights.min() > -TOL and heights.min() < 1e-6
+    assert heights_of(grid).min() < floor_at - 0.01                 # the grid went through
+    weight = grid.total_mass() * G
+    forces = scene.contact_forces(contact)
+    total = forces.normal.sum() if kind == "plane" else forces.resultant[2]
+    assert abs(total / weight - 1.0) < 1e-6
+
+
+def heights_of(body):
+    return (body.V.tabulate_dof_coordinates() + body.u.x.array.reshape(-1, 3))[:, 2]

@@ -58,6 +58,7 @@ import numpy as np
 from dolfinx import fem, geometry, la
 from scipy import sparse
 
+from artifem.contact_points import EmbeddedPoints
 from artifem.errors import InputError, OutsideMeshError
 
 __all__ = ["EmbeddedMesh", "locate_points", "PointLocation", "OutsideMeshError"]
@@ -364,6 +365,21 @@ class EmbeddedMesh:
         if self.reduced is not None:
             return (self.G_reduced @ self.reduced.qdot).reshape(-1, 3)
         return self._gather(self.G @ self.full.v.x.array[:self.G.shape[1]])
+
+    def contact_points(self, points=None) -> EmbeddedPoints:
+        """The vertices contact may push (:mod:`artifem.contact_points`; ``points`` must be
+        None: every vertex); the rows act on the master body."""
+        if points is not None:
+            raise InputError(f"EmbeddedMesh {self.name!r}: contact takes all its vertices "
+                             "(points=None)")
+        return EmbeddedPoints(self)
+
+    def contact_surface(self) -> tuple[EmbeddedPoints, np.ndarray]:
+        """(the vertices, the triangles) of an embedded triangle surface."""
+        if self.cell_type != "triangle":
+            raise InputError(f"EmbeddedMesh {self.name!r}: a contact surface must be a "
+                             f"triangle mesh, this one is a {self.cell_type} mesh")
+        return EmbeddedPoints(self), self.cells
 
     def force_to_nodes(self, f) -> np.ndarray:
         """G^T f: forces f (p, 3) on the vertices (all of them, on every rank) as nodal forces

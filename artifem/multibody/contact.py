@@ -130,7 +130,8 @@ class PlaneContact:
 
     @property
     def bodies(self) -> tuple:
-        return (self.body,)
+        """The scene body the rows act on (an embedded mesh's: its master)."""
+        return (self._points.body,)
 
     def onto_reduced(self, reduced, lift=None) -> PlaneContact:
         """The same contact on the reduced body that replaces this one's (the reductor:
@@ -175,7 +176,8 @@ class PlaneContact:
             return np.concatenate([np.zeros(k), -cap]), np.concatenate([np.full(k, np.inf), cap])
 
         return [PlaneContactRows(
-            self, np.concatenate([phi[near], np.zeros(m - k)]), ((self.body, G),), lo, hi,
+            self, np.concatenate([phi[near], np.zeros(m - k)]), ((self._points.body, G),), lo,
+            hi,
             lambda lam: self._points.stiffness(W, lam[:, None] * directions),
             friction_bounds if mu > 0 else None,
             np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near)]

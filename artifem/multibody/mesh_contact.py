@@ -197,7 +197,8 @@ class MeshContact:
 
     Args:
         a, b: rigid bodies (with a ``surface``), full or reduced FEM bodies (their exterior
-            facets).
+            facets), or triangle meshes embedded in an FEM body (:class:`EmbeddedMesh`: a
+            bone or an organ's surface in a coarse grid; the rows act on its master).
         mu: the Coulomb friction coefficient (>= 0; 0: no friction rows).
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
         margin: pairs closer than this (m) get rows.
@@ -226,8 +227,11 @@ class MeshContact:
             if not callable(getattr(body, "contact_surface", None)):
                 raise InputError(f"{what}: {type(body).__name__} {body.name!r} has no contact "
                                  "surface (rigid bodies with a surface, full and reduced FEM "
-                                 "bodies do)")
+                                 "bodies and embedded triangle meshes do)")
         (pa, ta), (pb, tb) = self._surfaces = (a.contact_surface(), b.contact_surface())
+        if pa.body is pb.body:
+            raise InputError(f"{what}: both surfaces move with {pa.body.name!r} (self-contact "
+                             "is not supported)")
         xa, xb = pa.positions(), pb.positions()
         _check_closed(xa, ta, a.name)
         _check_closed(xb, tb, b.name)
@@ -236,7 +240,8 @@ class MeshContact:
 
     @property
     def bodies(self) -> tuple:
-        return (self.a, self.b)
+        """The scene bodies the rows act on (an embedded mesh's: its master)."""
+        return (self._surfaces[0][0].body, self._surfaces[1][0].body)
 
     def onto_reduced(self, reduced, lift=None) -> MeshContact:
         """The same contact with the reduced body in place of the full body it replaces
@@ -428,7 +433,7 @@ class MeshContact:
         side_a = np.asarray(W[:, :na].sum(axis=1)).ravel()
         return [MeshContactRows(
             self, np.concatenate([phi, np.zeros(m - k)]),
-            ((self.a, pa.rows(Wa, directions)), (self.b, pb.rows(Wb, directions))),
+            ((pa.body, pa.rows(Wa, directions)), (pb.body, pb.rows(Wb, directions))),
             lo, hi, stiffness, friction_bounds if mu > 0 else None,
             np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
