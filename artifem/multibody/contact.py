@@ -133,6 +133,8 @@ class PlaneContact:
         self.offset = float(self.normal @ p0)
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
         self.foundation = None if foundation is None else foundation.checked(what)
+        if self.foundation is not None:        # the points know their areas
+            self._points.facing_areas(np.zeros(0, dtype=int), np.zeros((0, 3)))
 
     @property
     def bodies(self) -> tuple:

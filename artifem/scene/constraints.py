@@ -535,7 +535,8 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
     active set is first found on the Schur complement of K (one factorization, the trials
     dense and small) and the KKT trials start from it, so they confirm it in one
     factorization instead of one per row activated (a contact of hundreds of nodes); their
-    result is the answer either way."""
+    result is the answer either way. Else compliant rows that touch or cross (c >= 0) start
+    active (a body held by an elastic foundation alone)."""
     n = K.shape[0]
     if not rows:
         return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
@@ -568,6 +569,13 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
             return z, lam, active
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
+    if C is not None:
+        # compliant rows touching or crossed (c >= 0) start active: their springs hold a
+        # body that only they support (K singular without them)
+        touch = (C > 0) & (c >= 0)
+        start = (touch, np.zeros(len(c), dtype=bool), C > 0, np.zeros(len(c)))
+        lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds, warm=start)
+        return z, lam, active
     lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds)
     return z, lam, active
 
