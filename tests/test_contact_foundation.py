@@ -244,3 +244,49 @@ def test_a_foundation_needs_a_rigid_body_s_surface_vertices():
     with pytest.raises(InputError, match="surface vertices"):
         af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=corners,
                         foundation=LAYER)
+
+
+# ---- friction on the compliant normal impulses ------------------------------------------------
+
+THETA = np.radians(30.0)
+NORMAL = np.array([-np.sin(THETA), 0.0, np.cos(THETA)])
+UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])      # t_1 of the plane
+
+
+@pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
+@pytest.mark.parametrize("mu", [0.6, 0.5])
+def test_a_box_on_a_compliant_incline_sticks_or_slides(mu, integrator):
+    """On a 30-degree incline with the layer, 100 steps: the normal forces sum to m g cos 30
+    (1e-14), mu = 0.6 sticks (friction m g sin 30) and 0.5 slides with g (sin 30 - mu cos
+    30) (measured to 4e-10): the friction bounds take the compliant normal impulses.
+    Sticking, the friction's moment tilts the box on the layer: the corners' areas A/3,
+    A/6, A/3, A/6 (the bottom's two triangles) couple the tilts about the two axes
+    (stiffnesses S = 6 k0 (a/2)^2 and P = 2 k0 (a/2)^2 off the diagonal, k0 = K A / (6 t)),
+    so it tilts S / (S^2 - P^2) = 9/8 of the equal-corner value about y (measured 1.1250
+    to 1e-4) and -1/3 of that about x."""
+    a, b, c = SIZE
+    R0 = np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
+    box = af.RigidBody("box", MASS, MASS / 12 * np.diag([b * b + c * c, a * a + c * c,
+                                                         a * a + b * b]),
+                       position=NORMAL * c / 2, rotation=R0, surface=box_surface(SIZE))
+    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=1e-6,
+                              margin=0.05, foundation=LAYER, name="layer")
+    scene = af.Scene(gravity=(0.0, 0.0, -G), integrator=integrator)
+    scene.add(box, contact)
+    for _ in range(100):
+        scene.step(H)
+    forces = scene.contact_forces(contact)
+    assert forces.normal.sum() == pytest.approx(MASS * G * np.cos(THETA), rel=1e-9)
+    friction = forces.friction.sum(axis=0) @ UPHILL
+    if mu == 0.6:
+        assert friction == pytest.approx(MASS * G * np.sin(THETA), rel=1e-9)
+        turn = R0.T @ box.rotation
+        equal = MASS * G * np.sin(THETA) * c / 2 / (MODULUS * AREA * (a / 2) ** 2
+                                                    / LAYER.thickness)
+        assert turn[2, 0] / equal == pytest.approx(9 / 8, rel=1e-3)
+        assert turn[2, 1] / turn[2, 0] == pytest.approx(-1 / 3, rel=1e-3)
+        assert np.linalg.norm(box.velocity) < 1e-9
+    else:
+        acc = G * (np.sin(THETA) - mu * np.cos(THETA))
+        assert -box.velocity @ UPHILL / (100 * H) == pytest.approx(acc, rel=1e-8)
+        assert friction == pytest.approx(mu * MASS * G * np.cos(THETA), rel=1e-9)
