@@ -341,3 +341,39 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths():
     np.testing.assert_allclose(v1, v2, rtol=0, atol=1e-10 * np.abs(v2).max())
     np.testing.assert_allclose(f1.normal, f2.normal, rtol=0, atol=1e-10 * f2.normal.max())
     np.testing.assert_allclose(f1.friction, f2.friction, rtol=0, atol=1e-10 * f2.normal.max())
+
+
+def test_a_reduced_block_on_a_layer_is_the_full_block():
+    """The 4 x 4 x 4 cube dropped on a layer with friction, full and reduced (the identity
+    basis, every integration point; the contact by ``onto_reduced``, which keeps the
+    foundation): the reduced nodes' facing areas (the full mesh's facets at x = X + u_bar
+    + U q) give the same compliances, so it lands and rests as the full body to
+    round-off, with the same forces."""
+    from artifem.reduction.reduced_body import ReducedFemBody, all_points
+    from test_contact_plane import fem_block
+
+    soft = af.ElasticFoundation(2e5, 0.3, 0.004)
+    block, twin = fem_block(lift=0.005), fem_block(lift=0.005)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
+                              tolerance=1e-6, margin=0.02, foundation=soft)
+    n = 3 * twin.V.dofmap.index_map.size_local
+    reduced = ReducedFemBody(twin, np.eye(n), all_points(twin), name="reduced block")
+    twin_contact = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
+                                   tolerance=1e-6, margin=0.02,
+                                   foundation=soft).onto_reduced(reduced)
+    assert twin_contact.foundation is soft
+    scenes = []
+    for body, c in ((block, contact), (reduced, twin_contact)):
+        scenes.append(af.Scene(gravity=(0.0, 0.0, -G)))
+        scenes[-1].add(body, c)
+    for _ in range(40):
+        for scene in scenes:
+            scene.step(H)
+    u = block.u.x.array[:n]
+    assert contact.distances().min() < -1e-6                # sunk into the layer
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
+                               atol=1e-10 * np.abs(u).max())
+    full, red = scenes[0].contact_forces(contact), scenes[1].contact_forces(twin_contact)
+    np.testing.assert_array_equal(full.points, red.points)
+    np.testing.assert_allclose(red.normal, full.normal, rtol=0,
+                               atol=1e-9 * block.total_mass() * G)
