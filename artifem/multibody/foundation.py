@@ -28,6 +28,7 @@ penetration up to max(tolerance, t); deeper than the layer fails the step.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 
@@ -49,13 +50,13 @@ class ElasticFoundation:
     def checked(self, what: str) -> ElasticFoundation:
         """Itself, or an InputError naming ``what`` (the contact) for a bad parameter."""
         E, nu, t = self.young, self.poisson, self.thickness
-        if not (isinstance(E, (int, float)) and np.isfinite(E) and E > 0):
+        if not (isinstance(E, Real) and np.isfinite(E) and E > 0):
             raise InputError(f"{what}: the foundation's Young's modulus must be finite and "
                              f"> 0, got {E!r}")
-        if not (isinstance(nu, (int, float)) and -1.0 < nu < 0.5):
+        if not (isinstance(nu, Real) and -1.0 < nu < 0.5):
             raise InputError(f"{what}: the foundation's Poisson's ratio must be in (-1, 0.5), "
                              f"got {nu!r}")
-        if not (isinstance(t, (int, float)) and np.isfinite(t) and t > 0):
+        if not (isinstance(t, Real) and np.isfinite(t) and t > 0):
             raise InputError(f"{what}: the foundation's thickness must be finite and > 0, "
                              f"got {t!r}")
         return self
