@@ -442,15 +442,20 @@ class MeshContact:
 
     def _compliance(self, pairs: _Pairs, m: int):
         """The normal rows' compliance of the foundation, or None: a vertex-over-triangle
-        pair's from its vertex's facing area on its own surface, edge pairs and friction
-        rows hard."""
+        pair's from its vertex's facing area on its own surface, shared equally among the
+        vertex's pairs (a vertex over the common edge of two triangles, or meeting the
+        facets of a concave edge, has one row for each: one spring in all), edge pairs and
+        friction rows hard."""
         if self.foundation is None:
             return None
         areas = np.zeros(m)
         for side, (points, _) in enumerate(self._surfaces):
             rows = np.flatnonzero(pairs.which[:, 0] == side)
             if rows.size:
-                areas[rows] = points.facing_areas(pairs.which[rows, 1], pairs.e[rows])
+                _, inverse, counts = np.unique(pairs.which[rows, 1], return_inverse=True,
+                                               return_counts=True)
+                areas[rows] = points.facing_areas(pairs.which[rows, 1], pairs.e[rows]) \
+                    / counts[inverse]
         return self.foundation.compliance(areas)
 
     def constraint_failure(self) -> str | None:
