@@ -412,3 +412,31 @@ def test_an_fem_block_on_a_layer_rests_the_same_on_a_slab_as_on_a_plane():
     assert np.abs(u1).max() > 1e-5
     np.testing.assert_allclose(u2, u1, rtol=0, atol=1e-8 * np.abs(u1).max())
     np.testing.assert_allclose(f2, f1, rtol=0, atol=1e-8 * f1.max())
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-14])
+def test_redundant_compliant_rows_solve_alike_on_both_paths(rng, scale):
+    """10 normal rows doubled (two springs on one dof), compliance C / h^2 = scale x (0.5
+    .. 2), with friction: S + C / h^2 is positive definite on the normal rows, so their
+    impulses are unique and both paths give the same z, normal impulses and forces G^T
+    lambda (to 1e-10; the doubled friction rows stay hard, their split is not unique),
+    the KKT without falling back.
+    A compliance far below the KKT's regularization (scale 1e-14) is factored as eps
+    and restored by the refinement: the hard solution's velocities to 1e-10."""
+    A, b, rows = _points_problem(rng, redundant=10)
+    hard = solve_constrained(DirectSolver(), A, b, rows, "t", path="schur")
+    C = scale * rng.uniform(0.5, 2.0, 70) * H ** 2
+    rows = _compliant(rows, C)
+    info = {}
+    z1, lam1, _ = solve_constrained(DirectSolver(), A, b, rows, "t", path="kkt", info=info)
+    z2, lam2, _ = solve_constrained(DirectSolver(), A, b, rows, "t", path="schur")
+    assert info["path"] == "kkt"
+    np.testing.assert_allclose(z1, z2, rtol=0, atol=1e-10 * np.abs(z2).max())
+    if scale == 1.0:                # the doubled friction rows stay hard: their sum unique
+        np.testing.assert_allclose(lam1[:70], lam2[:70], rtol=0,
+                                   atol=1e-10 * np.abs(lam2).max())
+        Gm = rows[0].G
+        np.testing.assert_allclose(Gm.T @ lam1, Gm.T @ lam2, rtol=0,
+                                   atol=1e-10 * np.abs(lam2).max())
+    else:
+        np.testing.assert_allclose(z1, hard[0], rtol=0, atol=1e-10 * np.abs(z2).max())

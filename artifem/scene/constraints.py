@@ -447,7 +447,8 @@ class _KKT:
     impulses stay near the minimum-norm ones). Redundant active rows that disagree
     (no z meets them all) leave a residual the refinement cannot remove: the solve then
     falls back to the Schur complement (:class:`_Inconsistent`). Compliant active rows
-    (``C`` = C / h^2 > 0) have E = C, without eps, in both matrices."""
+    (``C`` = C / h^2 > 0) have E = C in the refinement's matrix and max(C, eps) in the
+    factored one (E > 0: S + E is positive definite)."""
 
     def __init__(self, solver, A, b, G, F, c, lo, hi, what, C=None):
         n, m = A.shape[0], len(c)
@@ -464,7 +465,9 @@ class _KKT:
         s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
         self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
         self.C = np.zeros(m) if C is None else C
-        self.eps = np.where(self.C > 0, -self.C, self.eps)
+        # compliant rows: E = C (S + C positive definite), at least the regularization
+        # (a C below it is restored by the refinement, as eps is on hard rows)
+        self.eps = np.where(self.C > 0, -np.maximum(self.C, self.eps), self.eps)
         self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
         self._abs_A = abs(sparse.csr_matrix(A))
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
