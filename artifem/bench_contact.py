@@ -25,6 +25,13 @@ may be shared: both see the same load); ``ratio_to_no_contact`` is their ratio:
 ``--quick``: small sizes for the test (seconds), and a check that the sparse KKT path and
 the Schur complement give the same velocities and impulses (``agreement``).
 
+``--tongue``: only the ArtiSynth tongue (level 0, 946 nodes, 740 hexahedra, Mooney-Rivlin
+with the hard incompressibility, as the model ships; no fixed nodes) dropped from 5 mm
+onto a rigid floor (a PlaneContact through its boundary nodes), every step of the drop
+timed from rest for ``TONGUE_DURATION`` and interleaved with the same tongue falling
+freely; the deepest node below the floor over the run; and, as a cited reference, a
+peer's figure for the same kind of scene (``PEER``).
+
 Unless already set, OMP_NUM_THREADS and OPENBLAS_NUM_THREADS are 1.
 """
 
@@ -63,6 +70,8 @@ def add_arguments(parser) -> None:
                              "path the rule did not take (default: %(default)s; 0: none)")
     parser.add_argument("--quick", action="store_true",
                         help="small sizes (seconds), with the KKT-Schur agreement check")
+    parser.add_argument("--tongue", action="store_true",
+                        help="only the tongue dropped on a floor, beside a peer's figure")
 
 
 @contextlib.contextmanager
@@ -119,6 +128,65 @@ def fem_scene(cells, points: int | None = None, mu: float = 0.0, contact: bool =
     scene = af.Scene(gravity=(0.0, 0.0, -G))
     scene.add(body, pc)
     return scene, body, pc
+
+
+#: The tongue drop (``--tongue``): its duration (s) and the peer's figure, measured by a
+#: peer on this machine and reported in issue 29 (not run here).
+TONGUE_DURATION = 0.4
+PEER = {"tool": "Drake 1.58 (pip)", "scene": "a 946-node tetrahedral tongue dropped on a "
+        "rigid floor", "contact": "compliant (the tongue sinks into the floor)",
+        "ms_per_step": 164.0, "penetration_mm": 2.3,
+        "source": "issue 29, measured by a peer on this machine"}
+
+
+def tongue_scene(contact: bool = True):
+    """The tongue (level 0, as shipped, free) 5 mm above a floor, or 10 m above it."""
+    import artifem as af
+    from mpi4py import MPI
+    from artifem.io.to_dolfinx import to_dolfinx
+    from artifem.forms import MooneyRivlin
+    from artifem.models.tongue.model import HARD, TongueConfig, load_tongue_data
+    config = TongueConfig()
+    domain, _ = to_dolfinx(load_tongue_data(0).mesh, MPI.COMM_SELF)
+    body = af.FemBody(domain, MooneyRivlin(config.C10, C20=config.C20, kappa=config.kappa),
+                      config.density, rayleigh=config.rayleigh, incompressibility=HARD,
+                      name="tongue")
+    floor = body.V.tabulate_dof_coordinates()[:, 2].min() - (0.005 if contact else 10.0)
+    pc = af.PlaneContact(body, (0.0, 0.0, floor), (0.0, 0.0, 1.0), tolerance=1e-5,
+                         margin=0.01)
+    scene = af.Scene(gravity=(0.0, 0.0, -G), linear_solver=config.linear_solver)
+    scene.add(body, pc)
+    return scene, body, pc
+
+
+def tongue_case() -> dict:
+    """The tongue drop and its free fall, interleaved from rest (module docstring)."""
+    (scene, body, pc), (free, _, _) = tongue_scene(), tongue_scene(contact=False)
+    steps = int(round(TONGUE_DURATION / H))
+    timed = {"contact": [], "free": []}
+    deepest, rows = 0.0, 0
+    for k in range(steps):
+        for name, sc in (("contact", scene), ("free", free)):
+            tic = time.perf_counter()
+            sc.step(H)
+            timed[name].append(time.perf_counter() - tic)
+        deepest = min(deepest, float(pc.distances().min()))
+        rows = max(rows, len(scene.contact_forces(pc).normal))
+        if (k + 1) % 10 == 0:
+            print(f"[bench contact] tongue {k + 1}/{steps} steps, "
+                  f"{1e3 * np.median(timed['contact']):.1f} ms/step", flush=True)
+    forces = scene.contact_forces(pc)
+    weight = body.total_mass() * G
+    return {"kind": "tongue", "label": "tongue dropped on a floor (level 0, 946 nodes)",
+            "nodes": int(body.V.dofmap.index_map.size_global), "steps": steps, "h": H,
+            "step_ms": 1e3 * float(np.median(timed["contact"])),
+            "no_contact_step_ms": 1e3 * float(np.median(timed["free"])),
+            "ratio_to_no_contact": float(np.median(timed["contact"])
+                                         / np.median(timed["free"])),
+            "max_rows": rows, "active_rows_at_end": int(np.count_nonzero(forces.normal)),
+            "deepest_below_floor_mm": -1e3 * deepest, "tolerance_mm": 1e3 * pc.tolerance,
+            "normal_over_weight_at_end": float(forces.normal.sum() / weight),
+            "halvings": int(scene.halvings), "peer": PEER}
 
 
 def time_cases(scenes: list, steps: int, warmup: int) -> list[dict]:
@@ -238,6 +306,18 @@ def run(args) -> int:
     import artifem  # noqa: F401  (before dolfinx / petsc4py)
     from artifem.bench import write_report
 
+    if args.tongue:
+        tic = time.perf_counter()
+        case = tongue_case()
+        print(f"[bench contact] tongue: {case['step_ms']:.1f} ms/step "
+              f"(x{case['ratio_to_no_contact']:.2f} the free fall), deepest "
+              f"{case['deepest_below_floor_mm']:.2g} mm below the floor; the peer: "
+              f"{PEER['ms_per_step']:g} ms/step, {PEER['penetration_mm']:g} mm", flush=True)
+        write_report(Path(args.out), "contact", __doc__.split("\n\n")[0],
+                     {"tongue": True, "h": H, "duration": TONGUE_DURATION,
+                      "seconds": time.perf_counter() - tic}, [case], [])
+        print(f"[bench contact] wrote {args.out}")
+        return 0
     quick = args.quick
     grids = QUICK["rigid"] if quick else RIGID_GRIDS
     points = QUICK["fem_points"] if quick else FEM_POINTS

@@ -12,6 +12,9 @@ A point set gives
     stiffness(W, f)          d(G^T lambda)/dq with forces f_k = lambda_k e_k held fixed
                              in the world (the levers of a rigid body turn with it);
     labels, describe(i)      the points' names for output and errors;
+    mesh_body                the FEM body whose mesh nodes the points are (a reduced
+                             body's full body), or None (a rigid body): where a contact
+                             pressure can be given (:mod:`artifem.multibody.contact_pressure`);
     facing_areas(i, e)       (k,) the area of its own surface each point i_k stands for,
                              facing against e_k (an elastic foundation's rows,
                              :func:`artifem.multibody.foundation.facing_areas`).
@@ -36,6 +39,7 @@ class FemNodes:
 
     def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
         self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        self.mesh_body = body
         index_map = body.V.dofmap.index_map
         self.n = 3 * (index_map.size_local + index_map.num_ghosts)
 
@@ -103,6 +107,7 @@ class ReducedNodes(FemNodes):
 
     def __init__(self, body, dofs: np.ndarray, labels: np.ndarray):
         self.body, self.dofs, self.labels = body, np.asarray(dofs), np.asarray(labels)
+        self.mesh_body = body.full
         rows = (3 * self.dofs[:, None] + np.arange(3)).ravel()
         self._X = body.full.V.tabulate_dof_coordinates()[self.dofs]
         self._u_bar = body.u_bar[rows].reshape(-1, 3)

@@ -18,7 +18,7 @@ and grows to ``h_far``. Measured from the contact forces f_i at the nodes' refer
 radii r_i (:func:`measure`): the radius from the second moment of the forces (Hertz:
 sum f r^2 / sum f = 2 a^2 / 5, an integral that converges with the mesh), the radius of
 the outermost pressing node (quantized by the node spacing), and the peak nodal pressure
-p = f / A (:func:`~artifem.multibody.contact_pressure.contact_pressure`) at the pole.
+p = f / A (``Scene.contact_pressure``) at the pole.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ import numpy as np
 from mpi4py import MPI
 
 import artifem as af
-from artifem.multibody.contact_pressure import contact_pressure
 
 R, E, NU, FORCE = 0.01, 1e5, 0.45, 0.05
 
@@ -143,12 +142,14 @@ class HertzModel:
         """The radii and pressures of the last solve (module docstring), at the nodes'
         reference radii r = |(x, y)|."""
         forces = self.scene.contact_forces(self.contact)
-        x = self.body.V.tabulate_dof_coordinates()[self.body.local_dofs(forces.points)]
+        cp = self.scene.contact_pressure(self.contact)[self.body.name]
+        rows = np.isin(cp.points, forces.points)        # the nodes that had rows
+        pressure, area = cp.pressure[rows], cp.area[rows]
+        x = self.body.V.tabulate_dof_coordinates()[self.body.local_dofs(cp.points[rows])]
         r = np.hypot(x[:, 0], x[:, 1])
-        f = forces.normal
+        f = pressure * area
         on = f > 1e-12 * f.max()
-        cp = contact_pressure(self.contact, forces)
-        (a_fit, p_fit), scatter = fit_hertz(r, cp.pressure, cp.area, *hertz(float(f.sum()))[:2])
+        (a_fit, p_fit), scatter = fit_hertz(r, pressure, area, *hertz(float(f.sum()))[:2])
         delta = -float(self.body.u.x.array.reshape(-1, 3)[
             self.body.local_dofs(self.top[:1]), 2][0])
         return HertzResult(
@@ -156,7 +157,7 @@ class HertzModel:
             delta=delta, force=float(f.sum()),
             radius_moment=float(math.sqrt(2.5 * (f * r * r).sum() / f.sum())),
             radius_outer=float(r[on].max()), fit_radius=a_fit, fit_pressure=p_fit,
-            fit_scatter=scatter, peak_pressure=float(cp.pressure.max()),
+            fit_scatter=scatter, peak_pressure=float(pressure.max()),
             pressing=int(on.sum()), static_solves=static_solves,
             newton_iterations=self.newton)
 

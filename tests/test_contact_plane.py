@@ -325,3 +325,25 @@ def test_a_reduced_block_with_the_complete_basis_is_the_full_block():
     np.testing.assert_array_equal(full_forces.points, reduced_forces.points)
     np.testing.assert_allclose(reduced_forces.normal, full_forces.normal, rtol=0,
                                atol=1e-9 * block.total_mass() * G)
+
+
+def test_simulate_records_contact_forces_per_point_and_writes_the_pressure(tmp_path):
+    """``af.simulate`` with a contact: a record of the forces per point (their number
+    changes as the block lands: kept as an object array), a record of the nodal contact
+    pressure (fixed length), and with ``vtx`` the series ``block_contact_pressure.bp``
+    beside the displacement's. At rest the pressure times the nodes' areas is the weight."""
+    block = fem_block(lift=0.005)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
+                              margin=0.02)
+    scene = scene_of(block, contact)
+    run = af.simulate(scene, 0.3, H, vtx=tmp_path, progress=False, record={
+        "normal": lambda s: s.contact_forces(contact).normal,
+        "pressure": lambda s: s.contact_pressure(contact)["block"].nodal})
+    counts = [len(f) for f in run.records["normal"]]
+    assert run.records["normal"].dtype == object and counts[0] == 0 and counts[-1] == 25
+    assert run.records["pressure"].shape == (31, len(block.V.tabulate_dof_coordinates()))
+    pressure = scene.contact_pressure(contact)["block"]
+    weight = block.total_mass() * G
+    assert abs((pressure.pressure * pressure.area).sum() / weight - 1.0) < 1e-6
+    np.testing.assert_array_equal(run.records["pressure"][-1], pressure.nodal)
+    assert (tmp_path / "block.bp").is_dir() and (tmp_path / "block_contact_pressure.bp").is_dir()

@@ -19,6 +19,8 @@ OUTPUTS = {
     "skin_pressure.py": ["skin_pressure.png", "block.bp"],
     "static_pressure.py": ["static_pressure.png"],
     "inflated_sphere.py": ["pressure_stretch.png", "inflated_sphere.png", "inflated_sphere.json"],
+    "contact_pad_on_bone.py": ["contact_pad_on_bone.png", "contact_pressure.png", "pad.bp",
+                               "pad_contact_pressure.bp"],
 }
 
 

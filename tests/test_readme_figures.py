@@ -398,3 +398,33 @@ def test_static_newton_counts_on_the_verification_page_match_their_json():
     assert agrees(m[3], -first["equilibrium_min_uz"])
     assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first[
         "equilibrium_min_uz"] < 4.5
+
+
+def test_the_tongue_drop_on_the_contact_page_matches_its_json():
+    """docs/contact.md's tongue dropped on a floor: the figures of
+    ``artifem bench contact --tongue`` (docs/benchmarks/contact_tongue.json)."""
+    case = load("contact_tongue.json")["cases"][0]
+    page = (ROOT / "docs" / "contact.md").read_text()
+    text = re.sub(r"\s+", " ", page[page.index("## The tongue dropped on a floor"):])
+    m = re.search(r"\*\*([\d.]+) ms per step\*\* \(median, ([\d.]+)x the free fall\), up to "
+                  r"(\d+) contact rows, the deepest node ([\d.e+-]+) mm below the floor", text)
+    assert m, "the tongue sentence changed: update this test with it"
+    assert agrees(m[1], case["step_ms"]) and agrees(m[2], case["ratio_to_no_contact"])
+    assert int(m[3]) == case["max_rows"]
+    assert float(m[4]) == pytest.approx(case["deepest_below_floor_mm"], rel=0.06)
+    assert case["deepest_below_floor_mm"] <= case["tolerance_mm"]
+    assert abs(case["normal_over_weight_at_end"] - 1.0) < 0.01 and case["halvings"] == 0
+
+
+def test_the_contact_scale_figure_in_the_readme_matches_the_bench_json():
+    """The README's contact cost at 500 active rows: the rule's path for the 484 points of
+    ``artifem bench contact`` (docs/benchmarks/contact.json) on its largest block."""
+    cases = [c for c in load("contact.json")["cases"] if c["kind"] == "fem"
+             and c["points"] == 484 and c["mu"] == 0 and "forced_path" not in c]
+    assert len(cases) == 1
+    m = re.search(r"500 active rows on a ([\d,]+)-node block cost ([\d.]+)x the step without "
+                  r"contact", re.sub(r"\s+", " ", README))
+    assert m, "the README's contact sentence changed: update this test with it"
+    assert int(m[1].replace(",", "")) == cases[0]["nodes"]
+    assert agrees(m[2], cases[0]["ratio_to_no_contact"])
+    assert cases[0]["active_rows"] >= 480

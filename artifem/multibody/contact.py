@@ -227,3 +227,12 @@ class PlaneContact:
             friction = (np.outer(lam[k:2 * k], self.tangents[0])
                         + np.outer(lam[2 * k:], self.tangents[1])) / h
         return ContactForces(self.labels[block.points], lam[:k] / h, friction)
+
+    def normal_forces(self, parts: list, h: float) -> list:
+        """[(the body's contact points, the normal force on each (N))] over the last step:
+        the point sets a contact pressure is given on
+        (:func:`~artifem.multibody.contact_pressure.contact_pressure`)."""
+        f = np.zeros(len(self._points))
+        for block, lam in parts:
+            f[block.points] += lam[:len(block.points)] / h
+        return [(self._points, f)]

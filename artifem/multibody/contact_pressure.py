@@ -1,7 +1,8 @@
 """Contact pressure of an FEM body's nodes from the normal forces of its contact rows.
 
-Each boundary node i that had a contact row carries the normal force f_n,i (N,
-:class:`~artifem.multibody.contact.ContactForces`). Its pressure is that force over the
+Each contact node i carries the normal force f_n,i (N, the contact's ``normal_forces``:
+a plane's point force, a mesh pair's shared by its coefficients). Its pressure is that
+force over the
 node's tributary area on the body's boundary, the lumped boundary "mass":
 
     p_i = f_n,i / A_i,        A_i = int_{dOmega} N_i dA,
@@ -28,8 +29,8 @@ __all__ = ["ContactPressure", "boundary_areas", "contact_pressure"]
 
 
 class ContactPressure(NamedTuple):
-    """points: the input node indices that had contact rows (as ContactForces.points);
-    pressure: (k,) f_n / A (Pa); area: (k,) their tributary areas A (m^2);
+    """points: the input node indices of the contact's nodes (zero pressure where they had
+    no force); pressure: (k,) f_n / A (Pa); area: (k,) their tributary areas A (m^2);
     nodal: the pressure at every local node, indexed like a scalar P1 function's dofs on the
     body's mesh (zero off the contact; ``fem.Function(...).x.array[:] = nodal``)."""
 
@@ -70,27 +71,26 @@ def boundary_areas(body: FemBody, *, quadrature_degree: int = 2,
     return b.array.copy()
 
 
-def contact_pressure(contact, forces, *, quadrature_degree: int = 2,
+def contact_pressure(points, normal_force: np.ndarray, *, quadrature_degree: int = 2,
                      configuration: str = "reference") -> ContactPressure:
-    """p_i = f_n,i / A_i at the nodes of ``forces`` (a contact's
-    :class:`~artifem.multibody.contact.ContactForces`, e.g. ``scene.contact_forces(c)``)
-    on ``contact.body``, a full FEM body (module docstring; A_i: :func:`boundary_areas`)."""
-    body = contact.body
-    if not isinstance(body, FemBody):
-        raise InputError(f"contact {getattr(contact, 'name', contact)!r}: a contact pressure "
-                         f"is for FEM bodies, got {type(body).__name__}")
+    """p_j = f_n,j / A_j at a contact's point set on an FEM body (module docstring):
+    ``points`` a point set of :mod:`artifem.contact_points` whose ``mesh_body`` is the FEM
+    body (a reduced body's full body), ``normal_force`` (len(points),) its normal forces,
+    as a contact's ``normal_forces`` gives them (``Scene.contact_pressure`` does both;
+    A_j: :func:`boundary_areas`)."""
+    body = getattr(points, "mesh_body", None)
+    if body is None:
+        raise InputError(f"a contact pressure is for FEM bodies' nodes; these points have no "
+                         f"FEM mesh ({type(points).__name__})")
     areas = boundary_areas(body, quadrature_degree=quadrature_degree,
                            configuration=configuration)
-    points = np.asarray(forces.points, dtype=int)
-    dofs = body.local_dofs(points)
-    if dofs.size != points.size:
-        raise InputError(f"FemBody {body.name!r}: contact forces name nodes not on this body")
+    dofs = np.asarray(points.dofs)
     area = areas[dofs]
     if np.any(area <= 0):
-        bad = points[area <= 0][:10].tolist()
+        bad = np.asarray(points.labels)[area <= 0][:10].tolist()
         raise InputError(f"FemBody {body.name!r}: nodes {bad} have no boundary area (not on "
                          "an exterior facet)")
-    pressure = np.asarray(forces.normal, dtype=float) / area
+    pressure = np.asarray(normal_force, dtype=float) / area
     nodal = np.zeros(areas.shape)
     nodal[dofs] = pressure
-    return ContactPressure(points, pressure, area, nodal)
+    return ContactPressure(np.asarray(points.labels), pressure, area, nodal)

@@ -88,6 +88,7 @@ class MeshContactRows(RowBlock):
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     side_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tangents: tuple = ()
+    weights: object = None          # W (k x n_all) of the normal rows
 
 
 def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -437,7 +438,7 @@ class MeshContact:
             lo, hi, stiffness, friction_bounds if mu > 0 else None,
             np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
-            tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else (),
+            tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else (), weights=W,
             compliance=self._compliance(pairs, m))]
 
     def _compliance(self, pairs: _Pairs, m: int):
@@ -486,3 +487,14 @@ class MeshContact:
             friction = side * (lam[k:2 * k, None] * block.tangents[0]
                                + lam[2 * k:, None] * block.tangents[1]) / h
         return MeshContactForces(block.points, lam[:k] / h, side * block.normals, friction)
+
+    def normal_forces(self, parts: list, h: float) -> list:
+        """[(a body's surface points, the normal force on each (N))] for a and b over the
+        last step: each pair's normal force shared by its coefficients, f_j = sum_k
+        |W_kj| lambda_k / h (a vertex takes all of it, a triangle's vertices b_i of it)."""
+        (pa, _), (pb, _) = self._surfaces
+        f = np.zeros(len(pa) + len(pb))
+        for block, lam in parts:
+            k = len(block.points)
+            f += abs(block.weights).T @ (lam[:k] / h)
+        return [(pa, f[:len(pa)]), (pb, f[len(pa):])]

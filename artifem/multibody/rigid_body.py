@@ -493,6 +493,7 @@ class BodyPoints:
             raise InputError(f"rigid body {body.name!r}: contact points must be a finite "
                              f"(n >= 1, 3) array, got shape {self.local.shape}")
         self.labels = np.arange(len(self.local))
+        self.mesh_body = None                       # no FEM mesh: no contact pressure
 
     def __len__(self) -> int:
         return len(self.local)

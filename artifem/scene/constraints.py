@@ -84,6 +84,8 @@ def _vstack(blocks: list):
 
 #: passes of the active set with bounds that depend on the impulses (friction), at most
 BOUND_PASSES = 50
+#: ... the bounds of the passes after this many take the mean of the last impulses
+RELAX_PASSES = 8
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
@@ -104,7 +106,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     if warm is not None and bounds is not None:
         lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
     start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
-    for _ in range(BOUND_PASSES):
+    basis = None                            # the impulses the current bounds are of
+    for k in range(BOUND_PASSES):
         lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start, batch)
         at_high = ~active & (held == hi) & (lo < hi)
         if bounds is None:
@@ -115,7 +118,11 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             take = ~use & warm[2]
             start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high),
                      use | take)
-        lo_new, hi_new = bounds(lam)
+        # after RELAX_PASSES the bounds take the mean of the impulses they were of and the
+        # new ones: the passes can cycle (a pad draping over a ball with friction: rows
+        # that slide in one pass stick in the next), and the mean damps the cycle
+        basis = lam if k < RELAX_PASSES or basis is None else 0.5 * (basis + lam)
+        lo_new, hi_new = bounds(basis)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
         lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):

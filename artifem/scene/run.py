@@ -59,12 +59,16 @@ def simulate(scene, duration: float, dt: float, *,
 
     Args:
         record: name -> ``f(scene)`` returning a number or an array, evaluated at the
-            start and after every step.
+            start and after every step (arrays whose length changes, e.g. a contact's
+            forces per pair ``lambda s: s.contact_forces(c).normal``, are kept as an object
+            array of them).
         vtx: a directory: every FEM body's displacement is written as a VTX (.bp) series
             ``<dir>/<body name>.bp`` (a reduced body's through its full body, rebuilt
             only for the output), and a hard-incompressible body's pressures as
-            ``<dir>/<body name>_pressure.bp`` (``FemBody.output_fields``), every
-            ``write_every`` steps.
+            ``<dir>/<body name>_pressure.bp`` (``FemBody.output_fields``), and the contact
+            pressure on each FEM body a contact touches as
+            ``<dir>/<body name>_contact_pressure.bp`` (``Scene.contact_pressure``, summed
+            over its contacts), every ``write_every`` steps.
         keep: times at which a copy of every FEM body's displacement is kept
             (``Run.snapshots``, e.g. for renders).
         on_failure: ``"raise"``: a step that fails even after halving raises the scene's
@@ -94,8 +98,16 @@ def simulate(scene, duration: float, dt: float, *,
                                                    functions)))
         for body in scene.reduced_bodies:
             writers.append((body, ResultWriter(Path(vtx) / f"{body.name}.bp", [body.full.u])))
+    pressures = _contact_pressure_fields(scene) if vtx is not None else {}
+    for name, (field, _) in pressures.items():
+        writers.append((None, ResultWriter(Path(vtx) / f"{name}_contact_pressure.bp",
+                                           [field])))
 
     def write():
+        for name, (field, contacts) in pressures.items():
+            field.x.array[:] = 0.0
+            for contact in contacts:
+                field.x.array[:] += scene.contact_pressure(contact)[name].nodal
         for reduced, writer in writers:
             if reduced is not None:
                 reduced.to_full()
@@ -139,9 +151,36 @@ def simulate(scene, duration: float, dt: float, *,
     finally:
         for _, writer in writers:
             writer.close()
-    return Run(np.array(times), {name: np.array(v) for name, v in values.items()},
+    return Run(np.array(times), {name: _stacked(v) for name, v in values.items()},
                np.array(step_ms), int(scene.halvings), float(scene.min_det_F), snapshots,
                failure, int(scene.fallbacks))
+
+
+def _stacked(values: list) -> np.ndarray:
+    """The values of one record over the times: an array (times, ...) when each time's has
+    the same shape, else an object array of them (a contact's forces per pair: the number
+    of pairs changes)."""
+    if len({v.shape for v in values}) <= 1:
+        return np.array(values)
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
+
+
+def _contact_pressure_fields(scene) -> dict:
+    """{FEM body name: (its P1 contact pressure Function, the contacts on it)} for the FEM
+    bodies (a reduced body's full body) that a contact of the scene touches."""
+    fields: dict = {}
+    for contact in scene.contacts:
+        for points, _ in contact.normal_forces([], 1.0):
+            body = points.mesh_body
+            if body is None:
+                continue
+            if body.name not in fields:
+                fields[body.name] = (fem.Function(fem.functionspace(body.mesh, ("Lagrange", 1)),
+                                                  name="contact_pressure"), [])
+            fields[body.name][1].append(contact)
+    return fields
 
 
 def _copy(u: fem.Function) -> fem.Function:

@@ -229,6 +229,7 @@ from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachmen
                                            LiftAttachment, NodeAttachment, RigidAttachment,
                                            dof_positions, pose_gap)
 from artifem.multibody.contact import ContactForces, PlaneContact
+from artifem.multibody.contact_pressure import contact_pressure
 from artifem.multibody.joints import Joint
 from artifem.multibody.loads import LoadElement
 from artifem.multibody.point_paths import PointPath
@@ -638,6 +639,19 @@ class Scene:
         if not any(contact is c for c in self.contacts):
             raise UnknownNameError(f"contact {contact.name!r} is not in the scene")
         return contact.forces(self._impulses.get(contact, []), self._last_h)
+
+    def contact_pressure(self, contact, **options) -> dict:
+        """{FEM body name: :class:`~artifem.multibody.contact_pressure.ContactPressure`}:
+        the pressure p_j = f_n,j / A_j of the contact's nodes on each FEM body it touches
+        (a reduced body's on its full body's mesh; rigid bodies have none), from the forces
+        of :meth:`contact_forces` (``options``: ``quadrature_degree``, ``configuration`` of
+        :func:`~artifem.multibody.contact_pressure.contact_pressure`)."""
+        if not any(contact is c for c in self.contacts):
+            raise UnknownNameError(f"contact {contact.name!r} is not in the scene")
+        return {points.mesh_body.name: contact_pressure(points, f, **options)
+                for points, f in contact.normal_forces(self._impulses.get(contact, []),
+                                                       self._last_h)
+                if points.mesh_body is not None}
 
     def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
         """The wrenches the joint applied to each of its ``bodies`` over the last step
