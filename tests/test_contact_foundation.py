@@ -440,3 +440,31 @@ def test_redundant_compliant_rows_solve_alike_on_both_paths(rng, scale):
                                    atol=1e-10 * np.abs(lam2).max())
     else:
         np.testing.assert_allclose(z1, hard[0], rtol=0, atol=1e-10 * np.abs(z2).max())
+
+
+def test_the_contact_pressure_of_a_block_on_a_layer_is_the_law_s():
+    """The 4 x 4 x 4 cube resting on a layer (E = 2e5 Pa, t = 4 mm), 30 steps:
+    Scene.contact_pressure (f / the lumped boundary area, current configuration) at the
+    nodes inside the bottom face is the layer's K d / t, d their depth (measured to 2e-5
+    relative: the rows' areas are those at the start of the last step, and the block is
+    still settling)."""
+    from test_contact_plane import fem_block
+
+    soft = af.ElasticFoundation(2e5, 0.3, 0.004)
+    block = fem_block()
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=1e-6,
+                              margin=0.02, foundation=soft)
+    scene = af.Scene(gravity=(0.0, 0.0, -G))
+    scene.add(block, contact)
+    for _ in range(30):
+        scene.step(H)
+    p = scene.contact_pressure(contact, configuration="current")[block.name]
+    x0 = block.V.tabulate_dof_coordinates()
+    dofs = block.local_dofs(p.points)
+    inside = np.all((x0[dofs, :2] > 1e-9) & (x0[dofs, :2] < 0.1 - 1e-9), axis=1) \
+        & (np.abs(x0[dofs, 2]) < 1e-12)
+    assert inside.sum() == 9
+    x = x0 + block.u.x.array.reshape(-1, 3)
+    depth = -x[dofs[inside], 2]
+    np.testing.assert_allclose(p.pressure[inside], soft.modulus * depth / soft.thickness,
+                               rtol=1e-4)
