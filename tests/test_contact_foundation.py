@@ -302,8 +302,8 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths():
     0.15 N); each node's normal force is K A_k d_k / t with d_k its depth after the step
     and A_k its facing area at the start of the step (measured to 7e-13 of the largest
     force, the round-off of depths of 1e-5 m read off coordinates of 0.05 m; with the
-    areas after the step, 6e-6: the block deforms); the deepest node (1.2e-5 m) is deeper than the tolerance
-    (1e-5 m), allowed by the layer."""
+    areas after the step, 6e-6: the block deforms); the deepest node (1.2e-5 m) is
+    deeper than the tolerance (1e-5 m), allowed by the layer."""
     from artifem.bench_contact import forced_path
 
     soft = af.ElasticFoundation(2e5, 0.3, 0.004)

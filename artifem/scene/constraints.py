@@ -13,9 +13,10 @@ within its bounds) or held at a bound (lambda = lo with G z >= c, or lambda = hi
 G z <= c). Compliant rows (``StepRows.compliance`` = C / h^2,
 :mod:`~artifem.multibody.constraint_rows`) put + C / h^2 on the multiplier block's
 diagonal: G z + (C / h^2) lambda = c where active, and their slack G z - c + (C / h^2)
-lambda where held; both paths and statics take it. The active set is found by a primal-dual active set
-(:func:`_active_set`: release the multiplier furthest out of its bounds, else activate
-the most violated row, repeat); rows with lo = -inf and hi = inf are always active.
+lambda where held; both paths and statics take it. The active set is found by a
+primal-dual active set (:func:`_active_set`: release the multiplier furthest out of its
+bounds, else activate the most violated row, repeat); rows with lo = -inf and hi = inf
+are always active.
 Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fixed
 point around it: the active set again with the bounds of its last impulses, until they
 settle.
