@@ -38,6 +38,7 @@ _PUBLIC = {
                      "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
     **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
     **dict.fromkeys(["MeshContact", "MeshContactForces"], "artifem.multibody.mesh_contact"),
+    "ElasticFoundation": "artifem.multibody.foundation",
     **dict.fromkeys(["contact_pressure", "ContactPressure"],
                     "artifem.multibody.contact_pressure"),
     **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",

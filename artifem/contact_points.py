@@ -14,7 +14,10 @@ A point set gives
     labels, describe(i)      the points' names for output and errors;
     mesh_body                the FEM body whose mesh nodes the points are (a reduced
                              body's full body), or None (a rigid body): where a contact
-                             pressure can be given (:mod:`artifem.multibody.contact_pressure`).
+                             pressure can be given (:mod:`artifem.multibody.contact_pressure`);
+    facing_areas(i, e)       (k,) the area of its own surface each point i_k stands for,
+                             facing against e_k (an elastic foundation's rows,
+                             :func:`artifem.multibody.foundation.facing_areas`).
 
 This module holds the sets of FEM nodes, full (x_j = X_j + u_j, G = e^T W on the nodes'
 velocity dofs) and reduced (x_j = X_j + u_bar_j + U_j q, G = e^T W U: k x r, dense, only
@@ -61,6 +64,42 @@ class FemNodes:
     def stiffness(self, W, forces: np.ndarray) -> sparse.csr_matrix:
         """Zero: a node's rows do not turn with it."""
         return sparse.csr_matrix((self.n, self.n))
+
+    def facing_areas(self, indices: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """(k,) the boundary area node ``indices[k]`` of the set stands for against
+        ``directions[k]`` (:func:`~artifem.multibody.foundation.facing_areas`), over the
+        exterior facets of the (full) body's mesh at the current node positions: a
+        triangle's projected area by thirds, a quadrilateral's (its two triangles of
+        ``FemBody._surface``) by quarters, as the lumped ``boundary_areas`` of the facing
+        facets on a flat face. Nodes off the boundary: 0."""
+        from artifem.multibody.foundation import facing_areas
+        full = getattr(self.body, "full", self.body)
+        if getattr(self, "_facets", None) is None:
+            dofs, tris = full._surface()
+            corners = tris
+            if len(tris) and full.mesh.topology.cell_type.name == "hexahedron":
+                # FemBody._surface: a quadrilateral's two triangles are f and f + n_quads
+                half = len(tris) // 2
+                t1, t2 = tris[:half], tris[half:]
+                fourth = np.where((t2[:, :, None] != t1[:, None, :]).all(axis=2), t2,
+                                  -1).max(axis=1)
+                corners = np.column_stack([t1, fourth])
+                pairs = (t1, t2)
+            else:
+                pairs = (tris,)
+            self._facets = (dofs, corners, pairs, self.body.contact_points(None))
+        dofs, corners, pairs, surface = self._facets
+        x = surface.positions()
+        area = sum(0.5 * np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
+                   for t in pairs)
+        mine = self.dofs[np.asarray(indices, dtype=int)]
+        where = np.minimum(np.searchsorted(dofs, mine), len(dofs) - 1)
+        on = dofs[where] == mine
+        out = np.zeros(len(mine))
+        if on.any():
+            out[on] = facing_areas(area, corners, where[on], np.asarray(directions)[on],
+                                   len(dofs))
+        return out
 
 
 class ReducedNodes(FemNodes):

@@ -31,6 +31,21 @@ with complementarity on the bounded rows (lambda at lo where G z+ > c, at hi whe
 G z+ < c: a friction row slides against the slip);
 Baumgarte's beta (``Scene.stabilization``) removes the drift of the free rows. Statics
 asks phi + G dq = 0 (free) or >= 0 (bounded): the same right-hand side at h = beta = 1.
+
+Compliant rows (``compliance`` C (m,) >= 0, m/N; an elastic foundation's contact rows,
+:mod:`artifem.multibody.foundation`): a bounded row with C > 0 is a spring that pushes
+only in compression, its force f = -phi_end / C >= 0 with phi_end = phi + h G z+ the
+value at the end of the step. With lambda = h f, an active compliant row asks
+
+    G z+ + (C / h^2) lambda = c,     c = -phi / h  (at any sign of phi: no Baumgarte,
+                                     the penetration is the law's),
+
+and complementarity lambda >= 0, G z+ - c + (C / h^2) lambda >= 0, their product 0: the
+multiplier block of the KKT gains + C / h^2 on its diagonal. The scene turns C into
+C / h^2 where it maps the rows onto the step (:class:`~artifem.scene.constraints.StepRows`
+``compliance``, :meth:`~artifem.scene.constraint_map.ConstraintMap.rows`); statics takes
+h = 1 (phi + G dq = -C lambda, lambda the force). C = 0 (the default) is a hard row.
+Friction rows stay hard; their bounds take the compliant normal impulses.
 """
 
 from __future__ import annotations
@@ -64,6 +79,8 @@ class RowBlock:
             contact's point and direction): the next step's active set starts from the
             last one's rows of the same keys (a warm start,
             :class:`~artifem.scene.constraints.ActiveSetMemory`).
+        compliance: None (hard rows), or (m,) C >= 0 (m/N) on bounded rows (module
+            docstring); zero on free rows.
     """
 
     owner: object
@@ -74,6 +91,7 @@ class RowBlock:
     stiffness: Callable[[np.ndarray], np.ndarray]
     bounds_from: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
     keys: np.ndarray | None = None
+    compliance: np.ndarray | None = None
 
     def __post_init__(self):
         m = self.phi.shape[0]
@@ -84,6 +102,12 @@ class RowBlock:
                 raise InputError(f"{what}: a Jacobian with {G.shape[0]} rows for {m} values")
         if self.keys is not None and len(self.keys) != m:
             raise InputError(f"{what}: {len(self.keys)} row keys for {m} rows")
+        if self.compliance is not None:
+            C = np.asarray(self.compliance, dtype=float)
+            if C.shape != (m,) or not np.all(np.isfinite(C)) or np.any(C < 0):
+                raise InputError(f"{what}: the compliance must be {m} finite values >= 0")
+            if np.any(C[~self.bounded] > 0):
+                raise InputError(f"{what}: a compliance on a free (bilateral) row")
 
     @classmethod
     def bilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:
@@ -115,14 +139,24 @@ class RowBlock:
         """(m,) bool: rows with a finite bound on lambda (inequalities phi >= 0)."""
         return np.isfinite(self.lo) | np.isfinite(self.hi)
 
+    @property
+    def compliant(self) -> np.ndarray:
+        """(m,) bool: rows with a compliance C > 0 (module docstring)."""
+        if self.compliance is None:
+            return np.zeros(len(self), dtype=bool)
+        return np.asarray(self.compliance) > 0
+
     def rhs(self, h: float, beta: float) -> np.ndarray:
-        """c of the rows G z+ (= or >=) c (module docstring)."""
-        gain = np.where(self.bounded & (self.phi > 0), 1.0, beta)
+        """c of the rows G z+ (= or >=) c (module docstring): -phi / h on compliant rows
+        at any sign of phi."""
+        gain = np.where(self.bounded & ((self.phi > 0) | self.compliant), 1.0, beta)
         return -gain * self.phi / h
 
     def gap(self) -> np.ndarray:
-        """The part of phi the rows forbid: phi on free rows, min(phi, 0) on bounded ones."""
-        return np.where(self.bounded, np.minimum(self.phi, 0.0), self.phi)
+        """The part of phi the rows forbid: phi on free rows, min(phi, 0) on bounded ones,
+        0 on compliant ones (their penetration is the law's)."""
+        return np.where(self.bounded, np.where(self.compliant, 0.0, np.minimum(self.phi, 0.0)),
+                        self.phi)
 
 
 def _check_bounds(lo: np.ndarray, hi: np.ndarray, m: int, what: str) -> None:

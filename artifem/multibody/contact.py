@@ -94,13 +94,18 @@ class PlaneContact:
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
         margin: points closer to the plane than this (m) get rows.
         name: used in errors.
+        foundation: None (hard normal rows), or an
+            :class:`~artifem.multibody.foundation.ElasticFoundation`: compliant normal rows
+            (C = t / (K A) per point, A its facing area; penetration allowed up to
+            max(tolerance, t)).
     """
 
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "contacts"
 
     def __init__(self, body, point, normal, *, mu: float = 0.0, points=None,
-                 tolerance: float = 1e-5, margin: float = 1e-2, name: str = ""):
+                 tolerance: float = 1e-5, margin: float = 1e-2, name: str = "",
+                 foundation=None):
         self.name = name or f"contact of {getattr(body, 'name', body)!r}"
         what = f"contact {self.name!r}"
         n = np.asarray(normal, dtype=float)
@@ -127,6 +132,9 @@ class PlaneContact:
         self.normal, self.tangents = basis[:, 2], basis[:, :2].T
         self.offset = float(self.normal @ p0)
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
+        self.foundation = None if foundation is None else foundation.checked(what)
+        if self.foundation is not None:        # the points know their areas
+            self._points.facing_areas(np.zeros(0, dtype=int), np.zeros((0, 3)))
 
     @property
     def bodies(self) -> tuple:
@@ -138,7 +146,7 @@ class PlaneContact:
         :mod:`artifem.reduction.reductor`), on the same nodes."""
         return PlaneContact(reduced, self.offset * self.normal, self.normal, mu=self.mu,
                             points=self._given, tolerance=self.tolerance, margin=self.margin,
-                            name=self.name)
+                            name=self.name, foundation=self.foundation)
 
     @property
     def labels(self) -> np.ndarray:
@@ -180,18 +188,33 @@ class PlaneContact:
             hi,
             lambda lam: self._points.stiffness(W, lam[:, None] * directions),
             friction_bounds if mu > 0 else None,
-            np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near)]
+            np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near,
+            compliance=self._compliance(near, m))]
+
+    def _compliance(self, near: np.ndarray, m: int):
+        """The normal rows' compliance of the foundation (friction rows hard), or None."""
+        if self.foundation is None:
+            return None
+        areas = self._points.facing_areas(near, np.tile(self.normal, (len(near), 1)))
+        return np.concatenate([self.foundation.compliance(areas), np.zeros(m - len(near))])
+
+    @property
+    def allowed_depth(self) -> float:
+        """The penetration a step may end with: ``tolerance``, or with a foundation
+        max(tolerance, its thickness)."""
+        return self.tolerance if self.foundation is None else \
+            max(self.tolerance, self.foundation.thickness)
 
     def constraint_failure(self) -> str | None:
-        """The first point deeper than ``tolerance`` below the plane, if any."""
+        """The first point deeper than ``allowed_depth`` below the plane, if any."""
         phi = self.distances()
-        deep = np.flatnonzero(phi < -self.tolerance)
+        deep = np.flatnonzero(phi < -self.allowed_depth)
         if not deep.size:
             return None
         i = int(deep[0])
         return (f"contact {self.name!r}: {self._points.describe(i)} of {self.body.name!r} is "
                 f"{-phi[i]:.3g} below the plane ({deep.size} points deeper than the tolerance "
-                f"{self.tolerance:g}, the deepest {-phi.min():.3g}; a point that comes from "
+                f"{self.allowed_depth:g}, the deepest {-phi.min():.3g}; a point that comes from "
                 f"beyond the margin {self.margin:g} within one step has no row: the margin "
                 "should be at least the largest approach speed times the step)")
 

@@ -203,13 +203,18 @@ class MeshContact:
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
         margin: pairs closer than this (m) get rows.
         name: used in errors.
+        foundation: None (hard normal rows), or an
+            :class:`~artifem.multibody.foundation.ElasticFoundation`: compliant normal rows
+            of the vertex-over-triangle pairs (C = t / (K A), A the facing area of the
+            vertex on its own surface), edge-across-edge rows hard; penetration allowed up
+            to max(tolerance, t).
     """
 
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "contacts"
 
     def __init__(self, a, b, *, mu: float = 0.0, tolerance: float = 1e-5,
-                 margin: float = 1e-2, name: str = ""):
+                 margin: float = 1e-2, name: str = "", foundation=None):
         self.name = name or f"contact of {a.name!r} and {b.name!r}"
         what = f"contact {self.name!r}"
         if a is b:
@@ -223,6 +228,7 @@ class MeshContact:
                              f"got {margin!r}")
         self.a, self.b = a, b
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
+        self.foundation = None if foundation is None else foundation.checked(what)
         for body in (a, b):
             if not callable(getattr(body, "contact_surface", None)):
                 raise InputError(f"{what}: {type(body).__name__} {body.name!r} has no contact "
@@ -249,7 +255,7 @@ class MeshContact:
         a, b = (reduced if getattr(reduced, "full", None) is body else body
                 for body in (self.a, self.b))
         return MeshContact(a, b, mu=self.mu, tolerance=self.tolerance, margin=self.margin,
-                           name=self.name)
+                           name=self.name, foundation=self.foundation)
 
     def _pairs(self) -> _Pairs:
         """The pairs of the current state (module docstring): vertex over triangle both
@@ -437,18 +443,39 @@ class MeshContact:
             lo, hi, stiffness, friction_bounds if mu > 0 else None,
             np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
-            tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else (), weights=W)]
+            tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else (), weights=W,
+            compliance=self._compliance(pairs, m))]
+
+    def _compliance(self, pairs: _Pairs, m: int):
+        """The normal rows' compliance of the foundation, or None: a vertex-over-triangle
+        pair's from its vertex's facing area on its own surface, shared equally among the
+        vertex's pairs (a vertex over the common edge of two triangles, or meeting the
+        facets of a concave edge, has one row for each: one spring in all), edge pairs and
+        friction rows hard."""
+        if self.foundation is None:
+            return None
+        areas = np.zeros(m)
+        for side, (points, _) in enumerate(self._surfaces):
+            rows = np.flatnonzero(pairs.which[:, 0] == side)
+            if rows.size:
+                _, inverse, counts = np.unique(pairs.which[rows, 1], return_inverse=True,
+                                               return_counts=True)
+                areas[rows] = points.facing_areas(pairs.which[rows, 1], pairs.e[rows]) \
+                    / counts[inverse]
+        return self.foundation.compliance(areas)
 
     def constraint_failure(self) -> str | None:
         """A vertex of either surface deeper than ``tolerance`` inside the other, or two
         edges crossed by more, if any."""
         deepest = self._pairs().deepest
-        if deepest is None or deepest[0] >= -self.tolerance:
+        allowed = self.tolerance if self.foundation is None else \
+            max(self.tolerance, self.foundation.thickness)
+        if deepest is None or deepest[0] >= -allowed:
             return None
         depth, kind, i, j = deepest
         what = "the vertex is" if kind < 2 else "they are crossed by"
         return (f"contact {self.name!r}: {self._describe(kind, i, j)}: {what} {-depth:.3g} "
-                f"inside (the tolerance is {self.tolerance:g}; a pair that comes from beyond "
+                f"inside (the tolerance is {allowed:g}; a pair that comes from beyond "
                 f"the margin {self.margin:g} within one step has no row: the margin should be "
                 "at least the largest approach speed times the step)")
 

@@ -519,3 +519,19 @@ class BodyPoints:
         K = np.zeros((6, 6))
         K[3:, 3:] = np.einsum("jab,jbc->ac", skews(forces), skews(self._levers(W)[1]))
         return K
+
+    def facing_areas(self, indices: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """(k,) the surface area point ``indices[k]`` stands for against ``directions[k]``
+        (:func:`~artifem.multibody.foundation.facing_areas`): a third of each adjacent
+        surface triangle facing it, projected on it, at the current pose. The points must
+        be the surface's vertices (the default contact points)."""
+        from artifem.multibody.foundation import facing_areas
+        surface = self.body.surface
+        if surface is None or np.shape(surface[0]) != self.local.shape \
+                or not np.allclose(surface[0], self.local):
+            raise InputError(f"rigid body {self.body.name!r}: an elastic foundation needs "
+                             "the contact points to be the body's surface vertices (the "
+                             "default), to know the area each stands for")
+        x, tris = self.positions(), np.asarray(surface[1])
+        area = 0.5 * np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
+        return facing_areas(area, tris, indices, np.asarray(directions), len(x))

@@ -75,7 +75,9 @@ class ConstraintMap:
         out, start = [], 0
         for block in blocks:
             s1 = start + len(block)
-            out.append(StepRows(block, GP[start:s1], block.rhs(h, beta) - Gz[start:s1]))
+            # compliant rows: C / h^2 on the multiplier block (constraint_rows docstring)
+            C = None if block.compliance is None else np.asarray(block.compliance) / h ** 2
+            out.append(StepRows(block, GP[start:s1], block.rhs(h, beta) - Gz[start:s1], C))
             start = s1
         self.seconds["mapping"] = time.perf_counter() - toc
         return out

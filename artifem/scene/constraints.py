@@ -10,9 +10,13 @@ KKT system (artifem.scene.scene docstring; ArtiSynth's constrained backward Eule
 
 holds on the active rows; a row with a finite bound is either active (G z = c, lambda
 within its bounds) or held at a bound (lambda = lo with G z >= c, or lambda = hi with
-G z <= c). The active set is found by a primal-dual active set
-(:func:`_active_set`: release the multiplier furthest out of its bounds, else activate
-the most violated row, repeat); rows with lo = -inf and hi = inf are always active.
+G z <= c). Compliant rows (``StepRows.compliance`` = C / h^2,
+:mod:`~artifem.multibody.constraint_rows`) put + C / h^2 on the multiplier block's
+diagonal: G z + (C / h^2) lambda = c where active, and their slack G z - c + (C / h^2)
+lambda where held; both paths and statics take it. The active set is found by a
+primal-dual active set (:func:`_active_set`: release the multiplier furthest out of its
+bounds, else activate the most violated row, repeat); rows with lo = -inf and hi = inf
+are always active.
 Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fixed
 point around it: the active set again with the bounds of its last impulses, until they
 settle.
@@ -64,12 +68,14 @@ __all__ = ["ActiveSetMemory", "StepRows", "impulses_by_constraint", "solve_const
 @dataclass(frozen=True, eq=False)
 class StepRows:
     """A constraint's :class:`RowBlock` on the solve's coordinates: G (rows on the
-    masters, G P; dense or sparse) and c (the right-hand side, the known velocities'
-    G z_k taken off)."""
+    masters, G P; dense or sparse), c (the right-hand side, the known velocities'
+    G z_k taken off) and ``compliance``: None (hard rows) or the diagonal the rows add
+    to the multiplier block, the block's compliance C over h^2 (statics: h = 1)."""
 
     block: RowBlock
     G: object
     c: np.ndarray
+    compliance: np.ndarray | None = None
 
 
 def _vstack(blocks: list):
@@ -189,6 +195,14 @@ def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
     return lam, active, held, extra
+
+
+def _compliance(rows: list) -> np.ndarray | None:
+    """The stacked ``StepRows.compliance`` (C / h^2), or None when every row is hard."""
+    if all(g.compliance is None or not np.any(g.compliance) for g in rows):
+        return None
+    return np.concatenate([np.zeros(len(g.c)) if g.compliance is None else
+                           np.asarray(g.compliance, dtype=float) for g in rows])
 
 
 def _stacked(rows: list):
@@ -329,15 +343,16 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     warm = memory.start(rows) if memory is not None else None
     tol = 1e-10 * max(1.0, np.abs(c).max())
     system = None
+    C = _compliance(rows)
     if path == "kkt":
-        system = _KKT(solver, A, b, G, F, c, lo, hi, what)
+        system = _KKT(solver, A, b, G, F, c, lo, hi, what, C)
         try:
             lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds,
                                                   warm, batch=True)
         except _Inconsistent:       # redundant active rows that disagree: least squares
             path, system = "schur", None
     if system is None:
-        system = _Schur(solver, A, b, G, F, c, lo, hi, what)
+        system = _Schur(solver, A, b, G, F, c, lo, hi, what, C)
         lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm)
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
@@ -355,9 +370,10 @@ class _Schur:
     """Trials of the active set by the Schur complement (module docstring): A factored
     once, W = A^-1 F^T, S = G W, least squares on the active rows. Many more rows than
     coordinates (rigid bodies on fine contact grids: S of rank n at most, m x m): S is
-    not formed, only its active block G_a W_a, and S lambda as G (W lambda)."""
+    not formed, only its active block G_a W_a, and S lambda as G (W lambda). ``C``: None
+    or the rows' compliance over h^2, added to S's diagonal."""
 
-    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what, C=None):
         solver.factor(A, what)
         X = solver.apply(np.column_stack([b, F.T.toarray() if sparse.issparse(F) else F.T]))
         self.solver, self.G = solver, G
@@ -366,6 +382,7 @@ class _Schur:
         self.S = None if m >= KKT_ROWS and m > 4 * n else np.asarray(G @ self.W)
         self.r = c - G @ self.a
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+        self.C = C
         self.trials, self.factorizations = 0, 1
 
     def _block(self, on, cols):
@@ -373,6 +390,13 @@ class _Schur:
         if self.S is not None:
             return self.S[np.ix_(on, cols)]
         return np.asarray(self.G[on] @ self.W[:, cols])
+
+    def _active_block(self, on):
+        """S[on, on] + diag(C[on])."""
+        S = self._block(on, on)
+        if self.C is not None:
+            S = S + np.diag(self.C[on])
+        return S
 
     def trial(self, active, held):
         self.trials += 1
@@ -385,18 +409,20 @@ class _Schur:
                 off = np.flatnonzero(~active)
                 rhs = rhs - (self._block(on, off) @ lam[off] if self.S is not None else
                              np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel())
-            lam[on] = np.linalg.lstsq(self._block(on, on), rhs, rcond=1e-12)[0]
+            lam[on] = np.linalg.lstsq(self._active_block(on), rhs, rcond=1e-12)[0]
         Wl = self.W @ lam
         if self.S is not None:
             slack = self.S[self.bounded] @ lam - r[self.bounded]
         else:
             slack = np.asarray(self.G[self.bounded] @ Wl).ravel() - r[self.bounded]
+        if self.C is not None:
+            slack = slack + self.C[self.bounded] * lam[self.bounded]
         return lam, slack, self.a + Wl
 
     def resolver(self, active):
         on = np.flatnonzero(active)
         G, W, solver = self.G, self.W, self.solver
-        S_on = self._block(on, on) if on.size else None
+        S_on = self._active_block(on) if on.size else None
 
         def resolve(rhs):
             a = solver.apply(rhs)
@@ -428,9 +454,11 @@ class _KKT:
     the matrix with eps = 0 removes it (a proximal point iteration: the redundant rows'
     impulses stay near the minimum-norm ones). Redundant active rows that disagree
     (no z meets them all) leave a residual the refinement cannot remove: the solve then
-    falls back to the Schur complement (:class:`_Inconsistent`)."""
+    falls back to the Schur complement (:class:`_Inconsistent`). Compliant active rows
+    (``C`` = C / h^2 > 0) have E = C in the refinement's matrix and max(C, eps) in the
+    factored one (E > 0: S + E is positive definite)."""
 
-    def __init__(self, solver, A, b, G, F, c, lo, hi, what):
+    def __init__(self, solver, A, b, G, F, c, lo, hi, what, C=None):
         n, m = A.shape[0], len(c)
         Gs, Fs = sparse.csr_matrix(G), sparse.csr_matrix(F)
         K = sparse.bmat([[sparse.csr_matrix(A), -Fs.T], [Gs, sparse.identity(m)]],
@@ -444,6 +472,10 @@ class _KKT:
         diag = np.where(diag > 0, diag, max(diag.max(initial=0.0), 1e-300))
         s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
         self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
+        self.C = np.zeros(m) if C is None else C
+        # compliant rows: E = C (S + C positive definite), at least the regularization
+        # (a C below it is restored by the refinement, as eps is on hard rows)
+        self.eps = np.where(self.C > 0, -np.maximum(self.C, self.eps), self.eps)
         self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
         self._abs_A = abs(sparse.csr_matrix(A))
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
@@ -456,7 +488,7 @@ class _KKT:
         on = active[row]
         K, K0 = self.K.copy(), self.K.copy()
         K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
-        K0.data[start:] = np.where(diag, np.where(on, 0.0, 1.0), data * on)
+        K0.data[start:] = np.where(diag, np.where(on, self.C[row], 1.0), data * on)
         return K, K0
 
     def _solve(self, active, rhs):
@@ -489,7 +521,9 @@ class _KKT:
         x = self._solve(active, np.concatenate([self.b, np.where(active, self.c, held)]))
         z, lam = x[:n], x[n:]
         lam = np.where(active, lam, held)
-        return lam, np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded], z
+        slack = np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded] \
+            + self.C[self.bounded] * lam[self.bounded]
+        return lam, slack, z
 
     def resolver(self, active):
         n, m = self.n, self.m
@@ -512,11 +546,13 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
     active set is first found on the Schur complement of K (one factorization, the trials
     dense and small) and the KKT trials start from it, so they confirm it in one
     factorization instead of one per row activated (a contact of hundreds of nodes); their
-    result is the answer either way."""
+    result is the answer either way. Else compliant rows that touch or cross (c >= 0) start
+    active (a body held by an elastic foundation alone)."""
     n = K.shape[0]
     if not rows:
         return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
     G, c, lo, hi, bounds = _stacked(rows)
+    C = _compliance(rows)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
 
     def trial(active, held):
@@ -524,13 +560,19 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         lam = np.where(active, 0.0, held)
         force = b if not np.any(lam) else b + np.asarray(G.T @ lam).ravel()
         G_on = G if on.size == len(c) else G[on]
-        x = solver.solve(kkt(K, G_on), np.concatenate([force, c[on]]), what)
+        M = kkt(K, G_on)
+        if C is not None and on.size:        # G dq + C lambda = c, lambda = -mu
+            M = _minus_diagonal(M, n, C[on])
+        x = solver.solve(M, np.concatenate([force, c[on]]), what)
         z = x[:n]
         lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
-        return lam, np.asarray(G[bounded] @ z).ravel() - c[bounded], z
+        slack = np.asarray(G[bounded] @ z).ravel() - c[bounded]
+        if C is not None:
+            slack = slack + C[bounded] * lam[bounded]
+        return lam, slack, z
 
     tol = 1e-10 * max(1.0, np.abs(c).max())
-    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds) \
+    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds, C) \
         if bounded.size else None
     if start is not None:
         try:
@@ -538,16 +580,33 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
             return z, lam, active
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
+    if C is not None:
+        # compliant rows touching or crossed (c >= 0) start active: their springs hold a
+        # body that only they support (K singular without them)
+        touch = (C > 0) & (c >= 0)
+        start = (touch, np.zeros(len(c), dtype=bool), C > 0, np.zeros(len(c)))
+        lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds, warm=start)
+        return z, lam, active
     lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds)
     return z, lam, active
 
 
-def _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds):
+def _minus_diagonal(M, n: int, d: np.ndarray):
+    """M with -d added on the diagonal of its rows and columns from n on (dense or
+    sparse)."""
+    if sparse.issparse(M):
+        return (M - sparse.diags(np.concatenate([np.zeros(n), d]))).tocsr()
+    M = np.array(M, dtype=float)
+    M[n:, n:] -= np.diag(d)
+    return M
+
+
+def _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds, C=None):
     """The starting active set of :func:`solve_saddle` (``warm`` of :func:`_active_set`)
     from the Schur complement of K (:class:`_Schur`: one factorization, small dense
     trials), or None when K is singular or the active set there does not settle."""
     try:
-        schur = _Schur(solver, K, b, G, G, c, lo, hi, what)
+        schur = _Schur(solver, K, b, G, G, c, lo, hi, what, C)
         lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, bounds)
     except (StepFailed, np.linalg.LinAlgError):
         return None

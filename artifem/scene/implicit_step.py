@@ -188,7 +188,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 converged = True
                 break
             J, G_x = system.jacobian(z_m, A, rows, lam_jacobian)
-            shifted = [StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel())
+            shifted = [StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel(), g.compliance)
                        for g, G in zip(rows, G_x)]
             z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r, shifted,
                                                   where, force_rows=[g.G for g in rows],

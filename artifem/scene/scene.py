@@ -1086,8 +1086,10 @@ class Scene:
 
 
 def _crossed(rows: list) -> np.ndarray:
-    """The rows a merit holds before a solve: the free rows and the crossed bounded ones."""
-    return np.concatenate([~g.block.bounded | (g.block.phi < 0) for g in rows]) if rows \
+    """The rows a merit holds before a solve: the free rows and the crossed bounded ones
+    (not compliant ones: their crossing is the law's)."""
+    return np.concatenate([~g.block.bounded | ((g.block.phi < 0) & ~g.block.compliant)
+                           for g in rows]) if rows \
         else np.zeros(0, dtype=bool)
 
 
