@@ -17,7 +17,7 @@ A point set gives
                              pressure can be given (:mod:`artifem.multibody.contact_pressure`);
     facing_areas(i, e)       (k,) the area of its own surface each point i_k stands for,
                              facing against e_k (an elastic foundation's rows,
-                             :func:`artifem.multibody.foundation.facing_areas`).
+                             :func:`facing_areas`).
 
 This module holds the sets of FEM nodes, full (x_j = X_j + u_j, G = e^T W on the nodes'
 velocity dofs) and reduced (x_j = X_j + u_bar_j + U_j q, G = e^T W U: k x r, dense, only
@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["EmbeddedPoints", "FemNodes", "ReducedNodes"]
+__all__ = ["EmbeddedPoints", "FemNodes", "ReducedNodes", "facing_areas"]
 
 
 class FemNodes:
@@ -67,12 +67,11 @@ class FemNodes:
 
     def facing_areas(self, indices: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(k,) the boundary area node ``indices[k]`` of the set stands for against
-        ``directions[k]`` (:func:`~artifem.multibody.foundation.facing_areas`), over the
+        ``directions[k]`` (:func:`facing_areas`), over the
         exterior facets of the (full) body's mesh at the current node positions: a
         triangle's projected area by thirds, a quadrilateral's (its two triangles of
         ``FemBody._surface``) by quarters, as the lumped ``boundary_areas`` of the facing
         facets on a flat face. Nodes off the boundary: 0."""
-        from artifem.multibody.foundation import facing_areas
         full = getattr(self.body, "full", self.body)
         if getattr(self, "_facets", None) is None:
             dofs, tris = full._surface()
@@ -162,3 +161,17 @@ class EmbeddedPoints:
     def stiffness(self, W, forces: np.ndarray):
         """Zero: J is fixed (the master's nodes carry the vertices on fixed weights)."""
         return sparse.csr_matrix((self.n, self.n))
+
+
+def facing_areas(area_vectors: np.ndarray, corners: np.ndarray, vertices: np.ndarray,
+                 directions: np.ndarray, n: int) -> np.ndarray:
+    """(k,) the area each surface vertex ``vertices[k]`` stands for against
+    ``directions[k]`` (an elastic foundation's area rule, :mod:`artifem.multibody.foundation`):
+    the facets (outward vector areas (f, 3), their corners (f, c) into n vertices) at the
+    vertex with a_f . e_k < 0 give -(a_f . e_k) / c."""
+    f, c = corners.shape
+    incidence = sparse.csr_matrix((np.ones(f * c), (corners.ravel(), np.repeat(np.arange(f), c))),
+                                  shape=(n, f))
+    at = sparse.coo_matrix(incidence[np.asarray(vertices, dtype=int)])
+    share = np.maximum(-np.einsum("ij,ij->i", area_vectors[at.col], directions[at.row]), 0.0) / c
+    return np.bincount(at.row, share, minlength=len(vertices))

@@ -79,6 +79,18 @@ class PlaneContactRows(RowBlock):
     points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
+def check_options(what: str, mu: float, tolerance: float, margin: float) -> None:
+    """A contact's options: mu >= 0, tolerance > 0, a finite margin above the tolerance;
+    else an InputError naming the contact (``what``)."""
+    if not (np.isfinite(mu) and mu >= 0):
+        raise InputError(f"{what}: the friction coefficient mu must be >= 0, got {mu!r}")
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"{what}: tolerance must be > 0, got {tolerance!r}")
+    if not (np.isfinite(margin) and margin > tolerance):
+        raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
+                         f"got {margin!r}")
+
+
 class PlaneContact:
     """A body's surface points against the fixed plane through ``point`` with unit
     normal along ``normal`` (module docstring).
@@ -116,13 +128,7 @@ class PlaneContact:
         p0 = np.asarray(point, dtype=float)
         if p0.shape != (3,) or not np.all(np.isfinite(p0)):
             raise InputError(f"{what}: the plane point must be 3 finite numbers, got {point!r}")
-        if not (np.isfinite(mu) and mu >= 0):
-            raise InputError(f"{what}: the friction coefficient mu must be >= 0, got {mu!r}")
-        if not (np.isfinite(tolerance) and tolerance > 0):
-            raise InputError(f"{what}: tolerance must be > 0, got {tolerance!r}")
-        if not (np.isfinite(margin) and margin > tolerance):
-            raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
-                             f"got {margin!r}")
+        check_options(what, mu, tolerance, margin)
         if not callable(getattr(body, "contact_points", None)):
             raise InputError(f"{what}: {type(body).__name__} {getattr(body, 'name', '')!r} "
                              "has no contact points (rigid, full and reduced FEM bodies do)")

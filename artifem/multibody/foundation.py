@@ -15,7 +15,7 @@ is a spring of stiffness K A_k / t that pushes only in compression: the row's co
 
 its force f_k = -phi_end / C_k >= 0, phi_end the signed distance at the end of the step.
 A_k is the point's share of its own surface facing the contact, projected on the row's
-direction e_k (``facing_areas`` of the point sets, :mod:`artifem.contact_points`): each
+direction e_k (the point sets' ``facing_areas``, :func:`artifem.contact_points.facing_areas`): each
 facet whose outward vector area a_f faces the contact (a_f . e_k < 0) gives
 -(a_f . e_k) / (its corners) to each corner. A flat face lying on a plane gives its area
 back exactly, split among its vertices. Rows with no facing area (and MeshContact's
@@ -72,17 +72,3 @@ class ElasticFoundation:
         A_k = 0."""
         A = np.asarray(areas, dtype=float)
         return np.where(A > 0, self.thickness / (self.modulus * np.where(A > 0, A, 1.0)), 0.0)
-
-
-def facing_areas(area_vectors: np.ndarray, corners: np.ndarray, vertices: np.ndarray,
-                 directions: np.ndarray, n: int) -> np.ndarray:
-    """(k,) the area each surface vertex ``vertices[k]`` stands for against
-    ``directions[k]`` (module docstring): the facets (outward vector areas (f, 3), their
-    corners (f, c) into n vertices) at the vertex with a_f . e_k < 0 give -(a_f . e_k) / c."""
-    from scipy import sparse
-    f, c = corners.shape
-    incidence = sparse.csr_matrix((np.ones(f * c), (corners.ravel(), np.repeat(np.arange(f), c))),
-                                  shape=(n, f))
-    at = sparse.coo_matrix(incidence[np.asarray(vertices, dtype=int)])
-    share = np.maximum(-np.einsum("ij,ij->i", area_vectors[at.col], directions[at.row]), 0.0) / c
-    return np.bincount(at.row, share, minlength=len(vertices))

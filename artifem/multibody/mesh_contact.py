@@ -53,6 +53,7 @@ from scipy.spatial import cKDTree
 
 from artifem.errors import InputError
 from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.contact import check_options
 from artifem.multibody.joints import axis_rotation
 
 __all__ = ["MeshContact", "MeshContactForces"]
@@ -219,13 +220,7 @@ class MeshContact:
         what = f"contact {self.name!r}"
         if a is b:
             raise InputError(f"{what}: a body against itself (self-contact) is not supported")
-        if not (np.isfinite(mu) and mu >= 0):
-            raise InputError(f"{what}: the friction coefficient mu must be >= 0, got {mu!r}")
-        if not (np.isfinite(tolerance) and tolerance > 0):
-            raise InputError(f"{what}: tolerance must be > 0, got {tolerance!r}")
-        if not (np.isfinite(margin) and margin > tolerance):
-            raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
-                             f"got {margin!r}")
+        check_options(what, mu, tolerance, margin)
         self.a, self.b = a, b
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
         self.foundation = None if foundation is None else foundation.checked(what)

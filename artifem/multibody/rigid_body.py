@@ -43,6 +43,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy import sparse
 
+from artifem.contact_points import facing_areas
 from artifem.errors import InputError
 
 __all__ = ["BodyPoints", "BodyState", "Frame", "MassProperties", "RigidBody", "cross", "exp_so3",
@@ -522,10 +523,9 @@ class BodyPoints:
 
     def facing_areas(self, indices: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(k,) the surface area point ``indices[k]`` stands for against ``directions[k]``
-        (:func:`~artifem.multibody.foundation.facing_areas`): a third of each adjacent
+        (:func:`~artifem.contact_points.facing_areas`): a third of each adjacent
         surface triangle facing it, projected on it, at the current pose. The points must
         be the surface's vertices (the default contact points)."""
-        from artifem.multibody.foundation import facing_areas
         surface = self.body.surface
         if surface is None or np.shape(surface[0]) != self.local.shape \
                 or not np.allclose(surface[0], self.local):
