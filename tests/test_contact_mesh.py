@@ -101,6 +101,26 @@ def test_open_or_inward_surfaces_are_refused_naming_the_body():
         af.MeshContact(af.RigidBody("bare", MASS, np.eye(3)), floor())
 
 
+def test_self_contact_and_bad_options_are_refused_naming_the_contact(icosphere):
+    """A body against itself, and an embedded surface against its own master (the same
+    coordinates on both sides), are not supported; mu < 0 and a margin not above the
+    tolerance are InputErrors naming the contact."""
+    from artifem.embedding.embedded_mesh import EmbeddedMesh
+
+    box = rigid_box(0.0)
+    with pytest.raises(InputError, match=r"'self': a body against itself \(self-contact\)"):
+        af.MeshContact(box, box, name="self")
+    grid = fem_block(0.0)
+    V, F = icosphere(1, 0.03)
+    ball = EmbeddedMesh(grid, V + 0.05, F, "triangle", name="ball")
+    with pytest.raises(InputError, match="both surfaces move with 'fem'"):
+        af.MeshContact(ball, grid)
+    with pytest.raises(InputError, match="'c' .*mu must be >= 0"):
+        af.MeshContact(box, floor(), mu=-0.1, name="c")
+    with pytest.raises(InputError, match="'c' .*margin must be finite and > tolerance"):
+        af.MeshContact(box, floor(), tolerance=0.01, margin=0.01, name="c")
+
+
 def test_a_start_in_intersection_is_refused_naming_both_bodies():
     """The box sunk 1 cm into the floor (within the margin) and 4 cm (beyond it): the first
     step is an InputError that names the box's vertex, the floor's triangle and the depth
