@@ -115,9 +115,9 @@ def test_self_contact_and_bad_options_are_refused_naming_the_contact(icosphere):
     ball = EmbeddedMesh(grid, V + 0.05, F, "triangle", name="ball")
     with pytest.raises(InputError, match="both surfaces move with 'fem'"):
         af.MeshContact(ball, grid)
-    with pytest.raises(InputError, match="'c' .*mu must be >= 0"):
+    with pytest.raises(InputError, match="'c': .*mu must be >= 0"):
         af.MeshContact(box, floor(), mu=-0.1, name="c")
-    with pytest.raises(InputError, match="'c' .*margin must be finite and > tolerance"):
+    with pytest.raises(InputError, match="'c': .*margin must be finite and > tolerance"):
         af.MeshContact(box, floor(), tolerance=0.01, margin=0.01, name="c")
 
 
