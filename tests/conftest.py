@@ -232,3 +232,28 @@ def icosphere():
         return radius * np.array(vertices), np.array(faces)
 
     return build
+
+
+@pytest.fixture(scope="session")
+def sliding_block():
+    """``sliding_block(lift, foundation=None)`` -> (scene, body, contact): a 6 x 6 x 3 hex
+    block (0.1 x 0.1 x 0.05 m, neo-Hookean, 196 nodes) ``lift`` above a plane tilted by
+    11 degrees, thrown sideways at 0.3 m/s; mu = 0.3, margin 2 cm (the KKT path's scenes)."""
+    import artifem as af
+    from dolfinx import mesh as dmesh
+    from mpi4py import MPI
+
+    def make(lift, foundation=None):
+        msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
+                                               np.array([0.1, 0.1, 0.05 + lift])],
+                               [6, 6, 3], dmesh.CellType.hexahedron)
+        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
+                          rayleigh=(10.0, 1e-3), name="block")
+        body.v.x.array.reshape(-1, 3)[:, 0] = 0.3
+        contact = af.PlaneContact(body, (0.0, 0.0, 0.0), (0.2, 0.0, 1.0), mu=0.3,
+                                  tolerance=1e-5, margin=0.02, foundation=foundation)
+        scene = af.Scene(gravity=(0.0, 0.0, -9.81))
+        scene.add(body, contact)
+        return scene, body, contact
+
+    return make

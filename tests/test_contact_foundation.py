@@ -294,7 +294,7 @@ def test_a_box_on_a_compliant_incline_sticks_or_slides(mu, integrator):
 
 # ---- an FEM block on a compliant incline, both paths -----------------------------------------
 
-def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths():
+def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_block):
     """A 6 x 6 x 3 hex block (588 dofs) thrown sideways at 0.3 m/s onto a plane tilted by 11
     degrees with a layer (E = 2e5 Pa, t = 4 mm), mu = 0.3: 219 rows (73 nodes with
     friction); over 40 steps of 5 ms the KKT path and the Schur complement give the same
@@ -309,16 +309,7 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths():
     soft = af.ElasticFoundation(2e5, 0.3, 0.004)
     runs = {}
     for path in ("kkt", "schur"):
-        msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, 0.002]),
-                                               np.array([0.1, 0.1, 0.052])],
-                               [6, 6, 3], dmesh.CellType.hexahedron)
-        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                          rayleigh=(10.0, 1e-3), name="block")
-        body.v.x.array.reshape(-1, 3)[:, 0] = 0.3
-        pc = af.PlaneContact(body, (0.0, 0.0, 0.0), (0.2, 0.0, 1.0), mu=0.3, tolerance=1e-5,
-                             margin=0.02, foundation=soft)
-        scene = af.Scene(gravity=(0.0, 0.0, -G))
-        scene.add(body, pc)
+        scene, body, pc = sliding_block(0.002, foundation=soft)
         nodes = body.contact_points()
         with forced_path(path):
             for step in range(40):

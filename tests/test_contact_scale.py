@@ -185,28 +185,17 @@ def test_bench_contact_quick_writes_its_json(tmp_path):
     assert agree["rigid"]["total_normal_rel"] < 1e-10
 
 
-def test_a_block_landing_and_sliding_on_an_incline_is_the_same_on_both_paths():
+def test_a_block_landing_and_sliding_on_an_incline_is_the_same_on_both_paths(sliding_block):
     """A 6 x 6 x 3 hex block (196 nodes, 588 dofs: MUMPS) thrown sideways at 0.3 m/s onto a
     plane tilted by 11 degrees, mu = 0.3: it lands, its rows grow from 0 to 219 (73 nodes
     within the margin, with friction) and it slides; over 40 steps of 5 ms the KKT path and the
     Schur complement give the same velocities (measured: 1e-15 m/s against 2e-4 m/s), the
     same normal and friction forces (1e-14 N against 0.15 N)."""
-    from dolfinx import mesh as dmesh
-
     from artifem.bench_contact import forced_path
 
     runs = {}
     for path in ("kkt", "schur"):
-        msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, 0.004]),
-                                               np.array([0.1, 0.1, 0.054])],
-                               [6, 6, 3], dmesh.CellType.hexahedron)
-        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                          rayleigh=(10.0, 1e-3), name="block")
-        body.v.x.array.reshape(-1, 3)[:, 0] = 0.3
-        pc = af.PlaneContact(body, (0.0, 0.0, 0.0), (0.2, 0.0, 1.0), mu=0.3, tolerance=1e-5,
-                             margin=0.02)
-        scene = af.Scene(gravity=(0.0, 0.0, -G))
-        scene.add(body, pc)
+        scene, body, pc = sliding_block(0.004)
         with forced_path(path):
             for _ in range(40):
                 scene.step(0.005)

@@ -72,18 +72,20 @@ def boundary_areas(body: FemBody, *, quadrature_degree: int = 2,
 
 
 def contact_pressure(points, normal_force: np.ndarray, *, quadrature_degree: int = 2,
-                     configuration: str = "reference") -> ContactPressure:
+                     configuration: str = "reference",
+                     areas: np.ndarray | None = None) -> ContactPressure:
     """p_j = f_n,j / A_j at a contact's point set on an FEM body (module docstring):
     ``points`` a point set of :mod:`artifem.contact_points` whose ``mesh_body`` is the FEM
     body (a reduced body's full body), ``normal_force`` (len(points),) its normal forces,
     as a contact's ``normal_forces`` gives them (``Scene.contact_pressure`` does both;
-    A_j: :func:`boundary_areas`)."""
+    A_j: :func:`boundary_areas`, or ``areas``, its result computed before)."""
     body = getattr(points, "mesh_body", None)
     if body is None:
         raise InputError(f"a contact pressure is for FEM bodies' nodes; these points have no "
                          f"FEM mesh ({type(points).__name__})")
-    areas = boundary_areas(body, quadrature_degree=quadrature_degree,
-                           configuration=configuration)
+    if areas is None:
+        areas = boundary_areas(body, quadrature_degree=quadrature_degree,
+                               configuration=configuration)
     dofs = np.asarray(points.dofs)
     area = areas[dofs]
     if np.any(area <= 0):

@@ -229,7 +229,7 @@ from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachmen
                                            LiftAttachment, NodeAttachment, RigidAttachment,
                                            dof_positions, pose_gap)
 from artifem.multibody.contact import ContactForces, PlaneContact
-from artifem.multibody.contact_pressure import contact_pressure
+from artifem.multibody.contact_pressure import boundary_areas, contact_pressure
 from artifem.multibody.joints import Joint
 from artifem.multibody.loads import LoadElement
 from artifem.multibody.point_paths import PointPath
@@ -375,6 +375,7 @@ class Scene:
         self._solver = DirectSolver()
         self._active_sets = ActiveSetMemory()   # the last solve's active rows (warm start)
         self._impulses: dict = {}
+        self._reference_areas: dict = {}   # (FEM body, degree) -> its boundary areas
         self._last_h = 1.0
         self._reactions = None          # the joints' last forces, all-space (for K_geo)
         self.last_solve: dict = {}
@@ -648,10 +649,20 @@ class Scene:
         :func:`~artifem.multibody.contact_pressure.contact_pressure`)."""
         if not any(contact is c for c in self.contacts):
             raise UnknownNameError(f"contact {contact.name!r} is not in the scene")
-        return {points.mesh_body.name: contact_pressure(points, f, **options)
-                for points, f in contact.normal_forces(self._impulses.get(contact, []),
-                                                       self._last_h)
-                if points.mesh_body is not None}
+        out = {}
+        for points, f in contact.normal_forces(self._impulses.get(contact, []), self._last_h):
+            body = points.mesh_body
+            if body is None:
+                continue
+            areas = None
+            if options.get("configuration", "reference") == "reference":
+                # the reference areas do not change: assembled once per body and degree
+                key = (body, options.get("quadrature_degree", 2))
+                if key not in self._reference_areas:
+                    self._reference_areas[key] = boundary_areas(body, quadrature_degree=key[1])
+                areas = self._reference_areas[key]
+            out[body.name] = contact_pressure(points, f, areas=areas, **options)
+        return out
 
     def reaction(self, joint: Joint) -> tuple[np.ndarray, ...]:
         """The wrenches the joint applied to each of its ``bodies`` over the last step
