@@ -257,3 +257,36 @@ def sliding_block():
         return scene, body, contact
 
     return make
+
+
+@pytest.fixture(scope="session")
+def script_scene(tmp_path_factory):
+    """``script_scene(text, name)`` -> (path, namespace): a scene script written to a file
+    (for ``mpiexec``) and executed here (its ``build`` and ``run`` for the serial
+    comparison)."""
+    def make(text: str, name: str):
+        path = tmp_path_factory.mktemp(name) / f"{name}.py"
+        path.write_text(text)
+        namespace = {"__name__": name}
+        exec(compile(text, str(path), "exec"), namespace)
+        return path, namespace
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def two_ranks():
+    """``two_ranks(path, tmp_path)`` -> the JSON a scene script writes (its first argument)
+    when run under ``mpiexec -n 2`` with this interpreter (its output in the failure)."""
+    return _run_two_ranks
+
+
+def _run_two_ranks(path: Path, tmp_path: Path) -> dict:
+    import subprocess
+    import sys
+    out = tmp_path / "result.json"
+    command = [str(Path(sys.executable).parent / "mpiexec"), "-n", "2", sys.executable,
+               str(path), str(out)]
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, f"{' '.join(command)} failed:\n{proc.stdout}\n{proc.stderr}"
+    return json.loads(out.read_text())

@@ -8,8 +8,6 @@ friction). Under ``mpiexec -n 2`` (the Schur island, the beam distributed) it eq
 serial direct step.
 """
 
-import json
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -81,12 +79,8 @@ SCENE = textwrap.dedent('''
 
 
 @pytest.fixture(scope="module")
-def scene_module(tmp_path_factory):
-    path = tmp_path_factory.mktemp("contact_mpi") / "contact_scene.py"
-    path.write_text(SCENE)
-    namespace = {"__name__": "contact_scene"}
-    exec(compile(SCENE, str(path), "exec"), namespace)
-    return path, namespace
+def scene_module(script_scene):
+    return script_scene(SCENE, "contact_scene")
 
 
 @pytest.fixture(scope="module")
@@ -118,12 +112,7 @@ def test_rigid_contact_with_carried_fem_in_the_schur_island_equals_the_direct_st
 @pytest.mark.slow
 @pytest.mark.skipif(not MPIEXEC.exists(), reason=f"no mpiexec next to the interpreter ({MPIEXEC})")
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="launches its own ranks")
-def test_two_ranks_equal_the_serial_direct_step(scene_module, direct, tmp_path):
-    path, _ = scene_module
-    out = tmp_path / "result.json"
-    command = [str(MPIEXEC), "-n", "2", sys.executable, str(path), str(out)]
-    proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
-    assert proc.returncode == 0, f"{' '.join(command)} failed:\n{proc.stdout}\n{proc.stderr}"
-    parallel = json.loads(out.read_text())
+def test_two_ranks_equal_the_serial_direct_step(scene_module, direct, tmp_path, two_ranks):
+    parallel = two_ranks(scene_module[0], tmp_path)
     assert parallel["ranks"] == 2 and parallel["schur"]
     compare(parallel, direct, 1e-8)
