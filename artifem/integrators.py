@@ -495,13 +495,17 @@ class StaticCounts(list):
         self.residuals = [list(r) for r in residuals]
 
 
-#: The watchdog of the static Newton solve (Chamberlain et al. 1982, adapted): a full
-#: step that fails the line search's tests, but inverts no element, is taken anyway, and
-#: Newton goes on with full steps; if after this many of them (the first included) |R|
-#: (or, for a conservative body, the energy) is not below its value where the watch
-#: began, Newton returns there and backtracks instead. Newton's first step on a bending
-#: beam raises |R| a hundredfold and fails every test while the steps after it converge
-#: quadratically; backtracking it costs two iterations.
+#: The watchdog of the static Newton solve of a body without a potential (Chamberlain et
+#: al. 1982, adapted): a full step that fails the line search's tests, but inverts no
+#: element, is taken anyway, and Newton goes on with full steps; if after this many of
+#: them (the first included) |R| is not below its value where the watch began, Newton
+#: returns there and backtracks instead. Newton's first step on a bending beam under a
+#: follower pressure raises |R| a hundredfold and fails every test while the steps after
+#: it converge quadratically; backtracking it costs two iterations. A conservative body
+#: has no watchdog: its energy is a merit that such steps do pass, and a full step that
+#: raises it climbs away from the minimum (the compressible membrane of
+#: scripts/static_newton_counts.py: 9 iterations in the first increment with the
+#: watchdog, 6 without).
 WATCHDOG_ITERATIONS = 3
 
 #: The predictor of the next load increment: the polynomial in the load factor through
@@ -598,8 +602,8 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     tightened as |R| approaches the tolerance (its residual stays below a tenth of the
     Newton target), and full steps are taken whenever they pass one of the tests of
     :func:`_backtrack` (energy for a conservative body; otherwise the residual
-    norm or the natural monotonicity test), or under the watchdog
-    (:data:`WATCHDOG_ITERATIONS`) when the steps after them pay off. Each increment
+    norm or the natural monotonicity test), or, for a body without a potential, under the
+    watchdog (:data:`WATCHDOG_ITERATIONS`) when the steps after them pay off. Each increment
     starts from the quadratic extrapolation of the last three converged states
     (:data:`PREDICTOR_POINTS`). A hard-incompressible body takes a Newton
     step on its multipliers too (the linearized constraint g + G du = 0 through the Schur
@@ -686,7 +690,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         multiplier, near = vc is None, True
         if vc is not None:
             vc.updates = 0
-        # the watchdog (WATCHDOG_ITERATIONS): (iteration, state, |R|, energy or None) where
+        # the watchdog (WATCHDOG_ITERATIONS): (iteration, state, |R|) where
         # it began, and whether this increment may start one (not after one has failed)
         watch, may_watch = None, True
         while True:
@@ -704,8 +708,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                     norm = residual()
                     continue
             if watch is not None:
-                if norm <= (1.0 - 1e-4) * watch[2] or (
-                        watch[3] is not None and body.potential_energy() < watch[3]):
+                if norm <= (1.0 - 1e-4) * watch[2]:
                     watch = None                # the full steps paid off
                 elif it - watch[0] >= WATCHDOG_ITERATIONS - 1:
                     restore(watch[1])           # they did not: backtrack from there
@@ -750,15 +753,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 tests = (body.potential_energy if body.conservative else None, energy,
                          -r.dot(du), lambda: residual(tangent=False), norm,
                          None if body.conservative else correction_ratio)
-                # the watchdog: full steps first (not for the multiplier step, a saddle
-                # point whose full steps from far off measured worse: 10 against 7
-                # iterations on the membrane of scripts/static_newton_counts.py)
-                if (watch is not None or may_watch) and not multiplier:
+                # the watchdog of a body without a potential: full steps first (not for
+                # the multiplier step, a saddle point whose full steps from far off
+                # measured worse: 10 against 7 iterations on the membrane of
+                # scripts/static_newton_counts.py)
+                if (watch is not None or may_watch) and not (multiplier or body.conservative):
                     apply_step(1.0)
                     if not _has_inversion(body):
                         if watch is None and not _acceptable(1.0, *tests):
-                            watch = (it, start, norm, energy if body.conservative
-                                     and vc is None else None)
+                            watch = (it, start, norm)
                         return 1.0
                 return _backtrack(apply_step, lambda: _has_inversion(body), *tests[:5],
                                   correction_ratio=tests[5])

@@ -55,13 +55,15 @@ def long_beam(p, n=(20, 2, 2)):
     return beam
 
 
-def membrane(n, traction=40.0):
+def membrane(n, traction=40.0, hard=True):
     """1 x 1 x 0.05 plate (n x n x 1 hexahedra), neo-Hookean mu = 1e3 (nu = 0.3 on its own)
-    made incompressible by the hard constraint (kappa = 10 mu), clamped on the edges
-    x = 0 and x = 1, dead traction (0, 0, -traction) on the top face."""
+    made incompressible by the hard constraint (kappa = 10 mu; ``hard=False``: left
+    compressible), clamped on the edges x = 0 and x = 1, dead traction (0, 0, -traction)
+    on the top face."""
     E, nu = 2.6e3, 0.3
+    hard = dict(incompressibility=Incompressible(kappa=10 * E / 2.6)) if hard else {}
     body = af.FemBody(box((n, n, 1), (1.0, 1.0, 0.05)), af.NeoHookean.from_young_poisson(E, nu),
-                      1000.0, incompressibility=Incompressible(kappa=10 * E / 2.6))
+                      1000.0, **hard)
     body.fix_nodes(body.find_nodes(lambda x: (x[0] < 1e-12) | (x[0] > 1 - 1e-12)))
     body.add_traction((0.0, 0.0, -traction), where=lambda x: np.isclose(x[2], 0.05))
     return body
@@ -137,6 +139,7 @@ CASES = {
     "membrane16_auto_max6": lambda s: run(membrane(16), s or "auto", max_iterations=6),
     "membrane32": lambda s: run(membrane(32), s or 4),
     "membrane32_auto": lambda s: run(membrane(32), s or "auto"),
+    "membrane16_compressible": lambda s: run(membrane(16, hard=False), s or 4),
 }
 
 if __name__ == "__main__":
