@@ -250,7 +250,7 @@ def _load(path: Path) -> FootMesh:
 
 def to_dolfinx(mesh: FootMesh, comm=None):
     """(dolfinx mesh, facet MeshTags) of a FootMesh (facet values: SKIN, CAP, BONE + i)."""
-    import dolfinx.cpp.graph
+    import dolfinx.graph
     import dolfinx.mesh
     from mpi4py import MPI
 
@@ -274,6 +274,6 @@ def to_dolfinx(mesh: FootMesh, comm=None):
     entities = vertex_of_node[local[keep]]
     msh.topology.create_entities(2)
     tags = dolfinx.mesh.meshtags_from_entities(
-        msh, 2, dolfinx.cpp.graph.adjacencylist(entities.astype(np.int32)),
+        msh, 2, dolfinx.graph.adjacencylist(entities.astype(np.int32)),
         mesh.facet_tags[keep].astype(np.int32))
     return msh, tags
