@@ -265,7 +265,7 @@ def to_dolfinx(mesh: FootMesh, comm=None):
     msh, _ = convert(data, comm)
     msh.topology.create_connectivity(3, 0)
     c2v = msh.topology.connectivity(3, 0).array.reshape(-1, 4)
-    dofmap = msh.geometry.dofmap
+    dofmap = msh.geometry.dofmaps[0]
     vertex_of_node = np.empty(msh.geometry.x.shape[0], np.int32)
     vertex_of_node[dofmap.ravel()] = c2v.ravel()
     node_of_input = np.full(len(mesh.points), -1)
