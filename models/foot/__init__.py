@@ -1,0 +1,1 @@
+"""The right foot (OpenSim bones, a skin envelope, the soft tissue between them, gmsh)."""
