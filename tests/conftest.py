@@ -125,6 +125,13 @@ def computed_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
     return own
 
 
+@pytest.fixture(scope="session")
+def foot_cache(tmp_path_factory) -> Path:
+    """A foot mesh cache holding the coarse (level 0) mesh, meshed once per test run."""
+    from artifem.models.foot.mesh import foot_mesh
+    return computed_once(tmp_path_factory, "foot_cache", lambda d: foot_mesh(0, cache=d))
+
+
 class QuickJawTongue(NamedTuple):
     config: Any          # jaw_tongue_reduced.ReducedJawTongueConfig
     model: Any           # reduction.reductor.ReducedModel (jaw_tongue_reduced.train)

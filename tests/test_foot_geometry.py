@@ -18,8 +18,8 @@ def bones():
 
 
 @pytest.fixture(scope="module")
-def foot(tmp_path_factory):
-    return fm.foot_mesh(0, cache=tmp_path_factory.mktemp("foot"))
+def foot(foot_cache):
+    return fm.foot_mesh(0, cache=foot_cache)
 
 
 def test_osim_offsets_and_bodies():
