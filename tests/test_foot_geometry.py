@@ -109,7 +109,7 @@ def test_bad_input(bones):
         fm.check_input([replace(b, vertices=b.vertices * 1000) for b in bones])
     b = next(b for b in bones if b.name == "navicular")
     with pytest.raises(MeshError, match="navicular.*not closed"):
-        fb.check_bone(b.name, b.file, b.vertices, b.triangles[5:])
+        fb.check_closed(f"bone {b.name} ({b.file})", b.vertices, b.triangles[5:])
     talus = next(b for b in bones if b.name == "talus")
     shift = talus.vertices.mean(0) - b.vertices.mean(0)
     with pytest.raises(MeshError, match="navicular|talus") as err:

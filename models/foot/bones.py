@@ -235,14 +235,14 @@ def check_bodies(osim: Path = OSIM, data: Path = DATA) -> None:
             raise InputError(f"{osim}: body {body} does not carry {file} (bone {name})")
 
 
-def check_bone(name: str, file: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
-    """A bone must be closed, manifold and outward; else :class:`MeshError` naming it."""
+def check_closed(name: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
+    """A surface must be closed, manifold and outward; else :class:`MeshError` naming it."""
     boundary, nonmanifold = edge_defects(triangles)
     if boundary or nonmanifold:
-        raise MeshError(f"bone {name} ({file}) is not closed: {boundary} boundary edge(s), "
+        raise MeshError(f"{name} is not closed: {boundary} boundary edge(s), "
                         f"{nonmanifold} non-manifold edge(s)")
     if signed_volume(vertices, triangles) <= 0:
-        raise MeshError(f"bone {name} ({file}) is inward oriented (signed volume <= 0)")
+        raise MeshError(f"{name} is inward oriented (signed volume <= 0)")
 
 
 def check_units(bones: list[Bone]) -> None:
@@ -262,14 +262,14 @@ def check_units(bones: list[Bone]) -> None:
 
 
 def load_bones(data: Path = DATA, osim: Path = OSIM) -> list[Bone]:
-    """Every bone of :data:`BONES`, read, checked (:func:`check_bone`) and moved to the
+    """Every bone of :data:`BONES`, read, checked (:func:`check_closed`) and moved to the
     tibia frame by :func:`body_transforms`."""
     transforms = body_transforms(osim)
     group_of = {b: g for g, members in GROUPS.items() for b in members}
     bones = []
     for name, (file, body) in BONES.items():
         v, f = read_vtp(Path(data) / file)
-        check_bone(name, file, v, f)
+        check_closed(f"bone {name} ({file})", v, f)
         m = transforms[body]
         bones.append(Bone(name, group_of[name], file, v @ m[:3, :3].T + m[:3, 3], f))
     return bones

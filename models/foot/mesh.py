@@ -110,7 +110,7 @@ def surfaces(bones: list[fb.Bone], params: MeshParams):
         groups[name] = fs.group_surface(gb, params.spacing, params.shrink, triangles, y_max)
     tv, tf = groups["tibia"]
     v, f = fs.cap([skin_open, (tv, tf[:, ::-1])], params.skin.cap_y)
-    fs.check_closed("skin + cap + tibia", v, f)
+    fb.check_closed("skin + cap + tibia surface", v, f)
     centre = v[f].mean(1)
     tags = np.where(np.abs(fs.signed_distance(centre, tv, tf))
                     < np.abs(fs.signed_distance(centre, *skin_open)), BONE, SKIN)

@@ -14,7 +14,7 @@ No redistributable foot skin exists, so the skin is built as an offset of the bo
 4. cut by the plane y = y_cap (``cap_height`` above the ankle joint centre, the talus
    origin) and closed there by a flat cap (vtkClipClosedSurface).
 
-The result is closed, manifold and outward oriented (checked by :func:`check_closed`).
+The result is closed, manifold and outward oriented (checked by :func:`~.bones.check_closed`).
 A rigid group's surface (:func:`group_surface`) is the level set -``shrink`` of the signed
 distance to the union of its bones, on a grid of its own: it fuses the bones of a group
 into one closed surface and moves it ``shrink`` inside the bones, which widens the gaps
@@ -29,7 +29,7 @@ import numpy as np
 
 from artifem.errors import MeshError
 
-from .bones import edge_defects, signed_volume
+from .bones import check_closed, signed_volume
 
 #: the ankle joint centre (talus_r origin) in the tibia frame, metres.
 ANKLE = np.array([0.0, -0.43, 0.0])
@@ -123,16 +123,6 @@ def _components(n: int, triangles: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1][:len(triangles)]
 
 
-def check_closed(name: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
-    """A surface must be closed, manifold and outward; else :class:`MeshError`."""
-    boundary, nonmanifold = edge_defects(triangles)
-    if boundary or nonmanifold:
-        raise MeshError(f"{name} surface is not closed: {boundary} boundary edge(s), "
-                        f"{nonmanifold} non-manifold edge(s)")
-    if signed_volume(vertices, triangles) <= 0:
-        raise MeshError(f"{name} surface is inward oriented (signed volume <= 0)")
-
-
 def _decimate(surface, triangles: int):
     """(vertices, triangles) of a surface decimated by shortest-edge collapses (igl, the
     collapses that would make it self-intersect blocked) to about ``triangles``."""
@@ -192,7 +182,7 @@ def envelope(bones, params: SkinParams = SkinParams(), capped: bool = True):
     if not capped:
         return sv, sf
     sv, sf = cap([(sv, sf)], params.cap_y)
-    check_closed("skin", sv, sf)
+    check_closed("skin surface", sv, sf)
     return sv, sf
 
 
@@ -209,5 +199,5 @@ def group_surface(bones, spacing: float, shrink: float, triangles: int,
     surface = _level_set(lo, hi, spacing, lambda p: signed_distance(p, v, f), -shrink)
     surface = surface.smooth_taubin(n_iter=20, pass_band=0.1)
     sv, sf = _decimate(surface, triangles)
-    check_closed("group " + "+".join(b.name for b in bones), sv, sf)
+    check_closed("group surface " + "+".join(b.name for b in bones), sv, sf)
     return sv, sf
