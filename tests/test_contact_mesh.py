@@ -2,7 +2,7 @@
 
 (1) a rigid box resting on a fixed rigid box "floor": after settling the normal forces sum
     to m g to 1e-9, no penetration beyond the tolerance, the same pose and resultant as a
-    PlaneContact on a plane at the floor's top;
+    PlaneContact on a plane at the floor's top; with an offset, at that distance above it;
 (2) bad input: an open surface; a surface oriented inward; a start in intersection
     (InputError naming both bodies);
 (3) an FEM block dropped on the rigid floor rests as on a plane;
@@ -85,6 +85,24 @@ def test_rigid_box_rests_on_a_rigid_floor_like_on_a_plane():
     np.testing.assert_allclose(box.position, plane_box.position, atol=TOL)
     np.testing.assert_allclose(box.rotation, plane_box.rotation, atol=1e-9)
     assert np.abs(box.twist).max() < 1e-9
+
+
+def test_an_offset_keeps_the_surfaces_that_far_apart():
+    """With offset d the box rests d above the floor's top (a layer of thickness d between
+    them), carrying its weight; dropped from 1 cm + d it never comes closer."""
+    d = 0.004
+    box = rigid_box(0.01 + d)
+    contact = af.MeshContact(box, floor(), tolerance=TOL, margin=0.05, offset=d)
+    scene = scene_of(box, contact.b, contact)
+    for _ in range(50):
+        scene.step(H)
+        assert box.position[2] - SIZE[2] / 2 > d - TOL
+        assert contact.constraint_failure() is None
+    assert box.position[2] - SIZE[2] / 2 == pytest.approx(d, abs=TOL)
+    forces = scene.contact_forces(contact)
+    np.testing.assert_allclose(forces.resultant, [0.0, 0.0, MASS * G], atol=1e-9 * MASS * G)
+    with pytest.raises(InputError, match="'c': offset must be finite and >= 0"):
+        af.MeshContact(box, floor(), offset=-1e-3, name="c")
 
 
 # ---- (2) bad input ---------------------------------------------------------------------------

@@ -1,13 +1,17 @@
 """The foot scene (artifem.models.foot.model) at its coarse level: tissue, 11 rigid bone
 groups carrying the tissue nodes on their surfaces, the joints as contacts with a
-cartilage layer, the tibia on a vertical guide loaded with half the body weight, and the
-foot standing on a floor with friction."""
+cartilage layer, ligaments, the tibialis anterior and the soleus; standing (the tibia on a
+vertical guide loaded with half the body weight, the foot on a floor with friction) and
+lift (the tibia fixed, the tibialis anterior lifting the hanging forefoot)."""
 
 import numpy as np
 import pytest
 
+from scipy.spatial.transform import Rotation
+
 from artifem.models.foot import bones as fb
-from artifem.models.foot.model import HALF_WEIGHT, JOINTS, build_foot
+from artifem.models.foot import ligaments as fl
+from artifem.models.foot.model import HALF_WEIGHT, JOINTS, build_foot, foot_case
 
 G = 9.81
 
@@ -27,6 +31,21 @@ def test_the_scene_has_every_bone_group_and_joint(standing):
     assert list(foot.bones) == list(fb.GROUPS)
     assert {tuple(c.name.removesuffix(" joint").split("-")) for c in foot.joints} == set(JOINTS)
     assert all(b.mass > 0 for b in foot.bones.values())
+    names = [p.name for p in foot.ligaments]
+    assert names[:len(fl.NAMED)] == list(fl.NAMED)
+    assert len(names) == len(fl.NAMED) + 4 * (len(JOINTS) - 1)     # capsules but the ankle
+    assert {m: len(p) for m, p in foot.muscles.items()} == {"tibialis anterior": 2, "soleus": 1}
+
+
+def test_ligaments_are_taut_at_rest_and_pull_only(foot_cache):
+    """Built in the neutral pose every ligament carries no force (round-off of its
+    attachments' frames); it pulls when stretched and goes slack when shortened."""
+    foot = build_foot(0, load=0.0, floor=False, cache=foot_cache)
+    for path in foot.ligaments:
+        r = path.evaluate(0.0)
+        assert abs(r.tension) < 1e-9 and r.length == pytest.approx(path.element.rest_length)
+        assert path.element.tension(1.1 * r.length)[0] > 0
+        assert path.element.tension(0.9 * r.length)[0] == 0.0
 
 
 def test_standing_the_floor_carries_the_load_and_the_weight(standing):
@@ -35,9 +54,28 @@ def test_standing_the_floor_carries_the_load_and_the_weight(standing):
     foot, y0 = standing
     weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
     floor = foot.scene.contact_forces(foot.floor)
-    assert floor.normal.sum() == pytest.approx(HALF_WEIGHT + weight, rel=1e-4)
+    assert floor.normal.sum() == pytest.approx(HALF_WEIGHT + weight, rel=1e-6)
+    assert all(c.constraint_failure() is None for c in foot.joints)
     assert foot.bones["tibia"].position[1] < y0            # the heel pad is compressed
     u = foot.tissue.u.x.array.reshape(-1, 3)
     x = foot.tissue.V.tabulate_dof_coordinates() + u
     assert x[:, 1].min() > foot.floor.offset - foot.floor.tolerance - 1e-12
     assert np.isfinite(u).all()
+
+
+def test_the_tibialis_anterior_lifts_the_hanging_forefoot(foot_cache):
+    """The lift case (the seed paper's Fig. 7): the tibia fixed, the foot hanging, the
+    tibialis anterior excited to 0.3 in 0.1 s. After 0.3 s the forefoot has risen, the
+    talus has turned in dorsiflexion (about +z) within the ankle's range (under 30 degrees,
+    held by the soleus's passive force and the posterior ligaments), every joint intact."""
+    foot = foot_case("lift", 0, cache=foot_cache)
+    m1 = foot.bones["metatarsal1"].position.copy()
+    for _ in range(60):
+        foot.scene.step(0.005)
+    rise = foot.bones["metatarsal1"].position[1] - m1[1]
+    turn = np.degrees(Rotation.from_matrix(foot.bones["talus"].rotation).as_rotvec())
+    assert rise > 0.01
+    assert 2.0 < turn[2] < 30.0
+    assert foot.muscles["soleus"][0].evaluate(foot.scene.t).tension > 0
+    assert all(c.constraint_failure() is None for c in foot.joints)
+    assert np.isfinite(foot.tissue.u.x.array).all()

@@ -232,6 +232,44 @@ def test_newtons_third_law(n_points, rng):
             assert np.allclose(np.cross(f[i], u0 + u1), 0.0, atol=1e-10 * np.abs(f).max())
 
 
+def test_tension_only_spring_is_slack_when_short(rng):
+    """A ligament: no force and no energy below its rest length, the linear spring above."""
+    ligament = AxialSpring(stiffness=100.0, rest_length=1.0, damping=2.0, tension_only=True)
+    spring = AxialSpring(stiffness=100.0, rest_length=1.0, damping=2.0)
+    x = np.array([[0.0, 0.0, 0.0], [0.8, 0.0, 0.0]])
+    v = np.array([[0.0, 0.0, 0.0], [-0.5, 0.0, 0.0]])
+    r = ligament.evaluate(x, v)
+    assert r.tension == 0.0 and not r.forces.any() and not r.stiffness.any()
+    assert not r.damping.any() and ligament.energy(x) == 0.0
+    x[1, 0] = 1.3
+    taut, linear = ligament.evaluate(x, v), spring.evaluate(x, v)
+    assert np.array_equal(taut.forces, linear.forces)
+    assert np.array_equal(taut.stiffness, linear.stiffness)
+    assert ligament.energy(x) == pytest.approx(0.5 * 100.0 * 0.3 ** 2)
+    with pytest.raises(TypeError, match="tension_only must be True or False"):
+        AxialSpring(1.0, tension_only="yes")
+    with pytest.raises(ValueError, match="toe region needs tension_only"):
+        AxialSpring(1.0, toe=0.1)
+
+
+@pytest.mark.parametrize("stretch", [0.02, 0.07, 0.3])
+def test_ligament_toe_region_is_smooth_and_a_gradient(stretch, rng):
+    """Blankevoort's toe (t = 0.1): inside it and beyond, the force is minus the energy's
+    gradient and the Jacobians match finite differences; T and dT/dL are continuous at
+    d = t (k t / 2 and k on both sides)."""
+    ligament = AxialSpring(200.0, rest_length=1.0, damping=3.0, tension_only=True, toe=0.1)
+    x = np.array([[0.0, 0.0, 0.0], [1.0 + stretch, 0.0, 0.0]]) + 1e-3 * rng.standard_normal((2, 3))
+    v = rng.standard_normal((2, 3))
+    r = ligament.evaluate(x, v)
+    assert relerr(r.stiffness, fd_jacobian(lambda y: ligament.evaluate(y, v).forces, x)) < 1e-6
+    assert relerr(r.damping, fd_jacobian(lambda w: ligament.evaluate(x, w).forces, v)) < 1e-6
+    grad = fd_jacobian(lambda y: np.array([ligament.energy(y)]), x, eps=1e-7).reshape(2, 3)
+    assert np.allclose(ligament.evaluate(x).forces, -grad, rtol=1e-6, atol=1e-8)
+    below, above = ligament.tension(1.1 - 1e-12), ligament.tension(1.1 + 1e-12)
+    assert below[0] == pytest.approx(above[0]) == pytest.approx(200.0 * 0.05)
+    assert below[1] == pytest.approx(above[1]) == pytest.approx(200.0)
+
+
 # ---- Thelen muscle ---------------------------------------------------------------------------
 
 def test_rigid_tendon_isometric_force_at_optimal_length():

@@ -17,7 +17,9 @@ surface, an FEM or reduced body's exterior facets) whose point set
   edge on edge with no vertex of either over the other): the closest points p_a, p_b
   inside both edges, e = +-(u x v) / |u x v| out of b, phi = e . (p_a - p_b);
 
-one block of rows per step:
+and, with an ``offset`` d (a layer of that thickness between the surfaces: a joint's
+cartilage), phi minus d for every pair (the surfaces meet d apart); one block of rows per
+step:
 
     normal:    phi >= 0,   lambda_n in [0, inf),
     friction:  t_1, t_2 (the x and y axes of ``axis_rotation(e)``), phi = 0,
@@ -202,7 +204,11 @@ class MeshContact:
             bone or an organ's surface in a coarse grid; the rows act on its master).
         mu: the Coulomb friction coefficient (>= 0; 0: no friction rows).
         tolerance: the penetration allowed (m): deeper fails a step, or the start.
-        margin: pairs closer than this (m) get rows.
+        margin: pairs closer than this (m) beyond ``offset`` get rows.
+        offset: the distance (m) at which the surfaces meet, >= 0: a layer of this
+            thickness between them that the bodies' surfaces do not show (the cartilage
+            that fills a joint's space between two bone meshes); every pair's phi is its
+            distance minus ``offset``, and ``tolerance`` and ``margin`` count from there.
         name: used in errors.
         foundation: None (hard normal rows), or an
             :class:`~artifem.multibody.foundation.ElasticFoundation`: compliant normal rows
@@ -215,14 +221,18 @@ class MeshContact:
     scene_group = "contacts"
 
     def __init__(self, a, b, *, mu: float = 0.0, tolerance: float = 1e-5,
-                 margin: float = 1e-2, name: str = "", foundation=None):
+                 margin: float = 1e-2, offset: float = 0.0, name: str = "",
+                 foundation=None):
         self.name = name or f"contact of {a.name!r} and {b.name!r}"
         what = f"contact {self.name!r}"
         if a is b:
             raise InputError(f"{what}: a body against itself (self-contact) is not supported")
         check_options(what, mu, tolerance, margin)
+        if not (np.isfinite(offset) and offset >= 0):
+            raise InputError(f"{what}: offset must be finite and >= 0, got {offset}")
         self.a, self.b = a, b
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
+        self.offset = float(offset)
         self.foundation = None if foundation is None else foundation.checked(what)
         for body in (a, b):
             if not callable(getattr(body, "contact_surface", None)):
@@ -250,7 +260,7 @@ class MeshContact:
         a, b = (reduced if getattr(reduced, "full", None) is body else body
                 for body in (self.a, self.b))
         return MeshContact(a, b, mu=self.mu, tolerance=self.tolerance, margin=self.margin,
-                           name=self.name, foundation=self.foundation)
+                           offset=self.offset, name=self.name, foundation=self.foundation)
 
     def _pairs(self) -> _Pairs:
         """The pairs of the current state (module docstring): vertex over triangle both
@@ -273,6 +283,8 @@ class MeshContact:
         parts.append(part)
         if deep is not None and (deepest is None or deep[0] < deepest[0]):
             deepest = deep
+        if deepest is not None:
+            deepest = (deepest[0] - self.offset,) + deepest[1:]
         cols = [p[0] for p in parts]
         k = sum(len(c) for c in cols)
         rows = np.concatenate([np.repeat(np.arange(len(c)), c.shape[1]) + sum(
@@ -280,8 +292,14 @@ class MeshContact:
         W = sparse.csr_matrix((np.concatenate([p[1].ravel() for p in parts]),
                                (rows, np.concatenate([c.ravel() for c in cols]))),
                               shape=(k, len(x)))
-        return _Pairs(W, np.vstack([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
+        return _Pairs(W, np.vstack([p[2] for p in parts]),
+                      np.concatenate([p[3] for p in parts]) - self.offset,
                       np.vstack([p[4] for p in parts]), deepest, x)
+
+    @property
+    def _reach(self) -> float:
+        """Pairs closer than this (m) get rows: the offset plus the margin."""
+        return self.offset + self.margin
 
     def _vertex_pairs(self, own, other):
         """(cols (k, 4): the vertex then the triangle's vertices, weights (k, 4): 1, -b_i,
@@ -300,7 +318,7 @@ class MeshContact:
         (xp, tp), (xq, tq) = own, other
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
                  np.zeros((0, 3), int))
-        lo, hi = xq.min(axis=0) - self.margin, xq.max(axis=0) + self.margin
+        lo, hi = xq.min(axis=0) - self._reach, xq.max(axis=0) + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
             return empty, None
@@ -308,13 +326,13 @@ class MeshContact:
                                          sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
         j = int(np.argmin(S))
         deepest = (float(S[j]), int(near[j]), int(I[j]))
-        close = S < self.margin
+        close = S < self._reach
         if not np.any(close):
             return empty, deepest
         near, S, I, C, N = near[close], S[close], I[close], C[close], N[close]
         y = xq[tq]
         centroids = y.mean(axis=1)
-        reach = np.linalg.norm(y - centroids[:, None], axis=2).max() + self.margin
+        reach = np.linalg.norm(y - centroids[:, None], axis=2).max() + self._reach
         lists = cKDTree(centroids).query_ball_point(xp[near], reach)
         counts = np.array([len(q) for q in lists])
         v = np.repeat(near, counts)
@@ -324,7 +342,7 @@ class MeshContact:
         c = xp[v] - s[:, None] * n
         bary = _barycentric(c, y[f, 0], y[f, 1], y[f, 2])
         facing = np.einsum("ij,ij->i", n, _vertex_normals(xp, tp)[v]) < 0
-        keep = (s >= -self.tolerance) & (s < self.margin) & np.all(bary >= -1e-12, axis=1) \
+        keep = (s >= -self.tolerance) & (s < self._reach) & np.all(bary >= -1e-12, axis=1) \
             & facing
         v, f, s, n, bary = v[keep], f[keep], s[keep], n[keep], bary[keep]
         alone = ~np.isin(near, v)                       # over no facing triangle
@@ -353,7 +371,7 @@ class MeshContact:
         (ea, fa), (eb, fb) = self._edges
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
                  np.zeros((0, 3), int))
-        lo, hi = xb.min(axis=0) - self.margin, xb.max(axis=0) + self.margin
+        lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
         mid_a, mid_b = xa[ea].mean(axis=1), xb[eb].mean(axis=1)
         half_a = 0.5 * np.linalg.norm(xa[ea[:, 1]] - xa[ea[:, 0]], axis=1)
         half_b = 0.5 * np.linalg.norm(xb[eb[:, 1]] - xb[eb[:, 0]], axis=1)
@@ -362,7 +380,7 @@ class MeshContact:
         if not cand.size:
             return empty, None
         lists = cKDTree(mid_b).query_ball_point(mid_a[cand], half_a.max() + half_b.max()
-                                                + self.margin)
+                                                + self._reach)
         counts = np.array([len(q) for q in lists])
         i = np.repeat(cand, counts)
         j = np.fromiter((t for q in lists for t in q), dtype=int, count=int(counts.sum()))
@@ -378,14 +396,14 @@ class MeshContact:
         e = _unit(np.cross(a1 - a0, b1 - b0))
         e *= np.where(np.einsum("ij,ij->i", e, mb - ma) < 0, -1.0, 1.0)[:, None]
         phi = np.einsum("ij,ij->i", e, pa - pb)
-        keep = (np.linalg.norm(pa - pb, axis=1) < self.margin) \
+        keep = (np.linalg.norm(pa - pb, axis=1) < self._reach) \
             & (np.einsum("ij,ij->i", e, mb) > 0) & (np.einsum("ij,ij->i", e, ma) < 0)
         i, j, s, t, e, phi = i[keep], j[keep], s[keep], t[keep], e[keep], phi[keep]
         deepest = None
         if phi.size:
             k = int(np.argmin(phi))
             deepest = (float(phi[k]), 2, int(i[k]), int(j[k]))
-        close = phi < self.margin
+        close = phi < self._reach
         i, j, s, t, e, phi = i[close], j[close], s[close], t[close], e[close], phi[close]
         cols = np.column_stack([ea[i], eb[j]])
         weights = np.column_stack([1.0 - s, s, -(1.0 - t), -t])

@@ -350,26 +350,58 @@ class AxialSpring:
 
     ``stiffness`` k [N/m] >= 0, ``rest_length`` L0 [m] >= 0, ``damping`` c [N s/m] >= 0.
     Compression (L < L0) pushes the points apart; the element is stateless.
+    ``tension_only`` (a ligament, a cable): slack below its rest length, T = 0 and E = 0
+    for L <= L0; with a ``toe`` region of length t > 0 (m) the tension rises smoothly from
+    slack (Blankevoort & Huiskes 1991, OpenSim's Blankevoort1991Ligament), d = L - L0:
+
+        T = k d^2 / (2 t) + c Ldot d / t   for 0 < d < t,   T = k (d - t/2) + c Ldot  beyond,
+
+    so T and dT/dL are continuous (a linearized step does not flip between slack and taut
+    across a kink); without a toe dT/dL jumps from 0 to k at L0.
     """
     stiffness: float
     rest_length: float = 0.0
     damping: float = 0.0
+    tension_only: bool = False
+    toe: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "stiffness", _nonnegative("AxialSpring", "stiffness", self.stiffness))
         object.__setattr__(self, "rest_length",
                            _nonnegative("AxialSpring", "rest_length", self.rest_length))
         object.__setattr__(self, "damping", _nonnegative("AxialSpring", "damping", self.damping))
+        if not isinstance(self.tension_only, (bool, np.bool_)):
+            raise TypeError(f"AxialSpring: tension_only must be True or False, "
+                            f"got {self.tension_only!r}")
+        object.__setattr__(self, "toe", _nonnegative("AxialSpring", "toe", self.toe))
+        if self.toe > 0 and not self.tension_only:
+            raise InputError("AxialSpring: a toe region needs tension_only=True")
 
     def tension(self, length: float, length_rate: float = 0.0) -> tuple[float, float, float]:
         """(T, dT/dL, dT/dLdot)."""
-        return (self.stiffness * (length - self.rest_length) + self.damping * length_rate,
-                self.stiffness, self.damping)
+        k, c, t = self.stiffness, self.damping, self.toe
+        d = length - self.rest_length
+        if not self.tension_only:
+            return k * d + c * length_rate, k, c
+        if d <= 0.0:
+            return 0.0, 0.0, 0.0
+        if d < t:
+            return (k * d * d / (2 * t) + c * length_rate * d / t,
+                    (k * d + c * length_rate) / t, c * d / t)
+        return k * (d - t / 2) + c * length_rate, k, c
 
     def energy(self, positions) -> float:
-        """Elastic energy k (L - L0)^2 / 2 of the path through ``positions``."""
-        length = PathGeometry.of(positions).length
-        return 0.5 * self.stiffness * (length - self.rest_length) ** 2
+        """Elastic energy: k (L - L0)^2 / 2; tension only, k d^3 / (6 t) in the toe and
+        k t^2 / 6 + k ((d - t/2)^2 - t^2/4) / 2 beyond (d = L - L0 > 0)."""
+        k, t = self.stiffness, self.toe
+        d = PathGeometry.of(positions).length - self.rest_length
+        if not self.tension_only:
+            return 0.5 * k * d * d
+        if d <= 0.0:
+            return 0.0
+        if d < t:
+            return k * d ** 3 / (6 * t)
+        return k * t * t / 6 + 0.5 * k * ((d - t / 2) ** 2 - t * t / 4)
 
     def evaluate(self, positions, velocities=None, dt: float | None = None) -> PathForces:
         """Forces and Jacobians at the given point positions (n, 3) and velocities (n, 3)."""

@@ -302,19 +302,24 @@ def _boxes_overlap(u: np.ndarray, v: np.ndarray) -> bool:
     return bool(np.all(u.min(0) <= v.max(0)) and np.all(v.min(0) <= u.max(0)))
 
 
-def min_gaps(bones: list[Bone]) -> dict[tuple[str, str], float]:
-    """(group, group) -> smallest vertex-to-surface distance between their bones, for the
-    pairs of groups closer than 1 cm (an upper bound of the true surface gap)."""
+def surface_gap(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> float:
+    """The smallest vertex-to-surface distance between two (vertices, triangles) surfaces,
+    both ways (an upper bound of the true surface gap)."""
     import igl
 
+    return min(float(np.sqrt(igl.point_mesh_squared_distance(p[0], q[0], q[1])[0].min()))
+               for p, q in ((a, b), (b, a)))
+
+
+def min_gaps(bones: list[Bone]) -> dict[tuple[str, str], float]:
+    """(group, group) -> :func:`surface_gap` between their bones, for the pairs of groups
+    closer than 1 cm."""
     out: dict[tuple[str, str], float] = {}
     for i, a in enumerate(bones):
         for b in bones[i + 1:]:
             if a.group == b.group:
                 continue
-            d = min(np.sqrt(igl.point_mesh_squared_distance(p.vertices, q.vertices,
-                                                            q.triangles)[0].min())
-                    for p, q in ((a, b), (b, a)))
+            d = surface_gap((a.vertices, a.triangles), (b.vertices, b.triangles))
             key = tuple(sorted((a.group, b.group)))
             if d < 0.01:
                 out[key] = min(out.get(key, np.inf), float(d))

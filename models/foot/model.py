@@ -10,7 +10,8 @@ every foot bone, the bones rigid, their joints contacts, the foot on a floor.
   its mass from its surface at :data:`BONE_DENSITY`; the tissue nodes on a group's surface
   are attached to it (:class:`~artifem.NodeAttachment`: forces flow back by G^T).
 - Joints between the bones: contacts of their surfaces (:class:`~artifem.MeshContact`)
-  for each anatomical joint of :data:`JOINTS`, through a cartilage-like
+  for each anatomical joint of :data:`JOINTS`, meeting at their neutral gap (the contact's
+  ``offset``: the cartilage that fills the space between the bone meshes), through a
   compliant layer (:data:`CARTILAGE`: E = 10 MPa, nu = 0.4, 1 mm; articular cartilage's
   aggregate modulus is 0.5-1 MPa and its instantaneous modulus 10-20 MPa, which is what a
   step of a few milliseconds sees).
@@ -19,6 +20,19 @@ every foot bone, the bones rigid, their joints contacts, the foot on a floor.
   ``ramp`` seconds).
 - The floor: a plane under the sole with Coulomb friction ``mu`` (0.6: skin on a dry
   floor) on every skin node.
+- Ligaments: tension-only springs between the groups
+  (:mod:`~artifem.models.foot.ligaments`: the deltoid, lateral collateral, spring, long and
+  short plantar ligaments, the plantar fascia, and a capsule across every other joint),
+  with a toe region of :data:`TOE_STRAIN` and stiffness-proportional damping (the
+  tissue's beta).
+- Muscles (:mod:`~artifem.models.foot.muscle`, Thelen): the tibialis anterior from the
+  tibia to the medial cuneiform and the first metatarsal (two branches of F0 / 2), its
+  excitation ``excitation(t)``; the soleus, unexcited, to the calcaneus (its passive force
+  bounds the dorsiflexion).
+
+Load cases (:data:`CASES`): ``standing`` (the above) and ``lift`` (the tibia held fixed,
+no floor and no load: the tibialis anterior lifts the hanging forefoot, the seed paper's
+Fig. 7), through :func:`foot_case`.
 
 Frame: OpenSim's tibia_r frame (metres, y up, x forward, z to the right).
 """
@@ -31,12 +45,16 @@ import numpy as np
 import artifem as af
 
 from . import bones as fb
+from . import ligaments as fl
 from . import mesh as fm
+from . import muscle as fmu
 
 #: neo-Hookean soft tissue (module docstring): Young's modulus (Pa), Poisson, density.
 TISSUE = dict(young=60e3, poisson=0.45, density=1050.0)
 #: Rayleigh damping (alpha 1/s, beta s) of the tissue.
 RAYLEIGH = (2.0, 0.002)
+#: the ligaments' toe region, as a strain (OpenSim's Blankevoort1991Ligament default).
+TOE_STRAIN = 0.06
 #: cortical and trabecular bone together (kg/m^3).
 BONE_DENSITY = 1500.0
 #: the joints: pairs of rigid groups whose surfaces meet through contact (the talocrural,
@@ -49,7 +67,7 @@ JOINTS = (("tibia", "talus"), ("talus", "calcaneus"), ("talus", "navicular"),
           ("lateral_cuneiforms", "metatarsals2_5"), ("cuboid", "metatarsals2_5"),
           ("metatarsal1", "metatarsals2_5"), ("metatarsal1", "hallux"),
           ("metatarsals2_5", "toes2_5"))
-#: a joint's contact rows start this far (m) beyond its gap in the neutral pose.
+#: a joint's contact rows start this far (m) beyond its offset.
 JOINT_MARGIN = 2e-3
 #: the cartilage layer of the joint contacts.
 CARTILAGE = af.ElasticFoundation(young=10e6, poisson=0.4, thickness=1e-3)
@@ -77,6 +95,17 @@ class TibiaLoad:
         return [(self.tibia, wrench)]
 
 
+@dataclass(frozen=True)
+class Ramp:
+    """An excitation u(t) = level min(t / time, 1)."""
+
+    level: float
+    time: float = 0.1
+
+    def __call__(self, t: float) -> float:
+        return self.level * min(t / self.time, 1.0) if self.time > 0 else self.level
+
+
 @dataclass
 class Foot:
     """The foot scene and its parts."""
@@ -86,15 +115,36 @@ class Foot:
     tissue: af.FemBody
     bones: dict[str, af.RigidBody]
     joints: list[af.MeshContact] = field(default_factory=list)
+    ligaments: list[af.PointPath] = field(default_factory=list)
+    muscles: dict[str, list[af.PointPath]] = field(default_factory=dict)
     floor: af.PlaneContact | None = None
     load: TibiaLoad | None = None
 
 
+#: the load cases (module docstring): keyword arguments of :func:`build_foot`.
+CASES = {"standing": dict(),
+         "lift": dict(load=0.0, floor=False, tibia="fixed", excitation=Ramp(0.3, 0.1))}
+
+
+def foot_case(case: str, level: int = 1, **kwargs) -> Foot:
+    """The foot of load case ``case`` (:data:`CASES`) at mesh ``level``; ``kwargs``
+    override the case's arguments of :func:`build_foot`."""
+    if case not in CASES:
+        raise af.InputError(f"foot: unknown load case {case!r}; the cases are {sorted(CASES)}")
+    return build_foot(level, **{**CASES[case], **kwargs})
+
+
 def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
-               mu: float = 0.6, ramp: float = 0.1, cache=fm.DEFAULT_CACHE) -> Foot:
-    """The foot standing on the floor (module docstring) at mesh ``level`` (0 coarse for
-    tests, 1 the default: at least 10,000 nodes), ``load`` newtons down the tibia."""
+               tibia: str = "guided", excitation=None, mu: float = 0.6, ramp: float = 0.1,
+               cache=fm.DEFAULT_CACHE) -> Foot:
+    """The foot (module docstring) at mesh ``level`` (0 coarse for tests, 1 the default: at
+    least 10,000 nodes): ``load`` newtons down the tibia, the tibia ``"guided"`` (a vertical
+    slider) or ``"fixed"``, on the floor if ``floor``, the tibialis anterior's
+    ``excitation(t)`` (None: unexcited)."""
+    if tibia not in ("guided", "fixed"):
+        raise af.InputError(f"foot: tibia must be 'guided' or 'fixed', got {tibia!r}")
     mesh = fm.foot_mesh(level, cache=cache)
+    bone_meshes = fb.load_bones()
     msh, _ = fm.to_dolfinx(mesh)
     tissue = af.FemBody(msh, af.NeoHookean.from_young_poisson(TISSUE["young"],
                                                                TISSUE["poisson"]),
@@ -104,21 +154,37 @@ def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
     bones = {}
     for i, group in enumerate(mesh.groups):
         v, f = mesh.group_surfaces[group]
-        bones[group] = af.RigidBody.from_surface(group, v, f, BONE_DENSITY)
+        motion = "fixed" if group == "tibia" and tibia == "fixed" else "dynamic"
+        bones[group] = af.RigidBody.from_surface(group, v, f, BONE_DENSITY, motion=motion)
         nodes = np.unique(mesh.facets[mesh.facet_tags == fm.BONE + i])
         scene.add(bones[group], af.NodeAttachment(tissue, nodes, bones[group],
                                                   name=f"tissue on {group}"))
-    tibia = bones["tibia"]
-    up = af.axis_rotation((0.0, 1.0, 0.0))
-    scene.add(af.SliderJoint(af.Frame.at_world(tibia, tibia.position, up),
-                             af.Frame(None, tibia.position, up), name="tibia guide"))
+    if tibia == "guided":
+        body = bones["tibia"]
+        up = af.axis_rotation((0.0, 1.0, 0.0))
+        scene.add(af.SliderJoint(af.Frame.at_world(body, body.position, up),
+                                 af.Frame(None, body.position, up), name="tibia guide"))
     foot = Foot(scene, mesh, tissue, bones)
-    gaps = fb.min_gaps(fb.load_bones())
+    for spec in fl.ligaments(bone_meshes, JOINTS):
+        k = spec.stiffness
+        spring = af.AxialSpring(k, rest_length=spec.length, damping=RAYLEIGH[1] * k,
+                                tension_only=True, toe=TOE_STRAIN * spec.length)
+        frames = [af.Frame.at_world(bones[g], p) for g, p in zip(spec.groups, spec.points)]
+        foot.ligaments.append(af.PointPath(spring, frames, name=spec.name))
+    scene.add(*foot.ligaments)
+    for muscle in fmu.MUSCLES:
+        drive = excitation if muscle == "tibialis anterior" else None
+        for branch in fmu.muscle_branches(bone_meshes, muscle):
+            frames = [af.Frame.at_world(bones[g], p)
+                      for g, p in zip(branch.groups, branch.points)]
+            path = af.PointPath(af.ThelenMuscle(branch.params, name=branch.name), frames,
+                                excitation=drive, name=branch.name)
+            foot.muscles.setdefault(muscle, []).append(path)
+            scene.add(path)
     for a, b in JOINTS:
-        gap = gaps.get(tuple(sorted((a, b))), 0.01)
-        contact = af.MeshContact(bones[a], bones[b], tolerance=1e-4,
-                                 margin=gap + JOINT_MARGIN, foundation=CARTILAGE,
-                                 name=f"{a}-{b} joint")
+        gap = fb.surface_gap(mesh.group_surfaces[a], mesh.group_surfaces[b])
+        contact = af.MeshContact(bones[a], bones[b], tolerance=1e-4, margin=JOINT_MARGIN,
+                                 offset=gap, foundation=CARTILAGE, name=f"{a}-{b} joint")
         foot.joints.append(contact)
         scene.add(contact)
     if floor:
@@ -128,6 +194,6 @@ def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
                                      points=skin, tolerance=1e-4, margin=5e-3, name="floor")
         scene.add(foot.floor)
     if load:
-        foot.load = TibiaLoad(tibia, load, ramp)
+        foot.load = TibiaLoad(bones["tibia"], load, ramp)
         scene.add(foot.load)
     return foot
