@@ -4,6 +4,7 @@
     artifem material curves NAME --out PNG   stress-stretch curves of a material
     artifem simulate beam --out DIR          the muscle-driven beam (VTX, PNG, JSON)
     artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
+    artifem simulate foot --case C --out DIR       the foot standing, or lifting its forefoot
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem bench reduced --out FILE.json    reduced tongue step: parts, FLOPs, GFLOP/s
@@ -85,6 +86,9 @@ COMMANDS = {
     ("simulate", "airway"): ("artifem.models.airway",
                              "airway skin over tongue (full or --reduced), jaw and palate, "
                              "with air pressure", ONE_RANK),
+    ("simulate", "foot"): ("artifem.models.foot.simulate",
+                           "the foot standing on the floor, or lifted by the tibialis anterior",
+                           ONE_RANK),
     ("simulate", "masseter"): ("artifem.models.masseter",
                                "synthetic masseter: embedding vs conforming, aponeuroses",
                                ONE_RANK),

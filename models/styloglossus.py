@@ -95,6 +95,7 @@ from artifem.excitation import ExcitationSchedule
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
                                         Training)
 from artifem.scene.inputs import PathExcitation
+from artifem.stress import von_mises
 
 STYLOID = {"left": np.array([0.14984, 0.035891, 0.125]),
            "right": np.array([0.14984, -0.035891, 0.125])}
@@ -173,20 +174,10 @@ def excitation(t: float) -> float:
 
 
 def von_mises_dg0(body, config: TongueConfig) -> fem.Function:
-    """DG0 von Mises stress of sigma = (1/J) P F^T, P = d psi/dF of the passive energy."""
-    F = ufl.variable(ufl.Identity(3) + ufl.grad(body.u))
-    psi = body.material.strain_energy(F)
-    if config.incompressibility is not None:
-        psi = psi + 0.5 * config.incompressibility * (ufl.det(F) - 1) ** 2
-    P = ufl.diff(psi, F)
-    J = ufl.det(F)
-    s = P * F.T / J
-    dev = s - ufl.tr(s) / 3 * ufl.Identity(3)
-    vm = ufl.sqrt(1.5 * ufl.inner(dev, dev))
-    Q = fem.functionspace(body.mesh, ("DG", 0))
-    out = fem.Function(Q, name="von_mises")
-    out.interpolate(fem.Expression(vm, Q.element.interpolation_points))
-    return out
+    """DG0 von Mises stress of the passive energy, with the scene's volumetric penalty."""
+    penalty = config.incompressibility
+    return von_mises(body, None if penalty is None
+                     else lambda F: 0.5 * penalty * (ufl.det(F) - 1) ** 2)
 
 
 def cells_near(body, point, radius) -> np.ndarray:

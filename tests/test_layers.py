@@ -16,7 +16,7 @@ LAYERS = {
     "artifem.io": 2,
     # 3: bodies and what evaluates them
     "artifem.fem_body": 3, "artifem.contact_points": 3, "artifem.pointwise": 3,
-    "artifem.material_response": 3,
+    "artifem.material_response": 3, "artifem.stress": 3,
     "artifem.linear_solver": 3, "artifem.excitation": 3, "artifem.render": 3,
     "artifem.surface_loads": 3, "artifem.incompressibility": 3, "artifem.muscle_layers": 3,
     "artifem.reduction.reduced_volume_constraint": 3,

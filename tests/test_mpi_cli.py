@@ -37,6 +37,8 @@ MODELS = {
     "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
     "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
     "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),
+    "foot": (["--level", "0", "--duration", "0.01", "--timing-steps", "1", "--no-progress"],
+             ["standing/foot.json", "standing/foot.png", "standing/plantar_pressure.png"]),
 }
 
 pytestmark = pytest.mark.skipif(not MPIEXEC.exists(),

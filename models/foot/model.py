@@ -30,9 +30,10 @@ every foot bone, the bones rigid, their joints contacts, the foot on a floor.
   excitation ``excitation(t)``; the soleus, unexcited, to the calcaneus (its passive force
   bounds the dorsiflexion).
 
-Load cases (:data:`CASES`): ``standing`` (the above) and ``lift`` (the tibia held fixed,
+Load cases (:data:`CASES`): ``standing`` (the above); ``lift`` (the tibia held fixed,
 no floor and no load: the tibialis anterior lifts the hanging forefoot, the seed paper's
-Fig. 7), through :func:`foot_case`.
+Fig. 7); ``heavy`` (standing with half the weight of 90 kg, held out from training the
+reduced foot), through :func:`foot_case`.
 
 Frame: OpenSim's tibia_r frame (metres, y up, x forward, z to the right).
 """
@@ -123,7 +124,8 @@ class Foot:
 
 #: the load cases (module docstring): keyword arguments of :func:`build_foot`.
 CASES = {"standing": dict(),
-         "lift": dict(load=0.0, floor=False, tibia="fixed", excitation=Ramp(0.3, 0.1))}
+         "lift": dict(load=0.0, floor=False, tibia="fixed", excitation=Ramp(0.3, 0.1)),
+         "heavy": dict(load=0.5 * 90.0 * 9.81)}
 
 
 def foot_case(case: str, level: int = 1, **kwargs) -> Foot:
@@ -136,35 +138,56 @@ def foot_case(case: str, level: int = 1, **kwargs) -> Foot:
 
 def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
                tibia: str = "guided", excitation=None, mu: float = 0.6, ramp: float = 0.1,
-               cache=fm.DEFAULT_CACHE) -> Foot:
+               bones: bool = True, joints: bool = True, cache=fm.DEFAULT_CACHE) -> Foot:
     """The foot (module docstring) at mesh ``level`` (0 coarse for tests, 1 the default: at
     least 10,000 nodes): ``load`` newtons down the tibia, the tibia ``"guided"`` (a vertical
     slider) or ``"fixed"``, on the floor if ``floor``, the tibialis anterior's
-    ``excitation(t)`` (None: unexcited)."""
+    ``excitation(t)`` (None: unexcited). For timing the parts (the seed paper's figures):
+    ``joints=False`` leaves out the joint contacts, ``bones=False`` everything but the
+    tissue, its bone surfaces then fixed (the FEM alone)."""
     if tibia not in ("guided", "fixed"):
         raise af.InputError(f"foot: tibia must be 'guided' or 'fixed', got {tibia!r}")
     mesh = fm.foot_mesh(level, cache=cache)
-    bone_meshes = fb.load_bones()
     msh, _ = fm.to_dolfinx(mesh)
     tissue = af.FemBody(msh, af.NeoHookean.from_young_poisson(TISSUE["young"],
                                                                TISSUE["poisson"]),
-                        TISSUE["density"], rayleigh=RAYLEIGH, name="soft tissue")
+                        TISSUE["density"], rayleigh=RAYLEIGH, name="tissue")
     scene = af.Scene(gravity=(0.0, -9.81, 0.0))
     scene.add(tissue)
-    bones = {}
+    foot = Foot(scene, mesh, tissue, {})
+    if bones:
+        _add_bones(foot, tibia, excitation, joints)
+    else:
+        tissue.fix_nodes(np.unique(mesh.facets[mesh.facet_tags >= fm.BONE]))
+    if floor:
+        skin = np.unique(mesh.facets[mesh.facet_tags == fm.SKIN])
+        y0 = float(mesh.points[skin, 1].min()) - 1e-4
+        foot.floor = af.PlaneContact(tissue, (0.0, y0, 0.0), (0.0, 1.0, 0.0), mu=mu,
+                                     points=skin, tolerance=1e-4, margin=5e-3, name="floor")
+        scene.add(foot.floor)
+    if load and bones:
+        foot.load = TibiaLoad(foot.bones["tibia"], load, ramp)
+        scene.add(foot.load)
+    return foot
+
+
+def _add_bones(foot: Foot, tibia: str, excitation, joints: bool) -> None:
+    """The rigid groups carrying the tissue on their surfaces, the tibia's guide, the
+    ligaments, the muscles and (``joints``) the joint contacts."""
+    scene, mesh, bones = foot.scene, foot.mesh, foot.bones
+    bone_meshes = fb.load_bones()
     for i, group in enumerate(mesh.groups):
         v, f = mesh.group_surfaces[group]
         motion = "fixed" if group == "tibia" and tibia == "fixed" else "dynamic"
         bones[group] = af.RigidBody.from_surface(group, v, f, BONE_DENSITY, motion=motion)
         nodes = np.unique(mesh.facets[mesh.facet_tags == fm.BONE + i])
-        scene.add(bones[group], af.NodeAttachment(tissue, nodes, bones[group],
+        scene.add(bones[group], af.NodeAttachment(foot.tissue, nodes, bones[group],
                                                   name=f"tissue on {group}"))
     if tibia == "guided":
         body = bones["tibia"]
         up = af.axis_rotation((0.0, 1.0, 0.0))
         scene.add(af.SliderJoint(af.Frame.at_world(body, body.position, up),
                                  af.Frame(None, body.position, up), name="tibia guide"))
-    foot = Foot(scene, mesh, tissue, bones)
     for spec in fl.ligaments(bone_meshes, JOINTS):
         k = spec.stiffness
         spring = af.AxialSpring(k, rest_length=spec.length, damping=RAYLEIGH[1] * k,
@@ -181,19 +204,9 @@ def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
                                 excitation=drive, name=branch.name)
             foot.muscles.setdefault(muscle, []).append(path)
             scene.add(path)
-    for a, b in JOINTS:
+    for a, b in JOINTS if joints else ():
         gap = fb.surface_gap(mesh.group_surfaces[a], mesh.group_surfaces[b])
         contact = af.MeshContact(bones[a], bones[b], tolerance=1e-4, margin=JOINT_MARGIN,
                                  offset=gap, foundation=CARTILAGE, name=f"{a}-{b} joint")
         foot.joints.append(contact)
         scene.add(contact)
-    if floor:
-        skin = np.unique(mesh.facets[mesh.facet_tags == fm.SKIN])
-        y0 = float(mesh.points[skin, 1].min()) - 1e-4
-        foot.floor = af.PlaneContact(tissue, (0.0, y0, 0.0), (0.0, 1.0, 0.0), mu=mu,
-                                     points=skin, tolerance=1e-4, margin=5e-3, name="floor")
-        scene.add(foot.floor)
-    if load:
-        foot.load = TibiaLoad(bones["tibia"], load, ramp)
-        scene.add(foot.load)
-    return foot

@@ -1,0 +1,159 @@
+"""``artifem simulate foot``: a load case of the foot, rendered, timed and measured.
+
+    artifem simulate foot --out DIR [--case standing|lift|heavy] [--level 0|1]
+                          [--dt 0.005] [--duration 0.3] [--timing-steps 5]
+
+It writes, in DIR/<case>/: ``tissue.bp`` (VTX: the tissue's displacement; standing also
+``tissue_contact_pressure.bp``, the floor's pressure), ``foot.png`` (bones with ligaments
+and muscles; the tissue cut and coloured by von Mises stress), for the standing cases
+``plantar_pressure.png`` (beside the published standing figures quoted on it), and
+``foot.json``: nodes, elements, the median ms per step of the FEM alone (the tissue with
+its bone surfaces fixed), with the bones (no joint contacts, no floor) and with bones and
+contact (the case itself), and the case's figures: for standing the floor's force
+against load + weight, contact area, peak plantar pressure (rear and fore thirds) and
+centre of pressure; for lift the first metatarsal's rise and the talus's dorsiflexion.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from artifem.arguments import positive_float, positive_int
+from artifem.models.foot import mesh as fm
+from artifem.models.foot.model import CASES, Foot, foot_case
+from artifem.models.foot.render import plot_plantar_pressure, render_foot
+
+#: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
+DT, DURATION = 0.005, 0.3
+#: the published standing figures the plantar pressure is shown beside.
+REFERENCE = ("Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Foot & Ankle "
+             "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
+             "forefoot; the heel carries about 60% of the load.")
+PUBLISHED_KPA = {"rearfoot": 139.0, "forefoot": 88.0}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, type=Path, help="output directory")
+    parser.add_argument("--case", default="standing", choices=sorted(CASES))
+    parser.add_argument("--level", type=int, default=1, choices=sorted(fm.LEVELS),
+                        help="mesh level: 0 coarse (1,923 nodes), 1 the default (13,453)")
+    parser.add_argument("--dt", type=positive_float, default=DT)
+    parser.add_argument("--duration", type=positive_float, default=DURATION)
+    parser.add_argument("--timing-steps", type=positive_int, default=5,
+                        help="steps timed for the FEM alone and with the bones")
+    parser.add_argument("--no-progress", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from artifem.scene import simulate
+
+    out = args.out / args.case
+    out.mkdir(parents=True, exist_ok=True)
+    timing = {"fem_alone": _time_steps(args, bones=False, floor=False),
+              "with_bones": _time_steps(args, joints=False, floor=False)}
+    foot = foot_case(args.case, args.level)
+    rest = {name: body.position.copy() for name, body in foot.bones.items()}
+    traj = simulate(foot.scene, args.duration, args.dt, vtx=out,
+                    progress=not args.no_progress, label=f"foot {args.case}")
+    timing["with_bones_and_contact"] = traj.ms_per_step
+    figures = _figures(foot, traj, args, timing, rest)
+    render_foot(out / "foot.png", foot, args.case)
+    if foot.floor is not None:
+        sole = _sole(foot)
+        plot_plantar_pressure(out / "plantar_pressure.png", sole["points"], sole["pressure"],
+                              sole["centre"], f"foot {args.case}: plantar pressure, level "
+                              f"{args.level}", REFERENCE)
+    (out / "foot.json").write_text(json.dumps(figures, indent=2))
+    print(f"foot {args.case} (level {args.level}, {figures['nodes']} nodes): "
+          f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
+          f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
+          f"results in {out}/")
+    return 0
+
+
+def _time_steps(args, **parts) -> float:
+    """Median ms of ``--timing-steps`` steps of the case built with ``parts``."""
+    foot = foot_case(args.case, args.level, **parts)
+    ms = []
+    for _ in range(args.timing_steps):
+        tic = time.perf_counter()
+        foot.scene.step(args.dt)
+        ms.append(1e3 * (time.perf_counter() - tic))
+    return float(np.median(ms))
+
+
+def _sole(foot: Foot) -> dict:
+    """The floor's pressure at the sole's nodes (those within 1 cm of the floor at rest),
+    their current positions, the contact area and the centre of pressure."""
+    tissue, floor = foot.tissue, foot.floor
+    p = foot.scene.contact_pressure(floor)[tissue.name]
+    x = tissue.V.tabulate_dof_coordinates() + tissue.u.x.array.reshape(-1, 3)
+    dofs = tissue.local_dofs(p.points)
+    rest = tissue.V.tabulate_dof_coordinates()[dofs]
+    sole = rest[:, 1] < floor.offset + 0.01
+    pressure, area, points = p.pressure[sole], p.area[sole], x[dofs][sole]
+    force = pressure * area
+    centre = force @ points / force.sum() if force.sum() > 0 else np.full(3, np.nan)
+    return {"points": points, "pressure": pressure, "force": force, "centre": centre,
+            "area": float(area[pressure > 0].sum())}
+
+
+def _figures(foot: Foot, traj, args, timing: dict, rest: dict) -> dict:
+    tissue = foot.tissue
+    figures = {
+        "model": "foot", "case": args.case, "level": args.level,
+        "nodes": tissue.mesh.geometry.index_map().size_global,
+        "elements": tissue.mesh.topology.index_map(3).size_global,
+        "rigid_bodies": len(foot.bones), "ligaments": len(foot.ligaments),
+        "joint_contacts": len(foot.joints), "dt": args.dt, "duration": args.duration,
+        "steps": int(traj.step_ms.size), "halvings": traj.halvings,
+        "min_det_F": traj.min_det_F,
+        "ms_per_step": {key: round(value, 1) for key, value in timing.items()},
+        "timing_steps": args.timing_steps,
+        "joint_failures": [f for f in (c.constraint_failure() for c in foot.joints) if f],
+    }
+    if foot.floor is not None:
+        weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
+        expected = (foot.load.force if foot.load else 0.0) + weight
+        normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
+        sole = _sole(foot)
+        x = sole["points"][:, 0]
+        third = (x.max() - x.min()) / 3
+        regions = {"rearfoot": x < x.min() + third, "forefoot": x > x.max() - third}
+        figures["standing"] = {
+            "floor_normal_N": normal, "load_plus_weight_N": expected,
+            "relative_error": abs(normal / expected - 1.0),
+            "contact_area_cm2": 1e4 * sole["area"],
+            "peak_pressure_kPa": 1e-3 * float(sole["pressure"].max()),
+            "peak_pressure_by_region_kPa": {k: 1e-3 * float(sole["pressure"][m].max())
+                                            for k, m in regions.items()},
+            "published_peak_kPa": PUBLISHED_KPA,
+            "rearfoot_load_share": float(sole["force"][regions["rearfoot"]].sum()
+                                         / sole["force"].sum()),
+            "centre_of_pressure_mm": (1e3 * sole["centre"]).round(2).tolist(),
+            "centre_of_pressure_from_heel": float((sole["centre"][0] - x.min())
+                                                  / (x.max() - x.min())),
+            "lowest_skin_above_floor_mm": 1e3 * float(sole["points"][:, 1].min()
+                                                      - foot.floor.offset),
+        }
+    if foot.muscles.get("tibialis anterior") and foot.floor is None:
+        talus = Rotation.from_matrix(foot.bones["talus"].rotation).as_rotvec()
+        figures["lift"] = {
+            "first_metatarsal_rise_mm": 1e3 * float(foot.bones["metatarsal1"].position[1]
+                                                    - rest["metatarsal1"][1]),
+            "talus_dorsiflexion_deg": float(np.degrees(talus[2])),
+            "tibialis_anterior_N": sum(p.evaluate(foot.scene.t).tension
+                                       for p in foot.muscles["tibialis anterior"]),
+            "soleus_N": sum(p.evaluate(foot.scene.t).tension for p in foot.muscles["soleus"]),
+        }
+    figures["units"] = {"ms_per_step": "median wall ms per step (fem_alone, with_bones: "
+                                       "timing_steps steps of a separate build)",
+                        "centre_of_pressure_mm": "tibia frame (x forward, z lateral)",
+                        "centre_of_pressure_from_heel": "fraction of the sole's length"}
+    return figures
