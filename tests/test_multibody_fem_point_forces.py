@@ -103,7 +103,9 @@ def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_grad
     body.u.x.array[:] = 0.01 * rng.standard_normal(body.u.x.array.size)
     body.u.x.array.reshape(-1, 3)[body.fixed_dofs] = 0.0
     bob.rotation = exp_so3(rng.standard_normal(3))        # the frame's lever turns with it
-    G, P = L.path_map(path), L.prolongation()
+    idx, G_local = L.path_map(path)
+    G, P = np.zeros((G_local.shape[0], L.n_all)), L.prolongation()
+    G[:, idx] = G_local
     n = scene.master_count()
     assert n == body.u.x.array.size - 3 * body.fixed_dofs.size + 6
     here = L.save()

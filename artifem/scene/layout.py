@@ -132,6 +132,7 @@ class Layout:
         self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
                              zip(self.reduced_bodies, master_rows[len(fem_bodies):])]
         self._embedding_map = self._embedding_matrix()
+        self._rest_x: dict = {}         # id(FEM body) -> its node coordinates X
         self._place_lifts()             # lift coordinates from the bodies' poses
         #: the constraints' rows on these coordinates (joints and limits, one kind of rows)
         self.constraint_map = ConstraintMap(self)
@@ -674,8 +675,9 @@ class Layout:
             z[o:o + 6] = body.twist
         return z
 
-    def path_map(self, path: "PointPath"):
-        """G (3n x n_all): x_a' = G z for the path's points (artifem.scene.scene docstring)."""
+    def path_map(self, path: "PointPath") -> tuple[np.ndarray, np.ndarray]:
+        """(idx, G): x_a' = G z[idx] for the path's points (artifem.scene.scene docstring),
+        idx the all-space coordinates they move with, G (3n x len(idx)) dense."""
         rows, cols, vals = [], [], []
         for i, pt in enumerate(path.points):
             if isinstance(pt, FemPoint) and pt.reduced:
@@ -696,37 +698,43 @@ class Layout:
                 Gi = pt.jacobian()
                 r, c = np.meshgrid(3 * i + np.arange(3), o + np.arange(6), indexing="ij")
                 rows.append(r.ravel()), cols.append(c.ravel()), vals.append(Gi.ravel())
-        return self.triplets(list(zip(vals, rows, cols)), (3 * len(path.points), self.n_all))
+        if not vals:
+            return np.zeros(0, dtype=int), np.zeros((3 * len(path.points), 0))
+        idx, where = np.unique(np.concatenate(cols), return_inverse=True)
+        G = np.zeros((3 * len(path.points), idx.size))
+        np.add.at(G, (np.concatenate(rows), where), np.concatenate(vals))
+        return idx, G
 
     def path_terms(self, t: float, h: float | None):
         """All paths at time t: F = G^T f (all-space), K = G^T K_p G + K_r and D = G^T D_p G
-        (n_all x n_all, the derivatives of F by the positions and the velocities)."""
-        scene = self.scene
+        (n_all x n_all, the derivatives of F by the positions and the velocities). A path's
+        terms are small dense blocks on the coordinates its points move with
+        (:meth:`path_map`), summed once."""
+        shape = (self.n_all, self.n_all)
         F = np.zeros(self.n_all)
-        K = self.zeros((self.n_all, self.n_all))
-        D = self.zeros((self.n_all, self.n_all))
-        for path in scene.paths:
+        K_parts, D_parts = [], []
+
+        def add(parts, M, rows, cols):
+            parts.append((np.asarray(M).ravel(), np.repeat(rows, len(cols)),
+                          np.tile(cols, len(rows))))
+
+        for path in self.scene.paths:
             result = path.evaluate(t)
-            G = self.path_map(path)
-            F += G.T @ result.forces.ravel()
-            K = K + G.T @ self.fmt(result.stiffness) @ G
-            D = D + G.T @ self.fmt(result.damping) @ G
+            idx, G = self.path_map(path)
+            np.add.at(F, idx, G.T @ result.forces.ravel())
+            add(K_parts, G.T @ result.stiffness @ G, idx, idx)
+            add(D_parts, G.T @ result.damping @ G, idx, idx)
             # rigid frames: the levers turn with the body (point_force_wrenches' extra terms)
-            rigid = [(i, pt) for i, pt in enumerate(path.points)
-                     if isinstance(pt, Frame) and pt.body is not None]
-            if rigid:
-                rr, cc, vv = [], [], []
-                for i, pt in rigid:
-                    o = self.rigid_offset[id(pt.body)]
-                    Ki = np.zeros((self.n_all, 6))
-                    Ki[o:o + 6] += pt.wrench_stiffness(result.forces[i])
-                    # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
-                    Dcol = np.asarray(G.T @ result.damping[:, 3 * i:3 * i + 3])
-                    Ki[:, 3:] -= Dcol @ skew(pt.body.angular_velocity) @ skew(pt.lever())
-                    nz = np.nonzero(Ki)
-                    rr.append(nz[0]), cc.append(o + nz[1]), vv.append(Ki[nz])
-                K = K + self.triplets(list(zip(vv, rr, cc)), (self.n_all, self.n_all))
-        return F, self.fmt(K), self.fmt(D)
+            for i, pt in enumerate(path.points):
+                if not (isinstance(pt, Frame) and pt.body is not None):
+                    continue
+                own = self.rigid_offset[id(pt.body)] + np.arange(6)
+                add(K_parts, pt.wrench_stiffness(result.forces[i]), own, own)
+                # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
+                Dcol = G.T @ result.damping[:, 3 * i:3 * i + 3]
+                add(K_parts, -Dcol @ (skew(pt.body.angular_velocity) @ skew(pt.lever())),
+                    idx, own[3:])
+        return F, self.triplets(K_parts, shape), self.triplets(D_parts, shape)
 
     def static_forces(self, t: float, tangent: bool):
         """f_all (FEM -dPi/du; rigid m g plus force elements) and, if asked, K_all = -df/dq."""
@@ -865,13 +873,19 @@ class Layout:
                     body.advance_pose(h)
         self.place_slaves()
 
+    def _rest_positions(self, body) -> np.ndarray:
+        """The FEM body's node coordinates X (tabulated once per layout)."""
+        if id(body) not in self._rest_x:
+            self._rest_x[id(body)] = body.V.tabulate_dof_coordinates()
+        return self._rest_x[id(body)]
+
     def place_slaves(self) -> None:
         for att in self.rigid_attachments:              # dependency order
             att.slave.position, att.slave.rotation = att.pose()
         for s in self.slaves:
             att = s.attachment
             u = att.fem.u.x.array.reshape(-1, 3)
-            u[att.dofs] = att.positions() - att.fem.V.tabulate_dof_coordinates()[att.dofs]
+            u[att.dofs] = att.positions() - self._rest_positions(att.fem)[att.dofs]
         self._place_lifts()                             # a reduced master's lift columns
         for att in reversed(self.embedded):             # masters before their slaves
             att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
