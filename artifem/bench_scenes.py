@@ -11,7 +11,10 @@ variants and times them in this process (medians over the timed steps):
   without and with the airway skin and its pressure, and the skin's own
   update costs;
 - ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
-  conforming masseter, with and without aponeuroses.
+  conforming masseter, with and without aponeuroses;
+- ``foot`` (:mod:`artifem.models.foot.simulate`): the standing foot, the FEM alone, with
+  the bones, with bones and contact, and reduced (the paper's configuration; its training
+  cached, ~/.cache/artifem/foot-reduced by default), beside the paper's figures.
 
 ``--quick``: a smoke test of the command, not figures to quote: the reduced
 tongues of ``artifem study jaw-tongue --quick`` (a small training, seconds when
@@ -33,9 +36,10 @@ from artifem.errors import UnknownNameError
 
 SCENES = {"jaw-tongue": "artifem.models.jaw_tongue_reduced",
           "airway": "artifem.models.airway",
-          "masseter": "artifem.models.masseter"}
-#: Scenes whose benchmark trains a reduced tongue (they take ``cache``).
-TRAINED = ("jaw-tongue", "airway")
+          "masseter": "artifem.models.masseter",
+          "foot": "artifem.models.foot.simulate"}
+#: Scenes whose benchmark trains a reduced body (they take ``cache``).
+TRAINED = ("jaw-tongue", "airway", "foot")
 #: ``--quick``: timed steps per case (unless ``--steps``).
 QUICK_STEPS = 2
 

@@ -384,20 +384,23 @@ class MeshContact:
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
                  np.zeros((0, 3), int))
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
-        mid_a, mid_b = xa[ea].mean(axis=1), xb[eb].mean(axis=1)
+        na, nb = _face_normals(xa, ta), _face_normals(xb, tb)
+        # only sharp edges of both meet edge on edge: the candidates are among those
+        sharp_b = np.flatnonzero(_sharp(xb, tb, eb, fb, nb))
+        mid_a, mid_b = xa[ea].mean(axis=1), xb[eb[sharp_b]].mean(axis=1)
         half_a = 0.5 * np.linalg.norm(xa[ea[:, 1]] - xa[ea[:, 0]], axis=1)
-        half_b = 0.5 * np.linalg.norm(xb[eb[:, 1]] - xb[eb[:, 0]], axis=1)
-        cand = np.flatnonzero(np.all((mid_a + half_a[:, None] >= lo)
-                                     & (mid_a - half_a[:, None] <= hi), axis=1))
-        if not cand.size:
+        half_b = 0.5 * np.linalg.norm(xb[eb[sharp_b, 1]] - xb[eb[sharp_b, 0]], axis=1)
+        cand = np.flatnonzero(_sharp(xa, ta, ea, fa, na)
+                              & np.all((mid_a + half_a[:, None] >= lo)
+                                       & (mid_a - half_a[:, None] <= hi), axis=1))
+        if not cand.size or not sharp_b.size:
             return empty, None
-        k, j = _close_pairs(mid_a[cand], mid_b, half_a.max() + half_b.max() + self._reach)
-        i = cand[k]
+        k, j = _close_pairs(mid_a[cand], mid_b, half_a[cand].max() + half_b.max()
+                            + self._reach)
+        i, j = cand[k], sharp_b[j]
         a0, a1, b0, b1 = xa[ea[i, 0]], xa[ea[i, 1]], xb[eb[j, 0]], xb[eb[j, 1]]
         s, t = _segment_closest(a0, a1, b0, b1)
         inside = (s > 1e-9) & (s < 1 - 1e-9) & (t > 1e-9) & (t < 1 - 1e-9)
-        na, nb = _face_normals(xa, ta), _face_normals(xb, tb)
-        inside &= _sharp(xa, ta, ea, fa, na)[i] & _sharp(xb, tb, eb, fb, nb)[j]
         i, j, s, t = i[inside], j[inside], s[inside], t[inside]
         a0, a1, b0, b1 = a0[inside], a1[inside], b0[inside], b1[inside]
         pa, pb = a0 + s[:, None] * (a1 - a0), b0 + t[:, None] * (b1 - b0)

@@ -9,6 +9,8 @@ An input is a small frozen dataclass with ``apply(scene, value)``; ``value`` is 
   a traction t, :meth:`~artifem.fem_body.FemBody.add_pressure`) set to value x reference;
 - :class:`PathExcitation`: the excitation of the path muscle ``path``
   (:meth:`~artifem.multibody.frame_paths.PathElement.set_excitation`);
+- :class:`LoadLevel`: the ``level`` of the load element named ``load`` (a load element
+  that scales its forces by a level it holds, e.g. a body weight's share);
 - :class:`PrescribedMotion`: a prescribed (kinematic) rigid body moved by value x a
   reference rigid displacement (attachment motion: the nodes it carries follow it).
 
@@ -32,8 +34,8 @@ from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.multibody.rigid_body import BodyState, exp_so3
 
-__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "PrescribedMotion",
-           "controller", "describe"]
+__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "LoadLevel",
+           "PrescribedMotion", "controller", "describe"]
 
 
 class SceneInput(Protocol):
@@ -127,6 +129,29 @@ class PathExcitation:
 
     def apply(self, scene, value: float) -> None:
         self._path(scene).set_excitation(value)
+
+
+@dataclass(frozen=True)
+class LoadLevel:
+    """The ``level`` of the load element named ``load`` (its forces scale with it)."""
+
+    load: str
+
+    def _load(self, scene):
+        found = [e for e in scene.loads if getattr(e, "name", None) == self.load
+                 and hasattr(e, "level")]
+        if len(found) != 1:
+            names = [getattr(e, "name", "") for e in scene.loads if hasattr(e, "level")]
+            raise UnknownNameError(f"LoadLevel: the scene has {len(found)} load elements "
+                                   f"with a level named {self.load!r} (need one); those "
+                                   f"it has are {names}")
+        return found[0]
+
+    def check(self, scene) -> None:
+        self._load(scene)
+
+    def apply(self, scene, value: float) -> None:
+        self._load(scene).level = float(value)
 
 
 @dataclass(frozen=True)

@@ -78,12 +78,16 @@ HALF_WEIGHT = 0.5 * 70.0 * 9.81
 
 @dataclass
 class TibiaLoad:
-    """A downward force on the tibia, ramped linearly to ``force`` newtons in ``ramp``
-    seconds: f(t) = -force min(t / ramp, 1) e_y (a load element: artifem.multibody.loads)."""
+    """A downward force on the tibia, ramped linearly to ``level`` x ``force`` newtons in
+    ``ramp`` seconds: f(t) = -level force min(t / ramp, 1) e_y (a load element:
+    artifem.multibody.loads; ``level`` a scene input, :class:`~artifem.scene.inputs.LoadLevel`:
+    another body weight)."""
 
     tibia: af.RigidBody
     force: float
     ramp: float = 0.1
+    level: float = 1.0
+    name: str = "tibia load"
 
     @property
     def bodies(self) -> tuple:
@@ -92,7 +96,7 @@ class TibiaLoad:
     def master_loads(self, t: float):
         scale = min(t / self.ramp, 1.0) if self.ramp > 0 else 1.0
         wrench = np.zeros(6)
-        wrench[1] = -self.force * scale
+        wrench[1] = -self.level * self.force * scale
         return [(self.tibia, wrench)]
 
 

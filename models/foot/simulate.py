@@ -2,6 +2,7 @@
 
     artifem simulate foot --out DIR [--case standing|lift|heavy] [--level 0|1]
                           [--dt 0.005] [--duration 0.3] [--timing-steps 5]
+                          [--reduced [--cache DIR]] [--no-vtx]
 
 It writes, in DIR/<case>/: ``tissue.bp`` (VTX: the tissue's displacement; standing also
 ``tissue_contact_pressure.bp``, the floor's pressure), ``foot.png`` (bones with ligaments
@@ -12,6 +13,10 @@ its bone surfaces fixed), with the bones (no joint contacts, no floor) and with 
 contact (the case itself), and the case's figures: for standing the floor's force
 against load + weight, contact area, peak plantar pressure (rear and fore thirds) and
 centre of pressure; for lift the first metatarsal's rise and the talus's dorsiflexion.
+``--reduced`` adds the reduced foot (:mod:`~artifem.models.foot.reduced`, the paper's 6 POD
+vectors and 100 random points; the standing model for standing and heavy, the lift model
+for lift), trained (or loaded: training resumes from ``--cache``) and run against the full
+foot on its held-out input: ms per step of both, the max mean node error.
 """
 
 from __future__ import annotations
@@ -19,14 +24,17 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
 
 from artifem.arguments import positive_float, positive_int
 from artifem.models.foot import mesh as fm
 from artifem.models.foot.model import CASES, Foot, foot_case
+from artifem.models.foot.reduced import HELD_OUT, PAPER, compare, schedule, train
 from artifem.models.foot.render import plot_plantar_pressure, render_foot
 
 #: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
@@ -36,6 +44,8 @@ REFERENCE = ("Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Fo
              "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
              "forefoot; the heel carries about 60% of the load.")
 PUBLISHED_KPA = {"rearfoot": 139.0, "forefoot": 88.0}
+#: the reduced foot's training cache
+REDUCED_CACHE = Path.home() / ".cache" / "artifem" / "foot-reduced"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=positive_float, default=DURATION)
     parser.add_argument("--timing-steps", type=positive_int, default=5,
                         help="steps timed for the FEM alone and with the bones")
+    parser.add_argument("--reduced", action="store_true",
+                        help="also the reduced foot against the full one, held-out input")
+    parser.add_argument("--cache", type=Path, default=REDUCED_CACHE,
+                        help="the reduced foot's training cache (resumed when interrupted)")
+    parser.add_argument("--no-vtx", action="store_true", help="write no VTX series")
     parser.add_argument("--no-progress", action="store_true")
 
 
@@ -59,10 +74,14 @@ def run(args: argparse.Namespace) -> int:
               "with_bones": _time_steps(args, joints=False, floor=False)}
     foot = foot_case(args.case, args.level)
     rest = {name: body.position.copy() for name, body in foot.bones.items()}
-    traj = simulate(foot.scene, args.duration, args.dt, vtx=out,
+    traj = simulate(foot.scene, args.duration, args.dt, vtx=None if args.no_vtx else out,
                     progress=not args.no_progress, label=f"foot {args.case}")
     timing["with_bones_and_contact"] = traj.ms_per_step
     figures = _figures(foot, traj, args, timing, rest)
+    if args.reduced:
+        config = replace(PAPER, level=args.level, dt=args.dt, duration=args.duration)
+        figures["reduced"] = compare("lift" if args.case == "lift" else "standing", config,
+                                     args.cache, progress=not args.no_progress)
     render_foot(out / "foot.png", foot, args.case)
     if foot.floor is not None:
         sole = _sole(foot)
@@ -74,18 +93,59 @@ def run(args: argparse.Namespace) -> int:
           f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
           f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
           f"results in {out}/")
+    if args.reduced:
+        r = figures["reduced"]
+        print(f"reduced foot ({r['pod_vectors']} POD vectors + {r['lift_columns']} lift "
+              f"columns, {r['points']} points): {r['reduced_ms_per_step']:.1f} ms/step "
+              f"against {r['full_ms_per_step']:.0f}, max mean node error "
+              f"{r['max_mean_node_error_mm']:.2f} mm on the held-out input")
     return 0
+
+
+def _median_ms(scene, steps: int, dt: float) -> float:
+    ms = []
+    for _ in range(steps):
+        tic = time.perf_counter()
+        scene.step(dt)
+        ms.append(1e3 * (time.perf_counter() - tic))
+    return float(np.median(ms))
 
 
 def _time_steps(args, **parts) -> float:
     """Median ms of ``--timing-steps`` steps of the case built with ``parts``."""
-    foot = foot_case(args.case, args.level, **parts)
-    ms = []
-    for _ in range(args.timing_steps):
-        tic = time.perf_counter()
-        foot.scene.step(args.dt)
-        ms.append(1e3 * (time.perf_counter() - tic))
-    return float(np.median(ms))
+    return _median_ms(foot_case(args.case, args.level, **parts).scene, args.timing_steps,
+                      args.dt)
+
+
+#: the seed paper's foot (13,087 nodes, a quad-core i7-7700), ms per step
+PAPER_MS = {"fem_alone": 650.0, "with_bones_and_contact": 2600.0, "reduced": 10.0}
+
+
+def benchmark(steps: int = 5, quick: bool = False, cache: Path | None = None) -> dict:
+    """``artifem bench scenes``: median ms per step (``steps`` steps from rest, the load
+    ramping) of the standing foot: the FEM alone, with the bones, with bones and contact,
+    and reduced (the paper's 6 POD vectors and 100 random points, trained or loaded from
+    ``cache``, on the held-out weight); at level 1 (``quick``: level 0, 0.1 s training)."""
+    level = 0 if quick else 1
+    config = replace(PAPER, level=level, duration=0.1 if quick else PAPER.duration)
+    cases = {"fem_alone": dict(bones=False, floor=False), "with_bones": dict(joints=False,
+                                                                               floor=False),
+             "with_bones_and_contact": {}}
+    ms = {name: _median_ms(foot_case("standing", level, **parts).scene, steps, config.dt)
+          for name, parts in cases.items()}
+    model = train("standing", config, cache or REDUCED_CACHE, progress=False)
+    scene = model.scene()
+    model.model.drive(scene, schedule("standing", HELD_OUT["standing"], config.duration))
+    with threadpool_limits(limits=1, user_api="blas"):
+        ms["reduced"] = _median_ms(scene, steps, config.dt)
+    foot = foot_case("standing", level)
+    return {"benchmark": "foot", "level": level, "steps": steps, "dt": config.dt,
+            "nodes": foot.tissue.mesh.geometry.index_map().size_global,
+            "elements": foot.tissue.mesh.topology.index_map(3).size_global,
+            "cases": {name: {"ms_per_step": value} for name, value in ms.items()},
+            "reduced": {"pod_vectors": config.r, "lift_columns": model.r - config.r,
+                        "points": int(model.points.m), "sampling": config.sampling},
+            "paper_ms_per_step": PAPER_MS}
 
 
 def _sole(foot: Foot) -> dict:
@@ -120,7 +180,7 @@ def _figures(foot: Foot, traj, args, timing: dict, rest: dict) -> dict:
     }
     if foot.floor is not None:
         weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
-        expected = (foot.load.force if foot.load else 0.0) + weight
+        expected = (foot.load.level * foot.load.force if foot.load else 0.0) + weight
         normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
         sole = _sole(foot)
         x = sole["points"][:, 0]
