@@ -29,9 +29,9 @@ def agrees(text: str, value: float) -> bool:
     return abs(shown - value) <= half
 
 
-def table_after(marker: str) -> list[list[str]]:
-    """The cells of the first Markdown table after the line holding ``marker``."""
-    lines = README[README.index(marker):].splitlines()
+def table_after(marker: str, text: str = README) -> list[list[str]]:
+    """The cells of the first Markdown table after ``marker`` in ``text`` (the README)."""
+    lines = text[text.index(marker):].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     rows = []
     for line in lines[start + 2:]:
@@ -428,3 +428,40 @@ def test_the_contact_scale_figure_in_the_readme_matches_the_bench_json():
     assert int(m[1].replace(",", "")) == cases[0]["nodes"]
     assert agrees(m[2], cases[0]["ratio_to_no_contact"])
     assert cases[0]["active_rows"] >= 480
+
+
+def test_the_foot_figures_match_its_json():
+    """docs/foot.md's table and sentences and the README's foot sentence: the figures of
+    ``artifem simulate foot --level 1 --reduced --no-vtx --out docs/foot``
+    (docs/foot/standing/foot.json)."""
+    figures = json.loads((ROOT / "docs" / "foot" / "standing" / "foot.json").read_text())
+    ms, red, standing = figures["ms_per_step"], figures["reduced"], figures["standing"]
+    page = (ROOT / "docs" / "foot.md").read_text()
+    rows = {r[0]: r for r in table_after("| ms per step |", page)}
+    assert agrees(rows["FEM alone (bone surfaces fixed)"][1], ms["fem_alone"])
+    assert agrees(rows["with the bones (no contact)"][1], ms["with_bones"])
+    assert agrees(rows["with bones and contact"][1], ms["with_bones_and_contact"])
+    reduced_row = next(r for k, r in rows.items() if k.startswith("reduced"))
+    assert agrees(reduced_row[1], red["reduced_ms_per_step"])
+    text = re.sub(r"\s+", " ", page)
+    m = re.search(r"floor carries ([\d.]+) N against ([\d.]+) N of load and weight "
+                  r"\(relative difference ([\d.e+-]+)\)", text)
+    assert m, "the foot page's balance sentence changed: update this test with it"
+    assert agrees(m[1], standing["floor_normal_N"])
+    assert agrees(m[2], standing["load_plus_weight_N"])
+    assert float(m[3]) == pytest.approx(standing["relative_error"], rel=0.06)
+    m = re.search(r"max mean node error ([\d.]+) mm \(largest node error ([\d.]+) mm", text)
+    assert m and agrees(m[1], red["max_mean_node_error_mm"])
+    assert agrees(m[2], red["max_node_error_mm"])
+    m = re.search(r"peak ([\d,.]+) kPa under the heel and ([\d.]+) kPa under the forefoot",
+                  text)
+    assert m and agrees(m[1], standing["peak_pressure_by_region_kPa"]["rearfoot"])
+    assert agrees(m[2], standing["peak_pressure_by_region_kPa"]["forefoot"])
+    m = re.search(r"The foot \(.*?\): ([\d,]+) nodes, ([\d,]+) ms per step with bones and "
+                  r"contact .*?; reduced ([\d.]+) ms, max mean node error ([\d.]+) mm",
+                  re.sub(r"\s+", " ", README))
+    assert m, "the README's foot sentence changed: update this test with it"
+    assert int(m[1].replace(",", "")) == figures["nodes"]
+    assert agrees(m[2], ms["with_bones_and_contact"])
+    assert agrees(m[3], red["reduced_ms_per_step"])
+    assert agrees(m[4], red["max_mean_node_error_mm"])
