@@ -465,3 +465,17 @@ def test_the_foot_figures_match_its_json():
     assert agrees(m[2], ms["with_bones_and_contact"])
     assert agrees(m[3], red["reduced_ms_per_step"])
     assert agrees(m[4], red["max_mean_node_error_mm"])
+
+
+def test_the_foot_lift_figures_match_its_json():
+    """docs/foot.md's lift: ``artifem simulate foot --case lift --level 0 --no-vtx --out
+    docs/foot`` (docs/foot/lift/foot.json)."""
+    lift = json.loads((ROOT / "docs" / "foot" / "lift" / "foot.json").read_text())["lift"]
+    text = re.sub(r"\s+", " ", (ROOT / "docs" / "foot.md").read_text())
+    m = re.search(r"The talus turns ([\d.]+) degrees in dorsiflexion and the first metatarsal "
+                  r"rises by ([\d.]+) mm; the tibialis anterior pulls with (\d+) N and the "
+                  r"stretched soleus resists with (\d+) N", text)
+    assert m, "the foot page's lift sentence changed: update this test with it"
+    for shown, key in zip(m.groups(), ("talus_dorsiflexion_deg", "first_metatarsal_rise_mm",
+                                       "tibialis_anterior_N", "soleus_N")):
+        assert agrees(shown, lift[key]), key
