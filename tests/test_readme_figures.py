@@ -479,3 +479,23 @@ def test_the_foot_lift_figures_match_its_json():
     for shown, key in zip(m.groups(), ("talus_dorsiflexion_deg", "first_metatarsal_rise_mm",
                                        "tibialis_anterior_N", "soleus_N")):
         assert agrees(shown, lift[key]), key
+
+
+def test_the_foot_reduced_configurations_match_their_json():
+    """docs/foot.md's table of reduced configurations: scripts/foot_reduced_configs.py
+    (docs/foot/reduced_configs_level0.json)."""
+    configs = json.loads((ROOT / "docs" / "foot" / "reduced_configs_level0.json")
+                         .read_text())["configs"]
+    rows = table_after("| POD vectors | integration points |",
+                       (ROOT / "docs" / "foot.md").read_text())
+    assert len(rows) == len(configs)
+    for row, config in zip(rows, configs):
+        assert int(row[0]) == config["pod_vectors"]
+        assert row[1] == f"{config['points']} {config['sampling']}"
+        if "failure" in config:
+            shown = re.search(r"stops at t = ([\d.]+) s", row[2])[1]
+            assert agrees(shown, float(re.search(r"step failed at t = ([\d.]+) s",
+                                                 config["failure"])[1]))
+        else:
+            assert agrees(row[2], config["max_mean_node_error_mm"])
+            assert agrees(row[3].split()[0], config["reduced_ms_per_step"])

@@ -1,0 +1,54 @@
+"""The reduced standing foot in several configurations against the full foot, on the
+held-out body weight (docs/foot.md, "Reduced configurations"): POD vectors, integration
+points random or trained; a configuration whose run stops is recorded with the reason.
+
+    OPENBLAS_NUM_THREADS=1 python scripts/foot_reduced_configs.py [--level 0|1]
+
+writes docs/foot/reduced_configs_level<L>.json. The training runs are cached in
+~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot --reduced``).
+"""
+
+import argparse
+import json
+import pathlib
+import time
+from dataclasses import replace
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from artifem.errors import ArtifemError
+from artifem.models.foot import reduced as fr
+from artifem.models.foot.simulate import REDUCED_CACHE
+
+DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs" / "foot"
+#: (POD vectors, points, sampling)
+CONFIGS = [(6, 100, "random"), (12, 100, "random"), (12, 400, "random"), (6, 100, "trained"),
+           (20, 200, "trained")]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--level", type=int, default=0, choices=(0, 1))
+    level = parser.parse_args().level
+    rows = []
+    for r, points, sampling in CONFIGS:
+        config = replace(fr.PAPER, level=level, r=r, points=points, sampling=sampling)
+        tic = time.perf_counter()
+        row = {"pod_vectors": r, "points": points, "sampling": sampling}
+        try:
+            result = fr.compare("standing", config, REDUCED_CACHE, progress=False)
+            row.update({k: result[k] for k in ("reduced_ms_per_step", "full_ms_per_step",
+                                               "max_mean_node_error_mm",
+                                               "max_node_error_mm")})
+        except ArtifemError as exc:
+            row["failure"] = str(exc)
+        row["seconds"] = time.perf_counter() - tic
+        print(row, flush=True)
+        rows.append(row)
+    out = DOCS / f"reduced_configs_level{level}.json"
+    out.write_text(json.dumps({"case": "standing", "held_out_level": fr.HELD_OUT["standing"],
+                               "level": level, "configs": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
