@@ -3,6 +3,7 @@ held-out body weight (docs/foot.md, "Reduced configurations"): POD vectors, inte
 points random or trained; a configuration whose run stops is recorded with the reason.
 
     OPENBLAS_NUM_THREADS=1 python scripts/foot_reduced_configs.py [--level 0|1]
+                                  [--configs 6:100:random,6:100:trained]
 
 writes docs/foot/reduced_configs_level<L>.json. The training runs are cached in
 ~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot --reduced``).
@@ -28,9 +29,14 @@ CONFIGS = [(6, 100, "random"), (12, 100, "random"), (12, 400, "random"), (6, 100
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--level", type=int, default=0, choices=(0, 1))
-    level = parser.parse_args().level
+    parser.add_argument("--configs", default=None,
+                        help="POD:POINTS:SAMPLING,... (default: all of CONFIGS)")
+    args = parser.parse_args()
+    level = args.level
+    configs = CONFIGS if args.configs is None else [
+        (int(r), int(p), s) for r, p, s in (c.split(":") for c in args.configs.split(","))]
     rows = []
-    for r, points, sampling in CONFIGS:
+    for r, points, sampling in configs:
         config = replace(fr.PAPER, level=level, r=r, points=points, sampling=sampling)
         tic = time.perf_counter()
         row = {"pod_vectors": r, "points": points, "sampling": sampling}
