@@ -499,3 +499,20 @@ def test_the_foot_reduced_configurations_match_their_json():
         else:
             assert agrees(row[2], config["max_mean_node_error_mm"])
             assert agrees(row[3].split()[0], config["reduced_ms_per_step"])
+
+
+def test_the_foot_level1_reduced_sentence_matches_its_json():
+    """docs/foot.md's level-1 reduced configurations: scripts/foot_reduced_configs.py
+    --level 1 (docs/foot/reduced_configs_level1.json)."""
+    paper, trained = json.loads((ROOT / "docs" / "foot" / "reduced_configs_level1.json")
+                                .read_text())["configs"]
+    text = re.sub(r"\s+", " ", (ROOT / "docs" / "foot.md").read_text())
+    m = re.search(r"the paper's configuration gives ([\d.]+) mm, and 6 vectors on 100 trained "
+                  r"points still stop, at t = ([\d.]+) s: their last pass's bounds were "
+                  r"([\d.]+)% of the largest impulse off", text)
+    assert m, "the foot page's level-1 sentence changed: update this test with it"
+    assert agrees(m[1], paper["max_mean_node_error_mm"])
+    assert agrees(m[2], float(re.search(r"step failed at t = ([\d.]+) s",
+                                        trained["failure"])[1]))
+    assert agrees(m[3], 100 * float(re.search(r", ([\d.e+-]+) of the largest impulse",
+                                              trained["failure"])[1]))
