@@ -78,17 +78,18 @@ def run(args: argparse.Namespace) -> int:
                     progress=not args.no_progress, label=f"foot {args.case}")
     timing["with_bones_and_contact"] = traj.ms_per_step
     figures = _figures(foot, traj, args, timing, rest)
-    if args.reduced:
-        config = replace(PAPER, level=args.level, dt=args.dt, duration=args.duration)
-        figures["reduced"] = compare("lift" if args.case == "lift" else "standing", config,
-                                     args.cache, progress=not args.no_progress)
     render_foot(out / "foot.png", foot, args.case)
     if foot.floor is not None:
         sole = _sole(foot)
         plot_plantar_pressure(out / "plantar_pressure.png", sole["points"], sole["pressure"],
                               sole["centre"], f"foot {args.case}: plantar pressure, level "
                               f"{args.level}", REFERENCE)
-    (out / "foot.json").write_text(json.dumps(figures, indent=2))
+    (out / "foot.json").write_text(json.dumps(figures, indent=2))   # kept if reducing fails
+    if args.reduced:
+        config = replace(PAPER, level=args.level, dt=args.dt, duration=args.duration)
+        figures["reduced"] = compare("lift" if args.case == "lift" else "standing", config,
+                                     args.cache, progress=not args.no_progress)
+        (out / "foot.json").write_text(json.dumps(figures, indent=2))
     print(f"foot {args.case} (level {args.level}, {figures['nodes']} nodes): "
           f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
           f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
