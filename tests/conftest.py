@@ -266,12 +266,29 @@ def sliding_block():
     return make
 
 
+#: what a scene script does under ``mpiexec``: its run on every rank, JSON from rank 0
+_SCRIPT_MAIN = """
+
+if __name__ == "__main__":
+    import json as _json
+    import sys as _sys
+    from mpi4py import MPI as _MPI
+    _result = run(*build(_MPI.COMM_WORLD))
+    if _MPI.COMM_WORLD.rank == 0:
+        with open(_sys.argv[1], "w") as _f:
+            _json.dump(_result, _f)
+"""
+
+
 @pytest.fixture(scope="session")
 def script_scene(tmp_path_factory):
-    """``script_scene(text, name)`` -> (path, namespace): a scene script written to a file
-    (for ``mpiexec``) and executed here (its ``build`` and ``run`` for the serial
+    """``script_scene(text, name)`` -> (path, namespace): a scene script defining
+    ``build(comm, **options)`` and ``run(*built) -> dict``, written to a file that, run
+    under ``mpiexec`` with a path argument, writes ``run(*build(COMM_WORLD))`` there as JSON
+    (:func:`_run_two_ranks`), and executed here (its ``build`` and ``run`` for the serial
     comparison)."""
     def make(text: str, name: str):
+        text = text + _SCRIPT_MAIN
         path = tmp_path_factory.mktemp(name) / f"{name}.py"
         path.write_text(text)
         namespace = {"__name__": name}

@@ -21,7 +21,6 @@ from mpi4py import MPI
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
 
 SCENE = textwrap.dedent('''
-    import json, sys
     import numpy as np
     import artifem as af  # noqa: F401  (before dolfinx)
     from dolfinx import mesh as dmesh
@@ -68,13 +67,6 @@ SCENE = textwrap.dedent('''
         return {"u": beam.displacement_at(rows).tolist(), "bone": bone.position.tolist(),
                 "resultant": forces.resultant.tolist(), "ranks": beam.mesh.comm.size,
                 "schur": scene._schur is not None}
-
-
-    if __name__ == "__main__":
-        result = run(*build(MPI.COMM_WORLD))
-        if MPI.COMM_WORLD.rank == 0:
-            with open(sys.argv[1], "w") as f:
-                json.dump(result, f)
 ''')
 
 

@@ -31,7 +31,6 @@ MPIEXEC = Path(sys.executable).parent / "mpiexec"
 
 #: The scene, as a script: the test imports it in serial and runs it under mpiexec.
 SCENE = textwrap.dedent('''
-    import json, sys
     import numpy as np
     import artifem as af  # noqa: F401  (before dolfinx)
     from dolfinx import mesh as dmesh
@@ -73,13 +72,6 @@ SCENE = textwrap.dedent('''
         return {"u": beam.displacement_at(rows).tolist(), "bone": bone.position.tolist(),
                 "angle": float(scene.joints[0].angle()), "ranks": beam.mesh.comm.size,
                 "schur": scene._schur is not None, "energy": scene.energy()}
-
-
-    if __name__ == "__main__":
-        result = run(*build(MPI.COMM_WORLD))
-        if MPI.COMM_WORLD.rank == 0:
-            with open(sys.argv[1], "w") as f:
-                json.dump(result, f)
 ''')
 
 
