@@ -77,10 +77,10 @@ def run(args: argparse.Namespace) -> int:
     traj = simulate(foot.scene, args.duration, args.dt, vtx=None if args.no_vtx else out,
                     progress=not args.no_progress, label=f"foot {args.case}")
     timing["with_bones_and_contact"] = traj.ms_per_step
-    figures = _figures(foot, traj, args, timing, rest)
+    sole = _sole(foot) if foot.floor is not None else None
+    figures = _figures(foot, traj, args, timing, rest, sole)
     render_foot(out / "foot.png", foot, args.case)
-    if foot.floor is not None:
-        sole = _sole(foot)
+    if sole is not None:
         plot_plantar_pressure(out / "plantar_pressure.png", sole["points"], sole["pressure"],
                               sole["centre"], f"foot {args.case}: plantar pressure, level "
                               f"{args.level}", REFERENCE)
@@ -132,14 +132,14 @@ def benchmark(steps: int = 5, quick: bool = False, cache: Path | None = None) ->
     cases = {"fem_alone": dict(bones=False, floor=False), "with_bones": dict(joints=False,
                                                                                floor=False),
              "with_bones_and_contact": {}}
-    ms = {name: _median_ms(foot_case("standing", level, **parts).scene, steps, config.dt)
-          for name, parts in cases.items()}
+    feet = {name: foot_case("standing", level, **parts) for name, parts in cases.items()}
+    ms = {name: _median_ms(foot.scene, steps, config.dt) for name, foot in feet.items()}
     model = train("standing", config, cache or REDUCED_CACHE, progress=False)
     scene = model.scene()
     model.model.drive(scene, schedule("standing", HELD_OUT["standing"], config.duration))
     with threadpool_limits(limits=1, user_api="blas"):
         ms["reduced"] = _median_ms(scene, steps, config.dt)
-    foot = foot_case("standing", level)
+    foot = feet["with_bones_and_contact"]
     return {"benchmark": "foot", "level": level, "steps": steps, "dt": config.dt,
             "nodes": foot.tissue.mesh.geometry.index_map().size_global,
             "elements": foot.tissue.mesh.topology.index_map(3).size_global,
@@ -165,7 +165,7 @@ def _sole(foot: Foot) -> dict:
             "area": float(area[pressure > 0].sum())}
 
 
-def _figures(foot: Foot, traj, args, timing: dict, rest: dict) -> dict:
+def _figures(foot: Foot, traj, args, timing: dict, rest: dict, sole: dict | None) -> dict:
     tissue = foot.tissue
     figures = {
         "model": "foot", "case": args.case, "level": args.level,
@@ -179,11 +179,10 @@ def _figures(foot: Foot, traj, args, timing: dict, rest: dict) -> dict:
         "timing_steps": args.timing_steps,
         "joint_failures": [f for f in (c.constraint_failure() for c in foot.joints) if f],
     }
-    if foot.floor is not None:
+    if sole is not None:
         weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
         expected = (foot.load.level * foot.load.force if foot.load else 0.0) + weight
         normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
-        sole = _sole(foot)
         x = sole["points"][:, 0]
         third = (x.max() - x.min()) / 3
         regions = {"rearfoot": x < x.min() + third, "forefoot": x > x.max() - third}
