@@ -137,7 +137,7 @@ def _compliant(rows, C):
     b = g.block
     full = np.zeros(len(g.c))
     full[:len(C)] = C
-    block = RowBlock(b.owner, b.phi, b.jacobians, b.lo, b.hi, b.stiffness, b.bounds_from,
+    block = RowBlock(b.owner, b.phi, b.jacobians, b.lo, b.hi, b.stiffness, b.friction,
                      b.keys, compliance=full)
     return [StepRows(block, g.G, g.c, full / H ** 2)]
 

@@ -14,7 +14,7 @@ from scipy import sparse
 import artifem as af  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.scene import constraints
 from artifem.scene.constraints import (ActiveSetMemory, StepRows, solve_constrained,
                                        use_kkt)
@@ -54,13 +54,9 @@ def _points_problem(rng, nodes=200, contacts=60, mu=0.5, redundant=0):
     lo, hi = np.zeros(len(cols)), np.zeros(len(cols))
     hi[:k] = np.inf
 
-    def friction(lam):
-        cap = np.tile(mu * np.maximum(lam[:k], 0.0), len(dirs) - 1)
-        return np.concatenate([np.zeros(k), -cap]), np.concatenate([np.full(k, np.inf), cap])
-
     keys = np.column_stack([np.tile(np.arange(k), len(dirs)), np.repeat(np.arange(len(dirs)), k)])
     block = RowBlock(_Owner(), np.zeros(len(cols)), ((None, Gm),), lo, hi, lambda lam: None,
-                     friction if mu > 0 else None, keys)
+                     Friction.tangents(k, mu) if mu > 0 else None, keys)
     return A, b, [StepRows(block, Gm, c)]
 
 

@@ -46,7 +46,8 @@ def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(foot_ca
 def test_trained_points_run_under_the_soles_friction(foot_cache, training_cache):
     """6 POD vectors on 100 trained (ECSW) points: many more friction rows under the sole
     than reduced coordinates, whose bounds' fixed point circles a change of the active set
-    (constraints.BOUND_SLACK); the run ends and follows the full foot."""
+    (the sliding rows are then held at mu lambda_n of the same solve); the run ends and
+    follows the full foot."""
     config = replace(fr.PAPER, level=0, duration=0.1, sampling="trained")
     result = fr.compare("standing", config, training_cache, progress=False,
                         mesh_cache=foot_cache)

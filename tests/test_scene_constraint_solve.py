@@ -6,10 +6,12 @@ lo <= lambda <= hi, checked against every active set of a small problem."""
 import itertools
 
 import numpy as np
+import pytest
 
 import artifem as af  # noqa: F401  (must precede dolfinx / petsc4py)
 
-from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.constraint_rows import Friction, RowBlock
+from artifem.scene import constraints
 from artifem.scene.constraints import StepRows, solve_constrained, solve_saddle
 from artifem.scene.direct_solver import DirectSolver
 
@@ -64,37 +66,71 @@ def test_bounded_rows_solve_meets_complementarity_for_any_bounds(rng):
         np.testing.assert_allclose(lam, lam1, rtol=1e-9, atol=1e-10)
 
 
-def _friction_bounds(mu):
-    """Bounds of a normal row and a friction row: [0, inf) and |lambda_t| <= mu lambda_n."""
-    def bounds(lam):
-        return np.array([0.0, -mu * max(lam[0], 0.0)]), np.array([np.inf, mu * max(lam[0], 0.0)])
-    return bounds
-
-
-def test_bounds_from_the_impulses_give_coulomb_friction():
+@pytest.mark.parametrize("path", ["schur", "kkt"])
+def test_friction_rows_take_the_normal_impulses_of_the_same_solve(path):
     """A point of mass m on a table (z = [v_x, v_z], rows v_z >= 0 and v_x = 0 with
     |lambda_t| <= mu lambda_n from the same solve), pressed down by m g and pushed along x
     by F: it sticks (lambda_t = -h F, v_x = 0) while F < mu m g and slides at
-    v_x = h (F - mu m g) / m otherwise, both solves alike; without the bounds from the
-    impulses (the first guess [0, 0] kept) it would slide frictionless."""
+    v_x = h (F - mu m g) / m otherwise, both solves alike; the friction row's own bounds
+    [0, 0] are not used (it would slide frictionless)."""
     m, g, h, mu = 2.0, 9.81, 0.01, 0.5
     A = m * np.eye(2)
     G = np.eye(2)[[1, 0]]
     lo, hi = np.array([0.0, 0.0]), np.array([np.inf, 0.0])
     block = RowBlock(_Owner(), np.zeros(2), ((None, G),), lo, hi, lambda lam: None,
-                     bounds_from=_friction_bounds(mu))
+                     friction=Friction(np.array([-1, 0]), np.array([0.0, mu])))
     rows = [StepRows(block, G, np.zeros(2))]
-    kkt = lambda K, Ga: np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) \
-        if len(Ga) else K                                            # noqa: E731
     for F, v_x in ((0.8 * mu * m * g, 0.0), (1.5 * mu * m * g, h * 0.5 * mu * g)):
         b = h * np.array([F, -m * g])
-        z, lam, _ = solve_constrained(DirectSolver(), A, b, rows, "test")
+        z, lam, _ = solve_constrained(DirectSolver(), A, b, rows, "test", path=path)
         np.testing.assert_allclose(lam[0], h * m * g, rtol=1e-12)
         np.testing.assert_allclose(z, [v_x, 0.0], atol=1e-14)
         np.testing.assert_allclose(lam[1], -h * min(F, mu * m * g), rtol=1e-12)
-        z2, lam2, _ = solve_saddle(DirectSolver(), kkt, A, b, rows, "test")
+        z2, lam2, _ = solve_saddle(DirectSolver(), _kkt, A, b, rows, "test")
         np.testing.assert_allclose(z2, z, atol=1e-14)
         np.testing.assert_allclose(lam2, lam, rtol=1e-12)
+
+
+def _kkt(K, Ga):
+    return np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K
+
+
+@pytest.mark.parametrize("F", [0.2, 0.45, 1.5])
+def test_sliding_rows_held_at_mu_lambda_n_of_the_same_solve(monkeypatch, F):
+    """A planar box (z = [v_x, v_z, w], mass 2, inertia 0.1) on a table through its two
+    bottom corners (x = -+0.2, 0.1 below its centre: normal rows [0, 1, x], friction rows
+    [1, 0, 0.1], mu = 0.5), pushed along x by F m g: the friction's torque shifts the
+    normal impulses between the corners, so they depend on the friction impulses. One
+    pass of the bounds' fixed point does not settle (its bounds were the rows' own
+    [0, 0]); the sliding rows then held at +-mu lambda_n of the same solve (a row of the
+    multiplier block that is not symmetric) give the fixed point's answer, on the Schur
+    complement, the sparse KKT matrix and the statics' KKT matrix alike: the velocities,
+    the normal impulses and the sum of the friction impulses (the two friction rows are
+    the same row: while the box sticks, only their sum is determined), each friction
+    impulse within its cone."""
+    m, g, h, mu = 2.0, 9.81, 0.01, 0.5
+    A = np.diag([m, m, 0.1])
+    G = np.array([[0.0, 1.0, -0.2], [0.0, 1.0, 0.2], [1.0, 0.0, 0.1], [1.0, 0.0, 0.1]])
+    lo, hi = np.array([0.0, 0.0, 0.0, 0.0]), np.array([np.inf, np.inf, 0.0, 0.0])
+    block = RowBlock(_Owner(), np.zeros(4), ((None, G),), lo, hi, lambda lam: None,
+                     friction=Friction(np.array([-1, -1, 0, 1]), np.array([0, 0, mu, mu])))
+    rows = [StepRows(block, G, np.zeros(4))]
+    b = h * np.array([F * m * g, -m * g, 0.0])
+    reference = solve_constrained(DirectSolver(), A, b, rows, "test", path="schur")
+    monkeypatch.setattr(constraints, "BOUND_PASSES", 1)
+    z_ref, lam_ref = reference[:2]
+    assert np.all(lam_ref[:2] > 0) and lam_ref[0] != pytest.approx(lam_ref[1])
+    np.testing.assert_allclose(np.abs(lam_ref[2:]).sum(), h * min(F, mu) * m * g, rtol=1e-9)
+    solves = [solve_constrained(DirectSolver(), A, b, rows, "test", path=path)[:2]
+              for path in ("schur", "kkt")]
+    # the statics' trials on their own (not from the Schur complement's active set)
+    monkeypatch.setattr(constraints, "_schur_start", lambda *args: None)
+    solves.append(solve_saddle(DirectSolver(), _kkt, A, b, rows, "test")[:2])
+    for z, lam in solves:
+        np.testing.assert_allclose(z, z_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lam[:2], lam_ref[:2], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lam[2] + lam[3], lam_ref[2] + lam_ref[3], rtol=0, atol=1e-12)
+        assert np.all(np.abs(lam[2:]) <= mu * lam[:2] + 1e-15)
 
 
 def _counting_kkt():

@@ -14,10 +14,10 @@ its tolerance), which fails the step like an inverted element. A block of m rows
     lo <= lambda <= hi   bounds on the rows' impulses lambda (force times h), which act
                          on body k as G_k^T lambda: bilateral rows (-inf, inf), limits
                          and contact normals [0, inf), friction [-mu lambda_n, mu lambda_n];
-    bounds_from(lambda)  optional: bounds that depend on the block's own impulses
-                         (Coulomb friction on its normal impulses); lo, hi are then the
-                         first guess, and the solve repeats its active set with the
-                         bounds of its last impulses until they no longer change;
+    friction             optional (:class:`Friction`): rows whose bounds are the block's
+                         own normal impulses times mu, |lambda_t| <= mu lambda_n (Coulomb
+                         friction on a pyramid); the solve holds a sliding row at
+                         +-mu lambda_n of the same solve (lo, hi are ignored there);
     K(lambda)            d(sum_k G_k^T lambda)/dq at fixed lambda: the rows' geometric
                          stiffness (their levers and axes turn with the bodies).
 
@@ -57,7 +57,37 @@ import numpy as np
 
 from artifem.errors import InputError
 
-__all__ = ["RowBlock"]
+__all__ = ["Friction", "RowBlock"]
+
+
+@dataclass(frozen=True, eq=False)
+class Friction:
+    """Coulomb friction on some rows of a block: row j with ``normal[j] >= 0`` obeys
+
+        -mu_j lambda_n <= lambda_j <= mu_j lambda_n,   lambda_n = max(lambda_{normal[j]}, 0),
+
+    (box rows along tangents: a friction pyramid); rows with ``normal[j] = -1`` are not
+    friction rows."""
+
+    normal: np.ndarray
+    mu: np.ndarray
+
+    @classmethod
+    def tangents(cls, k: int, mu: float, per_point: int = 2) -> Friction:
+        """Rows [k normals; per_point blocks of k tangent rows], tangent row j of point
+        j mod k, all with friction coefficient mu."""
+        normal = np.concatenate([np.full(k, -1), np.tile(np.arange(k), per_point)])
+        return cls(normal, np.where(normal >= 0, float(mu), 0.0))
+
+    @property
+    def rows(self) -> np.ndarray:
+        """(m,) bool: the friction rows."""
+        return self.normal >= 0
+
+    def cap(self, lam: np.ndarray) -> np.ndarray:
+        """mu_j max(lambda_{normal[j]}, 0) on the friction rows, 0 elsewhere."""
+        return np.where(self.rows, self.mu * np.maximum(lam[np.maximum(self.normal, 0)], 0.0),
+                        0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,8 +103,7 @@ class RowBlock:
         lo, hi: (m,) bounds on the impulses.
         stiffness: lambda -> d(sum_k G_k^T lambda)/dq, square over the concatenated
             columns of ``jacobians`` (the world's included, zero; dense or sparse).
-        bounds_from: None (fixed bounds), or lambda -> (lo, hi), the bounds at the
-            block's impulses lambda (module docstring).
+        friction: None, or a :class:`Friction` on some of the rows (module docstring).
         keys: None, or (m, d) integers naming each row stably from step to step (a
             contact's point and direction): the next step's active set starts from the
             last one's rows of the same keys (a warm start,
@@ -89,7 +118,7 @@ class RowBlock:
     lo: np.ndarray
     hi: np.ndarray
     stiffness: Callable[[np.ndarray], np.ndarray]
-    bounds_from: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+    friction: Friction | None = None
     keys: np.ndarray | None = None
     compliance: np.ndarray | None = None
 
@@ -102,6 +131,13 @@ class RowBlock:
                 raise InputError(f"{what}: a Jacobian with {G.shape[0]} rows for {m} values")
         if self.keys is not None and len(self.keys) != m:
             raise InputError(f"{what}: {len(self.keys)} row keys for {m} rows")
+        if self.friction is not None and (
+                self.friction.normal.shape != (m,) or self.friction.mu.shape != (m,)
+                or np.any(self.friction.normal >= m)
+                or np.any(self.friction.rows[np.maximum(self.friction.normal, 0)]
+                          & self.friction.rows)):
+            raise InputError(f"{what}: friction needs {m} normal indices and coefficients, "
+                             "each friction row's normal a row of the block that is not one")
         if self.compliance is not None:
             C = np.asarray(self.compliance, dtype=float)
             if C.shape != (m,) or not np.all(np.isfinite(C)) or np.any(C < 0):
@@ -127,12 +163,13 @@ class RowBlock:
         return self.phi.shape[0]
 
     def bounds(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) at the block's impulses ``lam`` (``bounds_from``; fixed without it)."""
-        if self.bounds_from is None:
+        """(lo, hi) at the block's impulses ``lam`` (the friction rows' from their
+        normals'; fixed without friction)."""
+        if self.friction is None:
             return self.lo, self.hi
-        lo, hi = self.bounds_from(lam)
-        _check_bounds(lo, hi, len(self), f"constraint {getattr(self.owner, 'name', self.owner)!r}")
-        return lo, hi
+        cap = self.friction.cap(lam)
+        rows = self.friction.rows
+        return np.where(rows, -cap, self.lo), np.where(rows, cap, self.hi)
 
     @property
     def bounded(self) -> np.ndarray:

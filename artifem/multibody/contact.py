@@ -23,9 +23,9 @@ is pushed back by -beta phi / h. Friction rows ask G z+ = 0 (stick) while |lambd
 mu lambda_n, else hold lambda_t at the bound against the slip. Each tangent direction is
 bounded on its own: the friction pyramid, not the cone (sliding along a diagonal of t_1,
 t_2 meets up to sqrt(2) mu lambda_n, and its direction leans to the nearer axis). The
-bounds take the normal impulses of the same step (``RowBlock.bounds_from``: the active
-set is solved again with the bounds of its last normal impulses until they settle, on the
-same factorization), so friction holds from the first step of a contact: ArtiSynth's
+bounds take the normal impulses of the same step (``RowBlock.friction``: a sliding row
+is held at +-mu lambda_n of the same solve, :mod:`artifem.scene.constraints`), so
+friction holds from the first step of a contact: ArtiSynth's
 normal impulses of the previous step would let a body resting on an incline slip for
 one step (h^2 g sin(theta) there) and slide without friction in its first step.
 
@@ -51,7 +51,7 @@ import numpy as np
 from scipy import sparse
 
 from artifem.errors import InputError
-from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.multibody.joints import axis_rotation
 
 __all__ = ["ContactForces", "PlaneContact"]
@@ -182,18 +182,11 @@ class PlaneContact:
         hi[:k] = np.inf
         W = sparse.csr_matrix((np.ones(m), (np.arange(m), idx)), shape=(m, len(self._points)))
         G = self._points.rows(W, directions)
-        mu = self.mu
-
-        def friction_bounds(lam):
-            """|lambda_t| <= mu lambda_n on both tangent rows of each point."""
-            cap = np.tile(mu * np.maximum(lam[:k], 0.0), 2)
-            return np.concatenate([np.zeros(k), -cap]), np.concatenate([np.full(k, np.inf), cap])
-
         return [PlaneContactRows(
             self, np.concatenate([phi[near], np.zeros(m - k)]), ((self._points.body, G),), lo,
             hi,
             lambda lam: self._points.stiffness(W, lam[:, None] * directions),
-            friction_bounds if mu > 0 else None,
+            Friction.tangents(k, self.mu) if self.mu > 0 else None,
             np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near,
             compliance=self._compliance(near, m))]
 

@@ -32,7 +32,7 @@ triangle's; 1 - s, s on a's edge and -(1 - t), -t on b's), summing to zero over 
 nodes' dofs; reduced e^T W_kj U_j). The step's rows are those of
 :mod:`~artifem.multibody.constraint_rows` (as a plane contact's: reach phi = 0 within the
 step, pushed back by -beta phi / h once crossed); friction bounds take the same step's
-normal impulses (``bounds_from``). A vertex inside the other body at any depth is found
+normal impulses (``RowBlock.friction``). A vertex inside the other body at any depth is found
 (every vertex within the other's bounding box is queried), and so are crossed sharp edges
 within the margin: deeper than ``tolerance`` after a step fails the step (halved, like an
 inverted element), at the start it is an InputError naming both bodies and the pair.
@@ -54,7 +54,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from artifem.errors import InputError
-from artifem.multibody.constraint_rows import RowBlock
+from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.multibody.contact import check_options
 from artifem.multibody.joints import axis_rotation
 
@@ -448,13 +448,6 @@ class MeshContact:
         Wa, Wb = Wall[:, :na], Wall[:, na:]
         lo, hi = np.zeros(m), np.zeros(m)
         hi[:k] = np.inf
-        mu = self.mu
-
-        def friction_bounds(lam):
-            """|lambda_t| <= mu lambda_n on both tangent rows of each pair."""
-            cap = np.tile(mu * np.maximum(lam[:k], 0.0), 2)
-            return np.concatenate([np.zeros(k), -cap]), np.concatenate([np.full(k, np.inf), cap])
-
         def stiffness(lam):
             f = lam[:, None] * directions
             return sparse.block_diag([sparse.csr_matrix(pa.stiffness(Wa, f)),
@@ -465,10 +458,10 @@ class MeshContact:
         return [MeshContactRows(
             self, np.concatenate([phi, np.zeros(m - k)]),
             ((pa.body, pa.rows(Wa, directions)), (pb.body, pb.rows(Wb, directions))),
-            lo, hi, stiffness, friction_bounds if mu > 0 else None,
+            lo, hi, stiffness, Friction.tangents(k, self.mu) if self.mu > 0 else None,
             np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
-            tangents=(bases[:, :, 0], bases[:, :, 1]) if mu > 0 else (), weights=W,
+            tangents=(bases[:, :, 0], bases[:, :, 1]) if self.mu > 0 else (), weights=W,
             compliance=self._compliance(pairs, m))]
 
     def _compliance(self, pairs: _Pairs, m: int):

@@ -17,9 +17,13 @@ lambda where held; both paths and statics take it. The active set is found by a
 primal-dual active set (:func:`_active_set`: release the multiplier furthest out of its
 bounds, else activate the most violated row, repeat); rows with lo = -inf and hi = inf
 are always active.
-Bounds that depend on the impulses (friction, ``RowBlock.bounds_from``) are a fixed
-point around it: the active set again with the bounds of its last impulses, until they
-settle.
+Friction rows (``RowBlock.friction``: |lambda_t| <= mu lambda_n) are first a fixed point
+around it: the active set again with the bounds of its last impulses, until they settle;
+where the passes circle instead (a reduced body under many more friction rows than
+coordinates: its impulses are far from unique, and the normal ones jump as the active set
+changes), the sliding rows are held at s lambda_n of the same solve (s = +-mu; a row of
+the multiplier block, lambda_t - s lambda_n = 0, that is not symmetric) from the last
+pass's active set.
 
 :func:`solve_constrained` (the step) solves each trial by one of two paths, chosen by
 :func:`use_kkt` (at least KKT_ROWS = 64 rows on a sparse A of more than DENSE_MAX
@@ -85,38 +89,41 @@ def _vstack(blocks: list):
 
 #: passes of the active set with bounds that depend on the impulses (friction), at most
 BOUND_PASSES = 50
-#: ... after which the last pass stands if its bounds are within this fraction of the
-#: largest impulse of those of its own impulses (the friction cone met to that tolerance)
-BOUND_SLACK = 1e-2
 #: ... the bounds of the passes after this many take the mean of the last impulses
 RELAX_PASSES = 8
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                bounds=None, warm=None, batch: bool = False):
+                friction=None, warm=None, batch: bool = False):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
-    active set on rows with bounds lo <= lambda <= hi (module docstring). ``trial(active,
-    held)`` solves with the active rows as equalities and the others at their ``held``
-    impulses, and returns (lambda, slack of the bounded rows G z - c, extra).
-    ``bounds(lambda) -> (lo, hi)``, for bounds that depend on the impulses (Coulomb
-    friction on the normal impulses): the active set is found again with the bounds of
-    its last impulses until they change by at most 1e-10 of the largest impulse (a fixed
-    point; each pass starts from the last pass's active set); after BOUND_PASSES passes
-    the last stands if they change by at most BOUND_SLACK of it, else StepFailed. ``warm`` = (active, held at
-    hi, known, lambda) of the previous step (:class:`ActiveSetMemory`): the first pass
-    takes the bounds of those impulses (0 on rows it does not know), and the rows it knows
-    start from it, in the first pass where their bounds differ and, where the last pass's
-    bounds were equal, in the next. ``batch``: many rows at once
-    (:func:`_active_set_at`)."""
-    if warm is not None and bounds is not None:
+    active set on rows with bounds lo <= lambda <= hi (module docstring; :func:`_pivots`,
+    whose ``trial`` it takes). ``friction`` = (normal, mu) over the rows: the friction
+    rows' bounds are +-mu lambda_n. First as a fixed point: the active set at fixed bounds
+    (a convex problem: the pivots settle), found again with the bounds of its last
+    impulses until they change by at most 1e-10 of the largest impulse (each pass starts
+    from the last pass's active set); after BOUND_PASSES passes (the passes circling a
+    change of the active set: a reduced body under many more friction rows than
+    coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
+    pass's active set. ``warm`` = (active, held at hi, known, lambda) of the previous step
+    (:class:`ActiveSetMemory`): the first pass takes the bounds of those impulses (0 on
+    rows it does not know), and the rows it knows start from it, in the first pass where
+    their bounds differ and, where the last pass's bounds were equal, in the next."""
+    if friction is None:
+        return _pivots(lo, hi, tol, trial, what, None, None if warm is None else warm[:3],
+                       batch)
+    fric = friction[0] >= 0
+    of = np.maximum(friction[0], 0)
+
+    def bounds(lam):
+        cap = friction[1] * np.maximum(lam[of], 0.0)
+        return np.where(fric, -cap, lo), np.where(fric, cap, hi)
+
+    if warm is not None:
         lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
     start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
     basis = None                            # the impulses the current bounds are of
     for k in range(BOUND_PASSES):
-        lam, active, held, extra = _active_set_at(lo, hi, tol, trial, what, start, batch)
-        at_high = ~active & (held == hi) & (lo < hi)
-        if bounds is None:
-            return lam, active, at_high, extra
+        lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, start, batch)
         use = lo != hi
         start = (active, at_high, use)
         if warm is not None:
@@ -132,15 +139,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
             return lam, active, at_high, extra
-    # the averaged passes may circle a point where the active set changes (a reduced body
-    # under many more friction rows than coordinates): the last pass stands when its
-    # bounds are within BOUND_SLACK of those of its impulses
-    if change <= BOUND_SLACK * float(np.abs(lam).max(initial=0.0)):
-        return lam, active, at_high, extra
-    raise StepFailed(f"{what}: the bounds that depend on the impulses (friction) did not "
-                     f"settle in {BOUND_PASSES} passes of the active set (last change "
-                     f"{change:.3g}, {change / max(float(np.abs(lam).max()), 1e-300):.3g} "
-                     "of the largest impulse)")
+    return _pivots(lo, hi, tol, trial, what, friction,
+                   (active, at_high, np.ones(lo.size, dtype=bool)), batch)
 
 
 def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
@@ -152,60 +152,87 @@ def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
 BATCH_TRIALS = 12
 
 
-def _active_set_at(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                   start=None, batch: bool = False):
-    """(lambda, active mask, held impulses, extra) of :func:`_active_set` at fixed bounds.
-    Rows with lo < 0 < hi (friction) start active, the other bounded rows held at lo
-    (where finite); ``start`` = (active, held at hi, use): the rows of ``use`` begin from
-    that set instead (a previous pass's or step's), held at the same side of the current
-    bounds. One row per trial: release the multiplier furthest outside its bounds, else
-    activate the most violated row. ``batch`` (Hintermueller, Ito and Kunisch's
+def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
+            friction=None, start=None, batch: bool = False):
+    """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
+    active set on rows with bounds lo <= lambda <= hi (module docstring).
+
+    ``trial(active, held, coupled)`` solves with the active rows as equalities, the other
+    rows at their ``held`` impulses except the ``coupled`` ones = (rows, their normal rows,
+    s): held friction rows whose normal is active, at lambda_row = s lambda_normal of the
+    same solve (s = +-mu: sliding); it returns (lambda, slack of the bounded rows G z - c,
+    extra). ``friction`` = (normal, mu) over the rows (:class:`~artifem.multibody.
+    constraint_rows.Friction`, stacked): the friction rows' bounds are +-mu lambda_n of
+    the trial (their lo, hi are not used); a friction row whose normal is held is held at
+    s times the normal's held impulse. Rows start active where lo < 0 < hi, bounded rows
+    held at lo (where finite), friction rows sliding at -mu; ``start`` = (active, held at
+    hi, use): the rows of ``use`` start from it instead. One row per trial: release the multiplier furthest outside its bounds,
+    else activate the most violated row. ``batch`` (Hintermueller, Ito and Kunisch's
     primal-dual active set): release every multiplier outside its bounds and activate
     every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
     comes back (cycling), one row per trial from there."""
-    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
-    active = np.ones(lo.size, dtype=bool)
-    active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0)
-    at_high = np.zeros(lo.size, dtype=bool)
+    m = lo.size
+    normal, mu = (np.full(m, -1), np.zeros(m)) if friction is None else friction
+    fric = normal >= 0
+    of = np.maximum(normal, 0)                      # each row's normal (itself elsewhere)
+    bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi) | fric)
+    active = np.ones(m, dtype=bool)
+    active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0) & ~fric[bounded]
+    at_high = np.zeros(m, dtype=bool)
     if start is not None:
-        was_active, was_high, use = start
-        kept = bounded[use[bounded]]
+        was_active, was_high, known = start
+        kept = bounded[known[bounded]]
         active[kept] = was_active[kept]
         at_high[kept] = was_high[kept]
-    held = np.zeros(lo.size)
+    held = np.zeros(m)
     held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
                              hi[bounded])
+    side = np.where(at_high, mu, -mu)               # a held friction row: side lambda_n
     batches = BATCH_TRIALS if batch else 0
     seen = set()
     for _ in range(2 * bounded.size + 10 + batches):
-        lam, slack, extra = trial(active, held)
+        sliding = fric & ~active
+        couple = sliding & active[of]
+        held[couple] = 0.0
+        loose = sliding & ~active[of]                # its normal held (at 0: no friction)
+        held[loose] = side[loose] * np.maximum(held[of[loose]], 0.0)
+        rows = np.flatnonzero(couple)
+        lam, slack, extra = trial(active, held, (rows, normal[rows], side[rows]))
         if not bounded.size:
             break
-        on, l, low, high = active[bounded], lam[bounded], lo[bounded], hi[bounded]
+        cap = mu * np.maximum(lam[of], 0.0)
+        low = np.where(fric, -cap, lo)[bounded]
+        high = np.where(fric, cap, hi)[bounded]
+        on, l, f = active[bounded], lam[bounded], fric[bounded]
         outside = np.where(on, np.maximum(low - l, l - high), -np.inf)
-        at_low = held[bounded] == low
+        at_low = np.where(f, side[bounded] < 0, held[bounded] == low)
         # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
         violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
         if batches > 0 and max(outside.max(), violated.max()) > tol:
             out, bad = outside > tol, violated > tol
             rel = bounded[out]
             active[rel] = False
-            held[rel] = np.where(l[out] < low[out], low[out], high[out])
+            below = l[out] < low[out]
+            held[rel] = np.where(below, low[out], high[out])
+            side[rel] = np.where(below, -mu[rel], mu[rel])
             active[bounded[bad]] = True
-            state = active.tobytes() + held.tobytes()
+            state = active.tobytes() + (side > 0).tobytes() + held.tobytes()
             batches = batches - 1 if state not in seen else 0
             seen.add(state)
         elif outside.max() > tol:                   # release: hold at the crossed bound
             k = int(np.argmax(outside))
-            active[bounded[k]] = False
-            held[bounded[k]] = low[k] if l[k] < low[k] else high[k]
+            j = bounded[k]
+            active[j] = False
+            held[j] = low[k] if l[k] < low[k] else high[k]
+            side[j] = -mu[j] if l[k] < low[k] else mu[j]
         elif violated.max() > tol:                  # activate the most violated row
             active[bounded[int(np.argmax(violated))]] = True
         else:
             break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
-    return lam, active, held, extra
+    high_side = np.where(fric, side > 0, (held == hi) & (lo < hi))
+    return lam, active, ~active & high_side, extra
 
 
 def _compliance(rows: list) -> np.ndarray | None:
@@ -217,21 +244,24 @@ def _compliance(rows: list) -> np.ndarray | None:
 
 
 def _stacked(rows: list):
-    """(G, c, lo, hi, bounds) of a list of :class:`StepRows`: bounds is None when every
-    block's bounds are fixed, else lambda -> (lo, hi) of the stacked rows."""
+    """(G, c, lo, hi, friction) of a list of :class:`StepRows`: friction is None when no
+    block has any, else (normal, mu) over the stacked rows (normal -1 on rows that are not
+    friction rows)."""
     G = _vstack([g.G for g in rows])
     c = np.concatenate([g.c for g in rows])
     lo = np.concatenate([g.block.lo for g in rows])
     hi = np.concatenate([g.block.hi for g in rows])
-    if all(g.block.bounds_from is None for g in rows):
+    if all(g.block.friction is None for g in rows):
         return G, c, lo, hi, None
-    ends = np.cumsum([len(g.c) for g in rows])
-
-    def bounds(lam):
-        parts = [g.block.bounds(lam[end - len(g.c):end]) for g, end in zip(rows, ends)]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-
-    return G, c, lo, hi, bounds
+    normal, mu, start = [], [], 0
+    for g in rows:
+        m = len(g.c)
+        f = g.block.friction
+        normal.append(np.full(m, -1) if f is None else
+                      np.where(f.normal >= 0, f.normal + start, -1))
+        mu.append(np.zeros(m) if f is None else f.mu)
+        start += m
+    return G, c, lo, hi, (np.concatenate(normal), np.concatenate(mu))
 
 
 #: the sparse KKT path (:func:`solve_constrained`) from this many rows on, where A is sparse
@@ -346,7 +376,7 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
             return solver.apply(rhs), np.zeros(0)
 
         return (z, np.zeros(0), 0, resolve) if resolver else (z, np.zeros(0), 0)
-    G, c, lo, hi, bounds = _stacked(rows)
+    G, c, lo, hi, friction = _stacked(rows)
     F = G if force_rows is None else _vstack(force_rows)
     path = path or DEFAULT_PATH
     if path == "auto":
@@ -358,13 +388,14 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     if path == "kkt":
         system = _KKT(solver, A, b, G, F, c, lo, hi, what, C)
         try:
-            lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds,
+            lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
                                                   warm, batch=True)
         except _Inconsistent:       # redundant active rows that disagree: least squares
             path, system = "schur", None
     if system is None:
         system = _Schur(solver, A, b, G, F, c, lo, hi, what, C)
-        lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, bounds, warm)
+        lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
+                                              warm)
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
@@ -409,7 +440,18 @@ class _Schur:
             S = S + np.diag(self.C[on])
         return S
 
-    def trial(self, active, held):
+    def _coupled_block(self, on, coupled):
+        """S[on, on] + diag(C[on]) + S[on, h] P: the held friction rows h at s times their
+        normals' impulses (P: h x on, s at each row's normal)."""
+        M = self._active_block(on)
+        rows, normals, s = coupled
+        if rows.size:
+            P = np.zeros((rows.size, on.size))
+            P[np.arange(rows.size), np.searchsorted(on, normals)] = s
+            M = M + self._block(on, rows) @ P
+        return M
+
+    def trial(self, active, held, coupled):
         self.trials += 1
         r = self.r
         on = np.flatnonzero(active)
@@ -420,7 +462,9 @@ class _Schur:
                 off = np.flatnonzero(~active)
                 rhs = rhs - (self._block(on, off) @ lam[off] if self.S is not None else
                              np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel())
-            lam[on] = np.linalg.lstsq(self._active_block(on), rhs, rcond=1e-12)[0]
+            lam[on] = np.linalg.lstsq(self._coupled_block(on, coupled), rhs, rcond=1e-12)[0]
+            lam[coupled[0]] = coupled[2] * lam[coupled[1]]
+        self._coupled = coupled
         Wl = self.W @ lam
         if self.S is not None:
             slack = self.S[self.bounded] @ lam - r[self.bounded]
@@ -433,13 +477,15 @@ class _Schur:
     def resolver(self, active):
         on = np.flatnonzero(active)
         G, W, solver = self.G, self.W, self.solver
-        S_on = self._active_block(on) if on.size else None
+        rows, normals, s = self._coupled
+        S_on = self._coupled_block(on, self._coupled) if on.size else None
 
         def resolve(rhs):
             a = solver.apply(rhs)
             mu = np.zeros(W.shape[1])
             if on.size:
                 mu[on] = np.linalg.lstsq(S_on, -(G @ a)[on], rcond=1e-12)[0]
+                mu[rows] = s * mu[normals]
             return a + W @ mu, mu
 
         return resolve
@@ -467,7 +513,9 @@ class _KKT:
     (no z meets them all) leave a residual the refinement cannot remove: the solve then
     falls back to the Schur complement (:class:`_Inconsistent`). Compliant active rows
     (``C`` = C / h^2 > 0) have E = C in the refinement's matrix and max(C, eps) in the
-    factored one (E > 0: S + E is positive definite)."""
+    factored one (E > 0: S + E is positive definite). Sliding friction rows held at
+    s lambda_n (:func:`_pivots`' ``coupled``) have E = [1 at the row, -s at its normal]: a
+    pattern of their own, analysed anew."""
 
     def __init__(self, solver, A, b, G, F, c, lo, hi, what, C=None):
         n, m = A.shape[0], len(c)
@@ -493,19 +541,27 @@ class _KKT:
         self.trials, self.factorizations = 0, 0
         self._factored = None
 
-    def _matrices(self, active):
-        """(regularized K, K with eps = 0) of an active set."""
+    def _matrices(self, active, coupled):
+        """(regularized K, K with eps = 0) of an active set; the ``coupled`` sliding rows'
+        lambda_t - s lambda_n = 0 (entries outside the usual pattern: a new analysis)."""
         start, row, diag, data = self._bottom
         on = active[row]
         K, K0 = self.K.copy(), self.K.copy()
         K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
         K0.data[start:] = np.where(diag, np.where(on, self.C[row], 1.0), data * on)
+        rows, normals, s = coupled
+        if rows.size:
+            n = self.n
+            E = sparse.csr_matrix((-s, (n + rows, n + normals)), shape=K.shape)
+            K, K0 = (K + E).tocsr(), (K0 + E).tocsr()
         return K, K0
 
-    def _solve(self, active, rhs):
-        key = active.tobytes()
+    def _solve(self, active, coupled, rhs):
+        s = np.zeros(self.m)
+        s[coupled[0]] = coupled[2]
+        key = active.tobytes() + s.tobytes()
         if self._factored is None or self._factored[0] != key:
-            K, K0 = self._matrices(active)
+            K, K0 = self._matrices(active, coupled)
             self.solver.factor(K, self.what)
             self.factorizations += 1
             self._factored = (key, K0)
@@ -526,12 +582,15 @@ class _KKT:
             x = x + self.solver.apply(res)
         return x
 
-    def trial(self, active, held):
+    def trial(self, active, held, coupled):
         self.trials += 1
         n = self.n
-        x = self._solve(active, np.concatenate([self.b, np.where(active, self.c, held)]))
+        x = self._solve(active, coupled,
+                        np.concatenate([self.b, np.where(active, self.c, held)]))
         z, lam = x[:n], x[n:]
         lam = np.where(active, lam, held)
+        lam[coupled[0]] = coupled[2] * lam[coupled[1]]
+        self._coupled = coupled
         slack = np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded] \
             + self.C[self.bounded] * lam[self.bounded]
         return lam, slack, z
@@ -539,9 +598,13 @@ class _KKT:
     def resolver(self, active):
         n, m = self.n, self.m
 
+        rows, normals, s = coupled = self._coupled
+
         def resolve(rhs):
-            x = self._solve(active, np.concatenate([rhs, np.zeros(m)]))
-            return x[:n], np.where(active, x[n:], 0.0)
+            x = self._solve(active, coupled, np.concatenate([rhs, np.zeros(m)]))
+            mu = np.where(active, x[n:], 0.0)
+            mu[rows] = s * mu[normals]
+            return x[:n], mu
 
         return resolve
 
@@ -562,11 +625,11 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
     n = K.shape[0]
     if not rows:
         return solver.solve(K, b, what), np.zeros(0), np.zeros(0, dtype=bool)
-    G, c, lo, hi, bounds = _stacked(rows)
+    G, c, lo, hi, friction = _stacked(rows)
     C = _compliance(rows)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
 
-    def trial(active, held):
+    def trial(active, held, coupled):
         on = np.flatnonzero(active)
         lam = np.where(active, 0.0, held)
         force = b if not np.any(lam) else b + np.asarray(G.T @ lam).ravel()
@@ -574,20 +637,27 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         M = kkt(K, G_on)
         if C is not None and on.size:        # G dq + C lambda = c, lambda = -mu
             M = _minus_diagonal(M, n, C[on])
+        rows_h, normals, s = coupled
+        if rows_h.size:                      # sliding rows: G_h^T s lambda_n with the G_a^T
+            P = sparse.csr_matrix((s, (np.arange(rows_h.size), np.searchsorted(on, normals))),
+                                  shape=(rows_h.size, on.size))
+            M = _plus_upper_right(M, n, (P.T @ G[rows_h]).T)
         x = solver.solve(M, np.concatenate([force, c[on]]), what)
         z = x[:n]
         lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
+        lam[rows_h] = s * lam[normals]
         slack = np.asarray(G[bounded] @ z).ravel() - c[bounded]
         if C is not None:
             slack = slack + C[bounded] * lam[bounded]
         return lam, slack, z
 
     tol = 1e-10 * max(1.0, np.abs(c).max())
-    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds, C) \
+    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C) \
         if bounded.size else None
     if start is not None:
         try:
-            lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds, warm=start)
+            lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction,
+                                            warm=start)
             return z, lam, active
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
@@ -596,9 +666,9 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         # body that only they support (K singular without them)
         touch = (C > 0) & (c >= 0)
         start = (touch, np.zeros(len(c), dtype=bool), C > 0, np.zeros(len(c)))
-        lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds, warm=start)
+        lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction, warm=start)
         return z, lam, active
-    lam, active, _, z = _active_set(lo, hi, tol, trial, what, bounds)
+    lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction)
     return z, lam, active
 
 
@@ -612,13 +682,24 @@ def _minus_diagonal(M, n: int, d: np.ndarray):
     return M
 
 
-def _schur_start(solver, K, b, G, c, lo, hi, tol, what, bounds, C=None):
+def _plus_upper_right(M, n: int, Q):
+    """M with Q (n x columns of M from n on; dense or sparse) added to its upper right
+    block."""
+    if sparse.issparse(M):
+        Q = sparse.coo_matrix(Q)
+        return (M + sparse.csr_matrix((Q.data, (Q.row, Q.col + n)), shape=M.shape)).tocsr()
+    M = np.array(M, dtype=float)
+    M[:n, n:] += Q.toarray() if sparse.issparse(Q) else Q
+    return M
+
+
+def _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C=None):
     """The starting active set of :func:`solve_saddle` (``warm`` of :func:`_active_set`)
     from the Schur complement of K (:class:`_Schur`: one factorization, small dense
     trials), or None when K is singular or the active set there does not settle."""
     try:
         schur = _Schur(solver, K, b, G, G, c, lo, hi, what, C)
-        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, bounds)
+        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, friction)
     except (StepFailed, np.linalg.LinAlgError):
         return None
     return active, at_high, np.ones(lo.size, dtype=bool), lam
