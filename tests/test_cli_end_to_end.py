@@ -310,10 +310,12 @@ def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
     assert all(finite_positive(c["ms_per_step"]) for c in ms["cases"].values())
     foot = scenes["foot"]
     assert set(foot["cases"]) == {"fem_alone", "with_bones", "with_bones_and_contact",
-                                  "reduced"}
+                                  "reduced", "reduced_trained"}
     assert all(finite_positive(c["ms_per_step"]) for c in foot["cases"].values())
-    assert foot["reduced"] == {"pod_vectors": 6, "lift_columns": 132, "points": 100,
-                               "sampling": "random"}
+    assert foot["reduced"]["reduced"] == {"pod_vectors": 6, "lift_columns": 132,
+                                          "points": 100, "sampling": "random"}
+    trained = foot["reduced"]["reduced_trained"]
+    assert trained["sampling"] == "trained" and trained["points"] <= 100
 
 
 # ---- demo ------------------------------------------------------------------------------

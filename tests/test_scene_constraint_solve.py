@@ -178,3 +178,33 @@ def test_saddle_starts_from_the_schur_complement_active_set(rng):
     np.testing.assert_allclose(z, [0.1, 0.9, 1.0 / 3.0], atol=1e-12)
     assert active.all() and lam[1] > 0
     np.testing.assert_allclose(K @ z - G.T @ lam, b, atol=1e-12)
+
+
+def test_circling_pivots_from_the_last_steps_set_start_again_cold(monkeypatch):
+    """The sliding rows' pivots from a warm start that circle (made to fail here on their
+    first call) are tried again from no warm start: the planar box of the test above,
+    pushed to slide, gives the fixed point's answer."""
+    m, g, h, mu = 2.0, 9.81, 0.01, 0.5
+    A = np.diag([m, m, 0.1])
+    G = np.array([[0.0, 1.0, -0.2], [0.0, 1.0, 0.2], [1.0, 0.0, 0.1], [1.0, 0.0, 0.1]])
+    lo, hi = np.zeros(4), np.array([np.inf, np.inf, 0.0, 0.0])
+    friction = (np.array([-1, -1, 0, 1]), np.array([0, 0, mu, mu]))
+    b = h * np.array([1.5 * m * g, -m * g, 0.0])
+    system = constraints._Schur(DirectSolver(), A, b, G, G, np.zeros(4), lo, hi, "test")
+    reference = constraints._active_set(lo, hi, 1e-10, system.trial, "test", friction)
+    monkeypatch.setattr(constraints, "BOUND_PASSES", 1)
+    pivots, calls = constraints._pivots, []
+
+    def circling(*args):
+        calls.append(args[5] is not None)
+        if args[5] is not None and calls.count(True) == 1:
+            raise af.StepFailed("circling")
+        return pivots(*args)
+
+    monkeypatch.setattr(constraints, "_pivots", circling)
+    warm = (np.array([True, True, True, True]), np.zeros(4, bool), np.ones(4, bool),
+            np.array([0.1, 0.1, 0.0, 0.0]))
+    lam, *_ = constraints._active_set(lo, hi, 1e-10, system.trial, "test", friction, warm)
+    assert calls == [False, True, False, True]       # warm: a pass, the pivots; cold: again
+    np.testing.assert_allclose(lam[:2], reference[0][:2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(lam[2] + lam[3], reference[0][2] + reference[0][3], atol=1e-12)

@@ -104,7 +104,7 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     from the last pass's active set); after BOUND_PASSES passes (the passes circling a
     change of the active set: a reduced body under many more friction rows than
     coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
-    pass's active set. ``warm`` = (active, held at hi, known, lambda) of the previous step
+    pass's active set; where those pivots circle too, all again without ``warm``. ``warm`` = (active, held at hi, known, lambda) of the previous step
     (:class:`ActiveSetMemory`): the first pass takes the bounds of those impulses (0 on
     rows it does not know), and the rows it knows start from it, in the first pass where
     their bounds differ and, where the last pass's bounds were equal, in the next."""
@@ -118,6 +118,7 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         cap = friction[1] * np.maximum(lam[of], 0.0)
         return np.where(fric, -cap, lo), np.where(fric, cap, hi)
 
+    own = (lo, hi)
     if warm is not None:
         lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
     start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
@@ -139,8 +140,14 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
             return lam, active, at_high, extra
-    return _pivots(lo, hi, tol, trial, what, friction,
-                   (active, at_high, np.ones(lo.size, dtype=bool)), batch)
+    try:
+        return _pivots(lo, hi, tol, trial, what, friction,
+                       (active, at_high, np.ones(lo.size, dtype=bool)), batch)
+    except StepFailed:
+        if warm is None:
+            raise
+    # the last step's active set may start the passes inside a cycle: all again, cold
+    return _active_set(*own, tol, trial, what, friction, None, batch)
 
 
 def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
@@ -189,7 +196,7 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
                              hi[bounded])
     side = np.where(at_high, mu, -mu)               # a held friction row: side lambda_n
     batches = BATCH_TRIALS if batch else 0
-    seen = set()
+    seen, bland = set(), False
     for _ in range(2 * bounded.size + 10 + batches):
         sliding = fric & ~active
         couple = sliding & active[of]
@@ -208,6 +215,8 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         at_low = np.where(f, side[bounded] < 0, held[bounded] == low)
         # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
         violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
+        state = np.packbits(active).tobytes() + np.packbits(
+            np.where(fric, side > 0, held == hi)).tobytes()
         if batches > 0 and max(outside.max(), violated.max()) > tol:
             out, bad = outside > tol, violated > tol
             rel = bounded[out]
@@ -216,17 +225,23 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             held[rel] = np.where(below, low[out], high[out])
             side[rel] = np.where(below, -mu[rel], mu[rel])
             active[bounded[bad]] = True
-            state = active.tobytes() + (side > 0).tobytes() + held.tobytes()
             batches = batches - 1 if state not in seen else 0
             seen.add(state)
-        elif outside.max() > tol:                   # release: hold at the crossed bound
-            k = int(np.argmax(outside))
+            continue
+        # one row per trial: the furthest out; once a set comes back (the sliding rows'
+        # coupling is not symmetric: the pivots can cycle), the first out (Bland's rule)
+        bland = bland or state in seen
+        seen.add(state)
+        pick = (lambda v: int(np.flatnonzero(v > tol)[0])) if bland else \
+            (lambda v: int(np.argmax(v)))
+        if outside.max() > tol:                     # release: hold at the crossed bound
+            k = pick(outside)
             j = bounded[k]
             active[j] = False
             held[j] = low[k] if l[k] < low[k] else high[k]
             side[j] = -mu[j] if l[k] < low[k] else mu[j]
         elif violated.max() > tol:                  # activate the most violated row
-            active[bounded[int(np.argmax(violated))]] = True
+            active[bounded[pick(violated)]] = True
         else:
             break
     else:
