@@ -5,8 +5,9 @@ points random or trained; a configuration whose run stops is recorded with the r
     OPENBLAS_NUM_THREADS=1 python scripts/foot_reduced_configs.py [--level 0|1]
                                   [--configs 6:100:random,6:100:trained]
 
-writes docs/foot/reduced_configs_level<L>.json (the full foot runs once). The training runs are cached in
-~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot --reduced``).
+writes docs/foot/reduced_configs_level<L>.json (the full foot runs once). The training
+runs are cached in ~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot
+--reduced``).
 """
 
 import argparse

@@ -104,7 +104,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     from the last pass's active set); after BOUND_PASSES passes (the passes circling a
     change of the active set: a reduced body under many more friction rows than
     coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
-    pass's active set; where those pivots circle too, all again without ``warm``. ``warm`` = (active, held at hi, known, lambda) of the previous step
+    pass's active set; where those pivots circle too, all again without ``warm``.
+    ``warm`` = (active, held at hi, known, lambda) of the previous step
     (:class:`ActiveSetMemory`): the first pass takes the bounds of those impulses (0 on
     rows it does not know), and the rows it knows start from it, in the first pass where
     their bounds differ and, where the last pass's bounds were equal, in the next."""
@@ -173,8 +174,9 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     the trial (their lo, hi are not used); a friction row whose normal is held is held at
     s times the normal's held impulse. Rows start active where lo < 0 < hi, bounded rows
     held at lo (where finite), friction rows sliding at -mu; ``start`` = (active, held at
-    hi, use): the rows of ``use`` start from it instead. One row per trial: release the multiplier furthest outside its bounds,
-    else activate the most violated row. ``batch`` (Hintermueller, Ito and Kunisch's
+    hi, use): the rows of ``use`` start from it instead. One row per trial: release the
+    multiplier furthest outside its bounds, else activate the most violated row (once a
+    set comes back, the first row out instead: Bland's rule). ``batch`` (Hintermueller, Ito and Kunisch's
     primal-dual active set): release every multiplier outside its bounds and activate
     every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
     comes back (cycling), one row per trial from there."""
