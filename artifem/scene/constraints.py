@@ -45,7 +45,9 @@ unknowns: the sparse KKT; else the Schur complement):
   refinement (redundant rows solve; rows that disagree fall back to the Schur path); the
   active set changes many rows per trial (Hintermueller-Ito-Kunisch, one row per trial
   after BATCH_TRIALS or a repeated set), and a trial on the last factorization's active
-  set only solves (the friction passes).
+  set only solves (the friction passes); an active set that differs from the last
+  factored one by at most KKT_UPDATE_ROWS rows corrects that factorization by
+  Sherman-Morrison-Woodbury (one blocked solve of as many columns) instead of a new one.
 
 Both start from the last solve's active set and impulses when given an
 :class:`ActiveSetMemory` (the scene's: rows named by ``RowBlock.keys``, a contact's point
@@ -60,6 +62,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from scipy import sparse
 
 from artifem.errors import StepFailed
@@ -289,6 +292,9 @@ KKT_ROWS = 64
 KKT_REGULARIZATION = 1e-10
 #: iterative refinement steps of the regularized KKT solve, at most
 KKT_REFINEMENT = 4
+#: rows of the KKT's multiplier block that may differ from the last factored matrix's
+#: (an active set changed by a few rows): a low-rank correction of it, not a new one
+KKT_UPDATE_ROWS = 24
 #: the path of :func:`solve_constrained` when its caller does not choose: "auto"
 #: (:func:`use_kkt`), "kkt" or "schur" (set by benchmarks and tests to compare them)
 DEFAULT_PATH = "auto"
@@ -419,7 +425,8 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     if memory is not None:
         memory.keep(rows, active, at_high, lam)
     if info is not None:
-        info.update(path=path, trials=system.trials, factorizations=system.factorizations)
+        info.update(path=path, trials=system.trials, factorizations=system.factorizations,
+                    updates=getattr(system, "updates", 0))
     if not resolver:
         return z, lam, int(active.sum())
     return z, lam, int(active.sum()), system.resolver(active)
@@ -555,8 +562,8 @@ class _KKT:
         self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
         self._abs_A = abs(sparse.csr_matrix(A))
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
-        self.trials, self.factorizations = 0, 0
-        self._factored = None
+        self.trials, self.factorizations, self.updates = 0, 0, 0
+        self._factored = self._base = None
 
     def _matrices(self, active, coupled):
         """(regularized K, K with eps = 0) of an active set; the ``coupled`` sliding rows'
@@ -578,12 +585,9 @@ class _KKT:
         s[coupled[0]] = coupled[2]
         key = active.tobytes() + s.tobytes()
         if self._factored is None or self._factored[0] != key:
-            K, K0 = self._matrices(active, coupled)
-            self.solver.factor(K, self.what)
-            self.factorizations += 1
-            self._factored = (key, K0)
-        K0 = self._factored[1]
-        x = self.solver.apply(rhs)
+            self._prepare(key, active, coupled, s)
+        K0, apply = self._factored[1], self._factored[2]
+        x = apply(rhs)
         # the residual against the rhs and |A| |z| (not the multipliers' columns: those of
         # disagreeing redundant rows grow as 1 / eps)
         scale = max(np.abs(rhs).max(initial=0.0),
@@ -594,10 +598,51 @@ class _KKT:
                 break
             if k == KKT_REFINEMENT:
                 if np.abs(res).max() > 1e-9 * scale:
+                    if self._factored[3]:       # an update: the exact factorization first
+                        self._prepare(key, active, coupled, s, update=False)
+                        return self._solve(active, coupled, rhs)
                     raise _Inconsistent
                 break
-            x = x + self.solver.apply(res)
+            x = x + apply(res)
         return x
+
+    def _prepare(self, key, active, coupled, s, update: bool = True):
+        """The matrices of an active set and how to solve with them: a new factorization,
+        or, where at most KKT_UPDATE_ROWS rows of the multiplier block differ from the
+        last factored matrix K_f, K_f corrected by Sherman-Morrison-Woodbury,
+        K^-1 b = x - Z (I + D Z)^-1 D x with x = K_f^-1 b, D the rows' change (rows
+        n + i), Z = K_f^-1 [e_{n+i}]."""
+        K, K0 = self._matrices(active, coupled)
+        base = self._base
+        if update and base is not None:
+            changed = np.flatnonzero((active != base[1]) | (s != base[2]))
+            if not changed.size:                # back to the factored set
+                self._factored = (key, K0, self.solver.apply, False)
+                return
+            if changed.size <= KKT_UPDATE_ROWS:
+                rows = self.n + changed
+                D = (K[rows] - base[0][rows]).tocsr()
+                U = np.zeros((K.shape[0], rows.size))
+                U[rows, np.arange(rows.size)] = 1.0
+                Z = self.solver.apply(U).reshape(K.shape[0], rows.size)
+                cap = np.eye(rows.size) + np.asarray(D @ Z)
+                lu = scipy.linalg.lu_factor(cap, check_finite=False)
+                pivots = np.abs(np.diag(lu[0]))
+                if np.all(np.isfinite(lu[0])) and pivots.min(initial=1.0) > 1e-10 * max(
+                        pivots.max(initial=1.0), 1.0):
+                    solver = self.solver
+
+                    def apply(b):
+                        x = solver.apply(b)
+                        return x - Z @ scipy.linalg.lu_solve(lu, D @ x, check_finite=False)
+
+                    self.updates += 1
+                    self._factored = (key, K0, apply, True)
+                    return
+        self.solver.factor(K, self.what)
+        self.factorizations += 1
+        self._base = (K, active.copy(), s.copy())
+        self._factored = (key, K0, self.solver.apply, False)
 
     def trial(self, active, held, coupled):
         self.trials += 1

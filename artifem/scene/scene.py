@@ -901,6 +901,7 @@ class Scene:
         seconds["solve"] = time.perf_counter() - tic
         self.last_solve = {"masters": n, "constraint_rows": active,
                            "factorizations": info["factorizations"], "path": info["path"],
+                           "updates": info.get("updates", 0),
                            "trials": info["trials"], "seconds": seconds}
         return z_m, lam, resolve
 
