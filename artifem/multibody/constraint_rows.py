@@ -84,11 +84,6 @@ class Friction:
         """(m,) bool: the friction rows."""
         return self.normal >= 0
 
-    def cap(self, lam: np.ndarray) -> np.ndarray:
-        """mu_j max(lambda_{normal[j]}, 0) on the friction rows, 0 elsewhere."""
-        return np.where(self.rows, self.mu * np.maximum(lam[np.maximum(self.normal, 0)], 0.0),
-                        0.0)
-
 
 @dataclass(frozen=True, eq=False)
 class RowBlock:
@@ -161,15 +156,6 @@ class RowBlock:
 
     def __len__(self) -> int:
         return self.phi.shape[0]
-
-    def bounds(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) at the block's impulses ``lam`` (the friction rows' from their
-        normals'; fixed without friction)."""
-        if self.friction is None:
-            return self.lo, self.hi
-        cap = self.friction.cap(lam)
-        rows = self.friction.rows
-        return np.where(rows, -cap, self.lo), np.where(rows, cap, self.hi)
 
     @property
     def bounded(self) -> np.ndarray:
