@@ -475,10 +475,27 @@ def test_the_foot_figures_match_its_json():
 
 
 def test_the_foot_lift_figures_match_its_json():
-    """docs/foot.md's lift: ``artifem simulate foot --case lift --level 0 --no-vtx --out
-    docs/foot`` (docs/foot/lift/foot.json)."""
-    lift = json.loads((ROOT / "docs" / "foot" / "lift" / "foot.json").read_text())["lift"]
+    """docs/foot.md's lift: ``artifem simulate foot --case lift --level 1 --reduced --no-vtx
+    --out docs/foot`` (docs/foot/lift/foot.json)."""
+    figures = json.loads((ROOT / "docs" / "foot" / "lift" / "foot.json").read_text())
+    lift, reduced = figures["lift"], figures["reduced"]
     text = re.sub(r"\s+", " ", (ROOT / "docs" / "foot.md").read_text())
+    m = re.search(r"0.3 s, at (\d+) ms per step with bones and contact", text)
+    assert m and agrees(m[1], figures["ms_per_step"]["with_bones_and_contact"])
+    m = re.search(r"against one full run \((\d+) ms per step\): on 100 trained points the max "
+                  r"mean node error is ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
+                  r"displacement ([\d.]+) mm\), (\d+) ms per step; on the paper's 100 random "
+                  r"points ([\d.]+) mm, (\d+) ms", text)
+    assert m, "the foot page's reduced lift sentence changed: update this test with it"
+    trained, paper = reduced["trained"], reduced["paper"]
+    for shown, value in zip(m.groups(), (trained["full_ms_per_step"],
+                                         trained["max_mean_node_error_mm"],
+                                         trained["max_node_error_mm"],
+                                         trained["max_displacement_mm"],
+                                         trained["reduced_ms_per_step"],
+                                         paper["max_mean_node_error_mm"],
+                                         paper["reduced_ms_per_step"])):
+        assert agrees(shown, value), (shown, value)
     m = re.search(r"The talus turns ([\d.]+) degrees in dorsiflexion and the first metatarsal "
                   r"rises by ([\d.]+) mm; the tibialis anterior pulls with (\d+) N and the "
                   r"stretched soleus resists with (\d+) N", text)
