@@ -658,9 +658,8 @@ class _KKT:
         return lam, slack, z
 
     def resolver(self, active):
-        n, m = self.n, self.m
-
-        rows, normals, s = coupled = self._coupled
+        n, m, coupled = self.n, self.m, self._coupled
+        rows, normals, s = coupled
 
         def resolve(rhs):
             x = self._solve(active, coupled, np.concatenate([rhs, np.zeros(m)]))
