@@ -18,6 +18,9 @@ A point set gives
     facing_areas(i, e)       (k,) the area of its own surface each point i_k stands for,
                              facing against e_k (an elastic foundation's rows,
                              :func:`facing_areas`).
+    rigid_frame()            (optional: a rigid body's points) (r_j, R, p) with
+                             x_j = p + R r_j, so a contact can keep the set's
+                             geometry in that frame (:mod:`artifem.multibody.mesh_contact`).
 
 This module holds the sets of FEM nodes, full (x_j = X_j + u_j, G = e^T W on the nodes'
 velocity dofs) and reduced (x_j = X_j + u_bar_j + U_j q, G = e^T W U: k x r, dense, only

@@ -9,7 +9,10 @@
 (4) bone on bone: a tessellated ball in a fixed cup under gravity and a side load is held
     as by a spherical joint;
 (5) two elastic balls colliding: momentum conserved, energy never grows, no pass-through;
-(6) a stack of four boxes; (7) friction between meshes on an incline.
+(6) a stack of four boxes; (7) friction between meshes on an incline; (8) a surface
+    embedded in an FEM grid;
+(9) the queries: the signed distances on a prebuilt tree are libigl's, and a rigid
+    body's pairs found in its body frame are those found in the world.
 """
 
 import numpy as np
@@ -457,3 +460,66 @@ def test_an_embedded_surface_carries_its_grid_on_the_floor(kind, icosphere):
 
 def heights_of(body):
     return (body.V.tabulate_dof_coordinates() + body.u.x.array.reshape(-1, 3))[:, 2]
+
+
+# ---- (9) the queries ------------------------------------------------------------------------
+
+def test_signed_distances_on_a_prebuilt_tree_are_libigls(icosphere):
+    """_signed_distance (libigl's AABB tree built once, the pseudonormal of the closest
+    feature chosen by the closest point's barycentric coordinates) against
+    igl.signed_distance on a box, whose closest features are faces, sharp edges and
+    corners, and a sphere: points in the box and around it, points just off the vertices
+    and edge midpoints (where a face's normal would give the wrong sign)."""
+    import igl
+    from artifem.multibody import mesh_contact as mc
+
+    rng = np.random.default_rng(3)
+    for x, t in (box_surface([1.0, 2.0, 0.5], 0.3), icosphere(2, 1.0)):
+        x, t = np.asarray(x, float), np.asarray(t, np.int64)
+        mids = 0.5 * (x[t[:, 0]] + x[t[:, 1]])
+        points = np.vstack([rng.uniform(1.3 * x.min(axis=0), 1.3 * x.max(axis=0), (2000, 3)),
+                            1.02 * x + 1e-3 * rng.normal(size=x.shape),
+                            1.02 * mids + 1e-3 * rng.normal(size=mids.shape)])
+        S0, I0, C0, N0 = igl.signed_distance(points, x, t,
+                                             sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+        S, I, C, N = mc._signed_distance(mc._geometry(x, t, mc._edges(t)), points)
+        assert (S < 0).sum() > 100 and (S > 0).sum() > 100
+        np.testing.assert_allclose(S, S0, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(C, C0, rtol=0, atol=1e-14)
+        same = I == I0                  # a tie between two triangles may pick either
+        assert same.mean() > 0.99
+        np.testing.assert_allclose(N[same], N0[same], rtol=0, atol=1e-12)
+
+
+def test_pairs_in_a_rigid_bodys_frame_are_the_pairs_in_the_world(icosphere):
+    """A fine ball turned and pressed into a coarse one (vertex-over-triangle pairs both
+    ways, and closest-point pairs): the pairs found with each rigid body's surface kept in its
+    body frame (its tree built once) equal, to round-off, those found with both surfaces
+    rebuilt in the world at their current vertices, as a deformable body's are."""
+    from scipy.spatial.transform import Rotation
+
+    from artifem.multibody import mesh_contact as mc
+
+    V, F = icosphere(2, 0.06)
+    ball = af.RigidBody("ball", 1.0, np.eye(3), position=(0.03, -0.02, 0.1 + 0.055),
+                        rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
+                        surface=(V, F))
+    V, F = icosphere(1, 0.08)
+    box = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
+                       rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
+                       surface=(V, F))
+    contact = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
+    framed = contact._pairs()
+    world = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
+    world._in_frame = lambda side, x: (mc._geometry(x, world._tris[side], world._edges[side]),
+                                       np.eye(3), np.zeros(3))
+    plain = world._pairs()
+    assert len(framed.phi) > 20 and set(framed.which[:, 0]) == {0, 1}
+    assert framed.phi.min() < 0                                     # pressed in
+    # the same vertices, distances, directions and closest points (W x = x_v - c); the
+    # triangle of a closest point on a shared edge or vertex is a tie either may pick
+    np.testing.assert_array_equal(framed.which[:, :2], plain.which[:, :2])
+    for a, b in ((framed.phi, plain.phi), (framed.e, plain.e),
+                 (framed.W @ framed.x, plain.W @ plain.x)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert framed.deepest[:3] == pytest.approx(plain.deepest[:3], abs=1e-12)

@@ -10,8 +10,8 @@ surface, an FEM or reduced body's exterior facets) whose point set
   node-to-surface pairs of FEM contact): a vertex x_v of one surface and a triangle of the
   other that it projects into and faces, c = sum_i b_i y_i its foot (barycentric b_i),
   e the triangle's normal, phi = e . (x_v - c); a vertex over no such triangle takes its
-  closest point's pair from libigl's signed distance (``igl.signed_distance``: AABB tree,
-  sign by the angle-weighted pseudonormal; pinned), e = (x_v - c) / s, or the
+  closest point's pair from libigl's AABB tree (pinned), signed by the pseudonormal of
+  its closest feature (as ``igl.signed_distance``), e = (x_v - c) / s, or the
   pseudonormal at contact;
 - edge across edge, between sharp convex edges (two boxes turned against each other meet
   edge on edge with no vertex of either over the other): the closest points p_a, p_b
@@ -32,8 +32,11 @@ triangle's; 1 - s, s on a's edge and -(1 - t), -t on b's), summing to zero over 
 nodes' dofs; reduced e^T W_kj U_j). The step's rows are those of
 :mod:`~artifem.multibody.constraint_rows` (as a plane contact's: reach phi = 0 within the
 step, pushed back by -beta phi / h once crossed); friction bounds take the same step's
-normal impulses (``RowBlock.friction``). A vertex inside the other body at any depth is found
-(every vertex within the other's bounding box is queried), and so are crossed sharp edges
+normal impulses (``RowBlock.friction``). The queries run in the other surface's frame:
+a rigid body's surface keeps its tree, normals and sharp edges in its body frame, built
+once; a deformable one's are built in the world at each new state. A vertex inside the
+other body at any depth is found (every vertex within the other's bounding box is
+queried), and so are crossed sharp edges
 within the margin: deeper than ``tolerance`` after a step fails the step (halved, like an
 inverted element), at the start it is an InputError naming both bodies and the pair.
 
@@ -167,12 +170,83 @@ def _sharp(x: np.ndarray, tris: np.ndarray, edges: np.ndarray, faces: np.ndarray
     return convex & (np.einsum("ij,ij->i", n0, n1) < np.cos(SHARP_ANGLE))
 
 
-def _close_pairs(p: np.ndarray, q: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+def _close_pairs(p: np.ndarray, q, r: float) -> tuple[np.ndarray, np.ndarray]:
     """(i, j): every pair of points p_i, q_j closer than r, ordered by i then j (scipy's
-    KD-trees, the pairs gathered in C)."""
-    d = cKDTree(p).sparse_distance_matrix(cKDTree(q), r, output_type="ndarray")
+    KD-trees, the pairs gathered in C; ``q`` points or their cKDTree)."""
+    q = q if isinstance(q, cKDTree) else cKDTree(q)
+    d = cKDTree(p).sparse_distance_matrix(q, r, output_type="ndarray")
     order = np.lexsort((d["j"], d["i"]))
     return d["i"][order].astype(int), d["j"][order].astype(int)
+
+
+class _Geometry(NamedTuple):
+    """A surface in a frame where it is at rest (a rigid body's: built once; a deformable
+    body's: the world, built for each query): its vertices and triangles, unit face
+    normals, area-weighted vertex normals, its sharp edges (:func:`_sharp`), libigl's AABB
+    tree, the pseudonormals of Baerentzen and Aanaes (2005: a vertex's angle-weighted, an
+    edge's the mean of its two faces', as ``igl.signed_distance`` takes them; ``emap``
+    maps the edge opposite corner c of triangle f, c * n_triangles + f, to its row of
+    ``edge_normals``), the triangles' centroids' KD-tree and its reach (the largest
+    centroid-to-vertex distance), and the bounding box."""
+
+    x: np.ndarray
+    tris: np.ndarray
+    face_normals: np.ndarray
+    vertex_normals: np.ndarray
+    sharp: np.ndarray
+    tree: object
+    vertex_pseudonormals: np.ndarray
+    edge_normals: np.ndarray
+    emap: np.ndarray
+    centroids: cKDTree
+    reach: float
+    box: tuple
+
+
+def _geometry(x: np.ndarray, tris: np.ndarray, edges) -> _Geometry:
+    """The :class:`_Geometry` of vertices ``x`` (in their frame), ``tris`` (int64) and
+    ``edges`` (:func:`_edges`)."""
+    tree = igl.AABB()
+    tree.init(x, tris)
+    normals = _face_normals(x, tris)
+    edge_normals, _, emap = igl.per_edge_normals(
+        x, tris, igl.PER_EDGE_NORMALS_WEIGHTING_TYPE_UNIFORM)
+    y = x[tris]
+    centroids = y.mean(axis=1)
+    return _Geometry(x, tris, normals, _vertex_normals(x, tris),
+                     _sharp(x, tris, edges[0], edges[1], normals), tree,
+                     igl.per_vertex_normals(x, tris,
+                                            igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_ANGLE),
+                     edge_normals, emap, cKDTree(centroids),
+                     float(np.linalg.norm(y - centroids[:, None], axis=2).max()),
+                     (x.min(axis=0), x.max(axis=0)))
+
+
+def _signed_distance(g: _Geometry, points: np.ndarray):
+    """(S, I, C, N) of ``igl.signed_distance`` with pseudonormal signs, on the prebuilt
+    tree of ``g`` (libigl's Python bindings take no tree there, and building one per
+    query was half the contact's time on the foot's bones): S the signed distances, I
+    the closest triangles, C the closest points, N the pseudonormals of the closest
+    features (the triangle's normal, its edge's or its vertex's, by which barycentric
+    coordinates of C vanish), S < 0 inside."""
+    sq, I, C = g.tree.squared_distance(g.x, g.tris, points)
+    tri = g.tris[I]
+    corners = g.x[tri]
+    b = _barycentric(C, corners[:, 0], corners[:, 1], corners[:, 2])
+    zero = b <= 1e-10
+    count = zero.sum(axis=1)
+    N = g.face_normals[I].copy()
+    edge = np.flatnonzero(count == 1)
+    if edge.size:
+        corner = np.argmax(zero[edge], axis=1)
+        N[edge] = g.edge_normals[g.emap[corner * len(g.tris) + I[edge]]]
+    vertex = np.flatnonzero(count >= 2)
+    if vertex.size:
+        corner = np.argmin(zero[vertex], axis=1)
+        N[vertex] = g.vertex_pseudonormals[tri[vertex, corner]]
+    S = np.sqrt(np.maximum(sq, 0.0))
+    S = np.where(np.einsum("ij,ij->i", points - C, N) < 0, -S, S)
+    return S, I, C, N
 
 
 def _segment_closest(a0, a1, b0, b1):
@@ -256,6 +330,8 @@ class MeshContact:
         _check_closed(xb, tb, b.name)
         self._na = len(xa)
         self._edges = (_edges(ta), _edges(tb))
+        self._tris = (np.asarray(ta, dtype=np.int64), np.asarray(tb, dtype=np.int64))
+        self._at_rest = [None, None]    # a rigid side's _Geometry in its body frame
         self._last_pairs = None     # (the surfaces' vertices, their pairs): _pairs's memo
 
     @property
@@ -274,23 +350,22 @@ class MeshContact:
     def _pairs(self) -> _Pairs:
         """The pairs of the current state (module docstring): vertex over triangle both
         ways, and edge across edge."""
-        (pa, ta), (pb, tb) = self._surfaces
-        surfaces = ((pa.positions(), ta), (pb.positions(), tb))
+        xs = (self._surfaces[0][0].positions(), self._surfaces[1][0].positions())
         last = self._last_pairs
-        if last is not None and all(np.array_equal(x, s[0]) for x, s in zip(last[0], surfaces)):
+        if last is not None and all(np.array_equal(x, y) for x, y in zip(last[0], xs)):
             return last[1]              # the same state: a step's failure check, the next rows
-        offsets = (0, len(surfaces[0][0]))
-        x = np.vstack([surfaces[0][0], surfaces[1][0]])
+        frames = (self._in_frame(0, xs[0]), self._in_frame(1, xs[1]))
+        offsets = (0, len(xs[0]))
         parts, deepest = [], None
         for side in (0, 1):
-            part, deep = self._vertex_pairs(surfaces[side], surfaces[1 - side])
+            part, deep = self._vertex_pairs(xs[side], frames[side], frames[1 - side])
             part[0][:, 0] += offsets[side]
             part[0][:, 1:] += offsets[1 - side]
             part[4][:, 0] = side
             parts.append(part)
             if deep is not None and (deepest is None or deep[0] < deepest[0]):
                 deepest = (deep[0], side, deep[1], deep[2])
-        part, deep = self._edge_pairs(surfaces)
+        part, deep = self._edge_pairs(xs, frames)
         part[0][:, 2:] += offsets[1]
         parts.append(part)
         if deep is not None and (deepest is None or deep[0] < deepest[0]):
@@ -301,24 +376,40 @@ class MeshContact:
         k = sum(len(c) for c in cols)
         rows = np.concatenate([np.repeat(np.arange(len(c)), c.shape[1]) + sum(
             len(q) for q in cols[:i]) for i, c in enumerate(cols)]) if k else np.zeros(0, int)
+        x = np.vstack(xs)
         W = sparse.csr_matrix((np.concatenate([p[1].ravel() for p in parts]),
                                (rows, np.concatenate([c.ravel() for c in cols]))),
                               shape=(k, len(x)))
         pairs = _Pairs(W, np.vstack([p[2] for p in parts]),
                        np.concatenate([p[3] for p in parts]) - self.offset,
                        np.vstack([p[4] for p in parts]), deepest, x)
-        self._last_pairs = ((surfaces[0][0].copy(), surfaces[1][0].copy()), pairs)
+        self._last_pairs = ((xs[0].copy(), xs[1].copy()), pairs)
         return pairs
+
+    def _in_frame(self, side: int, x: np.ndarray) -> tuple:
+        """(the side's :class:`_Geometry`, R, p), world = p + R local: a rigid body's
+        surface in its body frame (the point set's ``rigid_frame()``), built once; any
+        other surface in the world (R = I, p = 0) at its vertices ``x``."""
+        points = self._surfaces[side][0]
+        frame = getattr(points, "rigid_frame", None)
+        if frame is None:
+            return _geometry(x, self._tris[side], self._edges[side]), np.eye(3), np.zeros(3)
+        local, R, p = frame()
+        if self._at_rest[side] is None:
+            self._at_rest[side] = _geometry(local, self._tris[side], self._edges[side])
+        return self._at_rest[side], R, p
 
     @property
     def _reach(self) -> float:
         """Pairs closer than this (m) get rows: the offset plus the margin."""
         return self.offset + self.margin
 
-    def _vertex_pairs(self, own, other):
+    def _vertex_pairs(self, xw, own, other):
         """(cols (k, 4): the vertex then the triangle's vertices, weights (k, 4): 1, -b_i,
         e, phi, which (k, 3): (side, vertex, triangle)), and (depth, vertex, triangle) of
-        the deepest vertex, for the vertices of ``own`` over the triangles of ``other``:
+        the deepest vertex, for the vertices ``xw`` (world) of ``own`` over the triangles
+        of ``other`` (each (:class:`_Geometry`, R, p): :meth:`_in_frame`; the queries run
+        in other's frame, e is turned back to the world):
 
         - every triangle f whose interior the vertex projects onto, within -tolerance <=
           s_f = n_f . (x_v - y_f) < margin, and that faces it (n_f . m_v < 0, m_v the
@@ -326,34 +417,36 @@ class MeshContact:
           side): e = n_f, c = x_v - s_f n_f. A vertex sliding across a concave edge (a
           bowl's facets) meets the next facet within the step; with its closest facet's
           row alone it would cross the next by about h v sin(angle between them);
-        - a vertex over no such triangle gets its closest point's pair (libigl), e =
-          (x_v - c) / s, or the pseudonormal at contact (|s| below 1e-3 tolerance).
+        - a vertex over no such triangle gets its closest point's pair (libigl's AABB
+          tree: :func:`_signed_distance`), e = (x_v - c) / s, or the pseudonormal at
+          contact (|s| below 1e-3 tolerance).
         """
-        (xp, tp), (xq, tq) = own, other
+        g, R, p = other
+        xp = (xw - p) @ R                               # in other's frame
+        xq, tq = g.x, g.tris
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
                  np.zeros((0, 3), int))
-        lo, hi = xq.min(axis=0) - self._reach, xq.max(axis=0) + self._reach
+        lo, hi = g.box[0] - self._reach, g.box[1] + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
             return empty, None
-        S, I, C, N = igl.signed_distance(xp[near], xq, tq.astype(np.int64),
-                                         sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+        S, I, C, N = _signed_distance(g, xp[near])
         j = int(np.argmin(S))
         deepest = (float(S[j]), int(near[j]), int(I[j]))
         close = S < self._reach
         if not np.any(close):
             return empty, deepest
         near, S, I, C, N = near[close], S[close], I[close], C[close], N[close]
-        y = xq[tq]
-        centroids = y.mean(axis=1)
-        reach = np.linalg.norm(y - centroids[:, None], axis=2).max() + self._reach
-        k, f = _close_pairs(xp[near], centroids, reach)
+        k, f = _close_pairs(xp[near], g.centroids, g.reach + self._reach)
         v = near[k]
-        n = _face_normals(xq, tq)[f]
-        s = np.einsum("ij,ij->i", xp[v] - y[f, 0], n)
+        n = g.face_normals[f]
+        y = xq[tq[f]]
+        s = np.einsum("ij,ij->i", xp[v] - y[:, 0], n)
         c = xp[v] - s[:, None] * n
-        bary = _barycentric(c, y[f, 0], y[f, 1], y[f, 2])
-        facing = np.einsum("ij,ij->i", n, _vertex_normals(xp, tp)[v]) < 0
+        bary = _barycentric(c, y[:, 0], y[:, 1], y[:, 2])
+        g_own, R_own, _ = own
+        m = g_own.vertex_normals[v] @ (R_own.T @ R)     # own's normals, in other's frame
+        facing = np.einsum("ij,ij->i", n, m) < 0
         keep = (s >= -self.tolerance) & (s < self._reach) & np.all(bary >= -1e-12, axis=1) \
             & facing
         v, f, s, n, bary = v[keep], f[keep], s[keep], n[keep], bary[keep]
@@ -365,34 +458,34 @@ class MeshContact:
         tri = tq[I[alone]]
         b = _barycentric(C[alone], xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
         v, f = np.r_[v, near[alone]], np.r_[f, I[alone]]
-        bary, e, s = np.vstack([bary, b]), np.vstack([n, e]), np.r_[s, S[alone]]
+        bary, e, s = np.vstack([bary, b]), np.vstack([n, e]) @ R.T, np.r_[s, S[alone]]
         cols = np.column_stack([v, tq[f]])
         weights = np.column_stack([np.ones(len(v)), -bary])
         return (cols, weights, e, s, np.column_stack([np.zeros(len(v), int), v, f])), deepest
 
-    def _edge_pairs(self, surfaces):
+    def _edge_pairs(self, xs, frames):
         """(cols (k, 4): a's edge's vertices then b's, weights (k, 4): 1 - s, s, -(1 - t),
         -t, e, phi, which (k, 3): (2, a's edge, b's edge)), and (depth, 2, edge, edge) of
-        the deepest crossing, for the edges of a and b whose closest points are inside both
+        the deepest crossing, for the edges of a and b (vertices ``xs`` in the world,
+        ``frames`` of :meth:`_in_frame`) whose closest points are inside both
         (not parallel) within the margin, facing (e . m_b > 0 > e . m_a, m the edges'
         normals, the sums of their two triangles'): e = +-(u x v) / |u x v| (u, v the edges)
         out of b, phi = e . (p_a - p_b), between sharp edges of both (:func:`_sharp`). Two
         boxes turned against each other meet edge on edge, with no vertex of either over
         the other."""
-        (xa, ta), (xb, tb) = surfaces
+        xa, xb = xs
+        (ga, Ra, _), (gb, Rb, _) = frames
         (ea, fa), (eb, fb) = self._edges
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
                  np.zeros((0, 3), int))
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
-        na, nb = _face_normals(xa, ta), _face_normals(xb, tb)
         # only sharp edges of both meet edge on edge: the candidates are among those
-        sharp_b = np.flatnonzero(_sharp(xb, tb, eb, fb, nb))
+        sharp_b = np.flatnonzero(gb.sharp)
         mid_a, mid_b = xa[ea].mean(axis=1), xb[eb[sharp_b]].mean(axis=1)
         half_a = 0.5 * np.linalg.norm(xa[ea[:, 1]] - xa[ea[:, 0]], axis=1)
         half_b = 0.5 * np.linalg.norm(xb[eb[sharp_b, 1]] - xb[eb[sharp_b, 0]], axis=1)
-        cand = np.flatnonzero(_sharp(xa, ta, ea, fa, na)
-                              & np.all((mid_a + half_a[:, None] >= lo)
-                                       & (mid_a - half_a[:, None] <= hi), axis=1))
+        cand = np.flatnonzero(ga.sharp & np.all((mid_a + half_a[:, None] >= lo)
+                                                & (mid_a - half_a[:, None] <= hi), axis=1))
         if not cand.size or not sharp_b.size:
             return empty, None
         k, j = _close_pairs(mid_a[cand], mid_b, half_a[cand].max() + half_b.max()
@@ -404,7 +497,8 @@ class MeshContact:
         i, j, s, t = i[inside], j[inside], s[inside], t[inside]
         a0, a1, b0, b1 = a0[inside], a1[inside], b0[inside], b1[inside]
         pa, pb = a0 + s[:, None] * (a1 - a0), b0 + t[:, None] * (b1 - b0)
-        ma, mb = na[fa[i]].sum(axis=1), nb[fb[j]].sum(axis=1)
+        ma = ga.face_normals[fa[i]].sum(axis=1) @ Ra.T
+        mb = gb.face_normals[fb[j]].sum(axis=1) @ Rb.T
         e = _unit(np.cross(a1 - a0, b1 - b0))
         e *= np.where(np.einsum("ij,ij->i", e, mb - ma) < 0, -1.0, 1.0)[:, None]
         phi = np.einsum("ij,ij->i", e, pa - pb)

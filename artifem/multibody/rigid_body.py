@@ -502,6 +502,10 @@ class BodyPoints:
     def positions(self) -> np.ndarray:
         return self.body.to_world(self.local)
 
+    def rigid_frame(self) -> tuple:
+        """(r_j, R, p): the points in the body frame, and the pose, x_j = p + R r_j."""
+        return self.local, self.body.rotation, self.body.position
+
     def describe(self, i: int) -> str:
         return f"point {i} (body frame {self.local[i].tolist()})"
 
