@@ -495,6 +495,7 @@ class BodyPoints:
                              f"(n >= 1, 3) array, got shape {self.local.shape}")
         self.labels = np.arange(len(self.local))
         self.mesh_body = None                       # no FEM mesh: no contact pressure
+        self._areas = None                          # facing_areas's, in the body frame
 
     def __len__(self) -> int:
         return len(self.local)
@@ -530,12 +531,16 @@ class BodyPoints:
         (:func:`~artifem.contact_points.facing_areas`): a third of each adjacent
         surface triangle facing it, projected on it, at the current pose. The points must
         be the surface's vertices (the default contact points)."""
-        surface = self.body.surface
-        if surface is None or np.shape(surface[0]) != self.local.shape \
-                or not np.allclose(surface[0], self.local):
-            raise InputError(f"rigid body {self.body.name!r}: an elastic foundation needs "
-                             "the contact points to be the body's surface vertices (the "
-                             "default), to know the area each stands for")
-        x, tris = self.positions(), np.asarray(surface[1])
-        area = 0.5 * np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
-        return facing_areas(area, tris, indices, np.asarray(directions), len(x))
+        if self._areas is None:         # the triangles' vector areas in the body frame
+            surface = self.body.surface
+            if surface is None or np.shape(surface[0]) != self.local.shape \
+                    or not np.allclose(surface[0], self.local):
+                raise InputError(f"rigid body {self.body.name!r}: an elastic foundation "
+                                 "needs the contact points to be the body's surface "
+                                 "vertices (the default), to know the area each stands for")
+            x, tris = self.local, np.asarray(surface[1])
+            self._areas = (0.5 * np.cross(x[tris[:, 1]] - x[tris[:, 0]],
+                                          x[tris[:, 2]] - x[tris[:, 0]]), tris)
+        area, tris = self._areas        # a_world . e = a_body . R^T e
+        return facing_areas(area, tris, indices, np.asarray(directions) @ self.body.rotation,
+                            len(self.local))
