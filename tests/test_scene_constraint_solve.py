@@ -91,6 +91,27 @@ def test_friction_rows_take_the_normal_impulses_of_the_same_solve(path):
         np.testing.assert_allclose(lam2, lam, rtol=1e-12)
 
 
+def test_anderson_mixing_finds_an_affine_maps_fixed_point_in_a_few_passes():
+    """The friction passes' map from the normal impulses the bounds are of to those of
+    the solve is affine while the active set stays, x -> T x + d: plain passes converge
+    as the largest |eigenvalue| of T (0.9 here: error still 0.4 of the first after 8),
+    Anderson's mixing over ANDERSON_DEPTH passes (the history the solve keeps) reaches
+    the fixed point to round-off in 5, on a 3-dimensional map."""
+    Q = np.linalg.qr(np.arange(1.0, 10.0).reshape(3, 3) + np.eye(3))[0]
+    T = Q @ np.diag([0.9, -0.8, 0.5]) @ Q.T
+    d = np.array([1.0, -2.0, 0.5])
+    fixed = np.linalg.solve(np.eye(3) - T, d)
+    x, plain, history = np.zeros(3), np.zeros(3), []
+    for _ in range(5):
+        history.append((T @ x + d, x))
+        del history[:-constraints.ANDERSON_DEPTH]
+        x = constraints._anderson(history)
+    for _ in range(8):
+        plain = T @ plain + d
+    assert np.linalg.norm(x - fixed) <= 1e-12 * np.linalg.norm(fixed)
+    assert np.linalg.norm(plain - fixed) >= 0.3 * np.linalg.norm(fixed)
+
+
 def _kkt(K, Ga):
     return np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K
 

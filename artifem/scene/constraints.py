@@ -18,7 +18,8 @@ primal-dual active set (:func:`_active_set`: release the multiplier furthest out
 bounds, else activate the most violated row, repeat); rows with lo = -inf and hi = inf
 are always active.
 Friction rows (``RowBlock.friction``: |lambda_t| <= mu lambda_n) are first a fixed point
-around it: the active set again with the bounds of its last impulses, until they settle;
+around it: the active set again with the bounds of its last impulses (the normal impulses
+extrapolated over the last passes by Anderson's mixing), until they settle;
 where the passes circle instead (a reduced body under many more friction rows than
 coordinates: its impulses are far from unique, and the normal ones jump as the active set
 changes), the sliding rows are held at s lambda_n of the same solve (s = +-mu; a row of
@@ -104,7 +105,9 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     rows' bounds are +-mu lambda_n. First as a fixed point: the active set at fixed bounds
     (a convex problem: the pivots settle), found again with the bounds of its last
     impulses until they change by at most 1e-10 of the largest impulse (each pass starts
-    from the last pass's active set); after BOUND_PASSES passes (the passes circling a
+    from the last pass's active set; the normal impulses the bounds take are mixed over
+    the last ANDERSON_DEPTH passes by :func:`_anderson`, then, after RELAX_PASSES, the
+    mean of the last two); after BOUND_PASSES passes (the passes circling a
     change of the active set: a reduced body under many more friction rows than
     coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
     pass's active set; where those pivots circle too, all again without ``warm``.
@@ -126,7 +129,10 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     if warm is not None:
         lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
     start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
-    basis = None                            # the impulses the current bounds are of
+    # the impulses the current bounds are of (None: the rows' own bounds)
+    basis = None if warm is None else warm[3]
+    normals = np.unique(of[fric])           # the normal rows the bounds depend on
+    history = []                            # (g(x), x) of the last passes on those rows
     for k in range(BOUND_PASSES):
         lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, start, batch)
         use = lo != hi
@@ -135,15 +141,25 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             take = ~use & warm[2]
             start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high),
                      use | take)
-        # after RELAX_PASSES the bounds take the mean of the impulses they were of and the
-        # new ones: the passes can cycle (a pad draping over a ball with friction: rows
-        # that slide in one pass stick in the next), and the mean damps the cycle
-        basis = lam if k < RELAX_PASSES or basis is None else 0.5 * (basis + lam)
-        lo_new, hi_new = bounds(basis)
+        lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
-        lo, hi = lo_new, hi_new
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
             return lam, active, at_high, extra
+        # the next bounds: of the normal impulses extrapolated by Anderson's mixing of the
+        # last passes (an affine map while the active set stays: the passes converge
+        # linearly, the mixing in a few); after RELAX_PASSES the mean of the impulses they
+        # were of and the new ones: the passes can cycle (a pad draping over a ball with
+        # friction: rows that slide in one pass stick in the next), and the mean damps it
+        if k < RELAX_PASSES:
+            if basis is not None:
+                history.append((lam[normals].copy(), basis[normals]))
+                del history[:-ANDERSON_DEPTH]
+            basis = lam.copy()
+            if history:
+                basis[normals] = np.maximum(_anderson(history), 0.0)
+        else:
+            basis = 0.5 * (basis + lam)
+        lo, hi = bounds(basis)
     try:
         return _pivots(lo, hi, tol, trial, what, friction,
                        (active, at_high, np.ones(lo.size, dtype=bool)), batch)
@@ -152,6 +168,25 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             raise
     # the last step's active set may start the passes inside a cycle: all again, cold
     return _active_set(*own, tol, trial, what, friction, None, batch)
+
+
+#: passes the friction bounds' Anderson mixing remembers
+ANDERSON_DEPTH = 4
+
+
+def _anderson(history: list) -> np.ndarray:
+    """Anderson's mixing (type II, Walker and Ni 2011) of a fixed point x = g(x) from
+    ``history`` [(g(x_j), x_j)], oldest first: g(x_k) - dG gamma, gamma the least-squares
+    solution of dF gamma = f_k (f = g(x) - x, dF and dG the differences of consecutive
+    f and g); g(x_k) alone with one pass."""
+    gk, xk = history[-1]
+    if len(history) < 2:
+        return gk
+    g = np.column_stack([h[0] for h in history])
+    f = g - np.column_stack([h[1] for h in history])
+    dF, dG = np.diff(f, axis=1), np.diff(g, axis=1)
+    gamma = np.linalg.lstsq(dF, f[:, -1], rcond=1e-10)[0]
+    return gk - dG @ gamma
 
 
 def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
