@@ -98,6 +98,7 @@ from threadpoolctl import threadpool_limits
 from artifem.arguments import nonnegative_float, positive_float
 from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
+from artifem.models.cache import user_cache
 from artifem.models import jaw_tongue_reduced as jtr
 from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, read_obj
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, load_tongue_data
@@ -113,7 +114,7 @@ __all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark
 #: airway.obj axes -> tongue axes: (x, y, z)_obj -> (-x, -y, z)_tongue (det +1).
 AIRWAY_AXES = np.diag([-1.0, -1.0, 1.0])
 #: where the reduced tongue's training is cached (shared with jaw_tongue_reduced.benchmark).
-DEFAULT_CACHE = Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
+DEFAULT_CACHE = user_cache("jaw_tongue_reduced")
 
 
 @dataclass(frozen=True)
@@ -776,7 +777,7 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None,
     """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
     protrusion, with the full and with the reduced tongue (``reduced`` training, default
     the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
-    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced): without the airway's load,
+    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced or ~/.cache/artifem/jaw_tongue_reduced): without the airway's load,
     then with its skin and pressure; and the cost of one skin update (positions), of G
     (jacobian) and of the pressure's master loads."""
     if steps < 1:

@@ -49,6 +49,7 @@ from threadpoolctl import threadpool_limits
 from artifem.arguments import nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
+from artifem.models.cache import user_cache
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
 from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
                                         Training, reduce)
@@ -261,12 +262,12 @@ def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig |
               cache: Path | None = None, quick: bool = False) -> dict:
     """Milliseconds per coupled step (median of ``steps`` after ``warmup``) of the jaw-tongue
     scene during protrusion with the full and with the reduced tongue (training cached in
-    ``cache``, default ~/.cache/artifem/jaw_tongue_reduced). ``quick``: the reduced tongue
+    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced or ~/.cache/artifem/jaw_tongue_reduced). ``quick``: the reduced tongue
     of :func:`quick_config` (unless ``config`` is given), a smoke test of the timings."""
     if steps < 1 or warmup < 0:
         raise InputError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     config = config or (quick_config() if quick else ReducedJawTongueConfig())
-    cache = cache or Path.home() / ".cache" / "artifem" / "jaw_tongue_reduced"
+    cache = cache or user_cache("jaw_tongue_reduced")
     model = train(config, cache)
     cases = {}
     for name, build in (("full", lambda: jt.build_scene(config.jaw)),

@@ -6,7 +6,7 @@ points random or trained; a configuration whose run stops is recorded with the r
                                   [--configs 6:100:random,6:100:trained]
 
 writes docs/foot/reduced_configs_level<L>.json (the full foot runs once). The training
-runs are cached in ~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot
+runs are cached in $XDG_CACHE_HOME/artifem, default ~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot
 --reduced``).
 """
 

@@ -27,12 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from artifem.errors import InputError, MeshError
+from artifem.models.cache import user_cache
 
 from . import bones as fb
 from . import skin as fs
 
 SKIN, CAP, BONE = 1, 2, 10
-DEFAULT_CACHE = Path.home() / ".cache" / "artifem" / "foot"
+DEFAULT_CACHE = user_cache("foot")
 
 
 @dataclass(frozen=True)
