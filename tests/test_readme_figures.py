@@ -452,26 +452,39 @@ def test_the_foot_figures_match_its_json():
     assert agrees(m[1], standing["floor_normal_N"])
     assert agrees(m[2], standing["load_plus_weight_N"])
     assert float(m[3]) == pytest.approx(standing["relative_error"], rel=0.06)
-    m = re.search(r"on 100 trained points: max mean node error ([\d.]+) mm \(largest node "
-                  r"error ([\d.]+) mm.*?on the paper's 100 random points: ([\d.]+) mm", text)
+    m = re.search(r"against one full run of (\d+) ms per step, on 100 trained points: max "
+                  r"mean node error ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
+                  r"displacement ([\d.]+) mm\), (\d+) ms per step, ([\d.]+)x; on the paper's "
+                  r"100 random points: ([\d.]+) mm, (\d+) ms per step, ([\d.]+)x", text)
     assert m, "the foot page's reduced sentence changed: update this test with it"
-    assert agrees(m[1], red["max_mean_node_error_mm"])
-    assert agrees(m[2], red["max_node_error_mm"])
-    assert agrees(m[3], paper["max_mean_node_error_mm"])
+    for shown, value in zip(m.groups(), (
+            red["full_ms_per_step"], red["max_mean_node_error_mm"], red["max_node_error_mm"],
+            red["max_displacement_mm"], red["reduced_ms_per_step"], red["speedup"],
+            paper["max_mean_node_error_mm"], paper["reduced_ms_per_step"],
+            paper["speedup"])):
+        assert agrees(shown, value), (shown, value)
+    m = re.search(r"These are medians; the means are (\d+) ms \(trained\) and (\d+) ms "
+                  r"\(random\) against (\d+) ms", text)
+    assert m, "the foot page's sentence on the means changed: update this test with it"
+    for shown, value in zip(m.groups(), (red["reduced_ms_mean"], paper["reduced_ms_mean"],
+                                         red["full_ms_mean"])):
+        assert agrees(shown, value), (shown, value)
     m = re.search(r"peak ([\d,.]+) kPa under the heel and ([\d.]+) kPa under the forefoot",
                   text)
     assert m and agrees(m[1], standing["peak_pressure_by_region_kPa"]["rearfoot"])
     assert agrees(m[2], standing["peak_pressure_by_region_kPa"]["forefoot"])
     m = re.search(r"The foot \(.*?\): ([\d,]+) nodes, ([\d,]+) ms per step with bones and "
-                  r"contact .*?; reduced on 100 trained points ([\d.]+) ms, max mean node "
-                  r"error ([\d.]+) mm .*?the paper's 100 random points: ([\d.]+) mm\)",
+                  r"contact .*?; reduced on 100 trained points ([\d.]+) ms per step "
+                  r"\(median; mean ([\d.]+) ms.*?\), max mean node error ([\d.]+) mm .*?the "
+                  r"paper's 100 random points: ([\d.]+) mm\)",
                   re.sub(r"\s+", " ", README))
     assert m, "the README's foot sentence changed: update this test with it"
     assert int(m[1].replace(",", "")) == figures["nodes"]
     assert agrees(m[2], ms["with_bones_and_contact"])
     assert agrees(m[3], red["reduced_ms_per_step"])
-    assert agrees(m[4], red["max_mean_node_error_mm"])
-    assert agrees(m[5], paper["max_mean_node_error_mm"])
+    assert agrees(m[4], red["reduced_ms_mean"])
+    assert agrees(m[5], red["max_mean_node_error_mm"])
+    assert agrees(m[6], paper["max_mean_node_error_mm"])
 
 
 def test_the_foot_lift_figures_match_its_json():

@@ -106,8 +106,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     (a convex problem: the pivots settle), found again with the bounds of its last
     impulses until they change by at most 1e-10 of the largest impulse (each pass starts
     from the last pass's active set; the normal impulses the bounds take are mixed over
-    the last ANDERSON_DEPTH passes by :func:`_anderson`, then, after RELAX_PASSES, the
-    mean of the last two); after BOUND_PASSES passes (the passes circling a
+    the last ANDERSON_DEPTH passes by :func:`_anderson`; after RELAX_PASSES, the mean of
+    those the bounds were of and the new ones); after BOUND_PASSES passes (the passes circling a
     change of the active set: a reduced body under many more friction rows than
     coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
     pass's active set; where those pivots circle too, all again without ``warm``.
@@ -179,7 +179,7 @@ def _anderson(history: list) -> np.ndarray:
     ``history`` [(g(x_j), x_j)], oldest first: g(x_k) - dG gamma, gamma the least-squares
     solution of dF gamma = f_k (f = g(x) - x, dF and dG the differences of consecutive
     f and g); g(x_k) alone with one pass."""
-    gk, xk = history[-1]
+    gk = history[-1][0]
     if len(history) < 2:
         return gk
     g = np.column_stack([h[0] for h in history])
