@@ -80,6 +80,43 @@ def render_foot(png: Path, foot, title: str) -> Path:
     return png
 
 
+def plot_reduced_comparison(png: Path, reduced: dict, dt: float, title: str) -> Path:
+    """The reduced feet against the full one over the held-out run
+    (:func:`~artifem.models.foot.reduced.compare`'s figures, name -> figures): the mean
+    node error of each (mm; the issue's 1 mm target dashed) and the ms of every step of
+    each and of the full foot (log scale: the slow steps show)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (err, cost) = plt.subplots(1, 2, figsize=(11, 4.2))
+    full = None
+    for name, r in reduced.items():
+        if "failure" in r:
+            continue
+        label = f"{name}: {r['pod_vectors']} POD, {r['points']} {r['config']['sampling']} points"
+        t = dt * np.arange(1, len(r["mean_node_error_mm"]) + 1)
+        err.plot(t, r["mean_node_error_mm"], label=label)
+        cost.semilogy(t, r["reduced_ms"], label=label)
+        full = r["full_ms"]
+    if full is not None:
+        cost.semilogy(dt * np.arange(1, len(full) + 1), full, "k", label="full foot")
+    err.axhline(1.0, color="gray", ls="--", lw=1, label="target 1 mm")
+    err.set_xlabel("t (s)")
+    err.set_ylabel("mean node error of the tissue (mm)")
+    cost.set_xlabel("t (s)")
+    cost.set_ylabel("wall ms of the step")
+    for ax in (err, cost):
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
+
+
 def plot_plantar_pressure(png: Path, points: np.ndarray, pressure: np.ndarray,
                           centre: np.ndarray, title: str, reference: str) -> Path:
     """The floor's pressure at the sole's nodes (kPa) seen from below (x forward, z

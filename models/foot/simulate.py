@@ -17,7 +17,8 @@ centre of pressure; for lift the first metatarsal's rise and the talus's dorsifl
 :data:`~artifem.models.foot.reduced.CONFIGS`: the paper's 6 POD vectors on 100 random
 points, and on 100 trained points; the standing model for standing and heavy, the lift
 model for lift), trained (or loaded: training resumes from ``--cache``) and run against
-the full foot on its held-out input: ms per step of both, the max mean node error.
+the full foot on its held-out input: ms per step of both, the max mean node error, and
+``reduced.png``, the error and the ms of every step over the run.
 """
 
 from __future__ import annotations
@@ -37,7 +38,8 @@ from artifem.models.cache import user_cache
 from artifem.models.foot import mesh as fm
 from artifem.models.foot.model import CASES, Foot, foot_case
 from artifem.models.foot.reduced import CONFIGS, HELD_OUT, compare, schedule, train
-from artifem.models.foot.render import plot_plantar_pressure, render_foot
+from artifem.models.foot.render import (plot_plantar_pressure, plot_reduced_comparison,
+                                        render_foot)
 
 #: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
 DT, DURATION = 0.005, 0.3
@@ -93,6 +95,9 @@ def run(args: argparse.Namespace) -> int:
         figures["reduced"] = compare("lift" if args.case == "lift" else "standing", configs,
                                      args.cache, progress=not args.no_progress)
         (out / "foot.json").write_text(json.dumps(figures, indent=2))
+        plot_reduced_comparison(out / "reduced.png", figures["reduced"], args.dt,
+                                f"foot {args.case}, level {args.level}: reduced against "
+                                f"full on the held-out input")
     print(f"foot {args.case} (level {args.level}, {figures['nodes']} nodes): "
           f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
           f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
