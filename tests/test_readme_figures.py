@@ -7,6 +7,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -469,6 +470,8 @@ def test_the_foot_figures_match_its_json():
     for shown, value in zip(m.groups(), (red["reduced_ms_mean"], paper["reduced_ms_mean"],
                                          red["full_ms_mean"])):
         assert agrees(shown, value), (shown, value)
+    m = re.search(r"last 20 steps, the load settled, take (\d+) ms \(median\)", text)
+    assert m and agrees(m[1], np.median(red["full_ms"][-20:]))
     m = re.search(r"peak ([\d,.]+) kPa under the heel and ([\d.]+) kPa under the forefoot",
                   text)
     assert m and agrees(m[1], standing["peak_pressure_by_region_kPa"]["rearfoot"])
