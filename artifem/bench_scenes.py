@@ -5,7 +5,8 @@ variants and times them in this process (medians over the timed steps):
 
 - ``jaw-tongue`` (:mod:`artifem.models.jaw_tongue_reduced`): the jaw-tongue
   scene during protrusion with the full and with the reduced tongue (the
-  reduced tongue's training is cached, $XDG_CACHE_HOME/artifem, default ~/.cache/artifem by default);
+  reduced tongue's training is cached, under $XDG_CACHE_HOME/artifem by default,
+  ~/.cache/artifem when that is unset);
 - ``airway`` (:mod:`artifem.models.airway`): the jaw-tongue scene with the full
   and with the reduced tongue (the jaw-tongue training, same cache), each
   without and with the airway skin and its pressure, and the skin's own
@@ -14,7 +15,8 @@ variants and times them in this process (medians over the timed steps):
   conforming masseter, with and without aponeuroses;
 - ``foot`` (:mod:`artifem.models.foot.simulate`): the standing foot, the FEM alone, with
   the bones, with bones and contact, and reduced (the paper's configuration; its training
-  cached, $XDG_CACHE_HOME/artifem, default ~/.cache/artifem/foot-reduced by default), beside the paper's figures.
+  cached, by default in $XDG_CACHE_HOME/artifem/foot-reduced, ~/.cache when unset),
+  beside the paper's figures.
 
 ``--quick``: a smoke test of the command, not figures to quote: the reduced
 tongues of ``artifem study jaw-tongue --quick`` (a small training, seconds when
@@ -53,7 +55,8 @@ def add_arguments(parser) -> None:
                              f"{QUICK_STEPS})")
     parser.add_argument("--cache", type=Path, default=None,
                         help="reduced tongue training cache of jaw-tongue and airway "
-                             "(default: $XDG_CACHE_HOME/artifem, default ~/.cache/artifem/jaw_tongue_reduced)")
+                             "(default: $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when "
+                             "unset)")
     parser.add_argument("--quick", action="store_true",
                         help="a smoke test: the quick reduced tongue (study jaw-tongue "
                              f"--quick), the coarse masseter, {QUICK_STEPS} timed steps")

@@ -777,8 +777,8 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None,
     """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
     protrusion, with the full and with the reduced tongue (``reduced`` training, default
     the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
-    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced or ~/.cache/artifem/jaw_tongue_reduced): without the airway's load,
-    then with its skin and pressure; and the cost of one skin update (positions), of G
+    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when unset):
+    without the airway's load, then with its skin and pressure; and the cost of one skin update (positions), of G
     (jacobian) and of the pressure's master loads."""
     if steps < 1:
         raise InputError(f"benchmark: steps must be >= 1, got {steps}")

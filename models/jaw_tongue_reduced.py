@@ -262,8 +262,9 @@ def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig |
               cache: Path | None = None, quick: bool = False) -> dict:
     """Milliseconds per coupled step (median of ``steps`` after ``warmup``) of the jaw-tongue
     scene during protrusion with the full and with the reduced tongue (training cached in
-    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced or ~/.cache/artifem/jaw_tongue_reduced). ``quick``: the reduced tongue
-    of :func:`quick_config` (unless ``config`` is given), a smoke test of the timings."""
+    ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when unset).
+    ``quick``: the reduced tongue of :func:`quick_config` (unless ``config`` is given), a
+    smoke test of the timings."""
     if steps < 1 or warmup < 0:
         raise InputError(f"benchmark: need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     config = config or (quick_config() if quick else ReducedJawTongueConfig())

@@ -6,8 +6,8 @@ points random or trained; a configuration whose run stops is recorded with the r
                                   [--configs 6:100:random,6:100:trained]
 
 writes docs/foot/reduced_configs_level<L>.json (the full foot runs once). The training
-runs are cached in $XDG_CACHE_HOME/artifem, default ~/.cache/artifem/foot-reduced (shared with ``artifem simulate foot
---reduced``).
+runs are cached in $XDG_CACHE_HOME/artifem/foot-reduced (~/.cache when unset; shared
+with ``artifem simulate foot --reduced``).
 """
 
 import argparse
