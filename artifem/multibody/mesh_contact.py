@@ -170,10 +170,9 @@ def _sharp(x: np.ndarray, tris: np.ndarray, edges: np.ndarray, faces: np.ndarray
     return convex & (np.einsum("ij,ij->i", n0, n1) < np.cos(SHARP_ANGLE))
 
 
-def _close_pairs(p: np.ndarray, q, r: float) -> tuple[np.ndarray, np.ndarray]:
-    """(i, j): every pair of points p_i, q_j closer than r, ordered by i then j (scipy's
-    KD-trees, the pairs gathered in C; ``q`` points or their cKDTree)."""
-    q = q if isinstance(q, cKDTree) else cKDTree(q)
+def _close_pairs(p: np.ndarray, q: cKDTree, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j): every pair of points p_i, q_j (given by their KD-tree) closer than r,
+    ordered by i then j (scipy's KD-trees, the pairs gathered in C)."""
     d = cKDTree(p).sparse_distance_matrix(q, r, output_type="ndarray")
     order = np.lexsort((d["j"], d["i"]))
     return d["i"][order].astype(int), d["j"][order].astype(int)
@@ -488,7 +487,7 @@ class MeshContact:
                                                 & (mid_a - half_a[:, None] <= hi), axis=1))
         if not cand.size or not sharp_b.size:
             return empty, None
-        k, j = _close_pairs(mid_a[cand], mid_b, half_a[cand].max() + half_b.max()
+        k, j = _close_pairs(mid_a[cand], cKDTree(mid_b), half_a[cand].max() + half_b.max()
                             + self._reach)
         i, j = cand[k], sharp_b[j]
         a0, a1, b0, b1 = xa[ea[i, 0]], xa[ea[i, 1]], xb[eb[j, 0]], xb[eb[j, 1]]

@@ -107,9 +107,9 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     impulses until they change by at most 1e-10 of the largest impulse (each pass starts
     from the last pass's active set; the normal impulses the bounds take are mixed over
     the last ANDERSON_DEPTH passes by :func:`_anderson`; after RELAX_PASSES, the mean of
-    those the bounds were of and the new ones); after BOUND_PASSES passes (the passes circling a
-    change of the active set: a reduced body under many more friction rows than
-    coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
+    those the bounds were of and the new ones); after BOUND_PASSES passes (the passes
+    circling a change of the active set: a reduced body under many more friction rows
+    than coordinates), the sliding rows held at +-mu lambda_n of the same solve, from the last
     pass's active set; where those pivots circle too, all again without ``warm``.
     ``warm`` = (active, held at hi, known, lambda) of the previous step
     (:class:`ActiveSetMemory`): the first pass takes the bounds of those impulses (0 on
