@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from artifem.models.foot import bones as fb
 from artifem.models.foot import ligaments as fl
-from artifem.models.foot.model import HALF_WEIGHT, JOINTS, build_foot, foot_case
+from artifem.models.foot.model import HALF_WEIGHT, JOINTS, TibiaLoad, build_foot, foot_case
+from artifem.multibody.rigid_body import RigidBody
 
 G = 9.81
 
@@ -61,6 +62,35 @@ def test_standing_the_floor_carries_the_load_and_the_weight(standing):
     x = foot.tissue.V.tabulate_dof_coordinates() + u
     assert x[:, 1].min() > foot.floor.offset - foot.floor.tolerance - 1e-12
     assert np.isfinite(u).all()
+
+
+def test_the_tibia_loads_potential_is_minus_its_work():
+    """d(potential)/dp = -f at every time of the ramp (statics' energy merit)."""
+    tibia = RigidBody("tibia", 0.1, np.eye(3) * 1e-4, position=(0.0, 0.3, 0.0))
+    load = TibiaLoad(tibia, HALF_WEIGHT, ramp=0.1)
+    for t in (0.0, 0.05, 0.2):
+        e0 = load.potential_energy(t)
+        tibia.position = tibia.position + np.array([0.0, 1e-3, 0.0])
+        (_, wrench), = load.master_loads(t)
+        assert load.potential_energy(t) - e0 == pytest.approx(-wrench[1] * 1e-3, abs=1e-12)
+
+
+def test_the_foot_stands_on_the_floor_by_the_static_solve(foot_cache):
+    """Scene.solve_static finds the unloaded foot's rest on the floor under its own weight
+    (it failed before its active sets started from the last Newton iteration's, its merit
+    counted the joints' cartilage springs and the sliding friction, and the muscles had an
+    energy): the floor carries the weight of the tissue and the bones, nothing passes
+    through the floor or a joint."""
+    foot = build_foot(0, load=0.0, cache=foot_cache)
+    counts = foot.scene.solve_static()
+    assert len(counts) == 1 and counts.failed == 0
+    weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
+    floor = foot.scene.contact_forces(foot.floor)
+    assert floor.normal.sum() == pytest.approx(weight, rel=1e-6)
+    assert all(c.constraint_failure() is None for c in foot.joints)
+    u = foot.tissue.u.x.array.reshape(-1, 3)
+    x = foot.tissue.V.tabulate_dof_coordinates() + u
+    assert x[:, 1].min() > foot.floor.offset - foot.floor.tolerance - 1e-12
 
 
 def test_the_tibialis_anterior_lifts_the_hanging_forefoot(foot_cache):

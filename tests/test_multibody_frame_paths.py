@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from artifem.multibody.frame_paths import FramePath
+from artifem.multibody.joints import SliderJoint
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
 from artifem.multibody.rigid_body import Frame, RigidBody
 from artifem.scene import Scene
@@ -69,3 +70,60 @@ def test_bad_paths_are_clear_errors():
         FramePath(AxialSpring(1.0), [top])
     with pytest.raises(ValueError, match="takes no excitation"):
         FramePath(AxialSpring(1.0), [top, bottom], excitation=lambda t: 1.0)
+
+
+def guided(body):
+    """A vertical slider that holds the body's turns (statics has no inertia for them)."""
+    return SliderJoint(Frame.at_world(body, body.position, np.eye(3)),
+                       Frame.at_world(None, body.position, np.eye(3)), name="guide")
+
+
+def test_the_static_solve_holds_the_weight_on_the_muscle():
+    """Statics through a FramePath muscle (its energy the merit): the tension at the length
+    found is the weight."""
+    params = ThelenParameters(max_isometric_force=100.0, optimal_fiber_length=0.1,
+                              tendon_slack_length=0.2)
+    muscle = ThelenMuscle(params, excitation=0.5, activation_dynamics=False)
+    # on the ascending limb of f_L (l_M = 0.6 l0), where the tension rises with the length
+    body, top, bottom = hanging(mass=3.0, z=-0.26)
+    path = FramePath(muscle, [top, bottom], name="hill")
+    system = Scene(gravity=(0.0, 0.0, -G))
+    system.add(body, path, guided(body))
+    system.solve_static()
+    assert muscle.tension(-body.position[2])[0] == pytest.approx(3.0 * G, rel=1e-9)
+    assert path.conservative
+
+
+class ConstantForce:
+    """A load element: a constant force on a rigid body's centre of mass, with its
+    potential -f . p."""
+
+    def __init__(self, body, force):
+        self.body, self.force, self.name = body, np.asarray(force, dtype=float), "push"
+
+    @property
+    def bodies(self):
+        return (self.body,)
+
+    def master_loads(self, t):
+        return [(self.body, np.concatenate([self.force, np.zeros(3)]))]
+
+    def potential_energy(self, t):
+        return -float(self.force @ self.body.position)
+
+
+def test_a_load_elements_potential_enters_the_scenes_energy_and_its_statics():
+    """Scene.potential_energy takes a load element's potential (times the load factor), so
+    statics keeps the energy as its merit: a spring stretched by a constant force rests at
+    f / k beyond its rest length."""
+    body, top, bottom = hanging(mass=1.0, z=-0.6)
+    k, L0, f = 400.0, 0.5, np.array([0.0, 0.0, -30.0])
+    system = Scene(gravity=(0.0, 0.0, 0.0))
+    system.add(body, FramePath(AxialSpring(k, L0), [top, bottom], name="spring"),
+               ConstantForce(body, f), guided(body))
+    e0 = system.potential_energy()
+    body.position = body.position + np.array([0.0, 0.0, -1e-3])
+    spring = 0.5 * k * ((0.601 - L0) ** 2 - (0.6 - L0) ** 2)
+    assert system.potential_energy() - e0 == pytest.approx(spring - 30.0 * 1e-3, rel=1e-9)
+    system.solve_static()
+    assert body.position[2] == pytest.approx(-(L0 + 30.0 / k), rel=1e-10)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from artifem.errors import InputError
 from artifem.multibody.muscles import (AxialSpring, PathForces, PathGeometry, ThelenMuscle,
                                        ThelenParameters, active_force_length,
                                        force_velocity, force_velocity_inverse,
@@ -505,3 +506,28 @@ def test_bad_points():
         spring.evaluate(np.array([[0.0, 0, 0], [math.nan, 0, 0]]))
     with pytest.raises(ValueError, match="path points 1 and 2 coincide"):
         spring.evaluate(np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]]))
+
+
+@pytest.mark.parametrize("activation", [0.01, 0.4, 1.0])
+def test_a_rigid_tendon_muscles_energy_is_the_potential_of_its_tension_at_rest(activation):
+    """dW/dL = T(L, 0) at a fixed activation (statics' merit), over the slack, active and
+    passive (l_M > l0) ranges; W = 0 while the path is slack."""
+    muscle = ThelenMuscle(ThelenParameters(300.0, 0.1, 0.15, pennation_angle=0.2),
+                          activation=activation, activation_dynamics=False,
+                          excitation=activation)
+    assert muscle.conservative
+
+    def path(length):
+        return np.array([[0.0, 0.0, 0.0], [length, 0.0, 0.0]])
+
+    assert muscle.energy(path(0.14)) == 0.0
+    for length in (0.16, 0.21, 0.25, 0.31):
+        slope = fd_slope(lambda L: muscle.energy(path(L)), length)
+        assert slope == pytest.approx(muscle.tension(length)[0], rel=1e-6)
+
+
+def test_an_elastic_tendon_muscle_has_no_energy():
+    muscle = ThelenMuscle(ThelenParameters(300.0, 0.1, 0.15), tendon="elastic")
+    assert not muscle.conservative
+    with pytest.raises(InputError, match="elastic tendon has no energy"):
+        muscle.energy(np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]]))

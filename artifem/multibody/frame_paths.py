@@ -109,10 +109,15 @@ class PathElement:
             raise InputError(f"path {self.name!r}: excitation must be finite, got {value!r}")
         self._timed.excitation = _Constant(value)
 
+    @property
+    def conservative(self) -> bool:
+        """True when the element's ``energy`` is the potential of its tension (springs; a
+        rigid-tendon muscle in statics): statics may use it as a merit."""
+        return hasattr(self.element, "energy") and getattr(self.element, "conservative", True)
+
     def potential_energy(self) -> float:
-        """The element's stored energy, for elements that have one (springs)."""
-        energy = getattr(self.element, "energy", None)
-        return float(energy(self.positions())) if energy is not None else 0.0
+        """The element's stored energy, for elements that have one (:attr:`conservative`)."""
+        return float(self.element.energy(self.positions())) if self.conservative else 0.0
 
 
 class FramePath(PathElement):

@@ -17,6 +17,11 @@ class LoadElement:
     deformable body that no attachment, path or load names is stepped on its own
     (its own solver, in parallel under MPI), so a load must name every body it
     loads.
+
+    Optional: ``potential_energy(t) -> float``, the potential of a conservative load
+    (-f . x for a constant force f at a point x), whose gradient is minus
+    ``master_loads(t)``; statics then takes the scene's energy as its merit
+    (:meth:`~artifem.scene.Scene.solve_static`), else the force residual.
     """
 
     @staticmethod

@@ -775,6 +775,42 @@ class ThelenMuscle:
         tension, dtdl, fiber = self._solve_fiber(length, self._fiber_length, dt)
         return tension, dtdl, 0.0, fiber
 
+    @property
+    def conservative(self) -> bool:
+        """Whether :meth:`energy` is the potential of the tension at rest (statics): with a
+        rigid tendon; an elastic tendon's fiber state is left out."""
+        return self.tendon == "rigid"
+
+    def energy(self, positions) -> float:
+        """The potential of the rigid-tendon tension at zero velocity and the current
+        activation a, which statics holds fixed: with x = L - lTS and l_M = sqrt(x^2 + h^2),
+        T dL = F0 g(l_M) dl_M, g = a f_L + f_PE, so
+
+            W = F0 int_h^l_M g dl = F0 [a l0 sqrt(pi gamma)/2 erf((l/l0 - 1)/sqrt(gamma))
+                + l0 ((eps0M/k_PE)(exp(k_PE (l/l0 - 1)/eps0M) - 1) - (l/l0 - 1))
+                  / (exp(k_PE) - 1)]_h^l_M          (the passive term where l > l0),
+
+        zero while the path is slack (L <= lTS)."""
+        if not self.conservative:
+            raise InputError(f"ThelenMuscle {self.name!r}: an elastic tendon has no energy "
+                             "(its fiber length is a state)")
+        p = self.params
+        x = PathGeometry.of(positions).length - p.tendon_slack_length
+        if x <= 0.0:
+            return 0.0
+        l0, h = p.optimal_fiber_length, p.width
+        gamma, kpe, e0 = p.active_width, p.passive_shape, p.fmax_muscle_strain
+
+        def primitive(lm: float) -> float:
+            ln = lm / l0
+            active = self._activation * l0 * math.sqrt(math.pi * gamma) / 2 * \
+                math.erf((ln - 1.0) / math.sqrt(gamma))
+            passive = l0 * (e0 / kpe * math.expm1(kpe * (ln - 1.0) / e0) - (ln - 1.0)) / \
+                math.expm1(kpe) if ln > 1.0 else 0.0
+            return active + passive
+
+        return p.max_isometric_force * (primitive(math.hypot(x, h)) - primitive(h))
+
     def evaluate(self, positions, velocities=None, dt: float | None = None) -> PathForces:
         """Forces on the path points (n, 3) and their Jacobians, at the current activation.
 

@@ -62,11 +62,6 @@ class PointPath(PathElement):
         return PointPath(self.element, points, excitation=self._timed.excitation,
                          name=self.name)
 
-    @property
-    def conservative(self) -> bool:
-        """True when the element has an energy (springs): statics may use it as a merit."""
-        return hasattr(self.element, "energy")
-
     def positions(self) -> np.ndarray:
         return np.array([p.position() if isinstance(p, FemPoint) else p.world_position()
                          for p in self.points])

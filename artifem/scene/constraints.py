@@ -714,7 +714,8 @@ class _KKT:
         return resolve
 
 
-def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
+def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
+                 memory: ActiveSetMemory | None = None):
     """(z, lambda, active mask) of K z - G^T lambda = b under ``rows`` (:class:`StepRows`)
     as in :func:`solve_constrained`, each trial one solve of the KKT matrix
     ``kkt(K, G_active)`` = [[K, G_a^T], [G_a, 0]] (statics: K may be singular where the
@@ -757,13 +758,23 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         return lam, slack, z
 
     tol = 1e-10 * max(1.0, np.abs(c).max())
+
+    def solved(lam, active, at_high, z):
+        if memory is not None:
+            memory.keep(rows, active, at_high, lam)
+        return z, lam, active
+
+    warm = memory.start(rows) if memory is not None and bounded.size else None
+    if warm is not None:
+        try:
+            return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=warm))
+        except StepFailed:          # the last solve's set may start inside a cycle
+            pass
     start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C) \
         if bounded.size else None
     if start is not None:
         try:
-            lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction,
-                                            warm=start)
-            return z, lam, active
+            return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=start))
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
     if C is not None:
@@ -771,10 +782,8 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str):
         # body that only they support (K singular without them)
         touch = (C > 0) & (c >= 0)
         start = (touch, np.zeros(len(c), dtype=bool), C > 0, np.zeros(len(c)))
-        lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction, warm=start)
-        return z, lam, active
-    lam, active, _, z = _active_set(lo, hi, tol, trial, what, friction)
-    return z, lam, active
+        return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=start))
+    return solved(*_active_set(lo, hi, tol, trial, what, friction))
 
 
 def _minus_diagonal(M, n: int, d: np.ndarray):

@@ -163,10 +163,10 @@ Load elements (:class:`LoadElement`, ``master_loads(t)``): explicit forces on
 FEM nodes, reduced coordinates and rigid bodies (a skin pressure through G^T),
 b += h F, and in the static residual, ramped by the load factor with the other
 loads. Their Jacobians dF/dx (``master_load_jacobians(t)``, e.g. a follower
-pressure's G^T (df/dx) G) enter the static tangent, so Newton sees them. Such a
-load may have no potential: the line search's energy test leaves the load
-elements' work out, and a step that fails it is still taken when it lowers the
-force residual (the same two tests as integrators._backtrack).
+pressure's G^T (df/dx) G) enter the static tangent, so Newton sees them. A load
+with a potential (``potential_energy(t)``: a constant force) enters the scene's
+energy; one without (a follower pressure) leaves statics the force residual as
+its merit.
 
 Rigid bodies on frames of FEM bodies (:class:`FrameAttachment`, the paper's
 section 3.2 and Fig. 11): a body follows a frame (origin and polar or Procrustes
@@ -177,10 +177,15 @@ embedded ones), and K_geo adds d(J^T [f; tau])/dx. A massless body
 deformable bodies. The joints' reactions load such attachments like any force;
 they enter K_geo lagged by one step (or one Newton iteration).
 
-Statics with constraints use the exact-penalty merit E + rho |gap|_1 (rho = 2 max
-|lambda|; gap = phi on free rows, min(phi, 0) on bounded ones) when every force has an
-energy, and otherwise the force residual left after the least-squares reactions of the
-rows the last solve held active.
+Statics with constraints use the exact-penalty merit E + E_c + rho |gap|_1 (E_c the
+compliant rows' springs, sum max(-phi, 0)^2 / 2C; rho = 2 max |lambda|; gap = phi on
+free rows, min(phi, 0) on bounded ones) when every force and load has an energy, and
+otherwise the force residual left after the compliant rows' forces, the sliding
+friction rows' forces of the last solve and the least-squares reactions of the rows
+it held active. Each Newton solve starts its active set from the last one's
+(:class:`~artifem.scene.constraints.ActiveSetMemory`, by row keys, across the load
+increments too): started from the rows' own bounds, the friction passes of a
+foot's hundreds of contact rows circled and the solve stopped ("did not settle").
 
 Scenes of at most ``DENSE_MAX`` (direct_solver) coordinates (reduced and rigid bodies)
 are solved by a dense LU instead of MUMPS.
@@ -566,12 +571,15 @@ class Scene:
 
     def potential_energy(self) -> float:
         """FEM Pi(u) (strain minus the work of gravity and loads), -m g . p of the moving
-        rigid bodies, and the force elements' potential_energy()."""
+        rigid bodies, the force elements' and paths' potential_energy(), and the load
+        elements' potential_energy(t) (times the load factor) where they have one."""
         return (sum(b.potential_energy() for b in self.fem_bodies + self.reduced_bodies)
                 + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
                 + sum(e.potential_energy() for e in self.forces
                       if hasattr(e, "potential_energy"))
-                + sum(p.potential_energy() for p in self.paths))
+                + sum(p.potential_energy() for p in self.paths)
+                + self.load_factor * sum(e.potential_energy(self.t) for e in self.loads
+                                         if hasattr(e, "potential_energy")))
 
     def energy(self) -> float:
         return self.kinetic_energy() + self.potential_energy()
@@ -981,11 +989,12 @@ class Scene:
                 body.set_twist(np.zeros(6))
         g = self.gravity.copy()
         self._reactions = None
+        memory = ActiveSetMemory()          # the statics' own: forces, not impulses
 
         def solve_increment(factor: float, limit: int) -> int:
             self._set_load_factor(factor, g)
-            return self._newton(L, rtol, atol, limit, factor) + \
-                self._hold_volumes_static(L, rtol, atol, limit, factor)
+            return self._newton(L, rtol, atol, limit, factor, memory) + \
+                self._hold_volumes_static(L, rtol, atol, limit, factor, memory)
 
         try:
             return ramp_load(solve_increment, self.save_state, self.restore_state, load_steps,
@@ -993,7 +1002,7 @@ class Scene:
         finally:
             self._set_load_factor(1.0, g)
 
-    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor) -> int:
+    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, memory) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while
         some element volume is off by more than its tolerance, p <- pi and Newton again
         (the last residual assembled g at the solution). The Newton iterations it took."""
@@ -1004,7 +1013,7 @@ class Scene:
             violations = [vc.update() for vc in constrained]
             if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
                 return iterations
-            iterations += self._newton(L, rtol, atol, max_iterations, factor)
+            iterations += self._newton(L, rtol, atol, max_iterations, factor, memory)
         off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
                         if v > vc.spec.tol)
         raise StepFailed(f"static solve: {off} after {updates - 1} pressure updates at load "
@@ -1027,19 +1036,38 @@ class Scene:
         return F, L.constraint_map.rows(P, np.zeros(L.n_all), 1.0, 1.0)
 
     @staticmethod
-    def _merit(F: np.ndarray, rows: list, active: np.ndarray) -> float:
-        """|[F_m - G_a^T mu; gap]| with mu the least-squares reactions of the active rows
-        (every free row and the limits the last solve pressed on) at the current
-        configuration: the forces the constraints cannot balance, and their error (phi
-        on free rows, the crossed part min(phi, 0) of bounded ones)."""
+    def _merit(F: np.ndarray, rows: list, active: np.ndarray, held=None) -> float:
+        """|[F_m + G_c^T f_c + G_h^T lambda_h - G_a^T mu; gap]| at the current
+        configuration: the forces the constraints cannot balance, and their error (phi on
+        free rows, the crossed part min(phi, 0) of bounded ones). Compliant rows push by
+        their law, f_c = max(-phi, 0) / C (statics: h = 1); ``held`` (the last solve's
+        forces on the rows it held at a bound: sliding friction) acts as it was; mu are
+        the least-squares reactions of the other ``active`` rows (every free row and the
+        limits the last solve pressed on)."""
         gap = _gap(rows)
-        if active.any():
+        hard = active.copy()
+        offset = 0
+        for g in rows:
+            m = len(g.c)
+            part = None if held is None else held[offset:offset + m]
+            if g.compliance is not None:
+                on = g.block.compliant
+                law = np.where(on, np.maximum(-g.block.phi, 0.0), 0.0) / \
+                    np.where(on, g.compliance, 1.0)
+                part = law if part is None else part + law
+                hard[offset:offset + m] &= ~on
+            if part is not None and np.any(part):
+                F = F + np.asarray(g.G.T @ part).ravel()
+            offset += m
+        if hard.any():
             G = np.vstack([g.G.toarray() if sparse.issparse(g.G) else g.G for g in rows])
-            G = G if active.all() else G[active]
+            G = G[hard]
             F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
         return float(np.linalg.norm(np.concatenate([F, gap])))
 
-    def _newton(self, L, rtol, atol, max_iterations, factor) -> int:
+    def _newton(self, L, rtol, atol, max_iterations, factor, memory) -> int:
+        """Newton on the island's statics at load factor ``factor`` (module docstring:
+        statics), each active set started from the last one's (``memory``)."""
         F, rows = self._residual(L)
         # before the first solve: the free rows and the crossed bounded ones
         active = _crossed(rows)
@@ -1050,7 +1078,14 @@ class Scene:
                 return it - 1
             K = L.fmt(self.static_tangent())
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
-            dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows, "static solve")
+            try:
+                dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows,
+                                               "static solve", memory)
+            except StepFailed as error:
+                error.iterations = it
+                raise
+            # the rows held at a bound (sliding friction) push with their last forces
+            held = np.where(active, 0.0, lam) if rows else None
             if rows:                    # the constraints apply G^T lambda (forces: h = 1)
                 self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
             gap = _gap(rows)
@@ -1059,11 +1094,12 @@ class Scene:
             # exact penalty E + rho |gap|_1, rho > max |lambda|, whose slope along the step
             # is -F . dq - rho |gap|_1 = -dq^T K dq - lambda . phi - rho |gap|_1 < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
+                and all(hasattr(e, "potential_energy") for e in self.loads) \
                 and all(p.conservative for p in self.paths) \
                 and all(b.conservative for b in L.fem_bodies)
             rho = 2.0 * float(np.abs(lam).max()) if lam.size else 0.0
-            energy0 = self.potential_energy() + rho * float(np.abs(gap).sum()) \
-                if use_energy else 0.0
+            energy0 = self.potential_energy() + _compliant_energy(rows) + \
+                rho * float(np.abs(gap).sum()) if use_energy else 0.0
             slope = -float(F @ dq) - rho * float(np.abs(gap).sum())
             step = 1.0
             while step >= 1e-4:
@@ -1074,11 +1110,12 @@ class Scene:
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
                     F_new, rows_new = self._residual(L)
-                    energy = self.potential_energy() + rho * float(np.abs(
-                        _gap(rows_new)).sum()) if use_energy else np.inf
+                    energy = self.potential_energy() + _compliant_energy(rows_new) + \
+                        rho * float(np.abs(_gap(rows_new)).sum()) if use_energy else np.inf
                     # a contact point that entered or left its margin changes the rows
                     same = [len(g.c) for g in rows_new] == [len(g.c) for g in rows]
-                    trial = self._merit(F_new, rows_new, active if same else _crossed(rows_new))
+                    trial = self._merit(F_new, rows_new, active if same else
+                                        _crossed(rows_new), held if same else None)
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -1087,14 +1124,15 @@ class Scene:
                 step *= 0.5
             else:
                 raise StepFailed(f"static solve: line search failed at load factor "
-                                        f"{factor:g}, Newton iteration {it}")
+                                 f"{factor:g}, Newton iteration {it}", iterations=it)
             F, rows, norm = F_new, rows_new, trial
             if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
                 return it
         if norm <= max(rtol * scale, atol):
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
-                                f"iterations at load factor {factor:g} (|r| = {norm:.3e})")
+                         f"iterations at load factor {factor:g} (|r| = {norm:.3e})",
+                         iterations=max_iterations)
 
 
 def _crossed(rows: list) -> np.ndarray:
@@ -1103,6 +1141,13 @@ def _crossed(rows: list) -> np.ndarray:
     return np.concatenate([~g.block.bounded | ((g.block.phi < 0) & ~g.block.compliant)
                            for g in rows]) if rows \
         else np.zeros(0, dtype=bool)
+
+
+def _compliant_energy(rows: list) -> float:
+    """The compliant rows' springs, sum max(-phi, 0)^2 / (2 C) (statics: h = 1)."""
+    return sum(float(np.sum(np.where(g.block.compliant, np.minimum(g.block.phi, 0.0) ** 2, 0.0)
+                            / (2.0 * np.where(g.block.compliant, g.compliance, 1.0))))
+               for g in rows if g.compliance is not None)
 
 
 def _gap(rows: list) -> np.ndarray:

@@ -93,11 +93,17 @@ class TibiaLoad:
     def bodies(self) -> tuple:
         return (self.tibia,)
 
+    def _force(self, t: float) -> float:
+        return self.level * self.force * (min(t / self.ramp, 1.0) if self.ramp > 0 else 1.0)
+
     def master_loads(self, t: float):
-        scale = min(t / self.ramp, 1.0) if self.ramp > 0 else 1.0
         wrench = np.zeros(6)
-        wrench[1] = -self.level * self.force * scale
+        wrench[1] = -self._force(t)
         return [(self.tibia, wrench)]
+
+    def potential_energy(self, t: float) -> float:
+        """f(t) y of the tibia's centre of mass (the load's potential)."""
+        return self._force(t) * float(self.tibia.position[1])
 
 
 @dataclass(frozen=True)
