@@ -1,7 +1,8 @@
 """Newton iterations per load step of the static solve on the cases of docs/verification.md
 ("Static Newton"): the cantilever of tests/test_surface_loads.py under an open follower
-pressure, a 10:1 neo-Hookean beam under a follower pressure on its bottom face, and a
-nearly incompressible (hard) membrane under a dead traction.
+pressure, a 10:1 neo-Hookean beam under a follower pressure on its bottom face, a
+nearly incompressible (hard) membrane under a dead traction, and the level-0 foot on its
+floor (a coupled island of contacts, ligaments and muscles).
 
     OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py [case ...] [--steps=N|auto]
     OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py --json
@@ -84,6 +85,29 @@ def run(body, load_steps, **options):
             "factors": counts.factors, "min_uz": float(u[:, 2].min())}
 
 
+def foot(load):
+    """The level-0 foot (models/foot, the test's scene) on the floor: unloaded (its own
+    weight) or with ``load`` newtons down the tibia at once."""
+    from artifem.models.foot.model import build_foot
+    return build_foot(0, load=load, ramp=0.0)
+
+
+def run_scene(foot_scene, load_steps, **options):
+    """run() for a whole scene (the coupled island's Newton), with the floor's balance:
+    its normal force over the weight and the load it carries."""
+    try:
+        counts = foot_scene.scene.solve_static(load_steps=load_steps, **options)
+    except StepFailed as e:
+        return {"load_steps": load_steps, "failed_with": str(e)[:200]}
+    weight = 9.81 * (foot_scene.tissue.total_mass()
+                     + sum(b.mass for b in foot_scene.bones.values()))
+    load = foot_scene.load.force if foot_scene.load is not None else 0.0
+    normal = float(foot_scene.scene.contact_forces(foot_scene.floor).normal.sum())
+    return {"load_steps": load_steps, "counts": list(counts), "failed": counts.failed,
+            "total": sum(counts) + counts.failed, "max": max(counts),
+            "factors": counts.factors, "floor_balance": normal / (weight + load) - 1.0}
+
+
 def first_increment(n=16, traction=10.0):
     """Why the membrane's first increment is hard: min u_z of the first Newton step from
     the flat plate (its linear, bending response to the first quarter of the load) and
@@ -140,6 +164,9 @@ CASES = {
     "membrane32": lambda s: run(membrane(32), s or 4),
     "membrane32_auto": lambda s: run(membrane(32), s or "auto"),
     "membrane16_compressible": lambda s: run(membrane(16, hard=False), s or 4),
+    "foot_unloaded": lambda s: run_scene(foot(0.0), s or 1),
+    "foot_standing_60": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or 1,
+                                            max_iterations=60),
 }
 
 if __name__ == "__main__":
