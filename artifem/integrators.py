@@ -486,7 +486,8 @@ class StaticCounts(list):
     """The Newton iteration count of each load increment a static solve took (a list of
     ints), with ``factors``: the load factor each increment reached, ``failed``: the
     Newton iterations spent on increments that failed and were cut, and ``residuals``:
-    |R| at each Newton iterate of each increment (when the solve records them)."""
+    |R| at each Newton iterate of each increment that converged (when the solve records
+    them; a coupled island's: its merit, ``Scene._merit``)."""
 
     def __init__(self, counts=(), factors=(), failed: int = 0, residuals=()):
         super().__init__(int(c) for c in counts)
@@ -673,7 +674,11 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
 
     def solve_increment(factor: float, limit: int) -> int:
         residuals.append([])
-        it = newton(factor, limit)
+        try:
+            it = newton(factor, limit)
+        except StepFailed:
+            residuals.pop()             # only the increments that converged are kept
+            raise
         converged.append((factor, u.array.copy()))
         del converged[:-PREDICTOR_POINTS]
         return it
@@ -815,7 +820,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     try:
         counts = ramp_load(solve_increment, save, restore, load_steps, max_iterations,
                            "static solve", progress)
-        counts.residuals = residuals[-len(counts):] if counts else []
+        counts.residuals = residuals
         return counts
     finally:
         for vec in (du, ds, r):

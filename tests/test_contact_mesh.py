@@ -523,3 +523,103 @@ def test_pairs_in_a_rigid_bodys_frame_are_the_pairs_in_the_world(icosphere):
                  (framed.W @ framed.x, plain.W @ plain.x)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
     assert framed.deepest[:3] == pytest.approx(plain.deepest[:3], abs=1e-12)
+
+
+# ---- (10) how the rows turn: the second derivative of the pairs' distances -------------------
+
+def _features(kind, X):
+    """(w, e, s, spans, count) of one pair of ``kind`` at its points X (4, 3), from first
+    principles (distance_hessian's docstring): a vertex over a face, a vertex and an edge,
+    two vertices, two edges."""
+    if kind == "face":
+        x, y0, y1, y2 = X
+        n = np.cross(y1 - y0, y2 - y0)
+        n /= np.linalg.norm(n)
+        E = np.column_stack([y1 - y0, y2 - y0])
+        b = np.linalg.solve(E.T @ E, E.T @ (x - y0))
+        return (np.array([1.0, b.sum() - 1.0, -b[0], -b[1]]), n, n @ (x - y0),
+                [[0, -1, 1, 0], [0, -1, 0, 1]], 2)
+    if kind in ("edge", "vertex"):
+        x, y, z, _ = X
+        t = (x - y) @ (z - y) / ((z - y) @ (z - y)) if kind == "edge" else 0.0
+        d = x - y - t * (z - y)
+        return (np.array([1.0, t - 1.0, -t, 0.0]), d / np.linalg.norm(d), np.linalg.norm(d),
+                [[0, -1, 1, 0], [0, 0, 0, 0]], 1 if kind == "edge" else 0)
+    a0, a1, b0, b1 = X
+    u, v = a1 - a0, b1 - b0
+    s, t = np.linalg.solve([[u @ u, -u @ v], [-u @ v, v @ v]], [-u @ (a0 - b0), v @ (a0 - b0)])
+    d = a0 + s * u - b0 - t * v
+    return (np.array([1.0 - s, s, t - 1.0, -t]), d / np.linalg.norm(d), np.linalg.norm(d),
+            [[-1, 1, 0, 0], [0, 0, -1, 1]], 2)
+
+
+@pytest.mark.parametrize("kind", ["face", "edge", "vertex", "edges"])
+def test_the_distance_hessian_is_the_derivative_of_the_rows(kind, rng):
+    """distance_hessians against central differences of the gradient w_j e (the rows'
+    coefficients) of each kind of pair at random points."""
+    from artifem.multibody.distance_hessian import distance_hessians
+
+    def gradient(X):
+        w, e, *_ = _features(kind, X.reshape(4, 3))
+        return np.outer(w, e).ravel()
+
+    for _ in range(3):
+        X = rng.normal(size=(4, 3))
+        w, e, s, spans, count = _features(kind, X)
+        H = distance_hessians(X[None], w[None], np.array(spans, float)[None],
+                              np.array([count]), e[None], np.array([s]))[0]
+        h = 1e-6
+        fd = np.column_stack([(gradient(X.ravel() + h * d) - gradient(X.ravel() - h * d)) / (2 * h)
+                              for d in np.eye(12)])
+        np.testing.assert_allclose(H, fd, rtol=0, atol=1e-7 * np.abs(fd).max())
+
+
+def test_a_pressed_pair_of_balls_rows_turn_by_their_stiffness(icosphere):
+    """MeshContactRows.stiffness(lambda) = d(G^T lambda)/dq at fixed normal forces, by
+    central differences over both rigid bodies' six coordinates (rotations R <- exp([d]x) R),
+    for a fine ball pressed into a coarse one (vertex-face and closest-point pairs both
+    ways): the levers' turning and the pairs' own (distance_hessian)."""
+    from scipy.spatial.transform import Rotation
+
+    from artifem.multibody.rigid_body import exp_so3
+
+    V, F = icosphere(2, 0.06)
+    ball = af.RigidBody("ball", 1.0, np.eye(3), position=(0.03, -0.02, 0.1 + 0.055),
+                        rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
+                        surface=(V, F))
+    V, F = icosphere(1, 0.08)
+    other = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
+                         rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
+                         surface=(V, F))
+    contact = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)
+
+    def lam_of(rows):       # by (side, vertex): a closest point on a shared edge or vertex
+        keys = np.asarray(rows.keys)        # may take either triangle (same row)
+        return 1.0 + (keys[:, 0] + 3 * keys[:, 1]) % 5 / 4.0
+
+    block, = contact.row_blocks()
+    lam = lam_of(block)
+    K = block.stiffness(lam).toarray()
+    pairs = contact._pairs()
+    assert set(pairs.span_count) >= {0, 2} or set(pairs.span_count) >= {1, 2}
+
+    def forces():
+        rows, = contact.row_blocks()
+        np.testing.assert_array_equal(np.sort(np.asarray(rows.keys)[:, :2], axis=0),
+                                      np.sort(np.asarray(block.keys)[:, :2], axis=0))
+        return np.concatenate([G.T @ lam_of(rows) for _, G in rows.jacobians])
+
+    h = 1e-7
+    fd = []
+    for body in (ball, other):
+        p, R = body.position.copy(), body.rotation.copy()
+        for i in range(6):
+            out = []
+            for sign in (1.0, -1.0):
+                d = sign * h * np.eye(6)[i]
+                body.position, body.rotation = p + d[:3], exp_so3(d[3:]) @ R
+                out.append(forces())
+            body.position, body.rotation = p, R
+            fd.append((out[0] - out[1]) / (2 * h))
+    np.testing.assert_allclose(K, np.column_stack(fd), rtol=0,
+                               atol=1e-6 * np.abs(K).max())

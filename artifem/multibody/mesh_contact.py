@@ -59,6 +59,7 @@ from scipy.spatial import cKDTree
 from artifem.errors import InputError
 from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.multibody.contact import check_options
+from artifem.multibody.distance_hessian import distance_hessians
 from artifem.multibody.joints import axis_rotation
 
 __all__ = ["MeshContact", "MeshContactForces"]
@@ -107,13 +108,39 @@ def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> 
     return np.column_stack([1.0 - beta - gamma, beta, gamma])
 
 
+#: the spans of a vertex-over-triangle pair (columns: the vertex, then the triangle's
+#: three): its sides y1 - y0 and y2 - y0; of two edges (a0, a1, b0, b1): a1 - a0, b1 - b0
+_FACE_SPANS = np.array([[0.0, -1.0, 1.0, 0.0], [0.0, -1.0, 0.0, 1.0]])
+_EDGE_SPANS = np.array([[-1.0, 1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 1.0]])
+
+
+def _feature_spans(b: np.ndarray, pseudo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((k, 2, 4) spans, (k,) their count) of closest-point pairs (columns: the vertex,
+    then the triangle's three) from the closest point's barycentric coordinates ``b``
+    (k, 3): the triangle (none zero), the edge of the two nonzero ones, or none (a
+    vertex: two zero); -1 where e is the pseudonormal (``pseudo``)."""
+    zero = b <= 1e-10
+    count = 2 - np.minimum(zero.sum(axis=1), 2)
+    spans = np.broadcast_to(_FACE_SPANS, (len(b), 2, 4)).copy()
+    edge = np.flatnonzero(count == 1)
+    if edge.size:
+        corners = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]   # the nonzero two
+        spans[edge] = 0.0
+        spans[edge, 0, 1 + corners[:, 0]] = -1.0
+        spans[edge, 0, 1 + corners[:, 1]] = 1.0
+    return spans, np.where(pseudo, -1, count)
+
+
 class _Pairs(NamedTuple):
     """The pairs within the margin: W (k x n_all) their coefficients on the surfaces'
     vertices (a's then b's; summing to zero over each pair), e (k, 3), phi (k,) the signed
     distances, which (k, 3) = (kind, i, j): kind 0 a's vertex i over b's triangle j, 1 b's
     vertex i over a's triangle j, 2 a's edge i across b's edge j; ``deepest``: (phi, kind,
     i, j) of the deepest penetration found (every vertex in the other's bounding box,
-    every crossing edge pair), or None; x (n_all, 3) the vertices."""
+    every crossing edge pair), or None; x (n_all, 3) the vertices; cols, weights (k, 4):
+    W's four entries of each pair; spans (k, 2, 4) and their count (k,): the features'
+    directions on those columns (:func:`~artifem.multibody.distance_hessian.distance_hessians`;
+    -1: a pair whose e is a pseudonormal, which does not turn with its points)."""
 
     W: sparse.csr_matrix
     e: np.ndarray
@@ -121,6 +148,10 @@ class _Pairs(NamedTuple):
     which: np.ndarray
     deepest: tuple | None
     x: np.ndarray
+    cols: np.ndarray
+    weights: np.ndarray
+    spans: np.ndarray
+    span_count: np.ndarray
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -381,7 +412,9 @@ class MeshContact:
                               shape=(k, len(x)))
         pairs = _Pairs(W, np.vstack([p[2] for p in parts]),
                        np.concatenate([p[3] for p in parts]) - self.offset,
-                       np.vstack([p[4] for p in parts]), deepest, x)
+                       np.vstack([p[4] for p in parts]), deepest, x, np.vstack(cols),
+                       np.vstack([p[1] for p in parts]), np.vstack([p[5] for p in parts]),
+                       np.concatenate([p[6] for p in parts]))
         self._last_pairs = ((xs[0].copy(), xs[1].copy()), pairs)
         return pairs
 
@@ -424,7 +457,7 @@ class MeshContact:
         xp = (xw - p) @ R                               # in other's frame
         xq, tq = g.x, g.tris
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
-                 np.zeros((0, 3), int))
+                 np.zeros((0, 3), int), np.zeros((0, 2, 4)), np.zeros(0, int))
         lo, hi = g.box[0] - self._reach, g.box[1] + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
@@ -456,11 +489,15 @@ class MeshContact:
                      d / np.where(small, 1.0, S[alone])[:, None])
         tri = tq[I[alone]]
         b = _barycentric(C[alone], xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
+        spans, count = _feature_spans(b, small)
+        spans = np.concatenate([np.broadcast_to(_FACE_SPANS, (len(v), 2, 4)), spans])
+        count = np.r_[np.full(len(v), 2), count]
         v, f = np.r_[v, near[alone]], np.r_[f, I[alone]]
         bary, e, s = np.vstack([bary, b]), np.vstack([n, e]) @ R.T, np.r_[s, S[alone]]
         cols = np.column_stack([v, tq[f]])
         weights = np.column_stack([np.ones(len(v)), -bary])
-        return (cols, weights, e, s, np.column_stack([np.zeros(len(v), int), v, f])), deepest
+        return (cols, weights, e, s, np.column_stack([np.zeros(len(v), int), v, f]), spans,
+                count), deepest
 
     def _edge_pairs(self, xs, frames):
         """(cols (k, 4): a's edge's vertices then b's, weights (k, 4): 1 - s, s, -(1 - t),
@@ -476,7 +513,7 @@ class MeshContact:
         (ga, Ra, _), (gb, Rb, _) = frames
         (ea, fa), (eb, fb) = self._edges
         empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
-                 np.zeros((0, 3), int))
+                 np.zeros((0, 3), int), np.zeros((0, 2, 4)), np.zeros(0, int))
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
         # only sharp edges of both meet edge on edge: the candidates are among those
         sharp_b = np.flatnonzero(gb.sharp)
@@ -512,7 +549,8 @@ class MeshContact:
         i, j, s, t, e, phi = i[close], j[close], s[close], t[close], e[close], phi[close]
         cols = np.column_stack([ea[i], eb[j]])
         weights = np.column_stack([1.0 - s, s, -(1.0 - t), -t])
-        return (cols, weights, e, phi, np.column_stack([np.full(len(i), 2), i, j])), deepest
+        return (cols, weights, e, phi, np.column_stack([np.full(len(i), 2), i, j]),
+                np.broadcast_to(_EDGE_SPANS, (len(i), 2, 4)), np.full(len(i), 2)), deepest
 
     def _describe(self, kind: int, i: int, j: int) -> str:
         """A pair (:class:`_Pairs` ``which``) in words."""
@@ -541,21 +579,58 @@ class MeshContact:
         Wa, Wb = Wall[:, :na], Wall[:, na:]
         lo, hi = np.zeros(m), np.zeros(m)
         hi[:k] = np.inf
+        Ga, Gb = pa.rows(Wa, directions), pb.rows(Wb, directions)
+
         def stiffness(lam):
             f = lam[:, None] * directions
             return sparse.block_diag([sparse.csr_matrix(pa.stiffness(Wa, f)),
                                       sparse.csr_matrix(pb.stiffness(Wb, f))],
-                                     format="csr")
+                                     format="csr") + \
+                self._turning(pairs, lam[:k], (Ga.shape[1], Gb.shape[1]))
 
         side_a = np.asarray(W[:, :na].sum(axis=1)).ravel()
         return [MeshContactRows(
             self, np.concatenate([phi, np.zeros(m - k)]),
-            ((pa.body, pa.rows(Wa, directions)), (pb.body, pb.rows(Wb, directions))),
+            ((pa.body, Ga), (pb.body, Gb)),
             lo, hi, stiffness, Friction.tangents(k, self.mu) if self.mu > 0 else None,
             np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
             points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
             tangents=(bases[:, :, 0], bases[:, :, 1]) if self.mu > 0 else (), weights=W,
             compliance=self._compliance(pairs, m))]
+
+    def _turning(self, pairs: _Pairs, lam: np.ndarray, sizes: tuple) -> sparse.csr_matrix:
+        """J^T (sum_k lambda_k d^2 s_k / dX^2) J on both bodies' coordinates: how the
+        normal rows turn (their normals, and the closest points sliding along the
+        features) under the normal impulses ``lam`` held fixed, J = dX/dq of the pairs'
+        points (:mod:`~artifem.multibody.distance_hessian`). The friction rows' tangents
+        are left out (they turn with e by the frame of ``axis_rotation``). ``sizes``: the
+        bodies' coordinate counts."""
+        (pa, _), (pb, _) = self._surfaces
+        na, size = self._na, len(pairs.x)
+        n_a, n_b = sizes
+        used = np.flatnonzero((lam != 0) & (pairs.span_count >= 0))
+        if not used.size:
+            return sparse.csr_matrix((n_a + n_b, n_a + n_b))
+        cols = pairs.cols[used]
+        H = lam[used, None, None] * distance_hessians(
+            pairs.x[cols], pairs.weights[used], pairs.spans[used], pairs.span_count[used],
+            pairs.e[used], pairs.phi[used] + self.offset)
+        verts, local = np.unique(cols, return_inverse=True)
+        local = local.reshape(cols.shape)
+        # J: three rows per vertex (its x, y, z) on its body's coordinates
+        J = []
+        for points, mine, start, n in ((pa, verts[verts < na], 0, na),
+                                       (pb, verts[verts >= na], na, size - na)):
+            select = sparse.csr_matrix((np.ones(3 * len(mine)),
+                                        (np.arange(3 * len(mine)), np.repeat(mine - start, 3))),
+                                       shape=(3 * len(mine), n))
+            J.append(sparse.csr_matrix(points.rows(select, np.tile(np.eye(3), (len(mine), 1)))))
+        J = sparse.block_diag(J, format="csr")
+        dofs = (3 * local[:, :, None] + np.arange(3)).reshape(len(used), 12)
+        Hs = sparse.csr_matrix((H.ravel(), (np.repeat(dofs, 12, axis=1).ravel(),
+                                            np.tile(dofs, (1, 12)).ravel())),
+                               shape=(3 * len(verts), 3 * len(verts)))
+        return sparse.csr_matrix(J.T @ Hs @ J)
 
     def _compliance(self, pairs: _Pairs, m: int):
         """The normal rows' compliance of the foundation, or None: a vertex-over-triangle

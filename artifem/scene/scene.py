@@ -118,10 +118,15 @@ one KKT factorization per trial, the trials starting from the active set of the 
 complement of the tangent when it factors alone), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on the
 rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
-line search on |[F_m; phi]| refuses inverted elements. The tangent leaves out the
-rows' own turning d(G^T lambda)/dq, so a scene whose only stiffness in a joint's free
-direction would come from it (a rigid pendulum under gravity alone) has a singular
-tangent there.
+line search on |[F_m; phi]| refuses inverted elements. Inside Newton's region (the
+last step was full and lowered the merit) the tangent also takes the rows' own turning,
+K - P^T d(G^T lambda)/dq P at the last solve's forces (by row keys; each block's
+``stiffness(lambda)``: a joint's levers, a mesh contact's levers, normals and sliding
+closest points, :mod:`~artifem.multibody.distance_hessian`), which Newton needs for more
+than a linear rate where loaded joints and contacts turn (the loaded foot: 0.5 per
+iteration without it); where that saddle does not solve, the plain tangent is taken.
+Outside, a scene whose only stiffness in a joint's free direction would come from it (a
+rigid pendulum under gravity alone) has a singular tangent there.
 
 Path elements (:class:`PointPath`): a spring or muscle of
 :mod:`artifem.multibody.muscles` through points that are FEM points
@@ -265,11 +270,13 @@ COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
 def _merge_counts(a: list, b: list) -> StaticCounts:
     """The larger Newton iteration count of each increment over two islands (their
     adaptive schedules may differ in length: the shorter is padded with zeros), and the
-    iterations both spent on failed increments."""
+    iterations both spent on failed increments; their residuals, one island's increments
+    after the other's."""
     n = max(len(a), len(b))
     return StaticCounts([max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0)
                          for k in range(n)],
-                        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0))
+                        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0),
+                        residuals=getattr(a, "residuals", []) + getattr(b, "residuals", []))
 
 
 @dataclass(frozen=True)
@@ -990,19 +997,30 @@ class Scene:
         g = self.gravity.copy()
         self._reactions = None
         memory = ActiveSetMemory()          # the statics' own: forces, not impulses
+        residuals = []                      # the merit at each iterate of each increment
 
         def solve_increment(factor: float, limit: int) -> int:
             self._set_load_factor(factor, g)
-            return self._newton(L, rtol, atol, limit, factor, memory) + \
-                self._hold_volumes_static(L, rtol, atol, limit, factor, memory)
+            residuals.append([])
+            try:
+                return self._newton(L, rtol, atol, limit, factor, memory, residuals[-1]) + \
+                    self._hold_volumes_static(L, rtol, atol, limit, factor, memory,
+                                              residuals[-1])
+            except StepFailed:
+                residuals.pop()
+                raise
 
         try:
-            return ramp_load(solve_increment, self.save_state, self.restore_state, load_steps,
-                             max_iterations, "static solve (coupled island)", progress)
+            counts = ramp_load(solve_increment, self.save_state, self.restore_state,
+                               load_steps, max_iterations, "static solve (coupled island)",
+                               progress)
         finally:
             self._set_load_factor(1.0, g)
+        counts.residuals = residuals
+        return counts
 
-    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, memory) -> int:
+    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, memory,
+                             residuals) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while
         some element volume is off by more than its tolerance, p <- pi and Newton again
         (the last residual assembled g at the solution). The Newton iterations it took."""
@@ -1013,7 +1031,8 @@ class Scene:
             violations = [vc.update() for vc in constrained]
             if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
                 return iterations
-            iterations += self._newton(L, rtol, atol, max_iterations, factor, memory)
+            iterations += self._newton(L, rtol, atol, max_iterations, factor, memory,
+                                       residuals)
         off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
                         if v > vc.spec.tol)
         raise StepFailed(f"static solve: {off} after {updates - 1} pressure updates at load "
@@ -1065,25 +1084,37 @@ class Scene:
             F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
         return float(np.linalg.norm(np.concatenate([F, gap])))
 
-    def _newton(self, L, rtol, atol, max_iterations, factor, memory) -> int:
+    def _newton(self, L, rtol, atol, max_iterations, factor, memory, residuals) -> int:
         """Newton on the island's statics at load factor ``factor`` (module docstring:
-        statics), each active set started from the last one's (``memory``)."""
+        statics), each active set started from the last one's (``memory``); the merit of
+        each iterate is appended to ``residuals``."""
         F, rows = self._residual(L)
         # before the first solve: the free rows and the crossed bounded ones
         active = _crossed(rows)
         norm = self._merit(F, rows, active)
         scale = max(norm, atol)
+        near = False    # Newton's region: the last step was full and lowered the merit
         for it in range(1, max_iterations + 1):
+            residuals.append(norm)
             if norm <= max(rtol * scale, atol):
                 return it - 1
-            K = L.fmt(self.static_tangent())
+            K = self.static_tangent()
+            tangents = [L.fmt(K)]
+            last = memory.start(rows) if rows else None
+            if near and last is not None and np.any(last[3]):  # rows turn under their forces
+                P = L.prolongation()
+                tangents.insert(0, L.fmt(
+                    K - P.T @ L.constraint_map.stiffness(rows, last[3]) @ P))
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
-            try:
-                dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows,
-                                               "static solve", memory)
-            except StepFailed as error:
-                error.iterations = it
-                raise
+            for k, K in enumerate(tangents):
+                try:
+                    dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows,
+                                                   "static solve", memory)
+                    break
+                except StepFailed as error:
+                    if k + 1 == len(tangents):
+                        error.iterations = it
+                        raise
             # the rows held at a bound (sliding friction) push with their last forces
             held = np.where(active, 0.0, lam) if rows else None
             if rows:                    # the constraints apply G^T lambda (forces: h = 1)
@@ -1125,9 +1156,12 @@ class Scene:
             else:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                  f"{factor:g}, Newton iteration {it}", iterations=it)
+            near = step == 1.0 and trial < norm
             F, rows, norm = F_new, rows_new, trial
             if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
+                residuals.append(norm)
                 return it
+        residuals.append(norm)
         if norm <= max(rtol * scale, atol):
             return max_iterations
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
