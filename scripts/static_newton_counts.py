@@ -165,8 +165,8 @@ CASES = {
     "membrane32_auto": lambda s: run(membrane(32), s or "auto"),
     "membrane16_compressible": lambda s: run(membrane(16, hard=False), s or 4),
     "foot_unloaded": lambda s: run_scene(foot(0.0), s or 1),
-    "foot_standing_60": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or 1,
-                                            max_iterations=60),
+    "foot_standing": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or 1),
+    "foot_standing_auto": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or "auto"),
 }
 
 if __name__ == "__main__":
