@@ -12,7 +12,9 @@
 (6) a stack of four boxes; (7) friction between meshes on an incline; (8) a surface
     embedded in an FEM grid;
 (9) the queries: the signed distances on a prebuilt tree are libigl's, and a rigid
-    body's pairs found in its body frame are those found in the world.
+    body's pairs found in its body frame are those found in the world;
+(10) how the rows turn: each pair kind's distance Hessian, and a block's stiffness
+    d(G^T lambda)/dq, against finite differences.
 """
 
 import numpy as np
@@ -491,23 +493,30 @@ def test_signed_distances_on_a_prebuilt_tree_are_libigls(icosphere):
         np.testing.assert_allclose(N[same], N0[same], rtol=0, atol=1e-12)
 
 
-def test_pairs_in_a_rigid_bodys_frame_are_the_pairs_in_the_world(icosphere):
-    """A fine ball turned and pressed into a coarse one (vertex-over-triangle pairs both
-    ways, and closest-point pairs): the pairs found with each rigid body's surface kept in its
-    body frame (its tree built once) equal, to round-off, those found with both surfaces
-    rebuilt in the world at their current vertices, as a deformable body's are."""
+def pressed_balls(icosphere):
+    """A fine ball (radius 0.06) pressed into a coarse one (0.08), both turned: vertex-face
+    and closest-point pairs both ways."""
     from scipy.spatial.transform import Rotation
-
-    from artifem.multibody import mesh_contact as mc
 
     V, F = icosphere(2, 0.06)
     ball = af.RigidBody("ball", 1.0, np.eye(3), position=(0.03, -0.02, 0.1 + 0.055),
                         rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
                         surface=(V, F))
     V, F = icosphere(1, 0.08)
-    box = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
-                       rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
-                       surface=(V, F))
+    other = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
+                         rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
+                         surface=(V, F))
+    return ball, other
+
+
+def test_pairs_in_a_rigid_bodys_frame_are_the_pairs_in_the_world(icosphere):
+    """A fine ball turned and pressed into a coarse one (vertex-over-triangle pairs both
+    ways, and closest-point pairs): the pairs found with each rigid body's surface kept in its
+    body frame (its tree built once) equal, to round-off, those found with both surfaces
+    rebuilt in the world at their current vertices, as a deformable body's are."""
+    from artifem.multibody import mesh_contact as mc
+
+    ball, box = pressed_balls(icosphere)
     contact = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
     framed = contact._pairs()
     world = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
@@ -579,18 +588,9 @@ def test_a_pressed_pair_of_balls_rows_turn_by_their_stiffness(icosphere):
     central differences over both rigid bodies' six coordinates (rotations R <- exp([d]x) R),
     for a fine ball pressed into a coarse one (vertex-face and closest-point pairs both
     ways): the levers' turning and the pairs' own (distance_hessian)."""
-    from scipy.spatial.transform import Rotation
-
     from artifem.multibody.rigid_body import exp_so3
 
-    V, F = icosphere(2, 0.06)
-    ball = af.RigidBody("ball", 1.0, np.eye(3), position=(0.03, -0.02, 0.1 + 0.055),
-                        rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
-                        surface=(V, F))
-    V, F = icosphere(1, 0.08)
-    other = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
-                         rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
-                         surface=(V, F))
+    ball, other = pressed_balls(icosphere)
     contact = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)
 
     def lam_of(rows):       # by (side, vertex): a closest point on a shared edge or vertex
