@@ -20,8 +20,9 @@ contact carries a load, is
 
 (differentiate Z^T d = 0 and e = d / s). P_perp is zero where Z and e span space (a
 vertex over a face, two edges: no 1 / s there, so it holds through s = 0); it is the
-curvature 1 / s of the distance to an edge or a vertex otherwise. Checked against finite
-differences of the gradient in tests/test_multibody_mesh_contact.py.
+curvature 1 / s of the distance to an edge or a vertex otherwise; the result is
+symmetrized (its asymmetry is round-off). Checked against finite differences of the
+gradient in tests/test_contact_mesh.py.
 """
 
 from __future__ import annotations
