@@ -623,3 +623,56 @@ def test_a_pressed_pair_of_balls_rows_turn_by_their_stiffness(icosphere):
             fd.append((out[0] - out[1]) / (2 * h))
     np.testing.assert_allclose(K, np.column_stack(fd), rtol=0,
                                atol=1e-6 * np.abs(K).max())
+
+
+# ---- (11) statics holds the pairs' features -------------------------------------------------
+
+def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
+    """MeshContact.hold_pairs: held where they were found, the pairs are the found ones
+    (to round-off); after the fine ball moves 6 mm and turns, every vertex that had pairs
+    keeps its triangles, edges and vertices (the same keys, while a fresh contact pairs
+    some with others), and each pair measures its own feature exactly: W x = x_v - c =
+    phi e with e normal to the triangle (a vertex-over-triangle pair: the height over its
+    plane) or to the edge (a closest-point pair); vertices without pairs get the fresh
+    ones; released, the pairs are found again."""
+    from scipy.spatial.transform import Rotation
+
+    ball, other = pressed_balls(icosphere)
+    contact = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)
+    order = lambda p: np.lexsort(p.which.T[::-1])           # noqa: E731
+
+    def keyed(p):
+        k = order(p)
+        return p.which[k], p.phi[k], p.e[k], (p.W @ p.x)[k]
+
+    found = contact._pairs()
+    contact.hold_pairs(True)
+    for a, b in zip(keyed(found), keyed(contact._pairs())):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    ball.position = ball.position + np.array([0.006, -0.003, 0.0])
+    ball.rotation = Rotation.from_rotvec([0.0, 0.0, 0.05]).as_matrix() @ ball.rotation
+    held = contact._pairs()
+    fresh = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)._pairs()
+
+    def by_vertex(p):
+        return {(int(s), int(v)): {tuple(w) for w in p.which[(p.which[:, 0] == s)
+                                                              & (p.which[:, 1] == v)]}
+                for s, v in p.which[p.which[:, 0] < 2, :2]}
+
+    before, now, new = by_vertex(found), by_vertex(held), by_vertex(fresh)
+    assert all(now[v] == before[v] for v in before)
+    assert any(new.get(v) != before[v] for v in before)
+    assert all(now[v] == new[v] for v in now if v not in before)
+    vertex = (held.which[:, 0] < 2) & (held.span_count >= 0)
+    d = (held.W @ held.x)[vertex]
+    np.testing.assert_allclose(d, held.phi[vertex, None] * held.e[vertex], rtol=0,
+                               atol=1e-12)
+    y = held.x[held.cols[vertex]]                           # (k, 4, 3): x_v, y_0, y_1, y_2
+    spans = np.einsum("kij,kjl->kil", held.spans[vertex], y)
+    count = held.span_count[vertex]
+    for i in range(2):
+        along = np.einsum("kl,kl->k", spans[:, i], held.e[vertex])
+        assert np.abs(along[count > i]).max() < 1e-12
+    contact.hold_pairs(False)
+    for a, b in zip(keyed(fresh), keyed(contact._pairs())):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)

@@ -10,7 +10,8 @@
     to rest, the sum of its nodes' normal forces equals its weight to 1e-9, no node below
     the plane beyond the tolerance at any step; on the incline, once settled, mu = 0.6
     sticks (slip < 1e-9 m over 1 s) and mu = 0.5 slides with g (sin 30 - mu cos 30);
-(4) statics: a clamped beam's free end rests on the plane;
+(4) statics: a clamped beam's free end rests on the plane; with friction, the nodes that
+    stick did not move over the load increment and the others slid against their force;
 (5) a point that comes from beyond the margin within one step fails the step (clear
     message); bad input before the run.
 """
@@ -214,24 +215,25 @@ def test_fem_block_on_an_incline_sticks_or_slides_once_settled(mu):
 
 # ---- (4) statics ----------------------------------------------------------------------------
 
+def cantilever():
+    """A 0.3 x 0.03 x 0.03 m beam (E = 1e6 Pa, 10 x 2 x 2 hexahedra) clamped at x = 0."""
+    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.3, 0.03, 0.03])],
+                           [10, 2, 2], dmesh.CellType.hexahedron)
+    body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e6, 0.3), 1000.0, name="beam")
+    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+    return body
+
+
 def test_static_cantilever_rests_its_free_end_on_the_plane():
     """A clamped 0.3 m beam (E = 1e6 Pa) whose free equilibrium sags 8.5 cm, over a plane
     1 cm below it: the static solve (the contact's rows in the Newton's active set, rows
     entering the margin between iterations) leaves every node at or above the plane,
     only nodes on it press (measured: 6 nodes of the free end, 0.90 N of the 2.65 N
     weight; the clamp takes the rest), and the contact forces are the static solve's."""
-    def beam():
-        msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.3, 0.03, 0.03])],
-                               [10, 2, 2], dmesh.CellType.hexahedron)
-        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e6, 0.3), 1000.0,
-                          name="beam")
-        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
-        return body
-
-    free = beam()
+    free = cantilever()
     scene_of(free).solve_static()
     assert heights(free).min() < -0.05
-    body = beam()
+    body = cantilever()
     contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), tolerance=TOL,
                               margin=0.03)
     scene = scene_of(body, contact)
@@ -246,6 +248,32 @@ def test_static_cantilever_rests_its_free_end_on_the_plane():
     assert np.all(forces.normal >= -1e-12)
     weight = body.total_mass() * G
     assert 0.1 * weight < forces.normal.sum() < weight
+
+
+def test_static_friction_sticks_to_where_the_increment_found_the_point():
+    """The same beam over the plane with friction (mu = 0.3), its load in one increment:
+    statics' Coulomb law holds over the increment (IncrementSlip): every pressing node
+    whose friction force is inside the pyramid did not move along the plane (measured
+    1e-18 m; 0.2 mm when sticking was asked of each Newton correction, where the iterates
+    had left the node), and every other one slid against its friction force."""
+    mu = 0.3
+    body = cantilever()
+    contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), mu=mu,
+                              tolerance=TOL, margin=0.03)
+    scene = scene_of(body, contact)
+    start = contact._points.positions().copy()
+    scene.solve_static(load_steps=1)
+    forces = scene.contact_forces(contact)
+    index = {int(label): i for i, label in enumerate(contact.labels)}
+    at = np.array([index[int(p)] for p in forces.points])
+    slip = (contact._points.positions()[at] - start[at]) @ contact.tangents.T
+    friction = forces.friction @ contact.tangents.T
+    pressing = (forces.normal > 1e-9)[:, None] & np.ones((1, 2), dtype=bool)
+    sticking = pressing & (np.abs(friction) < (1.0 - 1e-6) * mu * forces.normal[:, None])
+    sliding = pressing & ~sticking
+    assert sticking.any() and sliding.any()
+    assert np.abs(slip[sticking]).max() < 1e-12
+    assert np.all(slip[sliding] * friction[sliding] < 0)
 
 
 # ---- (5) failures and bad input ------------------------------------------------------------

@@ -100,6 +100,23 @@ def test_the_foot_stands_on_the_floor_by_the_static_solve(foot_cache):
     assert x[:, 1].min() > foot.floor.offset - foot.floor.tolerance - 1e-12
 
 
+def test_the_loaded_foot_stands_by_the_static_solve_with_adaptive_load_steps(foot_cache):
+    """Half the body weight on the tibia, solved with ``load_steps="auto"``: it failed
+    before (12 cuts at a load factor of 0.60, the merit circling 22, 37, 22, ... in
+    every smaller increment: a vertex of the talus pressed through the cartilage went
+    from one triangle of the tibia to its neighbour and back); the contacts now hold
+    their pairs once Newton's steps raise the merit twice (MeshContact.hold_pairs), and
+    friction sticks to where each increment found it (IncrementSlip). The floor carries
+    the weight and the load, and nothing passes through the floor or a joint."""
+    foot = build_foot(0, load=HALF_WEIGHT, ramp=0.0, cache=foot_cache)
+    counts = foot.scene.solve_static(load_steps="auto")
+    assert max(counts) <= 10                # auto's cap on the increments that converged
+    weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
+    floor = foot.scene.contact_forces(foot.floor)
+    assert floor.normal.sum() == pytest.approx(weight + HALF_WEIGHT, rel=1e-6)
+    assert all(c.constraint_failure() is None for c in foot.joints)
+
+
 def test_the_tibialis_anterior_lifts_the_hanging_forefoot(foot_cache):
     """The lift case (the seed paper's Fig. 7): the tibia fixed, the foot hanging, the
     tibialis anterior excited to 0.3 in 0.1 s. After 0.3 s the forefoot has risen, the

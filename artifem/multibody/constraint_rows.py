@@ -2,9 +2,12 @@
 
 A constraint (a joint, its limits, a contact) names the bodies it touches
 (``bodies``) and gives, at the current state, its rows as blocks
-(``row_blocks() -> list[RowBlock]``); it may also give ``constraint_failure() ->
-str | None``, what is wrong with the state after a step (a contact point deeper than
-its tolerance), which fails the step like an inverted element. A block of m rows holds
+(``row_blocks() -> list[RowBlock]``), ``constraint_failure() -> str | None``, what is
+wrong with the state after a step (a contact point deeper than its tolerance), which
+fails the step like an inverted element, and ``hold_pairs(hold: bool)``: statics asks a
+contact to keep (True) or find again (False) the features its points are paired with
+(a mesh contact's triangles, edges and vertices; nothing to hold for a joint or a
+plane). A block of m rows holds
 
     phi (m,)             the constraint values: phi = 0 wanted on a free row,
                          phi >= 0 on a bounded one;
@@ -30,7 +33,9 @@ The step asks of each row, with z+ the velocities at the end of the step,
 with complementarity on the bounded rows (lambda at lo where G z+ > c, at hi where
 G z+ < c: a friction row slides against the slip);
 Baumgarte's beta (``Scene.stabilization``) removes the drift of the free rows. Statics
-asks phi + G dq = 0 (free) or >= 0 (bounded): the same right-hand side at h = beta = 1.
+asks phi + G dq = 0 (free) or >= 0 (bounded): the same right-hand side at h = beta = 1,
+a friction row's phi its slip since the load increment began
+(:mod:`~artifem.scene.increment_slip`).
 
 Compliant rows (``compliance`` C (m,) >= 0, m/N; an elastic foundation's contact rows,
 :mod:`artifem.multibody.foundation`): a bounded row with C > 0 is a spring that pushes

@@ -204,6 +204,9 @@ class PlaneContact:
         return self.tolerance if self.foundation is None else \
             max(self.tolerance, self.foundation.thickness)
 
+    def hold_pairs(self, hold: bool) -> None:
+        """Nothing to hold: every point meets the one plane (the constraint protocol)."""
+
     def constraint_failure(self) -> str | None:
         """The first point deeper than ``allowed_depth`` below the plane, if any."""
         phi = self.distances()

@@ -196,6 +196,9 @@ class Joint:
         """Nothing fails a step: the rows remove the joint's drift (Baumgarte)."""
         return None
 
+    def hold_pairs(self, hold: bool) -> None:
+        """Nothing to hold: a joint's rows pair no features (the constraint protocol)."""
+
     def constraint(self) -> ConstraintRows:
         """phi(q) and its exact velocity Jacobians G_A, G_B at the current poses."""
         blocks = []

@@ -154,6 +154,46 @@ class _Pairs(NamedTuple):
     span_count: np.ndarray
 
 
+def _held_pairs(held: _Pairs, x: np.ndarray) -> tuple:
+    """The vertex pairs of ``held`` (which kinds 0, 1) at the vertices ``x`` (n_all, 3),
+    each on its own feature, as :meth:`MeshContact._vertex_pairs` gives them (cols,
+    weights, e, the distance before the offset, which, spans, count): a triangle's pair
+    e = n_f, c = x_v - s n_f (b_i of c unclamped); an edge's c = the vertex's projection
+    onto the edge's line and a vertex's c = it, e = (x_v - c) / s signed as the held e
+    (the held e where |x_v - c| vanishes); a pseudonormal's pair keeps e and b_i."""
+    on = held.which[:, 0] < 2
+    cols, weights, e = held.cols[on], held.weights[on].copy(), held.e[on].copy()
+    spans, count = held.spans[on], held.span_count[on]
+    xv, y = x[cols[:, 0]], x[cols[:, 1:]]
+    bary = -weights[:, 1:]
+    face = count == 2
+    if face.any():
+        y0, y1, y2 = y[face, 0], y[face, 1], y[face, 2]
+        n = _unit(np.cross(y1 - y0, y2 - y0))
+        s = np.einsum("ij,ij->i", xv[face] - y0, n)
+        bary[face] = _barycentric(xv[face] - s[:, None] * n, y0, y1, y2)
+        e[face] = n
+    line = count == 1
+    if line.any():                  # the span's -1 and +1 corners: the edge p -> q
+        p, q = np.argmin(spans[line, 0, 1:], axis=1), np.argmax(spans[line, 0, 1:], axis=1)
+        rows = np.arange(line.sum())
+        yp, yq = y[line][rows, p], y[line][rows, q]
+        t = np.einsum("ij,ij->i", xv[line] - yp, yq - yp) / \
+            np.einsum("ij,ij->i", yq - yp, yq - yp)
+        b = np.zeros((len(rows), 3))
+        b[rows, p], b[rows, q] = 1.0 - t, t
+        bary[line] = b
+    c = np.einsum("kj,kji->ki", bary, y)
+    turn = (count == 1) | (count == 0)
+    d = xv - c
+    dist = np.linalg.norm(d, axis=1)
+    turn &= dist > 0.0
+    e[turn] = d[turn] / dist[turn, None] * np.where(
+        np.einsum("ij,ij->i", d[turn], e[turn]) < 0, -1.0, 1.0)[:, None]
+    weights[:, 1:] = -bary
+    return (cols, weights, e, np.einsum("ij,ij->i", e, d), held.which[on], spans, count)
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
 
@@ -362,7 +402,8 @@ class MeshContact:
         self._edges = (_edges(ta), _edges(tb))
         self._tris = (np.asarray(ta, dtype=np.int64), np.asarray(tb, dtype=np.int64))
         self._at_rest = [None, None]    # a rigid side's _Geometry in its body frame
-        self._last_pairs = None     # (the surfaces' vertices, their pairs): _pairs's memo
+        self._last_pairs = None     # (the surfaces' vertices, held, pairs): _pairs's memo
+        self._held = None           # the pairs whose features are held (hold_pairs)
 
     @property
     def bodies(self) -> tuple:
@@ -382,8 +423,9 @@ class MeshContact:
         ways, and edge across edge."""
         xs = (self._surfaces[0][0].positions(), self._surfaces[1][0].positions())
         last = self._last_pairs
-        if last is not None and all(np.array_equal(x, y) for x, y in zip(last[0], xs)):
-            return last[1]              # the same state: a step's failure check, the next rows
+        if last is not None and last[1] is self._held and \
+                all(np.array_equal(x, y) for x, y in zip(last[0], xs)):
+            return last[2]              # the same state: a step's failure check, the next rows
         frames = (self._in_frame(0, xs[0]), self._in_frame(1, xs[1]))
         offsets = (0, len(xs[0]))
         parts, deepest = [], None
@@ -395,6 +437,13 @@ class MeshContact:
             parts.append(part)
             if deep is not None and (deepest is None or deep[0] < deepest[0]):
                 deepest = (deep[0], side, deep[1], deep[2])
+        if self._held is not None:      # held vertices keep their features
+            held = _held_pairs(self._held, np.vstack(xs))
+            for side in (0, 1):
+                mine = held[4][:, 0] == side
+                fresh = ~np.isin(parts[side][4][:, 1], held[4][mine, 1])
+                parts[side] = tuple(p[fresh] for p in parts[side])
+            parts.append(held)
         part, deep = self._edge_pairs(xs, frames)
         part[0][:, 2:] += offsets[1]
         parts.append(part)
@@ -415,8 +464,22 @@ class MeshContact:
                        np.vstack([p[4] for p in parts]), deepest, x, np.vstack(cols),
                        np.vstack([p[1] for p in parts]), np.vstack([p[5] for p in parts]),
                        np.concatenate([p[6] for p in parts]))
-        self._last_pairs = ((xs[0].copy(), xs[1].copy()), pairs)
+        self._last_pairs = ((xs[0].copy(), xs[1].copy()), self._held, pairs)
         return pairs
+
+    def hold_pairs(self, hold: bool) -> None:
+        """Hold (True) or release (False) the features the vertices are paired with now
+        (the constraint protocol's ``hold_pairs``). While held, a vertex keeps its
+        triangles, or its closest edge or vertex, their geometry taken at each new state
+        (:func:`_held_pairs`: the projection onto the triangle's plane or the feature's
+        line, inside it or not), and only vertices that had no pair get new ones; edge
+        pairs are found again. Statics holds them when its Newton iterations circle: a
+        cartilage-pressed vertex near the edge between two triangles of a foot's bone
+        went from one to the other and back in each iteration (merit 22, 37, 22, ...),
+        each triangle's normal pushing it onto the other's; on the triangle it had, Newton
+        converges (FEBio's contact interfaces likewise stop updating their segments after
+        a number of passes, ``seg_up``)."""
+        self._held = self._pairs() if hold else None
 
     def _in_frame(self, side: int, x: np.ndarray) -> tuple:
         """(the side's :class:`_Geometry`, R, p), world = p + R local: a rigid body's

@@ -345,6 +345,27 @@ def use_kkt(A, rows: int) -> bool:
     return rows >= KKT_ROWS and sparse.issparse(A) and A.shape[0] > DENSE_MAX
 
 
+def row_keys(block: RowBlock):
+    """A block's row keys (``RowBlock.keys``) as one comparable value per row (None when
+    the block has none)."""
+    keys = block.keys
+    if keys is None:
+        return None
+    keys = np.ascontiguousarray(np.asarray(keys, dtype=np.int64).reshape(len(block), -1))
+    return keys.view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
+
+
+def find_keys(known, keys):
+    """(index into ``known`` of each of ``keys``, found mask): rows looked up by their
+    :func:`row_keys`."""
+    if known.size == 0:
+        return np.zeros(len(keys), dtype=int), np.zeros(len(keys), dtype=bool)
+    order = np.argsort(known)
+    where = np.minimum(np.searchsorted(known, keys, sorter=order), len(order) - 1)
+    found = order[where]
+    return found, known[found] == keys
+
+
 class ActiveSetMemory:
     """The active set and impulses of the last solve by row keys (``RowBlock.keys``), per
     constraint: the next solve's first trial starts from them (a warm start; the bounds
@@ -354,13 +375,12 @@ class ActiveSetMemory:
     def __init__(self):
         self._sets: dict = {}
 
-    @staticmethod
-    def _keys(block):
-        keys = block.keys
-        if keys is None:
-            return None
-        keys = np.ascontiguousarray(np.asarray(keys, dtype=np.int64).reshape(len(block), -1))
-        return keys.view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
+    def save(self) -> dict:
+        """What :meth:`restore` goes back to (a failed load increment's solves forgotten)."""
+        return self._sets
+
+    def restore(self, saved: dict) -> None:
+        self._sets = saved
 
     def start(self, rows: list):
         """(active, held at hi, known, lambda) over the stacked rows (False and 0 where
@@ -368,15 +388,12 @@ class ActiveSetMemory:
         parts, any_known = [], False
         for g in rows:
             m = len(g.c)
-            keys = self._keys(g.block)
+            keys = row_keys(g.block)
             mem = self._sets.get(id(g.block.owner))
             if keys is None or mem is None or mem[0].dtype != keys.dtype:
                 parts.append((*(np.zeros(m, bool),) * 3, np.zeros(m)))
                 continue
-            order = np.argsort(mem[0])
-            where = np.minimum(np.searchsorted(mem[0], keys, sorter=order), len(order) - 1)
-            found = order[where]
-            known = mem[0][found] == keys
+            found, known = find_keys(mem[0], keys)
             any_known |= bool(known.any())
             parts.append((known & mem[1][found], known & mem[2][found], known,
                           np.where(known, mem[3][found], 0.0)))
@@ -392,7 +409,7 @@ class ActiveSetMemory:
         by_owner: dict = {}
         for g in rows:
             m = len(g.c)
-            keys = self._keys(g.block)
+            keys = row_keys(g.block)
             if keys is not None:
                 sl = slice(start, start + m)
                 by_owner.setdefault(id(g.block.owner), []).append(

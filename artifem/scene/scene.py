@@ -187,10 +187,18 @@ compliant rows' springs, sum max(-phi, 0)^2 / 2C; rho = 2 max |lambda|; gap = ph
 free rows, min(phi, 0) on bounded ones) when every force and load has an energy, and
 otherwise the force residual left after the compliant rows' forces, the sliding
 friction rows' forces of the last solve and the least-squares reactions of the rows
-it held active. Each Newton solve starts its active set from the last one's
+it held active (carried by row keys to a configuration where rows came or went).
+Each Newton solve starts its active set from the last one's
 (:class:`~artifem.scene.constraints.ActiveSetMemory`, by row keys, across the load
-increments too): started from the rows' own bounds, the friction passes of a
-foot's hundreds of contact rows circled and the solve stopped ("did not settle").
+increments too, and back to the last converged one when an increment fails): started
+from the rows' own bounds, the friction passes of a foot's hundreds of contact rows
+circled and the solve stopped ("did not settle"). Friction sticks to where the load
+increment found each point (:mod:`~artifem.scene.increment_slip`: a row's slip s
+since then is its phi, and it is in the merit's gap while it sticks; sliding rows'
+forces do work -lambda_h . G dq in the energy merit). Once two of a solve's steps
+raised the merit, its contacts hold their pairs (``hold_pairs``) for the rest of it:
+a vertex pressed near the edge between two triangles went from one to the other and
+back in each iteration (``HOLD_AFTER_RISES``).
 
 Scenes of at most ``DENSE_MAX`` (direct_solver) coordinates (reduced and rigid bodies)
 are solved by a dense LU instead of MUMPS.
@@ -250,6 +258,7 @@ from artifem.scene.constraints import (ActiveSetMemory, impulses_by_constraint,
                                       solve_constrained, solve_saddle)
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
+from artifem.scene.increment_slip import IncrementSlip
 from artifem.scene.schur_island import SchurIsland
 from artifem.scene.layout import Layout
 
@@ -259,6 +268,10 @@ __all__ = ["Scene", "SceneState"]
 Controller = Callable[["Scene", float, float], None]
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
+#: Statics holds the contacts' pairs (``hold_pairs``) for the rest of a Newton solve once
+#: this many of its steps raised the merit: its iterations circle between the features
+#: a contact point is paired with (Scene._newton_iterations).
+HOLD_AFTER_RISES = 2
 #: The scene's lists of bodies, and of every component (``scene_group`` of each class).
 BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
 COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
@@ -1002,12 +1015,15 @@ class Scene:
         def solve_increment(factor: float, limit: int) -> int:
             self._set_load_factor(factor, g)
             residuals.append([])
+            kept = memory.save()
+            contacts = (memory, IncrementSlip())   # friction sticks to the increment's start
             try:
-                return self._newton(L, rtol, atol, limit, factor, memory, residuals[-1]) + \
-                    self._hold_volumes_static(L, rtol, atol, limit, factor, memory,
+                return self._newton(L, rtol, atol, limit, factor, contacts, residuals[-1]) + \
+                    self._hold_volumes_static(L, rtol, atol, limit, factor, contacts,
                                               residuals[-1])
             except StepFailed:
                 residuals.pop()
+                memory.restore(kept)            # the next try starts from the last solution
                 raise
 
         try:
@@ -1019,7 +1035,7 @@ class Scene:
         counts.residuals = residuals
         return counts
 
-    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, memory,
+    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, contacts,
                              residuals) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while
         some element volume is off by more than its tolerance, p <- pi and Newton again
@@ -1031,7 +1047,7 @@ class Scene:
             violations = [vc.update() for vc in constrained]
             if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
                 return iterations
-            iterations += self._newton(L, rtol, atol, max_iterations, factor, memory,
+            iterations += self._newton(L, rtol, atol, max_iterations, factor, contacts,
                                        residuals)
         off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
                         if v > vc.spec.tol)
@@ -1062,8 +1078,9 @@ class Scene:
         their law, f_c = max(-phi, 0) / C (statics: h = 1); ``held`` (the last solve's
         forces on the rows it held at a bound: sliding friction) acts as it was; mu are
         the least-squares reactions of the other ``active`` rows (every free row and the
-        limits the last solve pressed on)."""
-        gap = _gap(rows)
+        limits the last solve pressed on); the sticking friction rows' slip counts in the
+        gap."""
+        gap = _gap(rows, active)
         hard = active.copy()
         offset = 0
         for g in rows:
@@ -1084,16 +1101,35 @@ class Scene:
             F = F - G.T @ np.linalg.lstsq(G.T, F, rcond=None)[0]
         return float(np.linalg.norm(np.concatenate([F, gap])))
 
-    def _newton(self, L, rtol, atol, max_iterations, factor, memory, residuals) -> int:
+    def _newton(self, L, rtol, atol, max_iterations, factor, contacts, residuals) -> int:
         """Newton on the island's statics at load factor ``factor`` (module docstring:
-        statics), each active set started from the last one's (``memory``); the merit of
-        each iterate is appended to ``residuals``."""
+        statics); ``contacts`` = (memory, slip): each active set started from the last
+        one's (:class:`ActiveSetMemory`), the friction rows anchored where the increment
+        began (:class:`IncrementSlip`). The merit of each iterate is appended to
+        ``residuals``."""
+        memory, slip = contacts
         F, rows = self._residual(L)
-        # before the first solve: the free rows and the crossed bounded ones
-        active = _crossed(rows)
-        norm = self._merit(F, rows, active)
-        scale = max(norm, atol)
+        rows = slip.anchored(rows)
+        # the last solve's active set and sliding forces (by row keys), and the free rows
+        # and the crossed bounded ones
+        active, held = _carried(rows, memory)
+        norm = self._merit(F, rows, active, held)
+        # the size of the loads: the forces the constraints carry at the start (the merit
+        # of a converged state under a small increment is no measure of them)
+        scale = max(norm, float(np.linalg.norm(F)), atol)
+        try:
+            return self._newton_iterations(L, rtol, atol, max_iterations, factor, memory,
+                                           slip, residuals, F, rows, norm, scale)
+        finally:
+            for constraint in self.constraints:
+                constraint.hold_pairs(False)
+
+    def _newton_iterations(self, L, rtol, atol, max_iterations, factor, memory, slip,
+                           residuals, F, rows, norm, scale) -> int:
+        """The iterations of :meth:`_newton` from its first merit ``norm``; a contact's
+        pairs are held (``hold_pairs``) once :data:`HOLD_AFTER_RISES` steps raised it."""
         near = False    # Newton's region: the last step was full and lowered the merit
+        rises = 0       # steps that raised the merit
         for it in range(1, max_iterations + 1):
             residuals.append(norm)
             if norm <= max(rtol * scale, atol):
@@ -1119,11 +1155,15 @@ class Scene:
             held = np.where(active, 0.0, lam) if rows else None
             if rows:                    # the constraints apply G^T lambda (forces: h = 1)
                 self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
-            gap = _gap(rows)
+            gap = _gap(rows, active)
+            # the held forces' work along the step: they are constant within it
+            pushed = float(held @ np.concatenate([np.asarray(g.G @ dq).ravel()
+                                                  for g in rows])) if rows else 0.0
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
-            # exact penalty E + rho |gap|_1, rho > max |lambda|, whose slope along the step
-            # is -F . dq - rho |gap|_1 = -dq^T K dq - lambda . phi - rho |gap|_1 < 0.
+            # exact penalty E - lambda_h s_h + rho |gap|_1, rho > max |lambda| (the held
+            # rows' forces constant), whose slope along the step is
+            # -(F + G_h^T lambda_h) . dq - rho |gap|_1 = -dq^T K dq - lambda . phi - ... < 0.
             use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
                 and all(hasattr(e, "potential_energy") for e in self.loads) \
                 and all(p.conservative for p in self.paths) \
@@ -1131,7 +1171,7 @@ class Scene:
             rho = 2.0 * float(np.abs(lam).max()) if lam.size else 0.0
             energy0 = self.potential_energy() + _compliant_energy(rows) + \
                 rho * float(np.abs(gap).sum()) if use_energy else 0.0
-            slope = -float(F @ dq) - rho * float(np.abs(gap).sum())
+            slope = -float(F @ dq) - pushed - rho * float(np.abs(gap).sum())
             step = 1.0
             while step >= 1e-4:
                 L.displace(step * dq)
@@ -1140,13 +1180,18 @@ class Scene:
                     # while the free nodes beside them move on straight lines, so a large
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
+                    moved = slip.advanced(rows, step * dq)
                     F_new, rows_new = self._residual(L)
-                    energy = self.potential_energy() + _compliant_energy(rows_new) + \
-                        rho * float(np.abs(_gap(rows_new)).sum()) if use_energy else np.inf
-                    # a contact point that entered or left its margin changes the rows
+                    rows_new = moved.anchored(rows_new)
+                    # a contact point that entered or left its margin changes the rows:
+                    # the solve's set carried over by row keys
                     same = [len(g.c) for g in rows_new] == [len(g.c) for g in rows]
-                    trial = self._merit(F_new, rows_new, active if same else
-                                        _crossed(rows_new), held if same else None)
+                    on, pushing = (active, held) if same else _carried(rows_new, memory)
+                    gap_new = _gap(rows_new, on)
+                    energy = self.potential_energy() + _compliant_energy(rows_new) - \
+                        step * pushed + rho * float(np.abs(gap_new).sum()) \
+                        if use_energy else np.inf
+                    trial = self._merit(F_new, rows_new, on, pushing)
                     if np.isfinite(trial) and (
                             energy <= energy0 + 1e-4 * step * slope
                             or trial <= (1.0 - 1e-4 * step) * norm):
@@ -1157,7 +1202,12 @@ class Scene:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                  f"{factor:g}, Newton iteration {it}", iterations=it)
             near = step == 1.0 and trial < norm
+            rises += trial > norm
+            slip.take(moved)
             F, rows, norm = F_new, rows_new, trial
+            if rises == HOLD_AFTER_RISES:      # Newton circles between contact features
+                for constraint in self.constraints:
+                    constraint.hold_pairs(True)
             if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
                 residuals.append(norm)
                 return it
@@ -1167,6 +1217,18 @@ class Scene:
         raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
                          f"iterations at load factor {factor:g} (|r| = {norm:.3e})",
                          iterations=max_iterations)
+
+
+def _carried(rows: list, memory: ActiveSetMemory) -> tuple:
+    """(active, held) for the merit at a configuration the last solve did not see: the
+    free rows, the crossed bounded ones and the rows that solve held active, by row keys;
+    held, the forces it left on the others (sliding friction; 0 where it let go)."""
+    active = _crossed(rows)
+    last = memory.start(rows) if rows else None
+    if last is None:
+        return active, None
+    active = active | last[0]
+    return active, np.where(active, 0.0, last[3])
 
 
 def _crossed(rows: list) -> np.ndarray:
@@ -1184,6 +1246,14 @@ def _compliant_energy(rows: list) -> float:
                for g in rows if g.compliance is not None)
 
 
-def _gap(rows: list) -> np.ndarray:
-    """The constraint error of statics: phi on free rows, min(phi, 0) on bounded ones."""
-    return np.concatenate([g.block.gap() for g in rows]) if rows else np.zeros(0)
+def _gap(rows: list, active: np.ndarray) -> np.ndarray:
+    """The constraint error of statics: phi on free rows, min(phi, 0) on bounded ones,
+    and on the sticking (``active``) friction rows their slip since the increment began,
+    -c (:class:`IncrementSlip`)."""
+    if not rows:
+        return np.zeros(0)
+    gap = np.concatenate([g.block.gap() for g in rows])
+    sticking = active & np.concatenate([
+        g.block.friction.rows if g.block.friction is not None else np.zeros(len(g.c), bool)
+        for g in rows])
+    return np.where(sticking, -np.concatenate([g.c for g in rows]), gap)
