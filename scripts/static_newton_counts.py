@@ -17,6 +17,7 @@ docs/benchmarks/static_newton.json, whose figures docs/verification.md quotes.
 import json
 import pathlib
 import sys
+import time
 
 import numpy as np
 from mpi4py import MPI
@@ -94,18 +95,22 @@ def foot(load):
 
 def run_scene(foot_scene, load_steps, **options):
     """run() for a whole scene (the coupled island's Newton), with the floor's balance:
-    its normal force over the weight and the load it carries."""
+    its normal force over the weight and the load it carries, and the solve's seconds."""
+    tic = time.perf_counter()
     try:
         counts = foot_scene.scene.solve_static(load_steps=load_steps, **options)
     except StepFailed as e:
-        return {"load_steps": load_steps, "failed_with": str(e)[:200]}
+        return {"load_steps": load_steps, "failed_with": str(e)[:200],
+                "seconds": time.perf_counter() - tic}
+    seconds = time.perf_counter() - tic
     weight = 9.81 * (foot_scene.tissue.total_mass()
                      + sum(b.mass for b in foot_scene.bones.values()))
     load = foot_scene.load.force if foot_scene.load is not None else 0.0
     normal = float(foot_scene.scene.contact_forces(foot_scene.floor).normal.sum())
     return {"load_steps": load_steps, "counts": list(counts), "failed": counts.failed,
             "total": sum(counts) + counts.failed, "max": max(counts),
-            "factors": counts.factors, "floor_balance": normal / (weight + load) - 1.0}
+            "factors": counts.factors, "floor_balance": normal / (weight + load) - 1.0,
+            "seconds": seconds}
 
 
 def first_increment(n=16, traction=10.0):
