@@ -742,10 +742,12 @@ class _KKT:
 def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
                  memory: ActiveSetMemory | None = None):
     """(z, lambda, active mask) of K z - G^T lambda = b under ``rows`` (:class:`StepRows`)
-    as in :func:`solve_constrained`, each trial one solve of the KKT matrix
-    ``kkt(K, G_active)`` = [[K, G_a^T], [G_a, 0]] (statics: K may be singular where the
-    rows fix it; ``solver.solve(M, rhs, what)``), the held rows' forces G^T lambda on the
-    right-hand side.
+    as in :func:`solve_constrained` (statics: K may be singular where the rows fix it).
+    A sparse K's trials solve the sparse KKT matrix of all rows (:class:`_KKT`: one
+    factorization, low-rank updates while a few rows change); a dense K's, or where
+    redundant active rows disagree, each trial factors ``kkt(K, G_active)`` =
+    [[K, G_a^T], [G_a, 0]] (``solver.solve(M, rhs, what)``), the held rows' forces
+    G^T lambda on the right-hand side.
 
     When K alone factors (the body held without the bounded rows: a clamp, joints), the
     active set is first found on the Schur complement of K (one factorization, the trials
