@@ -1106,7 +1106,18 @@ class Scene:
         statics); ``contacts`` = (memory, slip): each active set started from the last
         one's (:class:`ActiveSetMemory`), the friction rows anchored where the increment
         began (:class:`IncrementSlip`). The merit of each iterate is appended to
-        ``residuals``."""
+        ``residuals``. The contacts' pairs, held once :data:`HOLD_AFTER_RISES` steps
+        raised the merit, are released at the end."""
+        try:
+            return self._newton_iterations(L, rtol, atol, max_iterations, factor, contacts,
+                                           residuals)
+        finally:
+            for constraint in self.constraints:
+                constraint.hold_pairs(False)
+
+    def _newton_iterations(self, L, rtol, atol, max_iterations, factor, contacts,
+                           residuals) -> int:
+        """:meth:`_newton`'s iterations."""
         memory, slip = contacts
         F, rows = self._residual(L)
         rows = slip.anchored(rows)
@@ -1117,17 +1128,6 @@ class Scene:
         # the size of the loads: the forces the constraints carry at the start (the merit
         # of a converged state under a small increment is no measure of them)
         scale = max(norm, float(np.linalg.norm(F)), atol)
-        try:
-            return self._newton_iterations(L, rtol, atol, max_iterations, factor, memory,
-                                           slip, residuals, F, rows, norm, scale)
-        finally:
-            for constraint in self.constraints:
-                constraint.hold_pairs(False)
-
-    def _newton_iterations(self, L, rtol, atol, max_iterations, factor, memory, slip,
-                           residuals, F, rows, norm, scale) -> int:
-        """The iterations of :meth:`_newton` from its first merit ``norm``; a contact's
-        pairs are held (``hold_pairs``) once :data:`HOLD_AFTER_RISES` steps raised it."""
         near = False    # Newton's region: the last step was full and lowered the merit
         rises = 0       # steps that raised the merit
         for it in range(1, max_iterations + 1):
