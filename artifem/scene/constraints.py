@@ -196,6 +196,10 @@ def _bound_change(old: np.ndarray, new: np.ndarray) -> float:
 
 #: many-at-once trials of the active set before it changes one row per trial
 BATCH_TRIALS = 12
+#: one row per trial (Bland's rule) comes back to the same set at most this many times
+#: before the pivots are taken to circle (they are deterministic: each comeback repeats
+#: the circle; the foot's refused full load spent most of its 45 s in such circles)
+BLAND_VISITS = 2
 
 
 def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
@@ -236,7 +240,7 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
                              hi[bounded])
     side = np.where(at_high, mu, -mu)               # a held friction row: side lambda_n
     batches = BATCH_TRIALS if batch else 0
-    seen, bland = set(), False
+    seen, bland, cycled = set(), False, {}
     for _ in range(2 * bounded.size + 10 + batches):
         sliding = fric & ~active
         couple = sliding & active[of]
@@ -272,6 +276,10 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         # coupling is not symmetric: the pivots can cycle), the first out (Bland's rule)
         bland = bland or state in seen
         seen.add(state)
+        if bland:           # Bland's pivots are deterministic: a set seen twice is a cycle
+            cycled[state] = cycled.get(state, 0) + 1
+            if cycled[state] > BLAND_VISITS:
+                break
         pick = (lambda v: int(np.flatnonzero(v > tol)[0])) if bland else \
             (lambda v: int(np.argmax(v)))
         if outside.max() > tol:                     # release: hold at the crossed bound
@@ -286,6 +294,9 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
+    if bland and cycled.get(state, 0) > BLAND_VISITS:
+        raise StepFailed(f"{what}: the constraints' active set did not settle (its pivots "
+                         "circle)")
     high_side = np.where(fric, side > 0, (held == hi) & (lo < hi))
     return lam, active, ~active & high_side, extra
 
