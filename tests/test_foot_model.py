@@ -105,8 +105,9 @@ def test_the_loaded_foot_stands_by_the_static_solve_with_adaptive_load_steps(foo
     before (12 cuts at a load factor of 0.60, the merit circling 22, 37, 22, ... in
     every smaller increment: a vertex of the talus pressed through the cartilage went
     from one triangle of the tibia to its neighbour and back); the contacts now hold
-    their pairs once Newton's steps raise the merit twice (MeshContact.hold_pairs), and
-    friction sticks to where each increment found it (IncrementSlip). The floor carries
+    their pairs once two of Newton's steps raise the merit or hardly lower it
+    (MeshContact.hold_pairs), and friction sticks to where each increment found it
+    (IncrementSlip). The floor carries
     the weight and the load, and nothing passes through the floor or a joint."""
     foot = build_foot(0, load=HALF_WEIGHT, ramp=0.0, cache=foot_cache)
     counts = foot.scene.solve_static(load_steps="auto")

@@ -196,9 +196,10 @@ circled and the solve stopped ("did not settle"). Friction sticks to where the l
 increment found each point (:mod:`~artifem.scene.increment_slip`: a row's slip s
 since then is its phi, and it is in the merit's gap while it sticks; sliding rows'
 forces do work -lambda_h . G dq in the energy merit). Once two of a solve's steps
-raised the merit, its contacts hold their pairs (``hold_pairs``) for the rest of it:
-a vertex pressed near the edge between two triangles went from one to the other and
-back in each iteration (``HOLD_AFTER_RISES``).
+raised the merit or lowered it by less than a tenth, its contacts hold their pairs
+(``hold_pairs``) for the rest of it: a vertex pressed near the edge between two
+triangles went from one to the other and back in each iteration, and on the level-1
+foot the merit stalled near 0.33 (``HOLD_AFTER_RISES``).
 
 Scenes of at most ``DENSE_MAX`` (direct_solver) coordinates (reduced and rigid bodies)
 are solved by a dense LU instead of MUMPS.
@@ -269,8 +270,9 @@ Controller = Callable[["Scene", float, float], None]
 
 INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 #: Statics holds the contacts' pairs (``hold_pairs``) for the rest of a Newton solve once
-#: this many of its steps raised the merit: its iterations circle between the features
-#: a contact point is paired with (Scene._newton_iterations).
+#: this many of its steps raised the merit or lowered it by less than a tenth: its
+#: iterations circle between the features a contact point is paired with, or stall at
+#: them (Scene._newton_iterations).
 HOLD_AFTER_RISES = 2
 #: The scene's lists of bodies, and of every component (``scene_group`` of each class).
 BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
@@ -1129,7 +1131,7 @@ class Scene:
         # of a converged state under a small increment is no measure of them)
         scale = max(norm, float(np.linalg.norm(F)), atol)
         near = False    # Newton's region: the last step was full and lowered the merit
-        rises = 0       # steps that raised the merit
+        rises = 0       # steps that raised the merit or hardly lowered it
         for it in range(1, max_iterations + 1):
             residuals.append(norm)
             if norm <= max(rtol * scale, atol):
@@ -1202,7 +1204,7 @@ class Scene:
                 raise StepFailed(f"static solve: line search failed at load factor "
                                  f"{factor:g}, Newton iteration {it}", iterations=it)
             near = step == 1.0 and trial < norm
-            rises += trial > norm
+            rises += trial > 0.9 * norm          # raised, or hardly lowered
             slip.take(moved)
             F, rows, norm = F_new, rows_new, trial
             if rises == HOLD_AFTER_RISES:      # Newton circles between contact features
