@@ -279,7 +279,8 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         if bland:           # Bland's pivots are deterministic: a set seen twice is a cycle
             cycled[state] = cycled.get(state, 0) + 1
             if cycled[state] > BLAND_VISITS:
-                break
+                raise StepFailed(f"{what}: the constraints' active set did not settle (its "
+                                 "pivots circle)")
         pick = (lambda v: int(np.flatnonzero(v > tol)[0])) if bland else \
             (lambda v: int(np.argmax(v)))
         if outside.max() > tol:                     # release: hold at the crossed bound
@@ -294,9 +295,6 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
-    if bland and cycled.get(state, 0) > BLAND_VISITS:
-        raise StepFailed(f"{what}: the constraints' active set did not settle (its pivots "
-                         "circle)")
     high_side = np.where(fric, side > 0, (held == hi) & (lo < hi))
     return lam, active, ~active & high_side, extra
 
@@ -546,10 +544,6 @@ class _Schur:
             P[np.arange(rows.size), np.searchsorted(on, normals)] = s
             M = M + self._block(on, rows) @ P
         return M
-
-    def forget(self) -> None:
-        """The solver factored something else: the next trial factors again."""
-        self._factored = self._base = None
 
     def trial(self, active, held, coupled):
         self.trials += 1

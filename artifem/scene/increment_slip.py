@@ -65,17 +65,17 @@ class IncrementSlip:
             start += m
         return out
 
-    def advanced(self, rows: list, dq: np.ndarray) -> IncrementSlip:
-        """The slip after the step dq (on the solve's coordinates) from the configuration
-        of ``rows``: s + G dq on their friction rows."""
-        s = self.of(rows)
+    def advanced(self, rows: list, motion: np.ndarray) -> IncrementSlip:
+        """The slip after a step that moves the stacked ``rows`` by ``motion`` = G dq:
+        s + G dq on their friction rows."""
+        s = self.of(rows) + motion
         slips, start = {}, 0
         for g in rows:
             m = len(g.c)
             keys = row_keys(g.block)
             if keys is not None and g.block.friction is not None:
                 on = g.block.friction.rows
-                moved = s[start:start + m] + np.asarray(g.G @ dq).ravel()
+                moved = s[start:start + m]
                 prev = slips.get(id(g.block.owner))
                 part = (keys[on], moved[on])
                 slips[id(g.block.owner)] = part if prev is None else \

@@ -1158,9 +1158,11 @@ class Scene:
             if rows:                    # the constraints apply G^T lambda (forces: h = 1)
                 self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
             gap = _gap(rows, active)
-            # the held forces' work along the step: they are constant within it
-            pushed = float(held @ np.concatenate([np.asarray(g.G @ dq).ravel()
-                                                  for g in rows])) if rows else 0.0
+            # the rows' motion along the step, G dq, and the held forces' work along it
+            # (they are constant within it)
+            motion = np.concatenate([np.asarray(g.G @ dq).ravel() for g in rows]) \
+                if rows else np.zeros(0)
+            pushed = float(held @ motion) if rows else 0.0
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
             # exact penalty E - lambda_h s_h + rho |gap|_1, rho > max |lambda| (the held
@@ -1182,7 +1184,7 @@ class Scene:
                     # while the free nodes beside them move on straight lines, so a large
                     # rotation raises the force residual sharply (stiff elements by the
                     # attachment), not the energy (integrators._backtrack, same rule).
-                    moved = slip.advanced(rows, step * dq)
+                    moved = slip.advanced(rows, step * motion)
                     F_new, rows_new = self._residual(L)
                     rows_new = moved.anchored(rows_new)
                     # a contact point that entered or left its margin changes the rows:
