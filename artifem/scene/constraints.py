@@ -98,7 +98,7 @@ RELAX_PASSES = 8
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                friction=None, warm=None, batch: bool = False):
+                friction=None, warm=None, batch: bool = False, precision=None):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring; :func:`_pivots`,
     whose ``trial`` it takes). ``friction`` = (normal, mu) over the rows: the friction
@@ -114,10 +114,22 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     ``warm`` = (active, held at hi, known, lambda) of the previous step
     (:class:`ActiveSetMemory`): the first pass takes the bounds of those impulses (0 on
     rows it does not know), and the rows it knows start from it, in the first pass where
-    their bounds differ and, where the last pass's bounds were equal, in the next."""
+    their bounds differ and, where the last pass's bounds were equal, in the next.
+    ``precision(exact) -> changed`` (:meth:`_KKT.precision`): the sets are searched by
+    trials to a looser residual, and the set that ends the search is confirmed by a
+    trial refined to round-off, whose answer is returned (the last pass's, as it is
+    then)."""
+    if precision is None:
+        confirm = None
+    else:
+        precision(False)
+
+        def confirm():
+            return precision(True)
+
     if friction is None:
         return _pivots(lo, hi, tol, trial, what, None, None if warm is None else warm[:3],
-                       batch)
+                       batch, confirm)
     fric = friction[0] >= 0
     of = np.maximum(friction[0], 0)
 
@@ -143,7 +155,21 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
                      use | take)
         lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
+        if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)) and confirm is not None:
+            # the pass settled on searched trials: its set again, refined, and where that
+            # moved the bounds at all, a refined pass with the bounds of its impulses
+            for _ in range(2):
+                lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, (
+                    active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm)
+                lo_new, hi_new = bounds(lam)
+                change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
+                if change == 0.0:
+                    break
+                lo, hi = lo_new, hi_new
+            precision(False)
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)):
+            if precision is not None:
+                precision(True)
             return lam, active, at_high, extra
         # the next bounds: of the normal impulses extrapolated by Anderson's mixing of the
         # last passes (an affine map while the active set stays: the passes converge
@@ -162,12 +188,12 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         lo, hi = bounds(basis)
     try:
         return _pivots(lo, hi, tol, trial, what, friction,
-                       (active, at_high, np.ones(lo.size, dtype=bool)), batch)
+                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm)
     except StepFailed:
         if warm is None:
             raise
     # the last step's active set may start the passes inside a cycle: all again, cold
-    return _active_set(*own, tol, trial, what, friction, None, batch)
+    return _active_set(*own, tol, trial, what, friction, None, batch, precision)
 
 
 #: passes the friction bounds' Anderson mixing remembers
@@ -203,7 +229,7 @@ BLAND_VISITS = 2
 
 
 def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-            friction=None, start=None, batch: bool = False):
+            friction=None, start=None, batch: bool = False, confirm=None):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring).
 
@@ -221,7 +247,9 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     set comes back, the first row out instead: Bland's rule). ``batch`` (Hintermueller, Ito and Kunisch's
     primal-dual active set): release every multiplier outside its bounds and activate
     every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
-    comes back (cycling), one row per trial from there."""
+    comes back (cycling), one row per trial from there. ``confirm()``: called when a
+    set holds; True (the trial was a search's, looser than round-off: :meth:`_KKT.
+    precision`) tries it once more, refined, and goes on from that."""
     m = lo.size
     normal, mu = (np.full(m, -1), np.zeros(m)) if friction is None else friction
     fric = normal >= 0
@@ -249,19 +277,22 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         held[loose] = side[loose] * np.maximum(held[of[loose]], 0.0)
         rows = np.flatnonzero(couple)
         lam, slack, extra = trial(active, held, (rows, normal[rows], side[rows]))
-        if not bounded.size:
+        if bounded.size:
+            cap = mu * np.maximum(lam[of], 0.0)
+            low = np.where(fric, -cap, lo)[bounded]
+            high = np.where(fric, cap, hi)[bounded]
+            on, l, f = active[bounded], lam[bounded], fric[bounded]
+            outside = np.where(on, np.maximum(low - l, l - high), -np.inf)
+            at_low = np.where(f, side[bounded] < 0, held[bounded] == low)
+            # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
+            violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
+        if not bounded.size or max(outside.max(), violated.max()) <= tol:   # the set holds
+            if confirm is not None and confirm():
+                continue
             break
-        cap = mu * np.maximum(lam[of], 0.0)
-        low = np.where(fric, -cap, lo)[bounded]
-        high = np.where(fric, cap, hi)[bounded]
-        on, l, f = active[bounded], lam[bounded], fric[bounded]
-        outside = np.where(on, np.maximum(low - l, l - high), -np.inf)
-        at_low = np.where(f, side[bounded] < 0, held[bounded] == low)
-        # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
-        violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
         state = np.packbits(active).tobytes() + np.packbits(
             np.where(fric, side > 0, held == hi)).tobytes()
-        if batches > 0 and max(outside.max(), violated.max()) > tol:
+        if batches > 0:
             out, bad = outside > tol, violated > tol
             rel = bounded[out]
             active[rel] = False
@@ -289,10 +320,8 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             active[j] = False
             held[j] = low[k] if l[k] < low[k] else high[k]
             side[j] = -mu[j] if l[k] < low[k] else mu[j]
-        elif violated.max() > tol:                  # activate the most violated row
+        else:                                       # activate the most violated row
             active[bounded[pick(violated)]] = True
-        else:
-            break
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
     high_side = np.where(fric, side > 0, (held == hi) & (lo < hi))
@@ -336,9 +365,14 @@ KKT_ROWS = 64
 KKT_REGULARIZATION = 1e-10
 #: iterative refinement steps of the regularized KKT solve, at most
 KKT_REFINEMENT = 4
+#: the residual (relative) at which a trial of the KKT's active set stops refining while
+#: the set is searched: one solve, the regularization's error (about 1e-10) left in; the
+#: set found is then confirmed by a trial refined to round-off (``precision`` of
+#: :func:`_active_set`)
+KKT_TRIAL_RESIDUAL = 1e-9
 #: rows of the KKT's multiplier block that may differ from the last factored matrix's
 #: (an active set changed by a few rows): a low-rank correction of it, not a new one
-KKT_UPDATE_ROWS = 24
+KKT_UPDATE_ROWS = 96
 #: the path of :func:`solve_constrained` when its caller does not choose: "auto"
 #: (:func:`use_kkt`), "kkt" or "schur" (set by benchmarks and tests to compare them)
 DEFAULT_PATH = "auto"
@@ -473,7 +507,7 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
         system = _KKT(solver, A, b, G, F, c, lo, hi, what, C)
         try:
             lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
-                                                  warm, batch=True)
+                                                  warm, batch=True, precision=system.precision)
         except _Inconsistent:       # redundant active rows that disagree: least squares
             path, system = "schur", None
     if system is None:
@@ -634,6 +668,10 @@ class _KKT:
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.trials, self.factorizations, self.updates = 0, 0, 0
         self._factored = self._base = None
+        self._Z = {}                # the update's columns K_f^-1 e_row (:meth:`_columns`)
+        #: trials stop refining at KKT_TRIAL_RESIDUAL (:meth:`precision`)
+        self.searching = False
+        self._last, self._reused = None, False  # (key, rhs, x) of the last solve
 
     def _matrices(self, active, coupled):
         """(regularized K, K with eps = 0) of an active set; the ``coupled`` sliding rows'
@@ -657,23 +695,28 @@ class _KKT:
         if self._factored is None or self._factored[0] != key:
             self._prepare(key, active, coupled, s)
         K0, apply = self._factored[1], self._factored[2]
-        x = apply(rhs)
+        last = self._last               # the same system solved last (a search's trial)
+        self._reused = last is not None and last[0] == key and np.array_equal(last[1], rhs)
+        x = last[2] if self._reused else apply(rhs)
         # the residual against the rhs and |A| |z| (not the multipliers' columns: those of
         # disagreeing redundant rows grow as 1 / eps)
         scale = max(np.abs(rhs).max(initial=0.0),
                     float((self._abs_A @ np.abs(x[:self.n])).max(initial=0.0)), 1e-300)
+        enough = (KKT_TRIAL_RESIDUAL if self.searching else 1e-15) * scale
         for k in range(KKT_REFINEMENT + 1):
             res = rhs - K0 @ x
-            if np.abs(res).max(initial=0.0) <= 1e-15 * scale:
+            if np.abs(res).max(initial=0.0) <= enough:
                 break
             if k == KKT_REFINEMENT:
                 if np.abs(res).max() > 1e-9 * scale:
                     if self._factored[3]:       # an update: the exact factorization first
                         self._prepare(key, active, coupled, s, update=False)
+                        self._last = None
                         return self._solve(active, coupled, rhs)
                     raise _Inconsistent
                 break
             x = x + apply(res)
+        self._last = (key, rhs, x)
         return x
 
     def _prepare(self, key, active, coupled, s, update: bool = True):
@@ -692,9 +735,7 @@ class _KKT:
             if changed.size <= KKT_UPDATE_ROWS:
                 rows = self.n + changed
                 D = (K[rows] - base[0][rows]).tocsr()
-                U = np.zeros((K.shape[0], rows.size))
-                U[rows, np.arange(rows.size)] = 1.0
-                Z = self.solver.apply(U).reshape(K.shape[0], rows.size)
+                Z = self._columns(rows)
                 cap = np.eye(rows.size) + np.asarray(D @ Z)
                 lu = scipy.linalg.lu_factor(cap, check_finite=False)
                 pivots = np.abs(np.diag(lu[0]))
@@ -713,16 +754,39 @@ class _KKT:
         self.factorizations += 1
         self._base = (K, active.copy(), s.copy())
         self._factored = (key, K0, self.solver.apply, False)
+        self._Z = {}
+
+    def _columns(self, rows: np.ndarray) -> np.ndarray:
+        """Z = K_f^-1 [e_row for row in rows] of the factored K_f, each column solved once
+        per factorization (the trials' sets differ from its set by overlapping rows)."""
+        new = [r for r in rows if r not in self._Z]
+        if new:
+            U = np.zeros((self.K.shape[0], len(new)))
+            U[new, np.arange(len(new))] = 1.0
+            X = self.solver.apply(U).reshape(U.shape)
+            self._Z.update(zip(new, X.T))
+        return np.column_stack([self._Z[r] for r in rows])
 
     def forget(self) -> None:
         """The solver factored something else: the next trial factors again."""
-        self._factored = self._base = None
+        self._factored = self._base = self._last = None
+        self._Z = {}
+
+    def precision(self, exact: bool) -> bool:
+        """Trials refined to round-off (``exact``), or stopped at KKT_TRIAL_RESIDUAL while
+        an active set is searched (one solve each instead of two: the regularization's
+        error, about 1e-10, is far below what decides a row); whether that changed. A
+        trial of the last solve's set and right-hand side refines its answer (one solve)
+        and is not counted again (:func:`_pivots`' ``confirm``)."""
+        changed = self.searching == exact
+        self.searching = not exact
+        return changed
 
     def trial(self, active, held, coupled):
-        self.trials += 1
         n = self.n
         x = self._solve(active, coupled,
                         np.concatenate([self.b, np.where(active, self.c, held)]))
+        self.trials += not self._reused
         z, lam = x[:n], x[n:]
         lam = np.where(active, lam, held)
         lam[coupled[0]] = coupled[2] * lam[coupled[1]]
@@ -766,14 +830,18 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
     G, c, lo, hi, friction = _stacked(rows)
     C = _compliance(rows)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+    tol = 1e-10 * max(1.0, np.abs(c).max())
     if sparse.issparse(K):
         # the sparse KKT of all rows: one pattern, MUMPS' analysis reused, a few rows'
         # change of the active set a low-rank update (the loaded foot's refused full load:
         # 4 s against 45 s of one factorization per trial)
         system = _KKT(solver, K, b, G, G, c, lo, hi, what, C)
         try:
-            return _saddle_trials(system.trial, system.forget, solver, K, b, G, c, lo, hi,
-                                  C, bounded, friction, what, memory, rows)
+            return _saddle_trials(
+                lambda warm: _active_set(lo, hi, tol, system.trial, what, friction, warm=warm,
+                                         precision=system.precision),
+                system.forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
+                memory, rows)
         except _Inconsistent:       # redundant rows that disagree: each trial factored
             pass
 
@@ -799,15 +867,17 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
             slack = slack + C[bounded] * lam[bounded]
         return lam, slack, z
 
-    return _saddle_trials(trial, lambda: None, solver, K, b, G, c, lo, hi, C, bounded,
-                          friction, what, memory, rows)
+    return _saddle_trials(
+        lambda warm: _active_set(lo, hi, tol, trial, what, friction, warm=warm),
+        lambda: None, solver, K, b, G, c, lo, hi, C, bounded, friction, what, memory, rows)
 
 
-def _saddle_trials(trial, forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
+def _saddle_trials(find, forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
                    memory, rows):
-    """:func:`solve_saddle`'s active set with ``trial``, from the last solve's set, else
-    from the Schur complement's (``forget()``: the trials' factorization in ``solver``
-    is gone), else from the compliant rows that touch."""
+    """:func:`solve_saddle`'s active set by ``find(warm)`` (:func:`_active_set` on its
+    trials), from the last solve's set, else from the Schur complement's (``forget()``:
+    the trials' factorization in ``solver`` is gone), else from the compliant rows that
+    touch."""
     tol = 1e-10 * max(1.0, np.abs(c).max())
 
     def solved(lam, active, at_high, z):
@@ -818,7 +888,7 @@ def _saddle_trials(trial, forget, solver, K, b, G, c, lo, hi, C, bounded, fricti
     warm = memory.start(rows) if memory is not None and bounded.size else None
     if warm is not None:
         try:
-            return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=warm))
+            return solved(*find(warm))
         except StepFailed:          # the last solve's set may start inside a cycle
             pass
     start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C) \
@@ -826,7 +896,7 @@ def _saddle_trials(trial, forget, solver, K, b, G, c, lo, hi, C, bounded, fricti
     forget()
     if start is not None:
         try:
-            return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=start))
+            return solved(*find(start))
         except StepFailed:          # a nearly singular K's start: the trials from none
             pass
     if C is not None:
@@ -834,8 +904,8 @@ def _saddle_trials(trial, forget, solver, K, b, G, c, lo, hi, C, bounded, fricti
         # body that only they support (K singular without them)
         touch = (C > 0) & (c >= 0)
         start = (touch, np.zeros(len(c), dtype=bool), C > 0, np.zeros(len(c)))
-        return solved(*_active_set(lo, hi, tol, trial, what, friction, warm=start))
-    return solved(*_active_set(lo, hi, tol, trial, what, friction))
+        return solved(*find(start))
+    return solved(*find(None))
 
 
 def _minus_diagonal(M, n: int, d: np.ndarray):
