@@ -100,11 +100,12 @@ from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
 from artifem.models.cache import user_cache
 from artifem.models import jaw_tongue_reduced as jtr
-from artifem.models.jaw_tongue import JawTongueConfig, _kabsch, close_surface, read_obj
+from artifem.models.jaw_tongue import JawTongueConfig, close_surface, read_obj
 from artifem.models.tongue.model import DATA, MOTIONS, Tongue, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
 from artifem.reduction.reductor import ReducedModel
+from artifem.registration import TriangleSurface, icp
 from artifem.scene import simulate as simulate_scene
 
 __all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark",
@@ -191,49 +192,26 @@ class TongueSurface:
         return np.asarray(probe.compute_implicit_distance(self.polydata())["implicit_distance"])
 
 
-def _closest(surface, points: np.ndarray) -> np.ndarray:
-    _, closest = surface.find_closest_cell(points, return_closest_point=True)
-    return np.asarray(closest)
-
-
-def _trimmed_icp(source: np.ndarray, target, R: np.ndarray, t: np.ndarray, trim: float,
-                 iterations: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """(R, t, score) after at most ``iterations`` of trimmed point-to-surface ICP of
-    ``source`` onto ``target`` from (R, t); score: mean distance of the fitted fraction."""
-    for _ in range(iterations):
-        moved = source @ R.T + t
-        closest = _closest(target, moved)
-        r = np.linalg.norm(closest - moved, axis=1)
-        keep = r <= np.quantile(r, trim)
-        R_new, t_new = _kabsch(source[keep], closest[keep])
-        done = np.abs(R_new - R).max() < 1e-7 and np.abs(t_new - t).max() < 1e-8
-        R, t = R_new, t_new
-        if done:
-            break
-    moved = source @ R.T + t
-    r = np.linalg.norm(_closest(target, moved) - moved, axis=1)
-    return R, t, float(r[r <= np.quantile(r, trim)].mean())
-
-
 def align_airway(vertices_mm: np.ndarray, tongue, palate, trim: float = 0.5) -> dict:
     """x_tongue = linear x_obj + translation for airway.obj (module docstring): the axis map
     AIRWAY_AXES, mm -> m, then a trimmed ICP onto the tongue surface and the palate
     (pyvista PolyData, tongue frame): 25 starts, 10 iterations each, then the best three
     to convergence. Returns the transform and the residuals."""
     base = 1e-3 * np.asarray(vertices_mm, dtype=float) @ AIRWAY_AXES.T
-    target = tongue.merge(palate).extract_surface(algorithm="dataset_surface")
+    target = TriangleSurface.from_polydata(
+        tongue.merge(palate).extract_surface(algorithm="dataset_surface"))
     lo, hi = np.array(tongue.bounds).reshape(3, 2).T
+    tols = dict(trim=trim, rotation_tol=1e-7, translation_tol=1e-8)
     starts = []
     for dx in np.linspace(-0.03, 0.03, 5):
         for dz in np.linspace(-0.03, 0.03, 5):
             t = np.array([0.5 * (lo[0] + hi[0]) + dx, 0.0, hi[2] + dz]) - base.mean(0)
-            starts.append(_trimmed_icp(base, target, np.eye(3), t, trim, 10))
-    starts.sort(key=lambda start: start[2])
-    best = min((_trimmed_icp(base, target, R, t, trim, 60) for R, t, _ in starts[:3]),
-               key=lambda fit: fit[2])
-    R, t, score = best
+            starts.append(icp(base, target, np.eye(3), t, iterations=10, **tols))
+    starts.sort(key=lambda start: start.score)
+    fit = min((icp(base, target, s.R, s.t, iterations=60, **tols) for s in starts[:3]),
+              key=lambda fit: fit.score)
+    R, t, score, r = fit.R, fit.t, fit.score, fit.distances
     x = base @ R.T + t
-    r = np.linalg.norm(_closest(target, x) - x, axis=1)
     depth = np.asarray(pv.PolyData(x).compute_implicit_distance(tongue)["implicit_distance"])
     angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
     return {"linear": 1e-3 * R @ AIRWAY_AXES, "translation": t, "distances": r,

@@ -79,6 +79,7 @@ from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameter
 from artifem.multibody.point_attachments import FemPointWeights
 from artifem.multibody.rigid_body import Frame, RigidBody
 from artifem.reduction.reduced_body import ReducedFemBody
+from artifem.registration import TriangleSurface, icp
 
 __all__ = ["JawTongueConfig", "JawTongueScene", "align_jaw", "build_scene", "jaw_attachment_rows",
            "hyoid_attachment_rows", "read_obj", "close_surface", "simulate"]
@@ -177,30 +178,16 @@ def hyoid_attachment_rows() -> np.ndarray:
     return np.loadtxt(DATA / "hyoidAttachments.txt", dtype=np.int64).ravel()
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) minimizing sum |R src + t - dst|^2 (proper rotation)."""
-    cs, cd = src.mean(0), dst.mean(0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cd - R @ cs
-
-
-def _closest(surface, points: np.ndarray) -> np.ndarray:
-    _, closest = surface.find_closest_cell(points, return_closest_point=True)
-    return np.asarray(closest)
-
-
 def align_jaw(nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray,
               iterations: int = 60) -> dict:
     """Rigid transform x_tongue = R x_jaw_m + t (x_jaw_m = 1e-3 x_obj) that puts the jaw
     surface through the tongue's jaw-attachment ``nodes`` (m): the axis permutation AXES,
-    then point-to-surface ICP from a grid of starting translations (module docstring).
-    Returns R, t, the distances of the nodes to the aligned surface and the start used."""
-    import pyvista as pv
-
+    then point-to-surface ICP (:func:`artifem.registration.icp`) from a grid of starting
+    translations, the fit of the smallest mean distance kept (module docstring). Returns
+    the transform, the residual rotation and the distances of the nodes to the aligned
+    surface."""
     base = 1e-3 * vertices_mm @ AXES.T
-    faces = np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel()
+    surface = TriangleSurface(base, triangles)
     best = None
     lo, hi = base.min(0), base.max(0)
     centroid = nodes.mean(0)
@@ -209,25 +196,15 @@ def align_jaw(nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray,
         for fz in np.linspace(0.0, 0.6, 7):
             target = np.array([lo[0] + fx * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]),
                                lo[2] + fz * (hi[2] - lo[2])])
-            R, t = np.eye(3), target - centroid            # applied to the nodes
-            surface = pv.PolyData(base, faces)
-            for _ in range(iterations):
-                moved = nodes @ R.T + t
-                R_new, t_new = _kabsch(nodes, _closest(surface, moved))
-                if np.abs(R_new - R).max() < 1e-10 and np.abs(t_new - t).max() < 1e-12:
-                    break
-                R, t = R_new, t_new
-            moved = nodes @ R.T + t
-            dist = np.linalg.norm(moved - _closest(surface, moved), axis=1)
-            if best is None or dist.mean() < best["mean"]:
-                best = {"R_nodes": R, "t_nodes": t, "mean": float(dist.mean()),
-                        "max": float(dist.max()), "start": target}
+            fit = icp(nodes, surface, np.eye(3), target - centroid, iterations=iterations)
+            if best is None or fit.score < best.score:
+                best = fit
+    fit = best
     # the nodes moved by (R, t) onto the surface: the surface moves by the inverse.
-    R_inv = best["R_nodes"].T
-    t_inv = -R_inv @ best["t_nodes"]
+    R_inv = fit.R.T
+    t_inv = -R_inv @ fit.t
     rotation = R_inv @ AXES * 1e-3                          # x_tongue = rotation x_obj + t
-    surface = pv.PolyData(1e-3 * vertices_mm @ AXES.T @ R_inv.T + t_inv, faces)
-    dist = np.linalg.norm(nodes - _closest(surface, nodes), axis=1)
+    dist, _ = TriangleSurface(base @ R_inv.T + t_inv, triangles).closest(nodes)
     residual = np.degrees(np.arccos(np.clip((np.trace(R_inv) - 1) / 2, -1, 1)))
     return {"linear": rotation, "translation": t_inv, "distances": dist,
             "mean_distance": float(dist.mean()), "max_distance": float(dist.max()),

@@ -29,7 +29,7 @@ LAYERS = {
     # 5: the step
     "artifem.scene": 5, "artifem.integrators": 5,
     # 6: the reductor
-    "artifem.reduction": 6,
+    "artifem.reduction": 6, "artifem.registration": 6,
     # 7: models and commands
     "artifem.models": 7, "artifem.cli": 7, "artifem.bench": 7, "artifem.bench_scenes": 7,
     "artifem.bench_reduced": 7, "artifem.bench_contact": 7, "artifem.scene_study": 7,

@@ -1,0 +1,111 @@
+"""Rigid registration of points to a triangle surface.
+
+- :func:`kabsch`: the proper rotation R and translation t minimizing
+  sum_i |R p_i + t - q_i|^2 (Kabsch 1976): with H = sum_i (p_i - p0)(q_i - q0)^T =
+  U S V^T (p0, q0 the centroids), R = V diag(1, 1, det(V U^T)) U^T and t = q0 - R p0.
+- :class:`TriangleSurface`: a triangle mesh and libigl's AABB tree over it (built once),
+  for exact point-to-triangle closest points.
+- :func:`icp`: point-to-surface ICP (Besl and McKay 1992): each point's closest point
+  c_i on the surface, then (R, t) = kabsch(p, c), until (R, t) stop changing; ``trim``
+  < 1 fits only that fraction of the pairs, the closest ones (trimmed ICP, Chetverikov
+  et al. 2002), for a target that covers part of the points or more than them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import igl
+import numpy as np
+
+from artifem.errors import InputError
+
+__all__ = ["RigidFit", "TriangleSurface", "icp", "kabsch"]
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) minimizing sum_i |R src_i + t - dst_i|^2 over proper rotations R (module
+    docstring)."""
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
+        raise InputError(f"kabsch: two (n, 3) point sets with n >= 3 expected, got "
+                         f"{src.shape} and {dst.shape}")
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cd - R @ cs
+
+
+class TriangleSurface:
+    """Vertices (n, 3) and triangles (m, 3) with libigl's AABB tree for closest points."""
+
+    def __init__(self, vertices, triangles):
+        self.vertices = np.ascontiguousarray(vertices, dtype=float)
+        self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or \
+                self.triangles.ndim != 2 or self.triangles.shape[1] != 3 or \
+                not len(self.triangles):
+            raise InputError(f"TriangleSurface: vertices (n, 3) and triangles (m >= 1, 3) "
+                             f"expected, got {self.vertices.shape} and {self.triangles.shape}")
+        if self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices):
+            raise InputError(f"TriangleSurface: triangle indices outside 0..."
+                             f"{len(self.vertices) - 1}")
+        self.tree = igl.AABB()
+        self.tree.init(self.vertices, self.triangles)
+
+    @classmethod
+    def from_polydata(cls, polydata) -> TriangleSurface:
+        """The triangles of a pyvista PolyData (other polygons split into triangles)."""
+        surface = polydata.triangulate()
+        return cls(np.asarray(surface.points), np.asarray(surface.faces).reshape(-1, 4)[:, 1:])
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """(distances (k,), closest points (k, 3)) of ``points`` on the surface."""
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+        sq, _, closest = self.tree.squared_distance(self.vertices, self.triangles, points)
+        return np.sqrt(np.maximum(sq, 0.0)), closest
+
+
+@dataclass(frozen=True)
+class RigidFit:
+    """x -> R x + t: ``distances`` of every moved point to the surface, ``score`` the mean
+    distance of the fitted fraction, ``iterations`` the ICP iterations taken."""
+
+    R: np.ndarray
+    t: np.ndarray
+    distances: np.ndarray
+    score: float
+    iterations: int
+
+
+def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
+        iterations: int = 60, rotation_tol: float = 1e-10,
+        translation_tol: float = 1e-12) -> RigidFit:
+    """Trimmed point-to-surface ICP of ``points`` onto ``surface`` from (R, t) (default
+    identity): at most ``iterations`` of closest points and :func:`kabsch` on the
+    fraction ``trim`` of the pairs with the smallest distances (all of them at 1), until
+    the entries of R change by less than ``rotation_tol`` and those of t by less than
+    ``translation_tol`` (module docstring)."""
+    points = np.asarray(points, dtype=float)
+    if not 0.0 < trim <= 1.0:
+        raise InputError(f"icp: trim must be in (0, 1], got {trim}")
+    R = np.eye(3) if R is None else np.asarray(R, dtype=float)
+    t = np.zeros(3) if t is None else np.asarray(t, dtype=float)
+
+    def kept(r):
+        return r <= np.quantile(r, trim) if trim < 1.0 else np.ones(r.size, dtype=bool)
+
+    done = 0
+    for done in range(1, iterations + 1):
+        moved = points @ R.T + t
+        r, closest = surface.closest(moved)
+        keep = kept(r)
+        R_new, t_new = kabsch(points[keep], closest[keep])
+        converged = np.abs(R_new - R).max() < rotation_tol and \
+            np.abs(t_new - t).max() < translation_tol
+        R, t = R_new, t_new
+        if converged:
+            break
+    r, _ = surface.closest(points @ R.T + t)
+    return RigidFit(R, t, r, float(r[kept(r)].mean()), done)
