@@ -528,6 +528,33 @@ class SkinMesh:
             out[i] = m.NU.T @ wf.ravel() if isinstance(m, ReducedMaster) else (m.N.T @ wf).ravel()
         return out
 
+    def loads(self, forces) -> list[tuple[object, np.ndarray]]:
+        """Vertex forces (n, 3) as a load element's ``master_loads``: [(scene body, its part
+        of G^T f)], a rigid master's wrench, an FEM master's nodal forces (the length of
+        ``body.v.x.array``), a reduced master's generalized force."""
+        out = []
+        for m, f in zip(self.masters, self.master_forces(forces)):
+            if m.kind == "rigid":
+                out.append((m.body, f))
+            elif m.kind == "reduced":
+                out.append((m.reduced, f))
+            else:
+                full = np.zeros(m.body.v.x.array.size)
+                full[:f.size] = f
+                out.append((m.body, full))
+        return out
+
+    def load_jacobians(self, K_v: sparse.spmatrix) -> list[tuple[object, object, sparse.csr_matrix]]:
+        """The derivative df_v/dx_v (3n x 3n) of vertex forces as a load element's
+        ``master_load_jacobians``: [(body_i, body_j, block of G^T (df_v/dx_v) G)]. The change
+        of G itself as rigid masters turn (their levers, at fixed f_v) is left out: exact for
+        FEM and reduced masters."""
+        G = self.jacobian()
+        K = (G.T @ K_v @ G).tocsr()
+        bodies = [m.reduced if m.kind == "reduced" else m.body for m in self.masters]
+        return [(bi, bj, K[si, sj]) for bi, si in zip(bodies, self.slices)
+                for bj, sj in zip(bodies, self.slices)]
+
     def face_area_vectors(self, x: np.ndarray | None = None) -> np.ndarray:
         """area * n per face, (x_1 - x_0) x (x_2 - x_0) / 2, at the current positions."""
         if self.faces is None:
@@ -624,22 +651,8 @@ class SkinPressure:
         masters' coordinates, G^T (df_v/dx_v) G (the follower pressure's stiffness,
         :meth:`SkinMesh.pressure_stiffness`). The change of G itself as rigid masters turn
         (their levers, at fixed f_v) is left out: exact for FEM and reduced masters."""
-        G = self.skin.jacobian()
-        K = (G.T @ self.skin.pressure_stiffness(self.pressure_at(t)) @ G).tocsr()
-        bodies = [m.reduced if m.kind == "reduced" else m.body for m in self.skin.masters]
-        return [(bi, bj, K[si, sj]) for bi, si in zip(bodies, self.skin.slices)
-                for bj, sj in zip(bodies, self.skin.slices)]
+        return self.skin.load_jacobians(self.skin.pressure_stiffness(self.pressure_at(t)))
 
     def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:
         """[(body, G^T f_v restricted to the body's dofs)] for every master of the skin."""
-        out = []
-        for m, f in zip(self.skin.masters, self.skin.master_forces(self.vertex_forces(t))):
-            if m.kind == "rigid":
-                out.append((m.body, f))
-            elif m.kind == "reduced":
-                out.append((m.reduced, f))
-            else:
-                full = np.zeros(m.body.v.x.array.size)
-                full[:f.size] = f
-                out.append((m.body, full))
-        return out
+        return self.skin.loads(self.vertex_forces(t))

@@ -1,6 +1,8 @@
 """Registration of models to target data: the rigid tools (Kabsch's rotation, closest
-points on a triangle surface, trimmed point-to-surface ICP) in :mod:`.rigid`."""
+points on a triangle surface, trimmed point-to-surface ICP) in :mod:`.rigid`, and the
+forces that pull a model surface (on any bodies) toward a target in :mod:`.forces`."""
 
+from artifem.registration.forces import RegistrationForces
 from artifem.registration.rigid import RigidFit, TriangleSurface, icp, kabsch
 
-__all__ = ["RigidFit", "TriangleSurface", "icp", "kabsch"]
+__all__ = ["RegistrationForces", "RigidFit", "TriangleSurface", "icp", "kabsch"]

@@ -62,9 +62,15 @@ class TriangleSurface:
 
     def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
         """(distances (k,), closest points (k, 3)) of ``points`` on the surface."""
+        d, c, _ = self.closest_triangles(points)
+        return d, c
+
+    def closest_triangles(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distances (k,), closest points (k, 3), their triangles (k,))."""
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
-        sq, _, closest = self.tree.squared_distance(self.vertices, self.triangles, points)
-        return np.sqrt(np.maximum(sq, 0.0)), closest
+        sq, triangle, closest = self.tree.squared_distance(self.vertices, self.triangles,
+                                                           points)
+        return np.sqrt(np.maximum(sq, 0.0)), closest, np.asarray(triangle, dtype=np.int64)
 
 
 @dataclass(frozen=True)

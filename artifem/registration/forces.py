@@ -1,0 +1,163 @@
+"""Registration forces: a model surface pulled toward a target surface by closest points.
+
+A :class:`~artifem.multibody.skin.SkinMesh` with faces carries the model surface (a bone
+mesh embedded in a voxel FEM grid, on a deformable or rigid body, or over several of
+them); a :class:`~artifem.registration.rigid.TriangleSurface` is the target. With x_i the
+model's vertices, c_i their closest points on the target, y_j the target's vertices and
+p_j = sum_k b_jk x_k their closest points on the model (triangle of vertices k,
+barycentric coordinates b_jk), the energy
+
+    E = w/2 sum_i |x_i - c_i|^2 + w/2 sum_j |y_j - p_j|^2
+
+pulls both ways: the model to the target, and the target's parts the model has no
+vertex near (thin features, a partial target) to the model. Its forces on the model's
+vertices are exact (-dE/dx, the closest points' own motion drops out: they minimize the
+distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j), and reach the masters
+by virtual work, G^T f (a load element of the scene). Their stiffness df/dx: the first
+term's is exact, -w P_i with P_i the projector off the feature c_i lies on (n n^T on a
+triangle's interior, I - e e^T on an edge of direction e, I at a vertex); the second
+takes -w (b_j b_j^T) (x) P_j at fixed b_j and feature (the change of the model triangle's
+normal and of the barycentric coordinates left out: the Gauss-Newton part of its
+Hessian, exact where p_j is a model vertex).
+"""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+from scipy import sparse
+
+from artifem.errors import InputError
+from artifem.multibody.skin import SkinMesh
+from artifem.registration.rigid import TriangleSurface
+
+__all__ = ["RegistrationForces"]
+
+#: barycentric coordinates at or below this are zero: the closest point is on an edge or
+#: at a vertex of its triangle
+ON_FEATURE = 1e-10
+
+
+def _projectors(surface: TriangleSurface, points: np.ndarray, triangles: np.ndarray):
+    """(barycentric coordinates (k, 3) of ``points`` in their ``triangles``, the projectors
+    (k, 3, 3) off the feature each lies on: n n^T inside, I - e e^T on an edge, I at a
+    vertex)."""
+    corners = surface.vertices[surface.triangles[triangles]]
+    b = igl.barycentric_coordinates(np.ascontiguousarray(points),
+                                    *(np.ascontiguousarray(corners[:, k]) for k in range(3)))
+    b = np.clip(b, 0.0, 1.0)
+    zero = b <= ON_FEATURE
+    count = zero.sum(axis=1)
+    P = np.broadcast_to(np.eye(3), (len(points), 3, 3)).copy()      # vertices
+    inside = count == 0
+    if inside.any():
+        n = np.cross(corners[inside, 1] - corners[inside, 0],
+                     corners[inside, 2] - corners[inside, 0])
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        P[inside] = n[:, :, None] * n[:, None, :]
+    edge = np.flatnonzero(count == 1)
+    if edge.size:
+        ends = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]   # the two nonzero
+        e = corners[edge, ends[:, 1]] - corners[edge, ends[:, 0]]
+        e /= np.linalg.norm(e, axis=1)[:, None]
+        P[edge] = np.eye(3) - e[:, :, None] * e[:, None, :]
+    return b, P
+
+
+def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
+           both_ways: bool = True) -> tuple[float, np.ndarray, sparse.csr_matrix]:
+    """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) of the module docstring for the model
+    surface (vertices ``x``, triangles ``faces``) and w = 1."""
+    n = len(x)
+    d, c, tri = target.closest_triangles(x)
+    _, P = _projectors(target, c, tri)
+    energy = 0.5 * float(d @ d)
+    f = c - x
+    rows = [np.repeat(3 * np.arange(n)[:, None] + np.arange(3), 3, axis=1)]
+    cols = [np.tile(3 * np.arange(n)[:, None] + np.arange(3), (1, 3))]
+    vals = [-P.reshape(n, 9)]
+    if both_ways:
+        model = TriangleSurface(x, faces)
+        y = target.vertices
+        dj, p, tj = model.closest_triangles(y)
+        b, Pj = _projectors(model, p, tj)
+        energy += 0.5 * float(dj @ dj)
+        corners = model.triangles[tj]                           # (k, 3) model vertices
+        np.add.at(f, corners.ravel(), (b[:, :, None] * (y - p)[:, None, :]).reshape(-1, 3))
+        # -(b b^T) (x) P_j on the triangle's vertices: (k, 3, 3, 3, 3) blocks
+        block = -(b[:, :, None, None, None] * b[:, None, :, None, None]) \
+            * Pj[:, None, None, :, :]
+        dofs = 3 * corners[:, :, None] + np.arange(3)           # (k, 3 vertices, 3)
+        rows.append(np.broadcast_to(dofs[:, :, None, :, None], block.shape).ravel())
+        cols.append(np.broadcast_to(dofs[:, None, :, None, :], block.shape).ravel())
+        vals.append(block.ravel())
+    K = sparse.csr_matrix((np.concatenate([v.ravel() for v in vals]),
+                           (np.concatenate([r.ravel() for r in rows]),
+                            np.concatenate([q.ravel() for q in cols]))), shape=(3 * n, 3 * n))
+    return energy, f, K
+
+
+class RegistrationForces:
+    """The registration energy of the module docstring on ``skin`` toward ``target``, as a
+    scene load element (``master_loads``, ``master_load_jacobians``, ``potential_energy``).
+
+    Args:
+        skin: the model surface: a SkinMesh with faces.
+        target: the target surface (:class:`TriangleSurface`), world coordinates.
+        weight: w (N/m^2: force per metre of distance, per vertex); a schedule raises it
+            between solves (the attribute may be set).
+        both_ways: with the target-to-model term (else the model-to-target term alone).
+    """
+
+    def __init__(self, skin: SkinMesh, target: TriangleSurface, weight: float, *,
+                 both_ways: bool = True, name: str = "registration"):
+        if not isinstance(skin, SkinMesh) or skin.faces is None:
+            raise InputError(f"RegistrationForces {name!r}: the model surface must be a "
+                             "SkinMesh with faces")
+        if not isinstance(target, TriangleSurface):
+            raise InputError(f"RegistrationForces {name!r}: the target must be a "
+                             f"TriangleSurface, got {type(target).__name__}")
+        self.skin, self.target, self.name = skin, target, name
+        self.weight = weight
+        self.both_ways = both_ways
+        self._memo = None
+
+    @property
+    def weight(self) -> float:
+        return self._weight
+
+    @weight.setter
+    def weight(self, value: float) -> None:
+        if not (np.isfinite(value) and value >= 0):
+            raise InputError(f"RegistrationForces {self.name!r}: weight must be finite and "
+                             f">= 0, got {value!r}")
+        self._weight = float(value)
+
+    @property
+    def bodies(self) -> tuple:
+        """The scene bodies its forces act on: the skin's masters."""
+        return tuple(m.scene_body for m in self.skin.masters)
+
+    def __repr__(self) -> str:
+        return f"RegistrationForces({self.name!r}, skin={self.skin.name!r})"
+
+    def terms(self) -> tuple[float, np.ndarray, sparse.csr_matrix]:
+        """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) at the skin's current positions
+        (:func:`_terms`; kept while the positions stay)."""
+        x = self.skin.positions()
+        if self._memo is None or not np.array_equal(self._memo[0], x):
+            self._memo = (x.copy(), _terms(x, self.skin.faces, self.target, self.both_ways))
+        return self._memo[1]
+
+    def potential_energy(self, t: float) -> float:
+        return self._weight * self.terms()[0]
+
+    def vertex_forces(self) -> np.ndarray:
+        """f (n, 3) on the model's vertices."""
+        return self._weight * self.terms()[1]
+
+    def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:
+        return self.skin.loads(self.vertex_forces())
+
+    def master_load_jacobians(self, t: float) -> list[tuple[object, object, sparse.csr_matrix]]:
+        return self.skin.load_jacobians(self._weight * self.terms()[2])
