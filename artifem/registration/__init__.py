@@ -1,8 +1,11 @@
 """Registration of models to target data: the rigid tools (Kabsch's rotation, closest
 points on a triangle surface, trimmed point-to-surface ICP) in :mod:`.rigid`, and the
-forces that pull a model surface (on any bodies) toward a target in :mod:`.forces`."""
+forces that pull a model surface (on any bodies) toward a target in :mod:`.forces`, and
+the loop of static solves under a rising weight in :mod:`.register`."""
 
 from artifem.registration.forces import RegistrationForces
+from artifem.registration.register import RegistrationResult, register
 from artifem.registration.rigid import RigidFit, TriangleSurface, icp, kabsch
 
-__all__ = ["RegistrationForces", "RigidFit", "TriangleSurface", "icp", "kabsch"]
+__all__ = ["RegistrationForces", "RegistrationResult", "RigidFit", "TriangleSurface", "icp",
+           "kabsch", "register"]

@@ -1,0 +1,97 @@
+"""The registration loop: static solves of a scene under registration forces whose
+weight rises on a schedule (Sanchez et al. 2015's continuation: a low weight first, so
+that the model's own elasticity and joints keep it whole while it finds the target, then
+higher ones to close the distance), stopped when the mean distance stops changing.
+
+After each stage k (weight w_k) the loop records the mean and largest distance of the
+model's vertices to the target (the model-to-target term's |x_i - c_i|); it stops once
+the mean changed by less than ``tol`` since the stage before, or after the last weight.
+With a ``checkpoint`` file the scene's state and the stages done are written after each
+stage, and a later call with the same file resumes after the last stage written.
+"""
+
+from __future__ import annotations
+
+import pickle
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from artifem.errors import InputError
+from artifem.registration.forces import RegistrationForces
+
+__all__ = ["RegistrationResult", "register"]
+
+
+@dataclass
+class RegistrationResult:
+    """The stages done: ``weights[k]``, the mean and largest model-to-target distance after
+    it (m), the static solve's Newton iterations; ``converged`` when the mean changed by
+    less than the tolerance."""
+
+    weights: list = field(default_factory=list)
+    mean_distance: list = field(default_factory=list)
+    max_distance: list = field(default_factory=list)
+    iterations: list = field(default_factory=list)
+    converged: bool = False
+
+
+def _distances(forces: Sequence[RegistrationForces]) -> np.ndarray:
+    return np.concatenate([f.target.closest(f.skin.positions())[0] for f in forces])
+
+
+def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[float], *,
+             tol: float = 1e-5, checkpoint: Path | None = None, progress=None,
+             max_iterations: int = 50) -> RegistrationResult:
+    """Register the scene's model surfaces to their targets (module docstring): for each
+    weight of ``weights`` (increasing), every element of ``forces`` (already in the
+    scene) takes it and ``scene.solve_static`` runs from the last stage's state with
+    the weight whole (one load step: the schedule is the continuation, and a ramp of
+    the load factor would first relax the fit); stop when the mean distance changes by
+    less than ``tol`` (m). Where the target is not reached the target-to-model term's
+    Gauss-Newton stiffness makes Newton converge linearly (about a decade per
+    iteration on tests/test_registration_loop.py), hence ``max_iterations``.
+    ``progress`` (e.g. tqdm) is updated once per stage."""
+    forces = list(forces)
+    weights = [float(w) for w in weights]
+    if not forces:
+        raise InputError("register: no RegistrationForces given")
+    missing = [f.name for f in forces if f not in scene.loads]
+    if missing:
+        raise InputError(f"register: the registration forces {missing} are not in the scene")
+    if not weights or any(not (np.isfinite(w) and w > 0) for w in weights) \
+            or any(b < a for a, b in zip(weights, weights[1:])):
+        raise InputError(f"register: weights must be positive and increasing, got {weights}")
+    if not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"register: tol must be > 0, got {tol}")
+    result = RegistrationResult()
+    if checkpoint is not None and Path(checkpoint).exists():
+        with open(checkpoint, "rb") as fh:
+            saved = pickle.load(fh)
+        if saved["weights"] != weights[:len(saved["weights"])]:
+            raise InputError(f"register: the checkpoint {checkpoint} was written for the "
+                             f"weights {saved['weights']}, not a start of {weights}")
+        scene.restore_state(saved["state"])
+        result = saved["result"]
+    for w in weights[len(result.weights):]:
+        if result.converged:
+            break
+        for f in forces:
+            f.weight = w
+        counts = scene.solve_static(load_steps=1, max_iterations=max_iterations)
+        d = _distances(forces)
+        result.weights.append(w)
+        result.mean_distance.append(float(d.mean()))
+        result.max_distance.append(float(d.max()))
+        result.iterations.append(int(sum(counts)))
+        result.converged = len(result.mean_distance) > 1 and \
+            abs(result.mean_distance[-1] - result.mean_distance[-2]) < tol
+        if checkpoint is not None:
+            with open(checkpoint, "wb") as fh:
+                pickle.dump({"weights": result.weights, "state": scene.save_state(),
+                             "result": result}, fh)
+        if progress is not None:
+            progress.update(1)
+    return result
