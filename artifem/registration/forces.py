@@ -13,12 +13,12 @@ pulls both ways: the model to the target, and the target's parts the model has n
 vertex near (thin features, a partial target) to the model. Its forces on the model's
 vertices are exact (-dE/dx, the closest points' own motion drops out: they minimize the
 distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j), and reach the masters
-by virtual work, G^T f (a load element of the scene). Their stiffness df/dx: the first
-term's is exact, -w P_i with P_i the projector off the feature c_i lies on (n n^T on a
-triangle's interior, I - e e^T on an edge of direction e, I at a vertex); the second
-takes -w (b_j b_j^T) (x) P_j at fixed b_j and feature (the change of the model triangle's
-normal and of the barycentric coordinates left out: the Gauss-Newton part of its
-Hessian, exact where p_j is a model vertex).
+by virtual work, G^T f (a load element of the scene). Their stiffness df/dx is exact
+while each closest point stays on its feature: the first term's -w P_i with P_i the
+projector off the feature c_i lies on (n n^T on a triangle's interior, I - e e^T on an
+edge of direction e, I at a vertex); the second's from the envelope theorem on the
+distance to the model's feature (:func:`_value_hessian`: the triangle's turning and the
+closest point's sliding included).
 """
 
 from __future__ import annotations
@@ -64,6 +64,28 @@ def _projectors(surface: TriangleSurface, points: np.ndarray, triangles: np.ndar
     return b, P
 
 
+def _value_hessian(xs: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(q, m, m, 3, 3): the exact Hessian, by the vertices' positions, of the squared
+    distance 1/2 |y - p|^2 from a point y to its closest point p = sum_a b_a x_a on a
+    feature of m vertices xs (q, m, 3) (1: a vertex, 2: an edge, 3: a triangle's
+    interior), r = y - p. It is the value of min_s L(x, s), L = 1/2 |y - x_0 - J s|^2
+    with J = [x_a - x_0] (m - 1 columns, s the barycentric coordinates b_1..): by the
+    envelope theorem, H = L_xx - L_xs (J^T J)^-1 L_sx with L_xx = (b b^T) (x) I and
+    L_sx[c, a] = -(delta_{a, c+1} - delta_{a, 0}) r^T + b_a J_c^T."""
+    q, m = b.shape
+    H = b[:, :, None, None, None] * b[:, None, :, None, None] * np.eye(3)
+    if m == 1:
+        return H
+    J = xs[:, 1:] - xs[:, :1]                                   # (q, m - 1, 3): columns
+    C = np.zeros((m - 1, m))
+    C[np.arange(m - 1), np.arange(1, m)] = 1.0
+    C[:, 0] = -1.0
+    Lsx = -C[None, :, :, None] * r[:, None, None, :] + \
+        b[:, None, :, None] * J[:, :, None, :]                 # (q, m - 1, m, 3)
+    M = np.linalg.inv(np.einsum("qca,qda->qcd", J, J))
+    return H - np.einsum("qcix,qcd,qdjy->qijxy", Lsx, M, Lsx)
+
+
 def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
            both_ways: bool = True) -> tuple[float, np.ndarray, sparse.csr_matrix]:
     """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) of the module docstring for the model
@@ -80,17 +102,23 @@ def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
         model = TriangleSurface(x, faces)
         y = target.vertices
         dj, p, tj = model.closest_triangles(y)
-        b, Pj = _projectors(model, p, tj)
+        b, _ = _projectors(model, p, tj)
         energy += 0.5 * float(dj @ dj)
         corners = model.triangles[tj]                           # (k, 3) model vertices
         np.add.at(f, corners.ravel(), (b[:, :, None] * (y - p)[:, None, :]).reshape(-1, 3))
-        # -(b b^T) (x) P_j on the triangle's vertices: (k, 3, 3, 3, 3) blocks
-        block = -(b[:, :, None, None, None] * b[:, None, :, None, None]) \
-            * Pj[:, None, None, :, :]
-        dofs = 3 * corners[:, :, None] + np.arange(3)           # (k, 3 vertices, 3)
-        rows.append(np.broadcast_to(dofs[:, :, None, :, None], block.shape).ravel())
-        cols.append(np.broadcast_to(dofs[:, None, :, None, :], block.shape).ravel())
-        vals.append(block.ravel())
+        on = b > ON_FEATURE
+        for m in (1, 2, 3):                 # a vertex, an edge, a triangle's interior
+            pick = np.flatnonzero(on.sum(axis=1) == m)
+            if not pick.size:
+                continue
+            order = np.argsort(~on[pick], axis=1, kind="stable")[:, :m]
+            verts = np.take_along_axis(corners[pick], order, axis=1)       # (q, m)
+            H = _value_hessian(x[verts], np.take_along_axis(b[pick], order, axis=1),
+                               (y - p)[pick])
+            dofs = 3 * verts[:, :, None] + np.arange(3)                     # (q, m, 3)
+            rows.append(np.broadcast_to(dofs[:, :, None, :, None], H.shape).ravel())
+            cols.append(np.broadcast_to(dofs[:, None, :, None, :], H.shape).ravel())
+            vals.append(-H.ravel())
     K = sparse.csr_matrix((np.concatenate([v.ravel() for v in vals]),
                            (np.concatenate([r.ravel() for r in rows]),
                             np.concatenate([q.ravel() for q in cols]))), shape=(3 * n, 3 * n))

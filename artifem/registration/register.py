@@ -50,10 +50,9 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
     scene) takes it and ``scene.solve_static`` runs from the last stage's state with
     the weight whole (one load step: the schedule is the continuation, and a ramp of
     the load factor would first relax the fit); stop when the mean distance changes by
-    less than ``tol`` (m). Where the target is not reached the target-to-model term's
-    Gauss-Newton stiffness makes Newton converge linearly (about a decade per
-    iteration on tests/test_registration_loop.py), hence ``max_iterations``.
-    ``progress`` (e.g. tqdm) is updated once per stage."""
+    less than ``tol`` (m); at most ``max_iterations`` Newton iterations per stage (the
+    closest points change their triangles while the model moves: Newton is quadratic
+    only once they settle). ``progress`` (e.g. tqdm) is updated once per stage."""
     forces = list(forces)
     weights = [float(w) for w in weights]
     if not forces:
