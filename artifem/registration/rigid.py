@@ -1,8 +1,11 @@
-"""Rigid registration of points to a triangle surface.
+"""Rigid and affine registration of points to a triangle surface.
 
 - :func:`kabsch`: the proper rotation R and translation t minimizing
   sum_i |R p_i + t - q_i|^2 (Kabsch 1976): with H = sum_i (p_i - p0)(q_i - q0)^T =
   U S V^T (p0, q0 the centroids), R = V diag(1, 1, det(V U^T)) U^T and t = q0 - R p0.
+- :func:`affine_fit`: the matrix A and translation t minimizing sum_i |A p_i + t - q_i|^2
+  (linear least squares; the registration baseline of a bone scaled and sheared as a
+  whole).
 - :class:`TriangleSurface`: a triangle mesh and libigl's AABB tree over it (built once),
   for exact point-to-triangle closest points.
 - :func:`icp`: point-to-surface ICP (Besl and McKay 1992): each point's closest point
@@ -20,7 +23,7 @@ import numpy as np
 
 from artifem.errors import InputError
 
-__all__ = ["RigidFit", "TriangleSurface", "icp", "kabsch"]
+__all__ = ["RigidFit", "TriangleSurface", "affine_fit", "icp", "kabsch"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -35,6 +38,22 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
     R = Vt.T @ D @ U.T
     return R, cd - R @ cs
+
+
+def affine_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, t) minimizing sum_i |A src_i + t - dst_i|^2 (module docstring); the points must
+    not all lie in a plane."""
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 4:
+        raise InputError(f"affine_fit: two (n, 3) point sets with n >= 4 expected, got "
+                         f"{src.shape} and {dst.shape}")
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    P = src - cs
+    if np.linalg.matrix_rank(P, tol=1e-12 * max(np.abs(P).max(), 1e-300)) < 3:
+        raise InputError("affine_fit: the points lie in a plane or on a line: no unique "
+                         "affine map")
+    A = np.linalg.lstsq(P, dst - cd, rcond=None)[0].T
+    return A, cd - A @ cs
 
 
 class TriangleSurface:
@@ -75,8 +94,9 @@ class TriangleSurface:
 
 @dataclass(frozen=True)
 class RigidFit:
-    """x -> R x + t: ``distances`` of every moved point to the surface, ``score`` the mean
-    distance of the fitted fraction, ``iterations`` the ICP iterations taken."""
+    """x -> R x + t (R a rotation; any matrix for affine ICP): ``distances`` of every moved
+    point to the surface, ``score`` the mean distance of the fitted fraction,
+    ``iterations`` the ICP iterations taken."""
 
     R: np.ndarray
     t: np.ndarray
@@ -87,12 +107,13 @@ class RigidFit:
 
 def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
         iterations: int = 60, rotation_tol: float = 1e-10,
-        translation_tol: float = 1e-12) -> RigidFit:
+        translation_tol: float = 1e-12, affine: bool = False) -> RigidFit:
     """Trimmed point-to-surface ICP of ``points`` onto ``surface`` from (R, t) (default
-    identity): at most ``iterations`` of closest points and :func:`kabsch` on the
-    fraction ``trim`` of the pairs with the smallest distances (all of them at 1), until
-    the entries of R change by less than ``rotation_tol`` and those of t by less than
-    ``translation_tol`` (module docstring)."""
+    identity): at most ``iterations`` of closest points and :func:`kabsch` (``affine``:
+    :func:`affine_fit`, R then any matrix) on the fraction ``trim`` of the pairs with the
+    smallest distances (all of them at 1), until the entries of R change by less than
+    ``rotation_tol`` and those of t by less than ``translation_tol`` (module
+    docstring)."""
     points = np.asarray(points, dtype=float)
     if not 0.0 < trim <= 1.0:
         raise InputError(f"icp: trim must be in (0, 1], got {trim}")
@@ -107,7 +128,7 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
         moved = points @ R.T + t
         r, closest = surface.closest(moved)
         keep = kept(r)
-        R_new, t_new = kabsch(points[keep], closest[keep])
+        R_new, t_new = (affine_fit if affine else kabsch)(points[keep], closest[keep])
         converged = np.abs(R_new - R).max() < rotation_tol and \
             np.abs(t_new - t).max() < translation_tol
         R, t = R_new, t_new
