@@ -89,3 +89,41 @@ def test_a_free_cube_is_registered_rigidly_onto_its_moved_surface():
         assert forces.potential_energy(0.0) < 1e-18
     with pytest.raises(InputError, match="weight"):
         forces.weight = -1.0
+
+
+def test_landmarks_alone_register_a_rigid_motion():
+    """Three landmarks on the ellipsoid's axes (w = 0 for the surfaces: landmarks alone)
+    pull the free cube through the same rigid motion: the static solve reaches it (the
+    only state of zero energy and strain with three non-collinear pairs) to 1e-9 m; the
+    landmark forces are minus the gradient of their energy."""
+    import pyvista as pv
+    from dolfinx import mesh as dmesh
+    from mpi4py import MPI
+
+    centre = np.full(3, 0.1)
+    ellipsoid = pv.ParametricEllipsoid(0.08, 0.06, 0.04, u_res=12, v_res=12).triangulate()
+    ellipsoid = ellipsoid.clean()
+    vertices = np.asarray(ellipsoid.points) + centre
+    faces = np.asarray(ellipsoid.faces).reshape(-1, 4)[:, 1:]
+    axis = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    R = Rotation.from_rotvec(np.radians(10.0) * axis).as_matrix()
+    t = np.array([0.01, -0.005, 0.008])
+    moved = (vertices - centre) @ R.T + centre + t
+    picks = [int(np.argmax(vertices[:, k])) for k in range(3)]
+    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.2)], [4, 4, 4],
+                           dmesh.CellType.hexahedron)
+    body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e4, 0.3), 1000.0, name="cube")
+    skin = af.SkinMesh(vertices, faces, masters=[body], name="bone")
+    forces = RegistrationForces(skin, TriangleSurface(moved, faces), weight=0.0,
+                                landmarks=(picks, moved[picks]), landmark_weight=1e3)
+    gaps = moved[picks] - vertices[picks]
+    assert forces.potential_energy(0.0) == pytest.approx(0.5e3 * np.sum(gaps ** 2))
+    np.testing.assert_allclose(forces.vertex_forces()[picks], 1e3 * gaps)
+    scene = af.Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(body, forces)
+    scene.solve_static()
+    X = body.V.tabulate_dof_coordinates()
+    np.testing.assert_allclose(body.u.x.array.reshape(-1, 3), (X - centre) @ R.T + centre + t - X,
+                               rtol=0, atol=1e-9)
+    with pytest.raises(InputError, match="landmarks"):
+        RegistrationForces(skin, forces.target, 1.0, landmarks=([0, skin.n], moved[:2]))

@@ -544,7 +544,8 @@ class SkinMesh:
                 out.append((m.body, full))
         return out
 
-    def load_jacobians(self, K_v: sparse.spmatrix) -> list[tuple[object, object, sparse.csr_matrix]]:
+    def load_jacobians(self, K_v: sparse.spmatrix
+                       ) -> list[tuple[object, object, sparse.csr_matrix]]:
         """The derivative df_v/dx_v (3n x 3n) of vertex forces as a load element's
         ``master_load_jacobians``: [(body_i, body_j, block of G^T (df_v/dx_v) G)]. The change
         of G itself as rigid masters turn (their levers, at fixed f_v) is left out: exact for

@@ -10,10 +10,11 @@ barycentric coordinates b_jk), the energy
     E = w/2 sum_i |x_i - c_i|^2 + w/2 sum_j |y_j - p_j|^2
 
 pulls both ways: the model to the target, and the target's parts the model has no
-vertex near (thin features, a partial target) to the model. Its forces on the model's
-vertices are exact (-dE/dx, the closest points' own motion drops out: they minimize the
-distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j), and reach the masters
-by virtual work, G^T f (a load element of the scene). Their stiffness df/dx is exact
+vertex near (thin features, a partial target) to the model. Optional landmarks add
+w_l/2 sum_l |x_v(l) - y_l|^2 (a model vertex to a given target point each). Its forces
+on the model's vertices are exact (-dE/dx, the closest points' own motion drops out:
+they minimize the distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j),
+and reach the masters by virtual work, G^T f (a load element of the scene). Their stiffness df/dx is exact
 while each closest point stays on its feature: the first term's -w P_i with P_i the
 projector off the feature c_i lies on (n n^T on a triangle's interior, I - e e^T on an
 edge of direction e, I at a vertex); the second's from the envelope theorem on the
@@ -135,10 +136,14 @@ class RegistrationForces:
         weight: w (N/m^2: force per metre of distance, per vertex); a schedule raises it
             between solves (the attribute may be set).
         both_ways: with the target-to-model term (else the model-to-target term alone).
+        landmarks: optional pairs (model vertex indices (L,), target points (L, 3)), each
+            adding w_l/2 |x_v - y_l|^2 (force w_l (y_l - x_v), stiffness -w_l I).
+        landmark_weight: w_l (settable like ``weight``; default ``weight``).
     """
 
     def __init__(self, skin: SkinMesh, target: TriangleSurface, weight: float, *,
-                 both_ways: bool = True, name: str = "registration"):
+                 both_ways: bool = True, landmarks=None, landmark_weight: float | None = None,
+                 name: str = "registration"):
         if not isinstance(skin, SkinMesh) or skin.faces is None:
             raise InputError(f"RegistrationForces {name!r}: the model surface must be a "
                              "SkinMesh with faces")
@@ -149,6 +154,18 @@ class RegistrationForces:
         self.weight = weight
         self.both_ways = both_ways
         self._memo = None
+        self.landmarks = None
+        if landmarks is not None:
+            vertices, points = landmarks
+            vertices = np.asarray(vertices, dtype=np.int64).ravel()
+            points = np.asarray(points, dtype=float).reshape(-1, 3)
+            if len(vertices) != len(points) or not len(vertices) or vertices.min() < 0 \
+                    or vertices.max() >= skin.n or not np.all(np.isfinite(points)):
+                raise InputError(f"RegistrationForces {name!r}: landmarks must pair model "
+                                 f"vertex indices in [0, {skin.n}) with as many finite "
+                                 f"target points")
+            self.landmarks = (vertices, points)
+        self.landmark_weight = weight if landmark_weight is None else landmark_weight
 
     @property
     def weight(self) -> float:
@@ -160,6 +177,17 @@ class RegistrationForces:
             raise InputError(f"RegistrationForces {self.name!r}: weight must be finite and "
                              f">= 0, got {value!r}")
         self._weight = float(value)
+
+    @property
+    def landmark_weight(self) -> float:
+        return self._landmark_weight
+
+    @landmark_weight.setter
+    def landmark_weight(self, value: float) -> None:
+        if not (np.isfinite(value) and value >= 0):
+            raise InputError(f"RegistrationForces {self.name!r}: landmark_weight must be "
+                             f"finite and >= 0, got {value!r}")
+        self._landmark_weight = float(value)
 
     @property
     def bodies(self) -> tuple:
@@ -177,15 +205,38 @@ class RegistrationForces:
             self._memo = (x.copy(), _terms(x, self.skin.faces, self.target, self.both_ways))
         return self._memo[1]
 
+    def _landmark_gaps(self) -> np.ndarray | None:
+        """y_l - x_v (L, 3) of the landmarks, or None."""
+        if self.landmarks is None:
+            return None
+        vertices, points = self.landmarks
+        return points - self.skin.positions()[vertices]
+
     def potential_energy(self, t: float) -> float:
-        return self._weight * self.terms()[0]
+        gaps = self._landmark_gaps()
+        extra = 0.0 if gaps is None else 0.5 * self._landmark_weight * float(np.sum(gaps ** 2))
+        return self._weight * self.terms()[0] + extra
 
     def vertex_forces(self) -> np.ndarray:
         """f (n, 3) on the model's vertices."""
-        return self._weight * self.terms()[1]
+        f = self._weight * self.terms()[1]
+        gaps = self._landmark_gaps()
+        if gaps is not None:
+            np.add.at(f, self.landmarks[0], self._landmark_weight * gaps)
+        return f
+
+    def vertex_stiffness(self) -> sparse.csr_matrix:
+        """df/dx (3n x 3n) on the model's vertices."""
+        K = self._weight * self.terms()[2]
+        if self.landmarks is not None:
+            dofs = (3 * self.landmarks[0][:, None] + np.arange(3)).ravel()
+            n = 3 * self.skin.n
+            K = K - self._landmark_weight * sparse.csr_matrix(
+                (np.ones(dofs.size), (dofs, dofs)), shape=(n, n))
+        return K
 
     def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:
         return self.skin.loads(self.vertex_forces())
 
     def master_load_jacobians(self, t: float) -> list[tuple[object, object, sparse.csr_matrix]]:
-        return self.skin.load_jacobians(self._weight * self.terms()[2])
+        return self.skin.load_jacobians(self.vertex_stiffness())
