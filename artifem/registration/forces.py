@@ -14,8 +14,9 @@ vertex near (thin features, a partial target) to the model. Optional landmarks a
 w_l/2 sum_l |x_v(l) - y_l|^2 (a model vertex to a given target point each). Its forces
 on the model's vertices are exact (-dE/dx, the closest points' own motion drops out:
 they minimize the distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j),
-and reach the masters by virtual work, G^T f (a load element of the scene). Their stiffness df/dx is exact
-while each closest point stays on its feature: the first term's -w P_i with P_i the
+and reach the masters by virtual work, G^T f (a load element of the scene). Their
+stiffness df/dx is exact while each closest point stays on its feature: the first
+term's -w P_i with P_i the
 projector off the feature c_i lies on (n n^T on a triangle's interior, I - e e^T on an
 edge of direction e, I at a vertex); the second's from the envelope theorem on the
 distance to the model's feature (:func:`_value_hessian`: the triangle's turning and the
@@ -126,6 +127,23 @@ def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
     return energy, f, K
 
 
+class _Weight:
+    """A weight attribute of :class:`RegistrationForces`: finite and >= 0, checked when set
+    (a schedule sets it between solves)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else obj.__dict__[self.name]
+
+    def __set__(self, obj, value) -> None:
+        if not (np.isfinite(value) and value >= 0):
+            raise InputError(f"RegistrationForces {obj.name!r}: {self.name} must be finite "
+                             f"and >= 0, got {value!r}")
+        obj.__dict__[self.name] = float(value)
+
+
 class RegistrationForces:
     """The registration energy of the module docstring on ``skin`` toward ``target``, as a
     scene load element (``master_loads``, ``master_load_jacobians``, ``potential_energy``).
@@ -140,6 +158,9 @@ class RegistrationForces:
             adding w_l/2 |x_v - y_l|^2 (force w_l (y_l - x_v), stiffness -w_l I).
         landmark_weight: w_l (settable like ``weight``; default ``weight``).
     """
+
+    weight = _Weight()
+    landmark_weight = _Weight()
 
     def __init__(self, skin: SkinMesh, target: TriangleSurface, weight: float, *,
                  both_ways: bool = True, landmarks=None, landmark_weight: float | None = None,
@@ -168,28 +189,6 @@ class RegistrationForces:
         self.landmark_weight = weight if landmark_weight is None else landmark_weight
 
     @property
-    def weight(self) -> float:
-        return self._weight
-
-    @weight.setter
-    def weight(self, value: float) -> None:
-        if not (np.isfinite(value) and value >= 0):
-            raise InputError(f"RegistrationForces {self.name!r}: weight must be finite and "
-                             f">= 0, got {value!r}")
-        self._weight = float(value)
-
-    @property
-    def landmark_weight(self) -> float:
-        return self._landmark_weight
-
-    @landmark_weight.setter
-    def landmark_weight(self, value: float) -> None:
-        if not (np.isfinite(value) and value >= 0):
-            raise InputError(f"RegistrationForces {self.name!r}: landmark_weight must be "
-                             f"finite and >= 0, got {value!r}")
-        self._landmark_weight = float(value)
-
-    @property
     def bodies(self) -> tuple:
         """The scene bodies its forces act on: the skin's masters."""
         return tuple(m.scene_body for m in self.skin.masters)
@@ -214,24 +213,24 @@ class RegistrationForces:
 
     def potential_energy(self, t: float) -> float:
         gaps = self._landmark_gaps()
-        extra = 0.0 if gaps is None else 0.5 * self._landmark_weight * float(np.sum(gaps ** 2))
-        return self._weight * self.terms()[0] + extra
+        extra = 0.0 if gaps is None else 0.5 * self.landmark_weight * float(np.sum(gaps ** 2))
+        return self.weight * self.terms()[0] + extra
 
     def vertex_forces(self) -> np.ndarray:
         """f (n, 3) on the model's vertices."""
-        f = self._weight * self.terms()[1]
+        f = self.weight * self.terms()[1]
         gaps = self._landmark_gaps()
         if gaps is not None:
-            np.add.at(f, self.landmarks[0], self._landmark_weight * gaps)
+            np.add.at(f, self.landmarks[0], self.landmark_weight * gaps)
         return f
 
     def vertex_stiffness(self) -> sparse.csr_matrix:
         """df/dx (3n x 3n) on the model's vertices."""
-        K = self._weight * self.terms()[2]
+        K = self.weight * self.terms()[2]
         if self.landmarks is not None:
             dofs = (3 * self.landmarks[0][:, None] + np.arange(3)).ravel()
             n = 3 * self.skin.n
-            K = K - self._landmark_weight * sparse.csr_matrix(
+            K = K - self.landmark_weight * sparse.csr_matrix(
                 (np.ones(dofs.size), (dofs, dofs)), shape=(n, n))
         return K
 
