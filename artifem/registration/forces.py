@@ -40,15 +40,21 @@ __all__ = ["RegistrationForces"]
 ON_FEATURE = 1e-10
 
 
-def _projectors(surface: TriangleSurface, points: np.ndarray, triangles: np.ndarray):
-    """(barycentric coordinates (k, 3) of ``points`` in their ``triangles``, the projectors
-    (k, 3, 3) off the feature each lies on: n n^T inside, I - e e^T on an edge, I at a
-    vertex)."""
+def _barycentric(surface: TriangleSurface, points: np.ndarray,
+                 triangles: np.ndarray) -> np.ndarray:
+    """(k, 3) barycentric coordinates of ``points`` (on the surface) in their ``triangles``."""
     corners = surface.vertices[surface.triangles[triangles]]
     b = igl.barycentric_coordinates(np.ascontiguousarray(points),
                                     *(np.ascontiguousarray(corners[:, k]) for k in range(3)))
-    b = np.clip(b, 0.0, 1.0)
-    zero = b <= ON_FEATURE
+    return np.clip(b, 0.0, 1.0)
+
+
+def _projectors(surface: TriangleSurface, points: np.ndarray,
+                triangles: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) projectors off the feature each of ``points`` lies on in its triangle:
+    n n^T inside, I - e e^T on an edge, I at a vertex."""
+    corners = surface.vertices[surface.triangles[triangles]]
+    zero = _barycentric(surface, points, triangles) <= ON_FEATURE
     count = zero.sum(axis=1)
     P = np.broadcast_to(np.eye(3), (len(points), 3, 3)).copy()      # vertices
     inside = count == 0
@@ -63,7 +69,7 @@ def _projectors(surface: TriangleSurface, points: np.ndarray, triangles: np.ndar
         e = corners[edge, ends[:, 1]] - corners[edge, ends[:, 0]]
         e /= np.linalg.norm(e, axis=1)[:, None]
         P[edge] = np.eye(3) - e[:, :, None] * e[:, None, :]
-    return b, P
+    return P
 
 
 def _value_hessian(xs: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -94,7 +100,7 @@ def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
     surface (vertices ``x``, triangles ``faces``) and w = 1."""
     n = len(x)
     d, c, tri = target.closest_triangles(x)
-    _, P = _projectors(target, c, tri)
+    P = _projectors(target, c, tri)
     energy = 0.5 * float(d @ d)
     f = c - x
     rows = [np.repeat(3 * np.arange(n)[:, None] + np.arange(3), 3, axis=1)]
@@ -104,7 +110,7 @@ def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
         model = TriangleSurface(x, faces)
         y = target.vertices
         dj, p, tj = model.closest_triangles(y)
-        b, _ = _projectors(model, p, tj)
+        b = _barycentric(model, p, tj)
         energy += 0.5 * float(dj @ dj)
         corners = model.triangles[tj]                           # (k, 3) model vertices
         np.add.at(f, corners.ravel(), (b[:, :, None] * (y - p)[:, None, :]).reshape(-1, 3))
