@@ -111,3 +111,16 @@ def test_affine_fit_and_affine_icp_recover_a_scaled_and_sheared_motion(rng):
     fit = icp(moved, surface, affine=True, iterations=300)
     assert fit.distances.max() < 1e-8
     assert icp(moved, surface, iterations=300).distances.max() > 1e-3
+
+
+def test_the_border_of_an_open_surface():
+    """The unit square as two triangles (0, 1, 2), (0, 2, 3): its four sides are border
+    edges, the diagonal is not; points on a side or at a corner are on the border, on the
+    diagonal or inside are not."""
+    square = TriangleSurface([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
+    assert square.border_vertices.all() and square.border_edges.size == 4
+    points = np.array([[0.5, 0.0, 0.0], [1.0, 1.0, 0.0], [0.5, 0.5, 0.0], [0.7, 0.2, 0.0],
+                       [0.0, 0.3, 0.0]])
+    _, c, tri = square.closest_triangles(points + [0.0, 0.0, 0.2])
+    assert square.on_border(tri, square.barycentric(c, tri)).tolist() == \
+        [True, True, False, False, True]

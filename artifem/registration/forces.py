@@ -10,7 +10,10 @@ barycentric coordinates b_jk), the energy
     E = w/2 sum_i |x_i - c_i|^2 + w/2 sum_j |y_j - p_j|^2
 
 pulls both ways: the model to the target, and the target's parts the model has no
-vertex near (thin features, a partial target) to the model. Optional landmarks add
+vertex near (thin features, a partial target) to the model. A pair whose closest point
+lies on the border of an open surface (an edge of one triangle) is dropped (Turk and
+Levoy 1994): the model's parts a partial target does not cover find their closest
+points on the target's border and would otherwise be pulled onto it. Optional landmarks add
 w_l/2 sum_l |x_v(l) - y_l|^2 (a model vertex to a given target point each). Its forces
 on the model's vertices are exact (-dE/dx, the closest points' own motion drops out:
 they minimize the distances), f_i = w (c_i - x_i) and f_k = sum_j w b_jk (y_j - p_j),
@@ -40,23 +43,14 @@ __all__ = ["RegistrationForces"]
 ON_FEATURE = 1e-10
 
 
-def _barycentric(surface: TriangleSurface, points: np.ndarray,
-                 triangles: np.ndarray) -> np.ndarray:
-    """(k, 3) barycentric coordinates of ``points`` (on the surface) in their ``triangles``."""
+def _projectors(surface: TriangleSurface, triangles: np.ndarray,
+                barycentric: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) projectors off the feature each point (``barycentric`` coordinates in its
+    ``triangles``) lies on: n n^T inside, I - e e^T on an edge, I at a vertex."""
     corners = surface.vertices[surface.triangles[triangles]]
-    b = igl.barycentric_coordinates(np.ascontiguousarray(points),
-                                    *(np.ascontiguousarray(corners[:, k]) for k in range(3)))
-    return np.clip(b, 0.0, 1.0)
-
-
-def _projectors(surface: TriangleSurface, points: np.ndarray,
-                triangles: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) projectors off the feature each of ``points`` lies on in its triangle:
-    n n^T inside, I - e e^T on an edge, I at a vertex."""
-    corners = surface.vertices[surface.triangles[triangles]]
-    zero = _barycentric(surface, points, triangles) <= ON_FEATURE
+    zero = barycentric <= ON_FEATURE
     count = zero.sum(axis=1)
-    P = np.broadcast_to(np.eye(3), (len(points), 3, 3)).copy()      # vertices
+    P = np.broadcast_to(np.eye(3), (len(triangles), 3, 3)).copy()   # vertices
     inside = count == 0
     if inside.any():
         n = np.cross(corners[inside, 1] - corners[inside, 0],
@@ -95,22 +89,27 @@ def _value_hessian(xs: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
-           both_ways: bool = True) -> tuple[float, np.ndarray, sparse.csr_matrix]:
-    """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) of the module docstring for the model
-    surface (vertices ``x``, triangles ``faces``) and w = 1."""
+           both_ways: bool = True) -> tuple[float, np.ndarray, sparse.csr_matrix, np.ndarray]:
+    """(E / w, f / w (n, 3), df/dx / w (3n x 3n), kept (n,)) of the module docstring for
+    the model surface (vertices ``x``, triangles ``faces``) and w = 1; ``kept`` marks the
+    model vertices whose pair to the target is kept (its closest point not on the
+    target's border)."""
     n = len(x)
     d, c, tri = target.closest_triangles(x)
-    P = _projectors(target, c, tri)
-    energy = 0.5 * float(d @ d)
-    f = c - x
+    b = target.barycentric(c, tri)
+    kept = ~target.on_border(tri, b, ON_FEATURE)
+    P = _projectors(target, tri, b) * kept[:, None, None]
+    energy = 0.5 * float(d[kept] @ d[kept])
+    f = (c - x) * kept[:, None]
     rows = [np.repeat(3 * np.arange(n)[:, None] + np.arange(3), 3, axis=1)]
     cols = [np.tile(3 * np.arange(n)[:, None] + np.arange(3), (1, 3))]
     vals = [-P.reshape(n, 9)]
     if both_ways:
         model = TriangleSurface(x, faces)
-        y = target.vertices
-        dj, p, tj = model.closest_triangles(y)
-        b = _barycentric(model, p, tj)
+        dj, p, tj = model.closest_triangles(target.vertices)
+        b = model.barycentric(p, tj)
+        pick = ~model.on_border(tj, b, ON_FEATURE)
+        y, dj, p, tj, b = target.vertices[pick], dj[pick], p[pick], tj[pick], b[pick]
         energy += 0.5 * float(dj @ dj)
         corners = model.triangles[tj]                           # (k, 3) model vertices
         np.add.at(f, corners.ravel(), (b[:, :, None] * (y - p)[:, None, :]).reshape(-1, 3))
@@ -130,7 +129,7 @@ def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
     K = sparse.csr_matrix((np.concatenate([v.ravel() for v in vals]),
                            (np.concatenate([r.ravel() for r in rows]),
                             np.concatenate([q.ravel() for q in cols]))), shape=(3 * n, 3 * n))
-    return energy, f, K
+    return energy, f, K, kept
 
 
 class _Weight:
@@ -202,13 +201,18 @@ class RegistrationForces:
     def __repr__(self) -> str:
         return f"RegistrationForces({self.name!r}, skin={self.skin.name!r})"
 
-    def terms(self) -> tuple[float, np.ndarray, sparse.csr_matrix]:
-        """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) at the skin's current positions
-        (:func:`_terms`; kept while the positions stay)."""
+    def terms(self) -> tuple[float, np.ndarray, sparse.csr_matrix, np.ndarray]:
+        """(E / w, f / w (n, 3), df/dx / w (3n x 3n), kept (n,)) at the skin's current
+        positions (:func:`_terms`; kept while the positions stay)."""
         x = self.skin.positions()
         if self._memo is None or not np.array_equal(self._memo[0], x):
             self._memo = (x.copy(), _terms(x, self.skin.faces, self.target, self.both_ways))
         return self._memo[1]
+
+    def distances(self) -> np.ndarray:
+        """|x_i - c_i| of the model vertices whose pair to the target is kept (m)."""
+        x = self.skin.positions()
+        return self.target.closest(x[self.terms()[3]])[0]
 
     def _landmark_gaps(self) -> np.ndarray | None:
         """y_l - x_v (L, 3) of the landmarks, or None."""

@@ -4,7 +4,8 @@ that the model's own elasticity and joints keep it whole while it finds the targ
 higher ones to close the distance), stopped when the mean distance stops changing.
 
 After each stage k (weight w_k) the loop records the mean and largest distance of the
-model's vertices to the target (the model-to-target term's |x_i - c_i|); it stops once
+model's vertices to the target (the model-to-target term's |x_i - c_i|, over the pairs
+it keeps: not those whose closest point is on a partial target's border); it stops once
 the mean changed by less than ``tol`` since the stage before, or after the last weight.
 With a ``checkpoint`` file the scene's state and the stages done are written after each
 stage, and a later call with the same file resumes after the last stage written.
@@ -39,7 +40,7 @@ class RegistrationResult:
 
 
 def _distances(forces: Sequence[RegistrationForces]) -> np.ndarray:
-    return np.concatenate([f.target.closest(f.skin.positions())[0] for f in forces])
+    return np.concatenate([f.distances() for f in forces])
 
 
 def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[float], *,

@@ -7,7 +7,8 @@
   (linear least squares; the registration baseline of a bone scaled and sheared as a
   whole).
 - :class:`TriangleSurface`: a triangle mesh and libigl's AABB tree over it (built once),
-  for exact point-to-triangle closest points.
+  for exact point-to-triangle closest points; its border (the edges of one triangle)
+  tells which closest points lie on the edge of an open surface.
 - :func:`icp`: point-to-surface ICP (Besl and McKay 1992): each point's closest point
   c_i on the surface, then (R, t) = kabsch(p, c), until (R, t) stop changing; ``trim``
   < 1 fits only that fraction of the pairs, the closest ones (trimmed ICP, Chetverikov
@@ -72,6 +73,15 @@ class TriangleSurface:
                              f"{len(self.vertices) - 1}")
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.triangles)
+        edges = np.sort(self.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        keys, counts = np.unique(edges[:, 0] * len(self.vertices) + edges[:, 1],
+                                 return_counts=True)
+        #: the border edges (edges of one triangle) as keys a n + b (a < b, n vertices)
+        self.border_edges = keys[counts == 1]
+        #: (n,) True at the vertices on a border edge
+        self.border_vertices = np.zeros(len(self.vertices), dtype=bool)
+        self.border_vertices[np.concatenate([self.border_edges // len(self.vertices),
+                                             self.border_edges % len(self.vertices)])] = True
 
     @classmethod
     def from_polydata(cls, polydata) -> TriangleSurface:
@@ -90,6 +100,31 @@ class TriangleSurface:
         sq, triangle, closest = self.tree.squared_distance(self.vertices, self.triangles,
                                                            points)
         return np.sqrt(np.maximum(sq, 0.0)), closest, np.asarray(triangle, dtype=np.int64)
+
+    def barycentric(self, points, triangles) -> np.ndarray:
+        """(k, 3) barycentric coordinates of ``points`` (on the surface) in their
+        ``triangles``, clipped to [0, 1]."""
+        corners = self.vertices[self.triangles[triangles]]
+        b = igl.barycentric_coordinates(np.ascontiguousarray(points, dtype=float),
+                                        *(np.ascontiguousarray(corners[:, k]) for k in range(3)))
+        return np.clip(b, 0.0, 1.0)
+
+    def on_border(self, triangles, barycentric, zero: float = 1e-10) -> np.ndarray:
+        """(k,) True where the surface point of ``barycentric`` coordinates (coordinates
+        <= ``zero`` are on an edge or at a vertex) in ``triangles`` lies on a border edge
+        or at a border vertex; all False on a closed surface."""
+        on = np.zeros(len(barycentric), dtype=bool)
+        if not self.border_edges.size:
+            return on
+        corners = self.triangles[triangles]
+        zero = np.asarray(barycentric) <= zero
+        count = zero.sum(axis=1)
+        vertex = np.flatnonzero(count == 2)
+        on[vertex] = self.border_vertices[corners[vertex, np.argmin(zero[vertex], axis=1)]]
+        edge = np.flatnonzero(count == 1)
+        ends = np.sort(corners[edge][~zero[edge]].reshape(-1, 2), axis=1)
+        on[edge] = np.isin(ends[:, 0] * len(self.vertices) + ends[:, 1], self.border_edges)
+        return on
 
 
 @dataclass(frozen=True)
