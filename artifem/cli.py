@@ -13,6 +13,8 @@
     artifem study scene MODULE:FUNCTION --out DIR   any scene's reduced model: train/test split
     artifem study incompressibility --out DIR   tongue motions, penalty against hard constraint
     artifem study robustness MODEL --out DIR    random valid schedules of the hard kinds: what runs
+    artifem study registration --out DIR     skeletal registration cases (synthetic, femur)
+    artifem register --reference D --target D --out DIR   register a skeleton to surfaces
     artifem demo --out DIR                   the main job (``make demo``)
 
 Each command lives in its own module, which declares its arguments
@@ -120,6 +122,12 @@ COMMANDS = {
     ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
                                      "tongue motions with the element penalty and with hard "
                                      "incompressibility: volume, landmarks, speed", DISTRIBUTED),
+    ("study", "registration"): ("artifem.models.registration",
+                                "skeletal registration cases: jointed deformable bones against "
+                                "per-bone rigid, affine and one jointless grid", ONE_PROCESS),
+    ("register",): ("artifem.registration.skeletal",
+                    "register a reference skeleton (jointed deformable bones) to target "
+                    "surfaces: report, meshes, picture", ONE_RANK),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are", DISTRIBUTED),
 }
 

@@ -128,3 +128,31 @@ def test_procrustes_frame_without_a_point_sits_at_the_support_centroid():
                                atol=1e-13)
     with pytest.raises(ValueError, match="origin point"):
         FemFrame(body)
+
+
+def test_a_collapsed_support_is_a_cut_trial_not_an_error():
+    """A mirrored support (det A < 0, e.g. a Newton trial too long) has no rotation: the
+    frame says it collapsed, and a scene's layout leaves the attached marker where it was
+    and reports the configuration inverted (the static line search then halves the step;
+    a dynamic step fails its health check) instead of raising mid-solve."""
+    from artifem.multibody.attachments import FrameAttachment
+    from artifem.multibody.rigid_body import RigidBody
+    from artifem.scene import Scene
+
+    body = make_body()
+    frame = frames(body)[1]
+    marker = RigidBody.marker("marker", position=frame.position())
+    scene = Scene()
+    attachment = FrameAttachment(marker, frame)
+    scene.add(body, marker, attachment)
+    L = scene._direct_layout("test")
+    x = body.V.tabulate_dof_coordinates()
+    mirror = np.diag([1.0, 1.0, -1.0])
+    body.u.x.array[:] = (x @ mirror.T - x).ravel()
+    assert frame.collapsed()
+    L.place_slaves()
+    assert L.collapsed_frames == [attachment] and L.inverted()
+    np.testing.assert_allclose(marker.position, ORIGIN, atol=1e-12)
+    body.u.x.array[:] = 0.0
+    L.place_slaves()
+    assert not frame.collapsed() and not L.collapsed_frames and not L.inverted()

@@ -57,6 +57,15 @@ def _axial(W: np.ndarray) -> np.ndarray:
     return np.array([W[2, 1], W[0, 2], W[1, 0]])
 
 
+def collapsed(A: np.ndarray, planar: bool = False) -> bool:
+    """True when :func:`polar_rotation` has no rotation for A: det A <= 0, or for a
+    planar support its second singular value vanished."""
+    if planar:
+        s = np.linalg.svd(A, compute_uv=False)
+        return not s[1] > 1e-12 * s[0]
+    return not np.linalg.det(A) > 0
+
+
 def polar_rotation(A: np.ndarray, planar: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(R, S) with A = R S, R a rotation and S symmetric (from the SVD; det R = +1).
 
@@ -64,16 +73,14 @@ def polar_rotation(A: np.ndarray, planar: bool = False) -> tuple[np.ndarray, np.
     ``planar``: A has rank 2 by construction (a planar support, module docstring);
     R = U diag(1, 1, det U V^T) V^T, and only a collapse to rank 1 is an error.
     """
+    if collapsed(A, planar):
+        raise InputError(f"polar_rotation: singular values {np.linalg.svd(A, compute_uv=False)}"
+                         f", det A = {np.linalg.det(A):.3g}: the support collapsed or "
+                         f"inverted; the frame's rotation is undefined")
     U, s, Vt = np.linalg.svd(A)
     if planar:
-        if not s[1] > 1e-12 * s[0]:
-            raise InputError(f"polar_rotation: singular values {s.tolist()}: the planar "
-                             "support collapsed to a line; the frame's rotation is undefined")
         U[:, 2] *= np.linalg.det(U @ Vt)
         s[2] = 0.0
-    elif not np.linalg.det(A) > 0:
-        raise InputError(f"polar_rotation: det A = {np.linalg.det(A):.3g} <= 0 (inverted or "
-                         f"collapsed support): the frame's rotation is undefined")
     R = U @ Vt
     S = Vt.T @ np.diag(s) @ Vt
     return R, S
@@ -186,6 +193,11 @@ class FemFrame:
 
     def position(self) -> np.ndarray:
         return self.origin.rest_position + self.origin.weights @ self._nodal(self.origin.dofs)
+
+    def collapsed(self) -> bool:
+        """True when the support (or the element at a polar frame's point) collapsed or
+        inverted: no rotation is defined (:func:`collapsed`)."""
+        return collapsed(self.matrix(), self.planar)
 
     def rotation(self) -> np.ndarray:
         """R = polar(A) R_rest^T: the identity at rest, the body's rotation under rigid motion."""

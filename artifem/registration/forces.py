@@ -28,7 +28,8 @@ closest point's sliding included).
 
 from __future__ import annotations
 
-import igl
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import sparse
 
@@ -88,48 +89,85 @@ def _value_hessian(xs: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
     return H - np.einsum("qcix,qcd,qdjy->qijxy", Lsx, M, Lsx)
 
 
-def _terms(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
-           both_ways: bool = True) -> tuple[float, np.ndarray, sparse.csr_matrix, np.ndarray]:
-    """(E / w, f / w (n, 3), df/dx / w (3n x 3n), kept (n,)) of the module docstring for
-    the model surface (vertices ``x``, triangles ``faces``) and w = 1; ``kept`` marks the
-    model vertices whose pair to the target is kept (its closest point not on the
-    target's border)."""
-    n = len(x)
-    d, c, tri = target.closest_triangles(x)
+@dataclass(frozen=True)
+class _Features:
+    """The closest-point features at one configuration: model-to-target, each model
+    vertex's closest point c_i, the projector P_i off its feature and whether the pair is
+    kept; target-to-model, for m = 1, 2, 3 (the closest point at a model vertex, on an
+    edge, inside a triangle) the target vertices y (q, 3) and the feature's model
+    vertices (q, m)."""
+
+    c: np.ndarray
+    P: np.ndarray
+    kept: np.ndarray
+    pieces: tuple = ()
+
+
+def _features(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
+              both_ways: bool = True) -> _Features:
+    """The :class:`_Features` of the model surface (vertices ``x``, triangles ``faces``)
+    toward ``target``, pairs on a border dropped (module docstring)."""
+    _, c, tri = target.closest_triangles(x)
     b = target.barycentric(c, tri)
     kept = ~target.on_border(tri, b, ON_FEATURE)
     P = _projectors(target, tri, b) * kept[:, None, None]
-    energy = 0.5 * float(d[kept] @ d[kept])
-    f = (c - x) * kept[:, None]
-    rows = [np.repeat(3 * np.arange(n)[:, None] + np.arange(3), 3, axis=1)]
-    cols = [np.tile(3 * np.arange(n)[:, None] + np.arange(3), (1, 3))]
-    vals = [-P.reshape(n, 9)]
+    pieces = []
     if both_ways:
         model = TriangleSurface(x, faces)
-        dj, p, tj = model.closest_triangles(target.vertices)
+        _, p, tj = model.closest_triangles(target.vertices)
         b = model.barycentric(p, tj)
         pick = ~model.on_border(tj, b, ON_FEATURE)
-        y, dj, p, tj, b = target.vertices[pick], dj[pick], p[pick], tj[pick], b[pick]
-        energy += 0.5 * float(dj @ dj)
-        corners = model.triangles[tj]                           # (k, 3) model vertices
-        np.add.at(f, corners.ravel(), (b[:, :, None] * (y - p)[:, None, :]).reshape(-1, 3))
+        y, b, corners = target.vertices[pick], b[pick], model.triangles[tj[pick]]
         on = b > ON_FEATURE
-        for m in (1, 2, 3):                 # a vertex, an edge, a triangle's interior
-            pick = np.flatnonzero(on.sum(axis=1) == m)
-            if not pick.size:
-                continue
-            order = np.argsort(~on[pick], axis=1, kind="stable")[:, :m]
-            verts = np.take_along_axis(corners[pick], order, axis=1)       # (q, m)
-            H = _value_hessian(x[verts], np.take_along_axis(b[pick], order, axis=1),
-                               (y - p)[pick])
-            dofs = 3 * verts[:, :, None] + np.arange(3)                     # (q, m, 3)
-            rows.append(np.broadcast_to(dofs[:, :, None, :, None], H.shape).ravel())
-            cols.append(np.broadcast_to(dofs[:, None, :, None, :], H.shape).ravel())
-            vals.append(-H.ravel())
+        for m in (1, 2, 3):
+            rows = np.flatnonzero(on.sum(axis=1) == m)
+            order = np.argsort(~on[rows], axis=1, kind="stable")[:, :m]
+            pieces.append((y[rows], np.take_along_axis(corners[rows], order, axis=1)))
+    return _Features(c, P, kept, tuple(pieces))
+
+
+def _on_hull(y: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """(q, m) barycentric coordinates of the projections of ``y`` (q, 3) onto the affine
+    hulls of the features xs (q, m, 3): b = [1 - sum s, s], s = (J^T J)^-1 J^T (y - x_0)."""
+    if xs.shape[1] == 1:
+        return np.ones((len(y), 1))
+    J = xs[:, 1:] - xs[:, :1]
+    s = np.linalg.solve(np.einsum("qca,qda->qcd", J, J),
+                        np.einsum("qca,qa->qc", J, y - xs[:, 0])[:, :, None])[:, :, 0]
+    return np.column_stack([1.0 - s.sum(axis=1), s])
+
+
+def _evaluate(x: np.ndarray, features: _Features) -> tuple[float, np.ndarray,
+                                                            sparse.csr_matrix]:
+    """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) of the module docstring at ``x`` on the
+    given features: model-to-target 1/2 (x_i - c_i)^T P_i (x_i - c_i) (the distance to
+    the plane, line or point of c_i's feature: equal to 1/2 |x_i - c_i|^2 where the
+    features were found), target-to-model 1/2 |y_j - p_j|^2 with p_j the projection of
+    y_j onto its feature's affine hull (:func:`_value_hessian`)."""
+    n = len(x)
+    g = x - features.c
+    f = -np.einsum("nij,nj->ni", features.P, g)
+    energy = -0.5 * float(np.sum(f * g))
+    rows = [np.repeat(3 * np.arange(n)[:, None] + np.arange(3), 3, axis=1)]
+    cols = [np.tile(3 * np.arange(n)[:, None] + np.arange(3), (1, 3))]
+    vals = [-features.P.reshape(n, 9)]
+    for y, verts in features.pieces:
+        if not len(y):
+            continue
+        xs = x[verts]
+        b = _on_hull(y, xs)
+        r = y - np.einsum("qm,qmx->qx", b, xs)
+        energy += 0.5 * float(np.sum(r * r))
+        np.add.at(f, verts.ravel(), (b[:, :, None] * r[:, None, :]).reshape(-1, 3))
+        H = _value_hessian(xs, b, r)
+        dofs = 3 * verts[:, :, None] + np.arange(3)                         # (q, m, 3)
+        rows.append(np.broadcast_to(dofs[:, :, None, :, None], H.shape).ravel())
+        cols.append(np.broadcast_to(dofs[:, None, :, None, :], H.shape).ravel())
+        vals.append(-H.ravel())
     K = sparse.csr_matrix((np.concatenate([v.ravel() for v in vals]),
                            (np.concatenate([r.ravel() for r in rows]),
                             np.concatenate([q.ravel() for q in cols]))), shape=(3 * n, 3 * n))
-    return energy, f, K, kept
+    return energy, f, K
 
 
 class _Weight:
@@ -179,7 +217,7 @@ class RegistrationForces:
         self.skin, self.target, self.name = skin, target, name
         self.weight = weight
         self.both_ways = both_ways
-        self._memo = None
+        self._memo = self._found = self._held = None
         self.landmarks = None
         if landmarks is not None:
             vertices, points = landmarks
@@ -201,18 +239,41 @@ class RegistrationForces:
     def __repr__(self) -> str:
         return f"RegistrationForces({self.name!r}, skin={self.skin.name!r})"
 
-    def terms(self) -> tuple[float, np.ndarray, sparse.csr_matrix, np.ndarray]:
-        """(E / w, f / w (n, 3), df/dx / w (3n x 3n), kept (n,)) at the skin's current
-        positions (:func:`_terms`; kept while the positions stay)."""
+    def features(self) -> _Features:
+        """The closest-point features: the held ones (:meth:`hold`), else those at the
+        skin's current positions (found once per configuration)."""
+        if self._held is not None:
+            return self._held
         x = self.skin.positions()
-        if self._memo is None or not np.array_equal(self._memo[0], x):
-            self._memo = (x.copy(), _terms(x, self.skin.faces, self.target, self.both_ways))
-        return self._memo[1]
+        if self._found is None or not np.array_equal(self._found[0], x):
+            self._found = (x.copy(), _features(x, self.skin.faces, self.target,
+                                               self.both_ways))
+        return self._found[1]
+
+    def hold(self, hold: bool) -> None:
+        """Hold the features found at the current positions (True) or follow them again
+        (False). Held, the energy is smooth (:func:`_evaluate`): a static solve converges
+        quadratically where the closest points would switch features at every iteration,
+        and the loop finds the features again between solves (ICP's alternation)."""
+        self._held = None
+        self._held = self.features() if hold else None
+
+    def terms(self) -> tuple[float, np.ndarray, sparse.csr_matrix]:
+        """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) at the skin's current positions on
+        :meth:`features` (:func:`_evaluate`; kept while the positions stay)."""
+        x = self.skin.positions()
+        features = self.features()
+        if self._memo is None or self._memo[1] is not features \
+                or not np.array_equal(self._memo[0], x):
+            self._memo = (x.copy(), features, _evaluate(x, features))
+        return self._memo[2]
 
     def distances(self) -> np.ndarray:
-        """|x_i - c_i| of the model vertices whose pair to the target is kept (m)."""
+        """|x_i - c_i| of the model vertices whose pair to the target is kept, at the
+        current positions (m)."""
         x = self.skin.positions()
-        return self.target.closest(x[self.terms()[3]])[0]
+        d, c, tri = self.target.closest_triangles(x)
+        return d[~self.target.on_border(tri, self.target.barycentric(c, tri), ON_FEATURE)]
 
     def _landmark_gaps(self) -> np.ndarray | None:
         """y_l - x_v (L, 3) of the landmarks, or None."""

@@ -3,6 +3,9 @@ weight rises on a schedule (Sanchez et al. 2015's continuation: a low weight fir
 that the model's own elasticity and joints keep it whole while it finds the target, then
 higher ones to close the distance), stopped when the mean distance stops changing.
 
+Each stage alternates, as ICP does, between finding the closest-point features and a
+static solve with them held (Newton on the exact energy itself circles where the
+closest points switch features, as they do on noisy data at high weights).
 After each stage k (weight w_k) the loop records the mean and largest distance of the
 model's vertices to the target (the model-to-target term's |x_i - c_i|, over the pairs
 it keeps: not those whose closest point is on a partial target's border); it stops once
@@ -29,13 +32,15 @@ __all__ = ["RegistrationResult", "register"]
 @dataclass
 class RegistrationResult:
     """The stages done: ``weights[k]``, the mean and largest model-to-target distance after
-    it (m), the static solve's Newton iterations; ``converged`` when the mean changed by
+    it (m), the static solves' Newton iterations and the sweeps (solves on held
+    features) it took; ``converged`` when the mean changed by
     less than the tolerance."""
 
     weights: list = field(default_factory=list)
     mean_distance: list = field(default_factory=list)
     max_distance: list = field(default_factory=list)
     iterations: list = field(default_factory=list)
+    sweeps: list = field(default_factory=list)
     converged: bool = False
 
 
@@ -45,15 +50,18 @@ def _distances(forces: Sequence[RegistrationForces]) -> np.ndarray:
 
 def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[float], *,
              tol: float = 1e-5, checkpoint: Path | None = None, progress=None,
-             max_iterations: int = 50) -> RegistrationResult:
+             max_iterations: int = 30, max_sweeps: int = 20,
+             rtol: float = 1e-8) -> RegistrationResult:
     """Register the scene's model surfaces to their targets (module docstring): for each
     weight of ``weights`` (increasing), every element of ``forces`` (already in the
-    scene) takes it and ``scene.solve_static`` runs from the last stage's state with
-    the weight whole (one load step: the schedule is the continuation, and a ramp of
-    the load factor would first relax the fit); stop when the mean distance changes by
-    less than ``tol`` (m); at most ``max_iterations`` Newton iterations per stage (the
-    closest points change their triangles while the model moves: Newton is quadratic
-    only once they settle). ``progress`` (e.g. tqdm) is updated once per stage."""
+    scene) takes it, and sweeps of ICP's alternation run from the last state: the
+    closest-point features are held (:meth:`RegistrationForces.hold`), the scene solved
+    statically on them (``scene.solve_static``, one load step to ``rtol``, at most
+    ``max_iterations`` Newton iterations: the held energy is smooth, so Newton is
+    quadratic), the features found again; until the mean distance changes by less than
+    ``tol`` (m) between sweeps, or ``max_sweeps``. The loop stops when a stage changed
+    the mean distance by less than ``tol``. ``progress`` (e.g. tqdm) is updated once per
+    stage."""
     forces = list(forces)
     weights = [float(w) for w in weights]
     if not forces:
@@ -80,12 +88,25 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
             break
         for f in forces:
             f.weight = w
-        counts = scene.solve_static(load_steps=1, max_iterations=max_iterations)
-        d = _distances(forces)
+        iterations, mean = 0, np.inf
+        for sweep in range(1, max_sweeps + 1):
+            for f in forces:
+                f.hold(True)
+            try:
+                iterations += int(sum(scene.solve_static(load_steps=1, rtol=rtol,
+                                                         max_iterations=max_iterations)))
+            finally:
+                for f in forces:
+                    f.hold(False)
+            d = _distances(forces)
+            done, mean = abs(float(d.mean()) - mean) < tol, float(d.mean())
+            if done:
+                break
         result.weights.append(w)
-        result.mean_distance.append(float(d.mean()))
+        result.mean_distance.append(mean)
         result.max_distance.append(float(d.max()))
-        result.iterations.append(int(sum(counts)))
+        result.iterations.append(iterations)
+        result.sweeps.append(sweep)
         result.converged = len(result.mean_distance) > 1 and \
             abs(result.mean_distance[-1] - result.mean_distance[-2]) < tol
         if checkpoint is not None:

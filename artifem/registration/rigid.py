@@ -12,7 +12,8 @@
 - :func:`icp`: point-to-surface ICP (Besl and McKay 1992): each point's closest point
   c_i on the surface, then (R, t) = kabsch(p, c), until (R, t) stop changing; ``trim``
   < 1 fits only that fraction of the pairs, the closest ones (trimmed ICP, Chetverikov
-  et al. 2002), for a target that covers part of the points or more than them.
+  et al. 2002), for a target that covers part of the points or more than them; pairs
+  whose closest point lies on an open surface's border are left out (Turk and Levoy 1994).
 """
 
 from __future__ import annotations
@@ -146,7 +147,8 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
     """Trimmed point-to-surface ICP of ``points`` onto ``surface`` from (R, t) (default
     identity): at most ``iterations`` of closest points and :func:`kabsch` (``affine``:
     :func:`affine_fit`, R then any matrix) on the fraction ``trim`` of the pairs with the
-    smallest distances (all of them at 1), until the entries of R change by less than
+    smallest distances (all of them at 1), without the pairs whose closest point lies on
+    the surface's border (a partial target's edge; Turk and Levoy), until the entries of R change by less than
     ``rotation_tol`` and those of t by less than ``translation_tol`` (module
     docstring)."""
     points = np.asarray(points, dtype=float)
@@ -161,8 +163,8 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
     done = 0
     for done in range(1, iterations + 1):
         moved = points @ R.T + t
-        r, closest = surface.closest(moved)
-        keep = kept(r)
+        r, closest, triangles = surface.closest_triangles(moved)
+        keep = kept(r) & ~surface.on_border(triangles, surface.barycentric(closest, triangles))
         R_new, t_new = (affine_fit if affine else kabsch)(points[keep], closest[keep])
         converged = np.abs(R_new - R).max() < rotation_tol and \
             np.abs(t_new - t).max() < translation_tol

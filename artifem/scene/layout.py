@@ -53,6 +53,7 @@ class Layout:
     def __init__(self, scene, fem_bodies: list, reduced_bodies: list):
         self.scene = scene
         self.fem_bodies, self.reduced_bodies = list(fem_bodies), list(reduced_bodies)
+        self.collapsed_frames = []      # the frame attachments place_slaves could not place
         rigid = scene.rigid_bodies
         for body in self.fem_bodies:
             if body.mesh.comm.size != 1:
@@ -889,8 +890,13 @@ class Layout:
         self._place_lifts()                             # a reduced master's lift columns
         for att in reversed(self.embedded):             # masters before their slaves
             att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
-        for att in self.scene.frame_attachments:        # leaves: after every FEM body
-            att.slave.position, att.slave.rotation = att.pose()
+        # leaves: after every FEM body; a frame whose support collapsed (a Newton trial
+        # too long, a step too large) has no pose: its slave stays, inverted() says so
+        self.collapsed_frames = [att for att in self.scene.frame_attachments
+                                 if att.frame.collapsed()]
+        for att in self.scene.frame_attachments:
+            if not any(att is c for c in self.collapsed_frames):
+                att.slave.position, att.slave.rotation = att.pose()
         for body in self.fem_bodies:
             body.u.x.scatter_forward()
             body.v.x.scatter_forward()
@@ -938,6 +944,9 @@ class Layout:
         return max(vals, default=1.0)
 
     def inverted(self) -> bool:
+        """True when an element inverted or a frame's support collapsed (place_slaves)."""
+        if self.collapsed_frames:
+            return True
         for body in self.reduced_bodies:
             detF = body.det_F()
             if detF.size and not np.nanmin(detF) > 0:

@@ -823,6 +823,10 @@ class Scene:
         if inverted:
             return _Failure("inverted elements in " + ", ".join(repr(n) for n, *_ in inverted),
                             inverted)
+        collapsed = [att.name for att in self.frame_attachments if att.frame.collapsed()]
+        if collapsed:
+            return _Failure("the support of frame attachment(s) " + ", ".join(map(repr, collapsed))
+                            + " collapsed or inverted (no rotation)", [])
         for item in [*self.bodies, *self.constraints]:
             off = item.constraint_failure()
             if off is not None:

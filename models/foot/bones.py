@@ -162,7 +162,8 @@ def _function_value(axis_node, coords: dict[str, float], joint: str) -> float:
 
 def joint_frames(osim: Path = OSIM) -> dict[str, dict]:
     """The ankle_r, subtalar_r and mtp_r joints of the osim file: parent and child offset
-    frames (body, translation, orientation) and the spatial transform at the default pose."""
+    frames (body, translation, orientation), the spatial transform at the default pose and
+    ``axis``, the axis of the first rotation driven by a coordinate (parent offset frame)."""
     root = ET.parse(osim).getroot()
     out = {}
     for joint_name, _ in CHAIN.values():
@@ -184,6 +185,9 @@ def joint_frames(osim: Path = OSIM) -> dict[str, dict]:
         if spatial is not None:
             for axis in spatial:
                 value = _function_value(axis, coords, joint_name)
+                if axis.get("name").startswith("rotation") and "axis" not in info \
+                        and (axis.findtext("coordinates") or "").strip():
+                    info["axis"] = _vec(axis, "axis")     # the coordinate's hinge axis
                 if axis.get("name").startswith("rotation"):
                     m[:3, :3] = m[:3, :3] @ _rotation(_vec(axis, "axis"), value)
                 else:
