@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import artifem as af
-from artifem.errors import InputError
+from artifem.errors import InputError, StepFailed
 from artifem.registration import RegistrationForces, TriangleSurface, register
 
 WEIGHTS = [1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8]
@@ -69,3 +69,30 @@ def test_bad_schedules_are_refused():
     other = RegistrationForces(forces.skin, forces.target, 1.0, name="not added")
     with pytest.raises(InputError, match="not in the scene"):
         register(scene, [other], WEIGHTS)
+
+
+class _Jumpy:
+    """The scene, but its static solve fails when the weight rose more than 3.5-fold
+    since the last solve that succeeded (a stand-in for a stage too far)."""
+
+    def __init__(self, scene, forces):
+        self.scene, self.forces, self.last = scene, forces, None
+
+    def __getattr__(self, name):
+        return getattr(self.scene, name)
+
+    def solve_static(self, **options):
+        w = self.forces.weight
+        if self.last is not None and w > 3.5 * self.last:
+            raise StepFailed(f"weight {w:g} after {self.last:g}")
+        self.last = w
+        return self.scene.solve_static(**options)
+
+
+def test_a_stage_that_fails_is_preceded_by_an_intermediate_weight():
+    """From 10 to 1000 in one stage fails; the loop runs 100 (the geometric mean) first,
+    which fails too, then 31.6, 100, 316 and 1000."""
+    scene, body, forces = _scene()
+    result = register(_Jumpy(scene, forces), [forces], [10.0, 1000.0], tol=1e-9)
+    np.testing.assert_allclose(result.weights, [10.0, 10 ** 1.5, 100.0, 10 ** 2.5, 1000.0])
+    assert np.all(np.diff(result.mean_distance) < 0)

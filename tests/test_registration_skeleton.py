@@ -127,3 +127,21 @@ def test_bad_input_is_refused_before_any_solve(rigid_case, tmp_path):
     (ref / "skeleton.json").write_text(json.dumps(skeleton))
     with pytest.raises(InputError, match="joint 'subtalar'.*from bone"):
         _run(ref, target, tmp_path)
+
+
+def test_the_register_command_writes_its_report(rigid_case, tmp_path):
+    """``artifem register`` on the rigid case's directories, the ICP baselines only: each
+    bone moved rigidly, so per-bone rigid ICP ends on the target (to 1 micrometre)."""
+    from artifem.cli import main
+
+    out, _ = rigid_case
+    assert main(["register", "--reference", str(out / "input" / "reference"), "--target",
+                 str(out / "input" / "target"), "--out", str(tmp_path), "--methods",
+                 "rigid,affine"]) == 0
+    report = json.loads((tmp_path / "registration.json").read_text())
+    assert set(report["methods"]) == {"rigid", "affine"}
+    for row in report["methods"]["rigid"]["bones"].values():
+        assert row["mean"] < 1e-6
+    assert main(["register", "--reference", str(out / "input" / "reference"), "--target",
+                 str(out / "input" / "target"), "--out", str(tmp_path), "--methods",
+                 "elastic"]) == 2

@@ -23,10 +23,14 @@ from typing import Sequence
 
 import numpy as np
 
-from artifem.errors import InputError
+from artifem.errors import InputError, StepFailed
 from artifem.registration.forces import RegistrationForces
 
 __all__ = ["RegistrationResult", "register"]
+
+#: a failed stage is preceded by one at the geometric mean of its weight and the last
+#: one, down to weights this close (then the failure is raised)
+MIN_WEIGHT_RATIO = 1.05
 
 
 @dataclass
@@ -48,10 +52,33 @@ def _distances(forces: Sequence[RegistrationForces]) -> np.ndarray:
     return np.concatenate([f.distances() for f in forces])
 
 
+def _stage(scene, forces, w: float, tol: float, rtol: float, max_iterations: int,
+           max_sweeps: int) -> tuple[float, float, int, int]:
+    """One stage at weight w (:func:`register`): (mean distance, largest distance, Newton
+    iterations, sweeps)."""
+    for f in forces:
+        f.weight = w
+    iterations, mean = 0, np.inf
+    for sweep in range(1, max_sweeps + 1):
+        for f in forces:
+            f.hold(True)
+        try:
+            iterations += int(sum(scene.solve_static(load_steps=1, rtol=rtol,
+                                                     max_iterations=max_iterations)))
+        finally:
+            for f in forces:
+                f.hold(False)
+        d = _distances(forces)
+        done, mean = abs(float(d.mean()) - mean) < tol, float(d.mean())
+        if done:
+            break
+    return mean, float(d.max()), iterations, sweep
+
+
 def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[float], *,
              tol: float = 1e-5, checkpoint: Path | None = None, progress=None,
              max_iterations: int = 30, max_sweeps: int = 20,
-             rtol: float = 1e-8) -> RegistrationResult:
+             rtol: float = 1e-6) -> RegistrationResult:
     """Register the scene's model surfaces to their targets (module docstring): for each
     weight of ``weights`` (increasing), every element of ``forces`` (already in the
     scene) takes it, and sweeps of ICP's alternation run from the last state: the
@@ -60,8 +87,10 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
     ``max_iterations`` Newton iterations: the held energy is smooth, so Newton is
     quadratic), the features found again; until the mean distance changes by less than
     ``tol`` (m) between sweeps, or ``max_sweeps``. The loop stops when a stage changed
-    the mean distance by less than ``tol``. ``progress`` (e.g. tqdm) is updated once per
-    stage."""
+    the mean distance by less than ``tol``. A stage whose static solve fails is put back
+    and preceded by a stage at the geometric mean of its weight and the last one (the
+    continuation refined; ``result.weights`` lists the stages run). ``progress`` (e.g.
+    tqdm) is updated once per stage."""
     forces = list(forces)
     weights = [float(w) for w in weights]
     if not forces:
@@ -78,40 +107,36 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
     if checkpoint is not None and Path(checkpoint).exists():
         with open(checkpoint, "rb") as fh:
             saved = pickle.load(fh)
-        if saved["weights"] != weights[:len(saved["weights"])]:
+        if saved["schedule"] != weights[:len(saved["schedule"])]:
             raise InputError(f"register: the checkpoint {checkpoint} was written for the "
-                             f"weights {saved['weights']}, not a start of {weights}")
+                             f"weights {saved['schedule']}, not a start of {weights}")
         scene.restore_state(saved["state"])
         result = saved["result"]
-    for w in weights[len(result.weights):]:
-        if result.converged:
-            break
-        for f in forces:
-            f.weight = w
-        iterations, mean = 0, np.inf
-        for sweep in range(1, max_sweeps + 1):
-            for f in forces:
-                f.hold(True)
-            try:
-                iterations += int(sum(scene.solve_static(load_steps=1, rtol=rtol,
-                                                         max_iterations=max_iterations)))
-            finally:
-                for f in forces:
-                    f.hold(False)
-            d = _distances(forces)
-            done, mean = abs(float(d.mean()) - mean) < tol, float(d.mean())
-            if done:
-                break
+    pending = [w for w in weights if not result.weights or w > result.weights[-1]]
+    while pending and not result.converged:
+        w = pending[0]
+        state = scene.save_state()
+        try:
+            stage = _stage(scene, forces, w, tol, rtol, max_iterations, max_sweeps)
+        except StepFailed as error:
+            # continuation: a stage between the last weight and this one first
+            scene.restore_state(state)
+            last = result.weights[-1] if result.weights else w / 10.0
+            if w / last < MIN_WEIGHT_RATIO:
+                raise StepFailed(f"registration: the static solve at weight {w:g} failed "
+                                 f"after the weight {last:g} ({error})") from error
+            pending.insert(0, float(np.sqrt(last * w)))
+            continue
+        pending.pop(0)
         result.weights.append(w)
-        result.mean_distance.append(mean)
-        result.max_distance.append(float(d.max()))
-        result.iterations.append(iterations)
-        result.sweeps.append(sweep)
+        for name, value in zip(("mean_distance", "max_distance", "iterations", "sweeps"),
+                               stage):
+            getattr(result, name).append(value)
         result.converged = len(result.mean_distance) > 1 and \
             abs(result.mean_distance[-1] - result.mean_distance[-2]) < tol
         if checkpoint is not None:
             with open(checkpoint, "wb") as fh:
-                pickle.dump({"weights": result.weights, "state": scene.save_state(),
+                pickle.dump({"schedule": weights, "state": scene.save_state(),
                              "result": result}, fh)
         if progress is not None:
             progress.update(1)

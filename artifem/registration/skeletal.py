@@ -45,8 +45,9 @@ from artifem.registration.skeleton import (UNITS, Skeleton, jointed_scene, read_
 
 __all__ = ["Target", "prealign", "register_skeleton", "surface_distances"]
 
-#: the registration weights (N/m per vertex) of the deformable methods, rising
-WEIGHTS = (1e2, 1e3, 1e4, 1e5)
+#: the registration weights (N/m per vertex) of the deformable methods, rising; with the
+#: grids' Young's modulus E, only w / E matters (statics): the default E = 1 MPa
+WEIGHTS = (1e2, 1e3, 1e4)
 METHODS = ("rigid", "affine", "single", "jointed")
 
 
@@ -185,7 +186,7 @@ def _deformable(builder, skeleton, target, material, cell_size, weights, progres
     forces = [RegistrationForces(model.skins[b], target.surfaces[b], weights[0], name=b)
               for b in skeleton.bones]
     model.scene.add(*forces)
-    result = register(model.scene, forces, weights, tol=1e-6, progress=progress)
+    result = register(model.scene, forces, weights, tol=1e-3 * cell_size, progress=progress)
     extra = {"weights": result.weights, "stage_mean_distance": result.mean_distance,
              "newton_iterations": result.iterations, "sweeps": result.sweeps,
              "min_det_F": model.min_det_F(),
@@ -251,7 +252,7 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
 
 def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Path:
     """Reference (pre-aligned), target and each method's bones coloured by their distance
-    to the target (mm), side by side."""
+    to the target (mm; grey where a partial target does not cover them), side by side."""
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -271,10 +272,11 @@ def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Pat
             else:
                 V, F = positions[bone], T
             mesh = pv.PolyData(V, np.c_[np.full(len(F), 3), F].ravel())
-            if coloured:
-                mesh["distance (mm)"] = 1e3 * target.surfaces[bone].closest(V)[0]
+            if coloured:      # grey where the target does not cover the bone
+                d, kept = _kept(target.surfaces[bone], V)
+                mesh["distance (mm)"] = np.where(kept, 1e3 * d, np.nan)
                 plotter.add_mesh(mesh, scalars="distance (mm)", clim=clim, cmap="viridis",
-                                 show_scalar_bar=i == len(panels) - 1)
+                                 nan_color="lightgray", show_scalar_bar=i == len(panels) - 1)
             else:
                 plotter.add_mesh(mesh, color="lightsteelblue" if positions is not None
                                  else "salmon")
