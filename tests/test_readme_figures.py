@@ -540,3 +540,30 @@ def test_the_foot_reduced_configurations_match_their_json():
             assert agrees(row[2], config["max_mean_node_error_mm"])
             assert agrees(row[3].split()[0], config["reduced_ms_per_step"])
 
+
+
+def test_registration_figures_match_their_jsons():
+    """docs/registration.md holds each case's table as summary_table writes it from
+    docs/registration/CASE/registration.json (``artifem study registration``), and the
+    README's registration sentence quotes the synthetic and femur cases."""
+    from artifem.registration.skeletal import summary_table
+
+    page = (ROOT / "docs" / "registration.md").read_text()
+    reports = {case: json.loads((ROOT / "docs" / "registration" / case /
+                                 "registration.json").read_text())
+               for case in ("rigid", "synthetic", "complete", "femur")}
+    for case, report in reports.items():
+        assert summary_table(report) in page, case
+    text = re.sub(r"\s+", " ", README[README.index("## Registration"):])
+    methods = reports["synthetic"]["methods"]
+    for method in ("jointed", "rigid", "affine", "single"):
+        means = sorted(1e3 * r["mean"] for r in methods[method]["bones"].values())
+        assert f"{means[0]:.3f} to {means[-1]:.3f}" in text, method
+    assert f"{methods['jointed']['joint_constraint_error']:.0e} m" in text
+    assert f"in {sum(m['seconds'] for m in methods.values()):.0f} s" in text
+    femur = reports["femur"]["methods"]
+    for method in ("jointed", "rigid", "affine"):
+        assert f"{1e3 * femur[method]['bones']['femur']['mean']:.3f}" in text
+    angles = reports["rigid"]["methods"]["jointed"]["joint_angles_deg"]
+    worst = max(abs(angles[j] - a) for j, a in reports["rigid"]["truth_angles_deg"].items())
+    assert worst < 0.002 and "within 0.002 degrees" in text

@@ -43,7 +43,7 @@ from artifem.registration.skeleton import (UNITS, Skeleton, jointed_scene, read_
                                            single_structure_scene, write_surface, _read_json,
                                            _units)
 
-__all__ = ["Target", "prealign", "register_skeleton", "surface_distances"]
+__all__ = ["Target", "prealign", "register_skeleton", "summary_table", "surface_distances"]
 
 #: the registration weights (N/m per vertex) of the deformable methods, rising; with the
 #: grids' Young's modulus E, only w / E matters (statics): the default E = 1 MPa
@@ -248,6 +248,26 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
     (out / "registration.json").write_text(json.dumps(report, indent=1))
     render(out / "registration.png", aligned, target, results)
     return report
+
+
+def summary_table(report: dict) -> str:
+    """The report as a Markdown table: per method, each bone's mean distance to the target
+    (and to the truth, where known) in mm, the largest Hausdorff distance, the seconds."""
+    bones = list(report["bones"])
+    truth = all("truth_mean" in r for r in report["before"]["bones"].values())
+    head = "| method | " + " | ".join(f"{b} (mm)" for b in bones) + \
+        " | Hausdorff (mm) | time (s) |"
+    lines = [head, "|" + "---|" * (len(bones) + 3)]
+    for method, row in {"before": report["before"], **report["methods"]}.items():
+        cells = []
+        for b in bones:
+            r = row["bones"][b]
+            cells.append(f"{1e3 * r['mean']:.3f}" + (f" ({1e3 * r['truth_mean']:.2f})"
+                                                     if truth else ""))
+        hausdorff = max(r["hausdorff"] for r in row["bones"].values())
+        lines.append(f"| {method} | " + " | ".join(cells) + f" | {1e3 * hausdorff:.2f} | "
+                     f"{row['seconds']:.1f} |")
+    return "\n".join(lines)
 
 
 def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Path:
