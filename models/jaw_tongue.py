@@ -196,7 +196,10 @@ def align_jaw(nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray,
         for fz in np.linspace(0.0, 0.6, 7):
             target = np.array([lo[0] + fx * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]),
                                lo[2] + fz * (hi[2] - lo[2])])
-            fit = icp(nodes, surface, np.eye(3), target - centroid, iterations=iterations)
+            # the jaw mesh's open border keeps its pairs: the documented scenes were
+            # aligned so
+            fit = icp(nodes, surface, np.eye(3), target - centroid, iterations=iterations,
+                      drop_border=False)
             if best is None or fit.score < best.score:
                 best = fit
     fit = best

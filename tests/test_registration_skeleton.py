@@ -145,3 +145,33 @@ def test_the_register_command_writes_its_report(rigid_case, tmp_path):
     assert main(["register", "--reference", str(out / "input" / "reference"), "--target",
                  str(out / "input" / "target"), "--out", str(tmp_path), "--methods",
                  "elastic"]) == 2
+
+
+def test_an_interrupted_registration_resumes_where_it_stopped(rigid_case, tmp_path,
+                                                              monkeypatch):
+    """The jointed method stopped after its first weight stage (its checkpoint written),
+    then run again with resume=True: the same bones as an uninterrupted run, and no
+    checkpoint left."""
+    import artifem.registration.skeletal as skeletal
+
+    ref, target = rigid_case[0] / "input" / "reference", rigid_case[0] / "input" / "target"
+    options = dict(material=MATERIAL, cell_size=CELL, weights=(1e2, 1e3),
+                   methods=("jointed",), progress=lambda s: None)
+    whole = register_skeleton(ref, target, tmp_path / "whole", **options)
+    real = skeletal.register
+
+    def interrupted(scene, forces, weights, **kwargs):
+        real(scene, forces, weights[:1], **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(skeletal, "register", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        register_skeleton(ref, target, tmp_path / "run", **options)
+    assert (tmp_path / "run" / "jointed.checkpoint").exists()
+    monkeypatch.setattr(skeletal, "register", real)
+    resumed = register_skeleton(ref, target, tmp_path / "run", resume=True, **options)
+    assert not (tmp_path / "run" / "jointed.checkpoint").exists()
+    assert resumed["methods"]["jointed"]["weights"] == [1e2, 1e3]
+    for bone, row in whole["methods"]["jointed"]["bones"].items():
+        assert resumed["methods"]["jointed"]["bones"][bone]["mean"] == \
+            pytest.approx(row["mean"], rel=1e-9, abs=1e-15)

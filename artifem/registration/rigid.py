@@ -143,12 +143,14 @@ class RigidFit:
 
 def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
         iterations: int = 60, rotation_tol: float = 1e-10,
-        translation_tol: float = 1e-12, affine: bool = False) -> RigidFit:
+        translation_tol: float = 1e-12, affine: bool = False,
+        drop_border: bool = True) -> RigidFit:
     """Trimmed point-to-surface ICP of ``points`` onto ``surface`` from (R, t) (default
     identity): at most ``iterations`` of closest points and :func:`kabsch` (``affine``:
     :func:`affine_fit`, R then any matrix) on the fraction ``trim`` of the pairs with the
     smallest distances (all of them at 1), without the pairs whose closest point lies on
-    the surface's border (a partial target's edge; Turk and Levoy), until the entries of R change by less than
+    the surface's border (a partial target's edge; Turk and Levoy; unless not
+    ``drop_border``), until the entries of R change by less than
     ``rotation_tol`` and those of t by less than ``translation_tol`` (module
     docstring)."""
     points = np.asarray(points, dtype=float)
@@ -164,7 +166,9 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
     for done in range(1, iterations + 1):
         moved = points @ R.T + t
         r, closest, triangles = surface.closest_triangles(moved)
-        keep = kept(r) & ~surface.on_border(triangles, surface.barycentric(closest, triangles))
+        keep = kept(r)
+        if drop_border:
+            keep &= ~surface.on_border(triangles, surface.barycentric(closest, triangles))
         R_new, t_new = (affine_fit if affine else kabsch)(points[keep], closest[keep])
         converged = np.abs(R_new - R).max() < rotation_tol and \
             np.abs(t_new - t).max() < translation_tol

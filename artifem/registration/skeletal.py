@@ -181,12 +181,14 @@ def _measure(skeleton: Skeleton, target: Target, positions: dict, seconds: float
     return out
 
 
-def _deformable(builder, skeleton, target, material, cell_size, weights, progress):
+def _deformable(builder, skeleton, target, material, cell_size, weights, progress,
+                checkpoint):
     model = builder(skeleton, material, cell_size)
     forces = [RegistrationForces(model.skins[b], target.surfaces[b], weights[0], name=b)
               for b in skeleton.bones]
     model.scene.add(*forces)
-    result = register(model.scene, forces, weights, tol=1e-3 * cell_size, progress=progress)
+    result = register(model.scene, forces, weights, tol=1e-3 * cell_size, progress=progress,
+                      checkpoint=checkpoint)
     extra = {"weights": result.weights, "stage_mean_distance": result.mean_distance,
              "newton_iterations": result.iterations, "sweeps": result.sweeps,
              "min_det_F": model.min_det_F(),
@@ -199,8 +201,11 @@ def _deformable(builder, skeleton, target, material, cell_size, weights, progres
 
 def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
                       cell_size: float, weights=WEIGHTS, methods=METHODS,
-                      progress=print) -> dict:
-    """Steps 1-3 of the module docstring; returns and writes the report."""
+                      progress=print, resume: bool = False) -> dict:
+    """Steps 1-3 of the module docstring; returns and writes the report. The deformable
+    methods write their state after each weight stage to ``out/METHOD.checkpoint``
+    (removed when the method ends); with ``resume`` an interrupted run of the same
+    command continues from it, without it an old checkpoint is removed first."""
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputError(f"register: unknown method(s) {unknown}; choose from {METHODS}")
@@ -235,8 +240,16 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
                 extra["iterations"][bone] = fit.iterations
         else:
             builder = jointed_scene if method == "jointed" else single_structure_scene
-            positions, extra = _deformable(builder, aligned, target, material, cell_size,
-                                           list(weights), None)
+            from tqdm import tqdm
+
+            with tqdm(total=len(weights), desc=f"{method}: weight stages", unit="stage",
+                      disable=progress is None, leave=False) as bar:
+                checkpoint = out / f"{method}.checkpoint"
+                if not resume:
+                    checkpoint.unlink(missing_ok=True)
+                positions, extra = _deformable(builder, aligned, target, material,
+                                               cell_size, list(weights), bar, checkpoint)
+                checkpoint.unlink(missing_ok=True)
         row = _measure(skeleton, target, positions, time.perf_counter() - start, extra)
         report["methods"][method] = row
         results[method] = positions
@@ -319,6 +332,8 @@ def add_arguments(parser) -> None:
                         help="the grids' Young's modulus, Pa (neo-Hookean, nu = 0.3)")
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated subset of {','.join(METHODS)}")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue an interrupted run from OUT/METHOD.checkpoint")
 
 
 def run(args) -> int:
@@ -326,6 +341,7 @@ def run(args) -> int:
 
     register_skeleton(args.reference, args.target, args.out,
                       material=NeoHookean.from_young_poisson(args.youngs, 0.3),
-                      cell_size=args.cell_size, methods=tuple(args.methods.split(",")))
+                      cell_size=args.cell_size, methods=tuple(args.methods.split(",")),
+                      resume=args.resume)
     print(f"register: wrote {args.out / 'registration.json'} and registration.png")
     return 0
