@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from artifem.errors import InputError
 from artifem.registration.forces import ON_FEATURE, RegistrationForces
@@ -240,10 +241,8 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
                 extra["iterations"][bone] = fit.iterations
         else:
             builder = jointed_scene if method == "jointed" else single_structure_scene
-            from tqdm import tqdm
-
             with tqdm(total=len(weights), desc=f"{method}: weight stages", unit="stage",
-                      disable=progress is None, leave=False) as bar:
+                      leave=False) as bar:
                 checkpoint = out / f"{method}.checkpoint"
                 if not resume:
                     checkpoint.unlink(missing_ok=True)
