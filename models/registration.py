@@ -24,13 +24,14 @@ Cases (each written as reference and target directories, then registered by
 - ``complete``: ``synthetic`` with the whole calcaneus (the same noise): what the missing
   third costs.
 - ``femur``: the OpenSim femur against ArtiSynth's SmoothFemurRight.obj (BSD-2, in
-  millimetres: target.json says so; models/data/femur/README.md), an independent real
-  surface: one bone, no joints.
+  millimetres: target.json says so; models/data/registration-femur/README.md), an
+  independent real surface: one bone, no joints.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ from artifem.registration.rigid import TriangleSurface
 from artifem.registration.skeleton import Hinge, Skeleton, read_surface, write_surface
 
 DATA = Path(__file__).resolve().parent / "data"
+FEMUR = DATA / "registration-femur"
 #: the bones: name -> the OpenSim bones it fuses
 BONES = {"tibia": ("tibia", "fibula"), "talus": ("talus",), "calcaneus": ("calcaneus",)}
 #: hinge -> (osim joint, parent, child, limits in degrees)
@@ -109,10 +111,9 @@ def write_case(case: str, directory: Path, seed: int = 0) -> tuple[Path, Path]:
     ref_dir, target_dir = directory / "reference", directory / "target"
     target_dir.mkdir(parents=True, exist_ok=True)
     if case == "femur":
-        V, T = read_surface(DATA / "femur" / "femur_r.vtp")
+        V, T = read_surface(FEMUR / "femur_r.vtp")
         Skeleton({"femur": (V, T)}).write(ref_dir)
-        import shutil
-        shutil.copy(DATA / "femur" / "SmoothFemurRight.obj", target_dir / "femur.obj")
+        shutil.copy(FEMUR / "SmoothFemurRight.obj", target_dir / "femur.obj")
         spec = {"units": "mm", "bones": {"femur": "femur.obj"}}
         (target_dir / "target.json").write_text(json.dumps(spec, indent=1))
         return ref_dir, target_dir
@@ -135,7 +136,7 @@ def write_case(case: str, directory: Path, seed: int = 0) -> tuple[Path, Path]:
         spec["truth"]["bones"][bone] = f"truth_{bone}.vtp"
         if case in ("synthetic", "complete"):
             truth = truth + 2e-4 * rng.standard_normal(truth.shape)
-            if bone == "calcaneus" and case == "synthetic":       # a third of its surface gone: the lateral side
+            if bone == "calcaneus" and case == "synthetic":    # its lateral third gone
                 side = skeleton.bones[bone][0][T].mean(axis=1)[:, 0]
                 T = T[side > np.quantile(side, 1.0 / 3.0)]
         write_surface(target_dir / f"{bone}.stl", truth, T)

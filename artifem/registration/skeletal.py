@@ -79,7 +79,8 @@ class Target:
         for bone, x in self.truth.items():
             if x.shape != skeleton.bones[bone][0].shape:
                 raise InputError(f"{directory / 'target.json'}: the truth of bone {bone!r} "
-                                 f"has {len(x)} vertices, the reference {len(skeleton.bones[bone][0])}")
+                                 f"has {len(x)} vertices, the reference "
+                                 f"{len(skeleton.bones[bone][0])}")
         self.angles = {j: float(np.radians(a)) for j, a in dict(truth.get("angles", {})).items()}
 
 
