@@ -271,9 +271,8 @@ class RegistrationForces:
     def distances(self) -> np.ndarray:
         """|x_i - c_i| of the model vertices whose pair to the target is kept, at the
         current positions (m)."""
-        x = self.skin.positions()
-        d, c, tri = self.target.closest_triangles(x)
-        return d[~self.target.on_border(tri, self.target.barycentric(c, tri), ON_FEATURE)]
+        d, _, kept = self.target.closest_kept(self.skin.positions())
+        return d[kept]
 
     def _landmark_gaps(self) -> np.ndarray | None:
         """y_l - x_v (L, 3) of the landmarks, or None."""

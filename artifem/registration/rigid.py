@@ -102,6 +102,12 @@ class TriangleSurface:
                                                            points)
         return np.sqrt(np.maximum(sq, 0.0)), closest, np.asarray(triangle, dtype=np.int64)
 
+    def closest_kept(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distances (k,), closest points (k, 3), kept (k,)): kept where the closest point
+        is not on the surface's border (:meth:`on_border`; all kept on a closed surface)."""
+        d, c, tri = self.closest_triangles(points)
+        return d, c, ~self.on_border(tri, self.barycentric(c, tri))
+
     def barycentric(self, points, triangles) -> np.ndarray:
         """(k, 3) barycentric coordinates of ``points`` (on the surface) in their
         ``triangles``, clipped to [0, 1]."""
@@ -165,10 +171,8 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
     done = 0
     for done in range(1, iterations + 1):
         moved = points @ R.T + t
-        r, closest, triangles = surface.closest_triangles(moved)
-        keep = kept(r)
-        if drop_border:
-            keep &= ~surface.on_border(triangles, surface.barycentric(closest, triangles))
+        r, closest, off_border = surface.closest_kept(moved)
+        keep = kept(r) & off_border if drop_border else kept(r)
         R_new, t_new = (affine_fit if affine else kabsch)(points[keep], closest[keep])
         converged = np.abs(R_new - R).max() < rotation_tol and \
             np.abs(t_new - t).max() < translation_tol

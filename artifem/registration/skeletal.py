@@ -37,7 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from artifem.errors import InputError
-from artifem.registration.forces import ON_FEATURE, RegistrationForces
+from artifem.registration.forces import RegistrationForces
 from artifem.registration.register import register
 from artifem.registration.rigid import TriangleSurface, icp, kabsch
 from artifem.registration.skeleton import (UNITS, Skeleton, jointed_scene, read_surface,
@@ -84,16 +84,10 @@ class Target:
         self.angles = {j: float(np.radians(a)) for j, a in dict(truth.get("angles", {})).items()}
 
 
-def _kept(surface: TriangleSurface, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(distances, kept) of points x to the surface, kept = closest point off its border."""
-    d, c, tri = surface.closest_triangles(x)
-    return d, ~surface.on_border(tri, surface.barycentric(c, tri), ON_FEATURE)
-
-
 def surface_distances(x: np.ndarray, triangles: np.ndarray, target: TriangleSurface) -> dict:
     """Mean, RMS and Hausdorff distance (m) of a model surface to the target (module
     docstring)."""
-    d, kept = _kept(target, x)
+    d, _, kept = target.closest_kept(x)
     back = TriangleSurface(x, triangles).closest(target.vertices)[0]
     return {"mean": float(d[kept].mean()), "rms": float(np.sqrt(np.mean(d[kept] ** 2))),
             "hausdorff": float(max(d[kept].max(), back.max()))}
@@ -116,8 +110,8 @@ def _fit(skeleton: Skeleton, target: Target, names) -> tuple[float, np.ndarray, 
                             ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1])]:
         t = dst.mean(0) - R @ src.mean(0)
         for _ in range(100):
-            pairs = [(skeleton.bones[b][0], *_closest_kept(target.surfaces[b],
-                                                           skeleton.bones[b][0] @ R.T + t))
+            pairs = [(skeleton.bones[b][0],
+                      *target.surfaces[b].closest_kept(skeleton.bones[b][0] @ R.T + t)[1:])
                      for b in names]
             P = np.vstack([p[k] for p, c, k in pairs])
             C = np.vstack([c[k] for p, c, k in pairs])
@@ -142,11 +136,6 @@ def prealign(skeleton: Skeleton, target: Target) -> tuple[np.ndarray, np.ndarray
         fits += [_fit(skeleton, target, [b]) for b in skeleton.bones]
     _, R, t = min(fits, key=lambda f: (len(_far_bones(skeleton.moved(*f[1:]), target)), f[0]))
     return R, t
-
-
-def _closest_kept(surface: TriangleSurface, x: np.ndarray):
-    _, c, tri = surface.closest_triangles(x)
-    return c, ~surface.on_border(tri, surface.barycentric(c, tri), ON_FEATURE)
 
 
 def _far_bones(skeleton: Skeleton, target: Target) -> list[tuple[float, str, float]]:
@@ -306,7 +295,7 @@ def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Pat
                 V, F = positions[bone], T
             mesh = pv.PolyData(V, np.c_[np.full(len(F), 3), F].ravel())
             if coloured:      # grey where the target does not cover the bone
-                d, kept = _kept(target.surfaces[bone], V)
+                d, _, kept = target.surfaces[bone].closest_kept(V)
                 mesh["distance (mm)"] = np.where(kept, 1e3 * d, np.nan)
                 plotter.add_mesh(mesh, scalars="distance (mm)", clim=clim, cmap="viridis",
                                  nan_color="lightgray", show_scalar_bar=i == len(panels) - 1)

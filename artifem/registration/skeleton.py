@@ -25,12 +25,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from artifem.embedding.voxel_fem import VoxelFemBody, enclosed_volume
 from artifem.errors import InputError, MeshError
 from artifem.multibody.attachments import FrameAttachment
 from artifem.multibody.frame_attachments import FemFrame
-from artifem.multibody.joints import RevoluteJoint
+from artifem.multibody.joints import RevoluteJoint, axis_rotation
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import SkinMesh
 from artifem.registration.rigid import TriangleSurface
@@ -91,18 +92,13 @@ class Hinge:
     limits: tuple[float, float] | None = None
 
     def rotation(self, angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """(R, t) of x -> R x + t, the turn by ``angle`` about the hinge (Rodrigues)."""
-        a = np.asarray(self.axis, float) / np.linalg.norm(self.axis)
-        k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-        R = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+        """(R, t) of x -> R x + t, the turn by ``angle`` about the hinge."""
+        R = Rotation.from_rotvec(angle * self.frame_rotation()[:, 2]).as_matrix()
         return R, self.centre - R @ self.centre
 
     def frame_rotation(self) -> np.ndarray:
         """A rotation whose z column is the axis (the joint frame of RevoluteJoint)."""
-        z = np.asarray(self.axis, float) / np.linalg.norm(self.axis)
-        x = np.cross(z, np.eye(3)[int(np.argmin(np.abs(z)))])
-        x /= np.linalg.norm(x)
-        return np.column_stack([x, np.cross(z, x), z])
+        return axis_rotation(self.axis)
 
 
 @dataclass

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from artifem.errors import InputError, MeshError
+from artifem.registration.skeleton import edge_defects
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "opensim-foot"
 OSIM = DATA / "FullBodyModel_Hamner2010_v2_0.osim"
@@ -110,14 +111,6 @@ def read_vtp(path: Path) -> tuple[np.ndarray, np.ndarray]:
     f = f[counts[inverse.ravel()] == 1]
     used, f = np.unique(f, return_inverse=True)
     return v[used], f.reshape(-1, 3)
-
-
-def edge_defects(triangles: np.ndarray) -> tuple[int, int]:
-    """(boundary edges, non-manifold edges) of a triangle surface: edges with one
-    triangle, edges with more than two."""
-    e = np.sort(np.vstack([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), 1)
-    counts = np.unique(e, axis=0, return_counts=True)[1]
-    return int(np.sum(counts == 1)), int(np.sum(counts > 2))
 
 
 def signed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
