@@ -850,6 +850,12 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
         def newton() -> int:
             f = body.force()
             norm = float(np.linalg.norm(f))
+            if not np.isfinite(norm):           # NaN would pass every convergence test
+                bad, low = body.inverted_elements()
+                raise StepFailed(f"static solve (reduced): {body.name!r} starts with its force "
+                                 f"non-finite at load factor {factor:g}: {bad.size} inverted "
+                                 f"element(s) (input indices {bad[:10].tolist()}), min det F "
+                                 f"{low:.3g}", iterations=0)
             if not scale:
                 scale.append(max(norm, atol))
             it = 0

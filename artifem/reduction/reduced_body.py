@@ -62,6 +62,8 @@ body; errors name *input* (file) element indices.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import ufl
 from dolfinx import fem, mesh as dmesh
@@ -114,6 +116,9 @@ class ReducedFemBody:
             energy's, ``points.weights``).
         hold_volume: False leaves a hard body's volume constraint out (its material forces
             only, e.g. to train a cubature).
+        leave_out: names of the full body's energy terms (``FemBody.energy_terms(merged=True)``,
+            e.g. ``"incompressibility"``) the reduced energy leaves out (a diagnosis:
+            :mod:`artifem.reduction.galerkin_gap`).
         name: component name.
     """
 
@@ -123,7 +128,7 @@ class ReducedFemBody:
     def __init__(self, full: FemBody, U: np.ndarray, points: IntegrationPoints, *,
                  pressure_basis: np.ndarray | None = None,
                  pressure_weights: np.ndarray | None = None, hold_volume: bool = True,
-                 name: str | None = None):
+                 leave_out: Sequence[str] = (), name: str | None = None):
         if full.mesh.comm.size != 1:
             raise NotImplementedError("ReducedFemBody runs in serial only for now")
         self.full, self.points = full, points
@@ -223,7 +228,15 @@ class ReducedFemBody:
         self._Dt = np.ascontiguousarray(self.D.reshape(-1, self.r).T)
         # Each energy term's density at the points where it is integrated.
         terms = []
-        for term in full.energy_terms(merged=True):
+        energy_terms = full.energy_terms(merged=True)
+        unknown = sorted(set(leave_out) - {t.name for t in energy_terms})
+        if unknown:
+            raise InputError(f"ReducedFemBody {self.name!r}: leave_out names {unknown}, not "
+                             f"energy terms of {full.name!r}: "
+                             f"{[t.name for t in energy_terms]}")
+        for term in energy_terms:
+            if term.name in leave_out:
+                continue
             at = np.flatnonzero(np.isin(idx, self.table.of_term(term)))
             if at.size == 0:
                 continue

@@ -1,0 +1,117 @@
+"""The Galerkin-gap diagnosis (artifem.reduction.galerkin_gap) on the small muscle beam.
+
+(1) The held instants of a ramp-and-hold schedule: from the end of the ramp plus the hold.
+(2) A complete basis with every point: every reduced solution is the full state it is
+    compared with (the best approximation, the energy projection, the static equilibrium
+    against the full one, the oracle: at round-off); the static reduced equilibrium
+    against the swinging run is the full run's own distance to equilibrium.
+(3) A 3-vector POD basis under a weak excitation, at the full equilibrium: the static
+    reduced equilibrium is the energy-norm projection, and the oracle Petrov-Galerkin
+    solve the best approximation, up to second order in the error (asserted 5 %).
+(4) ``ReducedFemBody(leave_out=...)``: a penalty body with its penalty left out is the
+    reduced body of the same body built without it; an unknown term is refused.
+(5) A static reduced solve that starts inverted says so instead of passing as converged
+    on a NaN force.
+"""
+
+import numpy as np
+import pytest
+
+import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
+
+from artifem.errors import InputError, StepFailed
+from artifem.excitation import ExcitationSchedule
+from artifem.integrators import solve_static_reduced
+from artifem.reduction.cubature import IntegrationPoints
+from artifem.reduction.galerkin_gap import PARTS, galerkin_gap, held_instant, write_markdown
+from artifem.reduction.quadrature_points import quadrature_points
+from artifem.reduction.reduced_body import ReducedFemBody, all_points
+from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
+                                        Training)
+from artifem.reduction.schedules import random_schedules
+from artifem.reduction.training import ArtifactCache
+from artifem.scene import Scene
+from reduced_beam import full_basis, make_body
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
+
+DT = 0.01
+
+
+def beam() -> Scene:
+    """The beam driven by its muscle alone (no gravity, no load)."""
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add(make_body(excitation=0.0, loads=False))
+    return scene
+
+
+MODEL = ReducibleScene("beam", beam, "fem", {"model": "gap-beam"})
+
+
+def test_held_instants_start_a_hold_after_the_ramp():
+    schedule = ExcitationSchedule.ramp_and_hold({"top": 0.5}, 0.1)
+    times = np.arange(31) * DT
+    held = held_instant(schedule, times, hold=0.05)
+    assert np.array_equal(np.flatnonzero(held), np.arange(15, 31))
+
+
+def test_a_complete_basis_has_no_gap(tmp_path):
+    body = beam().fem_bodies[0]
+    complete = ReducedModel(MODEL, full_basis(body), [], all_points(body))
+    schedule = ExcitationSchedule.ramp_and_hold({"top": 0.4}, 0.1)
+    (row,) = galerkin_gap(complete, {"ramp": schedule}, 0.3, DT, ArtifactCache(tmp_path),
+                          progress=False)
+    assert row["held"] and row["time"] >= 0.2
+    for key in ("reduced_mm", "best_mm", "energy_mm", "best_static_mm",
+                "galerkin_static_mm", "energy_static_mm", "oracle_pg_mm"):
+        assert row[key] < 1e-6, key
+    # the beam still swings under gravity at t: its static equilibrium is elsewhere
+    assert row["full_lag_mm"] > 1.0
+    assert row["static_mm"] == pytest.approx(row["full_lag_mm"], rel=1e-6)
+
+
+def test_static_solve_is_the_energy_projection_and_the_oracle_the_best(tmp_path):
+    training = Training(random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1),
+                                         excitation=(0.0, 0.1)),
+                        duration=0.2, dt=DT, snapshot_every=1)
+    reduced = Reductor(MODEL, training, tmp_path / "cache", progress=False).reduce(
+        Basis("pod", 3), Points(sampling="all"))
+    schedule = ExcitationSchedule.ramp_and_hold({"top": 0.05}, 0.1)
+    (row,) = galerkin_gap(reduced, {"weak": schedule}, 0.3, DT,
+                          ArtifactCache(tmp_path / "cache"), progress=False)
+    assert row["galerkin_static_mm"] == pytest.approx(row["energy_static_mm"], rel=0.05)
+    assert row["oracle_pg_mm"] == pytest.approx(row["best_static_mm"], rel=0.05)
+    assert row["best_static_mm"] < row["galerkin_static_mm"]
+    assert set(row["residual_share"]) == set(PARTS)
+    assert max(row["residual_share"].values()) >= 0.5 - 1e-12   # a part is half the norm
+    assert "| weak | " in write_markdown([row])
+
+
+def test_leaving_out_the_penalty_is_the_body_without_it():
+    with_penalty, without = make_body(excitation=0.3), make_body(excitation=0.3,
+                                                                incompressibility=None)
+    U = full_basis(with_penalty)[:, ::7]
+    table = quadrature_points(with_penalty)     # every point but the penalty's own
+    kept = np.concatenate([table.of_term(t) for t in with_penalty.energy_terms(merged=True)
+                           if t.name != "incompressibility"])
+    points = IntegrationPoints(np.unique(kept), np.ones(np.unique(kept).size), "all")
+    left_out = ReducedFemBody(with_penalty, U, points, leave_out=["incompressibility"])
+    plain = ReducedFemBody(without, U, all_points(without))
+    q = np.random.default_rng(0).standard_normal(U.shape[1]) * 1e-3
+    for b in (left_out, plain):
+        b.set_q(q)
+    np.testing.assert_allclose(left_out.force(), plain.force(), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(left_out.tangent(), plain.tangent(), rtol=1e-12, atol=1e-9)
+    with pytest.raises(InputError, match="not energy terms"):
+        ReducedFemBody(with_penalty, U, points, leave_out=["penalty"])
+
+
+def test_a_static_reduced_solve_from_an_inverted_state_says_so():
+    body = make_body(excitation=0.3)
+    reduced = ReducedFemBody(body, full_basis(body), all_points(body))
+    q = np.zeros(reduced.r)
+    q[0::3] = -2.0                          # every free node 2 m back past the clamp
+    reduced.set_q(q)
+    with pytest.raises(StepFailed, match="inverted element"):
+        solve_static_reduced(reduced)
