@@ -44,6 +44,33 @@ def test_a_user_scene_in_fifteen_lines(tmp_path):
     assert (tmp_path / "block.bp").is_dir()
 
 
+def test_simulate_holds_numpy_blas_to_one_thread_while_it_runs():
+    """A run's small dense algebra on one BLAS thread (artifem.scene.run), the caller's
+    setting back afterwards, also when the run raises."""
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    def threads(s=None) -> float:
+        return float(sum(i["num_threads"] for i in ThreadpoolController().info()
+                         if i["filepath"] == numpy_blas))
+
+    numpy_blas = next(i["filepath"] for i in ThreadpoolController().info()
+                      if "numpy" in i["filepath"])
+    bone = af.RigidBody("bone", 0.3, 1e-3 * np.eye(3))
+    scene = af.Scene()
+    scene.add(bone)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = threads()
+        run = af.simulate(scene, 0.03, 0.01, progress=False, record={"threads": threads})
+        assert np.all(run.records["threads"][1:] == 1.0) and threads() == before == 2.0
+
+        def stop(s, t0, t1):
+            raise RuntimeError("a controller that fails")
+        scene.add_controller(stop)
+        with pytest.raises(RuntimeError, match="fails"):
+            af.simulate(scene, 0.03, 0.01, progress=False)
+        assert threads() == 2.0
+
+
 def test_simulate_bad_input_is_a_clear_error():
     scene = af.Scene()
     for duration, dt in ((0.0, 0.01), (1.0, -0.01), (np.nan, 0.01)):
