@@ -567,3 +567,36 @@ def test_registration_figures_match_their_jsons():
     angles = reports["rigid"]["methods"]["jointed"]["joint_angles_deg"]
     worst = max(abs(angles[j] - a) for j, a in reports["rigid"]["truth_angles_deg"].items())
     assert worst < 0.002 and "within 0.002 degrees" in text
+
+
+def test_galerkin_gap_tables_and_figures_match_their_jsons():
+    """docs/tongue_study.md's Galerkin-gap section: each table is the one its JSON makes
+    (``artifem study tongue --galerkin-gap``), and the level-0 bullets' ranges are its."""
+    from artifem.reduction.galerkin_gap import write_markdown
+
+    raw = (ROOT / "docs" / "tongue_study.md").read_text()
+    page = raw.replace("\n  ", " ")
+    folders = sorted((ROOT / "docs" / "tongue_study").glob("level*_gap"))
+    assert [f.name for f in folders][:1] == ["level0_gap"]
+    for folder in folders:
+        figures = json.loads((folder / "galerkin_gap.json").read_text())
+        assert write_markdown(figures["runs"]) in raw, folder.name
+    runs = json.loads((folders[0] / "galerkin_gap.json").read_text())["runs"]
+
+    def span(values, unit=""):
+        return f"{min(values):.2f}-{max(values):.2f}{unit}"
+
+    assert "within " + span([abs(r["static_mm"] - r["reduced_mm"]) for r in runs],
+                            " mm") + " of the reduced run's error on every run" in page
+    ratios = [r["galerkin_static_mm"] / r["best_static_mm"] for r in runs]
+    assert f"{min(ratios):.1f}-{max(ratios):.1f}x the mass-weighted best" in page
+    volumetric = [r["residual_share"]["volumetric"] for r in runs
+                  if max(r["residual_share"], key=r["residual_share"].get) == "volumetric"]
+    assert f"({span(volumetric)} of its norm, but for" in page
+    assert "still " + span([r["full_lag_mm"] for r in runs], " mm") + " from its own" in page
+    converged = [r for r in runs if np.isfinite(r["oracle_pg_mm"])]
+    assert (f"from {span([r['galerkin_static_mm'] for r in converged])} mm to "
+            f"{span([r['oracle_pg_mm'] for r in converged])} mm against a best approximation "
+            f"of {span([r['best_static_mm'] for r in converged], ' mm')}") in page
+    closer = [r for r in runs if r["without_volumetric_mm"] < r["static_mm"]]
+    assert len(closer) == 1 and "further from the full run on five of the six" in page
