@@ -600,3 +600,15 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
             f"of {span([r['best_static_mm'] for r in converged], ' mm')}") in page
     closer = [r for r in runs if r["without_volumetric_mm"] < r["static_mm"]]
     assert len(closer) == 1 and "further from the full run on five of the six" in page
+    learned = {r["run"]: r["learned_pg_mm"] for r in runs}
+    helped = [r for r in runs if np.isfinite(learned[r["run"]]["80"])
+              and learned[r["run"]]["80"] < r["galerkin_static_mm"]]
+    assert len(helped) == 4 and (
+        f"brings the equilibrium error of four runs from "
+        f"{span([r['galerkin_static_mm'] for r in helped])} mm to "
+        f"{span([learned[r['run']]['80'] for r in helped])} mm (best "
+        f"{span([r['best_static_mm'] for r in helped])})") in page
+    five = learned["held-out-1000-5"]
+    assert f"worse than Galerkin ({five['20']:.2f} at p = 20 and 40" in page
+    assert f"{five['40']:.2f}" == f"{five['20']:.2f}" and not np.isfinite(five["80"])
+    assert not any(np.isfinite(v) for v in learned["held-out-1000-4"].values())

@@ -35,7 +35,17 @@ mean node distance (mm):
   correction (U^T K U)^-1 U^T (R_t(U q*) - R_t(u*)) in mean node distance;
 - ``without_volumetric_mm``: the static reduced equilibrium (every point, against u*) with
   the volumetric term left out of the reduced body (the penalty, or a hard body's
-  constraint): if the volumetric term locked the linear span, this would close the gap.
+  constraint): if the volumetric term locked the linear span, this would close the gap;
+- with training states (``training``): ``learned_pg_mm`` {p: error against u_s}, the
+  Petrov-Galerkin equilibrium with the oracle's test basis learned from them. The
+  oracle's columns at the training states, K(u_k)^-1 M U, span (M-weighted POD, p
+  vectors, with U) a space V; the test basis at q is the oracle's Galerkin approximation
+  in V,
+
+      W(q) = V (V^T K(U q) V)^-1 V^T M U,
+
+  exact wherever K(U q)^-1 M U lies in V (at the training states, when K(U q) = K(u_k)).
+  A candidate reduced formulation measured here with the full assembly, not yet a model.
 
 For a model whose reduced body is alone (no rigid body carries its nodes: the full static
 solve is the body's own). Everything is O(n) per quantity: a diagnosis, not a model.
@@ -43,10 +53,12 @@ solve is the body's own). Everything is O(n) per quantity: a diagnosis, not a mo
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 import ufl
+from scipy import optimize
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
@@ -63,9 +75,9 @@ from artifem.reduction.evaluation import full_run, node_mean_mm, reduced_run
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.reduction.reductor import ReducedModel
-from artifem.reduction.training import ArtifactCache
+from artifem.reduction.training import ArtifactCache, Snapshots
 
-__all__ = ["galerkin_gap", "held_instant", "write_markdown", "PARTS"]
+__all__ = ["galerkin_gap", "held_instant", "learned_test_spaces", "write_markdown", "PARTS"]
 
 #: The parts of the reduced residual, in report order.
 PARTS = ("passive", "active", "volumetric", "other")
@@ -148,6 +160,7 @@ class _FullBody:
         ksp.setOperators(self.body.K)
         ksp.setType("preonly")
         ksp.getPC().setType("lu")
+        ksp.getPC().setFactorSolverType("mumps")
         x, y = self.body.K.createVecs()
         out = np.empty_like(cols)
         for j in range(cols.shape[1]):
@@ -187,46 +200,76 @@ def _static_reduced(body: ReducedFemBody, *starts: np.ndarray) -> np.ndarray | N
     return None
 
 
-def _oracle(full: _FullBody, U: np.ndarray, W: np.ndarray, q: np.ndarray,
-            max_iterations: int = 40) -> np.ndarray | None:
-    """Newton on W^T R(U q) = 0 (backtracking on its norm) until the norm is 1e-9 of its
-    start or of the state's stiffness force |W^T K U q|, or a step is at round-off; None if
-    it does not converge."""
-    def g_of(q):
-        return W.T @ full.residual(U @ q)
-    g = g_of(q)
-    if not np.all(np.isfinite(g)):          # the start inverts an element
-        return None
-    full.residual(U @ q, tangent=True)
-    tol = 1e-9 * max(np.linalg.norm(g), np.linalg.norm(W.T @ (full.times(U) @ q)))
+def _petrov_galerkin(full: _FullBody, U: np.ndarray, test: Callable[[], np.ndarray],
+                     q: np.ndarray, max_iterations: int = 40) -> np.ndarray | None:
+    """Newton on W^T R(U q) = 0, W = ``test()`` evaluated after the tangent at U q was
+    assembled and held through the iteration's backtracking (on |W^T R|), until |W^T R| is
+    1e-9 of the state's stiffness force |W^T K U q| or of its start, or a step is at
+    round-off; None if it does not converge (or the start inverts an element)."""
+    tol = None
     for _ in range(max_iterations):
+        R = full.residual(U @ q, tangent=True)
+        if not np.all(np.isfinite(R)):
+            return None
+        W, KU = test(), full.times(U)
+        g = W.T @ R
         norm = np.linalg.norm(g)
+        if tol is None:
+            tol = 1e-9 * max(norm, np.linalg.norm(W.T @ (KU @ q)))
         if norm <= tol:
             return q
-        full.residual(U @ q, tangent=True)
-        dq = -np.linalg.solve(W.T @ full.times(U), g)
+        dq = -np.linalg.solve(W.T @ KU, g)
         if np.linalg.norm(dq) <= 1e-12 * np.linalg.norm(q):
             return q
         step = 1.0
         while step > 1e-6:
-            trial = g_of(q + step * dq)
+            trial = W.T @ full.residual(U @ (q + step * dq))
             if np.all(np.isfinite(trial)) and np.linalg.norm(trial) < (1 - 1e-4 * step) * norm:
                 break
             step /= 2
         else:
             return None
-        q, g = q + step * dq, trial
-    return q if np.linalg.norm(g) <= tol else None
+        q = q + step * dq
+    return None
+
+
+def _oracle(full: _FullBody, U: np.ndarray, W: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+    """The equilibrium of the fixed test basis W."""
+    return _petrov_galerkin(full, U, lambda: W, q)
+
+
+def _learned(full: _FullBody, U: np.ndarray, V: np.ndarray, MU: np.ndarray,
+             q: np.ndarray) -> np.ndarray | None:
+    """The equilibrium g(q) = W(q)^T R(U q) = 0 of the learned test basis W(q) = V Z(q),
+    Z = (V^T K(U q) V)^-1 V^T M U (module docstring). Newton with Z held per iteration
+    cycles (dZ/dq is missing), so MINPACK's hybrid method (scipy.optimize.root, "hybr":
+    a finite-difference Jacobian, then Broyden updates) solves it; None if it fails."""
+    def g(q):
+        R = full.residual(U @ q, tangent=True)
+        if not np.all(np.isfinite(R)):
+            return np.full(q.size, 1e30)
+        return np.linalg.solve(V.T @ full.times(V), V.T @ MU).T @ (V.T @ R)
+    scale = np.linalg.norm(g(q))
+    if not np.isfinite(scale) or scale >= 1e30:
+        return None
+    found = optimize.root(g, q, method="hybr", options={"xtol": 1e-10})
+    return found.x if found.success else None
+
 
 def galerkin_gap(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule],
                  duration: float, dt: float, cache: ArtifactCache, *, hold: float = 0.1,
-                 progress: bool = True) -> list[dict]:
+                 training: Snapshots | None = None, learned_sizes: Sequence[int] = (20, 40, 80),
+                 training_stride: int = 2, progress: bool = True) -> list[dict]:
     """The module docstring's figures for each schedule (full runs from ``cache``, computed
-    there if missing); one dict per schedule."""
+    there if missing); one dict per schedule. ``training``: the training snapshots of the
+    learned test spaces (every ``training_stride``-th; their excitations in the order of the
+    body's muscles), of ``learned_sizes`` POD vectors each."""
     if reduced.carriers:
         raise InputError(f"galerkin_gap: the reduced body of model {reduced.model.name!r} is "
                          "carried by rigid bodies; the diagnosis solves the body alone")
     times = np.arange(int(round(duration / dt)) + 1) * dt
+    spaces = {} if training is None else learned_test_spaces(
+        reduced, training, learned_sizes, training_stride, progress)
     rows = []
     for name, schedule in tqdm(schedules.items(), desc="Galerkin gap", unit="run",
                                disable=not progress, leave=False):
@@ -239,12 +282,46 @@ def galerkin_gap(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule]
         k = int(np.flatnonzero(held)[np.argmax(error[held])])
         rows.append({"run": name, "held": True, "time": float(times[k]),
                      "reduced_mm": float(error[k]),
-                     **_gap_at(reduced, schedule, float(times[k]), u_full[k])})
+                     **_gap_at(reduced, schedule, float(times[k]), u_full[k], spaces)})
     return rows
 
 
+def learned_test_spaces(reduced: ReducedModel, training: Snapshots, sizes: Sequence[int],
+                        stride: int = 2, progress: bool = True) -> dict[int, np.ndarray]:
+    """{p: V = span [U, p M-weighted POD vectors of K(u_k)^-1 M U over the training
+    states]} (module docstring; orthonormal columns)."""
+    model, U = reduced.model, reduced.basis
+    scene = model.build()
+    body = model.fem_body(scene)
+    full = _FullBody(body, U.shape[0])
+    MU = full.times(U, mass=True)
+    muscles = list(body.muscles.values())
+    if training.excitations.shape[1] != len(muscles):
+        raise InputError(f"galerkin_gap: the training states have {training.excitations.shape[1]}"
+                         f" excitations, {body.name!r} has {len(muscles)} muscles")
+    columns = []
+    for k in tqdm(range(0, training.displacements.shape[0], stride), desc="learned test space",
+                  unit="state", disable=not progress, leave=False):
+        for muscle, a in zip(muscles, training.excitations[k]):
+            muscle.excitation.value = float(a)
+        full.residual(training.displacements[k], tangent=True)
+        W = full.solve(MU)
+        if np.all(np.isfinite(W)):
+            columns.append(W)
+    # M-weighted POD (the row sums of M as the weights); W(q) depends on span V only
+    weights = np.sqrt(np.maximum(full.times(np.ones((U.shape[0], 1)), mass=True)[:, 0], 0.0))
+    modes = np.linalg.svd(weights[:, None] * np.concatenate(columns, axis=1),
+                          full_matrices=False)[0] / np.where(weights > 0, weights, 1.0)[:, None]
+    spaces = {}
+    for p in sizes:
+        V = np.linalg.qr(np.concatenate([U, modes[:, :p]], axis=1))[0]
+        V[full.fixed] = 0.0
+        spaces[p] = V
+    return spaces
+
+
 def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
-            u_star: np.ndarray) -> dict:
+            u_star: np.ndarray, spaces: dict[int, np.ndarray]) -> dict:
     """The figures at one held instant t of the full state u* (a freshly built scene with
     the schedule's inputs at t)."""
     model, U = reduced.model, reduced.basis
@@ -305,6 +382,13 @@ def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
     if oracle is None and galerkin is not None:     # q_s inverts an element
         oracle = _oracle(full, U, W, galerkin)
     row["oracle_pg_mm"] = mm(oracle, u_s)
+    if spaces:
+        row["learned_pg_mm"] = {}
+    for p, V in spaces.items():
+        learned = _learned(full, U, V, MU, q_s)
+        if learned is None and galerkin is not None:
+            learned = _learned(full, U, V, MU, galerkin)
+        row["learned_pg_mm"][str(p)] = mm(learned, u_s)
     return row
 
 
@@ -323,6 +407,12 @@ def write_markdown(rows: list[dict]) -> str:
         cells = [r["reduced_mm"], r["best_mm"], r["static_mm"], r["energy_mm"],
                  r["without_volumetric_mm"], r.get("full_lag_mm"), r.get("best_static_mm"),
                  r.get("galerkin_static_mm"), r.get("energy_static_mm"), r.get("oracle_pg_mm")]
+        learned = r.get("learned_pg_mm", {})
         lines.append(f"| {r['run']} | {r['time']:.2f} | " + " | ".join(
-            "-" if c is None else f"{c:.2f}" for c in cells) + f" | {share} |")
+            "-" if c is None else f"{c:.2f}" for c in cells) + f" | {share} |"
+            + "".join(f" {v:.2f} |" for v in learned.values()))
+    sizes = [list(r["learned_pg_mm"]) for r in rows if r.get("learned_pg_mm")]
+    if sizes:
+        lines[0] += "".join(f" learned test space, p = {p} (equilibrium) |" for p in sizes[0])
+        lines[1] += "---|" * len(sizes[0])
     return "\n".join(lines) + "\n"

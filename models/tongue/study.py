@@ -426,7 +426,8 @@ class TongueStudy:
                    "random_training": c.random_training, "held_out_seed": c.held_out_seed,
                    "hold": GAP_HOLD,
                    "runs": galerkin_gap(reduced, schedules, c.duration, c.dt,
-                                        self.reductor.cache, hold=GAP_HOLD)}
+                                        self.reductor.cache, hold=GAP_HOLD,
+                                        training=self.reductor.snapshots()[0])}
         (self.out / "galerkin_gap.json").write_text(json.dumps(figures, indent=1))
         (self.out / "galerkin_gap.md").write_text(
             f"# The Galerkin gap: tongue level {c.level}, {c.incompressibility}, r = "
