@@ -8,7 +8,8 @@ its bodies (``Scene.add`` sets a body's gravity to the scene's).
 (a) full basis + every cell with weight 1: a reduced body stepped in a Scene
     equals the full body stepped in another Scene (MUMPS) to round-off, with
     the semi-implicit and the implicit integrator;
-(b) solve_static_reduced with the full basis equals the full static solve;
+(b) solve_static_reduced with the full basis equals the full static solve; one that starts
+    inverted says so instead of passing as converged on a NaN force;
 (c) a step that inverts is halved, and a failure that halving cannot cure
     restores the last good state and raises a clear error;
 (d) undamped implicit Euler on a small random basis with random positive
@@ -276,3 +277,12 @@ def test_excitation_controller_on_the_full_body_drives_the_reduced_body():
     assert body.muscles["top"].excitation.value == pytest.approx(0.8)
     assert np.abs(reduced.nodal_displacement()).max() > 1e-4
     assert scene.kinetic_energy() > 0
+
+
+def test_a_static_reduced_solve_from_an_inverted_state_says_so():
+    reduced = full_reduced(make_body(excitation=0.3))
+    q = np.zeros(reduced.r)
+    q[0::3] = -2.0                          # every free node 2 m back past the clamp
+    reduced.set_q(q)
+    with pytest.raises(StepFailed, match="inverted element"):
+        solve_static_reduced(reduced)
