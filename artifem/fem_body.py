@@ -589,22 +589,29 @@ class FemBody:
             return fem.Constant(self.mesh, PETSc.ScalarType(self.density))
         return self.density
 
-    def potential_energy_form(self, closed_pressures: bool = True):
-        """UFL integrand of Pi(u) (see the module docstring); ``closed_pressures=False``
-        leaves out the closed pressures' potential (the residual takes their virtual
-        work instead)."""
+    def term_energies(self) -> dict[str, ufl.Form]:
+        """{name: int_{cells} density(F, a0) dX} of each of ``energy_terms(merged=True)``, with
+        its own quadrature degree (the terms of Pi_int, one form each)."""
         F = self.kinematics()
         terms = self.energy_terms(merged=True)
         restricted = [t for t in terms if t.cells is not None]
         data = [(i + 1, t.cells) for i, t in enumerate(restricted)] or None
-        Pi = 0
+        energies = {}
         for t in terms:
             md = {"quadrature_degree": t.degree}
             if t.cells is None:
-                Pi += t.density(F, None) * ufl.Measure("dx", domain=self.mesh, metadata=md)
+                energies[t.name] = t.density(F, None) * ufl.Measure("dx", domain=self.mesh,
+                                                                    metadata=md)
             else:
                 dx = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
-                Pi += t.density(F, t.direction) * dx(restricted.index(t) + 1)
+                energies[t.name] = t.density(F, t.direction) * dx(restricted.index(t) + 1)
+        return energies
+
+    def potential_energy_form(self, closed_pressures: bool = True):
+        """UFL integrand of Pi(u) (see the module docstring); ``closed_pressures=False``
+        leaves out the closed pressures' potential (the residual takes their virtual
+        work instead)."""
+        Pi = sum(self.term_energies().values())
         external = self._density_factor() * ufl.dot(self.gravity, self.u)
         if self.body_force is not None:
             external += ufl.dot(self.body_force, self.u)

@@ -112,19 +112,10 @@ class _FullBody:
         self.body, self.n = body, n
         body.compile()
         self.fixed = body.fixed_components
-        F, v = body.kinematics(), ufl.TestFunction(body.V)
-        terms = body.energy_terms(merged=True)
-        restricted = [t for t in terms if t.cells is not None]
-        data = [(i + 1, t.cells) for i, t in enumerate(restricted)] or None
+        v = ufl.TestFunction(body.V)
         forms = {}
-        for t in terms:
-            md = {"quadrature_degree": t.degree}
-            if t.cells is None:
-                energy = t.density(F, None) * ufl.Measure("dx", domain=body.mesh, metadata=md)
-            else:
-                dx = ufl.Measure("dx", domain=body.mesh, metadata=md, subdomain_data=data)
-                energy = t.density(F, t.direction) * dx(restricted.index(t) + 1)
-            part = _part(t.name)
+        for name, energy in body.term_energies().items():
+            part = _part(name)
             forms[part] = forms.get(part, 0) + ufl.derivative(energy, body.u, v)
         self.forms = {part: fem.form(f) for part, f in forms.items()}
 
