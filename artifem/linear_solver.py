@@ -86,12 +86,53 @@ def _set_mumps(pc: PETSc.PC, symmetric: bool) -> None:
     pc.setFactorSolverType("mumps")
 
 
-def _configure_mumps(pc: PETSc.PC) -> None:
-    """Create the MUMPS factor matrix and set :data:`MUMPS_ICNTL` (needs the operator)."""
+def configure_mumps(pc: PETSc.PC, icntl: dict | None = None) -> None:
+    """Create the MUMPS factor matrix and set ``icntl`` (default :data:`MUMPS_ICNTL`;
+    needs the operator)."""
     pc.setFactorSetUpSolverType()
     F = pc.getFactorMatrix()
-    for key, value in MUMPS_ICNTL.items():
+    for key, value in (MUMPS_ICNTL if icntl is None else icntl).items():
         F.setMumpsIcntl(key, value)
+
+
+#: MUMPS INFOG(1) values of a workspace that the analysis sized too small for the
+#: pivoting the numerical factorization did (pivots delayed in an indefinite or badly
+#: scaled matrix); the MUMPS manual's remedy is a larger ICNTL(14), the percentage added
+#: to the estimated workspace. Which pivots are delayed depends on round-off, so one
+#: matrix can factor on one CPU and not on another (measured: the 144-node, 64-point
+#: case of ``artifem bench contact --quick`` fails with -9 at MUMPS' 20 % on an
+#: AVX-512 Xeon, and factored on the machine the suite passed on before).
+MUMPS_WORKSPACE_ERRORS = frozenset({-8, -9, -11, -12, -14, -15, -17, -20})
+#: ICNTL(14) doubles at most this many times after a workspace error (20 % -> 320 %).
+MUMPS_WORKSPACE_RETRIES = 4
+
+
+def factor_mumps(ksp: PETSc.KSP, icntl: dict | None = None) -> int:
+    """Factor the MUMPS preconditioner of ``ksp`` (operators set): ``ksp.setUp()``, and
+    after a workspace error (:data:`MUMPS_WORKSPACE_ERRORS`) the analysis and
+    factorization again with ICNTL(14) doubled, which later factorizations of this KSP
+    keep (``icntl``: the KSP's other settings, :func:`configure_mumps`). Returns MUMPS' INFOG(1) of the last attempt: >= 0 is a factorization (a
+    positive value a warning), < 0 a failure the caller reports (-10: singular)."""
+    pc = ksp.getPC()
+
+    def factor() -> int:
+        try:
+            ksp.setUp()
+        except PETSc.Error:
+            pass                    # INFOG(1) says why
+        return pc.getFactorMatrix().getMumpsInfog(1)
+
+    for _ in range(MUMPS_WORKSPACE_RETRIES):
+        info = factor()
+        if info not in MUMPS_WORKSPACE_ERRORS:
+            return info
+        relaxation = 2 * max(pc.getFactorMatrix().getMumpsIcntl(14), 10)
+        operators = ksp.getOperators()
+        ksp.reset()                 # a failed factorization is not refactored in place
+        ksp.setOperators(*operators)
+        configure_mumps(pc, icntl)
+        pc.getFactorMatrix().setMumpsIcntl(14, relaxation)
+    return factor()
 
 
 class LinearSolver:
@@ -201,7 +242,10 @@ class LinearSolver:
         x.axpy(alpha, prev)
 
     def _solve_once(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec, rebuild: bool) -> int:
-        self.ksp.getPC().setReusePreconditioner(not rebuild)
+        pc = self.ksp.getPC()
+        pc.setReusePreconditioner(not rebuild)
+        if rebuild and pc.getType() in ("cholesky", "lu"):
+            factor_mumps(self.ksp)      # a failure other than the workspace: KSP's reason
         if self.warm_start:
             self._initial_guess(A, b, x)
         self.ksp.solve(b, x)
@@ -232,7 +276,7 @@ class LinearSolver:
             self._rebuild = True
             self.ksp.setOperators(A)
             if self.ksp.getPC().getType() in ("cholesky", "lu"):
-                _configure_mumps(self.ksp.getPC())
+                configure_mumps(self.ksp.getPC())
         self.ksp.setOperators(A)
         rebuild = self._rebuild or not self.lagged
         reason = self._solve_once(A, b, x, rebuild)
@@ -266,8 +310,9 @@ class LinearSolver:
             self._direct.setType("preonly")
             _set_mumps(self._direct.getPC(), self.symmetric)
             self._direct.setOperators(A)
-            _configure_mumps(self._direct.getPC())
+            configure_mumps(self._direct.getPC())
         self._direct.setOperators(A)
+        factor_mumps(self._direct)
         self._direct.solve(b, x)
         self.direct_solves += 1
         self._rebuild = True            # the AMG hierarchy is stale: rebuild next time

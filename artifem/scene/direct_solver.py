@@ -19,6 +19,7 @@ from scipy import sparse
 from threadpoolctl import ThreadpoolController
 
 from artifem.errors import StepFailed
+from artifem.linear_solver import configure_mumps, factor_mumps
 
 __all__ = ["DirectSolver"]
 
@@ -28,6 +29,8 @@ DENSE_MAX = 400
 #: 300 x 300 LU on 2 cores) and 100x faster when another process holds the other core.
 _BLAS = ThreadpoolController()
 SINGULAR = "a singular system: redundant joints, or a free body with no mass?"
+#: MUMPS ICNTL settings of the sparse LU beyond MUMPS' own defaults (none).
+MUMPS_ICNTL: dict = {}
 
 
 class DirectSolver:
@@ -81,12 +84,15 @@ class DirectSolver:
                                               comm=PETSc.COMM_SELF)
             self._mat.assemble()
             self._pattern = pattern
+            self.ksp.setOperators(self._mat)
+            configure_mumps(self.ksp.getPC(), MUMPS_ICNTL)
         self.ksp.setOperators(self._mat)
-        try:
-            self.ksp.setUp()
-        except PETSc.Error as exc:
-            raise StepFailed(f"{what}: the LU factorization failed ({exc}); {SINGULAR}") \
-                from exc
+        info = factor_mumps(self.ksp, MUMPS_ICNTL)
+        if info < 0:
+            self.ksp.reset()            # the next factorization starts afresh
+            self._pattern = None
+            raise StepFailed(f"{what}: the LU factorization failed (MUMPS INFOG(1) = {info}"
+                             f"{', a zero pivot' if info == -10 else ''}); {SINGULAR}")
         return self
 
     def apply(self, B: np.ndarray) -> np.ndarray:
