@@ -229,3 +229,33 @@ def test_circling_pivots_from_the_last_steps_set_start_again_cold(monkeypatch):
     assert calls == [False, True, False, True]       # warm: a pass, the pivots; cold: again
     np.testing.assert_allclose(lam[:2], reference[0][:2], rtol=0, atol=1e-12)
     np.testing.assert_allclose(lam[2] + lam[3], reference[0][2] + reference[0][3], atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [77, 317, 331, 370, 570, 849, 973, 1631, 1682, 1947, 2122,
+                                  2529, 2753])
+def test_pivots_that_come_back_settle_on_the_regularized_block(seed):
+    """Feasible contact-like problems (lambda >= 0 on every row, G z >= c) whose rows
+    outnumber the coordinates and are parallel to 1e-9 in bunches (a fine surface's points
+    over a coarse mesh's facets): S is singular to round-off, and one row per trial on its
+    least-squares blocks came back to a set forever in each of these (measured at the
+    commit before this test). Once a set comes back, the trials take the regularized block
+    (PROXIMAL_REGULARIZATION): a P-matrix, where the least-index rule settles; the answer
+    meets the complementarity conditions to that regularization."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 6))
+    m = int(rng.integers(n + 1, 3 * n + 3))
+    base = rng.normal(size=(n + 1, n))
+    G = base[rng.integers(0, n + 1, m)] * rng.uniform(0.5, 2, (m, 1)) \
+        + 1e-9 * rng.normal(size=(m, n))
+    A = np.eye(n) * rng.uniform(1, 3, n)
+    b = rng.normal(size=n)
+    c = G @ rng.normal(size=n) - np.abs(rng.normal(size=m)) * (rng.random(m) < 0.5)
+    lo, hi = np.zeros(m), np.full(m, np.inf)
+    system = constraints._Schur(DirectSolver(), A, b, G, G, c, lo, hi, "test")
+    lam, active, _, z = constraints._active_set(lo, hi, 1e-10, system.trial, "test",
+                                                proximal=system.proximal)
+    slack = G @ z - c
+    scale = 1e-6 * max(1.0, np.abs(lam).max())
+    assert lam.min() >= 0.0 and slack.min() > -scale
+    assert np.abs(lam * slack).max() < scale * np.abs(slack).max()
+    np.testing.assert_allclose(A @ z - G.T @ lam, b, atol=1e-9 * np.abs(b).max())

@@ -15,8 +15,10 @@ G z <= c). Compliant rows (``StepRows.compliance`` = C / h^2,
 diagonal: G z + (C / h^2) lambda = c where active, and their slack G z - c + (C / h^2)
 lambda where held; both paths and statics take it. The active set is found by a
 primal-dual active set (:func:`_active_set`: release the multiplier furthest out of its
-bounds, else activate the most violated row, repeat); rows with lo = -inf and hi = inf
-are always active.
+bounds, else activate the most violated row, repeat; once a set comes back, the first row
+out (Murty's least index) on the multiplier block regularized by PROXIMAL_REGULARIZATION,
+positive definite where redundant rows make it singular, so that the pivots cannot
+circle); rows with lo = -inf and hi = inf are always active.
 Friction rows (``RowBlock.friction``: |lambda_t| <= mu lambda_n) are first a fixed point
 around it: the active set again with the bounds of its last impulses (the normal impulses
 extrapolated over the last passes by Anderson's mixing), until they settle;
@@ -98,7 +100,7 @@ RELAX_PASSES = 8
 
 
 def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                friction=None, warm=None, batch: bool = False, precision=None):
+                friction=None, warm=None, batch: bool = False, precision=None, proximal=None):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring; :func:`_pivots`,
     whose ``trial`` it takes). ``friction`` = (normal, mu) over the rows: the friction
@@ -129,7 +131,7 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
 
     if friction is None:
         return _pivots(lo, hi, tol, trial, what, None, None if warm is None else warm[:3],
-                       batch, confirm)
+                       batch, confirm, proximal)
     fric = friction[0] >= 0
     of = np.maximum(friction[0], 0)
 
@@ -146,7 +148,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     normals = np.unique(of[fric])           # the normal rows the bounds depend on
     history = []                            # (g(x), x) of the last passes on those rows
     for k in range(BOUND_PASSES):
-        lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, start, batch)
+        lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, start, batch,
+                                              None, proximal)
         use = lo != hi
         start = (active, at_high, use)
         if warm is not None:
@@ -160,7 +163,7 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             # moved the bounds at all, a refined pass with the bounds of its impulses
             for _ in range(2):
                 lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, (
-                    active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm)
+                    active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm, proximal)
                 lo_new, hi_new = bounds(lam)
                 change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
                 if change == 0.0:
@@ -188,12 +191,12 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         lo, hi = bounds(basis)
     try:
         return _pivots(lo, hi, tol, trial, what, friction,
-                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm)
+                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm, proximal)
     except StepFailed:
         if warm is None:
             raise
     # the last step's active set may start the passes inside a cycle: all again, cold
-    return _active_set(*own, tol, trial, what, friction, None, batch, precision)
+    return _active_set(*own, tol, trial, what, friction, None, batch, precision, proximal)
 
 
 #: passes the friction bounds' Anderson mixing remembers
@@ -229,7 +232,7 @@ BLAND_VISITS = 2
 
 
 def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-            friction=None, start=None, batch: bool = False, confirm=None):
+            friction=None, start=None, batch: bool = False, confirm=None, proximal=None):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring).
 
@@ -244,12 +247,15 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     held at lo (where finite), friction rows sliding at -mu; ``start`` = (active, held at
     hi, use): the rows of ``use`` start from it instead. One row per trial: release the
     multiplier furthest outside its bounds, else activate the most violated row (once a
-    set comes back, the first row out instead: Bland's rule). ``batch`` (Hintermueller, Ito and Kunisch's
+    set comes back, the first row out, released or activated: Murty's least-index rule). ``batch`` (Hintermueller, Ito and Kunisch's
     primal-dual active set): release every multiplier outside its bounds and activate
     every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
     comes back (cycling), one row per trial from there. ``confirm()``: called when a
     set holds; True (the trial was a search's, looser than round-off: :meth:`_KKT.
-    precision`) tries it once more, refined, and goes on from that."""
+    precision`) tries it once more, refined, and goes on from that. ``proximal()``: called
+    when Bland's rule starts; the trials from then on solve with the multiplier block
+    regularized (:meth:`_Schur.proximal`, :meth:`_KKT.proximal`), so that the pivots are
+    those of a P-matrix, where Murty's least-index rule cannot cycle."""
     m = lo.size
     normal, mu = (np.full(m, -1), np.zeros(m)) if friction is None else friction
     fric = normal >= 0
@@ -304,24 +310,32 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             seen.add(state)
             continue
         # one row per trial: the furthest out; once a set comes back (the sliding rows'
-        # coupling is not symmetric: the pivots can cycle), the first out (Bland's rule)
-        bland = bland or state in seen
+        # coupling is not symmetric, and redundant rows make the multiplier block singular:
+        # the pivots can cycle), the first row out, released or activated (Murty's least
+        # index, Bland's rule of the LCP), on the regularized block (``proximal``)
+        if state in seen and not bland:
+            bland = True
+            if proximal is not None:
+                proximal()
         seen.add(state)
         if bland:           # Bland's pivots are deterministic: a set seen twice is a cycle
             cycled[state] = cycled.get(state, 0) + 1
             if cycled[state] > BLAND_VISITS:
                 raise StepFailed(f"{what}: the constraints' active set did not settle (its "
                                  "pivots circle)")
-        pick = (lambda v: int(np.flatnonzero(v > tol)[0])) if bland else \
-            (lambda v: int(np.argmax(v)))
-        if outside.max() > tol:                     # release: hold at the crossed bound
-            k = pick(outside)
-            j = bounded[k]
+        if bland:           # the first row out, released or activated (Murty's least index)
+            k = int(np.flatnonzero(np.maximum(outside, violated) > tol)[0])
+            release = outside[k] > tol
+        else:               # release the furthest out, else activate the most violated
+            release = outside.max() > tol
+            k = int(np.argmax(outside if release else violated))
+        j = bounded[k]
+        if release:                                 # hold at the crossed bound
             active[j] = False
             held[j] = low[k] if l[k] < low[k] else high[k]
             side[j] = -mu[j] if l[k] < low[k] else mu[j]
-        else:                                       # activate the most violated row
-            active[bounded[pick(violated)]] = True
+        else:
+            active[j] = True
     else:
         raise StepFailed(f"{what}: the constraints' active set did not settle")
     high_side = np.where(fric, side > 0, (held == hi) & (lo < hi))
@@ -363,6 +377,13 @@ KKT_ROWS = 64
 #: the KKT's multiplier block on an active row: -KKT_REGULARIZATION times an estimate of
 #: the row's diagonal of S (sum_j G_ij^2 / |A_jj|), removed by iterative refinement
 KKT_REGULARIZATION = 1e-10
+#: ... and of the trials after the pivots came back to a set (``proximal`` of
+#: :func:`_pivots`), kept in their answer: large enough that a block of near-parallel rows
+#: stays positive definite in round-off (measured on random feasible problems with rows
+#: parallel to 1e-9, where the unregularized pivots circle: at 1e-10 two of 26 still
+#: circle, at 1e-8 none, their constraints met to 1e-7 of the right-hand side; at 1e-6
+#: to 1e-4), small enough to be a compliance of 1e-8 of the rows' own.
+PROXIMAL_REGULARIZATION = 1e-8
 #: iterative refinement steps of the regularized KKT solve, at most
 KKT_REFINEMENT = 4
 #: the residual (relative) at which a trial of the KKT's active set stops refining while
@@ -507,13 +528,14 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
         system = _KKT(solver, A, b, G, F, c, lo, hi, what, C)
         try:
             lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
-                                                  warm, batch=True, precision=system.precision)
+                                                  warm, batch=True, precision=system.precision,
+                                                  proximal=system.proximal)
         except _Inconsistent:       # redundant active rows that disagree: least squares
             path, system = "schur", None
     if system is None:
         system = _Schur(solver, A, b, G, F, c, lo, hi, what, C)
         lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
-                                              warm)
+                                              warm, proximal=system.proximal)
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
@@ -554,6 +576,18 @@ class _Schur:
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.C = C
         self.trials, self.factorizations = 0, 1
+        self._regularization = None             # :meth:`proximal`
+
+    def proximal(self) -> None:
+        """The active blocks from now on regularized, S + eps I with eps
+        PROXIMAL_REGULARIZATION times S's diagonal (compliant rows: at least their C / h^2): positive definite, so
+        that the pivots are a P-matrix's (:func:`_pivots`); redundant rows that disagree
+        then part by their bounds instead of a least-squares compromise."""
+        diag = np.abs(np.asarray(self.G.multiply(self.W.T).sum(axis=1)).ravel()
+                      if sparse.issparse(self.G) else np.einsum("ij,ji->i", self.G, self.W))
+        eps = PROXIMAL_REGULARIZATION * np.where(diag > 0, diag,
+                                                  max(diag.max(initial=0.0), 1e-300))
+        self._regularization = eps if self.C is None else np.maximum(eps - self.C, 0.0)
 
     def _block(self, on, cols):
         """S[on, cols]."""
@@ -562,10 +596,12 @@ class _Schur:
         return np.asarray(self.G[on] @ self.W[:, cols])
 
     def _active_block(self, on):
-        """S[on, on] + diag(C[on])."""
+        """S[on, on] + diag(C[on]) (+ the :meth:`proximal` regularization)."""
         S = self._block(on, on)
         if self.C is not None:
             S = S + np.diag(self.C[on])
+        if self._regularization is not None:
+            S = S + np.diag(self._regularization[on])
         return S
 
     def _coupled_block(self, on, coupled):
@@ -658,11 +694,9 @@ class _KKT:
         diag = np.abs(sparse.csr_matrix(A).diagonal())
         diag = np.where(diag > 0, diag, max(diag.max(initial=0.0), 1e-300))
         s = np.asarray(Gs.multiply(Gs) @ (1.0 / diag)).ravel()
-        self.eps = KKT_REGULARIZATION * np.where(s > 0, s, 1.0)
+        self._diag_S = np.where(s > 0, s, 1.0)
         self.C = np.zeros(m) if C is None else C
-        # compliant rows: E = C (S + C positive definite), at least the regularization
-        # (a C below it is restored by the refinement, as eps is on hard rows)
-        self.eps = np.where(self.C > 0, -np.maximum(self.C, self.eps), self.eps)
+        self._regularize(KKT_REGULARIZATION)
         self.solver, self.b, self.c, self.G, self.what = solver, b, c, Gs, what
         self._abs_A = abs(sparse.csr_matrix(A))
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
@@ -672,6 +706,23 @@ class _KKT:
         #: trials stop refining at KKT_TRIAL_RESIDUAL (:meth:`precision`)
         self.searching = False
         self._last, self._reused = None, False  # (key, rhs, x) of the last solve
+        self._proximal = False
+
+    def _regularize(self, relative: float) -> None:
+        """eps: ``relative`` times the rows' diagonal of S; compliant rows: E = C (S + C
+        positive definite), at least the regularization (a C below it is restored by the
+        refinement, as eps is on hard rows)."""
+        eps = relative * self._diag_S
+        self.eps = np.where(self.C > 0, -np.maximum(self.C, eps), eps)
+
+    def proximal(self) -> None:
+        """The trials from now on solve the matrix regularized by PROXIMAL_REGULARIZATION
+        itself (no refinement to eps = 0): positive definite multiplier blocks
+        (:func:`_pivots`), and redundant rows that disagree part by their bounds (no
+        :class:`_Inconsistent`)."""
+        self._proximal = True
+        self._regularize(PROXIMAL_REGULARIZATION)
+        self.forget()
 
     def _matrices(self, active, coupled):
         """(regularized K, K with eps = 0) of an active set; the ``coupled`` sliding rows'
@@ -680,7 +731,8 @@ class _KKT:
         on = active[row]
         K, K0 = self.K.copy(), self.K.copy()
         K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
-        K0.data[start:] = np.where(diag, np.where(on, self.C[row], 1.0), data * on)
+        K0.data[start:] = np.where(diag, np.where(on, -self.eps[row] if self._proximal
+                                                  else self.C[row], 1.0), data * on)
         rows, normals, s = coupled
         if rows.size:
             n = self.n
@@ -839,7 +891,7 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
         try:
             return _saddle_trials(
                 lambda warm: _active_set(lo, hi, tol, system.trial, what, friction, warm=warm,
-                                         precision=system.precision),
+                                         precision=system.precision, proximal=system.proximal),
                 system.forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
                 memory, rows)
         except _Inconsistent:       # redundant rows that disagree: each trial factored
@@ -935,7 +987,8 @@ def _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C=None):
     trials), or None when K is singular or the active set there does not settle."""
     try:
         schur = _Schur(solver, K, b, G, G, c, lo, hi, what, C)
-        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, friction)
+        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, friction,
+                                              proximal=schur.proximal)
     except (StepFailed, np.linalg.LinAlgError):
         return None
     return active, at_high, np.ones(lo.size, dtype=bool), lam
