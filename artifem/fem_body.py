@@ -103,6 +103,34 @@ class EnergyTerm:
     fields_at: Callable | None = None
 
 
+@dataclass
+class PrescribedRamp:
+    """Prescribed displacements ramped by a static solve with its load factor f,
+    u_d(f) = before + f (after - before) on the local dofs ``dofs``, so that its load
+    increments cut a large prescribed stretch as they cut a load (:meth:`FemBody.
+    take_prescribed_ramp`; :func:`artifem.integrators.solve_static`)."""
+
+    body: FemBody
+    dofs: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
+
+    def apply(self, factor: float) -> None:
+        """u_d = before + factor (after - before)."""
+        u = self.body.u.x
+        u.array[self.dofs] = self.before + factor * (self.after - self.before)
+        u.scatter_forward()
+
+    def give_back(self) -> None:
+        """After a solve that failed (the state at its last converged increment): the
+        prescribed values written again, the rest of the state where it is, and the ramp
+        kept from there for the next solve."""
+        u = self.body.u.x
+        start = u.array.copy()
+        self.apply(1.0)
+        self.body._unsettled = (start, u.array.copy())
+
+
 class FemBody:
     """A deformable body discretized by vector Lagrange elements of degree 1.
 
@@ -167,6 +195,9 @@ class FemBody:
         self._fixed_dofs = np.zeros(0, dtype=np.int32)
         self._partial = False           # some node fixed in some components only
         self._fixed_values = fem.Function(self.V)   # prescribed displacement of fixed dofs
+        # (u before, u after) of prescribed displacements written since the state last
+        # moved: a static solve ramps them (:meth:`take_prescribed_ramp`)
+        self._unsettled = None
         self.nodal_load = fem_petsc.create_vector(self.V)
         self.nodal_load.zeroEntries()
         #: counts the changes of the nodal loads and the body force (a reduced body of this
@@ -287,7 +318,9 @@ class FemBody:
         """Fix input nodes (zero velocity); optionally prescribe their displacement.
 
         ``displacement`` is None (keep 0) or a callable x -> u(x) evaluated at the
-        nodes' reference coordinates, x of shape (3, npoints). ``components``
+        nodes' reference coordinates, x of shape (3, npoints), written into the state at
+        once (a static solve that follows ramps it with its load factor:
+        :meth:`take_prescribed_ramp`). ``components``
         (e.g. ``(0,)`` for a symmetry plane x = const) fixes only those
         displacement components, the others stay free; None fixes all three.
         Nodes fixed in some components only are handled by the body's own
@@ -314,9 +347,24 @@ class FemBody:
             vals = np.asarray(displacement(x.T), dtype=float).reshape(3, -1).T
             arr = self._fixed_values.x.array.reshape(-1, 3)
             arr[np.ix_(dofs, comps)] = vals[:, comps]
+            before = self.u.x.array.copy()
+            if self._unsettled is not None and np.array_equal(before, self._unsettled[1]):
+                before = self._unsettled[0]     # still unmoved since the last one
             self.u.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = vals[:, comps]
+            self._unsettled = (before, self.u.x.array.copy())
         self.v.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = 0.0
         self._compiled = None
+
+    def take_prescribed_ramp(self) -> PrescribedRamp | None:
+        """The prescribed displacements that :meth:`fix_nodes` wrote while the state has not
+        moved since (a :class:`PrescribedRamp`), or None; taking them forgets them
+        (collective)."""
+        record, self._unsettled = self._unsettled, None
+        unmoved = record is not None and np.array_equal(self.u.x.array, record[1])
+        if not self.mesh.comm.allreduce(unmoved, op=MPI.LAND):
+            return None
+        dofs = np.flatnonzero(record[0] != record[1])
+        return PrescribedRamp(self, dofs, record[0][dofs], record[1][dofs])
 
     def _partly_fixed(self) -> bool:
         """True when some node is fixed in some components only."""

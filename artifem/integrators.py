@@ -616,6 +616,11 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
     no merit that the line search could trust: the iteration is a Newton step on the
     augmented energy at fixed p (a minimization), with Uzawa p <- pi once that converged.
 
+    Prescribed displacements that :meth:`FemBody.fix_nodes` wrote since the body last moved
+    are ramped with the load factor (:class:`~artifem.fem_body.PrescribedRamp`), so that a
+    cut increment cuts them too; an increment whose prescribed step inverts an element is
+    cut. A solve that fails leaves them written and ramps them from there the next time.
+
     Newton stops when |R| on the free dofs falls below rtol times the size of the loads
     (|R| with the reactions, at the start of the increment) or below atol, and the
     volumes hold to their tolerance; or when a full correction is at round-off relative
@@ -685,6 +690,12 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
 
     def newton(factor: float, limit: int) -> int:
         predict(factor)
+        if ramp is not None:
+            ramp.apply(factor)
+            if _has_inversion(body):        # the prescribed step inverts: a smaller one
+                raise StepFailed(f"static solve: the prescribed displacement at load factor "
+                                 f"{factor:g} inverts elements of {body.name!r}",
+                                 iterations=0)
         body.load_factor.value = factor
         norm = residual()
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
@@ -817,11 +828,19 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             vc.p.x.array[:] = state[1]
             vc.p.x.scatter_forward()
 
+    ramp = body.take_prescribed_ramp()
+    if ramp is not None:
+        ramp.apply(0.0)
+        converged[0] = (0.0, u.array.copy())
     try:
         counts = ramp_load(solve_increment, save, restore, load_steps, max_iterations,
                            "static solve", progress)
         counts.residuals = residuals
         return counts
+    except StepFailed:
+        if ramp is not None:
+            ramp.give_back()
+        raise
     finally:
         for vec in (du, ds, r):
             vec.destroy()

@@ -120,3 +120,81 @@ def test_the_long_beam_is_solved_by_adaptive_load_steps():
     scene.add(fixed)
     scene.solve_static(load_steps=1)        # one step: cut until it converges
     assert np.abs(fixed.u.x.array - body.u.x.array).max() < 1e-6
+
+
+def _compressed_cube(s: float):
+    """The unit cube (3 x 3 x 3 hexahedra, neo-Hookean mu = lambda = 1e3) between symmetry
+    planes x = y = z = 0, its face x = 1 prescribed to x = s: homogeneous, F = diag(s, l, l)
+    with the lateral faces free, mu (l^2 - 1) + lambda ln(s l^2) = 0 (P_yy = 0)."""
+    body = af.FemBody(box((3, 3, 3), (1.0, 1.0, 1.0)), af.NeoHookean(1e3, 1e3), 1000.0)
+    for k in range(3):
+        body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
+    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
+                   displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1], 0 * x[2]]))
+    return body
+
+
+def test_a_prescribed_compression_deeper_than_an_element_is_ramped_by_the_load_steps():
+    """Half the cube's length prescribed at once puts its face layer inside out (the face
+    moves 0.5 past elements 1/3 thick): the static solve ramps the prescribed displacement
+    with the load factor, so that its adaptive increments cut it as they cut a load, and
+    the cube reaches the closed form; a second prescription ramps from the first's
+    equilibrium."""
+    from scipy.optimize import brentq
+    body = _compressed_cube(0.5)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    counts = scene.solve_static(load_steps="auto")
+    assert len(counts) > 1                  # cut: the first increment inverts
+    X = body.V.tabulate_dof_coordinates()
+    for s in (0.5, 0.4):
+        if s == 0.4:
+            body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
+                           displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1],
+                                                             0 * x[2]]))
+            scene.solve_static(load_steps="auto")
+        lateral = brentq(lambda l, s=s: 1e3 * (l**2 - 1) + 1e3 * np.log(s * l**2), 1.0, 3.0)
+        expected = X * (np.array([s, lateral, lateral]) - 1)
+        assert np.abs(body.u.x.array.reshape(-1, 3) - expected).max() < 1e-9
+
+
+def test_a_failed_static_solve_keeps_its_prescription_for_the_next():
+    """A static solve that fails (one increment, no cut allowed) leaves the prescribed
+    displacement written and the rest of the state where it was; the next solve ramps it
+    from there."""
+    from artifem import integrators
+    body = _compressed_cube(0.5)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+    scene.add(body)
+    start = body.u.x.array.copy()
+    saved = integrators.MAX_CUTS
+    integrators.MAX_CUTS = 0
+    try:
+        with pytest.raises(af.StepFailed):
+            scene.solve_static(load_steps=1)
+    finally:
+        integrators.MAX_CUTS = saved
+    np.testing.assert_array_equal(body.u.x.array, start)
+    scene.solve_static(load_steps="auto")
+    assert body.u.x.array.reshape(-1, 3)[:, 0].min() == pytest.approx(-0.5, abs=1e-12)
+
+
+def test_the_coupled_island_ramps_a_prescribed_compression_as_the_body_alone():
+    """The cube clamped at x = 0 and its face x = 1 pushed to x = 0.5 (deeper than an
+    element, so that it must be ramped) solved on its own and in a coupled island (a plane
+    contact far below puts it there): the same equilibrium."""
+    def clamped(island: bool):
+        body = af.FemBody(box((3, 3, 3), (1.0, 1.0, 1.0)), af.NeoHookean(1e3, 1e3), 1000.0)
+        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+                       displacement=lambda x: np.vstack([-0.5 * x[0], 0 * x[1], 0 * x[2]]))
+        scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+        scene.add(body)
+        if island:
+            scene.add(af.PlaneContact(body, (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)))
+        scene.solve_static(load_steps="auto")
+        return body.u.x.array.copy()
+
+    alone, coupled = clamped(False), clamped(True)
+    assert np.abs(alone).max() > 0.45
+    np.testing.assert_allclose(coupled, alone, rtol=0, atol=1e-9)

@@ -1017,9 +1017,16 @@ class Scene:
         self._reactions = None
         memory = ActiveSetMemory()          # the statics' own: forces, not impulses
         residuals = []                      # the merit at each iterate of each increment
+        # prescribed displacements written since the bodies last moved: ramped with the load
+        ramps = [r for r in (body.take_prescribed_ramp() for body in L.fem_bodies)
+                 if r is not None]
+        for ramp in ramps:
+            ramp.apply(0.0)
 
         def solve_increment(factor: float, limit: int) -> int:
             self._set_load_factor(factor, g)
+            for ramp in ramps:
+                ramp.apply(factor)
             residuals.append([])
             kept = memory.save()
             contacts = (memory, IncrementSlip())   # friction sticks to the increment's start
@@ -1036,6 +1043,10 @@ class Scene:
             counts = ramp_load(solve_increment, self.save_state, self.restore_state,
                                load_steps, max_iterations, "static solve (coupled island)",
                                progress)
+        except StepFailed:
+            for ramp in ramps:
+                ramp.give_back()
+            raise
         finally:
             self._set_load_factor(1.0, g)
         counts.residuals = residuals
