@@ -115,11 +115,17 @@ class PrescribedRamp:
     before: np.ndarray
     after: np.ndarray
 
-    def apply(self, factor: float) -> None:
-        """u_d = before + factor (after - before)."""
+    def apply(self, factor: float, fraction: float = 1.0, base=None) -> None:
+        """u_d = before + factor (after - before); ``fraction`` of the way there from
+        ``base`` (:meth:`current`)."""
         u = self.body.u.x
-        u.array[self.dofs] = self.before + factor * (self.after - self.before)
+        target = self.before + factor * (self.after - self.before)
+        u.array[self.dofs] = target if base is None else base + fraction * (target - base)
         u.scatter_forward()
+
+    def current(self) -> np.ndarray:
+        """The prescribed dofs' displacement now."""
+        return self.body.u.x.array[self.dofs].copy()
 
     def give_back(self) -> None:
         """After a solve that failed (the state at its last converged increment): the

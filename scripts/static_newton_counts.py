@@ -1,8 +1,9 @@
 """Newton iterations per load step of the static solve on the cases of docs/verification.md
 ("Static Newton"): the cantilever of tests/test_surface_loads.py under an open follower
 pressure, a 10:1 neo-Hookean beam under a follower pressure on its bottom face, a
-nearly incompressible (hard) membrane under a dead traction, and the level-0 foot on its
-floor (a coupled island of contacts, ligaments and muscles).
+nearly incompressible (hard) membrane under a dead traction, the tetrahedral cube of
+tests/test_incompressibility.py stretched by a prescribed displacement, and the level-0
+foot on its floor (a coupled island of contacts, ligaments and muscles).
 
     OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py [case ...] [--steps=N|auto]
     OPENBLAS_NUM_THREADS=1 python scripts/static_newton_counts.py --json
@@ -68,6 +69,21 @@ def membrane(n, traction=40.0, hard=True):
                       1000.0, **hard)
     body.fix_nodes(body.find_nodes(lambda x: (x[0] < 1e-12) | (x[0] > 1 - 1e-12)))
     body.add_traction((0.0, 0.0, -traction), where=lambda x: np.isclose(x[2], 0.05))
+    return body
+
+
+def stretched_tets(stretch=1.3):
+    """tests/test_incompressibility.py's unit cube (3 x 3 x 3 x 6 tetrahedra, neo-Hookean
+    mu = lambda = 1e3, hard incompressibility kappa = 100 mu, nodal pressure) between the
+    symmetry planes x = y = z = 0, its face x = 1 prescribed to x = ``stretch``."""
+    domain = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [3, 3, 3],
+                              dmesh.CellType.tetrahedron)
+    body = af.FemBody(domain, af.NeoHookean(1e3, 1e3), 1000.0,
+                      incompressibility=Incompressible(kappa=1e5, tol=1e-9))
+    for k in range(3):
+        body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
+    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
+                   displacement=lambda x: np.vstack([(stretch - 1) * x[0], 0 * x[1], 0 * x[2]]))
     return body
 
 
@@ -169,6 +185,8 @@ CASES = {
     "membrane32": lambda s: run(membrane(32), s or 4),
     "membrane32_auto": lambda s: run(membrane(32), s or "auto"),
     "membrane16_compressible": lambda s: run(membrane(16, hard=False), s or 4),
+    "tet_stretch": lambda s: run(stretched_tets(), s or 2),
+    "tet_stretch_auto": lambda s: run(stretched_tets(), s or "auto"),
     "foot_unloaded": lambda s: run_scene(foot(0.0), s or 1),
     "foot_standing": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or 1),
     "foot_standing_auto": lambda s: run_scene(foot(0.5 * 70.0 * 9.81), s or "auto"),
