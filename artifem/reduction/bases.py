@@ -34,6 +34,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from petsc4py import PETSc
 
 from artifem.errors import InputError, SolverError
+from artifem.linear_solver import factor_mumps
 
 __all__ = ["linear_modes", "linear_mode_residuals", "extended_modes", "pod_basis",
            "modal_derivatives", "modal_derivative_basis", "mass_orthonormality_error",
@@ -210,6 +211,11 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     pc = ksp.getPC()
     pc.setType(PETSc.PC.Type.LU)
     pc.setFactorSolverType("mumps")
+    eps.setUp()
+    info = factor_mumps(ksp)        # a workspace too small retried (linear_solver)
+    if info < 0:
+        raise SolverError(f"linear_modes: the LU factorization of K - {sigma:g} M failed "
+                          f"(MUMPS INFOG(1) = {info}; body {body.name!r}); try a shift")
     eps.solve()
     nconv = eps.getConverged()
     if nconv < r:
@@ -488,6 +494,9 @@ def modal_derivatives(body, U: np.ndarray) -> np.ndarray:
         pc = ksp.getPC()
         pc.setType(PETSc.PC.Type.LU)
         pc.setFactorSolverType("mumps")
+        if factor_mumps(ksp) < 0:
+            raise SolverError(f"modal derivatives: the LU factorization of the rest "
+                              f"stiffness failed (body {body.name!r})")
         x, _ = K.createVecs()
         rhs, _ = K.createVecs()
         fixed = _owned_fixed_rows(body)

@@ -65,11 +65,11 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from tqdm import tqdm
 
-from artifem.errors import InputError, StepFailed
+from artifem.errors import InputError, SolverError, StepFailed
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
 from artifem.integrators import solve_static, solve_static_reduced
-from artifem.linear_solver import LinearSolver
+from artifem.linear_solver import LinearSolver, factor_mumps
 from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.evaluation import full_run, node_mean_mm, reduced_run
 from artifem.reduction.quadrature_points import quadrature_points
@@ -152,6 +152,8 @@ class _FullBody:
         ksp.setType("preonly")
         ksp.getPC().setType("lu")
         ksp.getPC().setFactorSolverType("mumps")
+        if factor_mumps(ksp) < 0:
+            raise SolverError("galerkin_gap: the LU factorization of the full tangent failed")
         x, y = self.body.K.createVecs()
         out = np.empty_like(cols)
         for j in range(cols.shape[1]):
