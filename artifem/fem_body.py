@@ -370,6 +370,8 @@ class FemBody:
         if not self.mesh.comm.allreduce(unmoved, op=MPI.LAND):
             return None
         dofs = np.flatnonzero(record[0] != record[1])
+        if not self.mesh.comm.allreduce(dofs.size):    # prescribed where they already were
+            return None
         return PrescribedRamp(self, dofs, record[0][dofs], record[1][dofs])
 
     def _partly_fixed(self) -> bool:
