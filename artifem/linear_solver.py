@@ -99,9 +99,10 @@ def configure_mumps(pc: PETSc.PC, icntl: dict | None = None) -> None:
 #: pivoting the numerical factorization did (pivots delayed in an indefinite or badly
 #: scaled matrix); the MUMPS manual's remedy is a larger ICNTL(14), the percentage added
 #: to the estimated workspace. Which pivots are delayed depends on round-off, so one
-#: matrix can factor on one CPU and not on another (measured: the 144-node, 64-point
-#: case of ``artifem bench contact --quick`` fails with -9 at MUMPS' 20 % on an
-#: AVX-512 Xeon, and factored on the machine the suite passed on before).
+#: matrix can factor on one CPU and not on another (measured: the 144-node, 36-point
+#: friction case (mu 0.5, KKT of 540 unknowns) of ``artifem bench contact --quick``
+#: fails with -9 at MUMPS' 20 % on an AVX-512 Xeon, and factored on the machine the
+#: suite passed on before).
 MUMPS_WORKSPACE_ERRORS = frozenset({-8, -9, -11, -12, -14, -15, -17, -20})
 #: ICNTL(14) doubles at most this many times after a workspace error (20 % -> 320 %).
 MUMPS_WORKSPACE_RETRIES = 4
