@@ -112,8 +112,9 @@ def factor_mumps(ksp: PETSc.KSP, icntl: dict | None = None) -> int:
     """Factor the MUMPS preconditioner of ``ksp`` (operators set): ``ksp.setUp()``, and
     after a workspace error (:data:`MUMPS_WORKSPACE_ERRORS`) the analysis and
     factorization again with ICNTL(14) doubled, which later factorizations of this KSP
-    keep (``icntl``: the KSP's other settings, :func:`configure_mumps`). Returns MUMPS' INFOG(1) of the last attempt: >= 0 is a factorization (a
-    positive value a warning), < 0 a failure the caller reports (-10: singular)."""
+    keep (``icntl``: the KSP's other settings, :func:`configure_mumps`). Returns MUMPS'
+    INFOG(1) of the last attempt: >= 0 is a factorization (a positive value a warning),
+    < 0 a failure the caller reports (-10: singular)."""
     pc = ksp.getPC()
 
     def factor() -> int:

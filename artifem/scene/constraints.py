@@ -191,7 +191,8 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         lo, hi = bounds(basis)
     try:
         return _pivots(lo, hi, tol, trial, what, friction,
-                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm, proximal)
+                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm,
+                       proximal)
     except StepFailed:
         if warm is None:
             raise
@@ -247,10 +248,11 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     held at lo (where finite), friction rows sliding at -mu; ``start`` = (active, held at
     hi, use): the rows of ``use`` start from it instead. One row per trial: release the
     multiplier furthest outside its bounds, else activate the most violated row (once a
-    set comes back, the first row out, released or activated: Murty's least-index rule). ``batch`` (Hintermueller, Ito and Kunisch's
-    primal-dual active set): release every multiplier outside its bounds and activate
-    every violated row in one trial; after ``BATCH_TRIALS`` such trials, or when a set
-    comes back (cycling), one row per trial from there. ``confirm()``: called when a
+    set comes back, the first row out, released or activated: Murty's least-index rule).
+    ``batch`` (Hintermueller, Ito and Kunisch's primal-dual active set): release every
+    multiplier outside its bounds and activate every violated row in one trial; after
+    ``BATCH_TRIALS`` such trials, or when a set comes back (cycling), one row per trial
+    from there. ``confirm()``: called when a
     set holds; True (the trial was a search's, looser than round-off: :meth:`_KKT.
     precision`) tries it once more, refined, and goes on from that. ``proximal()``: called
     when Bland's rule starts; the trials from then on solve with the multiplier block
@@ -580,9 +582,10 @@ class _Schur:
 
     def proximal(self) -> None:
         """The active blocks from now on regularized, S + eps I with eps
-        PROXIMAL_REGULARIZATION times S's diagonal (compliant rows: at least their C / h^2): positive definite, so
-        that the pivots are a P-matrix's (:func:`_pivots`); redundant rows that disagree
-        then part by their bounds instead of a least-squares compromise."""
+        PROXIMAL_REGULARIZATION times S's diagonal (compliant rows: at least their C / h^2):
+        positive definite, so that the pivots are a P-matrix's (:func:`_pivots`); redundant
+        rows that disagree then part by their bounds instead of a least-squares
+        compromise."""
         diag = np.abs(np.asarray(self.G.multiply(self.W.T).sum(axis=1)).ravel()
                       if sparse.issparse(self.G) else np.einsum("ij,ji->i", self.G, self.W))
         eps = PROXIMAL_REGULARIZATION * np.where(diag > 0, diag,

@@ -76,6 +76,7 @@ class DirectSolver:
         if self._mat is not None and pattern == self._pattern:
             self._mat.setValuesCSR(indptr, indices, K.data)    # same pattern: keep the analysis
             self._mat.assemble()
+            self.ksp.setOperators(self._mat)
         else:
             if self._mat is not None:
                 self.ksp.reset()                # a new pattern (or size): a new analysis
@@ -86,7 +87,6 @@ class DirectSolver:
             self._pattern = pattern
             self.ksp.setOperators(self._mat)
             configure_mumps(self.ksp.getPC(), MUMPS_ICNTL)
-        self.ksp.setOperators(self._mat)
         info = factor_mumps(self.ksp, MUMPS_ICNTL)
         if info < 0:
             self.ksp.reset()            # the next factorization starts afresh
