@@ -10,20 +10,15 @@ script or the command line can tell a model's complaint from a bug:
 - ``SolverError`` (also a ``RuntimeError``): a step or solve that failed; the
   message says why in terms of the model (which body, element, joint, time).
 
-This module imports nothing of artifem: every layer may raise these.
+The two roots live in the lowest layer, ``artifem.forms.errors`` (the materials raise
+InputError too); this module imports nothing else of artifem: every layer may raise these.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-
-class ArtifemError(Exception):
-    """Base class of every error artifem raises on purpose."""
-
-
-class InputError(ArtifemError, ValueError):
-    """Bad input (a value, a file, a name); the message says what and where."""
+from artifem.forms.errors import ArtifemError, InputError
 
 
 class UnknownNameError(InputError, KeyError):

@@ -10,6 +10,7 @@ imports nothing of artifem.
 
 import numpy as np
 
+from artifem.errors import SolverError
 from artifem.pointwise import evaluator_for
 
 
@@ -47,7 +48,7 @@ def _solve_lateral(response, stretch, free, guess):
         step = np.linalg.solve(jacobian, value)
         s = s - step
     if np.linalg.cond(jacobian) > 1e12 or not np.linalg.norm(step) < 1e-10:
-        raise RuntimeError(
+        raise SolverError(
             f"no traction-free lateral stretch found at stretch {stretch}: the lateral stiffness is "
             "singular or the solve diverged; a material without lateral stiffness (e.g. a fiber "
             "alone) needs a matrix: use CombinedMaterial(matrix, fiber)")

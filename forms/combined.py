@@ -3,6 +3,8 @@
 import inspect
 from dataclasses import dataclass
 
+from .errors import InputError
+
 
 def field_names(material):
     """Names of the fields (arguments after F) that ``material.strain_energy`` accepts."""
@@ -27,10 +29,10 @@ class CombinedMaterial:
 
     def __init__(self, *parts):
         if not parts:
-            raise ValueError("CombinedMaterial: needs at least one part")
+            raise InputError("CombinedMaterial: needs at least one part")
         for index, part in enumerate(parts):
             if not callable(getattr(part, "strain_energy", None)):
-                raise ValueError(f"CombinedMaterial: part {index} ({part!r}) has no strain_energy(F, ...)")
+                raise InputError(f"CombinedMaterial: part {index} ({part!r}) has no strain_energy(F, ...)")
         object.__setattr__(self, "parts", tuple(parts))
 
     @property
@@ -42,7 +44,7 @@ class CombinedMaterial:
         """Sum of the parts' energies, each given the fields it accepts."""
         unknown = set(fields) - self.field_names
         if unknown:
-            raise TypeError(f"CombinedMaterial: no part accepts field(s) {sorted(unknown)}; "
+            raise InputError(f"CombinedMaterial: no part accepts field(s) {sorted(unknown)}; "
                             f"accepted: {sorted(self.field_names)}")
         energies = []
         for part in self.parts:

@@ -10,6 +10,7 @@ from typing import ClassVar
 import numpy as np
 import ufl
 
+from .errors import InputError
 from .kinematics import fiber_stretch
 from .parameters import require_greater, require_nonnegative, require_positive
 
@@ -125,7 +126,7 @@ class BlemkerFiber:
         object.__setattr__(self, "stretch_star",
                            require_greater(name, "stretch_star", self.stretch_star, 1.0, "1"))
         if not isinstance(self.passive, bool):
-            raise ValueError(f"{name}: passive must be True or False, got {self.passive!r}")
+            raise InputError(f"{name}: passive must be True or False, got {self.passive!r}")
 
     @property
     def _has_passive(self):

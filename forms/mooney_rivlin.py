@@ -5,6 +5,7 @@ from typing import ClassVar
 
 import ufl
 
+from .errors import InputError
 from .kinematics import isochoric_invariants, jacobian
 from .parameters import require_choice, require_finite, require_nonnegative, require_positive
 
@@ -42,7 +43,7 @@ class MooneyRivlin:
         object.__setattr__(self, "kappa", require_positive(name, "kappa", self.kappa))
         require_choice(name, "bulk", self.bulk, BULK_POTENTIALS)
         if not self.C10 + self.C01 > 0.0:
-            raise ValueError(f"{name}: C10 + C01 must be > 0 (shear modulus 2 (C10 + C01)), "
+            raise InputError(f"{name}: C10 + C01 must be > 0 (shear modulus 2 (C10 + C01)), "
                              f"got C10={self.C10}, C01={self.C01}")
 
     @classmethod

@@ -1,8 +1,11 @@
-"""Validation of material parameters: one clear ValueError naming class, parameter and value."""
+"""Validation of material parameters: one clear InputError (a ValueError) naming class,
+parameter and value."""
 
 import math
 from dataclasses import dataclass
 from typing import ClassVar
+
+from .errors import InputError
 
 
 def require_finite(owner, name, value):
@@ -10,9 +13,9 @@ def require_finite(owner, name, value):
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{owner}: {name} must be a real number, got {value!r}") from None
+        raise InputError(f"{owner}: {name} must be a real number, got {value!r}") from None
     if not math.isfinite(number):
-        raise ValueError(f"{owner}: {name} must be finite, got {number}")
+        raise InputError(f"{owner}: {name} must be finite, got {number}")
     return number
 
 
@@ -20,7 +23,7 @@ def require_positive(owner, name, value):
     """Check value > 0 (and finite); return it as float."""
     number = require_finite(owner, name, value)
     if not number > 0.0:
-        raise ValueError(f"{owner}: {name} must be > 0, got {number}")
+        raise InputError(f"{owner}: {name} must be > 0, got {number}")
     return number
 
 
@@ -28,7 +31,7 @@ def require_nonnegative(owner, name, value):
     """Check value >= 0 (and finite); return it as float."""
     number = require_finite(owner, name, value)
     if not number >= 0.0:
-        raise ValueError(f"{owner}: {name} must be >= 0, got {number}")
+        raise InputError(f"{owner}: {name} must be >= 0, got {number}")
     return number
 
 
@@ -36,7 +39,7 @@ def require_greater(owner, name, value, bound, bound_text):
     """Check value > bound (and finite); ``bound_text`` explains the bound in the message."""
     number = require_finite(owner, name, value)
     if not number > bound:
-        raise ValueError(f"{owner}: {name} must be > {bound_text}, got {number}")
+        raise InputError(f"{owner}: {name} must be > {bound_text}, got {number}")
     return number
 
 
@@ -44,7 +47,7 @@ def require_choice(owner, name, value, choices):
     """Check that value is one of ``choices``."""
     if value not in choices:
         allowed = ", ".join(repr(c) for c in choices)
-        raise ValueError(f"{owner}: {name} must be one of {allowed}, got {value!r}")
+        raise InputError(f"{owner}: {name} must be one of {allowed}, got {value!r}")
     return value
 
 
@@ -56,7 +59,7 @@ def lame_from_young_poisson(owner, E, nu):
     E = require_positive(owner, "E", E)
     nu = require_finite(owner, "nu", nu)
     if not -1.0 < nu < 0.5:
-        raise ValueError(f"{owner}: nu must be in (-1, 0.5), got {nu}")
+        raise InputError(f"{owner}: nu must be in (-1, 0.5), got {nu}")
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
 
 

@@ -11,10 +11,11 @@ import pytest
 import ufl
 from scipy.integrate import quad
 
-import artifem  # noqa: F401  (orders dolfinx_solver before dolfinx)
+import artifem as af  # first: orders dolfinx_solver before dolfinx
 from artifem.forms import (BlemkerFiber, CombinedMaterial, LinearElastic, MooneyRivlin, NeoHookean,
                            StVenantKirchhoff, fiber_stretch, green_lagrange, invariants,
                            isochoric_invariants, jacobian, small_strain)
+from artifem.errors import InputError, SolverError
 from artifem.material_response import plot_stress_stretch, point_response, stress_stretch_curves
 from artifem.pointwise import PointEvaluator, evaluator_for
 
@@ -278,8 +279,10 @@ def test_active_fiber_at_rest_length_carries_tension():
     (lambda: CombinedMaterial(NEO, object()), "part 1"),
 ])
 def test_invalid_parameters_raise(build, match):
-    with pytest.raises(ValueError, match=match):
+    """artifem's own InputError (a ValueError), caught by ``except af.ArtifemError``."""
+    with pytest.raises(InputError, match=match) as info:
         build()
+    assert isinstance(info.value, af.ArtifemError) and isinstance(info.value, ValueError)
 
 
 def test_young_poisson_conversion():
@@ -288,7 +291,7 @@ def test_young_poisson_conversion():
 
 
 def test_bad_fields_are_rejected():
-    with pytest.raises(TypeError, match="no part accepts"):
+    with pytest.raises(InputError, match="no part accepts"):
         TONGUE_MUSCLE.strain_energy(ufl.Identity(3), a0=ufl.as_vector(E1), excitation=0.1, typo=1.0)
     evaluate = evaluator_for(FIBER, a0=E1, excitation=0.1)
     with pytest.raises(ValueError, match="expected fields"):
@@ -386,5 +389,5 @@ def test_fiber_curves_need_a_matrix():
     curves = stress_stretch_curves(TONGUE_MUSCLE, [0.9, 1.0, 1.2], a0=E1, excitation=0.5)
     assert curves["uniaxial"]["P11"][1] == pytest.approx(0.5e5, rel=1e-9)
     np.testing.assert_allclose(curves["uniaxial"]["P22"], 0.0, atol=1e-6)
-    with pytest.raises(RuntimeError, match="CombinedMaterial"):
+    with pytest.raises(SolverError, match="CombinedMaterial"):
         stress_stretch_curves(FIBER, [1.1], a0=E1, excitation=0.5)

@@ -12,6 +12,7 @@ PACKAGES = {"artifem": ROOT / "artifem", "artifem.forms": ROOT / "forms",
 #: module prefix -> layer; the longest matching prefix decides.
 LAYERS = {
     "artifem": 0, "artifem.errors": 0, "artifem.arguments": 0,
+    "artifem.forms.errors": 0,          # the exceptions' roots, in forms/: the lowest raiser
     "artifem.forms": 1,
     "artifem.io": 2,
     # 3: bodies and what evaluates them
