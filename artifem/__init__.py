@@ -57,22 +57,33 @@ _PUBLIC = {
                      "BlemkerFiber", "CombinedMaterial"], "artifem.forms"),
     "read_mesh": "artifem.io.readers",
     "to_dolfinx": "artifem.io.to_dolfinx",
+    "MeshData": "artifem.io.mesh_data",
+    "check_orientation": "artifem.io.mesh_checks",
     "spherical_shell_octant": "artifem.io.shell_mesh",
-    **dict.fromkeys(["ArtifemError", "InputError", "SolverError", "StepFailed",
+    **dict.fromkeys(["point_response", "stress_stretch_curves", "plot_stress_stretch"],
+                    "artifem.material_response"),
+    "render_bodies": "artifem.render",
+    **dict.fromkeys(["ArtifemError", "InputError", "UnknownNameError", "MeshError",
+                     "OutsideMeshError", "SolverError", "StepFailed",
                      "ElementInversionError"], "artifem.errors"),
 }
 
-__all__ = sorted(_PUBLIC)
+def lazy_exports(package: str, namespace: dict, public: dict[str, str]):
+    """``__all__``, ``__getattr__`` and ``__dir__`` of a package whose public names
+    (name -> defining module) are imported on first use (PEP 562), so that importing the
+    package, or any module inside it, loads nothing of the layers above."""
+    def getattr_(name: str):
+        module = public.get(name)
+        if module is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(module), name)
+        namespace[name] = value
+        return value
+
+    def dir_():
+        return sorted(set(namespace) | set(public))
+
+    return sorted(public), getattr_, dir_
 
 
-def __getattr__(name: str):
-    module = _PUBLIC.get(name)
-    if module is None:
-        raise AttributeError(f"module 'artifem' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_PUBLIC))
+__all__, __getattr__, __dir__ = lazy_exports(__name__, globals(), _PUBLIC)

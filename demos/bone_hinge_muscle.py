@@ -19,7 +19,6 @@ import artifem as af                    # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.render import render_bodies
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/bone_hinge_muscle")
 duration = 0.05 if os.environ.get("ARTIFEM_QUICK") else 0.6
@@ -52,8 +51,8 @@ run = af.simulate(scene, duration, 0.005, vtx=out, progress=False,
                   record={"angle_deg": lambda s: np.degrees(hinge.angle()),
                           "tension_N": lambda s: lifter.tension()})
 
-render_bodies(out / "bone_hinge_muscle.png", [(box, tissue.u)], scalars="displacement",
-              scalar_name="displacement (m)", camera="xz", show_rest=True)
+af.render_bodies(out / "bone_hinge_muscle.png", [(box, tissue.u)], scalars="displacement",
+                 scalar_name="displacement (m)", camera="xz", show_rest=True)
 print(f"hinge angle {run.records['angle_deg'][-1]:.1f} deg, muscle {run.records['tension_N'][-1]:.1f}"
       f" N, {run.ms_per_step:.1f} ms/step, {run.halvings} halvings, min det F "
       f"{run.min_det_F:.3f}; wrote {out}/")

@@ -23,7 +23,6 @@ import artifem as af                    # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.render import render_bodies
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/contact_pad_on_bone")
 duration = 0.03 if os.environ.get("ARTIFEM_QUICK") else 0.6
@@ -51,11 +50,11 @@ run = af.simulate(scene, duration, 0.005, vtx=out, progress=False,
 
 # Pictures: the pad on the condyle from the side, and its contact pressure from below.
 pressure = scene.contact_pressure(contact)["pad"]
-render_bodies(out / "contact_pad_on_bone.png", [(box, pad.u)], scalars="displacement",
-              scalar_name="displacement (m)", camera="xz",
-              surfaces=[(condyle.to_world(condyle.surface[0]), condyle.surface[1])])
-render_bodies(out / "contact_pressure.png", [(box, pad.u)], scalars=pressure.nodal,
-              scalar_name="contact pressure (Pa)", camera="yx")
+af.render_bodies(out / "contact_pad_on_bone.png", [(box, pad.u)], scalars="displacement",
+                 scalar_name="displacement (m)", camera="xz",
+                 surfaces=[(condyle.to_world(condyle.surface[0]), condyle.surface[1])])
+af.render_bodies(out / "contact_pressure.png", [(box, pad.u)], scalars=pressure.nodal,
+                 scalar_name="contact pressure (Pa)", camera="yx")
 weight = pad.total_mass() * 9.81
 print(f"contact lift {run.records['lift_N'][-1]:.3f} N for a weight of {weight:.3f} N, "
       f"peak pressure {pressure.pressure.max():.0f} Pa on {np.count_nonzero(pressure.pressure)} "

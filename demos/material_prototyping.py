@@ -14,9 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-import artifem  # noqa: F401
+import artifem as af                    # first: orders MPI ahead of dolfinx
 from artifem.forms import MooneyRivlin, isochoric_invariants, jacobian
-from artifem.material_response import plot_stress_stretch, point_response, stress_stretch_curves
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/material_prototyping")
 out.mkdir(parents=True, exist_ok=True)
@@ -37,14 +36,14 @@ class Yeoh:
 
 yeoh = Yeoh(c1=1037.0, c2=486.0, c3=50.0, kappa=10370.0)
 
-psi, P, A = point_response(yeoh, np.eye(3))
+psi, P, A = af.point_response(yeoh, np.eye(3))
 print(f"at rest: psi = {psi:.2e}, |P| = {np.abs(P).max():.2e}")
 gamma = 1e-4
-_, P, _ = point_response(yeoh, np.eye(3) + gamma * np.outer([1, 0, 0], [0, 1, 0]))
+_, P, _ = af.point_response(yeoh, np.eye(3) + gamma * np.outer([1, 0, 0], [0, 1, 0]))
 print(f"small-strain shear modulus {P[0, 1] / gamma:.1f} Pa (theory 2 c1 = {2 * yeoh.c1:.1f} Pa)")
 
 stretches = np.linspace(0.7, 1.5, 33)
-plot_stress_stretch(stress_stretch_curves(yeoh, stretches), out / "yeoh.png", title="Yeoh")
-plot_stress_stretch(stress_stretch_curves(MooneyRivlin.tongue(), stretches),
-                    out / "tongue_mooney_rivlin.png", title="tongue Mooney-Rivlin")
+af.plot_stress_stretch(af.stress_stretch_curves(yeoh, stretches), out / "yeoh.png", title="Yeoh")
+af.plot_stress_stretch(af.stress_stretch_curves(MooneyRivlin.tongue(), stretches),
+                       out / "tongue_mooney_rivlin.png", title="tongue Mooney-Rivlin")
 print(f"curves in {out}/yeoh.png and {out}/tongue_mooney_rivlin.png")

@@ -18,9 +18,7 @@ import artifem as af                    # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.reduction.bases import linear_modes
-from artifem.reduction.reduced_body import all_points
-from artifem.render import render_bodies
+from artifem.reduction import all_points, linear_modes
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/reduced_body_in_joints")
 duration = 0.05 if os.environ.get("ARTIFEM_QUICK") else 1.0
@@ -46,8 +44,8 @@ run = af.simulate(scene, duration, 0.005, vtx=out, progress=False,
                           "spring_N": lambda s: spring.tension()})
 
 reduced.to_full()
-render_bodies(out / "reduced_beam.png", [(box, beam.u)], scalars="displacement",
-              scalar_name="displacement (m)", camera="xz", show_rest=True)
+af.render_bodies(out / "reduced_beam.png", [(box, beam.u)], scalars="displacement",
+                 scalar_name="displacement (m)", camera="xz", show_rest=True)
 print(f"first frequency {np.sqrt(eigenvalues[0]) / (2 * np.pi):.2f} Hz; tip "
       f"{run.records['tip_z_mm'][-1]:.1f} mm, spring {run.records['spring_N'][-1]:.2f} N; "
       f"{run.ms_per_step:.2f} ms/step ({scene.master_count()} coordinates), "

@@ -21,7 +21,6 @@ import artifem as af                    # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.render import render_bodies
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/skin_pressure")
 duration = 0.02 if os.environ.get("ARTIFEM_QUICK") else 0.4
@@ -54,8 +53,8 @@ scene.add(block, bone, carried, pressure)
 run = af.simulate(scene, duration, 0.005, vtx=out, progress=False,
                   record={"volume_cm3": lambda s: 1e6 * volume(skin.positions())})
 
-render_bodies(out / "skin_pressure.png", [(box, block.u)], scalars="displacement",
-              scalar_name="displacement (m)", camera="iso", show_rest=True)
+af.render_bodies(out / "skin_pressure.png", [(box, block.u)], scalars="displacement",
+                 scalar_name="displacement (m)", camera="iso", show_rest=True)
 v = run.records["volume_cm3"]
 print(f"enclosed volume {v[0]:.0f} -> {v[-1]:.0f} cm^3 under {pressure.pressure_at(scene.t):.0f} "
       f"Pa; {run.ms_per_step:.1f} ms/step, {run.halvings} halvings; wrote {out}/")

@@ -18,7 +18,6 @@ import artifem as af                    # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from artifem.render import render_bodies
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/static_pressure")
 PRESSURE = -150.0                      # Pa, against the top face's outward normal
@@ -55,8 +54,8 @@ reference.add(dead)
 reference.solve_static(load_steps=6)
 
 tip = [np.abs(b.u.x.array.reshape(-1, 3)).max(axis=0) * 1e3 for b in (follower, dead)]
-render_bodies(out / "static_pressure.png", [(follower.mesh, follower.u), (dead.mesh, dead.u)],
-              scalars="displacement", scalar_name="displacement (m)", camera="xz",
-              titles=["follower pressure", "dead load"], show_rest=True)
+af.render_bodies(out / "static_pressure.png", [(follower.mesh, follower.u), (dead.mesh, dead.u)],
+                 scalars="displacement", scalar_name="displacement (m)", camera="xz",
+                 titles=["follower pressure", "dead load"], show_rest=True)
 print(f"Newton iterations per load step {iterations}; max |u| (x, y, z) mm: follower "
       f"{np.round(tip[0], 1)}, dead {np.round(tip[1], 1)}; wrote {out}/")

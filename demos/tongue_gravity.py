@@ -15,11 +15,6 @@ from pathlib import Path
 import numpy as np
 
 import artifem as af                    # first: orders MPI ahead of dolfinx
-from artifem.fem_body import FemBody
-from artifem.forms import MooneyRivlin
-from artifem.io.readers import read_mesh
-from artifem.io.to_dolfinx import to_dolfinx
-from artifem.render import render_bodies
 
 DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/tongue_gravity")
@@ -27,12 +22,12 @@ duration = 0.05 if os.environ.get("ARTIFEM_QUICK") else 0.3
 
 # The mesh; FemBody takes file-order node rows. The attachment files hold
 # ArtiSynth's 0-based node numbers (ANSYS id - 1), i.e. rows already.
-mesh_data = read_mesh(DATA / "tongue.node")
-domain, _ = to_dolfinx(mesh_data)
+mesh_data = af.read_mesh(DATA / "tongue.node")
+domain, _ = af.to_dolfinx(mesh_data)
 attached = np.concatenate([np.loadtxt(DATA / f, dtype=int).ravel()
                            for f in ("jawAttachments.txt", "hyoidAttachments.txt")])
 
-body = FemBody(domain, MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.03),
+body = af.FemBody(domain, af.MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.03),
                gravity=(0.0, 0.0, -9.81), name="tongue")
 body.fix_nodes(attached)
 
@@ -42,8 +37,8 @@ tip = int(mesh_data.node_rows([920])[0])          # ArtiSynth's "tip" landmark
 run = af.simulate(scene, duration, 0.01, record={"tip": lambda s: body.displacement_at([tip])[0]},
                   keep=(duration,), vtx=out)
 
-render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[duration]["tongue"])],
-              scalars="displacement", scalar_name="displacement (m)", camera="xz",
-              show_rest=True)
+af.render_bodies(out / "tongue_gravity.png", [(domain, run.snapshots[duration]["tongue"])],
+                 scalars="displacement", scalar_name="displacement (m)", camera="xz",
+                 show_rest=True)
 print(f"{run.ms_per_step:.1f} ms/step, tip moved {1e3 * run.records['tip'][-1]} mm, "
       f"min det F {run.min_det_F:.3f}; wrote {out}/")
