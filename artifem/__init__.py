@@ -34,44 +34,86 @@ _PUBLIC = {
     "SurfaceLoad": "artifem.surface_loads",
     "ReducedFemBody": "artifem.reduction.reduced_body",
     **dict.fromkeys(["RigidBody", "Frame"], "artifem.multibody.rigid_body"),
-    **dict.fromkeys(["FixedJoint", "SphericalJoint", "RevoluteJoint", "SliderJoint",
-                     "PlanarJoint", "axis_rotation"], "artifem.multibody.joints"),
+    **dict.fromkeys(
+        [
+            "FixedJoint",
+            "SphericalJoint",
+            "RevoluteJoint",
+            "SliderJoint",
+            "PlanarJoint",
+            "axis_rotation",
+        ],
+        "artifem.multibody.joints",
+    ),
     **dict.fromkeys(["PlaneContact", "ContactForces"], "artifem.multibody.contact"),
     **dict.fromkeys(["MeshContact", "MeshContactForces"], "artifem.multibody.mesh_contact"),
     "ElasticFoundation": "artifem.multibody.foundation",
-    **dict.fromkeys(["contact_pressure", "ContactPressure"],
-                    "artifem.multibody.contact_pressure"),
-    **dict.fromkeys(["NodeAttachment", "RigidAttachment", "FrameAttachment",
-                     "EmbeddedFemAttachment", "LiftAttachment", "FemPoint"],
-                    "artifem.multibody.attachments"),
+    **dict.fromkeys(["contact_pressure", "ContactPressure"], "artifem.multibody.contact_pressure"),
+    **dict.fromkeys(
+        [
+            "NodeAttachment",
+            "RigidAttachment",
+            "FrameAttachment",
+            "EmbeddedFemAttachment",
+            "LiftAttachment",
+            "FemPoint",
+        ],
+        "artifem.multibody.attachments",
+    ),
     "FemFrame": "artifem.multibody.frame_attachments",
-    **dict.fromkeys(["shape_function_weights", "support_weights", "nearest_nodes"],
-                    "artifem.multibody.point_attachments"),
+    **dict.fromkeys(
+        ["shape_function_weights", "support_weights", "nearest_nodes"],
+        "artifem.multibody.point_attachments",
+    ),
     "PointPath": "artifem.multibody.point_paths",
     "FramePath": "artifem.multibody.frame_paths",
-    **dict.fromkeys(["AxialSpring", "ThelenMuscle", "ThelenParameters"],
-                    "artifem.multibody.muscles"),
+    **dict.fromkeys(
+        ["AxialSpring", "ThelenMuscle", "ThelenParameters"], "artifem.multibody.muscles"
+    ),
     **dict.fromkeys(["SkinMesh", "SkinPressure"], "artifem.multibody.skin"),
     "ExcitationSchedule": "artifem.excitation",
-    **dict.fromkeys(["MooneyRivlin", "NeoHookean", "LinearElastic", "StVenantKirchhoff",
-                     "BlemkerFiber", "CombinedMaterial"], "artifem.forms"),
+    **dict.fromkeys(
+        [
+            "MooneyRivlin",
+            "NeoHookean",
+            "LinearElastic",
+            "StVenantKirchhoff",
+            "BlemkerFiber",
+            "CombinedMaterial",
+        ],
+        "artifem.forms",
+    ),
     "read_mesh": "artifem.io.readers",
     "to_dolfinx": "artifem.io.to_dolfinx",
     "MeshData": "artifem.io.mesh_data",
     "check_orientation": "artifem.io.mesh_checks",
     "spherical_shell_octant": "artifem.io.shell_mesh",
-    **dict.fromkeys(["point_response", "stress_stretch_curves", "plot_stress_stretch"],
-                    "artifem.material_response"),
+    **dict.fromkeys(
+        ["point_response", "stress_stretch_curves", "plot_stress_stretch"],
+        "artifem.material_response",
+    ),
     "render_bodies": "artifem.render",
-    **dict.fromkeys(["ArtifemError", "InputError", "UnknownNameError", "MeshError",
-                     "OutsideMeshError", "SolverError", "StepFailed",
-                     "ElementInversionError"], "artifem.errors"),
+    **dict.fromkeys(
+        [
+            "ArtifemError",
+            "InputError",
+            "UnknownNameError",
+            "MeshError",
+            "OutsideMeshError",
+            "SolverError",
+            "StepFailed",
+            "ElementInversionError",
+        ],
+        "artifem.errors",
+    ),
 }
+
 
 def lazy_exports(package: str, namespace: dict, public: dict[str, str]):
     """``__all__``, ``__getattr__`` and ``__dir__`` of a package whose public names
     (name -> defining module) are imported on first use (PEP 562), so that importing the
     package, or any module inside it, loads nothing of the layers above."""
+
     def getattr_(name: str):
         module = public.get(name)
         if module is None:

@@ -15,8 +15,9 @@ def _number(kind, text: str):
     try:
         value = kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a{'n integer' if kind is int else ' number'}: "
-                                         f"{text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"not a{'n integer' if kind is int else ' number'}: {text!r}"
+        ) from None
     if kind is float and not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be finite, got {text}")
     return value

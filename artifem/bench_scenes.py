@@ -36,10 +36,12 @@ from pathlib import Path
 from artifem.arguments import positive_int
 from artifem.errors import UnknownNameError
 
-SCENES = {"jaw-tongue": "artifem.models.jaw_tongue_reduced",
-          "airway": "artifem.models.airway",
-          "masseter": "artifem.models.masseter",
-          "foot": "artifem.models.foot.simulate"}
+SCENES = {
+    "jaw-tongue": "artifem.models.jaw_tongue_reduced",
+    "airway": "artifem.models.airway",
+    "masseter": "artifem.models.masseter",
+    "foot": "artifem.models.foot.simulate",
+}
 #: Scenes whose benchmark trains a reduced body (they take ``cache``).
 TRAINED = ("jaw-tongue", "airway", "foot")
 #: ``--quick``: timed steps per case (unless ``--steps``).
@@ -48,29 +50,39 @@ QUICK_STEPS = 2
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="JSON file to write")
-    parser.add_argument("--scenes", default=",".join(SCENES),
-                        help="comma-separated scenes (default: %(default)s)")
-    parser.add_argument("--steps", type=positive_int, default=None,
-                        help=f"timed steps per case (default: each scene's own; with --quick "
-                             f"{QUICK_STEPS})")
-    parser.add_argument("--cache", type=Path, default=None,
-                        help="reduced tongue training cache of jaw-tongue and airway "
-                             "(default: $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when "
-                             "unset)")
-    parser.add_argument("--quick", action="store_true",
-                        help="a smoke test: the quick reduced tongue (study jaw-tongue "
-                             f"--quick), the coarse masseter, {QUICK_STEPS} timed steps")
+    parser.add_argument(
+        "--scenes", default=",".join(SCENES), help="comma-separated scenes (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        default=None,
+        help=f"timed steps per case (default: each scene's own; with --quick {QUICK_STEPS})",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="reduced tongue training cache of jaw-tongue and airway "
+        "(default: $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when "
+        "unset)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke test: the quick reduced tongue (study jaw-tongue "
+        f"--quick), the coarse masseter, {QUICK_STEPS} timed steps",
+    )
 
 
 def run(args) -> int:
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = sorted(set(scenes) - set(SCENES))
     if unknown or not scenes:
-        raise UnknownNameError(f"--scenes: unknown scenes {unknown}; choose from "
-                               f"{sorted(SCENES)}")
+        raise UnknownNameError(f"--scenes: unknown scenes {unknown}; choose from {sorted(SCENES)}")
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    from artifem.bench import write_report           # after the thread settings
+    from artifem.bench import write_report  # after the thread settings
 
     results, errors = {}, []
     for name in scenes:
@@ -84,14 +96,20 @@ def run(args) -> int:
             kwargs["cache"] = args.cache
         try:
             results[name] = module.benchmark(**kwargs)
-        except Exception as exc:                      # keep the other scenes' figures
+        except Exception as exc:  # keep the other scenes' figures
             errors.append({"scene": name, "error": f"{type(exc).__name__}: {exc}"})
             print(f"[bench scenes] {name} failed: {exc}", flush=True)
             continue
         results[name]["seconds"] = time.perf_counter() - tic
         print(f"[bench scenes] {name}: {results[name].get('cases', results[name])}", flush=True)
-    write_report(Path(args.out), "scenes", __doc__.split("\n\n")[0],
-                 {"scenes": scenes, "steps": args.steps, "quick": args.quick}, [], errors,
-                 scenes=results)
+    write_report(
+        Path(args.out),
+        "scenes",
+        __doc__.split("\n\n")[0],
+        {"scenes": scenes, "steps": args.steps, "quick": args.quick},
+        [],
+        errors,
+        scenes=results,
+    )
     print(f"[bench scenes] wrote {args.out}")
     return 1 if errors else 0

@@ -53,17 +53,19 @@ DT = 0.01
 DENSITY = 1040.0
 RAYLEIGH = (40.0, 0.03)
 GRAVITY = (0.0, 0.0, -9.81)
-MAX_STRESS = 5.0e3      # Pa, Blemker fiber (peak isometric stress of the model muscle)
+MAX_STRESS = 5.0e3  # Pa, Blemker fiber (peak isometric stress of the model muscle)
 EXCITATION = 0.3
 
 
 def build(comm, cells, box=BOX, excitation=EXCITATION) -> FemBody:
     """The benchmark body: tongue material, clamped at x = 0, muscle in the upper half."""
     nx, ny, nz = cells
-    domain = dmesh.create_box(comm, [np.zeros(3), np.asarray(box, dtype=float)], [nx, ny, nz],
-                              dmesh.CellType.hexahedron)
-    body = FemBody(domain, MooneyRivlin.tongue(), DENSITY, rayleigh=RAYLEIGH, gravity=GRAVITY,
-                   name="box")
+    domain = dmesh.create_box(
+        comm, [np.zeros(3), np.asarray(box, dtype=float)], [nx, ny, nz], dmesh.CellType.hexahedron
+    )
+    body = FemBody(
+        domain, MooneyRivlin.tongue(), DENSITY, rayleigh=RAYLEIGH, gravity=GRAVITY, name="box"
+    )
     # Clamped end: input indices of the nodes at x = 0, gathered from every rank.
     x = domain.geometry.x
     inputs = np.asarray(domain.geometry.input_global_indices)
@@ -75,10 +77,17 @@ def build(comm, cells, box=BOX, excitation=EXCITATION) -> FemBody:
     n_owned = domain.topology.index_map(tdim).size_local
     geom = domain.geometry.dofmaps[0][:n_owned]
     centroid_z = x[geom, 2].mean(axis=1)
-    local_cells = np.asarray(domain.topology.original_cell_index)[:n_owned][centroid_z > 0.5 * box[2]]
+    local_cells = np.asarray(domain.topology.original_cell_index)[:n_owned][
+        centroid_z > 0.5 * box[2]
+    ]
     muscle_cells = np.unique(np.concatenate(comm.allgather(local_cells)))
-    body.add_muscle("upper", muscle_cells, (1.0, 0.0, 0.0), BlemkerFiber(max_stress=MAX_STRESS),
-                    excitation=excitation)
+    body.add_muscle(
+        "upper",
+        muscle_cells,
+        (1.0, 0.0, 0.0),
+        BlemkerFiber(max_stress=MAX_STRESS),
+        excitation=excitation,
+    )
     return body
 
 
@@ -87,9 +96,9 @@ class Case(NamedTuple):
 
     scene: Scene
     body: FemBody
-    warmup: int                 # steps to skip before timing, unless --warmup says otherwise
-    probe: int                  # input node whose final displacement is reported
-    info: dict                  # scene fields for the JSON
+    warmup: int  # steps to skip before timing, unless --warmup says otherwise
+    probe: int  # input node whose final displacement is reported
+    info: dict  # scene fields for the JSON
 
 
 def box_scene(comm, solver: str, cells) -> Case:
@@ -101,22 +110,39 @@ def box_scene(comm, solver: str, cells) -> Case:
     return Case(scene, body, 2, n_nodes - 1, {"cells": list(cells), "box_m": list(BOX)})
 
 
-def tongue_scene(comm, solver: str, level: int, motion: str,
-                 incompressibility: str = "penalty") -> Case:
+def tongue_scene(
+    comm, solver: str, level: int, motion: str, incompressibility: str = "penalty"
+) -> Case:
     """The ArtiSynth tongue at ``level`` running ``motion``, with its element penalty or the
     hard constraint (``incompressibility``: "penalty" or "hard"); probe: the tip landmark."""
     from artifem.models.tongue.model import DT as TONGUE_DT
     from artifem.models.tongue.model import HARD, MOTIONS, PENALTY, RAMP_TIME, Tongue, TongueConfig
 
     if TONGUE_DT != DT:
-        raise SolverError(f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})")
-    config = TongueConfig(level=level, integrator="semi-implicit", linear_solver=solver,
-                          incompressibility=HARD if incompressibility == "hard" else PENALTY)
+        raise SolverError(
+            f"the tongue model's dt ({TONGUE_DT}) differs from the benchmark's ({DT})"
+        )
+    config = TongueConfig(
+        level=level,
+        integrator="semi-implicit",
+        linear_solver=solver,
+        incompressibility=HARD if incompressibility == "hard" else PENALTY,
+    )
     tongue = Tongue(config, comm=comm)
     tongue.drive(Tongue.motion(motion))
-    return Case(tongue.scene, tongue.body, 5, tongue.data.landmarks["tip"],
-                 {"level": level, "motion": motion, "peak_excitations": MOTIONS[motion],
-                  "ramp_s": RAMP_TIME, "incompressibility": incompressibility})
+    return Case(
+        tongue.scene,
+        tongue.body,
+        5,
+        tongue.data.landmarks["tip"],
+        {
+            "level": level,
+            "motion": motion,
+            "peak_excitations": MOTIONS[motion],
+            "ramp_s": RAMP_TIME,
+            "incompressibility": incompressibility,
+        },
+    )
 
 
 #: scene name -> function(comm, solver, **scene options) -> Case
@@ -155,8 +181,9 @@ def gather_displacement(body: FemBody) -> np.ndarray | None:
     return out
 
 
-def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = None,
-             dump: str | None = None) -> dict | None:
+def run_case(
+    comm, case: Case, solver: str, steps: int, warmup: int | None = None, dump: str | None = None
+) -> dict | None:
     """Time ``steps`` steps of ``case`` after ``warmup`` (default: the case's) untimed ones."""
     scene, body = case.scene, case.body
     warmup = case.warmup if warmup is None else warmup
@@ -179,11 +206,18 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
         comm.Barrier()
         wall = time.perf_counter() - t0
         if k >= warmup:
-            rows.append((wall, comm.allreduce(assemble.total, op=MPI.MAX),
-                         comm.allreduce(solve.total, op=MPI.MAX), linear.iterations,
-                         scene.halvings - halvings, vc.updates if vc is not None else 0))
+            rows.append(
+                (
+                    wall,
+                    comm.allreduce(assemble.total, op=MPI.MAX),
+                    comm.allreduce(solve.total, op=MPI.MAX),
+                    linear.iterations,
+                    scene.halvings - halvings,
+                    vc.updates if vc is not None else 0,
+                )
+            )
 
-    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # KiB on Linux
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
     peak_mb = comm.allreduce(rss_mb, op=MPI.SUM)
     n_nodes = body.mesh.geometry.index_map().size_global
     n_cells = body.mesh.topology.index_map(3).size_global
@@ -197,8 +231,11 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
     a = np.asarray(rows, dtype=float)
     ms = 1e3 * a[:, :3]
     return {
-        "nodes": int(n_nodes), "elements": int(n_cells), **case.info,
-        "ranks": comm.size, "solver": solver,
+        "nodes": int(n_nodes),
+        "elements": int(n_cells),
+        **case.info,
+        "ranks": comm.size,
+        "solver": solver,
         "ms_per_step": float(np.median(ms[:, 0])),
         "assembly_ms": float(np.median(ms[:, 1])),
         "solve_ms": float(np.median(ms[:, 2])),
@@ -208,7 +245,9 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
         "iterations": float(np.median(a[:, 3])),
         "max_iterations": int(a[:, 3].max()),
         "peak_mb": float(peak_mb),
-        "steps": steps, "warmup_steps": warmup, "dt": DT,
+        "steps": steps,
+        "warmup_steps": warmup,
+        "dt": DT,
         "timed_window_s": [round(t_start, 10), round(scene.t, 10)],
         "halvings": int(a[:, 4].sum()),
         "preconditioner_setups": int(linear.setups),
@@ -222,17 +261,22 @@ def run_case(comm, case: Case, solver: str, steps: int, warmup: int | None = Non
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m artifem.bench_worker", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m artifem.bench_worker", description=__doc__.split("\n\n")[0]
+    )
     parser.add_argument("--scene", choices=sorted(SCENES), default="box")
     parser.add_argument("--cells", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="box scene")
     parser.add_argument("--level", type=int, choices=(0, 1), default=0, help="tongue scene")
     parser.add_argument("--motion", default="protrusion", help="tongue scene")
-    parser.add_argument("--incompressibility", choices=("penalty", "hard"), default="penalty",
-                        help="tongue scene")
+    parser.add_argument(
+        "--incompressibility", choices=("penalty", "hard"), default="penalty", help="tongue scene"
+    )
     parser.add_argument("--solver", choices=METHODS, required=True)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--warmup", type=int, help="untimed steps first (default: the scene's)")
-    parser.add_argument("--dump", help="save the final displacement (input node order) to this .npy")
+    parser.add_argument(
+        "--dump", help="save the final displacement (input node order) to this .npy"
+    )
     args = parser.parse_args(argv)
     if args.steps < 1 or (args.warmup is not None and args.warmup < 0):
         parser.error("steps must be >= 1, warmup >= 0")
@@ -241,14 +285,18 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the box scene needs --cells NX NY NZ, each >= 1")
         options = {"cells": tuple(args.cells)}
     else:
-        options = {"level": args.level, "motion": args.motion,
-                   "incompressibility": args.incompressibility}
+        options = {
+            "level": args.level,
+            "motion": args.motion,
+            "incompressibility": args.incompressibility,
+        }
     comm = MPI.COMM_WORLD
     case = SCENES[args.scene](comm, args.solver, **options)
     result = run_case(comm, case, args.solver, args.steps, args.warmup, args.dump)
     if comm.rank == 0:
         import dolfinx
         from petsc4py import PETSc
+
         result["scene"] = args.scene
         result["python"] = sys.version.split()[0]
         result["dolfinx"] = dolfinx.__version__

@@ -66,68 +66,119 @@ ONE_PROCESS = "times the steps of one process; run it without mpiexec"
 #: ``add_NAME_arguments`` instead, for modules that serve several subcommands with one
 #: ``run``. The third entry: DISTRIBUTED, ONE_RANK or the reason it refuses.
 COMMANDS = {
-    ("mesh", "info"): ("artifem.io.mesh_info", "nodes, elements, volume, det J, bounding box",
-                       ONE_RANK),
-    ("material", "curves"): ("artifem.material_curves",
-                             "uniaxial / equibiaxial / shear stress-stretch curves to PNG",
-                             ONE_RANK),
-    ("simulate", "beam"): ("artifem.models.muscle_beam", "muscle-driven cantilever beam",
-                           DISTRIBUTED),
-    ("simulate", "tongue"): ("artifem.models.tongue.simulate",
-                             "ArtiSynth hex tongue: protrusion, retroflexion, retraction",
-                             DISTRIBUTED),
-    ("simulate", "beam-ellipsoid"): ("artifem.models.beam_ellipsoid",
-                                     "FEM beam with a rigid ellipsoid at its end (Fig. 11)",
-                                     ONE_RANK),
-    ("simulate", "jaw-tongue"): ("artifem.models.jaw_tongue",
-                                 "tongue on a hinged rigid jaw opened by a Hill muscle", ONE_RANK),
-    ("simulate", "styloglossus"): ("artifem.models.styloglossus",
-                                   "external styloglossus on 4 vs 24 support nodes: stress at "
-                                   "equal excitation and tension, w >= 0, reduced tongue",
-                                   ONE_RANK),
-    ("simulate", "airway"): ("artifem.models.airway",
-                             "airway skin over tongue (full or --reduced), jaw and palate, "
-                             "with air pressure", ONE_RANK),
-    ("simulate", "foot"): ("artifem.models.foot.simulate",
-                           "the foot standing on the floor, or lifted by the tibialis anterior",
-                           ONE_RANK),
-    ("simulate", "masseter"): ("artifem.models.masseter",
-                               "synthetic masseter: embedding vs conforming, aponeuroses",
-                               ONE_RANK),
+    ("mesh", "info"): (
+        "artifem.io.mesh_info",
+        "nodes, elements, volume, det J, bounding box",
+        ONE_RANK,
+    ),
+    ("material", "curves"): (
+        "artifem.material_curves",
+        "uniaxial / equibiaxial / shear stress-stretch curves to PNG",
+        ONE_RANK,
+    ),
+    ("simulate", "beam"): (
+        "artifem.models.muscle_beam",
+        "muscle-driven cantilever beam",
+        DISTRIBUTED,
+    ),
+    ("simulate", "tongue"): (
+        "artifem.models.tongue.simulate",
+        "ArtiSynth hex tongue: protrusion, retroflexion, retraction",
+        DISTRIBUTED,
+    ),
+    ("simulate", "beam-ellipsoid"): (
+        "artifem.models.beam_ellipsoid",
+        "FEM beam with a rigid ellipsoid at its end (Fig. 11)",
+        ONE_RANK,
+    ),
+    ("simulate", "jaw-tongue"): (
+        "artifem.models.jaw_tongue",
+        "tongue on a hinged rigid jaw opened by a Hill muscle",
+        ONE_RANK,
+    ),
+    ("simulate", "styloglossus"): (
+        "artifem.models.styloglossus",
+        "external styloglossus on 4 vs 24 support nodes: stress at "
+        "equal excitation and tension, w >= 0, reduced tongue",
+        ONE_RANK,
+    ),
+    ("simulate", "airway"): (
+        "artifem.models.airway",
+        "airway skin over tongue (full or --reduced), jaw and palate, with air pressure",
+        ONE_RANK,
+    ),
+    ("simulate", "foot"): (
+        "artifem.models.foot.simulate",
+        "the foot standing on the floor, or lifted by the tibialis anterior",
+        ONE_RANK,
+    ),
+    ("simulate", "masseter"): (
+        "artifem.models.masseter",
+        "synthetic masseter: embedding vs conforming, aponeuroses",
+        ONE_RANK,
+    ),
     ("bench", "fom"): ("artifem.bench:fom", "full-order FEM step timings to JSON", OWN_MPIEXEC),
-    ("bench", "tongue"): ("artifem.bench:tongue",
-                          "tongue step timings (protrusion, levels 0 and 1) to JSON", OWN_MPIEXEC),
-    ("bench", "reduced"): ("artifem.bench_reduced",
-                           "reduced tongue step against its floating-point work to JSON",
-                           ONE_PROCESS),
-    ("bench", "scenes"): ("artifem.bench_scenes",
-                          "ms per coupled step: jaw-tongue full/reduced, airway, masseter",
-                          ONE_PROCESS),
-    ("bench", "contact"): ("artifem.bench_contact",
-                           "ms per step against the number of contact rows: rigid, FEM",
-                           ONE_PROCESS),
-    ("study", "tongue"): ("artifem.models.tongue.study",
-                          "reduced tongue models against the full one: speed versus error",
-                          DISTRIBUTED),
-    ("study", "jaw-tongue"): ("artifem.models.jaw_tongue_reduced",
-                              "jaw-tongue scene, full against reduced tongue: speed, error",
-                              ONE_RANK),
-    ("study", "scene"): ("artifem.scene_study",
-                         "any scene's reduced model on training, motions and held-out "
-                         "schedules (MODULE:FUNCTION returning a ReducibleScene)", DISTRIBUTED),
-    ("study", "robustness"): ("artifem.robustness_study",
-                              "how often a model runs on random valid schedules of the hard "
-                              "kinds (co-activation, pulses, all at once, release): finished, "
-                              "cost against the semi-implicit step, det F, volume", ONE_PROCESS),
-    ("study", "incompressibility"): ("artifem.models.tongue.incompressibility",
-                                     "tongue motions with the element penalty and with hard "
-                                     "incompressibility: volume, landmarks, speed", DISTRIBUTED),
-    ("study", "registration"): ("artifem.models.registration",
-                                "skeletal registration cases: jointed deformable bones against "
-                                "per-bone rigid, affine and one jointless grid", ONE_PROCESS),
-    ("register",): ("artifem.registration.skeletal",
-                    "register a reference skeleton (jointed deformable bones) to target "
-                    "surfaces: report, meshes, picture", ONE_RANK),
+    ("bench", "tongue"): (
+        "artifem.bench:tongue",
+        "tongue step timings (protrusion, levels 0 and 1) to JSON",
+        OWN_MPIEXEC,
+    ),
+    ("bench", "reduced"): (
+        "artifem.bench_reduced",
+        "reduced tongue step against its floating-point work to JSON",
+        ONE_PROCESS,
+    ),
+    ("bench", "scenes"): (
+        "artifem.bench_scenes",
+        "ms per coupled step: jaw-tongue full/reduced, airway, masseter",
+        ONE_PROCESS,
+    ),
+    ("bench", "contact"): (
+        "artifem.bench_contact",
+        "ms per step against the number of contact rows: rigid, FEM",
+        ONE_PROCESS,
+    ),
+    ("study", "tongue"): (
+        "artifem.models.tongue.study",
+        "reduced tongue models against the full one: speed versus error",
+        DISTRIBUTED,
+    ),
+    ("study", "jaw-tongue"): (
+        "artifem.models.jaw_tongue_reduced",
+        "jaw-tongue scene, full against reduced tongue: speed, error",
+        ONE_RANK,
+    ),
+    ("study", "scene"): (
+        "artifem.scene_study",
+        "any scene's reduced model on training, motions and held-out "
+        "schedules (MODULE:FUNCTION returning a ReducibleScene)",
+        DISTRIBUTED,
+    ),
+    ("study", "robustness"): (
+        "artifem.robustness_study",
+        "how often a model runs on random valid schedules of the hard "
+        "kinds (co-activation, pulses, all at once, release): finished, "
+        "cost against the semi-implicit step, det F, volume",
+        ONE_PROCESS,
+    ),
+    ("study", "incompressibility"): (
+        "artifem.models.tongue.incompressibility",
+        "tongue motions with the element penalty and with hard "
+        "incompressibility: volume, landmarks, speed",
+        DISTRIBUTED,
+    ),
+    ("study", "registration"): (
+        "artifem.models.registration",
+        "skeletal registration cases: jointed deformable bones against "
+        "per-bone rigid, affine and one jointless grid",
+        ONE_PROCESS,
+    ),
+    ("register",): (
+        "artifem.registration.skeletal",
+        "register a reference skeleton (jointed deformable bones) to target "
+        "surfaces: report, meshes, picture",
+        ONE_RANK,
+    ),
     ("demo",): ("artifem.demo", "the main job: run it and say where the results are", DISTRIBUTED),
 }
 
@@ -149,12 +200,14 @@ def build_parser() -> argparse.ArgumentParser:
         else:
             if path[0] not in groups:
                 group = top.add_parser(path[0], help=f"{path[0]} commands")
-                groups[path[0]] = group.add_subparsers(dest="subcommand", required=True,
-                                                       metavar="SUBCOMMAND")
+                groups[path[0]] = group.add_subparsers(
+                    dest="subcommand", required=True, metavar="SUBCOMMAND"
+                )
             sub = groups[path[0]].add_parser(path[1], help=help_text, description=help_text)
         module, _, name = module.partition(":")
-        sub.set_defaults(_module=module, _name=" ".join((parser.prog,) + path),
-                         _under_mpi=under_mpi)
+        sub.set_defaults(
+            _module=module, _name=" ".join((parser.prog,) + path), _under_mpi=under_mpi
+        )
         add_arguments = f"add_{name}_arguments" if name else "add_arguments"
         getattr(importlib.import_module(module), add_arguments)(sub)
     return parser
@@ -164,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     args = parser.parse_args(argv)
-    args._argv = list(argv)             # the command itself: to run it again (a study under MPI)
+    args._argv = list(argv)  # the command itself: to run it again (a study under MPI)
     comm = MPI.COMM_WORLD
     if comm.size == 1:
         return _run(args, parser.prog)
@@ -173,8 +226,10 @@ def main(argv: list[str] | None = None) -> int:
     if args._under_mpi == ONE_RANK:
         return _run_on_rank_0(args, comm)
     if comm.rank == 0:
-        print(f"{args._name}: error: refused under mpiexec ({comm.size} ranks): "
-              f"{args._under_mpi}", file=sys.stderr)
+        print(
+            f"{args._name}: error: refused under mpiexec ({comm.size} ranks): {args._under_mpi}",
+            file=sys.stderr,
+        )
     return 2
 
 
@@ -212,8 +267,12 @@ def _run_on_rank_0(args: argparse.Namespace, comm: MPI.Comm) -> int:
     own process: PETSc work done there alone would make the ranks' PETSc cleanups at exit
     differ, and wait for each other for ever (artifem.reduction.distributed)."""
     if comm.rank == 0:
-        print(f"{args._name}: runs on one MPI rank of {comm.size} (a serial model); the "
-              f"others wait idle", file=sys.stderr, flush=True)
+        print(
+            f"{args._name}: runs on one MPI rank of {comm.size} (a serial model); the "
+            f"others wait idle",
+            file=sys.stderr,
+            flush=True,
+        )
     return continue_alone(args._argv, comm)
 
 

@@ -61,8 +61,9 @@ class FemNodes:
         W = sparse.coo_matrix(W)
         cols = 3 * self.dofs[W.col][:, None] + np.arange(3)
         vals = W.data[:, None] * directions[W.row]
-        return sparse.csr_matrix((vals.ravel(), (np.repeat(W.row, 3), cols.ravel())),
-                                 shape=(W.shape[0], self.n))
+        return sparse.csr_matrix(
+            (vals.ravel(), (np.repeat(W.row, 3), cols.ravel())), shape=(W.shape[0], self.n)
+        )
 
     def stiffness(self, W, forces: np.ndarray) -> sparse.csr_matrix:
         """Zero: a node's rows do not turn with it."""
@@ -83,8 +84,9 @@ class FemNodes:
                 # FemBody._surface: a quadrilateral's two triangles are f and f + n_quads
                 half = len(tris) // 2
                 t1, t2 = tris[:half], tris[half:]
-                fourth = np.where((t2[:, :, None] != t1[:, None, :]).all(axis=2), t2,
-                                  -1).max(axis=1)
+                fourth = np.where((t2[:, :, None] != t1[:, None, :]).all(axis=2), t2, -1).max(
+                    axis=1
+                )
                 corners = np.column_stack([t1, fourth])
                 pairs = (t1, t2)
             else:
@@ -92,15 +94,13 @@ class FemNodes:
             self._facets = (dofs, corners, pairs, self.body.contact_points(None))
         dofs, corners, pairs, surface = self._facets
         x = surface.positions()
-        area = sum(0.5 * np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
-                   for t in pairs)
+        area = sum(0.5 * np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]) for t in pairs)
         mine = self.dofs[np.asarray(indices, dtype=int)]
         where = np.minimum(np.searchsorted(dofs, mine), len(dofs) - 1)
         on = dofs[where] == mine
         out = np.zeros(len(mine))
         if on.any():
-            out[on] = facing_areas(area, corners, where[on], np.asarray(directions)[on],
-                                   len(dofs))
+            out[on] = facing_areas(area, corners, where[on], np.asarray(directions)[on], len(dofs))
         return out
 
 
@@ -113,7 +113,7 @@ class ReducedNodes(FemNodes):
         rows = (3 * self.dofs[:, None] + np.arange(3)).ravel()
         self._X = body.full.V.tabulate_dof_coordinates()[self.dofs]
         self._u_bar = body.u_bar[rows].reshape(-1, 3)
-        self._U = body.U[rows].reshape(len(self.dofs), 3, -1)      # (n, 3, r)
+        self._U = body.U[rows].reshape(len(self.dofs), 3, -1)  # (n, 3, r)
         self.n = body.U.shape[1]
 
     def positions(self) -> np.ndarray:
@@ -122,9 +122,11 @@ class ReducedNodes(FemNodes):
     def rows(self, W, directions: np.ndarray) -> np.ndarray:
         """G_k = sum_j W_kj e_k^T U_j (k x r, dense)."""
         W = sparse.csr_matrix(W)
-        return np.einsum("ka,kar->kr", directions,
-                         np.asarray((W @ self._U.reshape(len(self.dofs), -1)))
-                         .reshape(W.shape[0], 3, -1))
+        return np.einsum(
+            "ka,kar->kr",
+            directions,
+            np.asarray((W @ self._U.reshape(len(self.dofs), -1))).reshape(W.shape[0], 3, -1),
+        )
 
     def stiffness(self, W, forces: np.ndarray) -> np.ndarray:
         """Zero: the basis does not turn."""
@@ -139,7 +141,7 @@ class EmbeddedPoints:
     def __init__(self, embedded):
         self.embedded, self.body = embedded, embedded.body
         self.labels = np.arange(embedded.num_points)
-        self.mesh_body = None                       # the embedded mesh has no FEM areas
+        self.mesh_body = None  # the embedded mesh has no FEM areas
         self.n = embedded.jacobian.shape[1]
 
     def __len__(self) -> int:
@@ -155,9 +157,10 @@ class EmbeddedPoints:
         """E J, E_k = W_kj e_k^T on the vertices' three coordinates (sparse k x 3 p)."""
         W = sparse.coo_matrix(W)
         cols = 3 * W.col[:, None] + np.arange(3)
-        E = sparse.csr_matrix(((W.data[:, None] * directions[W.row]).ravel(),
-                               (np.repeat(W.row, 3), cols.ravel())),
-                              shape=(W.shape[0], 3 * len(self)))
+        E = sparse.csr_matrix(
+            ((W.data[:, None] * directions[W.row]).ravel(), (np.repeat(W.row, 3), cols.ravel())),
+            shape=(W.shape[0], 3 * len(self)),
+        )
         G = E @ self.embedded.jacobian
         return G if sparse.issparse(G) else np.asarray(G)
 
@@ -166,15 +169,21 @@ class EmbeddedPoints:
         return sparse.csr_matrix((self.n, self.n))
 
 
-def facing_areas(area_vectors: np.ndarray, corners: np.ndarray, vertices: np.ndarray,
-                 directions: np.ndarray, n: int) -> np.ndarray:
+def facing_areas(
+    area_vectors: np.ndarray,
+    corners: np.ndarray,
+    vertices: np.ndarray,
+    directions: np.ndarray,
+    n: int,
+) -> np.ndarray:
     """(k,) the area each surface vertex ``vertices[k]`` stands for against
     ``directions[k]`` (an elastic foundation's area rule, :mod:`artifem.multibody.foundation`):
     the facets (outward vector areas (f, 3), their corners (f, c) into n vertices) at the
     vertex with a_f . e_k < 0 give -(a_f . e_k) / c."""
     f, c = corners.shape
-    incidence = sparse.csr_matrix((np.ones(f * c), (corners.ravel(), np.repeat(np.arange(f), c))),
-                                  shape=(n, f))
+    incidence = sparse.csr_matrix(
+        (np.ones(f * c), (corners.ravel(), np.repeat(np.arange(f), c))), shape=(n, f)
+    )
     at = sparse.coo_matrix(incidence[np.asarray(vertices, dtype=int)])
     share = np.maximum(-np.einsum("ij,ij->i", area_vectors[at.col], directions[at.row]), 0.0) / c
     return np.bincount(at.row, share, minlength=len(vertices))

@@ -30,10 +30,13 @@ QUICK_TONGUE = ["--duration", "0.1"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output directory")
-    parser.add_argument("--quick", action="store_true",
-                        help="a small run of the same job (study tongue --quick, the beam on "
-                             f"{' x '.join(QUICK_BEAM[1:4])} cells for {QUICK_BEAM[5]} s, each "
-                             f"tongue motion for {QUICK_TONGUE[1]} s)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small run of the same job (study tongue --quick, the beam on "
+        f"{' x '.join(QUICK_BEAM[1:4])} cells for {QUICK_BEAM[5]} s, each "
+        f"tongue motion for {QUICK_TONGUE[1]} s)",
+    )
 
 
 def _parse(module, argv: list[str]) -> argparse.Namespace:
@@ -44,15 +47,25 @@ def _parse(module, argv: list[str]) -> argparse.Namespace:
 
 def run(args: argparse.Namespace) -> int:
     quick = args.quick
-    status = study.run(_parse(study, ["--out", str(args.out / "study")]
-                              + (QUICK_STUDY if quick else [])))
-    status = status or muscle_beam.run(_parse(muscle_beam, ["--out", str(args.out / "muscle_beam")]
-                                              + (QUICK_BEAM if quick else [])))
-    status = status or tongue.run(_parse(tongue, ["--motion", "all",
-                                                  "--out", str(args.out / "tongue")]
-                                         + (QUICK_TONGUE if quick else [])))
-    print(f"demo: reduced-model study report {args.out}/study/report.md (speed versus error, "
-          f"Table 2 analog, plots and renders beside it); beam pictures "
-          f"{args.out}/muscle_beam/beam.png; tongue motions {args.out}/tongue/motions.png; "
-          f"ParaView series in */*.bp")
+    status = study.run(
+        _parse(study, ["--out", str(args.out / "study")] + (QUICK_STUDY if quick else []))
+    )
+    status = status or muscle_beam.run(
+        _parse(
+            muscle_beam, ["--out", str(args.out / "muscle_beam")] + (QUICK_BEAM if quick else [])
+        )
+    )
+    status = status or tongue.run(
+        _parse(
+            tongue,
+            ["--motion", "all", "--out", str(args.out / "tongue")]
+            + (QUICK_TONGUE if quick else []),
+        )
+    )
+    print(
+        f"demo: reduced-model study report {args.out}/study/report.md (speed versus error, "
+        f"Table 2 analog, plots and renders beside it); beam pictures "
+        f"{args.out}/muscle_beam/beam.png; tongue motions {args.out}/tongue/motions.png; "
+        f"ParaView series in */*.bp"
+    )
     return status

@@ -24,7 +24,7 @@ from artifem.forms.errors import ArtifemError, InputError
 class UnknownNameError(InputError, KeyError):
     """A name (muscle, motion, joint, case...) that the model does not have."""
 
-    __str__ = Exception.__str__         # KeyError would quote the message
+    __str__ = Exception.__str__  # KeyError would quote the message
 
 
 class InputFileNotFoundError(InputError, FileNotFoundError):
@@ -48,7 +48,8 @@ class OutsideMeshError(InputError):
         super().__init__(
             f"{outside.size} embedded point(s) lie outside FEM body {name!r}; the worst is "
             f"point {worst} at distance {distance[worst]:.4g}; pass snap=True to move them to "
-            f"the closest point of the nearest element")
+            f"the closest point of the nearest element"
+        )
 
 
 class SolverError(ArtifemError, RuntimeError):
@@ -72,8 +73,9 @@ class ElementInversionError(SolverError):
     """det F <= 0 at a quadrature point, and the step could not recover: names the body,
     the time, the elements (input indices) and the smallest det F."""
 
-    def __init__(self, time: float, elements: np.ndarray, min_det: float, detail: str = "",
-                 body: str = ""):
+    def __init__(
+        self, time: float, elements: np.ndarray, min_det: float, detail: str = "", body: str = ""
+    ):
         self.time, self.elements, self.min_det = time, np.asarray(elements), min_det
         self.body = body
         shown = ", ".join(str(e) for e in self.elements[:20])
@@ -82,4 +84,5 @@ class ElementInversionError(SolverError):
         super().__init__(
             f"element inversion at t = {time:.6g} s: det F = {min_det:.4g} <= 0 in "
             f"{len(self.elements)} element(s){where} [{shown}{more}] (input element indices)"
-            + (f"; {detail}" if detail else ""))
+            + (f"; {detail}" if detail else "")
+        )

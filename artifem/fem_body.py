@@ -57,8 +57,13 @@ from artifem.contact_points import FemNodes
 from artifem.errors import InputError, UnknownNameError
 from artifem.incompressibility import Incompressible, VolumeConstraint
 from artifem.muscle_layers import MuscleLayers
-from artifem.surface_loads import (SurfaceLoad, check_closed, make_load, select_facets,
-                                   surface_measure)
+from artifem.surface_loads import (
+    SurfaceLoad,
+    check_closed,
+    make_load,
+    select_facets,
+    surface_measure,
+)
 
 #: Default quadrature degree of the energy per cell type: 2x2x2 Gauss for Q1
 #: hexahedra (UFL's automatic degree is 14-20 for Mooney-Rivlin on Q1: over a thousand
@@ -75,10 +80,10 @@ class Muscle:
     """A fiber-activated region of an FEM body."""
 
     name: str
-    cells: np.ndarray           # owned local cell indices
-    direction: fem.Function     # unit fiber direction a0: DG0, or per quadrature point
-    fiber: object               # fiber material: strain_energy(F, a0, excitation)
-    excitation: fem.Constant    # a in [0, 1], changed between steps without recompiling
+    cells: np.ndarray  # owned local cell indices
+    direction: fem.Function  # unit fiber direction a0: DG0, or per quadrature point
+    fiber: object  # fiber material: strain_energy(F, a0, excitation)
+    excitation: fem.Constant  # a in [0, 1], changed between steps without recompiling
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,27 +162,46 @@ class FemBody:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "fem_bodies"
 
-    def __init__(self, domain: dmesh.Mesh, material, density: float, *,
-                 mass: str = "lumped", rayleigh: tuple[float, float] = (0.0, 0.0),
-                 gravity=(0.0, 0.0, 0.0), quadrature_degree: int | None = None,
-                 incompressibility: float | Incompressible | None = None, name: str = "fem"):
+    def __init__(
+        self,
+        domain: dmesh.Mesh,
+        material,
+        density: float,
+        *,
+        mass: str = "lumped",
+        rayleigh: tuple[float, float] = (0.0, 0.0),
+        gravity=(0.0, 0.0, 0.0),
+        quadrature_degree: int | None = None,
+        incompressibility: float | Incompressible | None = None,
+        name: str = "fem",
+    ):
         cell_name = domain.topology.cell_name()
         if cell_name not in ENERGY_DEGREE:
-            raise InputError(f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
-                             f"supported: {sorted(ENERGY_DEGREE)}")
+            raise InputError(
+                f"FemBody {name!r}: unsupported cell type {cell_name!r}; "
+                f"supported: {sorted(ENERGY_DEGREE)}"
+            )
         if not np.isfinite(density) or density <= 0:
             raise InputError(f"FemBody {name!r}: density must be > 0, got {density}")
         if mass not in ("lumped", "consistent"):
-            raise InputError(f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}")
+            raise InputError(
+                f"FemBody {name!r}: mass must be 'lumped' or 'consistent', got {mass!r}"
+            )
         hard = isinstance(incompressibility, Incompressible)
-        if incompressibility is not None and not hard and not (
-                np.isfinite(incompressibility) and incompressibility > 0):
-            raise InputError(f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
-                             f"None, got {incompressibility}")
+        if (
+            incompressibility is not None
+            and not hard
+            and not (np.isfinite(incompressibility) and incompressibility > 0)
+        ):
+            raise InputError(
+                f"FemBody {name!r}: incompressibility (kappa_inc) must be > 0 or "
+                f"None, got {incompressibility}"
+            )
         alpha, beta = rayleigh
         if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
-            raise InputError(f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, "
-                             f"got {rayleigh}")
+            raise InputError(
+                f"FemBody {name!r}: Rayleigh coefficients must be finite and >= 0, got {rayleigh}"
+            )
         self.name, self.mesh, self.material = name, domain, material
         self.density, self.mass_kind = float(density), mass
         self.alpha, self.beta = float(alpha), float(beta)
@@ -191,16 +215,16 @@ class FemBody:
         self.v = fem.Function(self.V, name="velocity")
         self.gravity = fem.Constant(domain, np.asarray(gravity, dtype=PETSc.ScalarType))
         self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
-        self.body_force = None          # UFL vector expression per reference volume
+        self.body_force = None  # UFL vector expression per reference volume
         self.muscles: dict[str, Muscle] = {}
-        self._layers = None             # the muscles' MuscleLayers, built with the forms
+        self._layers = None  # the muscles' MuscleLayers, built with the forms
         self.surface_loads: dict[str, SurfaceLoad] = {}
-        self._surface_ds = (None,)      # (loads, ds measure, subdomain ids) of _surface_terms
+        self._surface_ds = (None,)  # (loads, ds measure, subdomain ids) of _surface_terms
         n_blocks = self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts
-        self._fixed_mask = np.zeros((n_blocks, 3), dtype=bool)   # fixed components per node
+        self._fixed_mask = np.zeros((n_blocks, 3), dtype=bool)  # fixed components per node
         self._fixed_dofs = np.zeros(0, dtype=np.int32)
-        self._partial = False           # some node fixed in some components only
-        self._fixed_values = fem.Function(self.V)   # prescribed displacement of fixed dofs
+        self._partial = False  # some node fixed in some components only
+        self._fixed_values = fem.Function(self.V)  # prescribed displacement of fixed dofs
         # (u before, u after) of prescribed displacements written since the state last
         # moved: a static solve ramps them (:meth:`take_prescribed_ramp`)
         self._unsettled = None
@@ -213,7 +237,7 @@ class FemBody:
         #: the hard incompressibility (pressure field, multipliers), or None
         self.volume_constraint = VolumeConstraint(self, incompressibility) if hard else None
         self._compiled = None
-        self._contact_surface = None    # (boundary dofs, triangles into them)
+        self._contact_surface = None  # (boundary dofs, triangles into them)
 
     # ---- model definition -------------------------------------------------
 
@@ -230,8 +254,14 @@ class FemBody:
 
     def local_dofs(self, nodes) -> np.ndarray:
         """Local block dofs of the given input node indices present on this rank."""
-        return np.array([self._node_to_dof[n] for n in np.asarray(nodes).ravel().tolist()
-                         if n in self._node_to_dof], dtype=np.int32)
+        return np.array(
+            [
+                self._node_to_dof[n]
+                for n in np.asarray(nodes).ravel().tolist()
+                if n in self._node_to_dof
+            ],
+            dtype=np.int32,
+        )
 
     def _surface(self) -> tuple[np.ndarray, np.ndarray]:
         """(dofs, triangles): the local blocked dofs of the boundary nodes (sorted) and the
@@ -266,8 +296,9 @@ class FemBody:
         else:
             nodes = np.asarray(nodes).ravel()
             if not np.issubdtype(nodes.dtype, np.integer) or not nodes.size:
-                raise InputError(f"FEM body {self.name!r}: contact nodes must be input node "
-                                 "indices")
+                raise InputError(
+                    f"FEM body {self.name!r}: contact nodes must be input node indices"
+                )
             missing = [int(n) for n in nodes if int(n) not in self._node_to_dof]
             if missing:
                 raise InputError(f"FEM body {self.name!r} has no nodes {missing[:10]}")
@@ -299,8 +330,11 @@ class FemBody:
         d = np.linalg.norm(x - np.asarray(point, dtype=float), axis=1)
         k = int(np.argmin(d)) if d.size else -1
         candidates = self.mesh.comm.allgather(
-            (float(d[k]) if k >= 0 else np.inf,
-             int(self.mesh.geometry.input_global_indices[k]) if k >= 0 else -1))
+            (
+                float(d[k]) if k >= 0 else np.inf,
+                int(self.mesh.geometry.input_global_indices[k]) if k >= 0 else -1,
+            )
+        )
         return min(candidates)[1]
 
     def find_cells(self, marker) -> np.ndarray:
@@ -316,8 +350,10 @@ class FemBody:
         n_total = self.mesh.geometry.index_map().size_global
         bad = nodes[(nodes < 0) | (nodes >= n_total)]
         if bad.size:
-            raise InputError(f"FemBody {self.name!r}: {what}: node indices out of range "
-                             f"[0, {n_total}): {bad[:10].tolist()}")
+            raise InputError(
+                f"FemBody {self.name!r}: {what}: node indices out of range "
+                f"[0, {n_total}): {bad[:10].tolist()}"
+            )
         return nodes
 
     def fix_nodes(self, nodes, displacement=None, components=None) -> None:
@@ -338,10 +374,18 @@ class FemBody:
         comps = [0, 1, 2]
         if components is not None:
             raw = np.atleast_1d(np.asarray(components, dtype=object)).ravel().tolist()
-            if not raw or any(isinstance(c, bool) or not isinstance(c, (int, np.integer))
-                              or not 0 <= c <= 2 for c in raw) or len(set(raw)) != len(raw):
-                raise InputError(f"FemBody {self.name!r}: fix_nodes: components must be "
-                                 f"distinct indices in {{0, 1, 2}} (x, y, z), got {components!r}")
+            if (
+                not raw
+                or any(
+                    isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 0 <= c <= 2
+                    for c in raw
+                )
+                or len(set(raw)) != len(raw)
+            ):
+                raise InputError(
+                    f"FemBody {self.name!r}: fix_nodes: components must be "
+                    f"distinct indices in {{0, 1, 2}} (x, y, z), got {components!r}"
+                )
             comps = sorted(int(c) for c in raw)
         dofs = self.local_dofs(nodes)
         for c in comps:
@@ -355,7 +399,7 @@ class FemBody:
             arr[np.ix_(dofs, comps)] = vals[:, comps]
             before = self.u.x.array.copy()
             if self._unsettled is not None and np.array_equal(before, self._unsettled[1]):
-                before = self._unsettled[0]     # still unmoved since the last one
+                before = self._unsettled[0]  # still unmoved since the last one
             self.u.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = vals[:, comps]
             self._unsettled = (before, self.u.x.array.copy())
         self.v.x.array.reshape(-1, 3)[np.ix_(dofs, comps)] = 0.0
@@ -370,7 +414,7 @@ class FemBody:
         if not self.mesh.comm.allreduce(unmoved, op=MPI.LAND):
             return None
         dofs = np.flatnonzero(record[0] != record[1])
-        if not self.mesh.comm.allreduce(dofs.size):    # prescribed where they already were
+        if not self.mesh.comm.allreduce(dofs.size):  # prescribed where they already were
             return None
         return PrescribedRamp(self, dofs, record[0][dofs], record[1][dofs])
 
@@ -392,7 +436,8 @@ class FemBody:
                 "only (fix_nodes(..., components=...)); this caller takes whole fixed nodes "
                 "(fixed_dofs) and would leave them free. The body's own solvers "
                 "(artifem.integrators) and reduced bodies support them (fixed_components); "
-                "the Scene does not yet")
+                "the Scene does not yet"
+            )
         return self._fixed_dofs
 
     @property
@@ -409,14 +454,24 @@ class FemBody:
             arr = loc.array.reshape(-1, 3)
             for n, f in zip(nodes.tolist(), force):
                 d = self._node_to_dof.get(n)
-                if d is not None and d < n_owned:     # owned copy only: no double count
+                if d is not None and d < n_owned:  # owned copy only: no double count
                     arr[d] += f
         self.loads_version += 1
 
-    def add_pressure(self, pressure: float, *, where=None, tags=None, values=None,
-                     surface=None, tol: float | None = None, name: str | None = None,
-                     quadrature_degree: int | None = None, closed: bool = False,
-                     center=(0.0, 0.0, 0.0)) -> SurfaceLoad:
+    def add_pressure(
+        self,
+        pressure: float,
+        *,
+        where=None,
+        tags=None,
+        values=None,
+        surface=None,
+        tol: float | None = None,
+        name: str | None = None,
+        quadrature_degree: int | None = None,
+        closed: bool = False,
+        center=(0.0, 0.0, 0.0),
+    ) -> SurfaceLoad:
         """A follower pressure p (Pa; > 0 pushes into the body) on boundary facets.
 
         It acts on the deformed faces (virtual work -lambda int p J F^-T N . v dA),
@@ -431,27 +486,61 @@ class FemBody:
         :func:`artifem.surface_loads.select_facets`. Set it later with
         ``load.set(p)``; it is multiplied by the load factor.
         """
-        return self._add_surface_load("pressure", pressure, where, tags, values, surface, tol,
-                                      name, quadrature_degree, closed, center)
+        return self._add_surface_load(
+            "pressure",
+            pressure,
+            where,
+            tags,
+            values,
+            surface,
+            tol,
+            name,
+            quadrature_degree,
+            closed,
+            center,
+        )
 
-    def add_traction(self, traction, *, where=None, tags=None, values=None, surface=None,
-                     tol: float | None = None, name: str | None = None,
-                     quadrature_degree: int | None = None) -> SurfaceLoad:
+    def add_traction(
+        self,
+        traction,
+        *,
+        where=None,
+        tags=None,
+        values=None,
+        surface=None,
+        tol: float | None = None,
+        name: str | None = None,
+        quadrature_degree: int | None = None,
+    ) -> SurfaceLoad:
         """A dead traction t (3 numbers, Pa per reference area, fixed direction) on
         boundary facets: potential -lambda int t . u dA. Facets and ``set`` as in
         :meth:`add_pressure`."""
-        return self._add_surface_load("traction", traction, where, tags, values, surface, tol,
-                                      name, quadrature_degree)
+        return self._add_surface_load(
+            "traction", traction, where, tags, values, surface, tol, name, quadrature_degree
+        )
 
-    def _add_surface_load(self, kind, value, where, tags, values, surface, tol, name,
-                          degree, closed=False, center=(0.0, 0.0, 0.0)) -> SurfaceLoad:
+    def _add_surface_load(
+        self,
+        kind,
+        value,
+        where,
+        tags,
+        values,
+        surface,
+        tol,
+        name,
+        degree,
+        closed=False,
+        center=(0.0, 0.0, 0.0),
+    ) -> SurfaceLoad:
         if name is None:
             name = f"{kind}{sum(1 for s in self.surface_loads.values() if s.kind == kind)}"
         if name in self.surface_loads:
             raise InputError(f"FemBody {self.name!r}: surface load {name!r} already defined")
         what = f"FemBody {self.name!r}: surface load {name!r}"
-        facets = select_facets(self.mesh, where=where, tags=tags, values=values,
-                               surface=surface, tol=tol, what=what)
+        facets = select_facets(
+            self.mesh, where=where, tags=tags, values=values, surface=surface, tol=tol, what=what
+        )
         load = make_load(self.mesh, kind, name, facets, value, degree, self.name, closed, center)
         self.surface_loads[name] = load
         self._compiled = None
@@ -470,15 +559,16 @@ class FemBody:
         if not loads:
             return None, None, None
         key = tuple(id(load) for load in loads)
-        if self._surface_ds[0] != key:   # one facet tagging per set of loads
+        if self._surface_ds[0] != key:  # one facet tagging per set of loads
             self._surface_ds = (key, *surface_measure(self.mesh, loads))
         _, ds, ids = self._surface_ds
         dead, closed, work = None, None, None
         for load, sub in zip(loads, ids):
             measure = ds(sub, metadata={"quadrature_degree": load.degree})
             if load.follower:
-                term = load.virtual_work(self.u, ufl.TestFunction(self.V), self.load_factor,
-                                         measure)
+                term = load.virtual_work(
+                    self.u, ufl.TestFunction(self.V), self.load_factor, measure
+                )
                 work = term if work is None else work + term
                 if load.closed:
                     term = load.potential(self.u, self.load_factor, measure)
@@ -513,16 +603,24 @@ class FemBody:
         cells = np.asarray(cells, dtype=np.int64).ravel()
         n_cells_global = self.mesh.topology.index_map(self.mesh.topology.dim).size_global
         if cells.size == 0 or cells.min() < 0 or cells.max() >= n_cells_global:
-            raise InputError(f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
-                             f"non-empty subset of [0, {n_cells_global})")
+            raise InputError(
+                f"FemBody {self.name!r}: muscle {name!r}: cell indices must be a "
+                f"non-empty subset of [0, {n_cells_global})"
+            )
         if isinstance(directions, fem.Function):
             a0 = self._check_point_directions(name, directions)
             local_of_input = self._input_cell_to_local()
-            local = np.array([local_of_input[c] for c in cells.tolist() if c in local_of_input],
-                             dtype=np.int32)
+            local = np.array(
+                [local_of_input[c] for c in cells.tolist() if c in local_of_input], dtype=np.int32
+            )
             n_owned = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
-            muscle = Muscle(name, np.sort(local[local < n_owned]), a0, fiber,
-                            fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
+            muscle = Muscle(
+                name,
+                np.sort(local[local < n_owned]),
+                a0,
+                fiber,
+                fem.Constant(self.mesh, PETSc.ScalarType(excitation)),
+            )
             self.muscles[name] = muscle
             self._compiled = self._layers = None
             return muscle
@@ -530,12 +628,16 @@ class FemBody:
         norms = np.linalg.norm(directions, axis=1)
         if np.any(~np.isfinite(norms)) or np.any(norms <= 0):
             bad = cells[~(norms > 0)]
-            raise InputError(f"FemBody {self.name!r}: muscle {name!r}: zero or non-finite fiber "
-                             f"direction in elements {bad[:10].tolist()}")
+            raise InputError(
+                f"FemBody {self.name!r}: muscle {name!r}: zero or non-finite fiber "
+                f"direction in elements {bad[:10].tolist()}"
+            )
         unit = directions / norms[:, None]
 
         local_of_input = self._input_cell_to_local()
-        pairs = [(local_of_input[c], k) for k, c in enumerate(cells.tolist()) if c in local_of_input]
+        pairs = [
+            (local_of_input[c], k) for k, c in enumerate(cells.tolist()) if c in local_of_input
+        ]
         local = np.array([p[0] for p in pairs], dtype=np.int32)
         rows = np.array([p[1] for p in pairs], dtype=np.int64)
         W = fem.functionspace(self.mesh, ("DG", 0, (3,)))
@@ -545,23 +647,26 @@ class FemBody:
         a0.x.scatter_forward()
         n_owned = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
         owned = np.sort(local[local < n_owned])
-        muscle = Muscle(name, owned, a0, fiber,
-                        fem.Constant(self.mesh, PETSc.ScalarType(excitation)))
+        muscle = Muscle(
+            name, owned, a0, fiber, fem.Constant(self.mesh, PETSc.ScalarType(excitation))
+        )
         self.muscles[name] = muscle
         self._compiled = self._layers = None
         return muscle
 
     def quadrature_space(self) -> fem.FunctionSpace:
         """The vector quadrature space of the energy rule (degree ``quadrature_degree``)."""
-        element = basix.ufl.quadrature_element(self.cell_name, value_shape=(3,),
-                                               degree=self.quadrature_degree)
+        element = basix.ufl.quadrature_element(
+            self.cell_name, value_shape=(3,), degree=self.quadrature_degree
+        )
         return fem.functionspace(self.mesh, element)
 
     def quadrature_points(self) -> np.ndarray:
         """Reference positions of the energy's quadrature points of the local cells,
         shape (cells, points, 3), in the order of :meth:`quadrature_space`'s dofs."""
-        pts, _ = basix.make_quadrature(getattr(basix.CellType, self.cell_name),
-                                       self.quadrature_degree)
+        pts, _ = basix.make_quadrature(
+            getattr(basix.CellType, self.cell_name), self.quadrature_degree
+        )
         tdim = self.mesh.topology.dim
         imap = self.mesh.topology.index_map(tdim)
         cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
@@ -572,32 +677,40 @@ class FemBody:
         what = f"FemBody {self.name!r}: muscle {name!r}"
         space = a0.function_space
         if space.mesh is not self.mesh or space.value_shape != (3,):
-            raise InputError(f"{what}: a direction Function must be a 3-vector field on this "
-                             "body's mesh")
+            raise InputError(
+                f"{what}: a direction Function must be a 3-vector field on this body's mesh"
+            )
         expected = self.quadrature_space()
         dg0 = fem.functionspace(self.mesh, ("DG", 0, (3,)))
         if space.ufl_element() not in (expected.ufl_element(), dg0.ufl_element()):
-            raise InputError(f"{what}: the direction Function must be DG0 or on the quadrature "
-                             f"space of degree {self.quadrature_degree} "
-                             f"(FemBody.quadrature_space()), got {space.ufl_element()}")
+            raise InputError(
+                f"{what}: the direction Function must be DG0 or on the quadrature "
+                f"space of degree {self.quadrature_degree} "
+                f"(FemBody.quadrature_space()), got {space.ufl_element()}"
+            )
         norms = np.linalg.norm(a0.x.array.reshape(-1, 3), axis=1)
         if not np.all(np.isfinite(norms)) or np.any(np.abs(norms - 1.0) > 1e-8):
-            raise InputError(f"{what}: fiber directions must be finite unit vectors "
-                             f"(|a0| in [{norms.min():.3g}, {norms.max():.3g}])")
+            raise InputError(
+                f"{what}: fiber directions must be finite unit vectors "
+                f"(|a0| in [{norms.min():.3g}, {norms.max():.3g}])"
+            )
         return a0
 
     def set_excitation(self, name: str, value: float) -> None:
         """Set a muscle's excitation in [0, 1] (no recompilation)."""
         if name not in self.muscles:
-            raise UnknownNameError(f"FemBody {self.name!r}: unknown muscle {name!r}; "
-                                   f"defined: {sorted(self.muscles)}")
+            raise UnknownNameError(
+                f"FemBody {self.name!r}: unknown muscle {name!r}; defined: {sorted(self.muscles)}"
+            )
         _check_excitation(name, value)
         self.muscles[name].excitation.value = value
 
     def _input_cell_to_local(self) -> dict[int, int]:
         tdim = self.mesh.topology.dim
-        n_local = self.mesh.topology.index_map(tdim).size_local + \
-            self.mesh.topology.index_map(tdim).num_ghosts
+        n_local = (
+            self.mesh.topology.index_map(tdim).size_local
+            + self.mesh.topology.index_map(tdim).num_ghosts
+        )
         original = self.mesh.topology.original_cell_index[:n_local]
         return dict(zip(np.asarray(original).tolist(), range(n_local)))
 
@@ -616,22 +729,41 @@ class FemBody:
         one per muscle, or (``merged``, the body's own forms) one per layer of muscles
         (:mod:`artifem.muscle_layers`: the same sum with far fewer kernels to compile)."""
         material = with_form_constants(self.material, self.mesh)
-        terms = [EnergyTerm("material", lambda F, a0: material.strain_energy(F),
-                            self.quadrature_degree)]
+        terms = [
+            EnergyTerm("material", lambda F, a0: material.strain_energy(F), self.quadrature_degree)
+        ]
         if merged:
             for k, (density, cells, direction, fields_at) in enumerate(
-                    self._muscle_layers().terms()):
-                terms.append(EnergyTerm(f"muscle layer {k}", density, self.quadrature_degree,
-                                        cells, direction, fields_at))
+                self._muscle_layers().terms()
+            ):
+                terms.append(
+                    EnergyTerm(
+                        f"muscle layer {k}",
+                        density,
+                        self.quadrature_degree,
+                        cells,
+                        direction,
+                        fields_at,
+                    )
+                )
         for m in self.muscles.values() if not merged else ():
             fiber = with_form_constants(m.fiber, self.mesh)
-            terms.append(EnergyTerm(f"muscle:{m.name}",
-                                    lambda F, a0, m=m, f=fiber: f.strain_energy(F, a0, m.excitation),
-                                    self.quadrature_degree, m.cells, m.direction))
+            terms.append(
+                EnergyTerm(
+                    f"muscle:{m.name}",
+                    lambda F, a0, m=m, f=fiber: f.strain_energy(F, a0, m.excitation),
+                    self.quadrature_degree,
+                    m.cells,
+                    m.direction,
+                )
+            )
         if self.incompressibility is not None:
             kappa = fem.Constant(self.mesh, PETSc.ScalarType(self.incompressibility))
-            terms.append(EnergyTerm("incompressibility",
-                                    lambda F, a0: 0.5 * kappa * (ufl.det(F) - 1) ** 2, 1))
+            terms.append(
+                EnergyTerm(
+                    "incompressibility", lambda F, a0: 0.5 * kappa * (ufl.det(F) - 1) ** 2, 1
+                )
+            )
         return terms
 
     def _muscle_layers(self) -> MuscleLayers:
@@ -656,8 +788,9 @@ class FemBody:
         for t in terms:
             md = {"quadrature_degree": t.degree}
             if t.cells is None:
-                energies[t.name] = t.density(F, None) * ufl.Measure("dx", domain=self.mesh,
-                                                                    metadata=md)
+                energies[t.name] = t.density(F, None) * ufl.Measure(
+                    "dx", domain=self.mesh, metadata=md
+                )
             else:
                 dx = ufl.Measure("dx", domain=self.mesh, metadata=md, subdomain_data=data)
                 energies[t.name] = t.density(F, t.direction) * dx(restricted.index(t) + 1)
@@ -671,8 +804,9 @@ class FemBody:
         external = self._density_factor() * ufl.dot(self.gravity, self.u)
         if self.body_force is not None:
             external += ufl.dot(self.body_force, self.u)
-        dx = ufl.Measure("dx", domain=self.mesh,
-                         metadata={"quadrature_degree": self.quadrature_degree})
+        dx = ufl.Measure(
+            "dx", domain=self.mesh, metadata={"quadrature_degree": self.quadrature_degree}
+        )
         Pi -= self.load_factor * external * dx
         dead, closed, _ = self._surface_terms()
         if dead is not None:
@@ -687,43 +821,53 @@ class FemBody:
             return
         for load in self.surface_loads.values():
             if load.closed:
-                check_closed(self.mesh, load, self._geometry_node_dofs(), self._fixed_mask,
-                             self._fixed_values.x.array.reshape(-1, 3))
+                check_closed(
+                    self.mesh,
+                    load,
+                    self._geometry_node_dofs(),
+                    self._fixed_mask,
+                    self._fixed_values.x.array.reshape(-1, 3),
+                )
         Pi = self.potential_energy_form(closed_pressures=False)
         v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         R = ufl.derivative(Pi, self.u, v)
         vc = self.volume_constraint
         _, closed, follower = self._surface_terms()
         if follower is not None:
-            R -= follower                   # R = dPi/du - delta W_follower
+            R -= follower  # R = dPi/du - delta W_follower
             if closed is not None:
                 Pi += closed
         K = ufl.derivative(R, self.u, du)
-        if vc is not None:      # -G^T pi and its geometric tangent, in the same integrals
+        if vc is not None:  # -G^T pi and its geometric tangent, in the same integrals
             F, dx = self.kinematics(), vc.measure()
             R += ufl.derivative(vc.residual_term(F) * dx, self.u, v)
-            K += ufl.derivative(ufl.derivative(vc.geometric_term(F) * dx, self.u, v),
-                                self.u, du)
+            K += ufl.derivative(ufl.derivative(vc.geometric_term(F) * dx, self.u, v), self.u, du)
         c = {}
         c["R"], c["K"], c["Pi"] = fem.form(R), fem.form(K), fem.form(Pi)
         zero = np.zeros(3, dtype=PETSc.ScalarType)
-        if self._partly_fixed():            # one condition per component
-            self.bcs = [fem.dirichletbc(PETSc.ScalarType(0.0),
-                                        (3 * np.flatnonzero(self._fixed_mask[:, k]) + k)
-                                        .astype(np.int32), self.V.sub(k)) for k in range(3)]
+        if self._partly_fixed():  # one condition per component
+            self.bcs = [
+                fem.dirichletbc(
+                    PETSc.ScalarType(0.0),
+                    (3 * np.flatnonzero(self._fixed_mask[:, k]) + k).astype(np.int32),
+                    self.V.sub(k),
+                )
+                for k in range(3)
+            ]
         else:
             self.bcs = [fem.dirichletbc(zero, self._fixed_dofs, self.V)]
         self.K = fem_petsc.create_matrix(c["K"])
         self.R = fem_petsc.create_vector(self.V)
         if vc is not None:
             vc.compile()
-            vc.assemble(tangent=True)   # room in K for G^T D G (nodal pressures: 2-ring)
+            vc.assemble(tangent=True)  # room in K for G^T D G (nodal pressures: 2-ring)
             self.K.assemble()
             self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
             self.K.zeroEntries()
 
-        dxm = ufl.Measure("dx", domain=self.mesh,
-                          metadata={"quadrature_degree": MASS_DEGREE[self.cell_name]})
+        dxm = ufl.Measure(
+            "dx", domain=self.mesh, metadata={"quadrature_degree": MASS_DEGREE[self.cell_name]}
+        )
         rho = self._density_factor()
         mass_form = rho * ufl.inner(du, v) * dxm
         # Lumped mass: row sums of the consistent mass, M_ii = int rho phi_i dX.
@@ -731,14 +875,17 @@ class FemBody:
         self.M_lumped = fem_petsc.assemble_vector(fem.form(rho * ufl.dot(ones, v) * dxm))
         self.M_lumped.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.M_consistent = None
-        self._scaled_mass = None        # work vector of add_mass
+        self._scaled_mass = None  # work vector of add_mass
         if self.mass_kind == "consistent":
-            self.M_consistent = fem_petsc.assemble_matrix(fem.form(mass_form), bcs=self.bcs, diag=1.0)
+            self.M_consistent = fem_petsc.assemble_matrix(
+                fem.form(mass_form), bcs=self.bcs, diag=1.0
+            )
             self.M_consistent.assemble()
             c["mass_form"] = mass_form
 
-        pts, _ = basix.make_quadrature(getattr(basix.CellType, self.cell_name),
-                                       self.quadrature_degree)
+        pts, _ = basix.make_quadrature(
+            getattr(basix.CellType, self.cell_name), self.quadrature_degree
+        )
         c["detF"] = fem.Expression(ufl.det(self.kinematics()), pts)
         tdim = self.mesh.topology.dim
         self._owned_cells = np.arange(self.mesh.topology.index_map(tdim).size_local, dtype=np.int32)
@@ -746,8 +893,7 @@ class FemBody:
 
     # ---- evaluation --------------------------------------------------------
 
-    def assemble(self, tangent: bool = True, diag: float = 0.0,
-                 linearized: bool = False) -> None:
+    def assemble(self, tangent: bool = True, diag: float = 0.0, linearized: bool = False) -> None:
         """Assemble R = dPi/du (into self.R, nodal loads included) and K (into self.K).
 
         The force on the body is f = -R. Fixed rows/columns of K are zeroed with
@@ -767,7 +913,7 @@ class FemBody:
             self.K.zeroEntries()
             fem_petsc.assemble_matrix(self.K, c["K"], bcs=self.bcs, diag=diag)
             self.K.assemble()
-            if vc is not None:          # + G^T D G
+            if vc is not None:  # + G^T D G
                 self.K.axpy(1.0, vc.GtDG, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         with self.R.localForm() as loc:
             loc.set(0.0)
@@ -783,11 +929,14 @@ class FemBody:
         self.compile()
         c = self._compiled
         if "K_rest" not in c:
-            rest = fem.Function(self.V)                 # u = 0
+            rest = fem.Function(self.V)  # u = 0
             F = ufl.Identity(3) + ufl.grad(rest)
-            energy = sum(t.density(F, None) * ufl.Measure(
-                "dx", domain=self.mesh, metadata={"quadrature_degree": t.degree})
-                for t in self.energy_terms() if t.cells is None)
+            energy = sum(
+                t.density(F, None)
+                * ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": t.degree})
+                for t in self.energy_terms()
+                if t.cells is None
+            )
             v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
             form = fem.form(ufl.derivative(ufl.derivative(energy, rest, v), rest, du))
             c["K_rest"] = fem_petsc.assemble_matrix(form, bcs=self.bcs, diag=0.0)
@@ -808,8 +957,11 @@ class FemBody:
         """A += scale * D (A's sparsity holds K's)."""
         self.add_mass(A, scale * self.alpha)
         if self.beta:
-            A.axpy(scale * self.beta, self.rest_stiffness(),
-                   structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            A.axpy(
+                scale * self.beta,
+                self.rest_stiffness(),
+                structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN,
+            )
 
     def zero_fixed(self, vec: PETSc.Vec) -> None:
         """Zero the owned entries of fixed dofs in a blocked vector."""
@@ -859,8 +1011,9 @@ class FemBody:
         bad = self.input_cell_index(self._owned_cells[local_min <= 0]) if detF.size else []
         comm = self.mesh.comm
         gmin = comm.allreduce(float(local_min.min()) if local_min.size else np.inf, op=MPI.MIN)
-        all_bad = np.sort(np.concatenate([np.asarray(b, dtype=np.int64)
-                                          for b in comm.allgather(np.asarray(bad))]))
+        all_bad = np.sort(
+            np.concatenate([np.asarray(b, dtype=np.int64) for b in comm.allgather(np.asarray(bad))])
+        )
         return all_bad, gmin
 
     def potential_energy(self) -> float:
@@ -883,8 +1036,9 @@ class FemBody:
         """The current volume int J dX (the energy's quadrature: exact for Q1 hexahedra)."""
         self.compile()
         if "volume" not in self._compiled:
-            dx = ufl.Measure("dx", domain=self.mesh,
-                             metadata={"quadrature_degree": self.quadrature_degree})
+            dx = ufl.Measure(
+                "dx", domain=self.mesh, metadata={"quadrature_degree": self.quadrature_degree}
+            )
             self._compiled["volume"] = fem.form(ufl.det(self.kinematics()) * dx)
         return self.mesh.comm.allreduce(fem.assemble_scalar(self._compiled["volume"]))
 
@@ -907,8 +1061,11 @@ class FemBody:
         """A copy of (u, v) local arrays (owned and ghost), and the multipliers p of the
         hard incompressibility when there is one."""
         if self.volume_constraint is not None:
-            return (self.u.x.array.copy(), self.v.x.array.copy(),
-                    self.volume_constraint.p.x.array.copy())
+            return (
+                self.u.x.array.copy(),
+                self.v.x.array.copy(),
+                self.volume_constraint.p.x.array.copy(),
+            )
         return self.u.x.array.copy(), self.v.x.array.copy()
 
     def set_state(self, state) -> None:
@@ -970,5 +1127,5 @@ def with_form_constants(material, domain: dmesh.Mesh):
 
 
 def _check_excitation(name: str, value: float) -> None:
-    if not (0.0 <= value <= 1.0):     # also rejects NaN
+    if not (0.0 <= value <= 1.0):  # also rejects NaN
         raise InputError(f"excitation of {name!r} must be in [0, 1], got {value}")

@@ -82,11 +82,13 @@ class Incompressible:
         if not (np.isfinite(self.tol) and self.tol > 0):
             raise InputError(f"Incompressible: tol must be > 0, got {self.tol}")
         if not (np.isfinite(self.step_tol) and self.step_tol >= self.tol):
-            raise InputError(f"Incompressible: step_tol must be >= tol ({self.tol}), got "
-                             f"{self.step_tol}")
+            raise InputError(
+                f"Incompressible: step_tol must be >= tol ({self.tol}), got {self.step_tol}"
+            )
         if int(self.projections) != self.projections or self.projections < 0:
-            raise InputError(f"Incompressible: projections must be an integer >= 0, got "
-                             f"{self.projections}")
+            raise InputError(
+                f"Incompressible: projections must be an integer >= 0, got {self.projections}"
+            )
         if int(self.max_updates) < 1:
             raise InputError(f"Incompressible: max_updates must be >= 1, got {self.max_updates}")
 
@@ -103,8 +105,10 @@ class VolumeConstraint:
         self.kappa = float(spec.kappa)
         family = PRESSURE_SPACE.get(body.cell_name)
         if family is None:
-            raise InputError(f"FemBody {body.name!r}: hard incompressibility on "
-                             f"{body.cell_name!r} cells is not supported")
+            raise InputError(
+                f"FemBody {body.name!r}: hard incompressibility on "
+                f"{body.cell_name!r} cells is not supported"
+            )
         self.Q = fem.functionspace(body.mesh, family)
         #: pi = p - kappa g / V, the augmented energy's current pressure (its force G^T pi)
         self.pressure = fem.Function(self.Q, name="augmented pressure")
@@ -116,7 +120,7 @@ class VolumeConstraint:
         self.geometric = fem.Function(self.Q)
         imap = self.Q.dofmap.index_map
         self.n_owned = imap.size_local
-        self.updates = 0                # multiplier updates in the last step
+        self.updates = 0  # multiplier updates in the last step
         self._compiled = None
 
     # ---- forms -------------------------------------------------------------
@@ -131,8 +135,9 @@ class VolumeConstraint:
         return -self.geometric * ufl.det(F)
 
     def measure(self):
-        return ufl.Measure("dx", domain=self.body.mesh,
-                           metadata={"quadrature_degree": self.body.quadrature_degree})
+        return ufl.Measure(
+            "dx", domain=self.body.mesh, metadata={"quadrature_degree": self.body.quadrature_degree}
+        )
 
     def compile(self) -> None:
         body = self.body
@@ -140,19 +145,24 @@ class VolumeConstraint:
         q = ufl.TestFunction(self.Q)
         du = ufl.TrialFunction(body.V)
         J = ufl.det(body.kinematics())
-        c = {"g": fem.form((J - 1.0) * q * dx),
-             "G": fem.form(ufl.derivative(J * q * dx, body.u, du))}
+        c = {
+            "g": fem.form((J - 1.0) * q * dx),
+            "G": fem.form(ufl.derivative(J * q * dx, body.u, du)),
+        }
         volume = fem_petsc.assemble_vector(fem.form(q * dx))
         volume.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        self.volume = volume.array[:self.n_owned].copy()
+        self.volume = volume.array[: self.n_owned].copy()
         if self.volume.size and self.volume.min() <= 0:
-            raise InputError(f"FemBody {body.name!r}: an element of zero or negative volume "
-                             "(hard incompressibility needs positive reference volumes)")
+            raise InputError(
+                f"FemBody {body.name!r}: an element of zero or negative volume "
+                "(hard incompressibility needs positive reference volumes)"
+            )
         volume.destroy()
         self.g = fem_petsc.create_vector(self.Q)
         self.G = fem_petsc.create_matrix(c["G"])
-        self.D = PETSc.Mat().createAIJ(((self.n_owned, None), (self.n_owned, None)), nnz=1,
-                                       comm=body.mesh.comm)
+        self.D = PETSc.Mat().createAIJ(
+            ((self.n_owned, None), (self.n_owned, None)), nnz=1, comm=body.mesh.comm
+        )
         start = self.Q.dofmap.index_map.local_range[0]
         rows = np.arange(start, start + self.n_owned, dtype=PETSc.IntType)
         for i, r in enumerate(rows):
@@ -200,32 +210,41 @@ class VolumeConstraint:
 
     def violation(self, g: np.ndarray | None = None) -> float:
         """max_i |g_i| / V_i over every rank (of the assembled g, or of ``g``)."""
-        g = self.g.array[:self.n_owned] if g is None else g
+        g = self.g.array[: self.n_owned] if g is None else g
         local = float(np.abs(g / self.volume).max()) if g.size else 0.0
         return self.body.mesh.comm.allreduce(local, op=MPI.MAX)
 
     def describe(self, g: np.ndarray | None = None, count: int = 5) -> str:
         """Where the constraint is worst (collective): its element(s) (Q1/P0) or node
         patch(es) (nodal pressure) by input index, with their relative volume change."""
-        g = self.g.array[:self.n_owned] if g is None else g
+        g = self.g.array[: self.n_owned] if g is None else g
         ratio = np.abs(g / self.volume) if g.size else np.zeros(0)
         order = np.argsort(-ratio)[:count]
-        dofs = self.Q.dofmap.list                       # cell -> pressure dof(s)
-        if dofs.shape[1] == 1:                          # one per element
+        dofs = self.Q.dofmap.list  # cell -> pressure dof(s)
+        if dofs.shape[1] == 1:  # one per element
             cell_of = np.empty(self.n_owned, dtype=np.int32)
             owned = dofs[:, 0] < self.n_owned
             cell_of[dofs[owned, 0]] = np.flatnonzero(owned)
             ids, what = self.body.input_cell_index(cell_of[order]), "element"
-        else:                                           # nodal: the geometry's node ids
+        else:  # nodal: the geometry's node ids
             node_of = np.empty(dofs.max() + 1, dtype=np.int64)
             node_of[dofs.reshape(-1)] = self.body.mesh.geometry.dofmaps[0].reshape(-1)
             ids = self.body.mesh.geometry.input_global_indices[node_of[order]]
             what = "node patch"
-        found = sorted(sum(self.body.mesh.comm.allgather(
-            [(float(ratio[k]), int(i)) for k, i in zip(order, ids)]), []), reverse=True)[:count]
+        found = sorted(
+            sum(
+                self.body.mesh.comm.allgather(
+                    [(float(ratio[k]), int(i)) for k, i in zip(order, ids)]
+                ),
+                [],
+            ),
+            reverse=True,
+        )[:count]
         shown = ", ".join(f"{i} ({v:.1e})" for v, i in found)
-        return (f"FemBody {self.body.name!r}: element volumes off by more than "
-                f"{self.spec.tol:g} at {what}(s) (input index, relative volume change) {shown}")
+        return (
+            f"FemBody {self.body.name!r}: element volumes off by more than "
+            f"{self.spec.tol:g} at {what}(s) (input index, relative volume change) {shown}"
+        )
 
     def step_failure(self) -> str | None:
         """After a step (collective): None while max_i |g_i| / V_i <= ``step_tol``, else
@@ -233,8 +252,9 @@ class VolumeConstraint:
         self.assemble(tangent=False)
         if self.violation() <= self.spec.step_tol:
             return None
-        return self.describe().replace(f"more than {self.spec.tol:g}",
-                                       f"more than the step's {self.spec.step_tol:g}")
+        return self.describe().replace(
+            f"more than {self.spec.tol:g}", f"more than the step's {self.spec.step_tol:g}"
+        )
 
     def energy(self) -> float:
         """W(u; p) at the assembled g (module docstring)."""
@@ -255,14 +275,14 @@ class VolumeConstraint:
         with velocity v (g and G as last assembled)."""
         c = self.g.duplicate()
         self.G.mult(v, c)
-        out = self.g.array[:self.n_owned] + h * c.array[:self.n_owned]
+        out = self.g.array[: self.n_owned] + h * c.array[: self.n_owned]
         c.destroy()
         return out
 
     def force_of(self, dp: np.ndarray, h: float, out: PETSc.Vec) -> None:
         """out = h G^T dp: the change of h f when the pressures change by dp."""
         d = self.g.duplicate()
-        d.array[:self.n_owned] = dp
+        d.array[: self.n_owned] = dp
         self.G.multTranspose(d, out)
         out.scale(h)
         d.destroy()
@@ -271,7 +291,7 @@ class VolumeConstraint:
         """h G y (owned rows): the change of c when the velocity changes by y."""
         c = self.g.duplicate()
         self.G.mult(y, c)
-        out = h * c.array[:self.n_owned]
+        out = h * c.array[: self.n_owned]
         c.destroy()
         return out
 
@@ -293,8 +313,9 @@ class VolumeConstraint:
 
     @staticmethod
     def _as_vec(array: np.ndarray) -> PETSc.Vec:
-        return PETSc.Vec().createWithArray(np.array(array, dtype=PETSc.ScalarType),
-                                           comm=PETSc.COMM_SELF)
+        return PETSc.Vec().createWithArray(
+            np.array(array, dtype=PETSc.ScalarType), comm=PETSc.COMM_SELF
+        )
 
     def add_to_pressures(self, dp: np.ndarray) -> None:
         n = self.n_owned
@@ -304,15 +325,23 @@ class VolumeConstraint:
 
     def pressure_range(self) -> tuple[float, float]:
         """(min, max) of the pressures p over every rank."""
-        a = self.p.x.array[:self.n_owned]
+        a = self.p.x.array[: self.n_owned]
         comm = self.body.mesh.comm
-        return (comm.allreduce(float(a.min()) if a.size else np.inf, op=MPI.MIN),
-                comm.allreduce(float(a.max()) if a.size else -np.inf, op=MPI.MAX))
+        return (
+            comm.allreduce(float(a.min()) if a.size else np.inf, op=MPI.MIN),
+            comm.allreduce(float(a.max()) if a.size else -np.inf, op=MPI.MAX),
+        )
 
 
-def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], respond,
-                    accept, comm, inexact: int | None = None,
-                    stop_when_indefinite: bool = False) -> int | None:
+def hold_linearized(
+    constraints: list[VolumeConstraint],
+    c0: list[np.ndarray],
+    respond,
+    accept,
+    comm,
+    inexact: int | None = None,
+    stop_when_indefinite: bool = False,
+) -> int | None:
     """The linearized constraints of a semi-implicit step, c = c0 + S dp = 0 to each one's
     ``tol``, for the pressure changes dp of one or more bodies stepped together:
 
@@ -336,7 +365,7 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
     accepted stays applied: the caller undoes it), for a caller with a better fallback.
     """
     weight = [vc.kappa / vc.volume for vc in constraints]
-    r = [-c for c in c0]                            # residual of S x = -c0 at x = 0
+    r = [-c for c in c0]  # residual of S x = -c0 at x = 0
     x = [np.zeros_like(c) for c in c0]
     z = [w * ri for w, ri in zip(weight, r)]
     d = [zi.copy() for zi in z]
@@ -352,11 +381,21 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
                 raise StepFailed(_worst(constraints, r) + f" after {limit} pressure iterations")
             Sd = respond(d)
             dSd = comm.allreduce(sum(float(di @ si) for di, si in zip(d, Sd)))
-            if not dSd > 0:         # S is indefinite (so is the step matrix): CR from here
+            if not dSd > 0:  # S is indefinite (so is the step matrix): CR from here
                 if stop_when_indefinite:
                     return None
-                return _conjugate_residuals(constraints, r, x, weight, respond, accept, comm,
-                                            iterations, limit, inexact is not None)
+                return _conjugate_residuals(
+                    constraints,
+                    r,
+                    x,
+                    weight,
+                    respond,
+                    accept,
+                    comm,
+                    iterations,
+                    limit,
+                    inexact is not None,
+                )
             alpha = rz / dSd
             accept(alpha)
             for k in range(len(constraints)):
@@ -374,18 +413,30 @@ def hold_linearized(constraints: list[VolumeConstraint], c0: list[np.ndarray], r
 
 def _worst(constraints: list[VolumeConstraint], r: list[np.ndarray]) -> str:
     """:meth:`VolumeConstraint.describe` of every constraint still off (c = -r)."""
-    return "; ".join(vc.describe(-rk) for vc, rk in zip(constraints, r)
-                     if vc.violation(-rk) > vc.spec.tol)
+    return "; ".join(
+        vc.describe(-rk) for vc, rk in zip(constraints, r) if vc.violation(-rk) > vc.spec.tol
+    )
 
 
-def _conjugate_residuals(constraints, r, x, weight, respond, accept, comm, iterations: int,
-                         limit: int, inexact: bool = False) -> int:
+def _conjugate_residuals(
+    constraints,
+    r,
+    x,
+    weight,
+    respond,
+    accept,
+    comm,
+    iterations: int,
+    limit: int,
+    inexact: bool = False,
+) -> int:
     """Preconditioned conjugate residuals (Saad, Iterative Methods, alg. 6.20) on S dp = r
     from where :func:`hold_linearized`'s CG broke down: like CG one S product (one solve) per
     iteration with the residual kept, but for symmetric indefinite S. The velocities of the
     pressure change it finds come from one more solve at the end. ``r`` and ``x`` are
     updated in place; returns the total iteration count (``inexact``: stops without an
     error at ``limit`` or a breakdown)."""
+
     def dot(a, b):
         return comm.allreduce(sum(float(ai @ bi) for ai, bi in zip(a, b)))
 
@@ -402,10 +453,15 @@ def _conjugate_residuals(constraints, r, x, weight, respond, accept, comm, itera
             if inexact:
                 iterations -= 1
                 break
-            why = f"after {limit} pressure iterations" if iterations > limit else \
-                "(the pressure iteration broke down)"
-            raise StepFailed(_worst(constraints, r) + f" {why}; the step matrix is not "
-                             "positive definite (the tangent lost its stability)")
+            why = (
+                f"after {limit} pressure iterations"
+                if iterations > limit
+                else "(the pressure iteration broke down)"
+            )
+            raise StepFailed(
+                _worst(constraints, r) + f" {why}; the step matrix is not "
+                "positive definite (the tangent lost its stability)"
+            )
         alpha = zSz / denominator
         for k in range(len(constraints)):
             x[k] += alpha * p[k]

@@ -44,7 +44,7 @@ from artifem.fem_body import FemBody
 from artifem.incompressibility import hold_linearized
 from artifem.linear_solver import LinearSolver
 
-if TYPE_CHECKING:       # reduced_body may import this module: no runtime import
+if TYPE_CHECKING:  # reduced_body may import this module: no runtime import
     from artifem.reduction.reduced_body import ReducedFemBody
 
 
@@ -88,8 +88,9 @@ def _has_inversion(body: FemBody) -> bool:
     return body.mesh.comm.allreduce(local, op=MPI.LOR)
 
 
-def step_system(body: FemBody, h: float,
-                linearized: bool = True) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
+def step_system(
+    body: FemBody, h: float, linearized: bool = True
+) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
     """The semi-implicit step of an FEM body at its current state, A v+ = b (the one place
     it is formed: this integrator, the coupled island's direct and Schur solves):
 
@@ -104,12 +105,12 @@ def step_system(body: FemBody, h: float,
     body.assemble(tangent=True, linearized=linearized)
     v = body.v.x.petsc_vec
     b, d = v.duplicate(), v.duplicate()
-    body.mass_mult(v, b)                    # b = M v, then + h f
+    body.mass_mult(v, b)  # b = M v, then + h f
     body.damping_mult(v, d)
     d.axpy(1.0, body.R)
-    d.scale(-1.0)                           # f - D v = -R - D v
+    d.scale(-1.0)  # f - D v = -R - D v
     b.axpy(-h, body.R)
-    body.K.scale(h * h)                     # K becomes the step matrix A
+    body.K.scale(h * h)  # K becomes the step matrix A
     body.add_damping(body.K, h)
     body.add_mass(body.K, 1.0)
     return body.K, b, d
@@ -138,7 +139,7 @@ class SemiImplicitEuler:
         b.axpy(-1.0, dv)
         body.zero_fixed(b)
         solver.solve(A, b, dv)
-        body.zero_fixed(dv)             # exact, not to the iterative solver's tolerance
+        body.zero_fixed(dv)  # exact, not to the iterative solver's tolerance
         if body.volume_constraint is not None:
             _hold_volumes(body, h, A, dv, solver, base=v)
         v.axpy(1.0, dv)
@@ -162,17 +163,23 @@ class SemiImplicitEuler:
         body.set_state((q, qdot))
         vc = body.volume_constraint
         for _ in range(vc.spec.projections if vc is not None else 0):
-            if vc.violation() <= vc.spec.step_tol:      # post-stabilization: _project_volumes
+            if vc.violation() <= vc.spec.step_tol:  # post-stabilization: _project_volumes
                 break
             dv = vc.hold_linearized(A, np.zeros_like(qdot), h, exact=False)
             q, qdot = q + h * dv, qdot + dv
             body.set_state((q, qdot))
 
 
-def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
-                  solver: LinearSolver, base: PETSc.Vec | None = None,
-                  inexact: int | None = None,
-                  stop_when_indefinite: bool = False) -> int | None:
+def _hold_volumes(
+    body: FemBody,
+    h: float,
+    A: PETSc.Mat,
+    dv: PETSc.Vec,
+    solver: LinearSolver,
+    base: PETSc.Vec | None = None,
+    inexact: int | None = None,
+    stop_when_indefinite: bool = False,
+) -> int | None:
     """The linearized volume constraint of a linear solve A dv = b whose displacement
     change is h (base + dv) (the semi-implicit step: base = v; a Newton iteration of the
     implicit step: no base; of statics: h = 1), g + h G (base + dv) = 0 with A kept:
@@ -193,16 +200,23 @@ def _hold_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
         return [vc.rate_of(y, h)]
 
     try:
-        return hold_linearized([vc], [vc.linearized(v_new, h)], respond,
-                               lambda alpha: dv.axpy(alpha, y), body.mesh.comm, inexact,
-                               stop_when_indefinite)
+        return hold_linearized(
+            [vc],
+            [vc.linearized(v_new, h)],
+            respond,
+            lambda alpha: dv.axpy(alpha, y),
+            body.mesh.comm,
+            inexact,
+            stop_when_indefinite,
+        )
     finally:
         for vec in (v_new, w, y):
             vec.destroy()
 
 
-def _project_volumes(body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec,
-                     solver: LinearSolver) -> None:
+def _project_volumes(
+    body: FemBody, h: float, A: PETSc.Mat, dv: PETSc.Vec, solver: LinearSolver
+) -> None:
     """Post-stabilization of a semi-implicit step that left the volumes off by more than
     ``step_tol`` (its constraint held linearized at the start of the step: off by
     O(h^2 |v|^2), up to 8 % in a few tongue elements during fast motion): Newton on the
@@ -277,11 +291,11 @@ class ImplicitEuler:
             body.zero_fixed(r)
             return r.norm()
 
-        set_velocity(v0.array)          # initial guess v = v_k, so u = u_k + h v_k ...
+        set_velocity(v0.array)  # initial guess v = v_k, so u = u_k + h v_k ...
         if _has_inversion(body):
-            set_velocity(0.0 * v0.array)    # ... unless that inverts: then u = u_k
+            set_velocity(0.0 * v0.array)  # ... unless that inverts: then u = u_k
 
-        scale = []                      # |r| at the start of the step: the reference of rtol
+        scale = []  # |r| at the start of the step: the reference of rtol
 
         def newton() -> int:
             """Newton from the current v to r(v) = 0; the iteration count."""
@@ -299,37 +313,52 @@ class ImplicitEuler:
                 r.scale(-1.0)
                 solver.solve(A, r, dv)
                 body.zero_fixed(dv)
-                slope = -r.dot(dv)                  # dE/ds at s = 0 (r holds -gradient)
+                slope = -r.dot(dv)  # dE/ds at s = 0 (r holds -gradient)
                 if body.volume_constraint is not None:
                     # Newton-Lagrange: the pressures that hold g + h G dv = 0 (so Newton
                     # converges in u and p together), then r and the slope with them
-                    _hold_volumes(body, h, A, dv, solver, inexact=min(
-                        NEWTON_PRESSURE_ITERATIONS, body.volume_constraint.spec.max_updates))
+                    _hold_volumes(
+                        body,
+                        h,
+                        A,
+                        dv,
+                        solver,
+                        inexact=min(
+                            NEWTON_PRESSURE_ITERATIONS, body.volume_constraint.spec.max_updates
+                        ),
+                    )
                     norm = residual(tangent=False)
-                    slope = r.dot(dv)               # r holds the gradient again
+                    slope = r.dot(dv)  # r holds the gradient again
                 E0 = incremental_potential()
                 v_start = v.array.copy()
-                step = _backtrack(lambda s: set_velocity(v_start + s * dv.array),
-                                  lambda: _has_inversion(body), incremental_potential, E0, slope,
-                                  lambda: residual(tangent=False), norm)
+                step = _backtrack(
+                    lambda s: set_velocity(v_start + s * dv.array),
+                    lambda: _has_inversion(body),
+                    incremental_potential,
+                    E0,
+                    slope,
+                    lambda: residual(tangent=False),
+                    norm,
+                )
                 if step is None:
                     raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
                 norm = residual(tangent=True)
                 if step == 1.0 and _at_round_off(dv, v):
                     return it
-            if norm <= self.rtol * norm0 or norm <= self.atol:     # the last iteration converged
+            if norm <= self.rtol * norm0 or norm <= self.atol:  # the last iteration converged
                 return self.max_iterations
-            raise StepFailed(f"implicit Euler: Newton did not converge in {self.max_iterations} "
-                             f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})")
+            raise StepFailed(
+                f"implicit Euler: Newton did not converge in {self.max_iterations} "
+                f"iterations (|r| = {norm:.3e}, |r0| = {norm0:.3e})"
+            )
 
         try:
             self.iterations = newton()
-            if body.volume_constraint is not None:      # Uzawa around Newton
+            if body.volume_constraint is not None:  # Uzawa around Newton
                 self.iterations += _hold_volumes_newton(body, newton)
         finally:
             for vec in (u0, v0, r, w, dv):
                 vec.destroy()
-
 
     def advance_reduced(self, body: ReducedFemBody, h: float) -> None:
         """The same Newton iteration in reduced coordinates (dense r x r), on
@@ -357,11 +386,11 @@ class ImplicitEuler:
             v = body.qdot
             return M @ (v - v0) - h * body.force() + h * (D @ v)
 
-        set_velocity(v0)                 # initial guess v = q'_k, so q = q_k + h q'_k ...
+        set_velocity(v0)  # initial guess v = q'_k, so q = q_k + h q'_k ...
         if _reduced_inverted(body):
-            set_velocity(np.zeros_like(v0))     # ... unless that inverts: then q = q_k
+            set_velocity(np.zeros_like(v0))  # ... unless that inverts: then q = q_k
         vc = body.volume_constraint
-        scale = []                      # |r| at the start of the step: the reference of rtol
+        scale = []  # |r| at the start of the step: the reference of rtol
 
         def newton() -> int:
             """Newton from the current v to r(v) = 0; the iteration count."""
@@ -375,7 +404,7 @@ class ImplicitEuler:
                     return it - 1
                 A = M + h * D + h * h * body.tangent()
                 dv = _dense_solve(A, -r, "implicit Euler (reduced)")
-                slope = float(r @ dv)                   # dE/ds at s = 0
+                slope = float(r @ dv)  # dE/ds at s = 0
                 if vc is not None:
                     # Newton-Lagrange: the multipliers that hold c + h C dv = 0 (exact, the
                     # system is small), then r and the slope with them
@@ -385,24 +414,33 @@ class ImplicitEuler:
                     slope = float(r @ dv)
                 E0 = incremental_potential()
                 v_start = body.qdot.copy()
-                step = _backtrack(lambda s: set_velocity(v_start + s * dv),
-                                  lambda: _reduced_inverted(body), incremental_potential, E0,
-                                  slope, lambda: float(np.linalg.norm(residual())), norm)
+                step = _backtrack(
+                    lambda s: set_velocity(v_start + s * dv),
+                    lambda: _reduced_inverted(body),
+                    incremental_potential,
+                    E0,
+                    slope,
+                    lambda: float(np.linalg.norm(residual())),
+                    norm,
+                )
                 if step is None:
-                    raise StepFailed(f"implicit Euler (reduced): line search failed at Newton "
-                                     f"iteration {it}")
+                    raise StepFailed(
+                        f"implicit Euler (reduced): line search failed at Newton iteration {it}"
+                    )
                 r = residual()
                 norm = float(np.linalg.norm(r))
                 if step == 1.0 and _round_off(dv, body.qdot):
                     return it
-            if norm <= self.rtol * norm0 or norm <= self.atol:     # the last one converged
+            if norm <= self.rtol * norm0 or norm <= self.atol:  # the last one converged
                 return self.max_iterations
-            raise StepFailed(f"implicit Euler (reduced): Newton did not converge in "
-                             f"{self.max_iterations} iterations (|r| = {norm:.3e}, "
-                             f"|r0| = {norm0:.3e})")
+            raise StepFailed(
+                f"implicit Euler (reduced): Newton did not converge in "
+                f"{self.max_iterations} iterations (|r| = {norm:.3e}, "
+                f"|r0| = {norm0:.3e})"
+            )
 
         self.iterations = newton()
-        if vc is not None:                              # Uzawa around Newton
+        if vc is not None:  # Uzawa around Newton
             self.iterations += _hold_volumes_newton(body, newton)
 
 
@@ -420,9 +458,17 @@ def _hold_volumes_newton(body, newton) -> int:
     raise StepFailed(f"{vc.describe()} after {vc.spec.max_updates} pressure updates")
 
 
-def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
-               residual_norm, norm0: float, min_step: float = 1e-4,
-               correction_ratio=None) -> float | None:
+def _backtrack(
+    apply_step,
+    inverted,
+    merit,
+    merit0: float,
+    slope: float,
+    residual_norm,
+    norm0: float,
+    min_step: float = 1e-4,
+    correction_ratio=None,
+) -> float | None:
     """Backtracking line search: the largest s in {1, 1/2, ...} with no inverted element
     (``inverted()`` false) that passes one of
 
@@ -444,15 +490,23 @@ def _backtrack(apply_step, inverted, merit, merit0: float, slope: float,
     step = 1.0
     while step >= min_step:
         apply_step(step)
-        if not inverted() and _acceptable(step, merit, merit0, slope, residual_norm, norm0,
-                                          correction_ratio):
+        if not inverted() and _acceptable(
+            step, merit, merit0, slope, residual_norm, norm0, correction_ratio
+        ):
             return step
         step *= 0.5
     return None
 
 
-def _acceptable(step: float, merit, merit0: float, slope: float, residual_norm,
-                norm0: float, correction_ratio=None) -> bool:
+def _acceptable(
+    step: float,
+    merit,
+    merit0: float,
+    slope: float,
+    residual_norm,
+    norm0: float,
+    correction_ratio=None,
+) -> bool:
     """Whether the step just applied passes one of :func:`_backtrack`'s tests."""
     if merit is not None:
         value = merit()
@@ -472,14 +526,19 @@ def _extrapolation_weights(nodes, x: float) -> np.ndarray:
     """The Lagrange weights w_j of the polynomial through the values at ``nodes``,
     evaluated at ``x``: p(x) = sum_j w_j y_j, w_j = prod_{m != j} (x - x_m) / (x_j - x_m)."""
     nodes = np.asarray(nodes, dtype=float)
-    return np.array([np.prod([(x - xm) / (xj - xm) for m, xm in enumerate(nodes) if m != j])
-                     for j, xj in enumerate(nodes)])
+    return np.array(
+        [
+            np.prod([(x - xm) / (xj - xm) for m, xm in enumerate(nodes) if m != j])
+            for j, xj in enumerate(nodes)
+        ]
+    )
 
 
 def _at_round_off(correction: PETSc.Vec, value: PETSc.Vec, tol: float = 1e-12) -> bool:
     """True when a Newton correction is at round-off relative to the value it corrects."""
     return correction.norm(PETSc.NormType.INFINITY) <= tol * max(
-        value.norm(PETSc.NormType.INFINITY), np.finfo(float).tiny)
+        value.norm(PETSc.NormType.INFINITY), np.finfo(float).tiny
+    )
 
 
 class StaticCounts(list):
@@ -530,8 +589,7 @@ def load_schedule(load_steps) -> tuple[list[float] | None, float]:
     increment."""
     if isinstance(load_steps, str):
         if load_steps != "auto":
-            raise InputError(f"load_steps must be a positive integer or 'auto', got "
-                             f"{load_steps!r}")
+            raise InputError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
         return None, 1.0
     if int(load_steps) != load_steps or load_steps < 1:
         raise InputError(f"load_steps must be a positive integer or 'auto', got {load_steps!r}")
@@ -539,8 +597,9 @@ def load_schedule(load_steps) -> tuple[list[float] | None, float]:
     return [k / n for k in range(1, n + 1)], 1.0 / n
 
 
-def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
-              what: str, progress=None) -> StaticCounts:
+def ramp_load(
+    solve_increment, save, restore, load_steps, max_iterations: int, what: str, progress=None
+) -> StaticCounts:
     """Drive the load factor from 0 to 1 in increments, each solved by
     ``solve_increment(factor, limit)`` (Newton iterations; StepFailed when it does not
     converge in ``limit``). A failed increment is restored (``save``/``restore``) and
@@ -569,8 +628,10 @@ def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
             restore(state)
             cuts += 1
             if cuts > MAX_CUTS:
-                raise StepFailed(f"{what}: the load increment {factor:g} -> {goal:g} failed "
-                                 f"after {MAX_CUTS} cuts ({error})") from error
+                raise StepFailed(
+                    f"{what}: the load increment {factor:g} -> {goal:g} failed "
+                    f"after {MAX_CUTS} cuts ({error})"
+                ) from error
             increment = 0.5 * (goal - factor)
             continue
         counts.append(it)
@@ -582,14 +643,21 @@ def ramp_load(solve_increment, save, restore, load_steps, max_iterations: int,
             if it <= EASY_ITERATIONS:
                 increment *= 2.0
         elif goal in marks:
-            increment = 1.0 / len(marks)        # back to the schedule after a cut
+            increment = 1.0 / len(marks)  # back to the schedule after a cut
         factor = goal
     return StaticCounts(counts, factors, failed)
 
 
-def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str = 1,
-                 rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
-                 progress=None) -> StaticCounts:
+def solve_static(
+    body: FemBody,
+    solver: LinearSolver,
+    *,
+    load_steps: int | str = 1,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    max_iterations: int = 30,
+    progress=None,
+) -> StaticCounts:
     """Static equilibrium R(u) = 0 by Newton, in load increments of the load factor.
 
     ``load_steps``: n (increments 1/n; one that fails is halved and retried, and the
@@ -641,7 +709,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         body.zero_fixed(r)
         return r.norm()
 
-    def holds() -> bool:            # the volumes as last assembled
+    def holds() -> bool:  # the volumes as last assembled
         return vc is None or vc.violation() <= vc.spec.tol
 
     # The last PREDICTOR_POINTS converged states (load factor, u): the polynomial through
@@ -669,8 +737,11 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         # energy compares starts only at equal pressures)
         u.array[:] = sum(w * c[1] for w, c in zip(weights, converged))
         _update_ghosts(u)
-        if _has_inversion(body) or not (body.potential_energy() if body.conservative
-                                        else residual(tangent=False)) < start:
+        if (
+            _has_inversion(body)
+            or not (body.potential_energy() if body.conservative else residual(tangent=False))
+            < start
+        ):
             # the predictor inverts or is no closer in |R|: start from u_k
             u.array[:] = u2
             _update_ghosts(u)
@@ -682,7 +753,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         try:
             it = newton(factor, limit)
         except StepFailed:
-            residuals.pop()             # only the increments that converged are kept
+            residuals.pop()  # only the increments that converged are kept
             raise
         converged.append((factor, u.array.copy()))
         del converged[:-PREDICTOR_POINTS]
@@ -699,14 +770,14 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         (scripts/static_newton_counts.py, tet_stretch)."""
         body.load_factor.value = factor
         base = ramp.current()
-        body.assemble(tangent=True, diag=1.0)       # K(u_k) and R(u_k)
+        body.assemble(tangent=True, diag=1.0)  # K(u_k) and R(u_k)
         body.R.copy(ds)
         body.zero_fixed(ds)
-        eps = 1e-7                  # of the step: a difference of R, its round-off 1e-9
+        eps = 1e-7  # of the step: a difference of R, its round-off 1e-9
         ramp.apply(factor, eps, base)
         residual(tangent=False)
         r.axpy(-1.0, ds)
-        r.scale(1.0 / eps)                           # dR/du_d du_d
+        r.scale(1.0 / eps)  # dR/du_d du_d
         r.axpy(1.0, ds)
         r.scale(-1.0)
         solver.solve(body.K, r, du)
@@ -719,8 +790,11 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         u0 = u.array.copy()
         u.array[:] += du.array
         _update_ghosts(u)
-        if _has_inversion(body) or not (body.potential_energy() if body.conservative
-                                        else residual(tangent=False)) < start:
+        if (
+            _has_inversion(body)
+            or not (body.potential_energy() if body.conservative else residual(tangent=False))
+            < start
+        ):
             u.array[:] = u0
             _update_ghosts(u)
 
@@ -730,10 +804,12 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             if len(converged) < PREDICTOR_POINTS:
                 ramp_predict(factor)
             ramp.apply(factor)
-            if _has_inversion(body):        # the prescribed step inverts: a smaller one
-                raise StepFailed(f"static solve: the prescribed displacement at load factor "
-                                 f"{factor:g} inverts elements of {body.name!r}",
-                                 iterations=0)
+            if _has_inversion(body):  # the prescribed step inverts: a smaller one
+                raise StepFailed(
+                    f"static solve: the prescribed displacement at load factor "
+                    f"{factor:g} inverts elements of {body.name!r}",
+                    iterations=0,
+                )
         body.load_factor.value = factor
         norm = residual()
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
@@ -752,33 +828,36 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             if norm <= target:
                 if holds():
                     return it
-                if not multiplier:      # Uzawa on the converged penalty problem: p <- pi
+                if not multiplier:  # Uzawa on the converged penalty problem: p <- pi
                     vc.update()
                     vc.updates += 1
                     if vc.updates > vc.spec.max_updates:
-                        raise StepFailed(f"static solve: {vc.describe()} after "
-                                         f"{vc.spec.max_updates} pressure updates at load "
-                                         f"factor {factor:g}")
+                        raise StepFailed(
+                            f"static solve: {vc.describe()} after "
+                            f"{vc.spec.max_updates} pressure updates at load "
+                            f"factor {factor:g}"
+                        )
                     norm = residual()
                     continue
             if watch is not None:
                 if norm <= (1.0 - 1e-4) * watch[2]:
-                    watch = None                # the full steps paid off
+                    watch = None  # the full steps paid off
                 elif it - watch[0] >= WATCHDOG_ITERATIONS - 1:
-                    restore(watch[1])           # they did not: backtrack from there
+                    restore(watch[1])  # they did not: backtrack from there
                     watch, may_watch, multiplier, near = None, False, vc is None, False
                     norm = residual()
                     continue
             it += 1
             if it > limit:
-                raise StepFailed(f"static solve: Newton did not converge in {limit} "
-                                 f"iterations at load factor {factor:g} (|R| = {norm:.3e})",
-                                 iterations=it - 1)
+                raise StepFailed(
+                    f"static solve: Newton did not converge in {limit} "
+                    f"iterations at load factor {factor:g} (|R| = {norm:.3e})",
+                    iterations=it - 1,
+                )
             r.scale(-1.0)
             # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
             # of the Newton target is enough (it is never the last digits' limit).
-            eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300),
-                                                          1e-14))
+            eta = min(getattr(solver, "rtol", 1e-7), max(0.1 * target / max(norm, 1e-300), 1e-14))
             solver.solve(body.K, r, du, rtol=eta)
             body.zero_fixed(du)
             start = save()
@@ -789,7 +868,7 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 u.array[:] = u_start + s * du.array
                 _update_ghosts(u)
 
-            def correction_ratio() -> float:     # |K_0^-1 R(s)| / |du|, R(s) assembled
+            def correction_ratio() -> float:  # |K_0^-1 R(s)| / |du|, R(s) assembled
                 body.R.copy(ds)
                 body.zero_fixed(ds)
                 ds.scale(-1.0)
@@ -804,9 +883,14 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             def line_search():
                 nonlocal watch
                 energy = body.potential_energy() if body.conservative else 0.0
-                tests = (body.potential_energy if body.conservative else None, energy,
-                         -r.dot(du), lambda: residual(tangent=False), norm,
-                         None if body.conservative else correction_ratio)
+                tests = (
+                    body.potential_energy if body.conservative else None,
+                    energy,
+                    -r.dot(du),
+                    lambda: residual(tangent=False),
+                    norm,
+                    None if body.conservative else correction_ratio,
+                )
                 # the watchdog of a body without a potential: full steps first (not for
                 # the multiplier step, a saddle point whose full steps from far off
                 # measured worse: 10 against 7 iterations on the membrane of
@@ -817,22 +901,32 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                         if watch is None and not _acceptable(1.0, *tests):
                             watch = (it, start, norm)
                         return 1.0
-                return _backtrack(apply_step, lambda: _has_inversion(body), *tests[:5],
-                                  correction_ratio=tests[5])
+                return _backtrack(
+                    apply_step, lambda: _has_inversion(body), *tests[:5], correction_ratio=tests[5]
+                )
 
             step = None
-            if vc is not None and near:     # Newton on the multipliers too (docstring)
+            if vc is not None and near:  # Newton on the multipliers too (docstring)
                 plain = (du.copy(), r.copy(), norm, vc.p.x.array.copy())
-                multiplier = _hold_volumes(body, 1.0, body.K, du, solver,
-                                           inexact=NEWTON_PRESSURE_ITERATIONS,
-                                           stop_when_indefinite=True) is not None
+                multiplier = (
+                    _hold_volumes(
+                        body,
+                        1.0,
+                        body.K,
+                        du,
+                        solver,
+                        inexact=NEWTON_PRESSURE_ITERATIONS,
+                        stop_when_indefinite=True,
+                    )
+                    is not None
+                )
                 if multiplier:
                     body.zero_fixed(du)
-                    norm = residual(tangent=False)     # R at u with the new pressures
+                    norm = residual(tangent=False)  # R at u with the new pressures
                     r.scale(-1.0)
                     du_norm = du.norm()
                     step = line_search()
-                if step is None:        # S indefinite, or no step along it: plain Newton
+                if step is None:  # S indefinite, or no step along it: plain Newton
                     multiplier = False
                     apply_step(0.0)
                     plain[0].copy(du)
@@ -848,13 +942,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
                 multiplier = False
                 step = line_search()
             if step is None:
-                raise StepFailed(f"static solve: line search failed at load factor "
-                                 f"{factor:g}, Newton iteration {it}",
-                                 iterations=it)
+                raise StepFailed(
+                    f"static solve: line search failed at load factor "
+                    f"{factor:g}, Newton iteration {it}",
+                    iterations=it,
+                )
             norm = residual()
             near = step == 1.0
             if step == 1.0 and _at_round_off(du, u) and holds():
-                norm = 0.0              # at round-off: converged
+                norm = 0.0  # at round-off: converged
 
     def save():
         return (u.array.copy(), None if vc is None else vc.p.x.array.copy())
@@ -871,8 +967,9 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
         ramp.apply(0.0)
         converged[0] = (0.0, u.array.copy())
     try:
-        counts = ramp_load(solve_increment, save, restore, load_steps, max_iterations,
-                           "static solve", progress)
+        counts = ramp_load(
+            solve_increment, save, restore, load_steps, max_iterations, "static solve", progress
+        )
         counts.residuals = residuals
         return counts
     except StepFailed:
@@ -884,9 +981,15 @@ def solve_static(body: FemBody, solver: LinearSolver, *, load_steps: int | str =
             vec.destroy()
 
 
-def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
-                         rtol: float = 1e-10, atol: float = 1e-12, max_iterations: int = 30,
-                         progress=None) -> StaticCounts:
+def solve_static_reduced(
+    body: ReducedFemBody,
+    load_steps: int | str = 1,
+    *,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    max_iterations: int = 30,
+    progress=None,
+) -> StaticCounts:
     """Static equilibrium f~(q) = 0 of a reduced body by Newton, K~(q) dq = f~(q),
     in load increments of ``body.full.load_factor`` (dense r x r; ``load_steps`` an
     integer or ``"auto"``: :func:`ramp_load`, as :func:`solve_static`).
@@ -907,39 +1010,51 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
         def newton() -> int:
             f = body.force()
             norm = float(np.linalg.norm(f))
-            if not np.isfinite(norm):           # NaN would pass every convergence test
+            if not np.isfinite(norm):  # NaN would pass every convergence test
                 bad, low = body.inverted_elements()
-                raise StepFailed(f"static solve (reduced): {body.name!r} starts with its force "
-                                 f"non-finite at load factor {factor:g}: {bad.size} inverted "
-                                 f"element(s) (input indices {bad[:10].tolist()}), min det F "
-                                 f"{low:.3g}", iterations=0)
+                raise StepFailed(
+                    f"static solve (reduced): {body.name!r} starts with its force "
+                    f"non-finite at load factor {factor:g}: {bad.size} inverted "
+                    f"element(s) (input indices {bad[:10].tolist()}), min det F "
+                    f"{low:.3g}",
+                    iterations=0,
+                )
             if not scale:
                 scale.append(max(norm, atol))
             it = 0
             while norm > max(rtol * scale[0], atol):
                 it += 1
                 if it > limit:
-                    raise StepFailed(f"static solve (reduced): Newton did not converge in "
-                                     f"{limit} iterations at load factor {factor:g} "
-                                     f"(|f| = {norm:.3e})",
-                                     iterations=it - 1)
+                    raise StepFailed(
+                        f"static solve (reduced): Newton did not converge in "
+                        f"{limit} iterations at load factor {factor:g} "
+                        f"(|f| = {norm:.3e})",
+                        iterations=it - 1,
+                    )
                 K = body.tangent()
                 dq = _dense_solve(K, f, "static solve (reduced)")
                 slope = -float(f @ dq)
-                if vc is not None:          # Newton-Lagrange, as in ImplicitEuler
+                if vc is not None:  # Newton-Lagrange, as in ImplicitEuler
                     dq = vc.hold_linearized(K, dq, 1.0, exact=False)
                     f = body.force()
                     norm = float(np.linalg.norm(f))
                     slope = -float(f @ dq)
                 q_start = body.q.copy()
-                step = _backtrack(lambda s: body.set_q(q_start + s * dq),
-                                  lambda: _reduced_inverted(body), body.potential_energy,
-                                  body.potential_energy(), slope,
-                                  lambda: float(np.linalg.norm(body.force())), norm)
+                step = _backtrack(
+                    lambda s: body.set_q(q_start + s * dq),
+                    lambda: _reduced_inverted(body),
+                    body.potential_energy,
+                    body.potential_energy(),
+                    slope,
+                    lambda: float(np.linalg.norm(body.force())),
+                    norm,
+                )
                 if step is None:
-                    raise StepFailed(f"static solve (reduced): line search failed at load "
-                                     f"factor {factor:g}, Newton iteration {it}",
-                                     iterations=it)
+                    raise StepFailed(
+                        f"static solve (reduced): line search failed at load "
+                        f"factor {factor:g}, Newton iteration {it}",
+                        iterations=it,
+                    )
                 f = body.force()
                 norm = float(np.linalg.norm(f))
                 if step == 1.0 and _round_off(dq, body.q):
@@ -951,5 +1066,12 @@ def solve_static_reduced(body: ReducedFemBody, load_steps: int | str = 1, *,
             it += _hold_volumes_newton(body, newton)
         return it
 
-    return ramp_load(solve_increment, body.state, body.set_state, load_steps, max_iterations,
-                     "static solve (reduced)", progress)
+    return ramp_load(
+        solve_increment,
+        body.state,
+        body.set_state,
+        load_steps,
+        max_iterations,
+        "static solve (reduced)",
+        progress,
+    )

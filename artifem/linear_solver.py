@@ -121,7 +121,7 @@ def factor_mumps(ksp: PETSc.KSP, icntl: dict | None = None) -> int:
         try:
             ksp.setUp()
         except PETSc.Error:
-            pass                    # INFOG(1) says why
+            pass  # INFOG(1) says why
         return pc.getFactorMatrix().getMumpsInfog(1)
 
     for _ in range(MUMPS_WORKSPACE_RETRIES):
@@ -130,7 +130,7 @@ def factor_mumps(ksp: PETSc.KSP, icntl: dict | None = None) -> int:
             return info
         relaxation = 2 * max(pc.getFactorMatrix().getMumpsIcntl(14), 10)
         operators = ksp.getOperators()
-        ksp.reset()                 # a failed factorization is not refactored in place
+        ksp.reset()  # a failed factorization is not refactored in place
         ksp.setOperators(*operators)
         configure_mumps(pc, icntl)
         pc.getFactorMatrix().setMumpsIcntl(14, relaxation)
@@ -163,16 +163,27 @@ class LinearSolver:
             rebuild, or after ``lag_max_solves`` solves.
     """
 
-    def __init__(self, comm, method: str = DEFAULT_METHOD, V: fem.FunctionSpace | None = None,
-                 rtol: float = DEFAULT_RTOL, *, warm_start: bool = True,
-                 lag_growth: float = 1.5, lag_extra: int = 2, lag_max_solves: int = 50,
-                 symmetric: bool = True):
+    def __init__(
+        self,
+        comm,
+        method: str = DEFAULT_METHOD,
+        V: fem.FunctionSpace | None = None,
+        rtol: float = DEFAULT_RTOL,
+        *,
+        warm_start: bool = True,
+        lag_growth: float = 1.5,
+        lag_extra: int = 2,
+        lag_max_solves: int = 50,
+        symmetric: bool = True,
+    ):
         if method not in METHODS:
             raise InputError(f"unknown linear solver {method!r}; choose one of {METHODS}")
         if method == "cg-hypre" and not PETSc.Sys.hasExternalPackage("hypre"):
-            raise InputError("linear solver 'cg-hypre': this PETSc build has no hypre "
-                             "(the dolfinx-solver-real wheel ships MUMPS and GAMG); "
-                             "use 'cg-gamg-lagged', 'cg-gamg' or 'mumps'")
+            raise InputError(
+                "linear solver 'cg-hypre': this PETSc build has no hypre "
+                "(the dolfinx-solver-real wheel ships MUMPS and GAMG); "
+                "use 'cg-gamg-lagged', 'cg-gamg' or 'mumps'"
+            )
         if not (0.0 < rtol < 1.0):
             raise InputError(f"rtol must be in (0, 1), got {rtol}")
         self.method, self.rtol, self.symmetric = method, rtol, bool(symmetric)
@@ -217,11 +228,11 @@ class LinearSolver:
         self.ksp.setOptionsPrefix("artifem_")
         self.ksp.setFromOptions()
         self.iterations = 0
-        self.setups = 0                 # preconditioner (re)builds so far
-        self.direct_solves = 0          # iterative failures solved by MUMPS instead
+        self.setups = 0  # preconditioner (re)builds so far
+        self.direct_solves = 0  # iterative failures solved by MUMPS instead
         self._direct = None
         self._operator = None
-        self._previous = None           # previous solution (warm start)
+        self._previous = None  # previous solution (warm start)
         self._work = None
         self._rebuild = True
         self._solves_since_setup = 0
@@ -247,7 +258,7 @@ class LinearSolver:
         pc = self.ksp.getPC()
         pc.setReusePreconditioner(not rebuild)
         if rebuild and pc.getType() in ("cholesky", "lu"):
-            factor_mumps(self.ksp)      # a failure other than the workspace: KSP's reason
+            factor_mumps(self.ksp)  # a failure other than the workspace: KSP's reason
         if self.warm_start:
             self._initial_guess(A, b, x)
         self.ksp.solve(b, x)
@@ -294,7 +305,8 @@ class LinearSolver:
         if reason < 0:
             raise LinearSolveError(
                 f"linear solve ({self.method}) failed: KSP reason {reason}, "
-                f"{self.ksp.getIterationNumber()} iterations")
+                f"{self.ksp.getIterationNumber()} iterations"
+            )
         self.iterations = self.ksp.getIterationNumber()
         if self.lagged:
             self._update_lag(rebuild)
@@ -317,7 +329,7 @@ class LinearSolver:
         factor_mumps(self._direct)
         self._direct.solve(b, x)
         self.direct_solves += 1
-        self._rebuild = True            # the AMG hierarchy is stale: rebuild next time
+        self._rebuild = True  # the AMG hierarchy is stale: rebuild next time
         return self._direct.getConvergedReason()
 
     def _update_lag(self, rebuilt: bool) -> None:
@@ -333,8 +345,9 @@ class LinearSolver:
             self._reference_iterations = self.iterations
         self._solves_since_setup += 1
         reference = self._reference_iterations
-        too_many = (reference is not None
-                    and self.iterations > self.lag_growth * reference + self.lag_extra)
+        too_many = (
+            reference is not None and self.iterations > self.lag_growth * reference + self.lag_extra
+        )
         self._rebuild = too_many or self._solves_since_setup >= self.lag_max_solves
 
     def reset(self) -> None:

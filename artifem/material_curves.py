@@ -43,7 +43,9 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot_stress_stretch(curves, args.out, title=f"{args.material}: {material}")
     if args.json:
-        data = {mode: {k: np.asarray(v).tolist() for k, v in c.items()} for mode, c in curves.items()}
+        data = {
+            mode: {k: np.asarray(v).tolist() for k, v in c.items()} for mode, c in curves.items()
+        }
         args.out.with_suffix(".json").write_text(json.dumps(data, indent=1))
     print(f"wrote {args.out}")
     return 0

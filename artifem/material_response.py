@@ -51,7 +51,8 @@ def _solve_lateral(response, stretch, free, guess):
         raise SolverError(
             f"no traction-free lateral stretch found at stretch {stretch}: the lateral stiffness is "
             "singular or the solve diverged; a material without lateral stiffness (e.g. a fiber "
-            "alone) needs a matrix: use CombinedMaterial(matrix, fiber)")
+            "alone) needs a matrix: use CombinedMaterial(matrix, fiber)"
+        )
     return np.exp(s)
 
 
@@ -73,7 +74,10 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
     def response(F):
         return point_response(material, F, **fields)
 
-    uniaxial = {key: [] for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_2", "lateral_stretch_3")}
+    uniaxial = {
+        key: []
+        for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_2", "lateral_stretch_3")
+    }
     equibiaxial = {key: [] for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_3")}
     lateral_uniaxial, lateral_biaxial = None, None
     for stretch in stretches:
@@ -86,7 +90,9 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
         guess = lateral_biaxial if lateral_biaxial is not None else np.array([stretch**-2.0])
         lateral_biaxial = _solve_lateral(response, stretch, [2], guess)
         _, P, _ = response(np.diag([stretch, stretch, lateral_biaxial[0]]))
-        for key, value in zip(equibiaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], lateral_biaxial[0])):
+        for key, value in zip(
+            equibiaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], lateral_biaxial[0])
+        ):
             equibiaxial[key].append(value)
 
     shear = {key: [] for key in ("shear", "P12", "P11", "P22")}
@@ -97,9 +103,14 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
         for key, value in zip(shear, (amount, P[0, 1], P[0, 0], P[1, 1])):
             shear[key].append(value)
 
-    return {name: {key: np.asarray(values) for key, values in curve.items()}
-            for name, curve in (("uniaxial", uniaxial), ("equibiaxial", equibiaxial),
-                                ("simple_shear", shear))}
+    return {
+        name: {key: np.asarray(values) for key, values in curve.items()}
+        for name, curve in (
+            ("uniaxial", uniaxial),
+            ("equibiaxial", equibiaxial),
+            ("simple_shear", shear),
+        )
+    }
 
 
 def plot_stress_stretch(curves, png_path, title=None):

@@ -47,7 +47,7 @@ def _kind(muscle) -> tuple:
             object.__setattr__(fiber, name, None)
         key = repr(fiber)
     else:
-        key = id(muscle)                    # anything else: an integral of its own
+        key = id(muscle)  # anything else: an integral of its own
     return key, repr(muscle.direction.function_space.ufl_element())
 
 
@@ -63,12 +63,13 @@ class MuscleLayers:
         for muscle in body.muscles.values():
             groups.setdefault(_kind(muscle), []).append(muscle)
         for muscles in groups.values():
-            taken: list[set] = []           # cells of each layer of this group
-            pairs: list[list] = []          # (cell, muscle index) of each layer
+            taken: list[set] = []  # cells of each layer of this group
+            pairs: list[list] = []  # (cell, muscle index) of each layer
             for k, muscle in enumerate(muscles):
                 for cell in muscle.cells.tolist():
-                    depth = next((d for d, cells in enumerate(taken) if cell not in cells),
-                                 len(taken))
+                    depth = next(
+                        (d for d, cells in enumerate(taken) if cell not in cells), len(taken)
+                    )
                     if depth == len(taken):
                         taken.append(set())
                         pairs.append([])
@@ -87,8 +88,9 @@ class MuscleLayers:
 
     def terms(self) -> list[tuple]:
         """(density(F, a0), cells, direction, fields_at) of each layer (:meth:`_Layer.fields_at`)."""
-        return [(layer.density, layer.cells, layer.direction, layer.fields_at)
-                for layer in self.layers]
+        return [
+            (layer.density, layer.cells, layer.direction, layer.fields_at) for layer in self.layers
+        ]
 
 
 class _Layer:
@@ -104,16 +106,18 @@ class _Layer:
             mine = cells[owner == k]
             source = muscle.direction
             target[W.dofmap.list[mine]] = source.x.array.reshape(-1, bs)[
-                source.function_space.dofmap.list[mine]]
+                source.function_space.dofmap.list[mine]
+            ]
         self.direction.x.scatter_forward()
         self._dofs = Q.dofmap.list[cells, 0]
         self.excitation = fem.Function(Q, name="layer excitation")
         fiber = copy.copy(muscles[0].fiber)
-        self._constants = {}                # cell-wise form constant -> value per muscle
+        self._constants = {}  # cell-wise form constant -> value per muscle
         for name in getattr(fiber, "form_constants", ()):
             field = fem.Function(Q, name=f"layer {name}")
-            values = np.array([float(getattr(m.fiber, name)) for m in muscles],
-                              dtype=PETSc.ScalarType)
+            values = np.array(
+                [float(getattr(m.fiber, name)) for m in muscles], dtype=PETSc.ScalarType
+            )
             field.x.array[self._dofs] = values[owner]
             self._constants[field] = values
             object.__setattr__(fiber, name, field)

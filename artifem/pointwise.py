@@ -45,20 +45,31 @@ class PointEvaluator:
         self.field_shapes = {name: tuple(shape) for name, shape in (field_shapes or {}).items()}
         self._mesh = _single_tetrahedron()
         self._F = fem.Constant(self._mesh, np.eye(3))
-        self._fields = {name: fem.Constant(self._mesh, np.zeros(shape))
-                        for name, shape in self.field_shapes.items()}
+        self._fields = {
+            name: fem.Constant(self._mesh, np.zeros(shape))
+            for name, shape in self.field_shapes.items()
+        }
         # A fixed Label: ufl.variable's global counter would enter FFCx's signature.
         F = ufl.classes.Variable(self._F, ufl.classes.Label(0))
         psi = material.strain_energy(F, **self._fields)
         if ufl.shape(psi) != ():
-            raise InputError(f"{type(material).__name__}.strain_energy must return a scalar, "
-                             f"got shape {ufl.shape(psi)}")
+            raise InputError(
+                f"{type(material).__name__}.strain_energy must return a scalar, "
+                f"got shape {ufl.shape(psi)}"
+            )
         P = ufl.diff(psi, F)
         A = ufl.diff(P, F)
-        packed = ufl.as_vector([psi]
-                               + [P[i, J] for i in range(3) for J in range(3)]
-                               + [A[i, J, k, L] for i in range(3) for J in range(3)
-                                  for k in range(3) for L in range(3)])
+        packed = ufl.as_vector(
+            [psi]
+            + [P[i, J] for i in range(3) for J in range(3)]
+            + [
+                A[i, J, k, L]
+                for i in range(3)
+                for J in range(3)
+                for k in range(3)
+                for L in range(3)
+            ]
+        )
         self._expression = fem.Expression(packed, _REFERENCE_POINT, comm=MPI.COMM_SELF)
 
     def __call__(self, F, **fields):
@@ -66,17 +77,24 @@ class PointEvaluator:
         if F.shape != (3, 3) or not np.all(np.isfinite(F)):
             raise InputError(f"F must be a finite 3x3 array, got shape {F.shape}: {F!r}")
         if set(fields) != set(self.field_shapes):
-            raise InputError(f"{type(self.material).__name__}: expected fields "
-                             f"{sorted(self.field_shapes)}, got {sorted(fields)}")
+            raise InputError(
+                f"{type(self.material).__name__}: expected fields "
+                f"{sorted(self.field_shapes)}, got {sorted(fields)}"
+            )
         self._F.value[:] = F
         for name, value in fields.items():
             value = np.asarray(value, dtype=float)
             if value.shape != self.field_shapes[name]:
-                raise InputError(f"field {name!r} must have shape {self.field_shapes[name]}, "
-                                 f"got {value.shape}")
+                raise InputError(
+                    f"field {name!r} must have shape {self.field_shapes[name]}, got {value.shape}"
+                )
             self._fields[name].value[...] = value
         values = self._expression.eval(self._mesh, _CELL).reshape(-1)
-        return values[0].copy(), values[1:10].reshape(3, 3).copy(), values[10:].reshape(3, 3, 3, 3).copy()
+        return (
+            values[0].copy(),
+            values[1:10].reshape(3, 3).copy(),
+            values[10:].reshape(3, 3, 3, 3).copy(),
+        )
 
 
 _evaluators = {}

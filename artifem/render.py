@@ -31,8 +31,9 @@ _CAMERAS = {"iso", "xy", "yx", "xz", "zx", "yz", "zy"}
 _BODY_COLORS = ["lightsteelblue", "salmon", "khaki", "palegreen", "plum", "lightgray"]
 
 
-def body_grid(msh: dolfinx.mesh.Mesh, displacement: fem.Function | None = None
-              ) -> tuple[pv.UnstructuredGrid, pv.UnstructuredGrid]:
+def body_grid(
+    msh: dolfinx.mesh.Mesh, displacement: fem.Function | None = None
+) -> tuple[pv.UnstructuredGrid, pv.UnstructuredGrid]:
     """(deformed grid, rest grid) of a mesh; the deformed grid carries "displacement"."""
     if displacement is None:
         # A Lagrange space of the geometry's degree gives linear VTK cells for
@@ -46,23 +47,28 @@ def body_grid(msh: dolfinx.mesh.Mesh, displacement: fem.Function | None = None
     rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(space))
     values = displacement.x.array.reshape(-1, space.dofmap.index_map_bs)[: rest.n_points]
     if values.shape[1] != 3:
-        raise InputError(f"render: the displacement must have 3 components, "
-                         f"not {values.shape[1]}")
+        raise InputError(f"render: the displacement must have 3 components, not {values.shape[1]}")
     deformed = rest.copy()
     deformed.point_data["displacement"] = values
     deformed.points = rest.points + values
     return deformed, rest
 
 
-def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
-                    displacement: fem.Function | None, scalars: Scalars, name: str) -> bool:
+def _attach_scalars(
+    grid: pv.UnstructuredGrid,
+    msh: dolfinx.mesh.Mesh,
+    displacement: fem.Function | None,
+    scalars: Scalars,
+    name: str,
+) -> bool:
     """Store ``scalars`` on ``grid`` under ``name``; return False when there is nothing to color."""
     if scalars is None:
         return False
     if isinstance(scalars, str):
         if scalars != "displacement":
-            raise InputError(f"render: unknown scalars {scalars!r}; use 'displacement', "
-                             f"a Function or an array")
+            raise InputError(
+                f"render: unknown scalars {scalars!r}; use 'displacement', a Function or an array"
+            )
         if displacement is None:
             raise InputError("render: scalars='displacement' needs a displacement Function")
         grid.point_data[name] = np.linalg.norm(grid.point_data["displacement"], axis=1)
@@ -73,9 +79,11 @@ def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
             cells = space.dofmap.list[: grid.n_cells, 0]
             grid.cell_data[name] = scalars.x.array[cells]
             return True
-        target_space = (displacement.function_space.sub(0).collapse()[0]
-                        if displacement is not None
-                        else fem.functionspace(msh, ("Lagrange", 1)))
+        target_space = (
+            displacement.function_space.sub(0).collapse()[0]
+            if displacement is not None
+            else fem.functionspace(msh, ("Lagrange", 1))
+        )
         nodal = fem.Function(target_space)
         nodal.interpolate(scalars)
         grid.point_data[name] = nodal.x.array[: grid.n_points]
@@ -86,8 +94,10 @@ def _attach_scalars(grid: pv.UnstructuredGrid, msh: dolfinx.mesh.Mesh,
     elif len(values) == grid.n_cells:
         grid.cell_data[name] = values
     else:
-        raise InputError(f"render: {len(values)} scalar values match neither the "
-                         f"{grid.n_points} points nor the {grid.n_cells} cells")
+        raise InputError(
+            f"render: {len(values)} scalar values match neither the "
+            f"{grid.n_points} points nor the {grid.n_cells} cells"
+        )
     return True
 
 
@@ -95,31 +105,52 @@ def _set_camera(plotter: pv.Plotter, camera, bounds) -> None:
     """Apply a named view ("iso", "xy", "xz", "yz", ...) or a pyvista camera position,
     framing ``bounds`` (the same box in every panel, so panels compare at one scale)."""
     if isinstance(camera, str) and camera not in _CAMERAS:
-        raise InputError(f"render: unknown camera {camera!r}; use one of "
-                         f"{sorted(_CAMERAS)} or a pyvista camera position")
+        raise InputError(
+            f"render: unknown camera {camera!r}; use one of "
+            f"{sorted(_CAMERAS)} or a pyvista camera position"
+        )
     plotter.camera_position = camera
     plotter.reset_camera(bounds=bounds)
 
 
-def add_displacement(plotter: pv.Plotter, displacement: fem.Function, clim, *,
-                     scalar_bar: bool = True, fmt: str = "%.1f",
-                     rest_opacity: float = 0.3) -> None:
+def add_displacement(
+    plotter: pv.Plotter,
+    displacement: fem.Function,
+    clim,
+    *,
+    scalar_bar: bool = True,
+    fmt: str = "%.1f",
+    rest_opacity: float = 0.3,
+) -> None:
     """Draw a body deformed by ``displacement``, colored by |u| in mm over ``clim``, with its
     rest shape as a faint wireframe, in the plotter's current subplot (for custom scenes)."""
     grid, rest = body_grid(displacement.function_space.mesh, displacement)
     grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"], axis=1)
-    plotter.add_mesh(grid, scalars="|u| (mm)", cmap="viridis", show_edges=True, clim=clim,
-                     show_scalar_bar=scalar_bar,
-                     scalar_bar_args={"title": "|u| (mm)", "color": "black", "fmt": fmt})
+    plotter.add_mesh(
+        grid,
+        scalars="|u| (mm)",
+        cmap="viridis",
+        show_edges=True,
+        clim=clim,
+        show_scalar_bar=scalar_bar,
+        scalar_bar_args={"title": "|u| (mm)", "color": "black", "fmt": fmt},
+    )
     plotter.add_mesh(rest, style="wireframe", color="gray", opacity=rest_opacity)
 
 
-def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
-                  scalars: Scalars | Sequence[Scalars] = None,
-                  titles: Sequence[str] | None = None, camera="iso",
-                  window_size: tuple[int, int] = (1200, 800), overlay: bool = False,
-                  show_rest: bool = False, scalar_name: str = "value",
-                  cmap: str = "viridis", surfaces: Sequence = ()) -> Path:
+def render_bodies(
+    png: str | Path,
+    bodies: Body | Sequence[Body],
+    scalars: Scalars | Sequence[Scalars] = None,
+    titles: Sequence[str] | None = None,
+    camera="iso",
+    window_size: tuple[int, int] = (1200, 800),
+    overlay: bool = False,
+    show_rest: bool = False,
+    scalar_name: str = "value",
+    cmap: str = "viridis",
+    surfaces: Sequence = (),
+) -> Path:
     """Render bodies to ``png``: side by side (one subplot each) or ``overlay``-ed in one view.
 
     ``scalars`` is one coloring for all bodies, which then share one color
@@ -131,14 +162,16 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
     ``(body.to_world(body.surface[0]), body.surface[1])``.  Returns the PNG path.
     """
     if isinstance(bodies, dolfinx.mesh.Mesh) or (
-            isinstance(bodies, tuple) and len(bodies) == 2
-            and isinstance(bodies[0], dolfinx.mesh.Mesh)
-            and (bodies[1] is None or isinstance(bodies[1], fem.Function))):
+        isinstance(bodies, tuple)
+        and len(bodies) == 2
+        and isinstance(bodies[0], dolfinx.mesh.Mesh)
+        and (bodies[1] is None or isinstance(bodies[1], fem.Function))
+    ):
         bodies = [bodies]
     bodies = [(b, None) if isinstance(b, dolfinx.mesh.Mesh) else tuple(b) for b in bodies]
     if not bodies:
         raise InputError("render: no bodies to draw")
-    per_body = (list(scalars) if isinstance(scalars, (list, tuple)) else [scalars] * len(bodies))
+    per_body = list(scalars) if isinstance(scalars, (list, tuple)) else [scalars] * len(bodies)
     if len(per_body) != len(bodies):
         raise InputError(f"render: {len(per_body)} scalars for {len(bodies)} bodies")
     if titles is not None and len(titles) != len(bodies):
@@ -158,8 +191,9 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
         triangles = np.asarray(triangles, dtype=np.int64)
         faces = np.column_stack([np.full(len(triangles), 3), triangles]).ravel()
         solids.append(pv.PolyData(np.asarray(vertices, dtype=float), faces))
-    boxes = np.array([g.bounds for pair in grids for g in pair]
-                     + [m.bounds for m in solids]).reshape(-1, 3, 2)
+    boxes = np.array(
+        [g.bounds for pair in grids for g in pair] + [m.bounds for m in solids]
+    ).reshape(-1, 3, 2)
     bounds = np.column_stack([boxes[:, :, 0].min(axis=0), boxes[:, :, 1].max(axis=0)]).ravel()
 
     png = Path(png)
@@ -174,14 +208,30 @@ def render_bodies(png: str | Path, bodies: Body | Sequence[Body],
                 # One color bar for a shared coloring, else one per body (bars are keyed by title).
                 bar = scalar_name if shared else (titles[i] if titles else f"{scalar_name} {i + 1}")
                 clim = shared_clim if shared else deformed.get_data_range(scalar_name)
-                plotter.add_mesh(deformed, scalars=scalar_name, cmap=cmap, clim=clim,
-                                 show_edges=True, edge_color="black",
-                                 scalar_bar_args={"title": bar, "color": "black", "fmt": "%.3g",
-                                                  "position_x": 0.2, "width": 0.6})
+                plotter.add_mesh(
+                    deformed,
+                    scalars=scalar_name,
+                    cmap=cmap,
+                    clim=clim,
+                    show_edges=True,
+                    edge_color="black",
+                    scalar_bar_args={
+                        "title": bar,
+                        "color": "black",
+                        "fmt": "%.3g",
+                        "position_x": 0.2,
+                        "width": 0.6,
+                    },
+                )
             else:
                 label = titles[i] if overlay and titles is not None else None
-                plotter.add_mesh(deformed, color=_BODY_COLORS[i % len(_BODY_COLORS)],
-                                 show_edges=True, edge_color="black", label=label)
+                plotter.add_mesh(
+                    deformed,
+                    color=_BODY_COLORS[i % len(_BODY_COLORS)],
+                    show_edges=True,
+                    edge_color="black",
+                    label=label,
+                )
             if show_rest:
                 plotter.add_mesh(rest, style="wireframe", color="gray", opacity=0.3)
             for solid in solids:

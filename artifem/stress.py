@@ -30,6 +30,7 @@ def von_mises(body, extra_energy: Callable | None = None) -> fem.Function:
     dev = sigma - ufl.tr(sigma) / 3 * ufl.Identity(3)
     Q = fem.functionspace(body.mesh, ("DG", 0))
     out = fem.Function(Q, name="von_mises")
-    out.interpolate(fem.Expression(ufl.sqrt(1.5 * ufl.inner(dev, dev)),
-                                   Q.element.interpolation_points))
+    out.interpolate(
+        fem.Expression(ufl.sqrt(1.5 * ufl.inner(dev, dev)), Q.element.interpolation_points)
+    )
     return out

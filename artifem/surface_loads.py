@@ -162,32 +162,50 @@ def _is_numeric(value) -> bool:
         return False
 
 
-def make_load(domain: dmesh.Mesh, kind: str, name: str, facets: np.ndarray, value,
-              degree: int | None, owner: str, closed: bool = False,
-              center=(0.0, 0.0, 0.0)) -> SurfaceLoad:
+def make_load(
+    domain: dmesh.Mesh,
+    kind: str,
+    name: str,
+    facets: np.ndarray,
+    value,
+    degree: int | None,
+    owner: str,
+    closed: bool = False,
+    center=(0.0, 0.0, 0.0),
+) -> SurfaceLoad:
     """A SurfaceLoad on ``domain`` (checks the value, the quadrature degree and the center)."""
     if kind not in KINDS:
-        raise InputError(f"FemBody {owner!r}: surface load kind must be one of {KINDS}, "
-                         f"got {kind!r}")
+        raise InputError(
+            f"FemBody {owner!r}: surface load kind must be one of {KINDS}, got {kind!r}"
+        )
     arr = _checked_value(kind, value, f"{owner!r}: {name!r}")
     if degree is None:
         degree = FACET_DEGREE[domain.topology.cell_name()]
     if int(degree) != degree or degree < 0:
-        raise InputError(f"FemBody {owner!r}: surface load {name!r}: quadrature degree must be "
-                         f"an integer >= 0, got {degree!r}")
+        raise InputError(
+            f"FemBody {owner!r}: surface load {name!r}: quadrature degree must be "
+            f"an integer >= 0, got {degree!r}"
+        )
     const = fem.Constant(domain, np.asarray(arr, dtype=PETSc.ScalarType))
     c = None
     if closed:
         c = np.asarray(center, dtype=float) if _is_numeric(center) else None
         if c is None or c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise InputError(f"FemBody {owner!r}: surface load {name!r}: center must be 3 "
-                             f"finite numbers, got {center!r}")
+            raise InputError(
+                f"FemBody {owner!r}: surface load {name!r}: center must be 3 "
+                f"finite numbers, got {center!r}"
+            )
         c = fem.Constant(domain, c.astype(PETSc.ScalarType))
     return SurfaceLoad(name, kind, facets, const, int(degree), owner, bool(closed), c)
 
 
-def check_closed(domain: dmesh.Mesh, load: SurfaceLoad, node_dofs: np.ndarray,
-                 fixed_mask: np.ndarray, fixed_values: np.ndarray) -> None:
+def check_closed(
+    domain: dmesh.Mesh,
+    load: SurfaceLoad,
+    node_dofs: np.ndarray,
+    fixed_mask: np.ndarray,
+    fixed_values: np.ndarray,
+) -> None:
     """InputError unless every edge of the surface of a closed pressure is fixed or lies in
     a symmetry plane x_k = c_k through its center with u_k fixed to 0 (module docstring).
 
@@ -201,10 +219,11 @@ def check_closed(domain: dmesh.Mesh, load: SurfaceLoad, node_dofs: np.ndarray,
     inputs = np.asarray(domain.geometry.input_global_indices, dtype=np.int64)
     owned = np.isin(load.facets, dmesh.exterior_facet_indices(domain.topology))
     edges = np.concatenate([np.sort(nodes[:, list(p)], axis=1) for p in pairs])
-    edges = edges[np.tile(owned, len(pairs))].reshape(-1, 2)   # each exterior facet once
+    edges = edges[np.tile(owned, len(pairs))].reshape(-1, 2)  # each exterior facet once
     keys = np.sort(inputs[edges], axis=1).reshape(-1, 2)
-    unique, counts = np.unique(np.concatenate(domain.comm.allgather(keys)), axis=0,
-                               return_counts=True)
+    unique, counts = np.unique(
+        np.concatenate(domain.comm.allgather(keys)), axis=0, return_counts=True
+    )
     border = {tuple(k) for k in unique[counts == 1].tolist()}
     c = np.asarray(load.center.value, dtype=float)
     x = domain.geometry.x
@@ -233,23 +252,36 @@ def check_closed(domain: dmesh.Mesh, load: SurfaceLoad, node_dofs: np.ndarray,
             f"{len(bad)} edge(s) of its border are neither fixed nor in a symmetry plane "
             f"x_k = c_k through its center c = {c.tolist()} with u_k fixed to 0, e.g. the edge "
             f"at {np.round(bad[0], 6).tolist()}: fix them, or drop closed=True (then the "
-            f"pressure has no potential)")
+            f"pressure has no potential)"
+        )
 
 
 # ---- facet selection ---------------------------------------------------------------------
 
-def select_facets(domain: dmesh.Mesh, *, where=None, tags=None, values=None, surface=None,
-                  tol: float | None = None, what: str = "surface load") -> np.ndarray:
+
+def select_facets(
+    domain: dmesh.Mesh,
+    *,
+    where=None,
+    tags=None,
+    values=None,
+    surface=None,
+    tol: float | None = None,
+    what: str = "surface load",
+) -> np.ndarray:
     """Local indices of the boundary facets chosen by exactly one of ``where``, ``tags``
     (with ``values``) or ``surface`` (module docstring); sorted and unique.
 
     An empty selection (on every rank) is an error: a load on nothing is a typo.
     """
-    given = [k for k, v in (("where", where), ("tags", tags), ("surface", surface))
-             if v is not None]
+    given = [
+        k for k, v in (("where", where), ("tags", tags), ("surface", surface)) if v is not None
+    ]
     if len(given) != 1:
-        raise InputError(f"{what}: choose the facets by exactly one of where=, tags= or "
-                         f"surface=, got {given or 'none'}")
+        raise InputError(
+            f"{what}: choose the facets by exactly one of where=, tags= or "
+            f"surface=, got {given or 'none'}"
+        )
     if values is not None and tags is None:
         raise InputError(f"{what}: values= selects tag values and needs tags=")
     fdim = domain.topology.dim - 1
@@ -257,11 +289,14 @@ def select_facets(domain: dmesh.Mesh, *, where=None, tags=None, values=None, sur
     exterior = dmesh.exterior_facet_indices(domain.topology)
     if where is not None:
         if not callable(where):
-            raise InputError(f"{what}: where= must be a callable x -> bool array, x of shape "
-                             f"(3, n), got {type(where).__name__}")
+            raise InputError(
+                f"{what}: where= must be a callable x -> bool array, x of shape "
+                f"(3, n), got {type(where).__name__}"
+            )
         facets = dmesh.locate_entities_boundary(domain, fdim, where)
-        how = "where= selects no boundary facet (the predicate must hold at every vertex " \
-              "of a facet)"
+        how = (
+            "where= selects no boundary facet (the predicate must hold at every vertex of a facet)"
+        )
     elif tags is not None:
         facets = _tagged_facets(domain, tags, values, exterior, what)
         how = f"no facet carries the tag values {values!r}"
@@ -276,14 +311,18 @@ def select_facets(domain: dmesh.Mesh, *, where=None, tags=None, values=None, sur
 
 def _tagged_facets(domain, tags, values, exterior, what) -> np.ndarray:
     if not isinstance(tags, dmesh.MeshTags):
-        raise InputError(f"{what}: tags= must be a dolfinx.mesh.MeshTags, got "
-                         f"{type(tags).__name__}")
+        raise InputError(
+            f"{what}: tags= must be a dolfinx.mesh.MeshTags, got {type(tags).__name__}"
+        )
     fdim = domain.topology.dim - 1
     if tags.dim != fdim:
-        raise InputError(f"{what}: tags= must tag facets (dimension {fdim}), got dimension "
-                         f"{tags.dim}")
-    if tags.topology is not domain.topology and \
-            tags.topology.index_map(fdim).size_local != domain.topology.index_map(fdim).size_local:
+        raise InputError(
+            f"{what}: tags= must tag facets (dimension {fdim}), got dimension {tags.dim}"
+        )
+    if (
+        tags.topology is not domain.topology
+        and tags.topology.index_map(fdim).size_local != domain.topology.index_map(fdim).size_local
+    ):
         raise InputError(f"{what}: tags= belong to another mesh")
     if values is None:
         raise InputError(f"{what}: tags= needs values= (the tag values to load)")
@@ -291,15 +330,19 @@ def _tagged_facets(domain, tags, values, exterior, what) -> np.ndarray:
     present = np.unique(np.concatenate(domain.comm.allgather(np.asarray(tags.values))))
     missing = np.setdiff1d(wanted, present)
     if missing.size:
-        raise InputError(f"{what}: no facet carries the tag value(s) {missing.tolist()}; "
-                         f"the tags hold {present.tolist()}")
+        raise InputError(
+            f"{what}: no facet carries the tag value(s) {missing.tolist()}; "
+            f"the tags hold {present.tolist()}"
+        )
     facets = np.asarray(tags.indices)[np.isin(tags.values, wanted)]
     interior = np.setdiff1d(facets, exterior)
     if domain.comm.allreduce(int(interior.size), op=MPI.SUM):
         mid = dmesh.compute_midpoints(domain, fdim, interior.astype(np.int32))
-        raise InputError(f"{what}: {interior.size} tagged facet(s) are not on the boundary "
-                         f"(a surface load acts on boundary facets only), e.g. facet "
-                         f"{int(interior[0])} at {np.round(mid[0], 6).tolist()}")
+        raise InputError(
+            f"{what}: {interior.size} tagged facet(s) are not on the boundary "
+            f"(a surface load acts on boundary facets only), e.g. facet "
+            f"{int(interior[0])} at {np.round(mid[0], 6).tolist()}"
+        )
     return facets
 
 
@@ -310,18 +353,26 @@ def _surface_facets(domain, surface, exterior, tol, what) -> np.ndarray:
         vertices = np.asarray(vertices, dtype=float)
         faces = np.asarray(faces)
     except (TypeError, ValueError):
-        raise InputError(f"{what}: surface= must be (vertices, faces), vertices of shape "
-                         "(n, 3) and faces of shape (m, 3) or (m, 4)") from None
+        raise InputError(
+            f"{what}: surface= must be (vertices, faces), vertices of shape "
+            "(n, 3) and faces of shape (m, 3) or (m, 4)"
+        ) from None
     if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
-        raise InputError(f"{what}: surface vertices must be finite, of shape (n, 3), got "
-                         f"shape {vertices.shape}")
-    if faces.ndim != 2 or faces.shape[1] not in (3, 4) or faces.shape[0] == 0 or \
-            not np.issubdtype(faces.dtype, np.integer):
-        raise InputError(f"{what}: surface faces must be integers of shape (m, 3) or (m, 4), "
-                         f"got {faces.dtype} of shape {faces.shape}")
+        raise InputError(
+            f"{what}: surface vertices must be finite, of shape (n, 3), got shape {vertices.shape}"
+        )
+    if (
+        faces.ndim != 2
+        or faces.shape[1] not in (3, 4)
+        or faces.shape[0] == 0
+        or not np.issubdtype(faces.dtype, np.integer)
+    ):
+        raise InputError(
+            f"{what}: surface faces must be integers of shape (m, 3) or (m, 4), "
+            f"got {faces.dtype} of shape {faces.shape}"
+        )
     if faces.min() < 0 or faces.max() >= len(vertices):
-        raise InputError(f"{what}: surface faces index vertices out of range "
-                         f"[0, {len(vertices)})")
+        raise InputError(f"{what}: surface faces index vertices out of range [0, {len(vertices)})")
     fdim = domain.topology.dim - 1
     x = domain.geometry.x
     if tol is None:
@@ -333,8 +384,11 @@ def _surface_facets(domain, surface, exterior, tol, what) -> np.ndarray:
     for k, nodes in enumerate(facet_nodes.tolist()):
         for n in nodes:
             holders.setdefault(n, set()).add(k)
-    distance, node = cKDTree(x).query(vertices) if len(x) else (
-        np.full(len(vertices), np.inf), np.zeros(len(vertices), int))
+    distance, node = (
+        cKDTree(x).query(vertices)
+        if len(x)
+        else (np.full(len(vertices), np.inf), np.zeros(len(vertices), int))
+    )
     on_node = distance <= tol
     covered: dict[int, set[int]] = {}
     matched = np.zeros(len(faces), dtype=bool)
@@ -350,20 +404,24 @@ def _surface_facets(domain, surface, exterior, tol, what) -> np.ndarray:
     matched = np.asarray(domain.comm.allreduce(matched.astype(np.int64), op=MPI.SUM)) > 0
     if not matched.all():
         bad = np.flatnonzero(~matched)
-        raise InputError(f"{what}: {bad.size} of {len(faces)} surface face(s) match no boundary "
-                         f"facet of the body (vertices within {tol:.3g} of its nodes, all on "
-                         f"one facet): faces {bad[:20].tolist()}"
-                         + (" ..." if bad.size > 20 else ""))
+        raise InputError(
+            f"{what}: {bad.size} of {len(faces)} surface face(s) match no boundary "
+            f"facet of the body (vertices within {tol:.3g} of its nodes, all on "
+            f"one facet): faces {bad[:20].tolist()}" + (" ..." if bad.size > 20 else "")
+        )
     partial = [k for k, nodes in covered.items() if not set(facet_nodes[k].tolist()) <= nodes]
     if partial:
         mid = dmesh.compute_midpoints(domain, fdim, exterior[partial].astype(np.int32))
-        raise InputError(f"{what}: the surface covers {len(partial)} boundary facet(s) only in "
-                         f"part (its faces on a facet must reach all of the facet's vertices), "
-                         f"e.g. the facet at {np.round(mid[0], 6).tolist()}")
+        raise InputError(
+            f"{what}: the surface covers {len(partial)} boundary facet(s) only in "
+            f"part (its faces on a facet must reach all of the facet's vertices), "
+            f"e.g. the facet at {np.round(mid[0], 6).tolist()}"
+        )
     return exterior[sorted(covered)]
 
 
 # ---- the facet measure of a body's loads --------------------------------------------------
+
 
 def surface_measure(domain: dmesh.Mesh, loads) -> tuple[ufl.Measure, list[tuple[int, ...]]]:
     """One ``ds`` measure for all ``loads`` and each load's subdomain ids.
@@ -389,6 +447,7 @@ def surface_measure(domain: dmesh.Mesh, loads) -> tuple[ufl.Measure, list[tuple[
 
 # ---- the loads on the cells next to their facets (reduced bodies) --------------------------
 
+
 class SurfacePatch:
     """Surface loads of a body evaluated on the cells next to their facets only.
 
@@ -411,15 +470,15 @@ class SurfacePatch:
         domain.topology.create_connectivity(fdim, tdim)
         f2c = domain.topology.connectivity(fdim, tdim)
         facets = np.unique(np.concatenate([load.facets for load in loads]))
-        cells = np.unique(np.concatenate([f2c.links(f) for f in facets.tolist()])
-                          ).astype(np.int32)
+        cells = np.unique(np.concatenate([f2c.links(f) for f in facets.tolist()])).astype(np.int32)
         sub, cell_map, vertex_map, _ = dmesh.create_submesh(domain, tdim, cells)
         self.mesh = sub
         self.V = fem.functionspace(sub, ("Lagrange", 1, (3,)))
         n_sub = sub.topology.index_map(tdim).size_local + sub.topology.index_map(tdim).num_ghosts
         parent = cell_map.sub_topology_to_topology(np.arange(n_sub, dtype=np.int32), False)
-        blocks = np.empty(self.V.dofmap.index_map.size_local
-                          + self.V.dofmap.index_map.num_ghosts, dtype=np.int64)
+        blocks = np.empty(
+            self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts, dtype=np.int64
+        )
         blocks[self.V.dofmap.list.reshape(-1)] = V.dofmap.list[parent].reshape(-1)
         self.dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
         self.loads = list(loads)
@@ -431,9 +490,19 @@ class SurfacePatch:
             tags = dmesh.meshtags(domain, fdim, load.facets, np.ones_like(load.facets))
             moved = dmesh.transfer_meshtags_to_submesh(tags, sub, vertex_map, cell_map)
             center = load.center.value if load.center is not None else (0.0, 0.0, 0.0)
-            copies.append(make_load(sub, load.kind, load.name,
-                                    np.sort(moved.indices[moved.values == 1]), load.get(),
-                                    load.degree, load.owner, load.closed, center))
+            copies.append(
+                make_load(
+                    sub,
+                    load.kind,
+                    load.name,
+                    np.sort(moved.indices[moved.values == 1]),
+                    load.get(),
+                    load.degree,
+                    load.owner,
+                    load.closed,
+                    center,
+                )
+            )
         self._copies = copies
         self.u = fem.Function(self.V)
         ds, ids = surface_measure(sub, copies)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-import artifem as af                    # first: orders MPI ahead of dolfinx
+import artifem as af  # first: orders MPI ahead of dolfinx
 from artifem.forms import MooneyRivlin, isochoric_invariants, jacobian
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/material_prototyping")
@@ -30,8 +30,12 @@ class Yeoh:
 
     def strain_energy(self, F):
         I1bar, _ = isochoric_invariants(F)
-        return (self.c1 * (I1bar - 3) + self.c2 * (I1bar - 3) ** 2 + self.c3 * (I1bar - 3) ** 3
-                + self.kappa / 2 * (jacobian(F) - 1) ** 2)
+        return (
+            self.c1 * (I1bar - 3)
+            + self.c2 * (I1bar - 3) ** 2
+            + self.c3 * (I1bar - 3) ** 3
+            + self.kappa / 2 * (jacobian(F) - 1) ** 2
+        )
 
 
 yeoh = Yeoh(c1=1037.0, c2=486.0, c3=50.0, kappa=10370.0)
@@ -44,6 +48,9 @@ print(f"small-strain shear modulus {P[0, 1] / gamma:.1f} Pa (theory 2 c1 = {2 * 
 
 stretches = np.linspace(0.7, 1.5, 33)
 af.plot_stress_stretch(af.stress_stretch_curves(yeoh, stretches), out / "yeoh.png", title="Yeoh")
-af.plot_stress_stretch(af.stress_stretch_curves(MooneyRivlin.tongue(), stretches),
-                       out / "tongue_mooney_rivlin.png", title="tongue Mooney-Rivlin")
+af.plot_stress_stretch(
+    af.stress_stretch_curves(MooneyRivlin.tongue(), stretches),
+    out / "tongue_mooney_rivlin.png",
+    title="tongue Mooney-Rivlin",
+)
 print(f"curves in {out}/yeoh.png and {out}/tongue_mooney_rivlin.png")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pyvista as pv
 
-import artifem as af                    # first: orders MPI ahead of dolfinx
+import artifem as af  # first: orders MPI ahead of dolfinx
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
@@ -25,10 +25,12 @@ from mpi4py import MPI
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/skin_pressure")
 duration = 0.02 if os.environ.get("ARTIFEM_QUICK") else 0.4
 
-box = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.4, 0.1, 0.1])], [8, 2, 2],
-                       dmesh.CellType.hexahedron)
-block = af.FemBody(box, af.NeoHookean.from_young_poisson(3e4, 0.3), 1000.0,
-                   rayleigh=(5.0, 0.01), name="block")
+box = dmesh.create_box(
+    MPI.COMM_SELF, [np.zeros(3), np.array([0.4, 0.1, 0.1])], [8, 2, 2], dmesh.CellType.hexahedron
+)
+block = af.FemBody(
+    box, af.NeoHookean.from_young_poisson(3e4, 0.3), 1000.0, rayleigh=(5.0, 0.01), name="block"
+)
 bone = af.RigidBody("bone", 1.0, 1e-3 * np.eye(3), position=(0.0, 0.05, 0.05), motion="fixed")
 carried = af.NodeAttachment(block, block.find_nodes(lambda x: x[0] < 1e-12), bone)
 
@@ -50,11 +52,25 @@ def volume(x):
 pressure = af.SkinPressure(skin, lambda t: 2000.0 * min(t / 0.2, 1.0))
 scene = af.Scene(gravity=(0.0, 0.0, -9.81))
 scene.add(block, bone, carried, pressure)
-run = af.simulate(scene, duration, 0.005, vtx=out, progress=False,
-                  record={"volume_cm3": lambda s: 1e6 * volume(skin.positions())})
+run = af.simulate(
+    scene,
+    duration,
+    0.005,
+    vtx=out,
+    progress=False,
+    record={"volume_cm3": lambda s: 1e6 * volume(skin.positions())},
+)
 
-af.render_bodies(out / "skin_pressure.png", [(box, block.u)], scalars="displacement",
-                 scalar_name="displacement (m)", camera="iso", show_rest=True)
+af.render_bodies(
+    out / "skin_pressure.png",
+    [(box, block.u)],
+    scalars="displacement",
+    scalar_name="displacement (m)",
+    camera="iso",
+    show_rest=True,
+)
 v = run.records["volume_cm3"]
-print(f"enclosed volume {v[0]:.0f} -> {v[-1]:.0f} cm^3 under {pressure.pressure_at(scene.t):.0f} "
-      f"Pa; {run.ms_per_step:.1f} ms/step, {run.halvings} halvings; wrote {out}/")
+print(
+    f"enclosed volume {v[0]:.0f} -> {v[-1]:.0f} cm^3 under {pressure.pressure_at(scene.t):.0f} "
+    f"Pa; {run.ms_per_step:.1f} ms/step, {run.halvings} halvings; wrote {out}/"
+)

@@ -9,8 +9,15 @@ the materials at homogeneous deformations (``point_response``,
 
 from .combined import CombinedMaterial, field_names
 from .fiber_activation import BlemkerFiber, force_length, passive_force_length
-from .kinematics import (fiber_stretch, green_lagrange, invariants, isochoric_invariants, jacobian,
-                         right_cauchy_green, small_strain)
+from .kinematics import (
+    fiber_stretch,
+    green_lagrange,
+    invariants,
+    isochoric_invariants,
+    jacobian,
+    right_cauchy_green,
+    small_strain,
+)
 from .linear_elastic import LinearElastic
 from .mooney_rivlin import MooneyRivlin
 from .neo_hookean import NeoHookean

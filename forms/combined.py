@@ -11,8 +11,9 @@ def field_names(material):
     if hasattr(material, "field_names"):
         return frozenset(material.field_names)
     parameters = list(inspect.signature(material.strain_energy).parameters.values())[1:]
-    return frozenset(p.name for p in parameters
-                     if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
+    return frozenset(
+        p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    )
 
 
 @dataclass(frozen=True, init=False)
@@ -32,7 +33,9 @@ class CombinedMaterial:
             raise InputError("CombinedMaterial: needs at least one part")
         for index, part in enumerate(parts):
             if not callable(getattr(part, "strain_energy", None)):
-                raise InputError(f"CombinedMaterial: part {index} ({part!r}) has no strain_energy(F, ...)")
+                raise InputError(
+                    f"CombinedMaterial: part {index} ({part!r}) has no strain_energy(F, ...)"
+                )
         object.__setattr__(self, "parts", tuple(parts))
 
     @property
@@ -44,10 +47,14 @@ class CombinedMaterial:
         """Sum of the parts' energies, each given the fields it accepts."""
         unknown = set(fields) - self.field_names
         if unknown:
-            raise InputError(f"CombinedMaterial: no part accepts field(s) {sorted(unknown)}; "
-                            f"accepted: {sorted(self.field_names)}")
+            raise InputError(
+                f"CombinedMaterial: no part accepts field(s) {sorted(unknown)}; "
+                f"accepted: {sorted(self.field_names)}"
+            )
         energies = []
         for part in self.parts:
             accepted = field_names(part)
-            energies.append(part.strain_energy(F, **{k: v for k, v in fields.items() if k in accepted}))
+            energies.append(
+                part.strain_energy(F, **{k: v for k, v in fields.items() if k in accepted})
+            )
         return sum(energies[1:], energies[0])

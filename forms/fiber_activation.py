@@ -32,10 +32,17 @@ def _passive_linear_coefficients(P1, P2, l_star):
 
 def _force_length(l, select):
     """Blemker's active force-length curve f_L(l), written once for numpy and UFL."""
-    return select(l < 0.4, 0.0 * l,
-           select(l < 0.6, 9.0 * (l - 0.4) ** 2,
-           select(l < 1.4, 1.0 - 4.0 * (1.0 - l) ** 2,
-           select(l < 1.6, 9.0 * (l - 1.6) ** 2, 0.0 * l))))
+    return select(
+        l < 0.4,
+        0.0 * l,
+        select(
+            l < 0.6,
+            9.0 * (l - 0.4) ** 2,
+            select(
+                l < 1.4, 1.0 - 4.0 * (1.0 - l) ** 2, select(l < 1.6, 9.0 * (l - 1.6) ** 2, 0.0 * l)
+            ),
+        ),
+    )
 
 
 # Antiderivative G_L(l) = int_0^l f_L at the breakpoints 0.6, 1.4 and 1.6.
@@ -46,26 +53,42 @@ _G_L_16 = _G_L_14 + 3.0 * 0.2**3
 
 def _force_length_integral(l, select):
     """G_L(l) = int_0^l f_L(s) ds in closed form (piecewise cubic)."""
-    return select(l < 0.4, 0.0 * l,
-           select(l < 0.6, 3.0 * (l - 0.4) ** 3,
-           select(l < 1.4, _G_L_06 + (l - 0.6) + 4.0 / 3.0 * ((1.0 - l) ** 3 - 0.4**3),
-           select(l < 1.6, _G_L_14 + 3.0 * ((l - 1.6) ** 3 + 0.2**3), _G_L_16 + 0.0 * l))))
+    return select(
+        l < 0.4,
+        0.0 * l,
+        select(
+            l < 0.6,
+            3.0 * (l - 0.4) ** 3,
+            select(
+                l < 1.4,
+                _G_L_06 + (l - 0.6) + 4.0 / 3.0 * ((1.0 - l) ** 3 - 0.4**3),
+                select(l < 1.6, _G_L_14 + 3.0 * ((l - 1.6) ** 3 + 0.2**3), _G_L_16 + 0.0 * l),
+            ),
+        ),
+    )
 
 
 def _passive(l, select, exp, P1, P2, l_star):
     """Blemker's passive curve f_P(l): 0, exponential toe, then the C1 linear continuation."""
     P3, P4 = _passive_linear_coefficients(P1, P2, l_star)
-    return select(l <= 1.0, 0.0 * l,
-           select(l < l_star, P1 * (exp(P2 * (l - 1.0)) - 1.0), P3 * l + P4))
+    return select(
+        l <= 1.0, 0.0 * l, select(l < l_star, P1 * (exp(P2 * (l - 1.0)) - 1.0), P3 * l + P4)
+    )
 
 
 def _passive_integral(l, select, exp, P1, P2, l_star):
     """G_P(l) = int_0^l f_P(s) ds in closed form (requires P2 > 0)."""
     P3, P4 = _passive_linear_coefficients(P1, P2, l_star)
     G_star = P1 * ((np.exp(P2 * (l_star - 1.0)) - 1.0) / P2 - (l_star - 1.0))
-    return select(l <= 1.0, 0.0 * l,
-           select(l < l_star, P1 * ((exp(P2 * (l - 1.0)) - 1.0) / P2 - (l - 1.0)),
-                  G_star + 0.5 * P3 * (l**2 - l_star**2) + P4 * (l - l_star)))
+    return select(
+        l <= 1.0,
+        0.0 * l,
+        select(
+            l < l_star,
+            P1 * ((exp(P2 * (l - 1.0)) - 1.0) / P2 - (l - 1.0)),
+            G_star + 0.5 * P3 * (l**2 - l_star**2) + P4 * (l - l_star),
+        ),
+    )
 
 
 def force_length(l):
@@ -118,13 +141,17 @@ class BlemkerFiber:
 
     def __post_init__(self):
         name = type(self).__name__
-        object.__setattr__(self, "max_stress", require_positive(name, "max_stress", self.max_stress))
-        object.__setattr__(self, "optimal_stretch",
-                           require_positive(name, "optimal_stretch", self.optimal_stretch))
+        object.__setattr__(
+            self, "max_stress", require_positive(name, "max_stress", self.max_stress)
+        )
+        object.__setattr__(
+            self, "optimal_stretch", require_positive(name, "optimal_stretch", self.optimal_stretch)
+        )
         object.__setattr__(self, "P1", require_nonnegative(name, "P1", self.P1))
         object.__setattr__(self, "P2", require_nonnegative(name, "P2", self.P2))
-        object.__setattr__(self, "stretch_star",
-                           require_greater(name, "stretch_star", self.stretch_star, 1.0, "1"))
+        object.__setattr__(
+            self, "stretch_star", require_greater(name, "stretch_star", self.stretch_star, 1.0, "1")
+        )
         if not isinstance(self.passive, bool):
             raise InputError(f"{name}: passive must be True or False, got {self.passive!r}")
 
@@ -145,10 +172,14 @@ class BlemkerFiber:
         c = self.optimal_stretch
         l = fiber_stretch(F, a0) / c
         rest = 1.0 / c
-        energy = excitation * (_force_length_integral(l, _ufl_select)
-                               - float(_force_length_integral(rest, _numpy_select)))
+        energy = excitation * (
+            _force_length_integral(l, _ufl_select)
+            - float(_force_length_integral(rest, _numpy_select))
+        )
         if self._has_passive:
             coeffs = (self.P1, self.P2, self.stretch_star)
-            energy = energy + (_passive_integral(l, _ufl_select, ufl.exp, *coeffs)
-                               - float(_passive_integral(rest, _numpy_select, np.exp, *coeffs)))
+            energy = energy + (
+                _passive_integral(l, _ufl_select, ufl.exp, *coeffs)
+                - float(_passive_integral(rest, _numpy_select, np.exp, *coeffs))
+            )
         return self.max_stress * c * energy

@@ -43,8 +43,10 @@ class MooneyRivlin:
         object.__setattr__(self, "kappa", require_positive(name, "kappa", self.kappa))
         require_choice(name, "bulk", self.bulk, BULK_POTENTIALS)
         if not self.C10 + self.C01 > 0.0:
-            raise InputError(f"{name}: C10 + C01 must be > 0 (shear modulus 2 (C10 + C01)), "
-                             f"got C10={self.C10}, C01={self.C01}")
+            raise InputError(
+                f"{name}: C10 + C01 must be > 0 (shear modulus 2 (C10 + C01)), "
+                f"got C10={self.C10}, C01={self.C01}"
+            )
 
     @classmethod
     def tongue(cls, bulk="quadratic"):
@@ -61,5 +63,11 @@ class MooneyRivlin:
         """W(F) per unit reference volume (see class docstring)."""
         I1bar, I2bar = isochoric_invariants(F)
         d1, d2 = I1bar - 3.0, I2bar - 3.0
-        return (self.C10 * d1 + self.C01 * d2 + self.C11 * d1 * d2
-                + self.C20 * d1**2 + self.C02 * d2**2 + self.volumetric_energy(jacobian(F)))
+        return (
+            self.C10 * d1
+            + self.C01 * d2
+            + self.C11 * d1 * d2
+            + self.C20 * d1**2
+            + self.C02 * d2**2
+            + self.volumetric_energy(jacobian(F))
+        )

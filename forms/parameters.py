@@ -66,8 +66,13 @@ def lame_from_young_poisson(owner, E, nu):
 def check_lame(owner, mu, lmbda):
     """Check mu > 0 and a positive bulk modulus lmbda + 2 mu / 3 > 0."""
     require_positive(owner, "mu", mu)
-    require_greater(owner, "lmbda", lmbda, -2.0 * float(mu) / 3.0,
-                    f"-2 mu / 3 = {-2.0 * float(mu) / 3.0:g} (positive bulk modulus)")
+    require_greater(
+        owner,
+        "lmbda",
+        lmbda,
+        -2.0 * float(mu) / 3.0,
+        f"-2 mu / 3 = {-2.0 * float(mu) / 3.0:g} (positive bulk modulus)",
+    )
 
 
 @dataclass(frozen=True)

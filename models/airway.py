@@ -108,9 +108,20 @@ from artifem.reduction.reductor import ReducedModel
 from artifem.registration import TriangleSurface, icp
 from artifem.scene import simulate as simulate_scene
 
-__all__ = ["AirwayConfig", "AirwayScene", "Sections", "align_airway", "benchmark",
-           "build_scene", "compare", "read_sections", "reduced_table", "reduced_tongue",
-           "resultants", "simulate"]
+__all__ = [
+    "AirwayConfig",
+    "AirwayScene",
+    "Sections",
+    "align_airway",
+    "benchmark",
+    "build_scene",
+    "compare",
+    "read_sections",
+    "reduced_table",
+    "reduced_tongue",
+    "resultants",
+    "simulate",
+]
 
 #: airway.obj axes -> tongue axes: (x, y, z)_obj -> (-x, -y, z)_tongue (det +1).
 AIRWAY_AXES = np.diag([-1.0, -1.0, 1.0])
@@ -141,6 +152,7 @@ class AirwayConfig:
 
 # ---- geometry ---------------------------------------------------------------------------
 
+
 def read_sections(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """The ``s nx ny nz d [name]`` lines of a sectioned OBJ (ArtiSynth's SectionedMesh): the
     planes n . x = d, as (normals (k, 3), offsets (k,), names)."""
@@ -149,8 +161,7 @@ def read_sections(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         parts = line.split()
         if parts and parts[0] == "s":
             if len(parts) < 5:
-                raise InputError(f"{path}:{lineno}: expected 's nx ny nz d [name]', "
-                                 f"got {line!r}")
+                raise InputError(f"{path}:{lineno}: expected 's nx ny nz d [name]', got {line!r}")
             n = np.array([float(v) for v in parts[1:4]])
             if not np.isclose(np.linalg.norm(n), 1.0, atol=1e-3):
                 raise InputError(f"{path}:{lineno}: section normal {n} is not a unit vector")
@@ -163,8 +174,10 @@ def read_sections(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
 
 
 def _polydata(vertices, triangles):
-    return pv.PolyData(np.asarray(vertices, dtype=float),
-                       np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel())
+    return pv.PolyData(
+        np.asarray(vertices, dtype=float),
+        np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel(),
+    )
 
 
 class TongueSurface:
@@ -199,7 +212,8 @@ def align_airway(vertices_mm: np.ndarray, tongue, palate, trim: float = 0.5) -> 
     to convergence. Returns the transform and the residuals."""
     base = 1e-3 * np.asarray(vertices_mm, dtype=float) @ AIRWAY_AXES.T
     target = TriangleSurface.from_polydata(
-        tongue.merge(palate).extract_surface(algorithm="dataset_surface"))
+        tongue.merge(palate).extract_surface(algorithm="dataset_surface")
+    )
     lo, hi = np.array(tongue.bounds).reshape(3, 2).T
     # the palate's open border keeps its pairs: the trim already drops the far ones, and
     # the documented airway (docs/airway.md, scenes.json) was aligned so
@@ -210,18 +224,27 @@ def align_airway(vertices_mm: np.ndarray, tongue, palate, trim: float = 0.5) -> 
             t = np.array([0.5 * (lo[0] + hi[0]) + dx, 0.0, hi[2] + dz]) - base.mean(0)
             starts.append(icp(base, target, np.eye(3), t, iterations=10, **tols))
     starts.sort(key=lambda start: start.score)
-    fit = min((icp(base, target, s.R, s.t, iterations=60, **tols) for s in starts[:3]),
-              key=lambda fit: fit.score)
+    fit = min(
+        (icp(base, target, s.R, s.t, iterations=60, **tols) for s in starts[:3]),
+        key=lambda fit: fit.score,
+    )
     R, t, score, r = fit.R, fit.t, fit.score, fit.distances
     x = base @ R.T + t
     depth = np.asarray(pv.PolyData(x).compute_implicit_distance(tongue)["implicit_distance"])
     angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
-    return {"linear": 1e-3 * R @ AIRWAY_AXES, "translation": t, "distances": r,
-            "trimmed_mean_distance": float(score), "median_distance": float(np.median(r)),
-            "p75_distance": float(np.quantile(r, 0.75)), "max_distance": float(r.max()),
-            "fraction_inside_tongue": float((depth < 0).mean()),
-            "max_depth_inside_tongue": float(max(0.0, -depth.min())),
-            "residual_rotation_deg": float(angle), "trim": trim}
+    return {
+        "linear": 1e-3 * R @ AIRWAY_AXES,
+        "translation": t,
+        "distances": r,
+        "trimmed_mean_distance": float(score),
+        "median_distance": float(np.median(r)),
+        "p75_distance": float(np.quantile(r, 0.75)),
+        "max_distance": float(r.max()),
+        "fraction_inside_tongue": float((depth < 0).mean()),
+        "max_depth_inside_tongue": float(max(0.0, -depth.min())),
+        "residual_rotation_deg": float(angle),
+        "trim": trim,
+    }
 
 
 @lru_cache(maxsize=2)
@@ -244,13 +267,20 @@ def _aligned_airway(trim: float):
         closed_t = closed_t[:, ::-1]
         volume = -volume
     sections = Sections.cut(closed_mm, closed_t, normals, offsets, names, len(vertices_mm))
-    gap_pal = np.asarray(pv.PolyData(palate_v).compute_implicit_distance(tongue_poly)
-                         ["implicit_distance"])
-    alignment.update(holes_capped=holes, triangles_flipped=flipped, volume_m3=float(volume),
-                     palate={"transform": "identity (already in the tongue frame, metres)",
-                             "min_gap_to_tongue_m": float(gap_pal.min()),
-                             "median_gap_to_tongue_m": float(np.median(gap_pal)),
-                             "vertices_inside_tongue": int((gap_pal < 0).sum())})
+    gap_pal = np.asarray(
+        pv.PolyData(palate_v).compute_implicit_distance(tongue_poly)["implicit_distance"]
+    )
+    alignment.update(
+        holes_capped=holes,
+        triangles_flipped=flipped,
+        volume_m3=float(volume),
+        palate={
+            "transform": "identity (already in the tongue frame, metres)",
+            "min_gap_to_tongue_m": float(gap_pal.min()),
+            "median_gap_to_tongue_m": float(np.median(gap_pal)),
+            "vertices_inside_tongue": int((gap_pal < 0).sum()),
+        },
+    )
     return x, closed_t, sections, alignment, (palate_v, palate_t)
 
 
@@ -281,8 +311,9 @@ class Sections:
     interior: np.ndarray
 
     @classmethod
-    def cut(cls, X: np.ndarray, triangles: np.ndarray, normals, offsets, names,
-            caps_from: int) -> Sections:
+    def cut(
+        cls, X: np.ndarray, triangles: np.ndarray, normals, offsets, names, caps_from: int
+    ) -> Sections:
         """Cut the rest surface X (any frame the planes n . x = d are given in) by each plane;
         where a plane cuts the tube more than once, keep the loop nearest the previous
         section's centroid (the first: the lowest loop, at the larynx). Vertices from
@@ -293,20 +324,23 @@ class Sections:
             if not loops:
                 continue
             cents = [((1 - s)[:, None] * X[a] + s[:, None] * X[b]).mean(0) for a, b, s in loops]
-            pick = (int(np.argmin([c[2] for c in cents])) if prev is None
-                    else int(np.argmin([np.linalg.norm(c - prev) for c in cents])))
+            pick = (
+                int(np.argmin([c[2] for c in cents]))
+                if prev is None
+                else int(np.argmin([np.linalg.norm(c - prev) for c in cents]))
+            )
             a, b, s = loops[pick]
             A.append(a), B.append(b), S.append(s), kept.append(k)
             prev = cents[pick]
         if not kept:
             raise InputError("airway: no section plane cuts the surface")
-        interior = np.array([a.max() < caps_from and b.max() < caps_from
-                             for a, b in zip(A, B)])
+        interior = np.array([a.max() < caps_from and b.max() < caps_from for a, b in zip(A, B)])
         return cls(A, B, S, [names[k] for k in kept], np.array(kept), interior)
 
     def points(self, x: np.ndarray) -> list[np.ndarray]:
-        return [(1 - s)[:, None] * x[a] + s[:, None] * x[b]
-                for a, b, s in zip(self.a, self.b, self.s)]
+        return [
+            (1 - s)[:, None] * x[a] + s[:, None] * x[b] for a, b, s in zip(self.a, self.b, self.s)
+        ]
 
     def areas(self, x: np.ndarray) -> np.ndarray:
         """|1/2 sum_i (p_i - c) x (p_i+1 - c)| per section (c: the loop's centroid) at vertex
@@ -329,8 +363,11 @@ def _plane_loops(X, triangles, n, d):
     pos = h > 0
     nodes, nbrs = {}, {}
     for tri in triangles:
-        crossing = [(int(tri[i]), int(tri[(i + 1) % 3])) for i in range(3)
-                    if pos[tri[i]] != pos[tri[(i + 1) % 3]]]
+        crossing = [
+            (int(tri[i]), int(tri[(i + 1) % 3]))
+            for i in range(3)
+            if pos[tri[i]] != pos[tri[(i + 1) % 3]]
+        ]
         if len(crossing) != 2:
             continue
         keys = [tuple(sorted(e)) for e in crossing]
@@ -363,6 +400,7 @@ def _plane_loops(X, triangles, n, d):
 
 # ---- scene --------------------------------------------------------------------------------
 
+
 @dataclass
 class AirwayScene:
     jt: jt.JawTongueScene
@@ -373,7 +411,7 @@ class AirwayScene:
     sections: Sections
     alignment: dict
     surface: TongueSurface
-    tongue_vertices: np.ndarray          # skin vertices with tongue weight >= 0.9
+    tongue_vertices: np.ndarray  # skin vertices with tongue weight >= 0.9
     config: AirwayConfig = field(default_factory=AirwayConfig)
 
     @property
@@ -381,17 +419,24 @@ class AirwayScene:
         return self.jt.scene
 
 
-def reduced_tongue(config: AirwayConfig, cache: Path,
-                   base: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig()
-                   ) -> ReducedModel:
+def reduced_tongue(
+    config: AirwayConfig,
+    cache: Path,
+    base: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig(),
+) -> ReducedModel:
     """The jaw-tongue reduced tongue (POD + 12 jaw-lift columns, trained points) for this
     airway's jaw-tongue scene: ``jaw_tongue_reduced.train`` with ``base``'s training settings
     and the airway's jaw-tongue config, cached under ``cache``."""
     return jtr.train(replace(base, jaw=config.jaw_tongue), Path(cache))
 
 
-def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
-                data=None, reduced: ReducedModel | None = None) -> AirwayScene:
+def build_scene(
+    config: AirwayConfig = AirwayConfig(),
+    *,
+    pressure: bool = True,
+    data=None,
+    reduced: ReducedModel | None = None,
+) -> AirwayScene:
     """The jaw-tongue scene, the fixed palate, the airway skin and (``pressure``) its air
     pressure load (module docstring). With ``reduced`` (from :func:`reduced_tongue`) the
     tongue is the reduced one, u = U q + L g (jaw_tongue_reduced), and the skin's tongue
@@ -402,24 +447,52 @@ def build_scene(config: AirwayConfig = AirwayConfig(), *, pressure: bool = True,
     s = jt.build_scene(config.jaw_tongue, data=data, reduce=reduced)
     x, triangles, sections, alignment, (pal_v, pal_t) = _aligned_airway(config.trim)
     centre = pal_v.mean(0)
-    palate = RigidBody("palate", 1e-3, 1e-9 * np.eye(3), position=centre, motion="fixed",
-                       surface=(pal_v - centre, pal_t))
+    palate = RigidBody(
+        "palate",
+        1e-3,
+        1e-9 * np.eye(3),
+        position=centre,
+        motion="fixed",
+        surface=(pal_v - centre, pal_t),
+    )
     s.scene.add(palate)
-    masters = [s.reduced or s.tongue.body, RigidMaster(s.jaw, reference=s.jaw.surface[0]),
-               RigidMaster(palate, reference=palate.surface[0])]
-    skin = SkinMesh(x, triangles, masters, weighting=config.weighting,
-                    blending=config.blending, name="airway")
+    masters = [
+        s.reduced or s.tongue.body,
+        RigidMaster(s.jaw, reference=s.jaw.surface[0]),
+        RigidMaster(palate, reference=palate.surface[0]),
+    ]
+    skin = SkinMesh(
+        x, triangles, masters, weighting=config.weighting, blending=config.blending, name="airway"
+    )
     P, ramp, t0 = config.pressure, config.pressure_ramp, config.pressure_start
     load = SkinPressure(skin, lambda t: P * min(1.0, max(0.0, t - t0) / ramp), name="air")
     if pressure:
         s.scene.add(load)
     surface = TongueSurface(s, data.mesh.points, data.mesh.cells)
-    return AirwayScene(s, palate, skin, load, pressure, sections, alignment, surface,
-                       np.flatnonzero(skin.weights[:, 0] >= 0.9), config)
+    return AirwayScene(
+        s,
+        palate,
+        skin,
+        load,
+        pressure,
+        sections,
+        alignment,
+        surface,
+        np.flatnonzero(skin.weights[:, 0] >= 0.9),
+        config,
+    )
 
 
-def simulate(a: AirwayScene, motion: str | None, duration: float, dt: float = 0.01, *,
-             snapshots=(), progress: bool = False, label: str = "airway") -> dict:
+def simulate(
+    a: AirwayScene,
+    motion: str | None,
+    duration: float,
+    dt: float = 0.01,
+    *,
+    snapshots=(),
+    progress: bool = False,
+    label: str = "airway",
+) -> dict:
     """Run a tongue motion (or none) in the airway scene: jaw_tongue.simulate's record plus,
     per step (outside the step timing), the skin's positions ``skin`` (steps + 1, n, 3), the
     section areas, the skin's distance to the tongue, the top landmark and the pressure;
@@ -431,12 +504,20 @@ def simulate(a: AirwayScene, motion: str | None, duration: float, dt: float = 0.
         gap = a.surface.signed_distance(a.skin.positions()[a.tongue_vertices])
         return float(np.abs(gap - gap0).max())
 
-    out = jt.simulate(a.jt, motion, duration, dt, snapshots=snapshots, progress=progress,
-                      label=label, record={
-                          "skin": lambda scene: a.skin.positions(),
-                          "gap_drift": gap_drift,
-                          "pressure": lambda scene: (a.pressure.pressure_at(scene.t)
-                                                     if a.pressure_on else 0.0)})
+    out = jt.simulate(
+        a.jt,
+        motion,
+        duration,
+        dt,
+        snapshots=snapshots,
+        progress=progress,
+        label=label,
+        record={
+            "skin": lambda scene: a.skin.positions(),
+            "gap_drift": gap_drift,
+            "pressure": lambda scene: a.pressure.pressure_at(scene.t) if a.pressure_on else 0.0,
+        },
+    )
     out["areas"] = np.array([a.sections.areas(x) for x in out["skin"]])
     out["top"] = out["u"].reshape(len(out["u"]), -1, 3)[:, top]
     out["skin_frames"] = [out["skin"][int(round(t / dt))] for t, *_ in out["frames"]]
@@ -463,42 +544,60 @@ def compare(a: AirwayScene, full: dict, reduced: dict) -> dict:
     sections (max over t and sections, mean over sections at the end); jaw angles; median
     ms per step of both (same process) and their ratio."""
     if full["skin"].shape != reduced["skin"].shape:
-        raise InputError(f"airway compare: runs of different length {full['skin'].shape} "
-                         f"and {reduced['skin'].shape}")
+        raise InputError(
+            f"airway compare: runs of different length {full['skin'].shape} "
+            f"and {reduced['skin'].shape}"
+        )
     e = 1e3 * np.linalg.norm(reduced["skin"] - full["skin"], axis=2)
     inner = a.sections.interior
     area = 100 * np.abs(reduced["areas"][:, inner] / full["areas"][:, inner] - 1)
     ms_full, ms_red = float(np.median(full["ms"])), float(np.median(reduced["ms"]))
-    return {"skin_error_mm": {"mean_max_over_t": float(e.mean(1).max()), "max": float(e.max()),
-                              "final_mean": float(e[-1].mean())},
-            "max_skin_displacement_mm": float(1e3 * np.linalg.norm(
-                full["skin"] - full["skin"][0], axis=2).max()),
-            "area_error_percent": {"max": float(area.max()),
-                                   "final_mean": float(area[-1].mean())},
-            "jaw_angle_deg": {"full": float(np.degrees(full["angle"][-1])),
-                              "reduced": float(np.degrees(reduced["angle"][-1])),
-                              "max_difference": float(np.degrees(
-                                  np.abs(reduced["angle"] - full["angle"]).max()))},
-            "ms_per_step": {"full": ms_full, "reduced": ms_red, "speedup": ms_full / ms_red},
-            "max_attachment_error_m": float(reduced["attachment_error"].max())}
+    return {
+        "skin_error_mm": {
+            "mean_max_over_t": float(e.mean(1).max()),
+            "max": float(e.max()),
+            "final_mean": float(e[-1].mean()),
+        },
+        "max_skin_displacement_mm": float(
+            1e3 * np.linalg.norm(full["skin"] - full["skin"][0], axis=2).max()
+        ),
+        "area_error_percent": {"max": float(area.max()), "final_mean": float(area[-1].mean())},
+        "jaw_angle_deg": {
+            "full": float(np.degrees(full["angle"][-1])),
+            "reduced": float(np.degrees(reduced["angle"][-1])),
+            "max_difference": float(np.degrees(np.abs(reduced["angle"] - full["angle"]).max())),
+        },
+        "ms_per_step": {"full": ms_full, "reduced": ms_red, "speedup": ms_full / ms_red},
+        "max_attachment_error_m": float(reduced["attachment_error"].max()),
+    }
 
 
 def reduced_table(comparison: dict) -> str:
     """The Markdown table of :func:`compare`'s results per run."""
-    lines = ["| run | skin error mean / max (mm) | max skin displacement (mm) | "
-             "area error max / final mean (%) | jaw full / reduced (deg) | "
-             "ms/step full / reduced | speed-up |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| run | skin error mean / max (mm) | max skin displacement (mm) | "
+        "area error max / final mean (%) | jaw full / reduced (deg) | "
+        "ms/step full / reduced | speed-up |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for key, c in comparison.items():
-        e, A, j, ms = (c["skin_error_mm"], c["area_error_percent"], c["jaw_angle_deg"],
-                       c["ms_per_step"])
-        lines.append(f"| {key} | {e['mean_max_over_t']:.2f} / {e['max']:.2f} | "
-                     f"{c['max_skin_displacement_mm']:.1f} | {A['max']:.1f} / "
-                     f"{A['final_mean']:.1f} | {j['full']:.2f} / {j['reduced']:.2f} | "
-                     f"{ms['full']:.1f} / {ms['reduced']:.1f} | {ms['speedup']:.1f}x |")
+        e, A, j, ms = (
+            c["skin_error_mm"],
+            c["area_error_percent"],
+            c["jaw_angle_deg"],
+            c["ms_per_step"],
+        )
+        lines.append(
+            f"| {key} | {e['mean_max_over_t']:.2f} / {e['max']:.2f} | "
+            f"{c['max_skin_displacement_mm']:.1f} | {A['max']:.1f} / "
+            f"{A['final_mean']:.1f} | {j['full']:.2f} / {j['reduced']:.2f} | "
+            f"{ms['full']:.1f} / {ms['reduced']:.1f} | {ms['speedup']:.1f}x |"
+        )
     return "\n".join(lines) + "\n"
 
 
 # ---- output ---------------------------------------------------------------------------------
+
 
 def render(png: Path, a: AirwayScene, panels) -> Path:
     """Per panel (title, u, p, R, x): a side view of the tongue (|u|), jaw, palate and airway
@@ -509,11 +608,14 @@ def render(png: Path, a: AirwayScene, panels) -> Path:
 
     pv.OFF_SCREEN = True
     body = a.jt.tongue.body
-    plotter = pv.Plotter(off_screen=True, shape=(2, len(panels)),
-                         window_size=[520 * len(panels), 1040])
+    plotter = pv.Plotter(
+        off_screen=True, shape=(2, len(panels)), window_size=[520 * len(panels), 1040]
+    )
     u_fun = fem.Function(body.V)
-    clim = (0.0, max(1e-6, 1e3 * max(np.linalg.norm(u.reshape(-1, 3), axis=1).max()
-                                     for _, u, *_ in panels)))
+    clim = (
+        0.0,
+        max(1e-6, 1e3 * max(np.linalg.norm(u.reshape(-1, 3), axis=1).max() for _, u, *_ in panels)),
+    )
     jaw_v, jaw_t = a.jt.jaw.surface
     pal_v, pal_t = a.palate.surface
     palate = _polydata(pal_v + a.palate.position, pal_t)
@@ -529,22 +631,33 @@ def render(png: Path, a: AirwayScene, panels) -> Path:
             add_displacement(plotter, u_fun, clim, scalar_bar=i == 0, rest_opacity=0.1)
             plotter.add_mesh(jaw, color="wheat", opacity=0.35)
             plotter.add_mesh(palate, color="lightpink", opacity=0.5)
-            plotter.add_mesh(skin, color="deepskyblue", opacity=0.45, show_edges=True,
-                             edge_color="steelblue", line_width=0.5)
+            plotter.add_mesh(
+                skin,
+                color="deepskyblue",
+                opacity=0.45,
+                show_edges=True,
+                edge_color="steelblue",
+                line_width=0.5,
+            )
             plotter.add_text(title, font_size=10, color="black")
             plotter.camera_position = side
             plotter.reset_camera()
             plotter.camera.zoom(1.35)
             plotter.subplot(1, i)
             grid, _ = body_grid(body.mesh, u_fun)
-            plotter.add_mesh(grid.slice(normal="y", origin=(0, 0, 0)), color="indianred",
-                             opacity=0.8)
+            plotter.add_mesh(
+                grid.slice(normal="y", origin=(0, 0, 0)), color="indianred", opacity=0.8
+            )
             plotter.add_mesh(rest_skin, color="gray", line_width=2)
             for mesh, color in ((jaw, "tan"), (palate, "hotpink"), (skin, "blue")):
-                plotter.add_mesh(mesh.slice(normal="y", origin=(0, 0, 0)), color=color,
-                                 line_width=3)
-            plotter.add_text("mid-sagittal: airway (blue; rest gray), tongue, palate, jaw",
-                             font_size=8, color="black")
+                plotter.add_mesh(
+                    mesh.slice(normal="y", origin=(0, 0, 0)), color=color, line_width=3
+                )
+            plotter.add_text(
+                "mid-sagittal: airway (blue; rest gray), tongue, palate, jaw",
+                font_size=8,
+                color="black",
+            )
             plotter.camera_position = side
             plotter.reset_camera()
             plotter.camera.zoom(1.35)
@@ -558,6 +671,7 @@ def render(png: Path, a: AirwayScene, panels) -> Path:
 def plot_sections(png: Path, curves: dict) -> Path:
     """Area along the airway (larynx -> lips): curves name -> (length m, area m^2, style)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -579,40 +693,64 @@ def _summary(a: AirwayScene, rec: dict) -> dict:
     areas = rec["areas"][:, a.sections.interior]
     sections = a.sections.plane_index[a.sections.interior]
     ratio = areas[-1] / areas[0]
-    return {"ms_per_step_median": float(np.median(rec["ms"])),
-            "final_tip_displacement_mm": (1e3 * rec["tip"][-1]).tolist(),
-            "final_top_displacement_mm": (1e3 * rec["top"][-1]).tolist(),
-            "final_opening_angle_deg": float(np.degrees(rec["angle"][-1])),
-            "max_opening_angle_deg": float(np.degrees(rec["angle"]).max()),
-            "final_areas_mm2": (1e6 * rec["areas"][-1]).tolist(),
-            "min_area_mm2": {"rest": float(1e6 * areas[0].min()),
-                             "final": float(1e6 * areas[-1].min()),
-                             "final_section": int(sections[np.argmin(areas[-1])])},
-            "narrowest_relative": {"area_ratio": float(ratio.min()),
-                                   "section": int(sections[np.argmin(ratio)])},
-            "widest_relative": {"area_ratio": float(ratio.max()),
-                                "section": int(sections[np.argmax(ratio)])},
-            "mean_area_change_percent": float(100 * (areas[-1].sum() / areas[0].sum() - 1)),
-            "max_skin_gap_drift_mm": float(1e3 * rec["gap_drift"].max()),
-            "max_attachment_error_m": float(rec["attachment_error"].max()),
-            "min_area_mm2_vs_t": (1e6 * areas.min(axis=1)).tolist(),
-            "t": rec["t"].tolist(),
-            "opening_angle_deg": np.degrees(rec["angle"]).tolist()}
+    return {
+        "ms_per_step_median": float(np.median(rec["ms"])),
+        "final_tip_displacement_mm": (1e3 * rec["tip"][-1]).tolist(),
+        "final_top_displacement_mm": (1e3 * rec["top"][-1]).tolist(),
+        "final_opening_angle_deg": float(np.degrees(rec["angle"][-1])),
+        "max_opening_angle_deg": float(np.degrees(rec["angle"]).max()),
+        "final_areas_mm2": (1e6 * rec["areas"][-1]).tolist(),
+        "min_area_mm2": {
+            "rest": float(1e6 * areas[0].min()),
+            "final": float(1e6 * areas[-1].min()),
+            "final_section": int(sections[np.argmin(areas[-1])]),
+        },
+        "narrowest_relative": {
+            "area_ratio": float(ratio.min()),
+            "section": int(sections[np.argmin(ratio)]),
+        },
+        "widest_relative": {
+            "area_ratio": float(ratio.max()),
+            "section": int(sections[np.argmax(ratio)]),
+        },
+        "mean_area_change_percent": float(100 * (areas[-1].sum() / areas[0].sum() - 1)),
+        "max_skin_gap_drift_mm": float(1e3 * rec["gap_drift"].max()),
+        "max_attachment_error_m": float(rec["attachment_error"].max()),
+        "min_area_mm2_vs_t": (1e6 * areas.min(axis=1)).tolist(),
+        "t": rec["t"].tolist(),
+        "opening_angle_deg": np.degrees(rec["angle"]).tolist(),
+    }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--duration", type=positive_float, default=0.6)
     parser.add_argument("--dt", type=positive_float, default=0.01)
-    parser.add_argument("--pressure", type=nonnegative_float, default=AirwayConfig.pressure,
-                        help="air pressure inside the airway (Pa)")
-    parser.add_argument("--motions", nargs="+", default=sorted(MOTIONS),
-                        choices=sorted(MOTIONS), help="tongue motions to run")
-    parser.add_argument("--reduced", action="store_true",
-                        help="also run every case over the reduced tongue (jaw_tongue_reduced "
-                             "training) and compare it with the full one")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE,
-                        help="reduced tongue training cache (default: %(default)s)")
+    parser.add_argument(
+        "--pressure",
+        type=nonnegative_float,
+        default=AirwayConfig.pressure,
+        help="air pressure inside the airway (Pa)",
+    )
+    parser.add_argument(
+        "--motions",
+        nargs="+",
+        default=sorted(MOTIONS),
+        choices=sorted(MOTIONS),
+        help="tongue motions to run",
+    )
+    parser.add_argument(
+        "--reduced",
+        action="store_true",
+        help="also run every case over the reduced tongue (jaw_tongue_reduced "
+        "training) and compare it with the full one",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=DEFAULT_CACHE,
+        help="reduced tongue training cache (default: %(default)s)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -642,11 +780,15 @@ def report(args: argparse.Namespace) -> dict:
         for on in (True, False):
             a = rest if motion is None and on else build_scene(config, pressure=on, data=data)
             key = f"{motion or 'none'}/{'pressure' if on else 'no_pressure'}"
-            rec = simulate(a, motion, args.duration, args.dt, snapshots=(1.0,), progress=True,
-                           label=key)
+            rec = simulate(
+                a, motion, args.duration, args.dt, snapshots=(1.0,), progress=True, label=key
+            )
             runs[key] = (a, rec)
-            print(f"{key}: {np.median(rec['ms']):.0f} ms/step, min interior area "
-                  f"{1e6 * rec['areas'][-1, a.sections.interior].min():.1f} mm^2", flush=True)
+            print(
+                f"{key}: {np.median(rec['ms']):.0f} ms/step, min interior area "
+                f"{1e6 * rec['areas'][-1, a.sections.interior].min():.1f} mm^2",
+                flush=True,
+            )
     panels = [("rest", rest_u, *rest_pose, x0)]
     inner = rest.sections.interior
     curves = {"rest": (length0[inner], rest.sections.areas(x0)[inner], "k-")}
@@ -655,42 +797,70 @@ def report(args: argparse.Namespace) -> dict:
         motion, p = key.split("/")
         (_, u, pj, Rj), xs = rec["frames"][-1], rec["skin_frames"][-1]
         if p == "pressure" and motion != "none":
-            panels.append((f"{motion}, {args.pressure:g} Pa, t = {rec['t'][-1]:.2f} s, "
-                           f"jaw {np.degrees(rec['angle'][-1]):.1f} deg", u, pj, Rj, xs))
+            panels.append(
+                (
+                    f"{motion}, {args.pressure:g} Pa, t = {rec['t'][-1]:.2f} s, "
+                    f"jaw {np.degrees(rec['angle'][-1]):.1f} deg",
+                    u,
+                    pj,
+                    Rj,
+                    xs,
+                )
+            )
         curves[f"{motion}, {'p' if p == 'pressure' else 'no p'}"] = (
-            length0[inner], rec["areas"][-1][inner],
-            styles[motion] + ("-" if p == "pressure" else "--"))
+            length0[inner],
+            rec["areas"][-1][inner],
+            styles[motion] + ("-" if p == "pressure" else "--"),
+        )
     png = render(out / "airway.png", rest, panels)
     sec_png = plot_sections(out / "airway_sections.png", curves)
     al = rest.alignment
     figures = {
-        "model": "airway", "dt": args.dt, "duration": args.duration,
-        "pressure_Pa": args.pressure, "pressure_ramp_s": config.pressure_ramp,
+        "model": "airway",
+        "dt": args.dt,
+        "duration": args.duration,
+        "pressure_Pa": args.pressure,
+        "pressure_ramp_s": config.pressure_ramp,
         "build_seconds": build_s,
         "alignment": {
-            "airway": {"method": "axes (x,y,z)->(-x,-y,z), mm->m, trimmed point-to-surface "
-                                 "ICP onto tongue boundary + palate, 5x5 starts",
-                       "linear": al["linear"].tolist(), "translation_m": al["translation"].tolist(),
-                       "residual_rotation_deg": al["residual_rotation_deg"],
-                       "trim": al["trim"],
-                       "trimmed_mean_distance_mm": 1e3 * al["trimmed_mean_distance"],
-                       "median_distance_mm": 1e3 * al["median_distance"],
-                       "p75_distance_mm": 1e3 * al["p75_distance"],
-                       "max_distance_mm": 1e3 * al["max_distance"],
-                       "fraction_inside_tongue": al["fraction_inside_tongue"],
-                       "max_depth_inside_tongue_mm": 1e3 * al["max_depth_inside_tongue"],
-                       "holes_capped": al["holes_capped"],
-                       "volume_cm3": 1e6 * al["volume_m3"]},
-            "palate": {(k[:-2] + "_mm" if k.endswith("_m") else k):
-                       (1e3 * v if k.endswith("_m") else v) for k, v in al["palate"].items()}},
-        "skin": {"vertices": skin.n, "faces": int(len(skin.faces)),
-                 "masters": [m.name for m in skin.masters],
-                 "dominant_master_vertices": {m.name: int((np.argmax(skin.weights, 1) == i).sum())
-                                              for i, m in enumerate(skin.masters)},
-                 "tongue_weight_ge_0.9": int(rest.tongue_vertices.size),
-                 "weighting": config.weighting, "blending": config.blending},
-        "sections": {"count": int(len(rest.sections.a)), "length_mm": (1e3 * length0).tolist(),
-                     "rest_area_mm2": (1e6 * rest.sections.areas(x0)).tolist()},
+            "airway": {
+                "method": "axes (x,y,z)->(-x,-y,z), mm->m, trimmed point-to-surface "
+                "ICP onto tongue boundary + palate, 5x5 starts",
+                "linear": al["linear"].tolist(),
+                "translation_m": al["translation"].tolist(),
+                "residual_rotation_deg": al["residual_rotation_deg"],
+                "trim": al["trim"],
+                "trimmed_mean_distance_mm": 1e3 * al["trimmed_mean_distance"],
+                "median_distance_mm": 1e3 * al["median_distance"],
+                "p75_distance_mm": 1e3 * al["p75_distance"],
+                "max_distance_mm": 1e3 * al["max_distance"],
+                "fraction_inside_tongue": al["fraction_inside_tongue"],
+                "max_depth_inside_tongue_mm": 1e3 * al["max_depth_inside_tongue"],
+                "holes_capped": al["holes_capped"],
+                "volume_cm3": 1e6 * al["volume_m3"],
+            },
+            "palate": {
+                (k[:-2] + "_mm" if k.endswith("_m") else k): (1e3 * v if k.endswith("_m") else v)
+                for k, v in al["palate"].items()
+            },
+        },
+        "skin": {
+            "vertices": skin.n,
+            "faces": int(len(skin.faces)),
+            "masters": [m.name for m in skin.masters],
+            "dominant_master_vertices": {
+                m.name: int((np.argmax(skin.weights, 1) == i).sum())
+                for i, m in enumerate(skin.masters)
+            },
+            "tongue_weight_ge_0.9": int(rest.tongue_vertices.size),
+            "weighting": config.weighting,
+            "blending": config.blending,
+        },
+        "sections": {
+            "count": int(len(rest.sections.a)),
+            "length_mm": (1e3 * length0).tolist(),
+            "rest_area_mm2": (1e6 * rest.sections.areas(x0)).tolist(),
+        },
         "resultants_N_at_rest_pressure": resultants(rest, 1.0),
         "runs": {key: _summary(a, rec) for key, (a, rec) in runs.items()},
         "png": [str(png), str(sec_png)],
@@ -702,8 +872,10 @@ def report(args: argparse.Namespace) -> dict:
             "tip_mm": (1e3 * (on["tip"][-1] - off["tip"][-1])).tolist(),
             "top_mm": (1e3 * (on["top"][-1] - off["top"][-1])).tolist(),
             "opening_angle_deg": float(np.degrees(on["angle"][-1] - off["angle"][-1])),
-            "mean_area_change_percent": float(100 * (on["areas"][-1].sum()
-                                                     / off["areas"][-1].sum() - 1))}
+            "mean_area_change_percent": float(
+                100 * (on["areas"][-1].sum() / off["areas"][-1].sum() - 1)
+            ),
+        }
     figures["pressure_effect_final"] = effect
     if args.reduced:
         figures["reduced"] = report_reduced(out, config, data, runs, args)
@@ -713,8 +885,9 @@ def report(args: argparse.Namespace) -> dict:
     return figures
 
 
-def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
-                   args: argparse.Namespace) -> dict:
+def report_reduced(
+    out: Path, config: AirwayConfig, data, runs: dict, args: argparse.Namespace
+) -> dict:
     """Every run of ``runs`` again over the reduced tongue (:func:`reduced_tongue`, cached in
     ``args.cache``), compared with the full one (:func:`compare`); renders full | reduced at
     the end of each motion with the pressure; ``airway_reduced.md``: the table."""
@@ -726,34 +899,57 @@ def report_reduced(out: Path, config: AirwayConfig, data, runs: dict,
     for key, (full_scene, full) in runs.items():
         motion, p = key.split("/")
         a = build_scene(config, pressure=p == "pressure", data=data, reduced=model)
-        with threadpool_limits(limits=1, user_api="blas"):         # r x r algebra
-            rec = simulate(a, None if motion == "none" else motion, args.duration, args.dt,
-                           snapshots=(1.0,), progress=True, label=f"{key} reduced")
+        with threadpool_limits(limits=1, user_api="blas"):  # r x r algebra
+            rec = simulate(
+                a,
+                None if motion == "none" else motion,
+                args.duration,
+                args.dt,
+                snapshots=(1.0,),
+                progress=True,
+                label=f"{key} reduced",
+            )
         comparison[key] = c = compare(full_scene, full, rec)
-        print(f"{key} reduced: {c['ms_per_step']['reduced']:.1f} ms/step "
-              f"(full {c['ms_per_step']['full']:.1f}), skin error mean "
-              f"{c['skin_error_mm']['mean_max_over_t']:.2f} mm", flush=True)
+        print(
+            f"{key} reduced: {c['ms_per_step']['reduced']:.1f} ms/step "
+            f"(full {c['ms_per_step']['full']:.1f}), skin error mean "
+            f"{c['skin_error_mm']['mean_max_over_t']:.2f} mm",
+            flush=True,
+        )
         if p == "pressure" and motion != "none":
             t = rec["t"][-1]
             for name, r in (("full", full), (f"reduced {base.r}+12", rec)):
                 (_, u, pj, Rj), xs = r["frames"][-1], r["skin_frames"][-1]
-                title = (f"{motion}, {name}, t = {t:.2f} s, "
-                         f"jaw {np.degrees(r['angle'][-1]):.2f} deg")
+                title = f"{motion}, {name}, t = {t:.2f} s, jaw {np.degrees(r['angle'][-1]):.2f} deg"
                 if r is rec:
                     title += f", skin error {c['skin_error_mm']['final_mean']:.2f} mm"
                 panels.append((title, u, pj, Rj, xs))
     png = render(out / "airway_reduced.png", runs["none/pressure"][0], panels)
     (out / "airway_reduced.md").write_text(reduced_table(comparison))
-    return {"basis": {"pod_vectors": base.r, "lift_columns": 12, "points": base.points,
-                      "training": "jaw_tongue_reduced.train (each tongue exciter alone at "
-                                  f"{base.training_excitation}, no air pressure)",
-                      "snapshots": model.training["snapshots"], "cache": str(args.cache)},
-            "training_seconds": train_s, "runs": comparison, "png": str(png)}
+    return {
+        "basis": {
+            "pod_vectors": base.r,
+            "lift_columns": 12,
+            "points": base.points,
+            "training": "jaw_tongue_reduced.train (each tongue exciter alone at "
+            f"{base.training_excitation}, no air pressure)",
+            "snapshots": model.training["snapshots"],
+            "cache": str(args.cache),
+        },
+        "training_seconds": train_s,
+        "runs": comparison,
+        "png": str(png),
+    }
 
 
-def benchmark(steps: int = 10, dt: float = 0.01, data=None,
-              reduced: jtr.ReducedJawTongueConfig | None = None,
-              cache: Path | None = None, quick: bool = False) -> dict:
+def benchmark(
+    steps: int = 10,
+    dt: float = 0.01,
+    data=None,
+    reduced: jtr.ReducedJawTongueConfig | None = None,
+    cache: Path | None = None,
+    quick: bool = False,
+) -> dict:
     """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
     protrusion, with the full and with the reduced tongue (``reduced`` training, default
     the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
@@ -769,29 +965,37 @@ def benchmark(steps: int = 10, dt: float = 0.01, data=None,
     cases = {}
     for name, red in (("full", None), ("reduced", model)):
         with threadpool_limits(limits=1, user_api="blas"):
-            cases[name] = _benchmark_case(build_scene(config, pressure=False, data=data,
-                                                      reduced=red), steps, dt)
-    ratio = {k: cases["full"][k] / cases["reduced"][k]
-             for k in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure")}
-    return {"benchmark": "airway", "steps": steps, "dt": dt,
-            "skin_vertices": [c.pop("skin_vertices") for c in cases.values()][0],
-            "reduced": {"pod_vectors": reduced.r, "lift_columns": 12,
-                        "points": reduced.points},
-            "cases": cases, "speedup": ratio}
+            cases[name] = _benchmark_case(
+                build_scene(config, pressure=False, data=data, reduced=red), steps, dt
+            )
+    ratio = {
+        k: cases["full"][k] / cases["reduced"][k]
+        for k in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure")
+    }
+    return {
+        "benchmark": "airway",
+        "steps": steps,
+        "dt": dt,
+        "skin_vertices": [c.pop("skin_vertices") for c in cases.values()][0],
+        "reduced": {"pod_vectors": reduced.r, "lift_columns": 12, "points": reduced.points},
+        "cases": cases,
+        "speedup": ratio,
+    }
 
 
 def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
     """benchmark() of one airway scene built without its pressure load (added midway)."""
     s = a.jt
     s.scene.add_controller(
-        s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body))
+        s.tongue.bundle_schedule(Tongue.motion("protrusion")).controller(s.tongue.body)
+    )
 
-    def timed(n):                                         # the controller included
+    def timed(n):  # the controller included
         return simulate_scene(s.scene, n * dt, dt, progress=False).ms_per_step
 
-    timed(1)                                              # factorization set-up, compile
+    timed(1)  # factorization set-up, compile
     plain = timed(steps)
-    s.scene.add(a.pressure)                               # ramped from now on
+    s.scene.add(a.pressure)  # ramped from now on
     timed(1)
     loaded = timed(steps)
 
@@ -802,10 +1006,15 @@ def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
         return 1e3 * (time.perf_counter() - t0) / n
 
     t = s.scene.t
-    return {"skin_vertices": a.skin.n, "masters": s.scene.master_count(),
-            "ms_per_step_without_airway": plain, "ms_per_step_with_skin_pressure": loaded,
-            "ms_skin_positions": cost(a.skin.positions), "ms_skin_jacobian": cost(a.skin.jacobian),
-            "ms_pressure_master_loads": cost(lambda: a.pressure.master_loads(t))}
+    return {
+        "skin_vertices": a.skin.n,
+        "masters": s.scene.master_count(),
+        "ms_per_step_without_airway": plain,
+        "ms_per_step_with_skin_pressure": loaded,
+        "ms_skin_positions": cost(a.skin.positions),
+        "ms_skin_jacobian": cost(a.skin.jacobian),
+        "ms_pressure_master_loads": cost(lambda: a.pressure.master_loads(t)),
+    }
 
 
 if __name__ == "__main__":

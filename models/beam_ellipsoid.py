@@ -60,8 +60,14 @@ from artifem.scene import Scene, simulate
 from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.rigid_body import RigidBody
 
-__all__ = ["BeamEllipsoidConfig", "build_scene", "build_reference", "ellipsoid_mass_properties",
-           "euler_bernoulli_tip", "run"]
+__all__ = [
+    "BeamEllipsoidConfig",
+    "build_scene",
+    "build_reference",
+    "ellipsoid_mass_properties",
+    "euler_bernoulli_tip",
+    "run",
+]
 
 
 @dataclass(frozen=True)
@@ -93,18 +99,27 @@ def ellipsoid_mass_properties(config: BeamEllipsoidConfig) -> tuple[float, np.nd
 
 def _beam_mesh(config: BeamEllipsoidConfig, extra_cells: int = 0, extra_length: float = 0.0):
     nx, ny, nz = config.cells
-    return dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array(
-        [config.length + extra_length, config.width, config.height])],
-        [nx + extra_cells, ny, nz], dmesh.CellType.hexahedron)
+    return dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([config.length + extra_length, config.width, config.height])],
+        [nx + extra_cells, ny, nz],
+        dmesh.CellType.hexahedron,
+    )
 
 
-def build_scene(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: str = "face"
-                ) -> tuple[Scene, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
+def build_scene(
+    config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: str = "face"
+) -> tuple[Scene, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
     """The clamped beam, the ellipsoid and its attachment (module docstring), in one scene."""
     if attach not in ("face", "frame"):
         raise InputError(f"build_scene: attach must be 'face' or 'frame', got {attach!r}")
-    beam = FemBody(_beam_mesh(config), NeoHookean.from_young_poisson(config.young, config.poisson),
-                   config.density, rayleigh=config.rayleigh, name="beam")
+    beam = FemBody(
+        _beam_mesh(config),
+        NeoHookean.from_young_poisson(config.young, config.poisson),
+        config.density,
+        rayleigh=config.rayleigh,
+        name="beam",
+    )
     beam.fix_nodes(beam.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     mass, inertia = ellipsoid_mass_properties(config)
     ellipsoid = RigidBody("ellipsoid", mass, inertia, position=config.center)
@@ -131,8 +146,9 @@ class _Isotropic:
         return self.material.strain_energy(F)
 
 
-def build_reference(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *,
-                    stiffness_ratio: float = 1.0e4) -> FemBody:
+def build_reference(
+    config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, stiffness_ratio: float = 1.0e4
+) -> FemBody:
     """Full FEM reference: the beam extended by a stiff block that stands in for the ellipsoid.
 
     The block spans x in [L, L + 2a] with the beam's cross-section and cell size
@@ -146,11 +162,19 @@ def build_reference(config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *,
     block = 2.0 * config.semi_axes[0]
     extra = int(round(block / dx))
     if not np.isclose(extra * dx, block):
-        raise InputError(f"build_reference: the block length 2a = {block:g} must be a whole "
-                         f"number of beam cells ({dx:g})")
+        raise InputError(
+            f"build_reference: the block length 2a = {block:g} must be a whole "
+            f"number of beam cells ({dx:g})"
+        )
     material = NeoHookean.from_young_poisson(config.young, config.poisson)
-    body = FemBody(_beam_mesh(config, extra, block), material, config.density,
-                   rayleigh=config.rayleigh, gravity=config.gravity, name="beam+block")
+    body = FemBody(
+        _beam_mesh(config, extra, block),
+        material,
+        config.density,
+        rayleigh=config.rayleigh,
+        gravity=config.gravity,
+        name="beam+block",
+    )
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     cells = body.find_cells(lambda x: x[0] > config.length)
     stiff = NeoHookean.from_young_poisson(stiffness_ratio * config.young, config.poisson)
@@ -169,12 +193,12 @@ def euler_bernoulli_tip(config: BeamEllipsoidConfig) -> float:
     beam under its own weight q and the ellipsoid's weight W at lever a beyond the end:
     q L^4 / 8EI + W L^3 / 3EI + W a L^2 / 2EI (no shear, no locking: the mesh's target)."""
     L, W, H = config.length, config.width, config.height
-    EI = config.young * W * H ** 3 / 12.0
+    EI = config.young * W * H**3 / 12.0
     g = float(np.linalg.norm(config.gravity))
     q = config.density * W * H * g
     weight = ellipsoid_mass_properties(config)[0] * g
     a = config.semi_axes[0]
-    return q * L ** 4 / (8 * EI) + weight * L ** 3 / (3 * EI) + weight * a * L ** 2 / (2 * EI)
+    return q * L**4 / (8 * EI) + weight * L**3 / (3 * EI) + weight * a * L**2 / (2 * EI)
 
 
 def tip_deflection(body: FemBody, config: BeamEllipsoidConfig) -> float:
@@ -183,23 +207,52 @@ def tip_deflection(body: FemBody, config: BeamEllipsoidConfig) -> float:
     return -float(body.displacement_at([node])[0, 2])
 
 
-def swing(config: BeamEllipsoidConfig, duration: float, h: float, *, samples: int = 0,
-          attach: str = "face"):
+def swing(
+    config: BeamEllipsoidConfig,
+    duration: float,
+    h: float,
+    *,
+    samples: int = 0,
+    attach: str = "face",
+):
     """Release the straight beam under gravity (undamped unless config.rayleigh) and record,
     through :func:`artifem.scene.simulate`, time ``t``, ``tip`` deflection and ``energy``
     (and ``ms``: the wall time of each step); ``samples`` snapshots (t, u, p, R) evenly
     spaced to the end. Returns (scene, beam, ellipsoid, record, snapshots)."""
     scene, beam, ellipsoid, _ = build_scene(config, attach=attach)
     n = int(round(duration / h))
-    keep = sorted(k for k in set(np.linspace(0, n, samples + 1)[1:].round().astype(int).tolist())
-                  if 1 <= k <= n) if samples else []
-    run = simulate(scene, duration, h, keep=[k * h for k in keep], progress=False, record={
-        "tip": lambda s: tip_deflection(beam, config), "energy": lambda s: s.energy(),
-        "position": lambda s: ellipsoid.position.copy(),
-        "rotation": lambda s: ellipsoid.rotation.copy()})
+    keep = (
+        sorted(
+            k
+            for k in set(np.linspace(0, n, samples + 1)[1:].round().astype(int).tolist())
+            if 1 <= k <= n
+        )
+        if samples
+        else []
+    )
+    run = simulate(
+        scene,
+        duration,
+        h,
+        keep=[k * h for k in keep],
+        progress=False,
+        record={
+            "tip": lambda s: tip_deflection(beam, config),
+            "energy": lambda s: s.energy(),
+            "position": lambda s: ellipsoid.position.copy(),
+            "rotation": lambda s: ellipsoid.rotation.copy(),
+        },
+    )
     pose = run.records
-    snapshots = [(float(run.times[k]), run.snapshots[k * h][beam.name].x.array.copy(),
-                  pose["position"][k], pose["rotation"][k]) for k in keep]
+    snapshots = [
+        (
+            float(run.times[k]),
+            run.snapshots[k * h][beam.name].x.array.copy(),
+            pose["position"][k],
+            pose["rotation"][k],
+        )
+        for k in keep
+    ]
     record = {"t": run.times, "tip": pose["tip"], "energy": pose["energy"], "ms": run.step_ms}
     return scene, beam, ellipsoid, record, snapshots
 
@@ -211,8 +264,9 @@ def render(png: Path, config: BeamEllipsoidConfig, beam: FemBody, frames) -> Pat
     from artifem.render import add_displacement
 
     pv.OFF_SCREEN = True
-    plotter = pv.Plotter(off_screen=True, shape=(1, len(frames)),
-                         window_size=[520 * len(frames), 420])
+    plotter = pv.Plotter(
+        off_screen=True, shape=(1, len(frames)), window_size=[520 * len(frames), 420]
+    )
     u_fun = fem.Function(beam.V)
     clim = (0.0, 1e3 * max(np.abs(u).max() for _, u, _, _ in frames))
     try:
@@ -250,16 +304,25 @@ def run(args: argparse.Namespace) -> int:
         scene, beam, ellipsoid, _ = build_scene(config, attach=attach)
         t0 = time.perf_counter()
         newton = scene.solve_static()
-        static[attach] = {"tip_deflection_mm": 1e3 * tip_deflection(beam, config),
-                          "newton_iterations": newton, "seconds": time.perf_counter() - t0}
+        static[attach] = {
+            "tip_deflection_mm": 1e3 * tip_deflection(beam, config),
+            "newton_iterations": newton,
+            "seconds": time.perf_counter() - t0,
+        }
     coupled = static["frame"]["tip_deflection_mm"] * 1e-3
-    static_frame = ("static (end frame)", beam.u.x.array.copy(), ellipsoid.position.copy(),
-                    ellipsoid.rotation.copy())
+    static_frame = (
+        "static (end frame)",
+        beam.u.x.array.copy(),
+        ellipsoid.position.copy(),
+        ellipsoid.rotation.copy(),
+    )
     reference = build_reference(config)
     from artifem.integrators import solve_static
     from artifem.linear_solver import LinearSolver
-    solve_static(reference, LinearSolver(reference.mesh.comm, "mumps"), load_steps=5,
-                 max_iterations=50)
+
+    solve_static(
+        reference, LinearSolver(reference.mesh.comm, "mumps"), load_steps=5, max_iterations=50
+    )
     ref = tip_deflection(reference, config)
     _, beam2, _, rec, snaps = swing(config, args.duration, args.dt, samples=2, attach="frame")
     frames = [static_frame] + [(f"swing, t = {t:.2f} s", u, p, R) for t, u, p, R in snaps]
@@ -269,16 +332,25 @@ def run(args: argparse.Namespace) -> int:
         "model": "beam_ellipsoid",
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(config).items()},
         "ellipsoid_mass_kg": mass,
-        "static": {"end_frame": static["frame"], "rigid_end_face": static["face"],
-                   "reference_mm": 1e3 * ref,
-                   "frame_vs_reference": abs(coupled - ref) / ref,
-                   "euler_bernoulli_mm": 1e3 * euler_bernoulli_tip(config)},
-        "swing": {"attachment": "end frame", "dt": args.dt, "duration": args.duration,
-                  "ms_per_step": float(np.median(rec["ms"])),
-                  "max_tip_mm": 1e3 * float(rec["tip"].max()),
-                  "energy_J": {"initial": float(rec["energy"][0]),
-                               "max": float(rec["energy"].max()),
-                               "final": float(rec["energy"][-1])}},
+        "static": {
+            "end_frame": static["frame"],
+            "rigid_end_face": static["face"],
+            "reference_mm": 1e3 * ref,
+            "frame_vs_reference": abs(coupled - ref) / ref,
+            "euler_bernoulli_mm": 1e3 * euler_bernoulli_tip(config),
+        },
+        "swing": {
+            "attachment": "end frame",
+            "dt": args.dt,
+            "duration": args.duration,
+            "ms_per_step": float(np.median(rec["ms"])),
+            "max_tip_mm": 1e3 * float(rec["tip"].max()),
+            "energy_J": {
+                "initial": float(rec["energy"][0]),
+                "max": float(rec["energy"].max()),
+                "final": float(rec["energy"][-1]),
+            },
+        },
         "png": str(png),
     }
     (out / "beam_ellipsoid.json").write_text(json.dumps(figures, indent=2))

@@ -36,7 +36,7 @@ R, E, NU, FORCE = 0.01, 1e5, 0.45, 0.05
 
 def hertz(force: float = FORCE, radius: float = R, young: float = E, poisson: float = NU):
     """(a, p0, delta) of Hertz's sphere on a rigid plane (module docstring); delta = a^2 / R."""
-    e_star = young / (1.0 - poisson ** 2)
+    e_star = young / (1.0 - poisson**2)
     a = (3.0 * force * radius / (4.0 * e_star)) ** (1.0 / 3.0)
     return a, 3.0 * force / (2.0 * math.pi * a * a), a * a / radius
 
@@ -55,8 +55,11 @@ def hemisphere_mesh(h_pole: float, h_far: float, refine_radius: float, radius: f
         gmsh.model.occ.addSphere(0.0, 0.0, radius, radius, 1, -math.pi / 2, 0.0)
         gmsh.model.occ.synchronize()
         gmsh.model.addPhysicalGroup(3, [1], 1)
-        pole = [tag for dim, tag in gmsh.model.getEntities(0)
-                if np.linalg.norm(gmsh.model.getValue(0, tag, [])) < 1e-9 * radius]
+        pole = [
+            tag
+            for dim, tag in gmsh.model.getEntities(0)
+            if np.linalg.norm(gmsh.model.getValue(0, tag, [])) < 1e-9 * radius
+        ]
         if len(pole) != 1:
             raise RuntimeError(f"hemisphere_mesh: expected one vertex at the pole, got {pole}")
         field = gmsh.model.mesh.field
@@ -69,8 +72,11 @@ def hemisphere_mesh(h_pole: float, h_far: float, refine_radius: float, radius: f
         field.setNumber(thr, "DistMin", refine_radius)
         field.setNumber(thr, "DistMax", 3.0 * refine_radius)
         field.setAsBackgroundMesh(thr)
-        for opt in ("Mesh.MeshSizeFromPoints", "Mesh.MeshSizeFromCurvature",
-                    "Mesh.MeshSizeExtendFromBoundary"):
+        for opt in (
+            "Mesh.MeshSizeFromPoints",
+            "Mesh.MeshSizeFromCurvature",
+            "Mesh.MeshSizeExtendFromBoundary",
+        ):
             gmsh.option.setNumber(opt, 0)
         gmsh.option.setNumber("Mesh.Optimize", 1)
         gmsh.model.mesh.generate(3)
@@ -85,17 +91,17 @@ class HertzResult:
 
     h_pole: float
     nodes: int
-    delta: float                # the flat face's displacement (m, downwards)
-    force: float                # sum f_n (N)
-    radius_moment: float        # sqrt(5/2 sum f r^2 / sum f) (m)
-    radius_outer: float         # the outermost pressing node's reference radius (m)
-    fit_radius: float           # a of the fit of p0 sqrt(1 - r^2 / a^2) to f_n / A (m)
-    fit_pressure: float         # p0 of that fit (Pa)
-    fit_scatter: float          # the area-weighted rms of f_n / A about the fit, / p0
-    peak_pressure: float        # the largest nodal pressure max f_n / A (Pa)
-    pressing: int               # nodes with f_n > 0
-    static_solves: int          # Scene.solve_static calls of the secant
-    newton_iterations: int      # their Newton iterations, in all
+    delta: float  # the flat face's displacement (m, downwards)
+    force: float  # sum f_n (N)
+    radius_moment: float  # sqrt(5/2 sum f r^2 / sum f) (m)
+    radius_outer: float  # the outermost pressing node's reference radius (m)
+    fit_radius: float  # a of the fit of p0 sqrt(1 - r^2 / a^2) to f_n / A (m)
+    fit_pressure: float  # p0 of that fit (Pa)
+    fit_scatter: float  # the area-weighted rms of f_n / A about the fit, / p0
+    peak_pressure: float  # the largest nodal pressure max f_n / A (Pa)
+    pressing: int  # nodes with f_n > 0
+    static_solves: int  # Scene.solve_static calls of the secant
+    newton_iterations: int  # their Newton iterations, in all
 
 
 class HertzModel:
@@ -103,23 +109,34 @@ class HertzModel:
     ``margin`` (of the contact) must exceed the approach delta (about 0.18 mm): the first
     solve starts from the flat face moved down and every other node in place."""
 
-    def __init__(self, h_pole: float, h_far: float = 2.5e-3, refine_radius: float = 2.5e-3,
-                 margin: float = 3e-4):
+    def __init__(
+        self,
+        h_pole: float,
+        h_far: float = 2.5e-3,
+        refine_radius: float = 2.5e-3,
+        margin: float = 3e-4,
+    ):
         self.h_pole = h_pole
         msh = hemisphere_mesh(h_pole, h_far, refine_radius)
-        self.body = af.FemBody(msh, af.NeoHookean.from_young_poisson(E, NU), 1000.0,
-                               name="hemisphere")
+        self.body = af.FemBody(
+            msh, af.NeoHookean.from_young_poisson(E, NU), 1000.0, name="hemisphere"
+        )
         self.top = self.body.find_nodes(lambda x: np.isclose(x[2], R, atol=1e-9 * R))
-        self.contact = af.PlaneContact(self.body, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0),
-                                       tolerance=1e-9, margin=margin)
+        self.contact = af.PlaneContact(
+            self.body, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=1e-9, margin=margin
+        )
         self.scene = af.Scene()
         self.scene.add(self.body, self.contact)
         self.newton = 0
 
     def press(self, delta: float) -> float:
         """Clamp the flat face at z = R - delta, solve the statics; sum f_n (N)."""
-        self.body.fix_nodes(self.top, displacement=lambda x: np.vstack(
-            [np.zeros(x.shape[1]), np.zeros(x.shape[1]), np.full(x.shape[1], -delta)]))
+        self.body.fix_nodes(
+            self.top,
+            displacement=lambda x: np.vstack(
+                [np.zeros(x.shape[1]), np.zeros(x.shape[1]), np.full(x.shape[1], -delta)]
+            ),
+        )
         self.newton += sum(self.scene.solve_static())
         return float(self.scene.contact_forces(self.contact).normal.sum())
 
@@ -143,23 +160,29 @@ class HertzModel:
         reference radii r = |(x, y)|."""
         forces = self.scene.contact_forces(self.contact)
         cp = self.scene.contact_pressure(self.contact)[self.body.name]
-        rows = np.isin(cp.points, forces.points)        # the nodes that had rows
+        rows = np.isin(cp.points, forces.points)  # the nodes that had rows
         pressure, area = cp.pressure[rows], cp.area[rows]
         x = self.body.V.tabulate_dof_coordinates()[self.body.local_dofs(cp.points[rows])]
         r = np.hypot(x[:, 0], x[:, 1])
         f = pressure * area
         on = f > 1e-12 * f.max()
         (a_fit, p_fit), scatter = fit_hertz(r, pressure, area, *hertz(float(f.sum()))[:2])
-        delta = -float(self.body.u.x.array.reshape(-1, 3)[
-            self.body.local_dofs(self.top[:1]), 2][0])
+        delta = -float(self.body.u.x.array.reshape(-1, 3)[self.body.local_dofs(self.top[:1]), 2][0])
         return HertzResult(
-            h_pole=self.h_pole, nodes=int(self.body.mesh.geometry.index_map().size_global),
-            delta=delta, force=float(f.sum()),
+            h_pole=self.h_pole,
+            nodes=int(self.body.mesh.geometry.index_map().size_global),
+            delta=delta,
+            force=float(f.sum()),
             radius_moment=float(math.sqrt(2.5 * (f * r * r).sum() / f.sum())),
-            radius_outer=float(r[on].max()), fit_radius=a_fit, fit_pressure=p_fit,
-            fit_scatter=scatter, peak_pressure=float(pressure.max()),
-            pressing=int(on.sum()), static_solves=static_solves,
-            newton_iterations=self.newton)
+            radius_outer=float(r[on].max()),
+            fit_radius=a_fit,
+            fit_pressure=p_fit,
+            fit_scatter=scatter,
+            peak_pressure=float(pressure.max()),
+            pressing=int(on.sum()),
+            static_solves=static_solves,
+            newton_iterations=self.newton,
+        )
 
 
 def fit_hertz(r: np.ndarray, p: np.ndarray, area: np.ndarray, a0: float, p0: float):

@@ -69,8 +69,14 @@ from mpi4py import MPI
 from artifem.arguments import positive_float
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DATA, MOTIONS, PENALTY, Tongue, TongueConfig,
-                                         load_tongue_data)
+from artifem.models.tongue.model import (
+    DATA,
+    MOTIONS,
+    PENALTY,
+    Tongue,
+    TongueConfig,
+    load_tongue_data,
+)
 from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
 from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.frame_paths import FramePath
@@ -81,8 +87,17 @@ from artifem.multibody.rigid_body import Frame, RigidBody
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.registration import TriangleSurface, icp
 
-__all__ = ["JawTongueConfig", "JawTongueScene", "align_jaw", "build_scene", "jaw_attachment_rows",
-           "hyoid_attachment_rows", "read_obj", "close_surface", "simulate"]
+__all__ = [
+    "JawTongueConfig",
+    "JawTongueScene",
+    "align_jaw",
+    "build_scene",
+    "jaw_attachment_rows",
+    "hyoid_attachment_rows",
+    "read_obj",
+    "close_surface",
+    "simulate",
+]
 
 #: jaw.obj axes -> tongue axes: (x, y, z)_jaw -> (-x, z, y)_tongue (det +1).
 AXES = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
@@ -104,8 +119,7 @@ class JawTongueConfig:
     closer_damping: float = 2.0
     #: "hinge" (revolute + limits), "welded" (FixedJoint to the skull).
     joint: str = "hinge"
-    tongue: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY,
-                                        linear_solver="mumps")
+    tongue: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY, linear_solver="mumps")
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -137,8 +151,11 @@ def close_surface(vertices: np.ndarray, triangles: np.ndarray):
             directed[key] = directed.get(key, 0) + 1
     # a triangle whose three edges all run the same way as a neighbour's is flipped
     # (jaw.obj has one: 1949 1964 1894): reverse it.
-    flipped = [i for i, tri in enumerate(triangles)
-               if all(directed[(int(tri[k]), int(tri[(k + 1) % 3]))] > 1 for k in range(3))]
+    flipped = [
+        i
+        for i, tri in enumerate(triangles)
+        if all(directed[(int(tri[k]), int(tri[(k + 1) % 3]))] > 1 for k in range(3))
+    ]
     triangles[flipped] = triangles[flipped][:, ::-1]
     edges = {}
     for tri in triangles:
@@ -147,11 +164,11 @@ def close_surface(vertices: np.ndarray, triangles: np.ndarray):
             edges[(a, b)] = edges.get((a, b), 0) + 1
     # a boundary edge a->b has no opposite b->a; the cap must contain b->a.
     nxt = {}
-    for (a, b) in edges:
+    for a, b in edges:
         if (b, a) not in edges:
             if b in nxt:
                 raise InputError("close_surface: a boundary vertex with two outgoing edges")
-            nxt[b] = a                          # cap edge b -> a
+            nxt[b] = a  # cap edge b -> a
     vertices, triangles = list(vertices), list(triangles)
     holes = 0
     while nxt:
@@ -178,8 +195,9 @@ def hyoid_attachment_rows() -> np.ndarray:
     return np.loadtxt(DATA / "hyoidAttachments.txt", dtype=np.int64).ravel()
 
 
-def align_jaw(nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray,
-              iterations: int = 60) -> dict:
+def align_jaw(
+    nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray, iterations: int = 60
+) -> dict:
     """Rigid transform x_tongue = R x_jaw_m + t (x_jaw_m = 1e-3 x_obj) that puts the jaw
     surface through the tongue's jaw-attachment ``nodes`` (m): the axis permutation AXES,
     then point-to-surface ICP (:func:`artifem.registration.icp`) from a grid of starting
@@ -194,24 +212,36 @@ def align_jaw(nodes: np.ndarray, vertices_mm: np.ndarray, triangles: np.ndarray,
     # starts: the node centroid placed at a grid of points of the jaw's bounding box.
     for fx in np.linspace(0.1, 0.6, 6):
         for fz in np.linspace(0.0, 0.6, 7):
-            target = np.array([lo[0] + fx * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]),
-                               lo[2] + fz * (hi[2] - lo[2])])
+            target = np.array(
+                [lo[0] + fx * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]), lo[2] + fz * (hi[2] - lo[2])]
+            )
             # the jaw mesh's open border keeps its pairs: the documented scenes were
             # aligned so
-            fit = icp(nodes, surface, np.eye(3), target - centroid, iterations=iterations,
-                      drop_border=False)
+            fit = icp(
+                nodes,
+                surface,
+                np.eye(3),
+                target - centroid,
+                iterations=iterations,
+                drop_border=False,
+            )
             if best is None or fit.score < best.score:
                 best = fit
     fit = best
     # the nodes moved by (R, t) onto the surface: the surface moves by the inverse.
     R_inv = fit.R.T
     t_inv = -R_inv @ fit.t
-    rotation = R_inv @ AXES * 1e-3                          # x_tongue = rotation x_obj + t
+    rotation = R_inv @ AXES * 1e-3  # x_tongue = rotation x_obj + t
     dist, _ = TriangleSurface(base @ R_inv.T + t_inv, triangles).closest(nodes)
     residual = np.degrees(np.arccos(np.clip((np.trace(R_inv) - 1) / 2, -1, 1)))
-    return {"linear": rotation, "translation": t_inv, "distances": dist,
-            "mean_distance": float(dist.mean()), "max_distance": float(dist.max()),
-            "residual_rotation_deg": float(residual)}
+    return {
+        "linear": rotation,
+        "translation": t_inv,
+        "distances": dist,
+        "mean_distance": float(dist.mean()),
+        "max_distance": float(dist.max()),
+        "residual_rotation_deg": float(residual),
+    }
 
 
 def _condyle_centres(vertices: np.ndarray) -> np.ndarray:
@@ -233,7 +263,7 @@ class JawTongueScene:
     closer: FramePath | None
     alignment: dict
     jaw_rows: np.ndarray
-    hinge: np.ndarray                   # hinge centre (world)
+    hinge: np.ndarray  # hinge centre (world)
     reduced: ReducedFemBody | None = None
 
     def tongue_displacement(self) -> np.ndarray:
@@ -246,8 +276,14 @@ class JawTongueScene:
         return float(self.joint.angle()) if isinstance(self.joint, RevoluteJoint) else 0.0
 
 
-def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=None,
-                data=None, reduce=None, comm=MPI.COMM_WORLD) -> JawTongueScene:
+def build_scene(
+    config: JawTongueConfig = JawTongueConfig(),
+    *,
+    opener_schedule=None,
+    data=None,
+    reduce=None,
+    comm=MPI.COMM_WORLD,
+) -> JawTongueScene:
     """The tongue, the aligned jaw, the TMJ hinge, the opener and the closer (docstring).
 
     ``reduce``, a reduced model of this scene (``ReducedModel`` of
@@ -261,8 +297,7 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     if config.tongue.level != 0:
         raise InputError("jaw_tongue: the attachment files index level-0 nodes")
     jaw_rows, hyoid_rows = jaw_attachment_rows(), hyoid_attachment_rows()
-    tongue = Tongue(config.tongue, comm,
-                    data=replace(data, fixed_nodes=np.unique(hyoid_rows)))
+    tongue = Tongue(config.tongue, comm, data=replace(data, fixed_nodes=np.unique(hyoid_rows)))
     nodes = data.mesh.points[jaw_rows]
     vertices_mm, triangles = read_obj(DATA / "jaw.obj")
     alignment = align_jaw(nodes, vertices_mm, triangles)
@@ -275,10 +310,11 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     scene.add(tongue.body, jaw, attachment)
     condyles = _condyle_centres(vertices)
     hinge = condyles.mean(0)
-    axis = condyles[0] - condyles[1]            # +y -> -y: positive angle opens
+    axis = condyles[0] - condyles[1]  # +y -> -y: positive angle opens
     if config.joint == "hinge":
-        joint = RevoluteJoint.at_world(jaw, None, hinge, axis_rotation(axis), name="TMJ",
-                                       limits=config.limits)
+        joint = RevoluteJoint.at_world(
+            jaw, None, hinge, axis_rotation(axis), name="TMJ", limits=config.limits
+        )
     elif config.joint == "welded":
         joint = FixedJoint.at_world(jaw, None, hinge, name="TMJ welded")
     else:
@@ -287,39 +323,56 @@ def build_scene(config: JawTongueConfig = JawTongueConfig(), *, opener_schedule=
     # chin: the most anterior (min x) jaw vertex near the midline; opener origin below the hyoid.
     mid = vertices[np.abs(vertices[:, 1]) < 0.005]
     chin = mid[np.argmin(mid[:, 0] + 0.5 * (mid[:, 2] - mid[:, 2].min()))]
-    chin_insert = chin + np.array([0.008, 0.0, 0.004])          # digastric fossa, inside
+    chin_insert = chin + np.array([0.008, 0.0, 0.004])  # digastric fossa, inside
     hyoid = data.mesh.points[hyoid_rows].mean(0) + np.array([0.0, 0.0, -0.015])
     opener = closer = None
     if config.opener_force > 0:
         L0 = float(np.linalg.norm(chin_insert - hyoid))
         muscle = ThelenMuscle(ThelenParameters(config.opener_force, L0, 0.0), name="opener")
         schedule = opener_schedule or ExcitationSchedule.ramp_and_hold(
-            {"opener": config.opener_excitation}, config.opener_ramp)
-        opener = FramePath(muscle, [Frame(None, hyoid), Frame.at_world(jaw, chin_insert)],
-                           excitation=lambda t, s=schedule: s.at(t)["opener"], name="opener")
+            {"opener": config.opener_excitation}, config.opener_ramp
+        )
+        opener = FramePath(
+            muscle,
+            [Frame(None, hyoid), Frame.at_world(jaw, chin_insert)],
+            excitation=lambda t, s=schedule: s.at(t)["opener"],
+            name="opener",
+        )
         scene.add(opener)
     if config.closer_stiffness > 0:
         # gonial angle: the lowest-posterior jaw vertex on each side; zygoma 35 mm above it.
         gonion = vertices[np.argmax(vertices[:, 0] - vertices[:, 2])].copy()
         gonion[0] -= 0.01
-        gonion[1] = 0.0                     # one midline spring for the two masseters
+        gonion[1] = 0.0  # one midline spring for the two masseters
         zygoma = gonion + np.array([-0.01, 0.0, 0.035])
         length = float(np.linalg.norm(zygoma - gonion))
         rest = length - config.closer_pretension / config.closer_stiffness
-        closer = FramePath(AxialSpring(config.closer_stiffness, rest, config.closer_damping),
-                           [Frame(None, zygoma), Frame.at_world(jaw, gonion)], name="closer")
+        closer = FramePath(
+            AxialSpring(config.closer_stiffness, rest, config.closer_damping),
+            [Frame(None, zygoma), Frame.at_world(jaw, gonion)],
+            name="closer",
+        )
         scene.add(closer)
     reduced = None
     if reduce is not None:
         reduced, replaced = reduce.put_in(scene)
         attachment = replaced[attachment.name]
-    return JawTongueScene(scene, tongue, jaw, attachment, joint, opener, closer, alignment,
-                          jaw_rows, hinge, reduced)
+    return JawTongueScene(
+        scene, tongue, jaw, attachment, joint, opener, closer, alignment, jaw_rows, hinge, reduced
+    )
 
 
-def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duration: float,
-             dt: float = 0.01, *, snapshots=(), record=None, progress: bool = False,
-             label: str = "jaw-tongue") -> dict:
+def simulate(
+    s: JawTongueScene,
+    motion: str | ExcitationSchedule | None,
+    duration: float,
+    dt: float = 0.01,
+    *,
+    snapshots=(),
+    record=None,
+    progress: bool = False,
+    label: str = "jaw-tongue",
+) -> dict:
     """Run the tongue motion (a name of MOTIONS, with the paper's ramp, or an exciter
     schedule, added to the scene's controllers) with the scene's jaw through
     :func:`artifem.scene.simulate`; record, at the start and after every step: time ``t``,
@@ -331,16 +384,20 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
     the run. A step the scene cannot complete raises its ElementInversionError or
     StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
     body = s.tongue.body
-    if body.mesh.comm.size > 1:                 # the tip, u and the render are one rank's
-        raise InputError(f"jaw_tongue.simulate: the tongue is distributed over "
-                         f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
-                         f"build_scene(comm=MPI.COMM_SELF)")
+    if body.mesh.comm.size > 1:  # the tip, u and the render are one rank's
+        raise InputError(
+            f"jaw_tongue.simulate: the tongue is distributed over "
+            f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
+            f"build_scene(comm=MPI.COMM_SELF)"
+        )
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
     control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
     dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
-    tip = FemPoint(s.reduced or body, FemPointWeights(np.array([dof]), np.ones(1),
-                                                      body.V.tabulate_dof_coordinates()[dof]))
+    tip = FemPoint(
+        s.reduced or body,
+        FemPointWeights(np.array([dof]), np.ones(1), body.V.tabulate_dof_coordinates()[dof]),
+    )
     tip0 = tip.weights.rest_position
     z0 = s.attachment.positions()[:, 2].copy()
     quantities = {
@@ -353,20 +410,24 @@ def simulate(s: JawTongueScene, motion: str | ExcitationSchedule | None, duratio
         "u": lambda scene: s.tongue_displacement(),
         "jaw_position": lambda scene: s.jaw.position.copy(),
         "jaw_rotation": lambda scene: s.jaw.rotation.copy(),
-        **(record or {})}
+        **(record or {}),
+    }
     if control is not None:
-        s.scene.add_controller(control)         # for this run only (removed at its end)
-    try:                                        # controllers, halving, det F: the Scene's
-        run = simulate_scene(s.scene, duration, dt, record=quantities, progress=progress,
-                             label=label, leave=False)
+        s.scene.add_controller(control)  # for this run only (removed at its end)
+    try:  # controllers, halving, det F: the Scene's
+        run = simulate_scene(
+            s.scene, duration, dt, record=quantities, progress=progress, label=label, leave=False
+        )
     finally:
         if control is not None:
             s.scene.controllers.remove(control)
     out = {"t": run.times, "ms": run.step_ms, **run.records}
     n = int(round(duration / dt))
-    out["frames"] = [(float(run.times[k]), out["u"][k], out["jaw_position"][k],
-                      out["jaw_rotation"][k])
-                     for k in sorted({int(round(f * n)) for f in snapshots}) if 1 <= k <= n]
+    out["frames"] = [
+        (float(run.times[k]), out["u"][k], out["jaw_position"][k], out["jaw_rotation"][k])
+        for k in sorted({int(round(f * n)) for f in snapshots})
+        if 1 <= k <= n
+    ]
     return out
 
 
@@ -379,11 +440,16 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
 
     pv.OFF_SCREEN = True
     body = s.tongue.body
-    plotter = pv.Plotter(off_screen=True, shape=(1, len(frames)),
-                         window_size=[560 * len(frames), 520])
+    plotter = pv.Plotter(
+        off_screen=True, shape=(1, len(frames)), window_size=[560 * len(frames), 520]
+    )
     u_fun = fem.Function(body.V)
-    clim = (0.0, max(1e-6, 1e3 * max(np.linalg.norm(u.reshape(-1, 3), axis=1).max()
-                                     for _, u, _, _ in frames)))
+    clim = (
+        0.0,
+        max(
+            1e-6, 1e3 * max(np.linalg.norm(u.reshape(-1, 3), axis=1).max() for _, u, _, _ in frames)
+        ),
+    )
     verts, tris = s.jaw.surface
     faces = np.hstack([np.full((len(tris), 1), 3), tris]).ravel()
     try:
@@ -409,9 +475,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--motion", default="protrusion", choices=sorted(MOTIONS) + ["none"])
-    source.add_argument("--schedule", type=Path,
-                        help='exciter schedule JSON: {"times": [...], "excitations": '
-                             '{"GGP": [...], ...}} (as simulate tongue)')
+    source.add_argument(
+        "--schedule",
+        type=Path,
+        help='exciter schedule JSON: {"times": [...], "excitations": '
+        '{"GGP": [...], ...}} (as simulate tongue)',
+    )
     parser.add_argument("--duration", type=positive_float, default=0.6)
     parser.add_argument("--dt", type=positive_float, default=0.01)
 
@@ -422,9 +491,11 @@ def run(args: argparse.Namespace) -> int:
         label = args.schedule.stem
         exciters = load_tongue_data(JawTongueConfig().tongue.level).exciters
         unknown = sorted(set(motion.values) - set(exciters))
-        if unknown:                              # before any work
-            raise UnknownNameError(f"{args.schedule}: unknown muscles {unknown}; the tongue's "
-                                   f"exciters are {', '.join(sorted(exciters))}")
+        if unknown:  # before any work
+            raise UnknownNameError(
+                f"{args.schedule}: unknown muscles {unknown}; the tongue's "
+                f"exciters are {', '.join(sorted(exciters))}"
+            )
     else:
         motion = None if args.motion == "none" else args.motion
         label = args.motion
@@ -434,34 +505,53 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     s = build_scene(config)
     build_s = time.perf_counter() - t0
-    rec = simulate(s, motion, args.duration, args.dt, snapshots=(1 / 3, 2 / 3, 1.0),
-                   progress=True, label=f"jaw-tongue {label}")
-    frames = [(f"t = {t:.2f} s, jaw {np.degrees(a):.1f} deg", u, p, R)
-              for (t, u, p, R), a in zip(rec["frames"],
-                                         [rec["angle"][int(round(t / args.dt))]
-                                          for t, *_ in rec["frames"]])]
+    rec = simulate(
+        s,
+        motion,
+        args.duration,
+        args.dt,
+        snapshots=(1 / 3, 2 / 3, 1.0),
+        progress=True,
+        label=f"jaw-tongue {label}",
+    )
+    frames = [
+        (f"t = {t:.2f} s, jaw {np.degrees(a):.1f} deg", u, p, R)
+        for (t, u, p, R), a in zip(
+            rec["frames"], [rec["angle"][int(round(t / args.dt))] for t, *_ in rec["frames"]]
+        )
+    ]
     png = render(out / "jaw_tongue.png", s, frames)
     a = s.alignment
     figures = {
         "model": "jaw_tongue",
-        "motion": label, "dt": args.dt, "duration": args.duration,
+        "motion": label,
+        "dt": args.dt,
+        "duration": args.duration,
         "steps": int(len(rec["ms"])),
         "ms_per_step_median": float(np.median(rec["ms"])),
         "min_det_F": float(s.scene.min_det_F),
         "halvings": int(s.scene.halvings),
         "build_seconds": build_s,
-        "tongue": {"nodes": int(s.tongue.data.mesh.points.shape[0]),
-                   "jaw_attachment_nodes": int(s.jaw_rows.size),
-                   "hyoid_fixed_nodes": int(hyoid_attachment_rows().size)},
-        "jaw": {"mass_kg": s.jaw.mass, "com_m": s.jaw.position.tolist(),
-                "hinge_m": s.hinge.tolist(), "limits_rad": list(config.limits),
-                "alignment": {"method": "axis permutation + mm->m + point-to-surface ICP "
-                                        "(Kabsch) of the jaw-attachment nodes, multi-start",
-                              "mean_distance_mm": 1e3 * a["mean_distance"],
-                              "max_distance_mm": 1e3 * a["max_distance"],
-                              "residual_rotation_deg": a["residual_rotation_deg"],
-                              "holes_capped": a["holes_capped"],
-                              "triangles_flipped": a["triangles_flipped"]}},
+        "tongue": {
+            "nodes": int(s.tongue.data.mesh.points.shape[0]),
+            "jaw_attachment_nodes": int(s.jaw_rows.size),
+            "hyoid_fixed_nodes": int(hyoid_attachment_rows().size),
+        },
+        "jaw": {
+            "mass_kg": s.jaw.mass,
+            "com_m": s.jaw.position.tolist(),
+            "hinge_m": s.hinge.tolist(),
+            "limits_rad": list(config.limits),
+            "alignment": {
+                "method": "axis permutation + mm->m + point-to-surface ICP "
+                "(Kabsch) of the jaw-attachment nodes, multi-start",
+                "mean_distance_mm": 1e3 * a["mean_distance"],
+                "max_distance_mm": 1e3 * a["max_distance"],
+                "residual_rotation_deg": a["residual_rotation_deg"],
+                "holes_capped": a["holes_capped"],
+                "triangles_flipped": a["triangles_flipped"],
+            },
+        },
         "t": rec["t"].tolist(),
         "opening_angle_deg": np.degrees(rec["angle"]).tolist(),
         "max_opening_angle_deg": float(np.degrees(rec["angle"]).max()),

@@ -51,21 +51,34 @@ from artifem.errors import InputError
 from artifem.models import jaw_tongue as jt
 from artifem.models.cache import user_cache
 from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
-from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
-                                        Training, reduce)
+from artifem.reduction.reductor import (
+    Basis,
+    Points,
+    ReducedModel,
+    ReducibleScene,
+    Reductor,
+    Training,
+    reduce,
+)
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.generalization_report import write_markdown
 from artifem.reduction.schedules import each_alone
 from artifem.scene.inputs import PathExcitation
 
-__all__ = ["ReducedJawTongueConfig", "reducible", "train", "build_reduced_scene",
-           "compare", "quick_config"]
+__all__ = [
+    "ReducedJawTongueConfig",
+    "reducible",
+    "train",
+    "build_reduced_scene",
+    "compare",
+    "quick_config",
+]
 
 
 @dataclass(frozen=True)
 class ReducedJawTongueConfig:
-    r: int = 20                          # POD vectors (plus the 12 lift columns)
-    points: int = 300                    # trained integration points
+    r: int = 20  # POD vectors (plus the 12 lift columns)
+    points: int = 300  # trained integration points
     training_excitation: float = 0.6
     training_duration: float = 0.6
     snapshot_every: int = 2
@@ -78,8 +91,9 @@ class ReducedJawTongueConfig:
 def quick_config() -> ReducedJawTongueConfig:
     """A small training for tests and smoke runs (``--quick``): 0.15 s training runs
     (every step a snapshot), r = 12 POD vectors, 150 trained points."""
-    return ReducedJawTongueConfig(r=12, points=150, training_duration=0.15, snapshot_every=1,
-                                  force_snapshots=60)
+    return ReducedJawTongueConfig(
+        r=12, points=150, training_duration=0.15, snapshot_every=1, force_snapshots=60
+    )
 
 
 #: ``--quick``: motions and duration of the comparison (unless given).
@@ -94,35 +108,43 @@ def reducible(config: ReducedJawTongueConfig = ReducedJawTongueConfig()) -> Redu
     shared over ranks."""
     exciters = load_tongue_data(config.jaw.tongue.level).exciters
     loads = {"opener": PathExcitation("opener")} if config.jaw.opener_force > 0 else {}
-    return ReducibleScene("jaw-tongue", lambda: jt.build_scene(config.jaw,
-                                                               comm=MPI.COMM_SELF).scene, "tongue",
-                          {"jaw": asdict(config.jaw), "dt": config.dt}, exciters=exciters,
-                          motions={m: Tongue.motion(m) for m in MOTIONS}, loads=loads)
+    return ReducibleScene(
+        "jaw-tongue",
+        lambda: jt.build_scene(config.jaw, comm=MPI.COMM_SELF).scene,
+        "tongue",
+        {"jaw": asdict(config.jaw), "dt": config.dt},
+        exciters=exciters,
+        motions={m: Tongue.motion(m) for m in MOTIONS},
+        loads=loads,
+    )
 
 
 def training(config: ReducedJawTongueConfig) -> Training:
     """Each exciter alone, ramped to ``training_excitation`` over the paper's 0.5 s."""
     exciters = sorted(load_tongue_data(config.jaw.tongue.level).exciters)
-    return Training(each_alone(exciters, config.training_excitation, RAMP_TIME),
-                    config.training_duration, config.dt, config.snapshot_every)
+    return Training(
+        each_alone(exciters, config.training_excitation, RAMP_TIME),
+        config.training_duration,
+        config.dt,
+        config.snapshot_every,
+    )
 
 
 def specification(config: ReducedJawTongueConfig) -> tuple[Basis, Points]:
     """The reduced tongue's basis (POD, the jaw's lift columns added) and trained points."""
-    return Basis("pod", config.r), Points(config.points, tol=config.cubature_tol, growth=0.0,
-                                          training_states=config.force_snapshots)
+    return Basis("pod", config.r), Points(
+        config.points, tol=config.cubature_tol, growth=0.0, training_states=config.force_snapshots
+    )
 
 
 def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedModel:
     """The reduced tongue (module docstring) from :func:`artifem.reduction.reductor.reduce`,
     cached under ``cache``."""
     basis, points = specification(config)
-    return reduce(reducible(config), training(config), basis=basis, points=points,
-                  cache=cache)
+    return reduce(reducible(config), training(config), basis=basis, points=points, cache=cache)
 
 
-def build_reduced_scene(model: ReducedModel, config: ReducedJawTongueConfig
-                        ) -> jt.JawTongueScene:
+def build_reduced_scene(model: ReducedModel, config: ReducedJawTongueConfig) -> jt.JawTongueScene:
     return jt.build_scene(config.jaw, reduce=model)
 
 
@@ -134,8 +156,14 @@ def _run(s: jt.JawTongueScene, motion: str, duration: float, dt: float) -> dict:
     return rec
 
 
-def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS),
-            duration: float = 0.6, cache: Path | None = None) -> dict:
+def compare(
+    config: ReducedJawTongueConfig,
+    out: Path,
+    *,
+    motions=tuple(MOTIONS),
+    duration: float = 0.6,
+    cache: Path | None = None,
+) -> dict:
     """Full against reduced jaw-tongue scene for ``motions``: JSON, report, renders."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -147,10 +175,9 @@ def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS)
         full = jt.build_scene(config.jaw)
         rf = _run(full, motion, duration, config.dt)
         reduced = build_reduced_scene(model, config)
-        with threadpool_limits(limits=1, user_api="blas"):     # r x r algebra
+        with threadpool_limits(limits=1, user_api="blas"):  # r x r algebra
             rr = _run(reduced, motion, duration, config.dt)
-        node_error = 1e3 * np.linalg.norm((rr["u"] - rf["u"]).reshape(len(rf["u"]), -1, 3),
-                                          axis=2)
+        node_error = 1e3 * np.linalg.norm((rr["u"] - rf["u"]).reshape(len(rf["u"]), -1, 3), axis=2)
         mean_error = node_error.mean(axis=1)
         worst = int(np.argmax(mean_error))
         results[motion] = {
@@ -160,29 +187,48 @@ def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS)
             "max_mean_error_mm": float(mean_error.max()),
             "max_node_error_mm": float(node_error.max()),
             "max_tip_displacement_mm": float(1e3 * np.linalg.norm(rf["tip"], axis=1).max()),
-            "max_angle_deg": {"full": float(np.degrees(rf["angle"].max())),
-                              "reduced": float(np.degrees(rr["angle"].max()))},
-            "max_angle_difference_deg": float(np.degrees(np.abs(rf["angle"]
-                                                                - rr["angle"]).max())),
+            "max_angle_deg": {
+                "full": float(np.degrees(rf["angle"].max())),
+                "reduced": float(np.degrees(rr["angle"].max())),
+            },
+            "max_angle_difference_deg": float(np.degrees(np.abs(rf["angle"] - rr["angle"]).max())),
             "max_attachment_error_m": float(rr["attachment_error"].max()),
             "max_joint_error": float(rr["joint_error"].max()),
             "worst_time_s": float(worst * config.dt),
         }
         png = out / f"jaw_tongue_reduced_{motion}.png"
         t = worst * config.dt
-        jt.render(png, full, [
-            (f"full, t = {t:.2f} s", rf["u"][worst], *rf["poses"][worst]),
-            (f"reduced r = {config.r}+12, {config.points} pts, t = {t:.2f} s, "
-             f"error {mean_error[worst]:.2f} mm", rr["u"][worst], *rr["poses"][worst])])
+        jt.render(
+            png,
+            full,
+            [
+                (f"full, t = {t:.2f} s", rf["u"][worst], *rf["poses"][worst]),
+                (
+                    f"reduced r = {config.r}+12, {config.points} pts, t = {t:.2f} s, "
+                    f"error {mean_error[worst]:.2f} mm",
+                    rr["u"][worst],
+                    *rr["poses"][worst],
+                ),
+            ],
+        )
         results[motion]["png"] = png.name
     figures = {
-        "model": "jaw_tongue_reduced", "level": 0, "dt": config.dt, "duration": duration,
-        "basis": {"pod_vectors": config.r, "lift_columns": 12,
-                  "training": "full jaw-tongue scene, each exciter alone at "
-                              f"{config.training_excitation}, jaw opener on",
-                  "snapshots": model.training["snapshots"]},
-        "points": {"count": int(model.points.m), "kind": "trained (ECSW NNLS)",
-                   "training_residual": model.points.residual},
+        "model": "jaw_tongue_reduced",
+        "level": 0,
+        "dt": config.dt,
+        "duration": duration,
+        "basis": {
+            "pod_vectors": config.r,
+            "lift_columns": 12,
+            "training": "full jaw-tongue scene, each exciter alone at "
+            f"{config.training_excitation}, jaw opener on",
+            "snapshots": model.training["snapshots"],
+        },
+        "points": {
+            "count": int(model.points.m),
+            "kind": "trained (ECSW NNLS)",
+            "training_residual": model.points.residual,
+        },
         "training_seconds": sum(model.training["seconds"].values()),
         "reduce_seconds": train_s,
         "motions": results,
@@ -193,73 +239,112 @@ def compare(config: ReducedJawTongueConfig, out: Path, *, motions=tuple(MOTIONS)
 
 
 def report(figures: dict) -> str:
-    lines = ["# Jaw and tongue: full against reduced tongue", "",
-             f"Level-0 tongue, dt = {figures['dt']} s, {figures['duration']} s per motion; "
-             f"reduced: {figures['basis']['pod_vectors']} POD vectors + 12 jaw-lift columns, "
-             f"{figures['points']['count']} trained points.", "",
-             "| motion | full ms/step | reduced ms/step | speed-up | max mean error (mm) | "
-             "max node error (mm) | jaw angle full / reduced (deg) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Jaw and tongue: full against reduced tongue",
+        "",
+        f"Level-0 tongue, dt = {figures['dt']} s, {figures['duration']} s per motion; "
+        f"reduced: {figures['basis']['pod_vectors']} POD vectors + 12 jaw-lift columns, "
+        f"{figures['points']['count']} trained points.",
+        "",
+        "| motion | full ms/step | reduced ms/step | speed-up | max mean error (mm) | "
+        "max node error (mm) | jaw angle full / reduced (deg) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for motion, r in figures["motions"].items():
-        lines.append(f"| {motion} | {r['full_ms_per_step']:.1f} | "
-                     f"{r['reduced_ms_per_step']:.2f} | {r['speedup']:.0f}x | "
-                     f"{r['max_mean_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
-                     f"{r['max_angle_deg']['full']:.2f} / {r['max_angle_deg']['reduced']:.2f} |")
+        lines.append(
+            f"| {motion} | {r['full_ms_per_step']:.1f} | "
+            f"{r['reduced_ms_per_step']:.2f} | {r['speedup']:.0f}x | "
+            f"{r['max_mean_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
+            f"{r['max_angle_deg']['full']:.2f} / {r['max_angle_deg']['reduced']:.2f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     quick = quick_config()
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--motions", nargs="+", default=None, choices=sorted(MOTIONS),
-                        help=f"default: all ({', '.join(sorted(MOTIONS))}); "
-                             f"with --quick {' '.join(QUICK_MOTIONS)}")
-    parser.add_argument("--duration", type=positive_float, default=None,
-                        help=f"seconds per motion (default 0.6; with --quick {QUICK_DURATION})")
-    parser.add_argument("--r", type=positive_int, default=None,
-                        help=f"POD vectors (default {ReducedJawTongueConfig.r}; with --quick "
-                             f"{quick.r})")
-    parser.add_argument("--points", type=positive_int, default=None,
-                        help=f"trained integration points (default "
-                             f"{ReducedJawTongueConfig.points}; with --quick "
-                             f"{quick.points})")
-    parser.add_argument("--cache", type=Path, default=None,
-                        help="training cache (default OUT/cache)")
-    parser.add_argument("--held-out", type=nonnegative_int, default=None,
-                        help="held-out random tongue schedules for the train/test split "
-                             "(generalization.json, .md, .png; default 5, --quick 0)")
-    parser.add_argument("--held-out-seed", type=int, default=1000,
-                        help="their seed (default 1000)")
-    parser.add_argument("--quick", action="store_true",
-                        help=f"a small smoke-test study: the quick training "
-                             f"({quick.training_duration} s runs, r = {quick.r}, "
-                             f"{quick.points} points), "
-                             f"{' '.join(QUICK_MOTIONS)} for {QUICK_DURATION} s")
+    parser.add_argument(
+        "--motions",
+        nargs="+",
+        default=None,
+        choices=sorted(MOTIONS),
+        help=f"default: all ({', '.join(sorted(MOTIONS))}); with --quick {' '.join(QUICK_MOTIONS)}",
+    )
+    parser.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        help=f"seconds per motion (default 0.6; with --quick {QUICK_DURATION})",
+    )
+    parser.add_argument(
+        "--r",
+        type=positive_int,
+        default=None,
+        help=f"POD vectors (default {ReducedJawTongueConfig.r}; with --quick {quick.r})",
+    )
+    parser.add_argument(
+        "--points",
+        type=positive_int,
+        default=None,
+        help=f"trained integration points (default "
+        f"{ReducedJawTongueConfig.points}; with --quick "
+        f"{quick.points})",
+    )
+    parser.add_argument(
+        "--cache", type=Path, default=None, help="training cache (default OUT/cache)"
+    )
+    parser.add_argument(
+        "--held-out",
+        type=nonnegative_int,
+        default=None,
+        help="held-out random tongue schedules for the train/test split "
+        "(generalization.json, .md, .png; default 5, --quick 0)",
+    )
+    parser.add_argument("--held-out-seed", type=int, default=1000, help="their seed (default 1000)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"a small smoke-test study: the quick training "
+        f"({quick.training_duration} s runs, r = {quick.r}, "
+        f"{quick.points} points), "
+        f"{' '.join(QUICK_MOTIONS)} for {QUICK_DURATION} s",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     config = quick_config() if args.quick else ReducedJawTongueConfig()
-    config = replace(config, **{k: v for k, v in (("r", args.r), ("points", args.points))
-                                if v is not None})
+    config = replace(
+        config, **{k: v for k, v in (("r", args.r), ("points", args.points)) if v is not None}
+    )
     motions = args.motions or (QUICK_MOTIONS if args.quick else sorted(MOTIONS))
     duration = args.duration or (QUICK_DURATION if args.quick else 0.6)
-    figures = compare(config, args.out, motions=tuple(motions), duration=duration,
-                      cache=args.cache)
+    figures = compare(config, args.out, motions=tuple(motions), duration=duration, cache=args.cache)
     print(report(figures))
     held_out = args.held_out if args.held_out is not None else (0 if args.quick else 5)
     if held_out:
         basis, points = specification(config)
-        reductor = Reductor(reducible(config), training(config),
-                            args.cache or args.out / "cache")
-        split = generalization_study(reductor, args.out, basis=basis, points=points,
-                                     held_out=held_out, seed=args.held_out_seed,
-                                     duration=duration, dt=config.dt)
+        reductor = Reductor(reducible(config), training(config), args.cache or args.out / "cache")
+        split = generalization_study(
+            reductor,
+            args.out,
+            basis=basis,
+            points=points,
+            held_out=held_out,
+            seed=args.held_out_seed,
+            duration=duration,
+            dt=config.dt,
+        )
         print(write_markdown(split))
     return 0
 
 
-def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig | None = None,
-              cache: Path | None = None, quick: bool = False) -> dict:
+def benchmark(
+    steps: int = 20,
+    warmup: int = 3,
+    config: ReducedJawTongueConfig | None = None,
+    cache: Path | None = None,
+    quick: bool = False,
+) -> dict:
     """Milliseconds per coupled step (median of ``steps`` after ``warmup``) of the jaw-tongue
     scene during protrusion with the full and with the reduced tongue (training cached in
     ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when unset).
@@ -271,14 +356,22 @@ def benchmark(steps: int = 20, warmup: int = 3, config: ReducedJawTongueConfig |
     cache = cache or user_cache("jaw_tongue_reduced")
     model = train(config, cache)
     cases = {}
-    for name, build in (("full", lambda: jt.build_scene(config.jaw)),
-                        ("reduced", lambda: build_reduced_scene(model, config))):
+    for name, build in (
+        ("full", lambda: jt.build_scene(config.jaw)),
+        ("reduced", lambda: build_reduced_scene(model, config)),
+    ):
         s = build()
         with threadpool_limits(limits=1, user_api="blas"):
             rec = jt.simulate(s, "protrusion", (warmup + steps) * config.dt, config.dt)
-        cases[name] = {"ms_per_step": float(np.median(rec["ms"][warmup:])),
-                       "masters": s.scene.master_count()}
+        cases[name] = {
+            "ms_per_step": float(np.median(rec["ms"][warmup:])),
+            "masters": s.scene.master_count(),
+        }
     cases["speedup"] = cases["full"]["ms_per_step"] / cases["reduced"]["ms_per_step"]
-    return {"benchmark": "jaw-tongue", "steps": steps, "dt": config.dt,
-            "reduced": {"pod_vectors": config.r, "lift_columns": 12, "points": config.points},
-            "cases": cases}
+    return {
+        "benchmark": "jaw-tongue",
+        "steps": steps,
+        "dt": config.dt,
+        "reduced": {"pod_vectors": config.r, "lift_columns": 12, "points": config.points},
+        "cases": cases,
+    }

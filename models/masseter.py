@@ -105,14 +105,36 @@ from artifem.scene import Run, Scene, simulate as simulate_scene
 from artifem.multibody.joints import FixedJoint
 from artifem.multibody.rigid_body import RigidBody
 
-__all__ = ["MasseterConfig", "MasseterShape", "MasseterModel", "fascicles", "fiber_directions",
-           "membrane_mesh", "block_mesh", "build_model", "dof_counts", "jaw_forces", "ramp",
-           "simulate", "benchmark", "render",
-           "add_arguments", "run", "report", "MODELS", "COARSE"]
+__all__ = [
+    "MasseterConfig",
+    "MasseterShape",
+    "MasseterModel",
+    "fascicles",
+    "fiber_directions",
+    "membrane_mesh",
+    "block_mesh",
+    "build_model",
+    "dof_counts",
+    "jaw_forces",
+    "ramp",
+    "simulate",
+    "benchmark",
+    "render",
+    "add_arguments",
+    "run",
+    "report",
+    "MODELS",
+    "COARSE",
+]
 
 #: (primary, aponeuroses) of the compared models.
-MODELS = (("embedding", "none"), ("embedding", "embedded"), ("conforming", "none"),
-          ("conforming", "embedded"), ("conforming", "slabs"))
+MODELS = (
+    ("embedding", "none"),
+    ("embedding", "embedded"),
+    ("conforming", "none"),
+    ("conforming", "embedded"),
+    ("conforming", "slabs"),
+)
 
 
 @dataclass(frozen=True)
@@ -155,35 +177,66 @@ class MasseterConfig:
     steps: int = 10
 
     def __post_init__(self):
-        for name in ("height", "width_bottom", "width_top", "thickness", "membrane_thickness",
-                     "membrane_size", "voxel_size", "tet_size", "slab_size", "muscle_c10",
-                     "muscle_kappa", "max_stress", "tendon_young", "density", "tendon_density",
-                     "bone_density", "dt"):
+        for name in (
+            "height",
+            "width_bottom",
+            "width_top",
+            "thickness",
+            "membrane_thickness",
+            "membrane_size",
+            "voxel_size",
+            "tet_size",
+            "slab_size",
+            "muscle_c10",
+            "muscle_kappa",
+            "max_stress",
+            "tendon_young",
+            "density",
+            "tendon_density",
+            "bone_density",
+            "dt",
+        ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"MasseterConfig: {name} must be > 0, got {value!r}")
         if not 0.0 <= self.excitation <= 1.0:
-            raise InputError(f"MasseterConfig: excitation must be in [0, 1], got "
-                             f"{self.excitation!r}")
+            raise InputError(
+                f"MasseterConfig: excitation must be in [0, 1], got {self.excitation!r}"
+            )
         if self.jaw_strip is not None and not 0 < self.jaw_strip <= self.thickness:
-            raise InputError(f"MasseterConfig: jaw_strip must be in (0, thickness] or None, got "
-                             f"{self.jaw_strip!r}")
+            raise InputError(
+                f"MasseterConfig: jaw_strip must be in (0, thickness] or None, got "
+                f"{self.jaw_strip!r}"
+            )
         if self.steps < 1 or self.fascicle_segments < 1 or min(self.fascicle_grid) < 1:
-            raise InputError("MasseterConfig: steps, fascicle_segments and fascicle_grid must "
-                             "be >= 1")
+            raise InputError(
+                "MasseterConfig: steps, fascicle_segments and fascicle_grid must be >= 1"
+            )
         for t, r0, r1 in self.sheets:
             if not (-0.5 < t < 0.5 and 0.0 <= r0 < r1 <= 1.0):
-                raise InputError(f"MasseterConfig: a sheet (t, r0, r1) needs -1/2 < t < 1/2 and "
-                                 f"0 <= r0 < r1 <= 1, got {(t, r0, r1)}")
+                raise InputError(
+                    f"MasseterConfig: a sheet (t, r0, r1) needs -1/2 < t < 1/2 and "
+                    f"0 <= r0 < r1 <= 1, got {(t, r0, r1)}"
+                )
         s0, s1 = self.sheet_span
         if not -0.5 < s0 < s1 < 0.5:
-            raise InputError(f"MasseterConfig: sheet_span must satisfy -1/2 < s0 < s1 < 1/2, "
-                             f"got {self.sheet_span}")
+            raise InputError(
+                f"MasseterConfig: sheet_span must satisfy -1/2 < s0 < s1 < 1/2, "
+                f"got {self.sheet_span}"
+            )
 
 
 #: A fast setting for tests: 5 mm voxels and tets, 2 mm slab and membrane elements.
-COARSE = dict(voxel_size=0.005, tet_size=0.005, slab_size=0.002, membrane_size=0.003,
-              voxel_samples=3, fascicle_grid=(5, 3), fascicle_segments=10, steps=3)
+COARSE = dict(
+    voxel_size=0.005,
+    tet_size=0.005,
+    slab_size=0.002,
+    membrane_size=0.003,
+    voxel_samples=3,
+    fascicle_grid=(5, 3),
+    fascicle_segments=10,
+    steps=3,
+)
 
 
 class MasseterShape:
@@ -211,9 +264,13 @@ class MasseterShape:
         c = self.c
         s, t, r = self._srt(P)
         cs = np.pi * np.cos(np.pi * r)
-        d = np.column_stack([s * (c.width_top - c.width_bottom) + c.lean + c.curve * cs,
-                             t * c.thickness * c.bulge * cs + c.bow * cs,
-                             np.full_like(r, c.height)])
+        d = np.column_stack(
+            [
+                s * (c.width_top - c.width_bottom) + c.lean + c.curve * cs,
+                t * c.thickness * c.bulge * cs + c.bow * cs,
+                np.full_like(r, c.height),
+            ]
+        )
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def sheet_y(self, t: float) -> float:
@@ -221,6 +278,7 @@ class MasseterShape:
 
 
 # ---- fascicles and fiber directions -----------------------------------------------------
+
 
 def fascicles(config: MasseterConfig) -> list[np.ndarray]:
     """The fascicle polylines (physical, each (segments + 1, 3), from the jaw up)."""
@@ -232,8 +290,13 @@ def fascicles(config: MasseterConfig) -> list[np.ndarray]:
     lines = []
     for si in s:
         for ti in t:
-            P = np.column_stack([np.full_like(Z, si * config.width_bottom),
-                                 np.full_like(Z, ti * config.thickness), Z])
+            P = np.column_stack(
+                [
+                    np.full_like(Z, si * config.width_bottom),
+                    np.full_like(Z, ti * config.thickness),
+                    Z,
+                ]
+            )
             lines.append(shape.to_physical(P))
     return lines
 
@@ -270,7 +333,7 @@ def fiber_directions(points, lines) -> np.ndarray:
 def quadrature_fibers(body: FemBody, lines) -> fem.Function:
     """The fiber direction field at the body's energy quadrature points (nearest fascicle)."""
     Q = body.quadrature_space()
-    x = body.quadrature_points()                                   # (cells, points, 3)
+    x = body.quadrature_points()  # (cells, points, 3)
     a0 = fem.Function(Q, name="fiber direction")
     dirs = fiber_directions(x.reshape(-1, 3), lines)
     a0.x.array.reshape(-1, 3)[Q.dofmap.list.reshape(-1)] = dirs
@@ -278,6 +341,7 @@ def quadrature_fibers(body: FemBody, lines) -> fem.Function:
 
 
 # ---- meshes ----------------------------------------------------------------------------
+
 
 def membrane_mesh(config: MasseterConfig, sheet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(points (n, 3), prisms (c, 6), mid-surface triangles (c, 3)) of one aponeurosis.
@@ -301,8 +365,12 @@ def membrane_mesh(config: MasseterConfig, sheet) -> tuple[np.ndarray, np.ndarray
     n = gx.size
     Y = MasseterShape(c).sheet_y(t)
     h = c.membrane_thickness
-    ref = np.concatenate([np.column_stack([gx.ravel(), np.full(n, Y + dy), gz.ravel()])
-                          for dy in (-0.5 * h, 0.5 * h)])
+    ref = np.concatenate(
+        [
+            np.column_stack([gx.ravel(), np.full(n, Y + dy), gz.ravel()])
+            for dy in (-0.5 * h, 0.5 * h)
+        ]
+    )
     prisms = np.column_stack([tri, tri + n])
     return MasseterShape(c).to_physical(ref), prisms, tri
 
@@ -311,9 +379,10 @@ def _boundary_triangles(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """The faces of a tet mesh that belong to one tet, oriented outward."""
     local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     faces = tets[:, local].reshape(-1, 3)
-    opposite = tets.reshape(-1)                  # local face k is opposite vertex k
-    _, first, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True,
-                                 return_counts=True)
+    opposite = tets.reshape(-1)  # local face k is opposite vertex k
+    _, first, counts = np.unique(
+        np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True
+    )
     keep = first[counts == 1]
     f, o = faces[keep], opposite[keep]
     a, b, cc = (points[f[:, k]] for k in range(3))
@@ -351,25 +420,40 @@ def block_mesh(config: MasseterConfig, slabs: bool) -> dict:
                 y = shape.sheet_y(t) - 0.5 * c.membrane_thickness
                 x0 = (s0 + 0.5) * W
                 slab_boxes.append((x0, (s1 - s0) * W, y, r0 * H, (r1 - r0) * H))
-                tools.append((3, occ.addBox(x0, y, r0 * H, (s1 - s0) * W, c.membrane_thickness,
-                                            (r1 - r0) * H)))
+                tools.append(
+                    (
+                        3,
+                        occ.addBox(
+                            x0, y, r0 * H, (s1 - s0) * W, c.membrane_thickness, (r1 - r0) * H
+                        ),
+                    )
+                )
         if tools:
             occ.fragment([(3, box)], tools)
         occ.synchronize()
         volumes = [tag for _, tag in gmsh.model.getEntities(3)]
         region = {}
-        eps = 0.1 * c.membrane_thickness          # OCC bounding boxes are padded
-        for tag in volumes:                       # a slab volume lies inside its slab box
+        eps = 0.1 * c.membrane_thickness  # OCC bounding boxes are padded
+        for tag in volumes:  # a slab volume lies inside its slab box
             lo, hi = np.split(np.array(gmsh.model.getBoundingBox(3, tag)), 2)
-            region[tag] = next((k + 1 for k, (x0, dx, y0, z0, dz) in enumerate(slab_boxes)
-                                if np.all(lo >= np.array([x0, y0, z0]) - eps)
-                                and np.all(hi <= np.array([x0 + dx, y0 + c.membrane_thickness,
-                                                           z0 + dz]) + eps)), 0)
+            region[tag] = next(
+                (
+                    k + 1
+                    for k, (x0, dx, y0, z0, dz) in enumerate(slab_boxes)
+                    if np.all(lo >= np.array([x0, y0, z0]) - eps)
+                    and np.all(hi <= np.array([x0 + dx, y0 + c.membrane_thickness, z0 + dz]) + eps)
+                ),
+                0,
+            )
         gmsh.option.setNumber("Mesh.MeshSizeMax", c.tet_size)
         gmsh.option.setNumber("Mesh.MeshSizeMin", min(c.slab_size, c.tet_size))
         if slabs:
-            slab_surfaces = [s for tag, k in region.items() if k
-                             for _, s in gmsh.model.getBoundary([(3, tag)], oriented=False)]
+            slab_surfaces = [
+                s
+                for tag, k in region.items()
+                if k
+                for _, s in gmsh.model.getBoundary([(3, tag)], oriented=False)
+            ]
             dist = gmsh.model.mesh.field.add("Distance")
             gmsh.model.mesh.field.setNumbers(dist, "SurfacesList", slab_surfaces)
             thr = gmsh.model.mesh.field.add("Threshold")
@@ -402,14 +486,19 @@ def block_mesh(config: MasseterConfig, slabs: bool) -> dict:
     used, tets = np.unique(tets, return_inverse=True)
     tets = tets.reshape(-1, 4)
     points = shape.to_physical(points[used])
-    return {"points": points, "tets": tets, "region": np.concatenate(regions),
-            "surface": _boundary_triangles(points, tets)}
+    return {
+        "points": points,
+        "tets": tets,
+        "region": np.concatenate(regions),
+        "surface": _boundary_triangles(points, tets),
+    }
 
 
 def _dolfinx_mesh(points, cells, cell: str):
     element = basix.ufl.element("Lagrange", cell, 1, shape=(3,))
-    return dmesh.create_mesh(MPI.COMM_SELF, np.asarray(cells, dtype=np.int64), element,
-                             np.asarray(points, dtype=float))
+    return dmesh.create_mesh(
+        MPI.COMM_SELF, np.asarray(cells, dtype=np.int64), element, np.asarray(points, dtype=float)
+    )
 
 
 def _box_surface(lo, hi) -> tuple[np.ndarray, np.ndarray]:
@@ -434,6 +523,7 @@ class _RegionMaterial:
 
 
 # ---- the scene ---------------------------------------------------------------------------
+
 
 @dataclass
 class MasseterModel:
@@ -466,15 +556,25 @@ def _attachment_nodes(config: MasseterConfig, body: FemBody):
     c = config
     tol = 1e-9
     strip = c.thickness if c.jaw_strip is None else c.jaw_strip
-    jaw = body.find_nodes(lambda x: (np.abs(x[2]) < tol)
-                          & (np.abs(x[0]) <= 0.5 * c.width_bottom + tol)
-                          & (np.abs(x[1]) <= 0.5 * strip + tol))
-    arch = body.find_nodes(lambda x: (np.abs(x[2] - c.height) < tol)
-                           & (np.abs(x[0] - c.lean) <= 0.5 * c.width_top + tol)
-                           & (np.abs(x[1]) <= 0.5 * c.thickness + tol))
+    jaw = body.find_nodes(
+        lambda x: (
+            (np.abs(x[2]) < tol)
+            & (np.abs(x[0]) <= 0.5 * c.width_bottom + tol)
+            & (np.abs(x[1]) <= 0.5 * strip + tol)
+        )
+    )
+    arch = body.find_nodes(
+        lambda x: (
+            (np.abs(x[2] - c.height) < tol)
+            & (np.abs(x[0] - c.lean) <= 0.5 * c.width_top + tol)
+            & (np.abs(x[1]) <= 0.5 * c.thickness + tol)
+        )
+    )
     if jaw.size == 0 or arch.size == 0:
-        raise InputError(f"masseter: no nodes on the jaw strip ({jaw.size}) or the arch "
-                         f"({arch.size}); refine the mesh")
+        raise InputError(
+            f"masseter: no nodes on the jaw strip ({jaw.size}) or the arch "
+            f"({arch.size}); refine the mesh"
+        )
     return arch, jaw
 
 
@@ -487,8 +587,9 @@ def _voxel_bounds(config: MasseterConfig, surface_points: np.ndarray):
     return lo, surface_points.max(axis=0)
 
 
-def build_model(config: MasseterConfig, primary: str = "embedding",
-                aponeuroses: str = "embedded") -> MasseterModel:
+def build_model(
+    config: MasseterConfig, primary: str = "embedding", aponeuroses: str = "embedded"
+) -> MasseterModel:
     """The scene of one model (module docstring).
 
     Args:
@@ -497,8 +598,9 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
             "slabs" (conforming tendon slabs; conforming primary only).
     """
     if (primary, aponeuroses) not in MODELS:
-        raise InputError(f"masseter: unknown model ({primary!r}, {aponeuroses!r}); choose one "
-                         f"of {MODELS}")
+        raise InputError(
+            f"masseter: unknown model ({primary!r}, {aponeuroses!r}); choose one of {MODELS}"
+        )
     c = config
     muscle = MooneyRivlin(c.muscle_c10, kappa=c.muscle_kappa)
     tendon = NeoHookean.from_young_poisson(c.tendon_young, c.tendon_poisson)
@@ -509,16 +611,26 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
         surf = block_mesh(c, slabs=False)
         V, T = surf["points"], surf["surface"]
         lo, hi = _voxel_bounds(c, V)
-        body = VoxelFemBody(V, T, muscle, c.density, cell_size=c.voxel_size, bounds=(lo, hi),
-                            samples=c.voxel_samples, comm=MPI.COMM_SELF, **kwargs)
+        body = VoxelFemBody(
+            V,
+            T,
+            muscle,
+            c.density,
+            cell_size=c.voxel_size,
+            bounds=(lo, hi),
+            samples=c.voxel_samples,
+            comm=MPI.COMM_SELF,
+            **kwargs,
+        )
         info["voxel_volume"] = body.voxels.volume
         info["surface_volume"] = float(_tet_volume(V, surf["tets"]))
         info["surface_area"] = float(_area(V, T))
         info["sample_diagonal"] = body.voxels.sample_diagonal
     else:
         mesh = block_mesh(c, slabs=aponeuroses == "slabs")
-        body = FemBody(_dolfinx_mesh(mesh["points"], mesh["tets"], "tetrahedron"), muscle,
-                       c.density, **kwargs)
+        body = FemBody(
+            _dolfinx_mesh(mesh["points"], mesh["tets"], "tetrahedron"), muscle, c.density, **kwargs
+        )
         info["tet_volume"] = float(_tet_volume(mesh["points"], mesh["tets"]))
     n_cells = body.mesh.topology.index_map(3).size_local
     lines = fascicles(c)
@@ -536,8 +648,13 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
     if aponeuroses == "embedded":
         for k, sheet in enumerate(c.sheets):
             P, prisms, _ = membrane_mesh(c, sheet)
-            m = FemBody(_dolfinx_mesh(P, prisms, "prism"), tendon, c.tendon_density,
-                        rayleigh=c.rayleigh, name=f"aponeurosis {k}")
+            m = FemBody(
+                _dolfinx_mesh(P, prisms, "prism"),
+                tendon,
+                c.tendon_density,
+                rayleigh=c.rayleigh,
+                name=f"aponeurosis {k}",
+            )
             att = EmbeddedFemAttachment(m, body, snap=True, name=f"aponeurosis {k}")
             scene.add(m, att)
             membranes.append(m)
@@ -545,25 +662,61 @@ def build_model(config: MasseterConfig, primary: str = "embedding",
         info["membrane_snap_max"] = float(max(a.distance.max() for a in attachments))
     arch_nodes, jaw_nodes = _attachment_nodes(c, body)
     W, H = c.width_bottom, c.height
-    jaw = RigidBody.from_surface("jaw", *_box_surface((-0.6 * W, -0.8 * c.thickness, -0.3 * H),
-                                                      (0.6 * W, 0.8 * c.thickness, 0.0)),
-                                 c.bone_density)
-    arch = RigidBody.from_surface("zygomatic arch", *_box_surface(
-        (c.lean - 0.8 * W, -0.8 * c.thickness, H), (c.lean + 0.8 * W, 0.8 * c.thickness,
-                                                    1.15 * H)), c.bone_density)
+    jaw = RigidBody.from_surface(
+        "jaw",
+        *_box_surface((-0.6 * W, -0.8 * c.thickness, -0.3 * H), (0.6 * W, 0.8 * c.thickness, 0.0)),
+        c.bone_density,
+    )
+    arch = RigidBody.from_surface(
+        "zygomatic arch",
+        *_box_surface(
+            (c.lean - 0.8 * W, -0.8 * c.thickness, H),
+            (c.lean + 0.8 * W, 0.8 * c.thickness, 1.15 * H),
+        ),
+        c.bone_density,
+    )
     jaw_joint = FixedJoint.at_world(jaw, None, jaw.position, name="jaw weld")
     arch_joint = FixedJoint.at_world(arch, None, arch.position, name="arch weld")
-    scene.add(jaw, arch, jaw_joint, arch_joint,
-              NodeAttachment(body, jaw_nodes, jaw, name="jaw insertion"),
-              NodeAttachment(body, arch_nodes, arch, name="arch origin"))
-    embedded = EmbeddedMesh(body, np.concatenate(lines),
-                            np.concatenate([np.column_stack([np.arange(len(L) - 1),
-                                                             np.arange(1, len(L))]) + k * len(L)
-                                            for k, L in enumerate(lines)]),
-                            "line", snap=True, name="fascicles")
+    scene.add(
+        jaw,
+        arch,
+        jaw_joint,
+        arch_joint,
+        NodeAttachment(body, jaw_nodes, jaw, name="jaw insertion"),
+        NodeAttachment(body, arch_nodes, arch, name="arch origin"),
+    )
+    embedded = EmbeddedMesh(
+        body,
+        np.concatenate(lines),
+        np.concatenate(
+            [
+                np.column_stack([np.arange(len(L) - 1), np.arange(1, len(L))]) + k * len(L)
+                for k, L in enumerate(lines)
+            ]
+        ),
+        "line",
+        snap=True,
+        name="fascicles",
+    )
     info["fascicle_snap_max"] = float(embedded.distance.max())
-    return MasseterModel(c, primary, aponeuroses, scene, body, membranes, attachments, jaw, arch,
-                         jaw_joint, arch_joint, embedded, fibers, jaw_nodes, arch_nodes, info)
+    return MasseterModel(
+        c,
+        primary,
+        aponeuroses,
+        scene,
+        body,
+        membranes,
+        attachments,
+        jaw,
+        arch,
+        jaw_joint,
+        arch_joint,
+        embedded,
+        fibers,
+        jaw_nodes,
+        arch_nodes,
+        info,
+    )
 
 
 def _tet_volume(points, tets) -> float:
@@ -579,9 +732,11 @@ def _area(points, tris) -> float:
 def dof_counts(model: MasseterModel) -> dict:
     """Masters in the solve and the FEM nodes (primary, membranes)."""
     n = model.primary.V.dofmap.index_map.size_local
-    return {"masters": int(model.scene.master_count()), "primary_nodes": int(n),
-            "membrane_nodes": int(sum(m.V.dofmap.index_map.size_local
-                                      for m in model.membranes))}
+    return {
+        "masters": int(model.scene.master_count()),
+        "primary_nodes": int(n),
+        "membrane_nodes": int(sum(m.V.dofmap.index_map.size_local for m in model.membranes)),
+    }
 
 
 def jaw_forces(model: MasseterModel, h: float) -> dict:
@@ -590,9 +745,12 @@ def jaw_forces(model: MasseterModel, h: float) -> dict:
     model.scene.step(h)
     f_jaw = -model.scene.reaction(model.jaw_joint)[0][:3]
     f_arch = -model.scene.reaction(model.arch_joint)[0][:3]
-    return {"jaw_force_N": f_jaw.tolist(), "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw)),
-            "arch_force_N": f_arch.tolist(),
-            "force_balance_N": float(np.linalg.norm(f_jaw + f_arch))}
+    return {
+        "jaw_force_N": f_jaw.tolist(),
+        "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw)),
+        "arch_force_N": f_arch.tolist(),
+        "force_balance_N": float(np.linalg.norm(f_jaw + f_arch)),
+    }
 
 
 def ramp(model: MasseterModel, excitation: float, steps: int) -> Run:
@@ -600,20 +758,22 @@ def ramp(model: MasseterModel, excitation: float, steps: int) -> Run:
     linearly from 0 to ``excitation`` over them (a controller: ``excitation * k / steps``
     at the end of step k, then held), timed by :func:`artifem.scene.simulate`."""
     dt, t = model.config.dt, model.scene.t
-    schedule = ExcitationSchedule(np.array([t, t + steps * dt]),
-                                  {"masseter": np.array([0.0, excitation])})
+    schedule = ExcitationSchedule(
+        np.array([t, t + steps * dt]), {"masseter": np.array([0.0, excitation])}
+    )
     control = schedule.controller(model.primary)
-    model.scene.add_controller(control)         # for this ramp only
+    model.scene.add_controller(control)  # for this ramp only
     try:
         run = simulate_scene(model.scene, steps * dt, dt, progress=False)
     finally:
         model.scene.controllers.remove(control)
-    model.primary.set_excitation("masseter", excitation)    # held (no round-off in t)
+    model.primary.set_excitation("masseter", excitation)  # held (no round-off in t)
     return run
 
 
-def simulate(model: MasseterModel, *, excitation: float | None = None,
-             steps: int | None = None) -> dict:
+def simulate(
+    model: MasseterModel, *, excitation: float | None = None, steps: int | None = None
+) -> dict:
     """Ramp the excitation over ``steps`` coupled steps (timed), solve the statics at the
     final excitation, and measure the jaw force (module docstring)."""
     c = model.config
@@ -625,10 +785,18 @@ def simulate(model: MasseterModel, *, excitation: float | None = None,
     t0 = time.perf_counter()
     iterations = model.scene.solve_static()
     static_s = time.perf_counter() - t0
-    out = {"model": model.label, "excitation": a, "steps": n, "dt": c.dt,
-           "ms_per_step": run.ms_per_step, "ms_per_step_all": run.step_ms.tolist(),
-           "static_newton_iterations": iterations, "static_s": static_s,
-           **dof_counts(model), **jaw_forces(model, c.dt)}
+    out = {
+        "model": model.label,
+        "excitation": a,
+        "steps": n,
+        "dt": c.dt,
+        "ms_per_step": run.ms_per_step,
+        "ms_per_step_all": run.step_ms.tolist(),
+        "static_newton_iterations": iterations,
+        "static_s": static_s,
+        **dof_counts(model),
+        **jaw_forces(model, c.dt),
+    }
     u = model.primary.u.x.array.reshape(-1, 3)
     out["max_displacement_mm"] = 1e3 * float(np.linalg.norm(u, axis=1).max())
     out["min_det_F"] = float(np.nanmin(model.primary.det_F()))
@@ -645,14 +813,21 @@ def benchmark(steps: int = 5, config: MasseterConfig | None = None, quick: bool 
     cases = {}
     for primary, apo in MODELS:
         model = build_model(config, primary, apo)
-        cases[f"{primary}/{apo}"] = {"ms_per_step": ramp(model, config.excitation,
-                                                         steps).ms_per_step,
-                                     **dof_counts(model)}
-    return {"benchmark": "masseter", "steps": steps, "dt": config.dt, "cases": cases,
-            "geometry": "synthetic"}
+        cases[f"{primary}/{apo}"] = {
+            "ms_per_step": ramp(model, config.excitation, steps).ms_per_step,
+            **dof_counts(model),
+        }
+    return {
+        "benchmark": "masseter",
+        "steps": steps,
+        "dt": config.dt,
+        "cases": cases,
+        "geometry": "synthetic",
+    }
 
 
 # ---- output ------------------------------------------------------------------------------
+
 
 def render(models: list[MasseterModel], png: Path, titles=None) -> Path:
     """One column per model, front (xz) and side (yz) views: the primary deformed (faint,
@@ -663,33 +838,41 @@ def render(models: list[MasseterModel], png: Path, titles=None) -> Path:
     from artifem.render import _set_camera, body_grid
 
     pv.OFF_SCREEN = True
-    plotter = pv.Plotter(off_screen=True, shape=(2, len(models)),
-                         window_size=[380 * len(models), 1100])
+    plotter = pv.Plotter(
+        off_screen=True, shape=(2, len(models)), window_size=[380 * len(models), 1100]
+    )
     plotter.set_background("white")
     umax = max(1e3 * np.abs(m.primary.u.x.array).max() for m in models) or 1.0
     for i, m in enumerate(models):
         grid, _ = body_grid(m.primary.mesh, m.primary.u)
-        grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"],
-                                                            axis=1)
+        grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"], axis=1)
         for row, view in enumerate(("xz", "yz")):
             plotter.subplot(row, i)
-            plotter.add_mesh(grid.copy(), scalars="|u| (mm)", cmap="viridis", clim=(0.0, umax),
-                             opacity=0.3, show_edges=True, edge_color="gray",
-                             show_scalar_bar=(i == 0 and row == 0),
-                             scalar_bar_args={"title": "|u| (mm)", "color": "black",
-                                              "fmt": "%.2f"})
+            plotter.add_mesh(
+                grid.copy(),
+                scalars="|u| (mm)",
+                cmap="viridis",
+                clim=(0.0, umax),
+                opacity=0.3,
+                show_edges=True,
+                edge_color="gray",
+                show_scalar_bar=(i == 0 and row == 0),
+                scalar_bar_args={"title": "|u| (mm)", "color": "black", "fmt": "%.2f"},
+            )
             if getattr(m.primary, "surface", None) is not None:
                 plotter.add_mesh(m.primary.surface.to_pyvista(), color="white", opacity=0.25)
             if m.aponeuroses == "slabs":
-                plotter.add_mesh(grid.extract_cells(m.primary.muscles["aponeuroses"].cells),
-                                 color="orange")
+                plotter.add_mesh(
+                    grid.extract_cells(m.primary.muscles["aponeuroses"].cells), color="orange"
+                )
             for membrane in m.membranes:
                 plotter.add_mesh(_wedge_grid(membrane), color="orange")
             plotter.add_mesh(m.fascicles.to_pyvista(), color="darkred", line_width=2)
             for body in (m.jaw, m.arch):
                 V, T = body.surface
-                poly = pv.PolyData(V @ body.rotation.T + body.position,
-                                   np.c_[np.full(len(T), 3), T].ravel())
+                poly = pv.PolyData(
+                    V @ body.rotation.T + body.position, np.c_[np.full(len(T), 3), T].ravel()
+                )
                 plotter.add_mesh(poly, color="lightgray", opacity=0.5)
             if row == 0:
                 plotter.add_text(titles[i] if titles else m.label, font_size=10, color="black")
@@ -706,17 +889,21 @@ def _wedge_grid(body: FemBody):
 
     cells = body.mesh.geometry.dofmaps[0]
     conn = np.hstack([np.full((len(cells), 1), 6), cells]).ravel()
-    return pv.UnstructuredGrid(conn, np.full(len(cells), pv.CellType.WEDGE),
-                               body.nodal_positions())
+    return pv.UnstructuredGrid(conn, np.full(len(cells), pv.CellType.WEDGE), body.nodal_positions())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--excitation", type=fraction, default=MasseterConfig.excitation)
-    parser.add_argument("--steps", type=positive_int, default=MasseterConfig.steps,
-                        help="timed coupled steps (excitation ramp) before the statics")
-    parser.add_argument("--coarse", action="store_true",
-                        help="5 mm voxels and tets (the test setting): quick")
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        default=MasseterConfig.steps,
+        help="timed coupled steps (excitation ramp) before the statics",
+    )
+    parser.add_argument(
+        "--coarse", action="store_true", help="5 mm voxels and tets (the test setting): quick"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -726,22 +913,30 @@ def run(args: argparse.Namespace) -> int:
 
 def report(args: argparse.Namespace) -> dict:
     """All models: simulate, render (masseter.png) and write masseter.json."""
-    config = MasseterConfig(excitation=args.excitation, steps=args.steps,
-                            **({k: v for k, v in COARSE.items() if k != "steps"}
-                               if args.coarse else {}))
+    config = MasseterConfig(
+        excitation=args.excitation,
+        steps=args.steps,
+        **({k: v for k, v in COARSE.items() if k != "steps"} if args.coarse else {}),
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     results, models = {}, []
     for primary, apo in MODELS:
         model = build_model(config, primary, apo)
         results[model.label] = simulate(model)
-        print(f"{model.label}: {results[model.label]['masters']} masters, "
-              f"{results[model.label]['ms_per_step']:.0f} ms/step, jaw force "
-              f"{results[model.label]['jaw_force_magnitude_N']:.3f} N", flush=True)
+        print(
+            f"{model.label}: {results[model.label]['masters']} masters, "
+            f"{results[model.label]['ms_per_step']:.0f} ms/step, jaw force "
+            f"{results[model.label]['jaw_force_magnitude_N']:.3f} N",
+            flush=True,
+        )
         models.append(model)
     png = render(models, args.out / "masseter.png")
-    summary = {"geometry": "synthetic (no public masseter data; see models/masseter.py)",
-               "config": dataclasses.asdict(config),
-               "models": results, "png": str(png)}
+    summary = {
+        "geometry": "synthetic (no public masseter data; see models/masseter.py)",
+        "config": dataclasses.asdict(config),
+        "models": results,
+        "png": str(png),
+    }
     (args.out / "masseter.json").write_text(json.dumps(summary, indent=2))
     return summary
 

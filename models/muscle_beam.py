@@ -38,7 +38,7 @@ LENGTH, WIDTH, HEIGHT = 0.060, 0.015, 0.015
 class BeamConfig:
     cells: tuple[int, int, int] = (24, 6, 6)
     cell_type: str = "hexahedron"
-    max_stress: float = 1.0e4          # Pa, peak active fiber stress
+    max_stress: float = 1.0e4  # Pa, peak active fiber stress
     excitation: float = 1.0
     ramp_time: float = 0.5
     duration: float = 1.0
@@ -51,13 +51,20 @@ def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[Scene, FemBody]
     """The scene with the clamped, muscle-driven beam (excitation schedule attached)."""
     cell = getattr(dmesh.CellType, config.cell_type)
     domain = dmesh.create_box(comm, [[0, 0, 0], [LENGTH, WIDTH, HEIGHT]], list(config.cells), cell)
-    body = FemBody(domain, MooneyRivlin.tongue(), density=1040.0, rayleigh=(40.0, 0.03),
-                   gravity=(0.0, 0.0, -9.81), name="beam")
+    body = FemBody(
+        domain,
+        MooneyRivlin.tongue(),
+        density=1040.0,
+        rayleigh=(40.0, 0.03),
+        gravity=(0.0, 0.0, -9.81),
+        name="beam",
+    )
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     top = body.find_cells(lambda x: x[2] > 0.5 * HEIGHT)
     body.add_muscle("top", top, (1.0, 0.0, 0.0), BlemkerFiber(max_stress=config.max_stress))
-    scene = Scene(gravity=(0.0, 0.0, -9.81), integrator=config.integrator,
-                  linear_solver=config.linear_solver)
+    scene = Scene(
+        gravity=(0.0, 0.0, -9.81), integrator=config.integrator, linear_solver=config.linear_solver
+    )
     scene.add(body)
     schedule = ExcitationSchedule.ramp_and_hold({"top": config.excitation}, config.ramp_time)
     scene.add_controller(schedule.controller(body))
@@ -67,7 +74,9 @@ def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[Scene, FemBody]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
-    parser.add_argument("--cells", type=positive_int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ"))
+    parser.add_argument(
+        "--cells", type=positive_int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ")
+    )
     parser.add_argument("--excitation", type=fraction, default=1.0)
     parser.add_argument("--dt", type=positive_float, default=0.01)
     parser.add_argument("--duration", type=positive_float, default=1.0)
@@ -78,8 +87,13 @@ def run(args: argparse.Namespace) -> int:
     from artifem.render import render_bodies
     from artifem.scene import simulate
 
-    config = BeamConfig(cells=tuple(args.cells), excitation=args.excitation, dt=args.dt,
-                        duration=args.duration, integrator=args.integrator)
+    config = BeamConfig(
+        cells=tuple(args.cells),
+        excitation=args.excitation,
+        dt=args.dt,
+        duration=args.duration,
+        integrator=args.integrator,
+    )
     scene, body = build_beam(config)
     out = Path(args.out)
     comm = body.mesh.comm
@@ -87,13 +101,26 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     tip = body.nearest_node((LENGTH, 0.5 * WIDTH, 0.5 * HEIGHT))
     shown = (0.0, 0.5 * config.duration, config.duration)
-    traj = simulate(scene, config.duration, config.dt,
-                    record={"tip": lambda s: body.displacement_at([tip])[0]}, keep=shown,
-                    vtx=out, progress=not args.no_progress, label="muscle beam")
-    render_bodies(out / "beam.png", [(body.mesh, traj.snapshots[t][body.name]) for t in shown],
-                  scalars="displacement", titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
-                  scalar_name="displacement (m)", camera="xz", show_rest=True,
-                  window_size=(1500, 500))
+    traj = simulate(
+        scene,
+        config.duration,
+        config.dt,
+        record={"tip": lambda s: body.displacement_at([tip])[0]},
+        keep=shown,
+        vtx=out,
+        progress=not args.no_progress,
+        label="muscle beam",
+    )
+    render_bodies(
+        out / "beam.png",
+        [(body.mesh, traj.snapshots[t][body.name]) for t in shown],
+        scalars="displacement",
+        titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
+        scalar_name="displacement (m)",
+        camera="xz",
+        show_rest=True,
+        window_size=(1500, 500),
+    )
     tip_mm = 1e3 * traj.records["tip"]
     n_cells = body.mesh.topology.index_map(3).size_global
     figures = {
@@ -108,21 +135,25 @@ def run(args: argparse.Namespace) -> int:
         "ms_per_step": traj.ms_per_step,
         "min_det_F": traj.min_det_F,
         "halvings": traj.halvings,
-        "tip_displacement_mm": {f"t={t:g}": tip_mm[np.argmin(abs(traj.times - t))].tolist()
-                                for t in shown[1:]},
+        "tip_displacement_mm": {
+            f"t={t:g}": tip_mm[np.argmin(abs(traj.times - t))].tolist() for t in shown[1:]
+        },
         "machine": platform.processor() or platform.machine(),
     }
     if comm.rank == 0:
         _plot_tip(out / "tip.png", traj.times, tip_mm, config.ramp_time)
         (out / "simulate.json").write_text(json.dumps(figures, indent=2))
-        print(f"muscle beam: {figures['nodes']} nodes, {figures['ms_per_step']:.1f} ms/step, "
-              f"tip at {config.duration:g} s {np.round(tip_mm[-1], 2).tolist()} mm, min det F "
-              f"{figures['min_det_F']:.3f}; results in {out}/")
+        print(
+            f"muscle beam: {figures['nodes']} nodes, {figures['ms_per_step']:.1f} ms/step, "
+            f"tip at {config.duration:g} s {np.round(tip_mm[-1], 2).tolist()} mm, min det F "
+            f"{figures['min_det_F']:.3f}; results in {out}/"
+        )
     return 0
 
 
 def _plot_tip(png: Path, times: np.ndarray, tip_mm: np.ndarray, ramp_time: float) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -45,13 +45,18 @@ FEMUR = DATA / "registration-femur"
 #: the bones: name -> the OpenSim bones it fuses
 BONES = {"tibia": ("tibia", "fibula"), "talus": ("talus",), "calcaneus": ("calcaneus",)}
 #: hinge -> (osim joint, parent, child, limits in degrees)
-HINGES = {"ankle": ("ankle_r", "tibia", "talus", (-40.0, 30.0)),
-          "subtalar": ("subtalar_r", "talus", "calcaneus", (-20.0, 20.0))}
+HINGES = {
+    "ankle": ("ankle_r", "tibia", "talus", (-40.0, 30.0)),
+    "subtalar": ("subtalar_r", "talus", "calcaneus", (-20.0, 20.0)),
+}
 #: the synthetic cases' pose (degrees) and rigid motion
 POSE = {"ankle": 20.0, "subtalar": -10.0}
-MOTION = (Rotation.from_rotvec(np.radians(8.0) * np.array([0.2, 0.9, 0.3])
-                               / np.linalg.norm([0.2, 0.9, 0.3])).as_matrix(),
-          np.array([0.02, -0.01, 0.015]))
+MOTION = (
+    Rotation.from_rotvec(
+        np.radians(8.0) * np.array([0.2, 0.9, 0.3]) / np.linalg.norm([0.2, 0.9, 0.3])
+    ).as_matrix(),
+    np.array([0.02, -0.01, 0.015]),
+)
 CASES = ("rigid", "synthetic", "complete", "femur")
 #: each case's grid cell (m). The femur's is coarser: at 8 mm one of its stages stalls
 #: in Newton and is recovered only by the refined continuation (4 minutes; an open item)
@@ -72,15 +77,18 @@ def reference() -> Skeleton:
     from artifem.models.foot import bones as foot
 
     loaded = {b.name: b for b in foot.load_bones()}
-    bones = {name: _merge((loaded[p].vertices, loaded[p].triangles) for p in parts)
-             for name, parts in BONES.items()}
+    bones = {
+        name: _merge((loaded[p].vertices, loaded[p].triangles) for p in parts)
+        for name, parts in BONES.items()
+    }
     frames = foot.joint_frames()
     placed = foot.body_transforms()
     hinges = []
     for name, (joint, parent, child, limits) in HINGES.items():
         info = frames[joint]
-        X = placed[info["parent"]["body"]] @ foot._frame(info["parent"]["translation"],
-                                                         info["parent"]["orientation"])
+        X = placed[info["parent"]["body"]] @ foot._frame(
+            info["parent"]["translation"], info["parent"]["orientation"]
+        )
         centre, axis = X[:3, 3], X[:3, :3] @ info["axis"]
         axis = axis / np.linalg.norm(axis)
         # the axis point nearest the midpoint of the two bones' closest approach
@@ -136,7 +144,7 @@ def write_case(case: str, directory: Path, seed: int = 0) -> tuple[Path, Path]:
         spec["truth"]["bones"][bone] = f"truth_{bone}.vtp"
         if case in ("synthetic", "complete"):
             truth = truth + 2e-4 * rng.standard_normal(truth.shape)
-            if bone == "calcaneus" and case == "synthetic":    # its lateral third gone
+            if bone == "calcaneus" and case == "synthetic":  # its lateral third gone
                 side = skeleton.bones[bone][0][T].mean(axis=1)[:, 0]
                 T = T[side > np.quantile(side, 1.0 / 3.0)]
         write_surface(target_dir / f"{bone}.stl", truth, T)
@@ -147,12 +155,18 @@ def write_case(case: str, directory: Path, seed: int = 0) -> tuple[Path, Path]:
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--cases", default=",".join(CASES),
-                        help=f"comma-separated subset of {','.join(CASES)}")
-    parser.add_argument("--cell-size", type=float, default=None,
-                        help="voxel grid cell size, m (default: the case's, CELL_SIZE)")
-    parser.add_argument("--youngs", type=float, default=1e6,
-                        help="the grids' Young's modulus, Pa (default 1e6)")
+    parser.add_argument(
+        "--cases", default=",".join(CASES), help=f"comma-separated subset of {','.join(CASES)}"
+    )
+    parser.add_argument(
+        "--cell-size",
+        type=float,
+        default=None,
+        help="voxel grid cell size, m (default: the case's, CELL_SIZE)",
+    )
+    parser.add_argument(
+        "--youngs", type=float, default=1e6, help="the grids' Young's modulus, Pa (default 1e6)"
+    )
 
 
 def run(args) -> int:
@@ -163,7 +177,12 @@ def run(args) -> int:
         ref_dir, target_dir = write_case(case, args.out / case / "input")
         # one bone: the jointless grid is the jointed model without joints
         methods = ("rigid", "affine", "jointed") if case == "femur" else METHODS
-        register_skeleton(ref_dir, target_dir, args.out / case,
-                          material=NeoHookean.from_young_poisson(args.youngs, 0.3),
-                          cell_size=args.cell_size or CELL_SIZE[case], methods=methods)
+        register_skeleton(
+            ref_dir,
+            target_dir,
+            args.out / case,
+            material=NeoHookean.from_young_poisson(args.youngs, 0.3),
+            cell_size=args.cell_size or CELL_SIZE[case],
+            methods=methods,
+        )
     return 0

@@ -92,13 +92,21 @@ from artifem.scene import Scene, simulate as simulate_scene
 from artifem.multibody.muscles import PathForces, PathGeometry, ThelenMuscle, ThelenParameters
 from artifem.multibody.point_attachments import nearest_nodes, support_weights
 from artifem.excitation import ExcitationSchedule
-from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
-                                        Training)
+from artifem.reduction.reductor import (
+    Basis,
+    Points,
+    ReducedModel,
+    ReducibleScene,
+    Reductor,
+    Training,
+)
 from artifem.scene.inputs import PathExcitation
 from artifem.stress import von_mises
 
-STYLOID = {"left": np.array([0.14984, 0.035891, 0.125]),
-           "right": np.array([0.14984, -0.035891, 0.125])}
+STYLOID = {
+    "left": np.array([0.14984, 0.035891, 0.125]),
+    "right": np.array([0.14984, -0.035891, 0.125]),
+}
 MAX_FORCE = 3.0
 TENSION = 1.5
 RAMP, DURATION, DT = 0.5, 1.0, 0.01
@@ -109,9 +117,9 @@ LABELS = {"4": "4 nodes", "24": "24 nodes, min-norm", "24+": "24 nodes, w >= 0"}
 
 @dataclass(frozen=True)
 class ReducedConfig:
-    r: int = 20                          # POD vectors
-    points: int = 300                    # trained integration points (ECSW)
-    training_tension: float = 2.0        # N, each side alone, each support of SUPPORTS
+    r: int = 20  # POD vectors
+    points: int = 300  # trained integration points (ECSW)
+    training_tension: float = 2.0  # N, each side alone, each support of SUPPORTS
     snapshot_every: int = 2
     force_snapshots: int = 120
     cubature_tol: float = 1e-3
@@ -123,16 +131,18 @@ class PrescribedTension:
 
     def __init__(self, max_force: float):
         if not np.isfinite(max_force) or max_force < 0:
-            raise InputError(f"PrescribedTension: max_force must be finite and >= 0, got "
-                             f"{max_force!r}")
+            raise InputError(
+                f"PrescribedTension: max_force must be finite and >= 0, got {max_force!r}"
+            )
         self.max_force, self.excitation = float(max_force), 0.0
 
     def set_excitation(self, value: float) -> None:
         self.excitation = float(value)
 
     def evaluate(self, positions, velocities=None, dt=None) -> PathForces:
-        return PathForces.from_tension(PathGeometry.of(positions, velocities),
-                                       self.max_force * self.excitation, 0.0, 0.0)
+        return PathForces.from_tension(
+            PathGeometry.of(positions, velocities), self.max_force * self.excitation, 0.0, 0.0
+        )
 
     def commit(self, result: PathForces) -> None:
         """Stateless."""
@@ -149,8 +159,9 @@ def boundary_facet_centroids(body, exclude_dofs=()):
     facets = dmesh.exterior_facet_indices(msh.topology)
     f2v = msh.topology.connectivity(tdim - 1, 0)
     X = body.V.tabulate_dof_coordinates()
-    vert_nodes = dmesh.entities_to_geometry(msh, 0, np.arange(
-        msh.topology.index_map(0).size_local, dtype=np.int32)).ravel()
+    vert_nodes = dmesh.entities_to_geometry(
+        msh, 0, np.arange(msh.topology.index_map(0).size_local, dtype=np.int32)
+    ).ravel()
     vert_dof = cKDTree(X).query(msh.geometry.x[vert_nodes])[1]
     excluded = set(int(d) for d in exclude_dofs)
     cents, dofs = [], []
@@ -165,8 +176,9 @@ def boundary_facet_centroids(body, exclude_dofs=()):
 def attachment_points(body) -> dict[str, np.ndarray]:
     """Per side, the centroid of the free boundary facet nearest to its styloid point."""
     cents, _ = boundary_facet_centroids(body, body.fixed_dofs)
-    return {side: cents[np.argmin(np.linalg.norm(cents - s, axis=1))]
-            for side, s in STYLOID.items()}
+    return {
+        side: cents[np.argmin(np.linalg.norm(cents - s, axis=1))] for side, s in STYLOID.items()
+    }
 
 
 def excitation(t: float) -> float:
@@ -176,8 +188,9 @@ def excitation(t: float) -> float:
 def von_mises_dg0(body, config: TongueConfig) -> fem.Function:
     """DG0 von Mises stress of the passive energy, with the scene's volumetric penalty."""
     penalty = config.incompressibility
-    return von_mises(body, None if penalty is None
-                     else lambda F: 0.5 * penalty * (ufl.det(F) - 1) ** 2)
+    return von_mises(
+        body, None if penalty is None else lambda F: 0.5 * penalty * (ufl.det(F) - 1) ** 2
+    )
 
 
 def cells_near(body, point, radius) -> np.ndarray:
@@ -187,10 +200,17 @@ def cells_near(body, point, radius) -> np.ndarray:
     return np.flatnonzero(d <= radius)
 
 
-def build_scene(support: int = 4, *, nonnegative: bool = False, load: str = "thelen",
-                tension: float = TENSION, sides=tuple(STYLOID), excitation=excitation,
-                data=None, config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)
-                ) -> Scene:
+def build_scene(
+    support: int = 4,
+    *,
+    nonnegative: bool = False,
+    load: str = "thelen",
+    tension: float = TENSION,
+    sides=tuple(STYLOID),
+    excitation=excitation,
+    data=None,
+    config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY),
+) -> Scene:
     """The full tongue (named ``tongue``) and the styloglossus of ``sides`` on ``support``
     nearest nodes (min-norm or non-negative weights), each a path ``STY_<side>`` of a
     Thelen muscle (``load="thelen"``) or of the prescribed tension T = ``tension`` e
@@ -208,22 +228,48 @@ def build_scene(support: int = 4, *, nonnegative: bool = False, load: str = "the
             continue
         w = support_weights(body, p, nearest_nodes(body, p, support), nonnegative=nonnegative)
         L = float(np.linalg.norm(STYLOID[side] - p))
-        element = (ThelenMuscle(ThelenParameters(MAX_FORCE, 0.8 * L, 0.2 * L), name=f"STY_{side}")
-                   if load == "thelen" else PrescribedTension(tension))
-        scene.add(PointPath(element, [STYLOID[side], FemPoint(body, w, name=f"STY_{side}")],
-                            excitation=excitation, name=f"STY_{side}"))
+        element = (
+            ThelenMuscle(ThelenParameters(MAX_FORCE, 0.8 * L, 0.2 * L), name=f"STY_{side}")
+            if load == "thelen"
+            else PrescribedTension(tension)
+        )
+        scene.add(
+            PointPath(
+                element,
+                [STYLOID[side], FemPoint(body, w, name=f"STY_{side}")],
+                excitation=excitation,
+                name=f"STY_{side}",
+            )
+        )
     return scene
 
 
-def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen",
-             tension: float = TENSION, sides=tuple(STYLOID), reduced: ReducedModel | None = None,
-             duration: float = DURATION, dt: float = DT, radius: float = 0.012, data=None,
-             config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY)) -> dict:
+def simulate(
+    support: int = 4,
+    *,
+    nonnegative: bool = False,
+    load: str = "thelen",
+    tension: float = TENSION,
+    sides=tuple(STYLOID),
+    reduced: ReducedModel | None = None,
+    duration: float = DURATION,
+    dt: float = DT,
+    radius: float = 0.012,
+    data=None,
+    config: TongueConfig = TongueConfig(level=0, incompressibility=PENALTY),
+) -> dict:
     """One run of :func:`build_scene`'s scene over e(t), on the full tongue or with the
     reduced tongue of ``reduced`` in place (its paths then pull on the reduced body).
     Returns the figures and, under "_" keys, the (full) body and the stress."""
-    scene = build_scene(support, nonnegative=nonnegative, load=load, tension=tension,
-                        sides=sides, data=data, config=config)
+    scene = build_scene(
+        support,
+        nonnegative=nonnegative,
+        load=load,
+        tension=tension,
+        sides=sides,
+        data=data,
+        config=config,
+    )
     body = scene.fem_bodies[0]
     if reduced is not None:
         master, _ = reduced.put_in(scene)
@@ -235,40 +281,65 @@ def simulate(support: int = 4, *, nonnegative: bool = False, load: str = "thelen
     with threadpool_limits(limits=1, user_api="blas"):
         run = simulate_scene(scene, n * dt, dt, progress=False)
     if reduced is not None:
-        master.to_full()                                  # u = U q on the full mesh, observed
+        master.to_full()  # u = U q on the full mesh, observed
     vm = von_mises_dg0(body, config)
     peaks = {s: float(vm.x.array[cells_near(body, p, radius)].max()) for s, p in points.items()}
-    return {"support_nodes": support, "nonnegative": nonnegative, "load": load,
-            "model": "full" if reduced is None else "reduced",
-            "attachment_points": {s: p.tolist() for s, p in points.items()},
-            "weights": {s: fp.weights.weights.tolist() for s, fp in fem_points.items()},
-            "peak_von_mises_near_attachment_Pa": peaks,
-            "peak_von_mises_Pa": float(vm.x.array.max()),
-            "attachment_displacement_m": {s: (fem_points[s].position() - start[s]).tolist()
-                                          for s in points},
-            "tension_N": {s: paths[s].tension() for s in points},
-            "ms_per_step": run.ms_per_step, "steps": n, "dt": dt, "radius_m": radius,
-            "min_det_F": float(np.nanmin(body.det_F())),
-            "_body": body, "_vm": vm,
-            "_support_dofs": {s: fp.weights.dofs for s, fp in fem_points.items()}}
+    return {
+        "support_nodes": support,
+        "nonnegative": nonnegative,
+        "load": load,
+        "model": "full" if reduced is None else "reduced",
+        "attachment_points": {s: p.tolist() for s, p in points.items()},
+        "weights": {s: fp.weights.weights.tolist() for s, fp in fem_points.items()},
+        "peak_von_mises_near_attachment_Pa": peaks,
+        "peak_von_mises_Pa": float(vm.x.array.max()),
+        "attachment_displacement_m": {
+            s: (fem_points[s].position() - start[s]).tolist() for s in points
+        },
+        "tension_N": {s: paths[s].tension() for s in points},
+        "ms_per_step": run.ms_per_step,
+        "steps": n,
+        "dt": dt,
+        "radius_m": radius,
+        "min_det_F": float(np.nanmin(body.det_F())),
+        "_body": body,
+        "_vm": vm,
+        "_support_dofs": {s: fp.weights.dofs for s, fp in fem_points.items()},
+    }
 
 
-def reducible(support: str = "24", rc: ReducedConfig = ReducedConfig(), *,
-              data=None) -> ReducibleScene:
+def reducible(
+    support: str = "24", rc: ReducedConfig = ReducedConfig(), *, data=None
+) -> ReducibleScene:
     """The scene of support ``support`` (a key of :data:`SUPPORTS`) as a reductor's model:
     both sides at the prescribed tension ``rc.training_tension`` e, e the load inputs
     ``left`` and ``right`` (path excitations); the tongue's own muscles are not inputs."""
     if support not in SUPPORTS:
-        raise InputError(f"styloglossus: unknown support {support!r}; choose one of "
-                         f"{sorted(SUPPORTS)}")
+        raise InputError(
+            f"styloglossus: unknown support {support!r}; choose one of {sorted(SUPPORTS)}"
+        )
     k, nonnegative = SUPPORTS[support]
     return ReducibleScene(
-        "styloglossus", lambda: build_scene(k, nonnegative=nonnegative, load="tension",
-                                            tension=rc.training_tension, excitation=None,
-                                            data=data),
-        "tongue", {"model": "styloglossus", "support": support,
-                   "tension": rc.training_tension, "level": 0, "penalty": PENALTY},
-        exciters={}, loads={side: PathExcitation(f"STY_{side}") for side in STYLOID})
+        "styloglossus",
+        lambda: build_scene(
+            k,
+            nonnegative=nonnegative,
+            load="tension",
+            tension=rc.training_tension,
+            excitation=None,
+            data=data,
+        ),
+        "tongue",
+        {
+            "model": "styloglossus",
+            "support": support,
+            "tension": rc.training_tension,
+            "level": 0,
+            "penalty": PENALTY,
+        },
+        exciters={},
+        loads={side: PathExcitation(f"STY_{side}") for side in STYLOID},
+    )
 
 
 def check_training_size(rc: ReducedConfig, duration: float, dt: float = DT) -> None:
@@ -276,23 +347,36 @@ def check_training_size(rc: ReducedConfig, duration: float, dt: float = DT) -> N
     each side alone gives one snapshot every ``rc.snapshot_every`` steps."""
     snapshots = len(STYLOID) * (int(round(duration / dt)) // rc.snapshot_every)
     if rc.r > snapshots:
-        raise InputError(f"styloglossus: r = {rc.r} POD vectors need as many training "
-                         f"snapshots; {duration:g} s at dt = {dt:g} s, one every "
-                         f"{rc.snapshot_every} steps, on {len(STYLOID)} runs gives {snapshots}: "
-                         "lengthen --duration or lower --r")
+        raise InputError(
+            f"styloglossus: r = {rc.r} POD vectors need as many training "
+            f"snapshots; {duration:g} s at dt = {dt:g} s, one every "
+            f"{rc.snapshot_every} steps, on {len(STYLOID)} runs gives {snapshots}: "
+            "lengthen --duration or lower --r"
+        )
 
 
-def reduce_tongue(support: str, cache: Path, rc: ReducedConfig = ReducedConfig(), *,
-                  data=None, duration: float = DURATION, dt: float = DT) -> ReducedModel:
+def reduce_tongue(
+    support: str,
+    cache: Path,
+    rc: ReducedConfig = ReducedConfig(),
+    *,
+    data=None,
+    duration: float = DURATION,
+    dt: float = DT,
+) -> ReducedModel:
     """The reduced tongue of support ``support``: POD and ECSW points of full runs with each
     side alone, ramped as e(t) to ``rc.training_tension`` (module docstring), cached."""
     check_training_size(rc, duration, dt)
-    training = Training({side: ExcitationSchedule.ramp_and_hold({side: 1.0}, RAMP)
-                         for side in STYLOID}, duration=duration, dt=dt,
-                        snapshot_every=rc.snapshot_every)
+    training = Training(
+        {side: ExcitationSchedule.ramp_and_hold({side: 1.0}, RAMP) for side in STYLOID},
+        duration=duration,
+        dt=dt,
+        snapshot_every=rc.snapshot_every,
+    )
     return Reductor(reducible(support, rc, data=data), training, cache).reduce(
-        Basis("pod", rc.r), Points(rc.points, tol=rc.cubature_tol,
-                                   training_states=rc.force_snapshots))
+        Basis("pod", rc.r),
+        Points(rc.points, tol=rc.cubature_tol, training_states=rc.force_snapshots),
+    )
 
 
 def _summary(r: dict) -> dict:
@@ -301,14 +385,18 @@ def _summary(r: dict) -> dict:
 
 def _row(name: str, r: dict) -> dict:
     """One table row (left side; the scene is symmetric to 1e-4)."""
-    return {"config": name, "model": r["model"], "load": r["load"],
-            "tension_N": r["tension_N"]["left"],
-            "peak_von_mises_near_attachment_kPa": 1e-3 * r["peak_von_mises_near_attachment_Pa"]
-            ["left"],
-            "attachment_displacement_mm": 1e3 * float(np.linalg.norm(
-                r["attachment_displacement_m"]["left"])),
-            "min_det_F": r["min_det_F"], "ms_per_step": r["ms_per_step"],
-            "min_weight": float(min(r["weights"]["left"]))}
+    return {
+        "config": name,
+        "model": r["model"],
+        "load": r["load"],
+        "tension_N": r["tension_N"]["left"],
+        "peak_von_mises_near_attachment_kPa": 1e-3 * r["peak_von_mises_near_attachment_Pa"]["left"],
+        "attachment_displacement_mm": 1e3
+        * float(np.linalg.norm(r["attachment_displacement_m"]["left"])),
+        "min_det_F": r["min_det_F"],
+        "ms_per_step": r["ms_per_step"],
+        "min_weight": float(min(r["weights"]["left"])),
+    }
 
 
 def report(args: argparse.Namespace) -> dict:
@@ -323,51 +411,91 @@ def report(args: argparse.Namespace) -> dict:
     for k in (4, 24):
         runs[f"excitation {k}"] = simulate(k, duration=args.duration, data=data)
     for name, (k, nn) in SUPPORTS.items():
-        runs[f"tension {name}"] = simulate(k, nonnegative=nn, load="tension",
-                                           tension=args.tension, duration=args.duration,
-                                           data=data)
-    figures = {"styloid_points_m": {s: p.tolist() for s, p in STYLOID.items()},
-               "max_isometric_force_N": MAX_FORCE, "tension_N": args.tension,
-               "duration_s": args.duration, "dt": DT}
-    pngs = {"excitation": out / "styloglossus_stress.png",
-            "tension": out / "styloglossus_tension.png"}
-    render_panels(pngs["excitation"], [[(f"{k} nodes, Thelen", runs[f"excitation {k}"])
-                                        for k in (4, 24)]])
+        runs[f"tension {name}"] = simulate(
+            k,
+            nonnegative=nn,
+            load="tension",
+            tension=args.tension,
+            duration=args.duration,
+            data=data,
+        )
+    figures = {
+        "styloid_points_m": {s: p.tolist() for s, p in STYLOID.items()},
+        "max_isometric_force_N": MAX_FORCE,
+        "tension_N": args.tension,
+        "duration_s": args.duration,
+        "dt": DT,
+    }
+    pngs = {
+        "excitation": out / "styloglossus_stress.png",
+        "tension": out / "styloglossus_tension.png",
+    }
+    render_panels(
+        pngs["excitation"], [[(f"{k} nodes, Thelen", runs[f"excitation {k}"]) for k in (4, 24)]]
+    )
     render_panels(pngs["tension"], [[(LABELS[n], runs[f"tension {n}"]) for n in SUPPORTS]])
     if not args.no_reduced:
         rc = ReducedConfig(r=args.r, points=args.points)
         models = {}
         for name in SUPPORTS:
             tic = time.perf_counter()
-            models[name] = reduce_tongue(name, args.cache or out / "cache", rc, data=data,
-                                         duration=args.duration)
+            models[name] = reduce_tongue(
+                name, args.cache or out / "cache", rc, data=data, duration=args.duration
+            )
             models[name].training["wall_seconds"] = time.perf_counter() - tic
-        figures["reduced"] = {"pod_vectors": rc.r, "points_asked": rc.points,
-                              "training_tension_N": rc.training_tension,
-                              "training": {n: m.training for n, m in models.items()}}
+        figures["reduced"] = {
+            "pod_vectors": rc.r,
+            "points_asked": rc.points,
+            "training_tension_N": rc.training_tension,
+            "training": {n: m.training for n, m in models.items()},
+        }
         for name, (k, nn) in SUPPORTS.items():
-            red = simulate(k, nonnegative=nn, load="tension", tension=args.tension,
-                           reduced=models[name], duration=args.duration, data=data)
+            red = simulate(
+                k,
+                nonnegative=nn,
+                load="tension",
+                tension=args.tension,
+                reduced=models[name],
+                duration=args.duration,
+                data=data,
+            )
             full = runs[f"tension {name}"]
             n = 3 * full["_body"].V.dofmap.index_map.size_local
             du = (red["_body"].u.x.array[:n] - full["_body"].u.x.array[:n]).reshape(-1, 3)
             red["error_vs_full"] = {
                 "mean_node_mm": 1e3 * float(np.linalg.norm(du, axis=1).mean()),
                 "max_node_mm": 1e3 * float(np.linalg.norm(du, axis=1).max()),
-                "attachment_mm": 1e3 * float(np.linalg.norm(
-                    np.subtract(red["attachment_displacement_m"]["left"],
-                                full["attachment_displacement_m"]["left"]))),
-                "speedup": full["ms_per_step"] / red["ms_per_step"]}
+                "attachment_mm": 1e3
+                * float(
+                    np.linalg.norm(
+                        np.subtract(
+                            red["attachment_displacement_m"]["left"],
+                            full["attachment_displacement_m"]["left"],
+                        )
+                    )
+                ),
+                "speedup": full["ms_per_step"] / red["ms_per_step"],
+            }
             runs[f"reduced {name}"] = red
         pngs["reduced"] = out / "styloglossus_reduced.png"
-        render_panels(pngs["reduced"], [
-            [(f"full, {LABELS[n]}", runs[f"tension {n}"]) for n in SUPPORTS],
-            [(f"reduced ({rc.r}, {models[n].points.m} pts), {LABELS[n]}", runs[f"reduced {n}"])
-             for n in SUPPORTS]])
+        render_panels(
+            pngs["reduced"],
+            [
+                [(f"full, {LABELS[n]}", runs[f"tension {n}"]) for n in SUPPORTS],
+                [
+                    (
+                        f"reduced ({rc.r}, {models[n].points.m} pts), {LABELS[n]}",
+                        runs[f"reduced {n}"],
+                    )
+                    for n in SUPPORTS
+                ],
+            ],
+        )
     figures["runs"] = {name: _summary(r) for name, r in runs.items()}
-    figures["table"] = [_row(name, r) | ({"error_vs_full": r["error_vs_full"]}
-                                         if "error_vs_full" in r else {})
-                        for name, r in runs.items()]
+    figures["table"] = [
+        _row(name, r) | ({"error_vs_full": r["error_vs_full"]} if "error_vs_full" in r else {})
+        for name, r in runs.items()
+    ]
     figures["png"] = {k: p.name for k, p in pngs.items()}
     (out / "styloglossus.json").write_text(json.dumps(figures, indent=2))
     (out / "styloglossus.md").write_text(table(figures))
@@ -376,21 +504,32 @@ def report(args: argparse.Namespace) -> dict:
 
 
 def table(figures: dict) -> str:
-    lines = ["| run | tension (N) | peak von Mises near attachment (kPa) | attachment moved (mm) "
-             "| min det F | min weight | ms/step |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| run | tension (N) | peak von Mises near attachment (kPa) | attachment moved (mm) "
+        "| min det F | min weight | ms/step |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for row in figures["table"]:
-        lines.append(f"| {row['config']} | {row['tension_N']:.2f} | "
-                     f"{row['peak_von_mises_near_attachment_kPa']:.2f} | "
-                     f"{row['attachment_displacement_mm']:.2f} | {row['min_det_F']:.2f} | "
-                     f"{row['min_weight']:.3f} | {row['ms_per_step']:.1f} |")
+        lines.append(
+            f"| {row['config']} | {row['tension_N']:.2f} | "
+            f"{row['peak_von_mises_near_attachment_kPa']:.2f} | "
+            f"{row['attachment_displacement_mm']:.2f} | {row['min_det_F']:.2f} | "
+            f"{row['min_weight']:.3f} | {row['ms_per_step']:.1f} |"
+        )
     errors = [r for r in figures["table"] if "error_vs_full" in r]
     if errors:
-        lines += ["", "| reduced run | mean node error (mm) | max node error (mm) | "
-                  "attachment error (mm) | speed-up |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "| reduced run | mean node error (mm) | max node error (mm) | "
+            "attachment error (mm) | speed-up |",
+            "|---|---|---|---|---|",
+        ]
         for r in errors:
             e = r["error_vs_full"]
-            lines.append(f"| {r['config']} | {e['mean_node_mm']:.2f} | {e['max_node_mm']:.2f} | "
-                         f"{e['attachment_mm']:.2f} | {e['speedup']:.0f}x |")
+            lines.append(
+                f"| {r['config']} | {e['mean_node_mm']:.2f} | {e['max_node_mm']:.2f} | "
+                f"{e['attachment_mm']:.2f} | {e['speedup']:.0f}x |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -401,26 +540,40 @@ def render_panels(png, rows, *, vmax: float | None = None):
     the muscle as a red line."""
     import pyvista as pv
     from artifem.render import body_grid
+
     pv.OFF_SCREEN = True
     runs = [r for row in rows for _, r in row]
     vmax = vmax or max(max(r["peak_von_mises_near_attachment_Pa"].values()) for r in runs)
     ncol = max(len(row) for row in rows)
-    plotter = pv.Plotter(off_screen=True, shape=(len(rows), ncol),
-                         window_size=[560 * ncol, 520 * len(rows)])
+    plotter = pv.Plotter(
+        off_screen=True, shape=(len(rows), ncol), window_size=[560 * ncol, 520 * len(rows)]
+    )
     plotter.set_background("white")
     for i, row in enumerate(rows):
         for j, (title, r) in enumerate(row):
             plotter.subplot(i, j)
             body = r["_body"]
             grid, _ = body_grid(body.mesh, body.u)
-            grid.cell_data["von Mises (kPa)"] = 1e-3 * r["_vm"].x.array[:grid.n_cells]
-            plotter.add_mesh(grid, scalars="von Mises (kPa)", cmap="inferno",
-                             clim=(0.0, 1e-3 * vmax), show_edges=True, edge_color="gray",
-                             show_scalar_bar=(i, j) == (0, 0),
-                             scalar_bar_args={"title": "von Mises (kPa)", "color": "black",
-                                              "fmt": "%.0f", "vertical": True,
-                                              "position_x": 0.85, "position_y": 0.1,
-                                              "height": 0.7, "width": 0.08})
+            grid.cell_data["von Mises (kPa)"] = 1e-3 * r["_vm"].x.array[: grid.n_cells]
+            plotter.add_mesh(
+                grid,
+                scalars="von Mises (kPa)",
+                cmap="inferno",
+                clim=(0.0, 1e-3 * vmax),
+                show_edges=True,
+                edge_color="gray",
+                show_scalar_bar=(i, j) == (0, 0),
+                scalar_bar_args={
+                    "title": "von Mises (kPa)",
+                    "color": "black",
+                    "fmt": "%.0f",
+                    "vertical": True,
+                    "position_x": 0.85,
+                    "position_y": 0.1,
+                    "height": 0.7,
+                    "width": 0.08,
+                },
+            )
             x = body.V.tabulate_dof_coordinates() + body.u.x.array.reshape(-1, 3)
             side = "left" if "left" in r["attachment_points"] else "right"
             dofs, w = r["_support_dofs"][side], np.abs(r["weights"][side])
@@ -429,10 +582,15 @@ def render_panels(png, rows, *, vmax: float | None = None):
             plotter.add_mesh(pv.Line(STYLOID[side], moved), color="red", line_width=4)
             cloud = pv.PolyData(x[dofs])
             cloud["w"] = w
-            plotter.add_mesh(cloud.glyph(scale="w", orient=False, factor=0.004 / w.max(),
-                                         geom=pv.Sphere(radius=0.5)), color="cyan")
-            plotter.add_text(f"{title}: T = {r['tension_N'][side]:.2f} N", font_size=10,
-                             color="black")
+            plotter.add_mesh(
+                cloud.glyph(
+                    scale="w", orient=False, factor=0.004 / w.max(), geom=pv.Sphere(radius=0.5)
+                ),
+                color="cyan",
+            )
+            plotter.add_text(
+                f"{title}: T = {r['tension_N'][side]:.2f} N", font_size=10, color="black"
+            )
             look = np.array([0.05, 0.09 if side == "left" else -0.09, 0.04])
             plotter.camera_position = [tuple(a + 1.2 * look), tuple(a), (0.0, 0.0, 1.0)]
             plotter.camera.view_angle = 30.0
@@ -445,14 +603,23 @@ def render_panels(png, rows, *, vmax: float | None = None):
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--duration", type=positive_float, default=DURATION)
-    parser.add_argument("--tension", type=nonnegative_float, default=TENSION,
-                        help="equal-tension runs: prescribed tension per side (N)")
+    parser.add_argument(
+        "--tension",
+        type=nonnegative_float,
+        default=TENSION,
+        help="equal-tension runs: prescribed tension per side (N)",
+    )
     parser.add_argument("--no-reduced", action="store_true", help="skip the reduced tongue")
     parser.add_argument("--r", type=positive_int, default=ReducedConfig.r, help="POD vectors")
-    parser.add_argument("--points", type=positive_int, default=ReducedConfig.points,
-                        help="trained integration points")
-    parser.add_argument("--cache", type=Path, default=None,
-                        help="training cache (default OUT/cache)")
+    parser.add_argument(
+        "--points",
+        type=positive_int,
+        default=ReducedConfig.points,
+        help="trained integration points",
+    )
+    parser.add_argument(
+        "--cache", type=Path, default=None, help="training cache (default OUT/cache)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -22,36 +22,71 @@ from artifem.models.foot.simulate import REDUCED_CACHE
 
 DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs" / "foot"
 #: (POD vectors, points, sampling)
-CONFIGS = [(6, 100, "random"), (12, 100, "random"), (12, 400, "random"), (6, 100, "trained"),
-           (20, 200, "trained")]
+CONFIGS = [
+    (6, 100, "random"),
+    (12, 100, "random"),
+    (12, 400, "random"),
+    (6, 100, "trained"),
+    (20, 200, "trained"),
+]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--level", type=int, default=0, choices=(0, 1))
-    parser.add_argument("--configs", default=None,
-                        help="POD:POINTS:SAMPLING,... (default: all of CONFIGS)")
+    parser.add_argument(
+        "--configs", default=None, help="POD:POINTS:SAMPLING,... (default: all of CONFIGS)"
+    )
     args = parser.parse_args()
     level = args.level
-    configs = CONFIGS if args.configs is None else [
-        (int(r), int(p), s) for r, p, s in (c.split(":") for c in args.configs.split(","))]
+    configs = (
+        CONFIGS
+        if args.configs is None
+        else [(int(r), int(p), s) for r, p, s in (c.split(":") for c in args.configs.split(","))]
+    )
     tic = time.perf_counter()
-    results = fr.compare("standing", {
-        f"{r}:{points}:{sampling}": replace(fr.PAPER, level=level, r=r, points=points,
-                                            sampling=sampling)
-        for r, points, sampling in configs}, REDUCED_CACHE, progress=False)
+    results = fr.compare(
+        "standing",
+        {
+            f"{r}:{points}:{sampling}": replace(
+                fr.PAPER, level=level, r=r, points=points, sampling=sampling
+            )
+            for r, points, sampling in configs
+        },
+        REDUCED_CACHE,
+        progress=False,
+    )
     rows = []
     for (r, points, sampling), result in zip(configs, results.values()):
         row = {"pod_vectors": r, "points": points, "sampling": sampling}
-        row.update({k: result[k] for k in ("reduced_ms_per_step", "full_ms_per_step",
-                                           "max_mean_node_error_mm", "max_node_error_mm",
-                                           "failure") if k in result})
+        row.update(
+            {
+                k: result[k]
+                for k in (
+                    "reduced_ms_per_step",
+                    "full_ms_per_step",
+                    "max_mean_node_error_mm",
+                    "max_node_error_mm",
+                    "failure",
+                )
+                if k in result
+            }
+        )
         print(row, flush=True)
         rows.append(row)
     out = DOCS / f"reduced_configs_level{level}.json"
-    out.write_text(json.dumps({"case": "standing", "held_out_level": fr.HELD_OUT["standing"],
-                               "level": level, "seconds": time.perf_counter() - tic,
-                               "configs": rows}, indent=2))
+    out.write_text(
+        json.dumps(
+            {
+                "case": "standing",
+                "held_out_level": fr.HELD_OUT["standing"],
+                "level": level,
+                "seconds": time.perf_counter() - tic,
+                "configs": rows,
+            },
+            indent=2,
+        )
+    )
     print(f"wrote {out}")
 
 

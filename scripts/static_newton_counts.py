@@ -34,15 +34,20 @@ OUT = pathlib.Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "sta
 
 
 def box(n, size):
-    return dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array(size, dtype=float)], list(n),
-                            dmesh.CellType.hexahedron)
+    return dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array(size, dtype=float)],
+        list(n),
+        dmesh.CellType.hexahedron,
+    )
 
 
 def cantilever(p):
     """tests/test_surface_loads.py cantilever(): 1 x 0.2 x 0.2, E = 1e5, nu = 0.3, open
     follower pressure p on the top face."""
-    beam = af.FemBody(box((10, 2, 2), (1.0, 0.2, 0.2)),
-                      af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0)
+    beam = af.FemBody(
+        box((10, 2, 2), (1.0, 0.2, 0.2)), af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0
+    )
     beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
     beam.add_pressure(p, where=lambda x: np.isclose(x[2], 0.2))
     return beam
@@ -51,8 +56,7 @@ def cantilever(p):
 def long_beam(p, n=(20, 2, 2)):
     """10 x 1 x 1 neo-Hookean (E = 10, nu = 0.3), clamped at x = 0, follower pressure p on
     its bottom face z = 0."""
-    beam = af.FemBody(box(n, (10.0, 1.0, 1.0)), af.NeoHookean.from_young_poisson(10.0, 0.3),
-                      1.0)
+    beam = af.FemBody(box(n, (10.0, 1.0, 1.0)), af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0)
     beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
     beam.add_pressure(p, where=lambda x: np.isclose(x[2], 0.0))
     return beam
@@ -65,8 +69,9 @@ def membrane(n, traction=40.0, hard=True):
     on the top face."""
     E, nu = 2.6e3, 0.3
     hard = dict(incompressibility=Incompressible(kappa=10 * E / 2.6)) if hard else {}
-    body = af.FemBody(box((n, n, 1), (1.0, 1.0, 0.05)), af.NeoHookean.from_young_poisson(E, nu),
-                      1000.0, **hard)
+    body = af.FemBody(
+        box((n, n, 1), (1.0, 1.0, 0.05)), af.NeoHookean.from_young_poisson(E, nu), 1000.0, **hard
+    )
     body.fix_nodes(body.find_nodes(lambda x: (x[0] < 1e-12) | (x[0] > 1 - 1e-12)))
     body.add_traction((0.0, 0.0, -traction), where=lambda x: np.isclose(x[2], 0.05))
     return body
@@ -76,14 +81,22 @@ def stretched_tets(stretch=1.3):
     """tests/test_incompressibility.py's unit cube (3 x 3 x 3 x 6 tetrahedra, neo-Hookean
     mu = lambda = 1e3, hard incompressibility kappa = 100 mu, nodal pressure) between the
     symmetry planes x = y = z = 0, its face x = 1 prescribed to x = ``stretch``."""
-    domain = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [3, 3, 3],
-                              dmesh.CellType.tetrahedron)
-    body = af.FemBody(domain, af.NeoHookean(1e3, 1e3), 1000.0,
-                      incompressibility=Incompressible(kappa=1e5, tol=1e-9))
+    domain = dmesh.create_box(
+        MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [3, 3, 3], dmesh.CellType.tetrahedron
+    )
+    body = af.FemBody(
+        domain,
+        af.NeoHookean(1e3, 1e3),
+        1000.0,
+        incompressibility=Incompressible(kappa=1e5, tol=1e-9),
+    )
     for k in range(3):
         body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
-    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
-                   displacement=lambda x: np.vstack([(stretch - 1) * x[0], 0 * x[1], 0 * x[2]]))
+    body.fix_nodes(
+        body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+        components=(0,),
+        displacement=lambda x: np.vstack([(stretch - 1) * x[0], 0 * x[1], 0 * x[2]]),
+    )
     return body
 
 
@@ -97,15 +110,22 @@ def run(body, load_steps, **options):
     except StepFailed as e:
         return {"load_steps": load_steps, "failed_with": str(e)[:200]}
     u = body.u.x.array.reshape(-1, 3)
-    return {"load_steps": load_steps, "counts": list(counts), "failed": counts.failed,
-            "total": sum(counts) + counts.failed, "max": max(counts),
-            "factors": counts.factors, "min_uz": float(u[:, 2].min())}
+    return {
+        "load_steps": load_steps,
+        "counts": list(counts),
+        "failed": counts.failed,
+        "total": sum(counts) + counts.failed,
+        "max": max(counts),
+        "factors": counts.factors,
+        "min_uz": float(u[:, 2].min()),
+    }
 
 
 def foot(load):
     """The level-0 foot (models/foot, the test's scene) on the floor: unloaded (its own
     weight) or with ``load`` newtons down the tibia at once."""
     from artifem.models.foot.model import build_foot
+
     return build_foot(0, load=load, ramp=0.0)
 
 
@@ -116,17 +136,27 @@ def run_scene(foot_scene, load_steps, **options):
     try:
         counts = foot_scene.scene.solve_static(load_steps=load_steps, **options)
     except StepFailed as e:
-        return {"load_steps": load_steps, "failed_with": str(e)[:200],
-                "seconds": time.perf_counter() - tic}
+        return {
+            "load_steps": load_steps,
+            "failed_with": str(e)[:200],
+            "seconds": time.perf_counter() - tic,
+        }
     seconds = time.perf_counter() - tic
-    weight = 9.81 * (foot_scene.tissue.total_mass()
-                     + sum(b.mass for b in foot_scene.bones.values()))
+    weight = 9.81 * (
+        foot_scene.tissue.total_mass() + sum(b.mass for b in foot_scene.bones.values())
+    )
     load = foot_scene.load.force if foot_scene.load is not None else 0.0
     normal = float(foot_scene.scene.contact_forces(foot_scene.floor).normal.sum())
-    return {"load_steps": load_steps, "counts": list(counts), "failed": counts.failed,
-            "total": sum(counts) + counts.failed, "max": max(counts),
-            "factors": counts.factors, "floor_balance": normal / (weight + load) - 1.0,
-            "seconds": seconds}
+    return {
+        "load_steps": load_steps,
+        "counts": list(counts),
+        "failed": counts.failed,
+        "total": sum(counts) + counts.failed,
+        "max": max(counts),
+        "factors": counts.factors,
+        "floor_balance": normal / (weight + load) - 1.0,
+        "seconds": seconds,
+    }
 
 
 def first_increment(n=16, traction=10.0):
@@ -146,10 +176,13 @@ def first_increment(n=16, traction=10.0):
     solver.solve(body.K, rhs, step)
     body.zero_fixed(step)
     counts = scene.solve_static(load_steps=1)
-    return {"mesh": n, "traction": traction,
-            "linear_step_min_uz": float(step.array.reshape(-1, 3)[:, 2].min()),
-            "equilibrium_min_uz": float(body.u.x.array.reshape(-1, 3)[:, 2].min()),
-            "counts": list(counts)}
+    return {
+        "mesh": n,
+        "traction": traction,
+        "linear_step_min_uz": float(step.array.reshape(-1, 3)[:, 2].min()),
+        "equilibrium_min_uz": float(body.u.x.array.reshape(-1, 3)[:, 2].min()),
+        "counts": list(counts),
+    }
 
 
 def render(result) -> str:

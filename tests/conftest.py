@@ -48,12 +48,16 @@ DURATIONS = Path(__file__).with_name("durations.json")
 
 
 def pytest_addoption(parser):
-    parser.addoption("--write-durations", metavar="FILE", type=Path,
-                     help="after a passing run, write each test file's seconds (setup, "
-                          "call and teardown of its tests) to FILE as JSON")
+    parser.addoption(
+        "--write-durations",
+        metavar="FILE",
+        type=Path,
+        help="after a passing run, write each test file's seconds (setup, "
+        "call and teardown of its tests) to FILE as JSON",
+    )
 
 
-@pytest.hookimpl(trylast=True)      # after pytest-randomly's shuffle
+@pytest.hookimpl(trylast=True)  # after pytest-randomly's shuffle
 def pytest_collection_modifyitems(config, items):
     """Long files first (module docstring), each group in the order it came in."""
     if "PYTEST_XDIST_WORKER" not in os.environ or not DURATIONS.exists():
@@ -81,16 +85,22 @@ def pytest_sessionfinish(session, exitstatus):
     if out is None or exitstatus != 0 or "PYTEST_XDIST_WORKER" in os.environ:
         return
     workers = getattr(session.config.option, "numprocesses", None) or 1
-    out.write_text(json.dumps({
-        "what": "seconds per test file (setup, call and teardown of its tests) in one "
+    out.write_text(
+        json.dumps(
+            {
+                "what": "seconds per test file (setup, call and teardown of its tests) in one "
                 "passing run of the suite with an empty JIT cache; tests/conftest.py runs "
                 "the long files first",
-        "command": "make test-durations",
-        "tests": len(_tests),
-        "workers": workers,
-        "wall_s": round(time.perf_counter() - _started[0], 1),
-        "seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_seconds.items())},
-    }, indent=1) + "\n")
+                "command": "make test-durations",
+                "tests": len(_tests),
+                "workers": workers,
+                "wall_s": round(time.perf_counter() - _started[0], 1),
+                "seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_seconds.items())},
+            },
+            indent=1,
+        )
+        + "\n"
+    )
 
 
 @pytest.fixture
@@ -107,15 +117,15 @@ def computed_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
     exclusive lock (stdlib ``fcntl``: one machine, no extra dependency), by whichever
     worker asks first; every worker gets its own copy of it.
     """
-    if "PYTEST_XDIST_WORKER" not in os.environ:          # set by xdist in its workers
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # set by xdist in its workers
         own = tmp_path_factory.mktemp(name)
         make(own)
         return own
     root = tmp_path_factory.getbasetemp().parent
     shared, done = root / name, root / f"{name}.done"
     with open(root / f"{name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)          # released when the file closes
-        if not done.exists():                     # first asker (or an earlier one failed)
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not done.exists():  # first asker (or an earlier one failed)
             shutil.rmtree(shared, ignore_errors=True)
             shared.mkdir()
             make(shared)
@@ -129,13 +139,14 @@ def computed_once(tmp_path_factory, name: str, make: Callable[[Path], None]) -> 
 def foot_cache(tmp_path_factory) -> Path:
     """A foot mesh cache holding the coarse (level 0) mesh, meshed once per test run."""
     from artifem.models.foot.mesh import foot_mesh
+
     return computed_once(tmp_path_factory, "foot_cache", lambda d: foot_mesh(0, cache=d))
 
 
 class QuickJawTongue(NamedTuple):
-    config: Any          # jaw_tongue_reduced.ReducedJawTongueConfig
-    model: Any           # reduction.reductor.ReducedModel (jaw_tongue_reduced.train)
-    cache: Path          # its ArtifactCache directory (training runs, POD, points)
+    config: Any  # jaw_tongue_reduced.ReducedJawTongueConfig
+    model: Any  # reduction.reductor.ReducedModel (jaw_tongue_reduced.train)
+    cache: Path  # its ArtifactCache directory (training runs, POD, points)
 
 
 @pytest.fixture(scope="session")
@@ -151,9 +162,13 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
     from artifem.models import jaw_tongue_reduced as jtr
 
-    config = jtr.quick_config()      # also ``artifem study jaw-tongue --quick``'s training
-    cache = computed_once(tmp_path_factory, "jaw_tongue_quick",
-                          lambda d: jtr.train(config, d / "cache")) / "cache"
+    config = jtr.quick_config()  # also ``artifem study jaw-tongue --quick``'s training
+    cache = (
+        computed_once(
+            tmp_path_factory, "jaw_tongue_quick", lambda d: jtr.train(config, d / "cache")
+        )
+        / "cache"
+    )
     return QuickJawTongue(config, jtr.train(config, cache), cache)
 
 
@@ -171,13 +186,13 @@ def level1_protrusion():
 
     tongue, schedule, dt = build_case("level_1", "semi-implicit")
     protrusion = Tongue.motion("protrusion")
-    assert tongue.config == TongueConfig(level=1, integrator="semi-implicit",
-                                         incompressibility=PENALTY)
+    assert tongue.config == TongueConfig(
+        level=1, integrator="semi-implicit", incompressibility=PENALTY
+    )
     assert dt == DT and tongue.scene.t == 0.0
     assert np.array_equal(schedule.times, protrusion.times)
     assert schedule.values.keys() == protrusion.values.keys()
-    assert all(np.array_equal(schedule.values[k], protrusion.values[k])
-               for k in protrusion.values)
+    assert all(np.array_equal(schedule.values[k], protrusion.values[k]) for k in protrusion.values)
     return tongue, run_built(tongue, dt, record_times=(RAMP_TIME,))
 
 
@@ -208,6 +223,7 @@ def direct_solver():
 
     def make(body):
         return LinearSolver(MPI.COMM_SELF, "mumps", V=body.V, symmetric=body.conservative)
+
     return make
 
 
@@ -215,14 +231,46 @@ def direct_solver():
 def icosphere():
     """``icosphere(level, radius)`` -> (vertices, triangles): a sphere of radius ``radius``,
     an icosahedron subdivided ``level`` times, outward."""
+
     def build(level, radius=1.0):
-        p = (1 + 5 ** 0.5) / 2
-        vertices = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p),
-                    (0, -1, -p), (0, 1, -p), (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
+        p = (1 + 5**0.5) / 2
+        vertices = [
+            (-1, p, 0),
+            (1, p, 0),
+            (-1, -p, 0),
+            (1, -p, 0),
+            (0, -1, p),
+            (0, 1, p),
+            (0, -1, -p),
+            (0, 1, -p),
+            (p, 0, -1),
+            (p, 0, 1),
+            (-p, 0, -1),
+            (-p, 0, 1),
+        ]
         vertices = [np.array(v, float) / np.linalg.norm(v) for v in vertices]
-        faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9),
-                 (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6),
-                 (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+        faces = [
+            (0, 11, 5),
+            (0, 5, 1),
+            (0, 1, 7),
+            (0, 7, 10),
+            (0, 10, 11),
+            (1, 5, 9),
+            (5, 11, 4),
+            (11, 10, 2),
+            (10, 7, 6),
+            (7, 1, 8),
+            (3, 9, 4),
+            (3, 4, 2),
+            (3, 2, 6),
+            (3, 6, 8),
+            (3, 8, 9),
+            (4, 9, 5),
+            (2, 4, 11),
+            (6, 2, 10),
+            (8, 6, 7),
+            (9, 8, 1),
+        ]
         for _ in range(level):
             midpoints = {}
 
@@ -233,9 +281,13 @@ def icosphere():
                     vertices.append(m / np.linalg.norm(m))
                     midpoints[key] = len(vertices) - 1
                 return midpoints[key]
-            faces = [f for a, b, c in faces
-                     for ab, bc, ca in [(midpoint(a, b), midpoint(b, c), midpoint(c, a))]
-                     for f in ((a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca))]
+
+            faces = [
+                f
+                for a, b, c in faces
+                for ab, bc, ca in [(midpoint(a, b), midpoint(b, c), midpoint(c, a))]
+                for f in ((a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca))
+            ]
         return radius * np.array(vertices), np.array(faces)
 
     return build
@@ -251,14 +303,29 @@ def sliding_block():
     from mpi4py import MPI
 
     def make(lift, foundation=None):
-        msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
-                                               np.array([0.1, 0.1, 0.05 + lift])],
-                               [6, 6, 3], dmesh.CellType.hexahedron)
-        body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                          rayleigh=(10.0, 1e-3), name="block")
+        msh = dmesh.create_box(
+            MPI.COMM_SELF,
+            [np.array([0.0, 0.0, lift]), np.array([0.1, 0.1, 0.05 + lift])],
+            [6, 6, 3],
+            dmesh.CellType.hexahedron,
+        )
+        body = af.FemBody(
+            msh,
+            af.NeoHookean.from_young_poisson(1e5, 0.3),
+            1000.0,
+            rayleigh=(10.0, 1e-3),
+            name="block",
+        )
         body.v.x.array.reshape(-1, 3)[:, 0] = 0.3
-        contact = af.PlaneContact(body, (0.0, 0.0, 0.0), (0.2, 0.0, 1.0), mu=0.3,
-                                  tolerance=1e-5, margin=0.02, foundation=foundation)
+        contact = af.PlaneContact(
+            body,
+            (0.0, 0.0, 0.0),
+            (0.2, 0.0, 1.0),
+            mu=0.3,
+            tolerance=1e-5,
+            margin=0.02,
+            foundation=foundation,
+        )
         scene = af.Scene(gravity=(0.0, 0.0, -9.81))
         scene.add(body, contact)
         return scene, body, contact
@@ -287,6 +354,7 @@ def script_scene(tmp_path_factory):
     under ``mpiexec`` with a path argument, writes ``run(*build(COMM_WORLD))`` there as JSON
     (:func:`_run_two_ranks`), and executed here (its ``build`` and ``run`` for the serial
     comparison)."""
+
     def make(text: str, name: str):
         text = text + _SCRIPT_MAIN
         path = tmp_path_factory.mktemp(name) / f"{name}.py"
@@ -308,9 +376,16 @@ def two_ranks():
 def _run_two_ranks(path: Path, tmp_path: Path) -> dict:
     import subprocess
     import sys
+
     out = tmp_path / "result.json"
-    command = [str(Path(sys.executable).parent / "mpiexec"), "-n", "2", sys.executable,
-               str(path), str(out)]
+    command = [
+        str(Path(sys.executable).parent / "mpiexec"),
+        "-n",
+        "2",
+        sys.executable,
+        str(path),
+        str(out),
+    ]
     proc = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, f"{' '.join(command)} failed:\n{proc.stdout}\n{proc.stderr}"
     return json.loads(out.read_text())

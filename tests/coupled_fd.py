@@ -19,6 +19,7 @@ def master_force_difference(scene, dq, eps):
         layout.restore(saved)
         layout.place_slaves()
         return F
+
     return (forces(eps * dq) - forces(-eps * dq)) / (2 * eps)
 
 

@@ -30,8 +30,10 @@ DURATION, DT = 0.1, 0.01
 
 
 def schedules() -> dict[str, ExcitationSchedule]:
-    return {name: ExcitationSchedule.ramp_and_hold({"top": level}, 0.05)
-            for name, level in LEVELS.items()}
+    return {
+        name: ExcitationSchedule.ramp_and_hold({"top": level}, 0.05)
+        for name, level in LEVELS.items()
+    }
 
 
 class FailingBeam(ReducibleScene):
@@ -57,8 +59,13 @@ def model(fail: bool = False, distributed: bool = False) -> ReducibleScene:
 
 if __name__ == "__main__":
     cache, flags = sys.argv[1], sys.argv[2:]
-    reductor = Reductor(model("--fail" in flags, "--distributed" in flags), Training(schedules(), DURATION, DT, 2), cache,
-                        progress=False, comm=MPI.COMM_WORLD)
+    reductor = Reductor(
+        model("--fail" in flags, "--distributed" in flags),
+        Training(schedules(), DURATION, DT, 2),
+        cache,
+        progress=False,
+        comm=MPI.COMM_WORLD,
+    )
     done = reductor.train()
     if MPI.COMM_WORLD.rank == 0:
         print("RESULT " + json.dumps({**done, "keys": reductor.snapshot_keys()}), flush=True)

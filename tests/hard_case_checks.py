@@ -19,7 +19,6 @@ LEVEL0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
 AGREE_MM, AGREE_DT_MM = 5e-3, 0.1
 
 
-
 def make_runs(request):
     """runs(name, integrator) -> (tongue, run_built result), each run at most once per
     module (the level-1 semi-implicit run is the session fixture ``level1_protrusion``)."""
@@ -33,6 +32,7 @@ def make_runs(request):
                 tongue, _, dt = build_case(name, integrator)
                 done[name, integrator] = tongue, run_built(tongue, dt)
         return done[name, integrator]
+
     return get
 
 
@@ -55,7 +55,8 @@ def check_outcome(name, tongue, result):
     else:
         assert result["outcome"] == "inversion error", (
             f"{name}: stopped with something other than ElementInversionError: "
-            f"{result.get('error')}")
+            f"{result.get('error')}"
+        )
         inv = result["inversion"]
         message = inv["message"]
         assert re.search(r"t = [-+0-9.e]+ s", message), message
@@ -65,11 +66,15 @@ def check_outcome(name, tongue, result):
         assert inv["time"] > result["t_reached"] - 1e-12
 
 
-
 def assert_same_landmarks(a, b, what, atol=AGREE_MM):
     for landmark in a["landmarks_mm"]:
-        np.testing.assert_allclose(a["landmarks_mm"][landmark], b["landmarks_mm"][landmark],
-                                   rtol=0, atol=atol, err_msg=f"{what}: {landmark}")
+        np.testing.assert_allclose(
+            a["landmarks_mm"][landmark],
+            b["landmarks_mm"][landmark],
+            rtol=0,
+            atol=atol,
+            err_msg=f"{what}: {landmark}",
+        )
 
 
 def check_protrusion_variants(runs, integrator: str) -> None:

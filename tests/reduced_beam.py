@@ -12,13 +12,30 @@ from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, NeoHookean
 
 
-def make_body(*, mass="lumped", excitation=0.5, young=1.0e5, gravity=(0.0, 0.0, -9.81),
-              loads=True, rayleigh=(0.5, 0.01), incompressibility=2.0e5, comm=MPI.COMM_WORLD):
+def make_body(
+    *,
+    mass="lumped",
+    excitation=0.5,
+    young=1.0e5,
+    gravity=(0.0, 0.0, -9.81),
+    loads=True,
+    rayleigh=(0.5, 0.01),
+    incompressibility=2.0e5,
+    comm=MPI.COMM_WORLD,
+):
     """A 4x2x2 hex beam clamped at x = 0: gravity, (body force, tip load), a muscle on top."""
-    msh = dmesh.create_box(comm, [np.zeros(3), np.array([1.0, 0.3, 0.2])],
-                           [4, 2, 2], dmesh.CellType.hexahedron)
-    body = FemBody(msh, NeoHookean.from_young_poisson(young, 0.3), 1000.0, mass=mass,
-                   rayleigh=rayleigh, gravity=gravity, incompressibility=incompressibility)
+    msh = dmesh.create_box(
+        comm, [np.zeros(3), np.array([1.0, 0.3, 0.2])], [4, 2, 2], dmesh.CellType.hexahedron
+    )
+    body = FemBody(
+        msh,
+        NeoHookean.from_young_poisson(young, 0.3),
+        1000.0,
+        mass=mass,
+        rayleigh=rayleigh,
+        gravity=gravity,
+        incompressibility=incompressibility,
+    )
     x = msh.geometry.x
     inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
     body.fix_nodes(inputs[x[:, 0] < 1e-12])

@@ -53,7 +53,7 @@ def test_sections_are_closed_loops_and_scale_as_areas(scene):
     R = exp_so3([0.3, -0.2, 0.5])
     np.testing.assert_allclose(sec.areas(x @ R.T + 1.0), A, rtol=1e-10)
     L = sec.length(x)
-    assert np.all(np.diff(L) > 0) and 0.12 < L[-1] < 0.25        # larynx to lips, m
+    assert np.all(np.diff(L) > 0) and 0.12 < L[-1] < 0.25  # larynx to lips, m
 
 
 def test_skin_vertices_outside_the_tongue_snap_into_its_elements(scene):
@@ -67,8 +67,9 @@ def test_skin_vertices_outside_the_tongue_snap_into_its_elements(scene):
         e = tongue.embedding[k]
         assert e.weights.min() > -1e-12 and e.weights.max() < 1 + 1e-12
     nodes = scene.jt.tongue.body.V.tabulate_dof_coordinates()
-    nearest_node = np.array([np.linalg.norm(nodes - X, axis=1).min()
-                             for X in scene.skin.rest[outside]])
+    nearest_node = np.array(
+        [np.linalg.norm(nodes - X, axis=1).min() for X in scene.skin.rest[outside]]
+    )
     assert np.all(tongue.distance[outside] <= nearest_node + 1e-12)
 
 
@@ -93,7 +94,7 @@ def test_skin_follows_a_rigid_motion_of_all_masters(scene):
         c = np.array([0.004, -0.002, 0.003])
         _common_rigid_motion(a, np.eye(3), c)
         np.testing.assert_allclose(a.skin.positions(), x0 + c, atol=1e-14)
-        for (b, (p, Rb)) in zip((a.jt.jaw, a.palate), saved):
+        for b, (p, Rb) in zip((a.jt.jaw, a.palate), saved):
             b.position, b.rotation = p.copy(), Rb.copy()
         R = exp_so3([0.05, 0.1, -0.08])
         _common_rigid_motion(a, R, c)
@@ -105,7 +106,7 @@ def test_skin_follows_a_rigid_motion_of_all_masters(scene):
         assert inside.sum() > 50 and err[inside].max() < 1e-13
     finally:
         a.jt.tongue.body.u.x.array[:] = 0.0
-        for (b, (p, Rb)) in zip((a.jt.jaw, a.palate), saved):
+        for b, (p, Rb) in zip((a.jt.jaw, a.palate), saved):
             b.position, b.rotation = p, Rb
 
 
@@ -131,8 +132,10 @@ def test_pressure_loads_on_the_masters_do_the_work_of_the_skin_forces(scene):
         assert loads[0][1].shape == body.u.x.array.shape
         f_v = a.pressure.vertex_forces(t)
         du = 1e-2 * rng.standard_normal(u1.size)
-        twists = [np.concatenate([1e-2 * rng.standard_normal(3), rng.standard_normal(3)])
-                  for _ in range(2)]
+        twists = [
+            np.concatenate([1e-2 * rng.standard_normal(3), rng.standard_normal(3)])
+            for _ in range(2)
+        ]
 
         def moved(eps):
             body.u.x.array[:] = u1 + eps * du
@@ -153,7 +156,7 @@ def test_pressure_loads_on_the_masters_do_the_work_of_the_skin_forces(scene):
         moved(0.0)
         net = aw.resultants(a, t)
         assert np.abs(net["sum"]).max() < 1e-12 * np.abs(f_v).sum()
-        assert np.linalg.norm(net["tongue"]) > 0.1                 # N, at 1 kPa
+        assert np.linalg.norm(net["tongue"]) > 0.1  # N, at 1 kPa
     finally:
         body.u.x.array[:] = 0.0
         for b, (p, R) in zip((jaw, palate), saved):
@@ -165,10 +168,15 @@ def test_closed_skin_on_rigid_masters_only_gets_no_net_wrench(scene):
     moments (about the origin) of the pressure's master loads is zero."""
     a = scene
     jaw, palate = a.jt.jaw, a.palate
-    skin = SkinMesh(a.skin.rest, a.skin.faces,
-                    [RigidMaster(jaw, reference=jaw.surface[0]),
-                     RigidMaster(palate, reference=palate.surface[0])],
-                    blending="dual_quaternion")
+    skin = SkinMesh(
+        a.skin.rest,
+        a.skin.faces,
+        [
+            RigidMaster(jaw, reference=jaw.surface[0]),
+            RigidMaster(palate, reference=palate.surface[0]),
+        ],
+        blending="dual_quaternion",
+    )
     p0, R0 = jaw.position.copy(), jaw.rotation.copy()
     try:
         jaw.rotation = exp_so3([0.0, 0.15, 0.0]) @ jaw.rotation
@@ -179,7 +187,7 @@ def test_closed_skin_on_rigid_masters_only_gets_no_net_wrench(scene):
         scale = np.abs(skin.pressure_forces(500.0)).sum()
         assert np.abs(force).max() < 1e-12 * scale
         assert np.abs(moment).max() < 1e-12 * scale
-        assert np.abs(loads[0][1][:3]).max() > 1e-3 * scale      # each one is loaded
+        assert np.abs(loads[0][1][:3]).max() > 1e-3 * scale  # each one is loaded
     finally:
         jaw.position, jaw.rotation = p0, R0
 
@@ -189,10 +197,14 @@ def full_runs(data):
     """STEPS of protrusion of the full airway with and without the air pressure (ramped to
     500 Pa at the end), each on a scene of its own: the ``scene`` fixture stays at rest
     for the other tests, whatever their order."""
-    scenes = {"on": aw.build_scene(aw.AirwayConfig(), data=data),
-              "off": aw.build_scene(aw.AirwayConfig(), pressure=False, data=data)}
-    return {name: aw.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
-            for name, a in scenes.items()}
+    scenes = {
+        "on": aw.build_scene(aw.AirwayConfig(), data=data),
+        "off": aw.build_scene(aw.AirwayConfig(), pressure=False, data=data),
+    }
+    return {
+        name: aw.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
+        for name, a in scenes.items()
+    }
 
 
 def test_positive_pressure_pushes_the_tongue_away_from_the_airway(scene, full_runs):
@@ -250,8 +262,9 @@ def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_sce
     n_m = a.scene.master_count()
     assert n_m == pod.size + 6
     try:
-        dq = np.concatenate([2e-3 * rng.standard_normal(pod.size), [1e-3, -2e-3, 1e-3],
-                             [0.0, 0.08, 0.0]])                   # q, jaw (dp, dtheta)
+        dq = np.concatenate(
+            [2e-3 * rng.standard_normal(pod.size), [1e-3, -2e-3, 1e-3], [0.0, 0.08, 0.0]]
+        )  # q, jaw (dp, dtheta)
         a.scene.displace_masters(dq)
         t = 1.0
         loads = a.pressure.master_loads(t)
@@ -260,8 +273,9 @@ def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_sce
         f_v = a.pressure.vertex_forces(t)
         # U^T G^T f against the full tongue's skin at the same displacement
         body = a.jt.tongue.body
-        full = SkinMesh(a.skin.rest, a.skin.faces, [body] + a.skin.masters[1:],
-                        weights=a.skin.weights)
+        full = SkinMesh(
+            a.skin.rest, a.skin.faces, [body] + a.skin.masters[1:], weights=a.skin.weights
+        )
         body.u.x.array[:] = red.nodal_displacement()
         np.testing.assert_allclose(full.positions(), a.skin.positions(), atol=1e-12)
         nodal = full.master_forces(f_v)[0]
@@ -272,8 +286,9 @@ def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_sce
         P_F = L.prolongation().T @ L.load_vector(t)
         np.testing.assert_allclose(P_F, F_m, atol=1e-12 * np.abs(F_m).max())
         # virtual work against a central difference of the skin's positions
-        dz = rng.standard_normal(n_m) * np.concatenate([np.full(pod.size, 1e-2),
-                                                        np.full(3, 1e-2), np.full(3, 1.0)])
+        dz = rng.standard_normal(n_m) * np.concatenate(
+            [np.full(pod.size, 1e-2), np.full(3, 1e-2), np.full(3, 1.0)]
+        )
         here = L.save()
         eps, x = 1e-6, []
         for sign in (1.0, -1.0):
@@ -284,7 +299,7 @@ def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_sce
         work_skin = float(np.sum(f_v * v_fd))
         assert abs(work_skin) > 1e-6
         assert F_m @ dz == pytest.approx(work_skin, rel=1e-6)
-        lift_work = (RigidLift.jacobian(jaw.rotation).T @ F_red[g]) @ dz[pod.size:]
+        lift_work = (RigidLift.jacobian(jaw.rotation).T @ F_red[g]) @ dz[pod.size :]
         assert abs(lift_work) > 0.01 * abs(work_skin)
     finally:
         L.restore(saved)
@@ -301,22 +316,27 @@ def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
     c = aw.compare(reduced_scene, on, rec)
     effect = np.linalg.norm(on["skin"][-1] - off["skin"][-1], axis=1).mean()
     error = np.linalg.norm(rec["skin"][-1] - on["skin"][-1], axis=1).mean()
-    assert c["max_skin_displacement_mm"] > 3.0                     # the skin really moved
+    assert c["max_skin_displacement_mm"] > 3.0  # the skin really moved
     assert c["skin_error_mm"]["mean_max_over_t"] < 0.25
-    assert error < 0.3 * effect                                    # the air acts on it
+    assert error < 0.3 * effect  # the air acts on it
     assert c["area_error_percent"]["max"] < 5.0
     assert c["jaw_angle_deg"]["full"] > 0.5
     assert c["jaw_angle_deg"]["max_difference"] < 0.1
     assert c["max_attachment_error_m"] < 1e-12
-    assert rec["top"][-1][2] < off["top"][-1][2]                   # the air lowers the top
+    assert rec["top"][-1][2] < off["top"][-1][2]  # the air lowers the top
 
 
 def test_benchmark_reports_positive_times(reduced):
     _, cache, quick = reduced
     out = aw.benchmark(steps=1, reduced=quick, cache=cache)
     for case in ("full", "reduced"):
-        for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
-                    "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
+        for key in (
+            "ms_per_step_without_airway",
+            "ms_per_step_with_skin_pressure",
+            "ms_skin_positions",
+            "ms_skin_jacobian",
+            "ms_pressure_master_loads",
+        ):
             assert out["cases"][case][key] > 0, (case, key)
     assert out["cases"]["reduced"]["masters"] == quick.r + 6
     assert out["skin_vertices"] > 900 and out["speedup"]["ms_per_step_without_airway"] > 0

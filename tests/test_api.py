@@ -11,11 +11,11 @@ from mpi4py import MPI
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
 
-@pytest.mark.parametrize("package", ["artifem", "artifem.forms", "artifem.io",
-                                     "artifem.reduction"])
+@pytest.mark.parametrize("package", ["artifem", "artifem.forms", "artifem.io", "artifem.reduction"])
 def test_every_public_name_resolves_and_unknown_names_are_attribute_errors(package):
     """The surface the docs' API reference lists: each package's ``__all__``."""
     import importlib
+
     module = importlib.import_module(package)
     for name in module.__all__:
         assert getattr(module, name) is not None, name
@@ -29,23 +29,33 @@ def test_a_user_scene_in_fifteen_lines(tmp_path):
     """A bone hinged to the world carries a soft block; simulate records the hinge angle
     and writes the block's series. Checked against the physics that is determined: the
     bone falls (gravity), the joint holds, the time grid is exact."""
-    box = dmesh.create_box(MPI.COMM_SELF, [np.array([0.05, -0.02, -0.04]),
-                                           np.array([0.25, 0.02, 0.0])], [4, 1, 1],
-                           dmesh.CellType.hexahedron)
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([0.05, -0.02, -0.04]), np.array([0.25, 0.02, 0.0])],
+        [4, 1, 1],
+        dmesh.CellType.hexahedron,
+    )
     block = af.FemBody(box, af.NeoHookean.from_young_poisson(5e4, 0.3), 1000.0, name="block")
     bone = af.RigidBody("bone", 0.3, 1e-3 * np.eye(3), position=(0.15, 0.0, 0.0))
     hinge = af.RevoluteJoint.at_world(bone, None, (0.0, 0.0, 0.0), af.axis_rotation((0, 1, 0)))
     scene = af.Scene(gravity=(0.0, 0.0, -9.81))
-    scene.add(bone, block, hinge,
-              af.NodeAttachment(block, block.find_nodes(lambda x: x[2] > -1e-9), bone))
-    run = af.simulate(scene, 0.05, 0.01, vtx=tmp_path, progress=False,
-                      record={"angle": lambda s: hinge.angle(), "com": lambda s: bone.position})
+    scene.add(
+        bone, block, hinge, af.NodeAttachment(block, block.find_nodes(lambda x: x[2] > -1e-9), bone)
+    )
+    run = af.simulate(
+        scene,
+        0.05,
+        0.01,
+        vtx=tmp_path,
+        progress=False,
+        record={"angle": lambda s: hinge.angle(), "com": lambda s: bone.position},
+    )
     np.testing.assert_allclose(run.times, np.linspace(0.0, 0.05, 6), atol=1e-15)
     assert run.records["angle"].shape == (6,) and run.records["com"].shape == (6, 3)
-    assert np.all(np.diff(run.records["com"][:, 2]) < 0)          # it falls
+    assert np.all(np.diff(run.records["com"][:, 2]) < 0)  # it falls
     # Baumgarte-stabilized: the joint error stays O(h^2 |v|^2 / r) ~ 1e-4 m, not growing
     assert max(scene.constraint_errors().values()) < 1e-3
-    assert run.step_ms.shape == (5,)                              # one wall time per step
+    assert run.step_ms.shape == (5,)  # one wall time per step
     assert run.halvings == 0 and 0 < run.min_det_F < 1.5
     assert (tmp_path / "block.bp").is_dir()
 
@@ -56,11 +66,17 @@ def test_simulate_holds_numpy_blas_to_one_thread_while_it_runs():
     from threadpoolctl import ThreadpoolController, threadpool_limits
 
     def threads(s=None) -> float:
-        return float(sum(i["num_threads"] for i in ThreadpoolController().info()
-                         if i["filepath"] == numpy_blas))
+        return float(
+            sum(
+                i["num_threads"]
+                for i in ThreadpoolController().info()
+                if i["filepath"] == numpy_blas
+            )
+        )
 
-    numpy_blas = next(i["filepath"] for i in ThreadpoolController().info()
-                      if "numpy" in i["filepath"])
+    numpy_blas = next(
+        i["filepath"] for i in ThreadpoolController().info() if "numpy" in i["filepath"]
+    )
     bone = af.RigidBody("bone", 0.3, 1e-3 * np.eye(3))
     scene = af.Scene()
     scene.add(bone)
@@ -71,6 +87,7 @@ def test_simulate_holds_numpy_blas_to_one_thread_while_it_runs():
 
         def stop(s, t0, t1):
             raise RuntimeError("a controller that fails")
+
         scene.add_controller(stop)
         with pytest.raises(RuntimeError, match="fails"):
             af.simulate(scene, 0.03, 0.01, progress=False)
@@ -91,10 +108,11 @@ def test_simulate_bad_input_is_a_clear_error():
 def test_the_readme_scene_example_runs(tmp_path):
     """The README's Scene example, as printed (a shorter run, output in tmp_path)."""
     from pathlib import Path
+
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## Python API"):]
-    code = section[section.index("```python") + len("```python"):]
-    code = code[:code.index("```")]
+    section = readme[readme.index("## Python API") :]
+    code = section[section.index("```python") + len("```python") :]
+    code = code[: code.index("```")]
     assert "af.simulate(scene, 0.6, 0.005" in code and 'vtx="out/"' in code
     code = code.replace("af.simulate(scene, 0.6, 0.005", "af.simulate(scene, 0.02, 0.005")
     code = code.replace('vtx="out/"', f"vtx={str(tmp_path)!r}, progress=False")
@@ -107,12 +125,13 @@ def test_the_readme_scene_example_runs(tmp_path):
 def test_the_readme_fem_scene_example_runs(tmp_path, monkeypatch):
     """The README's one-body scene (the tongue, stepped on its own), as printed, shorter."""
     from pathlib import Path
+
     root = Path(__file__).resolve().parents[1]
     section = (root / "README.md").read_text()
-    section = section[section.index("## Python API"):]
-    section = section[section.index("```", section.index("```python") + 9) + 3:]
-    code = section[section.index("```python") + len("```python"):]
-    code = code[:code.index("```")]
+    section = section[section.index("## Python API") :]
+    section = section[section.index("```", section.index("```python") + 9) + 3 :]
+    code = section[section.index("```python") + len("```python") :]
+    code = code[: code.index("```")]
     assert "af.simulate(scene, 1.0, 0.01" in code and 'vtx="out/"' in code
     code = code.replace("af.simulate(scene, 1.0, 0.01", "af.simulate(scene, 0.02, 0.01")
     code = code.replace('vtx="out/"', f"vtx={str(tmp_path)!r}, progress=False")

@@ -21,14 +21,15 @@ from artifem.linear_solver import LinearSolver
 from artifem.scene import Scene
 
 MATERIAL = NeoHookean.from_young_poisson(1.0e4, 0.3)
-N_NODES = 3 * 3 * 3          # a 2 x 2 x 2 hexahedral box
+N_NODES = 3 * 3 * 3  # a 2 x 2 x 2 hexahedral box
 N_CELLS = 8
 
 
 @pytest.fixture
 def msh():
-    return dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [2, 2, 2],
-                            dmesh.CellType.hexahedron)
+    return dmesh.create_box(
+        MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [2, 2, 2], dmesh.CellType.hexahedron
+    )
 
 
 @pytest.fixture
@@ -37,6 +38,7 @@ def body(msh):
 
 
 # ---- FemBody construction -------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("density", [-1000.0, 0.0, math.nan, math.inf])
 def test_density_must_be_positive_and_finite(msh, density):
@@ -57,11 +59,14 @@ def test_unknown_mass_kind(msh):
 
 def test_unsupported_cell_type_is_named():
     triangles = dmesh.create_unit_square(MPI.COMM_WORLD, 2, 2, dmesh.CellType.triangle)
-    with pytest.raises(ValueError, match=r"unsupported cell type 'triangle'.*hexahedron.*tetrahedron"):
+    with pytest.raises(
+        ValueError, match=r"unsupported cell type 'triangle'.*hexahedron.*tetrahedron"
+    ):
         FemBody(triangles, MATERIAL, 1000.0)
 
 
 # ---- nodes and loads ------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("method", ["fix_nodes", "add_nodal_load", "displacement_at"])
 @pytest.mark.parametrize("bad", [N_NODES, -1, 10**6])
@@ -80,6 +85,7 @@ def test_node_indices_out_of_range_say_which(body, method, bad):
 
 # ---- muscles --------------------------------------------------------------------------------
 
+
 def test_muscle_with_a_zero_direction_names_the_element(body):
     directions = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     with pytest.raises(ValueError, match=r"muscle 'm'.*zero or non-finite fiber direction.*\[4\]"):
@@ -94,7 +100,9 @@ def test_muscle_with_a_nan_direction(body):
 
 @pytest.mark.parametrize("cells", [[], [0, N_CELLS], [-1]])
 def test_muscle_cells_out_of_range(body, cells):
-    with pytest.raises(ValueError, match=rf"cell indices must be a non-empty subset of \[0, {N_CELLS}\)"):
+    with pytest.raises(
+        ValueError, match=rf"cell indices must be a non-empty subset of \[0, {N_CELLS}\)"
+    ):
         body.add_muscle("m", cells, [1.0, 0.0, 0.0], BlemkerFiber(1.0e4))
 
 
@@ -126,6 +134,7 @@ def test_unknown_muscle_name(body):
 
 # ---- scene ----------------------------------------------------------------------------------
 
+
 def test_unknown_integrator():
     with pytest.raises(InputError, match=r"unknown integrator 'rk4'.*implicit.*semi-implicit"):
         Scene(integrator="rk4")
@@ -138,6 +147,7 @@ def test_unknown_fallback_integrator():
 
 def test_a_step_tolerance_below_the_constraint_tolerance():
     from artifem.incompressibility import Incompressible
+
     with pytest.raises(InputError, match=r"step_tol must be >= tol \(0\.001\), got 0\.0001"):
         Incompressible(kappa=1e4, tol=1e-3, step_tol=1e-4)
 
@@ -183,5 +193,6 @@ def test_duplicate_body_name(msh, body):
 @pytest.mark.parametrize("projections", [-1, 1.5])
 def test_a_projection_count_that_is_not_a_count(projections):
     from artifem.incompressibility import Incompressible
+
     with pytest.raises(InputError, match=r"projections must be an integer >= 0, got "):
         Incompressible(kappa=1e4, projections=projections)

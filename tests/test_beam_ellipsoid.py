@@ -34,9 +34,9 @@ def euler_bernoulli_mm(config: BeamEllipsoidConfig, mass: float) -> float:
     weight q (q L^4 / 8 EI) and the ellipsoid's weight W hung a beyond the end (a force W
     and a moment W a at x = L: W L^3 / 3 EI + W a L^2 / 2 EI)."""
     L, b, h = config.length, config.width, config.height
-    EI = config.young * b * h ** 3 / 12.0
+    EI = config.young * b * h**3 / 12.0
     q, W, a = config.density * b * h * G, mass * G, config.semi_axes[0]
-    return 1e3 * (q * L ** 4 / (8 * EI) + W * L ** 3 / (3 * EI) + W * a * L ** 2 / (2 * EI))
+    return 1e3 * (q * L**4 / (8 * EI) + W * L**3 / (3 * EI) + W * a * L**2 / (2 * EI))
 
 
 def test_run_writes_the_picture_and_the_figures(tmp_path):
@@ -72,14 +72,15 @@ def test_run_writes_the_picture_and_the_figures(tmp_path):
     reference = static["reference_mm"]
     assert abs(face - reference) < 1e-6 * reference
     assert abs(frame - reference) < 3e-4 * reference
-    assert static["frame_vs_reference"] == pytest.approx(abs(frame - reference) / reference,
-                                                         rel=1e-9)
+    assert static["frame_vs_reference"] == pytest.approx(
+        abs(frame - reference) / reference, rel=1e-9
+    )
     theory = euler_bernoulli_mm(config, mass)
     assert static["euler_bernoulli_mm"] == pytest.approx(theory, rel=1e-12)
     for tip in (face, frame, reference):
         assert 0.93 < tip / theory < 1.03, (tip, theory)
     swing = figures["swing"]
-    free_fall_mm = 1e3 * 0.5 * G * duration ** 2
+    free_fall_mm = 1e3 * 0.5 * G * duration**2
     assert 0.9 < swing["max_tip_mm"] / free_fall_mm < 1.25, swing["max_tip_mm"]
     energy = swing["energy_J"]
     assert np.isfinite(energy["final"])

@@ -11,8 +11,9 @@ from artifem.cli import main
 
 def test_bench_fom_smallest_case_writes_sound_json(tmp_path):
     out = tmp_path / "sub" / "bench_fom.json"
-    code = main(["bench", "fom", "--out", str(out), "--sizes", "1k", "--ranks", "1",
-                 "--steps", "2"])
+    code = main(
+        ["bench", "fom", "--out", str(out), "--sizes", "1k", "--ranks", "1", "--steps", "2"]
+    )
     assert code == 0
     report = json.loads(out.read_text())
     assert "errors" not in report
@@ -46,14 +47,18 @@ def test_bench_fom_rejects_bad_arguments(tmp_path, capsys):
 
 def test_bench_tongue_level0_writes_sound_json(tmp_path):
     out = tmp_path / "bench_tongue.json"
-    code = main(["bench", "tongue", "--out", str(out), "--levels", "0", "--ranks", "1",
-                 "--steps", "2"])
+    code = main(
+        ["bench", "tongue", "--out", str(out), "--levels", "0", "--ranks", "1", "--steps", "2"]
+    )
     assert code == 0
     report = json.loads(out.read_text())
     assert report["benchmark"] == "tongue"
     assert "errors" not in report
-    assert report["reference"] == {"seed_paper_ms_per_step": 188.9, "seed_paper_nodes": 2961,
-                                   "machine": "quad-core i7-7700, Pardiso"}
+    assert report["reference"] == {
+        "seed_paper_ms_per_step": 188.9,
+        "seed_paper_nodes": 2961,
+        "machine": "quad-core i7-7700, Pardiso",
+    }
     settings = report["settings"]
     assert settings["motion"] == "protrusion" and settings["dt"] == 0.01
     assert settings["warmup_steps"] == bench.TONGUE_WARMUP
@@ -87,8 +92,17 @@ def test_bench_tongue_rejects_bad_arguments(tmp_path, capsys):
 
 
 def test_format_table_leading_columns():
-    case = {"level": 1, "nodes": 6699, "ranks": 2, "solver": "mumps", "ms_per_step": 1.0,
-            "assembly_ms": 0.5, "solve_ms": 0.4, "iterations": 1.0, "peak_mb": 100.0}
+    case = {
+        "level": 1,
+        "nodes": 6699,
+        "ranks": 2,
+        "solver": "mumps",
+        "ms_per_step": 1.0,
+        "assembly_ms": 0.5,
+        "solve_ms": 0.4,
+        "iterations": 1.0,
+        "peak_mb": 100.0,
+    }
     head, _, row = bench.format_table([case], lead=("level",)).splitlines()
     assert head.split()[:2] == ["level", "nodes"]
     assert row.split()[:4] == ["1", "6699", "2", "mumps"]

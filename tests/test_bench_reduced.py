@@ -53,19 +53,34 @@ def test_count_flops_counts_the_arithmetic_of_the_kernel():
 
 def test_bench_reduced_on_the_quick_training(quick_tongue_study, tmp_path):
     out = tmp_path / "reduced.json"
-    assert main(["bench", "reduced", "--quick", "--incompressibility", "hard",
-                 "--cache", str(quick_tongue_study / "cache"), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "reduced",
+                "--quick",
+                "--incompressibility",
+                "hard",
+                "--cache",
+                str(quick_tongue_study / "cache"),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     (case,) = report["cases"]
     assert (case["r"], case["m"], case["incompressibility"]) == (8, 120, "hard")
-    assert case["training_runs"] == 11                 # the quick study's, from its cache
+    assert case["training_runs"] == 11  # the quick study's, from its cache
     assert set(case["parts"]) == {"stresses", "tangent", "force", "kinematics", "rest"}
     for part in case["parts"].values():
         assert part["ms"] >= 0 and part["flops"] > 0
     kernels = case["kernels"]
     assert sum(k["points"] for k in kernels) == 120
     assert all(k["flops_per_point"] > 200 for k in kernels)
-    assert case["parts"]["stresses"]["flops"] == sum(k["points"] * k["flops_per_point"]
-                                                     for k in kernels)
+    assert case["parts"]["stresses"]["flops"] == sum(
+        k["points"] * k["flops_per_point"] for k in kernels
+    )
     assert case["flops_per_step"] == sum(p["flops"] for p in case["parts"].values())
     assert case["ms_per_step"] > 0 and case["met"] is None

@@ -35,8 +35,23 @@ def test_console_script_runs():
 def test_simulate_beam_writes_results(tmp_path):
     """A short, coarse run of the demo scene: series, pictures and figures exist and make sense."""
     out = tmp_path / "beam"
-    status = main(["simulate", "beam", "--out", str(out), "--cells", "8", "2", "2",
-                   "--duration", "0.2", "--dt", "0.02", "--no-progress"])
+    status = main(
+        [
+            "simulate",
+            "beam",
+            "--out",
+            str(out),
+            "--cells",
+            "8",
+            "2",
+            "2",
+            "--duration",
+            "0.2",
+            "--dt",
+            "0.02",
+            "--no-progress",
+        ]
+    )
     assert status == 0
     figures = json.loads((out / "simulate.json").read_text())
     assert figures["nodes"] == 9 * 3 * 3 and figures["elements"] == 32
@@ -85,25 +100,43 @@ def test_find_python_says_what_to_install(tmp_path):
         exe.write_text("#!/bin/sh\nexit 1\n")
         exe.chmod(0o755)
     env["PATH"] = f"{fake_bin}:/bin"
-    out = subprocess.run(["bash", str(ROOT / "scripts" / "find-python")], env=env,
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "find-python")], env=env, capture_output=True, text=True
+    )
     assert out.returncode == 1
     assert "Python >= 3.12" in out.stderr and "pyenv install" in out.stderr
 
 
 def test_find_python_finds_this_interpreter():
-    out = subprocess.run(["bash", str(ROOT / "scripts" / "find-python")],
-                         capture_output=True, text=True, env={**os.environ})
+    out = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "find-python")],
+        capture_output=True,
+        text=True,
+        env={**os.environ},
+    )
     assert out.returncode == 0
-    version = subprocess.run([out.stdout.strip(), "-c", "import sys; print(sys.version_info[:2])"],
-                             capture_output=True, text=True).stdout
+    version = subprocess.run(
+        [out.stdout.strip(), "-c", "import sys; print(sys.version_info[:2])"],
+        capture_output=True,
+        text=True,
+    ).stdout
     assert eval(version) >= (3, 12)
 
 
 def test_simulate_airway_takes_the_reduced_tongue_options(tmp_path):
     from artifem.cli import build_parser
-    args = build_parser().parse_args(["simulate", "airway", "--out", str(tmp_path), "--reduced",
-                                      "--cache", str(tmp_path / "cache")])
+
+    args = build_parser().parse_args(
+        [
+            "simulate",
+            "airway",
+            "--out",
+            str(tmp_path),
+            "--reduced",
+            "--cache",
+            str(tmp_path / "cache"),
+        ]
+    )
     assert args.reduced and args.cache == tmp_path / "cache"
     args = build_parser().parse_args(["simulate", "airway", "--out", str(tmp_path)])
     assert not args.reduced

@@ -53,8 +53,23 @@ JT_DURATION, JT_DT = 0.05, 0.01
 @pytest.fixture(scope="module")
 def jaw_tongue_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("jaw_tongue")
-    assert main(["simulate", "jaw-tongue", "--motion", "protrusion", "--duration",
-                 str(JT_DURATION), "--dt", str(JT_DT), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "jaw-tongue",
+                "--motion",
+                "protrusion",
+                "--duration",
+                str(JT_DURATION),
+                "--dt",
+                str(JT_DT),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out, json.loads((out / "jaw_tongue.json").read_text())
 
 
@@ -64,8 +79,12 @@ def test_simulate_jaw_tongue_writes_sound_results(jaw_tongue_run):
     assert (f["motion"], f["steps"], f["halvings"]) == ("protrusion", steps, 0)
     # one record per step and one at rest
     assert f["t"] == pytest.approx([k * JT_DT for k in range(steps + 1)])
-    for key in ("opening_angle_deg", "tip_displacement_mm", "jaw_nodes_mean_dz_mm",
-                "opener_tension_N"):
+    for key in (
+        "opening_angle_deg",
+        "tip_displacement_mm",
+        "jaw_nodes_mean_dz_mm",
+        "opener_tension_N",
+    ):
         assert len(f[key]) == steps + 1, key
         assert np.all(np.isfinite(f[key])), key
     # the level-0 tongue (946 nodes) with its 59 jaw-attachment nodes (models/jaw_tongue_reduced)
@@ -78,29 +97,44 @@ def test_simulate_jaw_tongue_writes_sound_results(jaw_tongue_run):
     assert np.all((angles >= lo - 1e-6) & (angles <= hi + 1e-6))
     assert f["max_opening_angle_deg"] == pytest.approx(angles.max())
     assert f["tip_displacement_mm"][0] == [0.0, 0.0, 0.0]
-    assert np.linalg.norm(f["final_tip_displacement_mm"]) > 0.1     # the tongue moved
+    assert np.linalg.norm(f["final_tip_displacement_mm"]) > 0.1  # the tongue moved
     assert f["max_attachment_error_m"] < 1e-12 and f["max_joint_error"] < 1e-5
     assert is_png(out / "jaw_tongue.png", 10_000)
 
 
-def test_study_jaw_tongue_quick_agrees_with_simulate_jaw_tongue(tmp_path, quick_jaw_tongue,
-                                                                jaw_tongue_run, capsys):
+def test_study_jaw_tongue_quick_agrees_with_simulate_jaw_tongue(
+    tmp_path, quick_jaw_tongue, jaw_tongue_run, capsys
+):
     from artifem.models import jaw_tongue_reduced as jtr
 
-    assert quick_jaw_tongue.config == jtr.quick_config()      # its training is in the cache
+    assert quick_jaw_tongue.config == jtr.quick_config()  # its training is in the cache
     out = tmp_path / "study"
-    assert main(["study", "jaw-tongue", "--quick", "--duration", str(JT_DURATION),
-                 "--cache", str(quick_jaw_tongue.cache), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "study",
+                "jaw-tongue",
+                "--quick",
+                "--duration",
+                str(JT_DURATION),
+                "--cache",
+                str(quick_jaw_tongue.cache),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     f = json.loads((out / "jaw_tongue_reduced.json").read_text())
-    assert "| protrusion |" in capsys.readouterr().out              # the table, printed
+    assert "| protrusion |" in capsys.readouterr().out  # the table, printed
     assert (f["duration"], f["dt"]) == (JT_DURATION, JT_DT)
     assert f["basis"]["pod_vectors"] == 12 and f["points"]["count"] == 150
-    assert set(f["motions"]) == {"protrusion"}                      # --quick: one motion
+    assert set(f["motions"]) == {"protrusion"}  # --quick: one motion
     r = f["motions"]["protrusion"]
     assert finite_positive(r["full_ms_per_step"]) and finite_positive(r["reduced_ms_per_step"])
     assert r["speedup"] == pytest.approx(r["full_ms_per_step"] / r["reduced_ms_per_step"])
     assert 0 < r["max_mean_error_mm"] <= r["max_node_error_mm"]
-    assert r["max_mean_error_mm"] < 0.5                             # a few tenths of a mm
+    assert r["max_mean_error_mm"] < 0.5  # a few tenths of a mm
     assert r["max_attachment_error_m"] < 1e-12 and r["max_joint_error"] < 1e-5
     assert 0 <= r["worst_time_s"] <= JT_DURATION + 1e-12
     # its full scene is the one `simulate jaw-tongue` ran: same motion, dt, duration
@@ -115,13 +149,14 @@ def test_study_jaw_tongue_quick_agrees_with_simulate_jaw_tongue(tmp_path, quick_
 
 # ---- simulate masseter, airway, styloglossus --------------------------------------------
 
+
 def test_simulate_masseter_coarse(tmp_path):
     from artifem.models.masseter import MODELS
 
     assert main(["simulate", "masseter", "--coarse", "--steps", "1", "--out", str(tmp_path)]) == 0
     s = json.loads((tmp_path / "masseter.json").read_text())
     c = s["config"]
-    assert c["steps"] == 1 and c["voxel_size"] == 0.005              # --steps, --coarse
+    assert c["steps"] == 1 and c["voxel_size"] == 0.005  # --steps, --coarse
     assert set(s["models"]) == {f"{p}/{a}" for p, a in MODELS}
     sigma_area = c["max_stress"] * c["excitation"] * c["width_bottom"] * c["thickness"]
     for label, m in s["models"].items():
@@ -142,11 +177,27 @@ def test_simulate_masseter_coarse(tmp_path):
 
 def test_simulate_airway_one_motion(tmp_path):
     duration, dt = 0.02, 0.01
-    assert main(["simulate", "airway", "--motions", "protrusion", "--duration", str(duration),
-                 "--dt", str(dt), "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "airway",
+                "--motions",
+                "protrusion",
+                "--duration",
+                str(duration),
+                "--dt",
+                str(dt),
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     f = json.loads((tmp_path / "airway.json").read_text())
-    assert set(f["runs"]) == {f"{m}/{p}" for m in ("none", "protrusion")
-                              for p in ("pressure", "no_pressure")}
+    assert set(f["runs"]) == {
+        f"{m}/{p}" for m in ("none", "protrusion") for p in ("pressure", "no_pressure")
+    }
     steps = round(duration / dt)
     sections = f["sections"]["count"]
     for key, r in f["runs"].items():
@@ -167,14 +218,38 @@ def test_simulate_airway_one_motion(tmp_path):
 
 def test_simulate_styloglossus_with_its_reduced_tongue(tmp_path):
     duration, tension, r, points = 0.04, 0.15, 4, 40
-    assert main(["simulate", "styloglossus", "--duration", str(duration), "--tension",
-                 str(tension), "--r", str(r), "--points", str(points),
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "styloglossus",
+                "--duration",
+                str(duration),
+                "--tension",
+                str(tension),
+                "--r",
+                str(r),
+                "--points",
+                str(points),
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     f = json.loads((tmp_path / "styloglossus.json").read_text())
-    assert set(f["runs"]) == {"excitation 4", "excitation 24", "tension 4", "tension 24",
-                              "tension 24+", "reduced 4", "reduced 24", "reduced 24+"}
+    assert set(f["runs"]) == {
+        "excitation 4",
+        "excitation 24",
+        "tension 4",
+        "tension 24",
+        "tension 24+",
+        "reduced 4",
+        "reduced 24",
+        "reduced 24+",
+    }
     assert f["reduced"]["pod_vectors"] == r and set(f["reduced"]["training"]) == {"4", "24", "24+"}
-    for support, trained in f["reduced"]["training"].items():     # a model per support
+    for support, trained in f["reduced"]["training"].items():  # a model per support
         assert trained["runs"] == 2 and trained["basis"]["r"] == r, support
         assert 0 < trained["points"]["count"] <= points, support
     for name, run in f["runs"].items():
@@ -182,10 +257,10 @@ def test_simulate_styloglossus_with_its_reduced_tongue(tmp_path):
         assert 0 < run["min_det_F"] <= 1.5 and finite_positive(run["ms_per_step"]), name
         for side, w in run["weights"].items():
             assert len(w) == run["support_nodes"], (name, side)
-            assert sum(w) == pytest.approx(1.0, abs=1e-9), (name, side)   # partition of unity
+            assert sum(w) == pytest.approx(1.0, abs=1e-9), (name, side)  # partition of unity
             if run["nonnegative"]:
                 assert min(w) >= 0, (name, side)
-        if run["load"] == "tension":          # --tension T, applied as T e(t), e = t / 0.5 s
+        if run["load"] == "tension":  # --tension T, applied as T e(t), e = t / 0.5 s
             ramped = tension * duration / 0.5
             assert run["tension_N"] == pytest.approx({"left": ramped, "right": ramped})
     for name in ("reduced 4", "reduced 24", "reduced 24+"):
@@ -197,16 +272,31 @@ def test_simulate_styloglossus_with_its_reduced_tongue(tmp_path):
 
 # ---- simulate tongue: level 1, a schedule file --------------------------------------------
 
+
 def test_simulate_tongue_level_1(tmp_path):
-    assert main(["simulate", "tongue", "--level", "1", "--duration", "0.02", "--no-progress",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "tongue",
+                "--level",
+                "1",
+                "--duration",
+                "0.02",
+                "--no-progress",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     f = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
     # every one of the 740 hexahedra split 2x2x2: 5,920 elements and 6,699 nodes
     assert (f["level"], f["nodes"], f["elements"], f["steps"]) == (1, 6699, 740 * 8, 2)
     assert finite_positive(f["ms_per_step"]) and 0 < f["min_det_F"] <= 1.5
     assert f["halvings"] == 0
     tip = f["landmarks"]["tip"]
-    assert np.all(np.isfinite(tip)) and np.linalg.norm(tip) > 0     # the muscles act at once
+    assert np.all(np.isfinite(tip)) and np.linalg.norm(tip) > 0  # the muscles act at once
     assert is_png(tmp_path / "protrusion" / "tongue.png", 10_000)
 
 
@@ -214,13 +304,29 @@ def test_simulate_tongue_schedule_file_runs_like_the_named_motion(tmp_path):
     """A schedule file written by hand as the paper's protrusion (GGP 0.4, TRANS 0.4, SL 0.1
     ramped over 0.5 s, then held): the same landmarks as ``--motion protrusion``."""
     path = tmp_path / "my_protrusion.json"
-    path.write_text(json.dumps({"times": [0.0, 0.5, 1.0], "excitations": {
-        "GGP": [0.0, 0.4, 0.4], "TRANS": [0.0, 0.4, 0.4], "SL": [0.0, 0.1, 0.1]}}))
+    path.write_text(
+        json.dumps(
+            {
+                "times": [0.0, 0.5, 1.0],
+                "excitations": {
+                    "GGP": [0.0, 0.4, 0.4],
+                    "TRANS": [0.0, 0.4, 0.4],
+                    "SL": [0.0, 0.1, 0.1],
+                },
+            }
+        )
+    )
     common = ["--duration", "0.05", "--dt", "0.01", "--no-progress"]
-    assert main(["simulate", "tongue", "--schedule", str(path), "--out", str(tmp_path / "s"),
-                 *common]) == 0
-    assert main(["simulate", "tongue", "--motion", "protrusion", "--out", str(tmp_path / "m"),
-                 *common]) == 0
+    assert (
+        main(["simulate", "tongue", "--schedule", str(path), "--out", str(tmp_path / "s"), *common])
+        == 0
+    )
+    assert (
+        main(
+            ["simulate", "tongue", "--motion", "protrusion", "--out", str(tmp_path / "m"), *common]
+        )
+        == 0
+    )
     mine = json.loads((tmp_path / "s" / "my_protrusion" / "simulate.json").read_text())
     named = json.loads((tmp_path / "m" / "protrusion" / "simulate.json").read_text())
     assert (mine["motion"], mine["steps"], mine["nodes"]) == ("my_protrusion", 5, 946)
@@ -233,15 +339,33 @@ def test_simulate_tongue_schedule_file_runs_like_the_named_motion(tmp_path):
 
 # ---- bench: two ranks, scenes ----------------------------------------------------------
 
-needs_mpiexec = pytest.mark.skipif(not MPIEXEC.exists(),
-                                   reason=f"no mpiexec next to the interpreter ({MPIEXEC})")
+needs_mpiexec = pytest.mark.skipif(
+    not MPIEXEC.exists(), reason=f"no mpiexec next to the interpreter ({MPIEXEC})"
+)
 
 
 @needs_mpiexec
 def test_bench_fom_on_one_and_two_ranks(tmp_path):
     out = tmp_path / "fom.json"
-    assert main(["bench", "fom", "--sizes", "6x3x3", "--ranks", "1,2", "--steps", "2",
-                 "--warmup", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "fom",
+                "--sizes",
+                "6x3x3",
+                "--ranks",
+                "1,2",
+                "--steps",
+                "2",
+                "--warmup",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert "errors" not in report
     one, two = report["cases"]
@@ -261,8 +385,25 @@ def test_bench_fom_on_one_and_two_ranks(tmp_path):
 @needs_mpiexec
 def test_bench_tongue_on_two_ranks(tmp_path):
     out = tmp_path / "tongue.json"
-    assert main(["bench", "tongue", "--levels", "0", "--ranks", "1,2", "--steps", "2",
-                 "--warmup", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "tongue",
+                "--levels",
+                "0",
+                "--ranks",
+                "1,2",
+                "--steps",
+                "2",
+                "--warmup",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert "errors" not in report and report["settings"]["ranks"] == [1, 2]
     assert report["settings"]["timed_window_s"] == [0.01, 0.03]
@@ -282,8 +423,20 @@ def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
     from artifem.models.masseter import MODELS
 
     out = tmp_path / "scenes.json"
-    assert main(["bench", "scenes", "--quick", "--cache", str(quick_jaw_tongue.cache),
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "scenes",
+                "--quick",
+                "--cache",
+                str(quick_jaw_tongue.cache),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert report["benchmark"] == "scenes" and "errors" not in report
     assert report["settings"]["quick"] is True
@@ -298,27 +451,42 @@ def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
     full, red = jt["cases"]["full"], jt["cases"]["reduced"]
     assert finite_positive(full["ms_per_step"]) and finite_positive(red["ms_per_step"])
     assert jt["cases"]["speedup"] == pytest.approx(full["ms_per_step"] / red["ms_per_step"])
-    assert red["masters"] == r + 6 < full["masters"]          # q and the jaw's twist
+    assert red["masters"] == r + 6 < full["masters"]  # q and the jaw's twist
     aw = scenes["airway"]
     for case in ("full", "reduced"):
-        for key in ("ms_per_step_without_airway", "ms_per_step_with_skin_pressure",
-                    "ms_skin_positions", "ms_skin_jacobian", "ms_pressure_master_loads"):
+        for key in (
+            "ms_per_step_without_airway",
+            "ms_per_step_with_skin_pressure",
+            "ms_skin_positions",
+            "ms_skin_jacobian",
+            "ms_pressure_master_loads",
+        ):
             assert finite_positive(aw["cases"][case][key]), (case, key)
     assert aw["cases"]["reduced"]["masters"] == r + 6
     ms = scenes["masseter"]
     assert set(ms["cases"]) == {f"{p}/{a}" for p, a in MODELS}
     assert all(finite_positive(c["ms_per_step"]) for c in ms["cases"].values())
     foot = scenes["foot"]
-    assert set(foot["cases"]) == {"fem_alone", "with_bones", "with_bones_and_contact",
-                                  "reduced", "reduced_trained"}
+    assert set(foot["cases"]) == {
+        "fem_alone",
+        "with_bones",
+        "with_bones_and_contact",
+        "reduced",
+        "reduced_trained",
+    }
     assert all(finite_positive(c["ms_per_step"]) for c in foot["cases"].values())
-    assert foot["reduced"]["reduced"] == {"pod_vectors": 6, "lift_columns": 132,
-                                          "points": 100, "sampling": "random"}
+    assert foot["reduced"]["reduced"] == {
+        "pod_vectors": 6,
+        "lift_columns": 132,
+        "points": 100,
+        "sampling": "random",
+    }
     trained = foot["reduced"]["reduced_trained"]
     assert trained["sampling"] == "trained" and trained["points"] <= 100
 
 
 # ---- demo ------------------------------------------------------------------------------
+
 
 def test_demo_quick(tmp_path, capsys, quick_tongue_study):
     """``artifem demo --quick`` as run a second time: the study's training already in
@@ -341,7 +509,7 @@ def test_demo_quick(tmp_path, capsys, quick_tongue_study):
     assert np.linalg.norm(beam["tip_displacement_mm"]["t=0.2"]) > 0.1
     for motion in MOTIONS:
         f = json.loads((tmp_path / "tongue" / motion / "simulate.json").read_text())
-        assert f["steps"] == 10 and 0 < f["min_det_F"] <= 1.5, motion      # 0.1 s / 0.01 s
+        assert f["steps"] == 10 and 0 < f["min_det_F"] <= 1.5, motion  # 0.1 s / 0.01 s
         assert np.linalg.norm(f["landmarks"]["tip"]) > 0.01, motion
     for png in ("muscle_beam/beam.png", "tongue/motions.png", "study/speed_vs_error.png"):
         assert is_png(tmp_path / png, 10_000), png

@@ -41,27 +41,39 @@ G, H = 9.81, 0.01
 SIZE, MASS = np.array([0.2, 0.2, 0.1]), 2.0
 AREA = SIZE[0] * SIZE[1]
 LAYER = af.ElasticFoundation(young=1e6, poisson=0.3, thickness=0.005)
-MODULUS = 1e6 * 0.7 / (1.3 * 0.4)                          # E (1 - nu) / ((1 + nu)(1 - 2 nu))
-SINK = MASS * G * LAYER.thickness / (MODULUS * AREA)      # 1.822e-6 m
+MODULUS = 1e6 * 0.7 / (1.3 * 0.4)  # E (1 - nu) / ((1 + nu)(1 - 2 nu))
+SINK = MASS * G * LAYER.thickness / (MODULUS * AREA)  # 1.822e-6 m
 
 
 def rigid_box(lift=0.0):
     a, b, c = SIZE
-    return af.RigidBody("box", MASS, MASS / 12 * np.diag([b * b + c * c, a * a + c * c,
-                                                          a * a + b * b]),
-                        position=(0.0, 0.0, SIZE[2] / 2 + lift), surface=box_surface(SIZE))
+    return af.RigidBody(
+        "box",
+        MASS,
+        MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b]),
+        position=(0.0, 0.0, SIZE[2] / 2 + lift),
+        surface=box_surface(SIZE),
+    )
 
 
 def box_scene(kind, lift=0.0, guide=False, foundation=LAYER):
     box = rigid_box(lift)
     if kind == "plane":
         other = ()
-        contact = af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=1e-6,
-                                  margin=0.05, foundation=foundation, name="layer")
+        contact = af.PlaneContact(
+            box,
+            (0.0, 0.0, 0.0),
+            (0.0, 0.0, 1.0),
+            tolerance=1e-6,
+            margin=0.05,
+            foundation=foundation,
+            name="layer",
+        )
     else:
         other = (floor(),)
-        contact = af.MeshContact(box, other[0], tolerance=1e-6, margin=0.05,
-                                 foundation=foundation, name="layer")
+        contact = af.MeshContact(
+            box, other[0], tolerance=1e-6, margin=0.05, foundation=foundation, name="layer"
+        )
     scene = af.Scene(gravity=(0.0, 0.0, -G))
     scene.add(box, *other, contact)
     if guide:
@@ -70,6 +82,7 @@ def box_scene(kind, lift=0.0, guide=False, foundation=LAYER):
 
 
 # ---- (a), (b) a rigid box resting on a foundation ------------------------------------------
+
 
 def test_the_modulus_and_the_corners_areas():
     """K = E (1 - nu) / ((1 + nu)(1 - 2 nu)); the bottom's two triangles give its corners
@@ -82,8 +95,9 @@ def test_the_modulus_and_the_corners_areas():
     assert areas[bottom].sum() == pytest.approx(AREA, rel=1e-14)
     assert np.all(areas[~bottom] == 0)
     assert sorted(areas[bottom] / AREA) == pytest.approx([1 / 6, 1 / 6, 1 / 3, 1 / 3])
-    np.testing.assert_allclose(LAYER.compliance(areas[bottom]),
-                               LAYER.thickness / (MODULUS * areas[bottom]), rtol=1e-15)
+    np.testing.assert_allclose(
+        LAYER.compliance(areas[bottom]), LAYER.thickness / (MODULUS * areas[bottom]), rtol=1e-15
+    )
 
 
 @pytest.mark.parametrize("kind", ["plane", "mesh"])
@@ -116,8 +130,9 @@ def test_fem_nodes_facing_areas_are_the_lumped_boundary_areas_of_the_bottom():
     """A 4 x 4 x 4 hexahedral cube: the bottom nodes' areas facing +z (its quadrilaterals
     by quarters) sum to the bottom's area and equal boundary_areas at the nodes inside
     the bottom face (which have no side facets), to 1e-15."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.1)], [4, 4, 4],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.1)], [4, 4, 4], dmesh.CellType.hexahedron
+    )
     body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, name="block")
     nodes = body.contact_points()
     x = nodes.positions()
@@ -131,15 +146,17 @@ def test_fem_nodes_facing_areas_are_the_lumped_boundary_areas_of_the_bottom():
 
 # ---- (c), (d) the solve with compliant rows ------------------------------------------------
 
+
 def _compliant(rows, C):
     """The problem's rows with compliance C on its normal rows (C / h^2 on the step)."""
     g = rows[0]
     b = g.block
     full = np.zeros(len(g.c))
-    full[:len(C)] = C
-    block = RowBlock(b.owner, b.phi, b.jacobians, b.lo, b.hi, b.stiffness, b.friction,
-                     b.keys, compliance=full)
-    return [StepRows(block, g.G, g.c, full / H ** 2)]
+    full[: len(C)] = C
+    block = RowBlock(
+        b.owner, b.phi, b.jacobians, b.lo, b.hi, b.stiffness, b.friction, b.keys, compliance=full
+    )
+    return [StepRows(block, g.G, g.c, full / H**2)]
 
 
 @pytest.mark.parametrize("path", ["kkt", "schur"])
@@ -148,8 +165,9 @@ def test_zero_compliance_is_the_hard_row_exactly(rng, path):
     hard block."""
     A, b, rows = _points_problem(rng, mu=0.5)
     z0, lam0, n0 = solve_constrained(DirectSolver(), A, b, rows, "t", path=path)
-    z1, lam1, n1 = solve_constrained(DirectSolver(), A, b, _compliant(rows, np.zeros(60)),
-                                     "t", path=path)
+    z1, lam1, n1 = solve_constrained(
+        DirectSolver(), A, b, _compliant(rows, np.zeros(60)), "t", path=path
+    )
     assert n0 == n1
     assert np.array_equal(z0, z1) and np.array_equal(lam0, lam1)
 
@@ -163,11 +181,11 @@ def test_schur_kkt_and_saddle_agree_with_compliance(rng, mu):
     C lambda / h^2 >= 0, their product 0 (to 1e-10); some compliant rows active with
     lambda_n > 0, and stiffer than hard: their G z > c."""
     A, b, rows = _points_problem(rng, mu=mu)
-    C = rng.uniform(0.5, 2.0, 60) * H ** 2          # S_ii ~ 1 / m_i ~ 0.7
+    C = rng.uniform(0.5, 2.0, 60) * H**2  # S_ii ~ 1 / m_i ~ 0.7
     rows = _compliant(rows, C)
     info = {}
     z1, lam1, n1 = solve_constrained(DirectSolver(), A, b, rows, "t", path="kkt", info=info)
-    assert info["path"] == "kkt"                    # no fallback to the Schur complement
+    assert info["path"] == "kkt"  # no fallback to the Schur complement
     z2, lam2, n2 = solve_constrained(DirectSolver(), A, b, rows, "t", path="schur")
 
     def kkt(K, G_on):
@@ -179,7 +197,7 @@ def test_schur_kkt_and_saddle_agree_with_compliance(rng, mu):
         np.testing.assert_allclose(z, z2, rtol=0, atol=1e-10 * np.abs(z2).max())
         np.testing.assert_allclose(lam, lam2, rtol=0, atol=1e-10 * np.abs(lam2).max())
     g = rows[0]
-    slack = np.asarray(g.G @ z2).ravel()[:60] - g.c[:60] + C / H ** 2 * lam2[:60]
+    slack = np.asarray(g.G @ z2).ravel()[:60] - g.c[:60] + C / H**2 * lam2[:60]
     scale = np.abs(g.c).max()
     assert lam2[:60].min() >= 0 and slack.min() >= -1e-10 * scale
     assert np.abs(lam2[:60] * slack).max() <= 1e-10 * scale * np.abs(lam2).max()
@@ -189,6 +207,7 @@ def test_schur_kkt_and_saddle_agree_with_compliance(rng, mu):
 
 
 # ---- (e) energy of a drop --------------------------------------------------------------------
+
 
 def test_a_box_dropped_on_the_layer_never_gains_energy():
     """Dropped from 2 cm (0.63 m/s at impact), h = 1e-3 (omega h = 2.3): kinetic + m g z +
@@ -226,13 +245,19 @@ def test_deeper_than_the_layer_fails_the_step():
 
 # ---- (f) bad input ----------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("kind", ["plane", "mesh"])
-@pytest.mark.parametrize("bad, word", [((0.0, 0.3, 0.005), "Young"),
-                                       ((-1e6, 0.3, 0.005), "Young"),
-                                       ((1e6, 0.5, 0.005), "Poisson"),
-                                       ((1e6, -1.0, 0.005), "Poisson"),
-                                       ((1e6, 0.3, 0.0), "thickness"),
-                                       ((1e6, 0.3, -1.0), "thickness")])
+@pytest.mark.parametrize(
+    "bad, word",
+    [
+        ((0.0, 0.3, 0.005), "Young"),
+        ((-1e6, 0.3, 0.005), "Young"),
+        ((1e6, 0.5, 0.005), "Poisson"),
+        ((1e6, -1.0, 0.005), "Poisson"),
+        ((1e6, 0.3, 0.0), "thickness"),
+        ((1e6, 0.3, -1.0), "thickness"),
+    ],
+)
 def test_bad_foundations_name_the_contact(kind, bad, word):
     with pytest.raises(InputError, match=f"contact 'layer'.*{word}"):
         box_scene(kind, foundation=af.ElasticFoundation(*bad))
@@ -242,15 +267,14 @@ def test_a_foundation_needs_a_rigid_body_s_surface_vertices():
     box = rigid_box()
     corners = box_surface(SIZE)[0][:4]
     with pytest.raises(InputError, match="surface vertices"):
-        af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=corners,
-                        foundation=LAYER)
+        af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=corners, foundation=LAYER)
 
 
 # ---- friction on the compliant normal impulses ------------------------------------------------
 
 THETA = np.radians(30.0)
 NORMAL = np.array([-np.sin(THETA), 0.0, np.cos(THETA)])
-UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])      # t_1 of the plane
+UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])  # t_1 of the plane
 
 
 @pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
@@ -266,11 +290,24 @@ def test_a_box_on_a_compliant_incline_sticks_or_slides(mu, integrator):
     to 1e-4) and -1/3 of that about x."""
     a, b, c = SIZE
     R0 = np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
-    box = af.RigidBody("box", MASS, MASS / 12 * np.diag([b * b + c * c, a * a + c * c,
-                                                         a * a + b * b]),
-                       position=NORMAL * c / 2, rotation=R0, surface=box_surface(SIZE))
-    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=1e-6,
-                              margin=0.05, foundation=LAYER, name="layer")
+    box = af.RigidBody(
+        "box",
+        MASS,
+        MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b]),
+        position=NORMAL * c / 2,
+        rotation=R0,
+        surface=box_surface(SIZE),
+    )
+    contact = af.PlaneContact(
+        box,
+        (0.0, 0.0, 0.0),
+        NORMAL,
+        mu=mu,
+        tolerance=1e-6,
+        margin=0.05,
+        foundation=LAYER,
+        name="layer",
+    )
     scene = af.Scene(gravity=(0.0, 0.0, -G), integrator=integrator)
     scene.add(box, contact)
     for _ in range(100):
@@ -281,8 +318,7 @@ def test_a_box_on_a_compliant_incline_sticks_or_slides(mu, integrator):
     if mu == 0.6:
         assert friction == pytest.approx(MASS * G * np.sin(THETA), rel=1e-9)
         turn = R0.T @ box.rotation
-        equal = MASS * G * np.sin(THETA) * c / 2 / (MODULUS * AREA * (a / 2) ** 2
-                                                    / LAYER.thickness)
+        equal = MASS * G * np.sin(THETA) * c / 2 / (MODULUS * AREA * (a / 2) ** 2 / LAYER.thickness)
         assert turn[2, 0] / equal == pytest.approx(9 / 8, rel=1e-3)
         assert turn[2, 1] / turn[2, 0] == pytest.approx(-1 / 3, rel=1e-3)
         assert np.linalg.norm(box.velocity) < 1e-9
@@ -293,6 +329,7 @@ def test_a_box_on_a_compliant_incline_sticks_or_slides(mu, integrator):
 
 
 # ---- an FEM block on a compliant incline, both paths -----------------------------------------
+
 
 def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_block):
     """A 6 x 6 x 3 hex block (588 dofs) thrown sideways at 0.3 m/s onto a plane tilted by 11
@@ -315,9 +352,10 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_b
         nodes = body.contact_points()
         with forced_path(path):
             for step in range(40):
-                if step == 39:      # the areas of the last step's rows
-                    area = nodes.facing_areas(np.arange(len(nodes)),
-                                              np.tile(pc.normal, (len(nodes), 1)))
+                if step == 39:  # the areas of the last step's rows
+                    area = nodes.facing_areas(
+                        np.arange(len(nodes)), np.tile(pc.normal, (len(nodes), 1))
+                    )
                 scene.step(0.005)
         assert scene.last_solve["path"] == path
         forces = scene.contact_forces(pc)
@@ -326,8 +364,12 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_b
         k = np.array([index[int(p)] for p in forces.points])
         depth = np.maximum(-pc.distances()[k], 0.0)
         area = area[k]
-        np.testing.assert_allclose(forces.normal, soft.modulus * area * depth / soft.thickness,
-                                   rtol=0, atol=1e-11 * forces.normal.max())
+        np.testing.assert_allclose(
+            forces.normal,
+            soft.modulus * area * depth / soft.thickness,
+            rtol=0,
+            atol=1e-11 * forces.normal.max(),
+        )
         assert 1e-5 < -pc.distances().min() < soft.thickness
     (v1, f1), (v2, f2) = runs["kkt"], runs["schur"]
     assert len(f2.normal) == 73 and np.count_nonzero(f2.normal) > 30
@@ -347,13 +389,20 @@ def test_a_reduced_block_on_a_layer_is_the_full_block():
 
     soft = af.ElasticFoundation(2e5, 0.3, 0.004)
     block, twin = fem_block(lift=0.005), fem_block(lift=0.005)
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
-                              tolerance=1e-6, margin=0.02, foundation=soft)
+    contact = af.PlaneContact(
+        block,
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 1.0),
+        mu=0.5,
+        tolerance=1e-6,
+        margin=0.02,
+        foundation=soft,
+    )
     n = 3 * twin.V.dofmap.index_map.size_local
     reduced = ReducedFemBody(twin, np.eye(n), all_points(twin), name="reduced block")
-    twin_contact = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
-                                   tolerance=1e-6, margin=0.02,
-                                   foundation=soft).onto_reduced(reduced)
+    twin_contact = af.PlaneContact(
+        twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5, tolerance=1e-6, margin=0.02, foundation=soft
+    ).onto_reduced(reduced)
     assert twin_contact.foundation is soft
     scenes = []
     for body, c in ((block, contact), (reduced, twin_contact)):
@@ -363,13 +412,13 @@ def test_a_reduced_block_on_a_layer_is_the_full_block():
         for scene in scenes:
             scene.step(H)
     u = block.u.x.array[:n]
-    assert contact.distances().min() < -1e-6                # sunk into the layer
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-10 * np.abs(u).max())
+    assert contact.distances().min() < -1e-6  # sunk into the layer
+    np.testing.assert_allclose(
+        reduced.nodal_displacement(), u, rtol=0, atol=1e-10 * np.abs(u).max()
+    )
     full, red = scenes[0].contact_forces(contact), scenes[1].contact_forces(twin_contact)
     np.testing.assert_array_equal(full.points, red.points)
-    np.testing.assert_allclose(red.normal, full.normal, rtol=0,
-                               atol=1e-9 * block.total_mass() * G)
+    np.testing.assert_allclose(red.normal, full.normal, rtol=0, atol=1e-9 * block.total_mass() * G)
 
 
 def test_an_fem_block_on_a_layer_rests_the_same_on_a_slab_as_on_a_plane():
@@ -388,12 +437,20 @@ def test_an_fem_block_on_a_layer_rests_the_same_on_a_slab_as_on_a_plane():
     for kind in ("plane", "mesh"):
         block = fem_block()
         if kind == "plane":
-            other, contact = (), af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0),
-                                                 tolerance=1e-6, margin=0.02, foundation=soft)
+            other, contact = (
+                (),
+                af.PlaneContact(
+                    block,
+                    (0.0, 0.0, 0.0),
+                    (0.0, 0.0, 1.0),
+                    tolerance=1e-6,
+                    margin=0.02,
+                    foundation=soft,
+                ),
+            )
         else:
             other = (floor(),)
-            contact = af.MeshContact(block, other[0], tolerance=1e-6, margin=0.02,
-                                     foundation=soft)
+            contact = af.MeshContact(block, other[0], tolerance=1e-6, margin=0.02, foundation=soft)
         scene = af.Scene(gravity=(0.0, 0.0, -G))
         scene.add(block, *other, contact)
         for _ in range(30):
@@ -418,19 +475,19 @@ def test_redundant_compliant_rows_solve_alike_on_both_paths(rng, scale):
     and restored by the refinement: the hard solution's velocities to 1e-10."""
     A, b, rows = _points_problem(rng, redundant=10)
     hard = solve_constrained(DirectSolver(), A, b, rows, "t", path="schur")
-    C = scale * rng.uniform(0.5, 2.0, 70) * H ** 2
+    C = scale * rng.uniform(0.5, 2.0, 70) * H**2
     rows = _compliant(rows, C)
     info = {}
     z1, lam1, _ = solve_constrained(DirectSolver(), A, b, rows, "t", path="kkt", info=info)
     z2, lam2, _ = solve_constrained(DirectSolver(), A, b, rows, "t", path="schur")
     assert info["path"] == "kkt"
     np.testing.assert_allclose(z1, z2, rtol=0, atol=1e-10 * np.abs(z2).max())
-    if scale == 1.0:                # the doubled friction rows stay hard: their sum unique
-        np.testing.assert_allclose(lam1[:70], lam2[:70], rtol=0,
-                                   atol=1e-10 * np.abs(lam2).max())
+    if scale == 1.0:  # the doubled friction rows stay hard: their sum unique
+        np.testing.assert_allclose(lam1[:70], lam2[:70], rtol=0, atol=1e-10 * np.abs(lam2).max())
         Gm = rows[0].G
-        np.testing.assert_allclose(Gm.T @ lam1, Gm.T @ lam2, rtol=0,
-                                   atol=1e-10 * np.abs(lam2).max())
+        np.testing.assert_allclose(
+            Gm.T @ lam1, Gm.T @ lam2, rtol=0, atol=1e-10 * np.abs(lam2).max()
+        )
     else:
         np.testing.assert_allclose(z1, hard[0], rtol=0, atol=1e-10 * np.abs(z2).max())
 
@@ -445,8 +502,9 @@ def test_the_contact_pressure_of_a_block_on_a_layer_is_the_law_s():
 
     soft = af.ElasticFoundation(2e5, 0.3, 0.004)
     block = fem_block()
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=1e-6,
-                              margin=0.02, foundation=soft)
+    contact = af.PlaneContact(
+        block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=1e-6, margin=0.02, foundation=soft
+    )
     scene = af.Scene(gravity=(0.0, 0.0, -G))
     scene.add(block, contact)
     for _ in range(30):
@@ -454,10 +512,10 @@ def test_the_contact_pressure_of_a_block_on_a_layer_is_the_law_s():
     p = scene.contact_pressure(contact, configuration="current")[block.name]
     x0 = block.V.tabulate_dof_coordinates()
     dofs = block.local_dofs(p.points)
-    inside = np.all((x0[dofs, :2] > 1e-9) & (x0[dofs, :2] < 0.1 - 1e-9), axis=1) \
-        & (np.abs(x0[dofs, 2]) < 1e-12)
+    inside = np.all((x0[dofs, :2] > 1e-9) & (x0[dofs, :2] < 0.1 - 1e-9), axis=1) & (
+        np.abs(x0[dofs, 2]) < 1e-12
+    )
     assert inside.sum() == 9
     x = x0 + block.u.x.array.reshape(-1, 3)
     depth = -x[dofs[inside], 2]
-    np.testing.assert_allclose(p.pressure[inside], soft.modulus * depth / soft.thickness,
-                               rtol=1e-4)
+    np.testing.assert_allclose(p.pressure[inside], soft.modulus * depth / soft.thickness, rtol=1e-4)

@@ -32,13 +32,15 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes 
 
 # ---- (1) nodal areas ------------------------------------------------------------------------
 
+
 def test_boundary_areas_are_the_lumped_facet_integrals_of_the_shape_functions():
     """A unit cube of 2 x 2 x 2 hexahedra (h = 0.5): a node gets h^2 / 4 from each boundary
     quadrilateral around it: a corner 3 h^2 / 4, an edge midpoint and a face centre h^2
     (4 quadrilaterals), the interior node 0; the areas sum to 6. The current configuration after a uniform stretch
     by 2 in x: the x faces keep their area, the others double."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [2, 2, 2],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [2, 2, 2], dmesh.CellType.hexahedron
+    )
     body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0)
     areas = boundary_areas(body)
     x = body.V.tabulate_dof_coordinates()
@@ -100,7 +102,7 @@ def test_hertz_hemisphere_is_pressed_with_the_target_force_on_the_plane(hertz_ru
         assert np.count_nonzero(p.x.array) == len(pressing)
         # the boundary area is the hemisphere's (3 pi R^2) up to its facets' chords
         areas = boundary_areas(model.body)
-        assert -0.02 < areas.sum() / (3 * math.pi * hs.R ** 2) - 1.0 < 0.0
+        assert -0.02 < areas.sum() / (3 * math.pi * hs.R**2) - 1.0 < 0.0
 
 
 def test_hertz_radius_and_peak_pressure_converge_to_the_closed_form(hertz_runs):
@@ -147,13 +149,14 @@ def test_the_hertz_table_on_the_contact_page_is_the_benchmark_json():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("hertz_contact",
-                                                  root / "scripts" / "hertz_contact.py")
+    spec = importlib.util.spec_from_file_location(
+        "hertz_contact", root / "scripts" / "hertz_contact.py"
+    )
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     page = (root / "docs" / "contact.md").read_text()
-    section = page[page.index("## Hertz"):]
-    section = section[:section.index("\n## ", 1)] if "\n## " in section[1:] else section
+    section = page[page.index("## Hertz") :]
+    section = section[: section.index("\n## ", 1)] if "\n## " in section[1:] else section
     rows = json.loads((root / "docs" / "benchmarks" / "contact_hertz.json").read_text())["meshes"]
     assert script.HEADER in section
     for row in rows:
@@ -175,8 +178,12 @@ def test_a_reduced_hemisphere_with_the_complete_basis_is_the_full_one():
     assert full.press(delta) > 0.01
     reference = full.scene.contact_forces(full.contact)
     twin = hs.HertzModel(1e-3, h_far=4e-3)
-    twin.body.fix_nodes(twin.top, displacement=lambda x: np.vstack(
-        [np.zeros(x.shape[1]), np.zeros(x.shape[1]), np.full(x.shape[1], -delta)]))
+    twin.body.fix_nodes(
+        twin.top,
+        displacement=lambda x: np.vstack(
+            [np.zeros(x.shape[1]), np.zeros(x.shape[1]), np.full(x.shape[1], -delta)]
+        ),
+    )
     n = 3 * twin.body.V.dofmap.index_map.size_local
     fixed = (3 * twin.body.fixed_dofs[:, None] + np.arange(3)).ravel()
     free = np.setdiff1d(np.arange(n), fixed)
@@ -190,5 +197,6 @@ def test_a_reduced_hemisphere_with_the_complete_basis_is_the_full_one():
     forces = scene.contact_forces(contact)
     order, ref_order = np.argsort(forces.points), np.argsort(reference.points)
     np.testing.assert_array_equal(forces.points[order], reference.points[ref_order])
-    np.testing.assert_allclose(forces.normal[order], reference.normal[ref_order], rtol=0,
-                               atol=1e-9 * hs.FORCE)
+    np.testing.assert_allclose(
+        forces.normal[order], reference.normal[ref_order], rtol=0, atol=1e-9 * hs.FORCE
+    )

@@ -30,14 +30,31 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes 
 
 G, H, TOL = 9.81, 0.01, 1e-6
 SIZE, MASS = np.array([0.2, 0.2, 0.1]), 2.0
-CUBE = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7],
-                 [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+CUBE = np.array(
+    [
+        [0, 1, 3],
+        [0, 3, 2],
+        [4, 6, 7],
+        [4, 7, 5],
+        [0, 4, 5],
+        [0, 5, 1],
+        [2, 3, 7],
+        [2, 7, 6],
+        [0, 2, 6],
+        [0, 6, 4],
+        [1, 5, 7],
+        [1, 7, 3],
+    ]
+)
 
 
 def box_surface(size, turn=0.0):
     """A box's 8 corners (centred) and 12 outward triangles, turned by ``turn`` about z."""
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)],
-                       dtype=float) * np.asarray(size) / 2
+    corners = (
+        np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        * np.asarray(size)
+        / 2
+    )
     c, s = np.cos(turn), np.sin(turn)
     return corners @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T, CUBE
 
@@ -45,15 +62,25 @@ def box_surface(size, turn=0.0):
 def floor(top=0.0):
     """A fixed 2 x 2 x 1 m box, its top face at z = top, turned 0.3 rad about z (so that no
     edge of it is parallel to an edge of the boxes above)."""
-    return af.RigidBody("floor", 1.0, np.eye(3), position=(0.0, 0.0, top - 0.5),
-                        motion="fixed", surface=box_surface([2.0, 2.0, 1.0], 0.3))
+    return af.RigidBody(
+        "floor",
+        1.0,
+        np.eye(3),
+        position=(0.0, 0.0, top - 0.5),
+        motion="fixed",
+        surface=box_surface([2.0, 2.0, 1.0], 0.3),
+    )
 
 
 def rigid_box(lift):
     a, b, c = SIZE
-    return af.RigidBody("box", MASS, MASS / 12 * np.diag([b * b + c * c, a * a + c * c,
-                                                          a * a + b * b]),
-                        position=(0.0, 0.0, SIZE[2] / 2 + lift), surface=box_surface(SIZE))
+    return af.RigidBody(
+        "box",
+        MASS,
+        MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b]),
+        position=(0.0, 0.0, SIZE[2] / 2 + lift),
+        surface=box_surface(SIZE),
+    )
 
 
 def scene_of(*items):
@@ -64,6 +91,7 @@ def scene_of(*items):
 
 # ---- (1) a rigid box on a rigid floor -------------------------------------------------------
 
+
 def test_rigid_box_rests_on_a_rigid_floor_like_on_a_plane():
     """Dropped from 1 cm: its 4 bottom corners on the floor's top triangles and the crossing
     edges give redundant rows; measured: sum N = m g to 2e-16, pose identical to the
@@ -73,8 +101,7 @@ def test_rigid_box_rests_on_a_rigid_floor_like_on_a_plane():
     contact = af.MeshContact(box, ground, tolerance=TOL, margin=0.05)
     scene = scene_of(box, ground, contact)
     plane_box = rigid_box(0.01)
-    plane = af.PlaneContact(plane_box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
-                            margin=0.05)
+    plane = af.PlaneContact(plane_box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.05)
     plane_scene = scene_of(plane_box, plane)
     for _ in range(50):
         scene.step(H)
@@ -85,8 +112,11 @@ def test_rigid_box_rests_on_a_rigid_floor_like_on_a_plane():
     assert np.all(forces.normal >= 0)
     assert abs(forces.normal @ forces.directions[:, 2] / (MASS * G) - 1.0) < 1e-9
     np.testing.assert_allclose(forces.resultant, [0.0, 0.0, MASS * G], atol=1e-9 * MASS * G)
-    np.testing.assert_allclose(forces.resultant, plane_scene.contact_forces(plane).normal.sum()
-                               * np.array([0.0, 0.0, 1.0]), atol=1e-9 * MASS * G)
+    np.testing.assert_allclose(
+        forces.resultant,
+        plane_scene.contact_forces(plane).normal.sum() * np.array([0.0, 0.0, 1.0]),
+        atol=1e-9 * MASS * G,
+    )
     np.testing.assert_allclose(box.position, plane_box.position, atol=TOL)
     np.testing.assert_allclose(box.rotation, plane_box.rotation, atol=1e-9)
     assert np.abs(box.twist).max() < 1e-9
@@ -111,6 +141,7 @@ def test_an_offset_keeps_the_surfaces_that_far_apart():
 
 
 # ---- (2) bad input ---------------------------------------------------------------------------
+
 
 def test_open_or_inward_surfaces_are_refused_naming_the_body():
     V, F = box_surface(SIZE)
@@ -152,21 +183,29 @@ def test_a_start_in_intersection_is_refused_naming_both_bodies():
         box = rigid_box(-depth)
         ground = floor()
         scene = scene_of(box, ground, af.MeshContact(box, ground, tolerance=TOL, margin=margin))
-        with pytest.raises(InputError, match=rf"at the start.*vertex \d+ of 'box' and triangle "
-                                             rf"\d+ of 'floor': the vertex is {depth:g} inside"):
+        with pytest.raises(
+            InputError,
+            match=rf"at the start.*vertex \d+ of 'box' and triangle "
+            rf"\d+ of 'floor': the vertex is {depth:g} inside",
+        ):
             scene.step(H)
 
 
 # ---- (3) an FEM block on a rigid floor -----------------------------------------------------
 
+
 def fem_block(lift):
     """A 0.1 m neo-Hookean cube of 4 x 4 x 4 hexahedra (1 kg, E = 1e5 Pa, Rayleigh
     (10, 1e-3)), its bottom face at z = lift (tests/test_contact_plane.py's)."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
-                                           np.array([0.1, 0.1, 0.1 + lift])],
-                           [4, 4, 4], dmesh.CellType.hexahedron)
-    return af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                      rayleigh=(10.0, 1e-3))
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([0.0, 0.0, lift]), np.array([0.1, 0.1, 0.1 + lift])],
+        [4, 4, 4],
+        dmesh.CellType.hexahedron,
+    )
+    return af.FemBody(
+        msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, rayleigh=(10.0, 1e-3)
+    )
 
 
 def test_fem_block_rests_on_a_rigid_floor_like_on_a_plane():
@@ -178,8 +217,7 @@ def test_fem_block_rests_on_a_rigid_floor_like_on_a_plane():
     ground = floor()
     contact = af.MeshContact(block, ground, tolerance=TOL, margin=0.02)
     scene = scene_of(block, ground, contact)
-    plane = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
-                            margin=0.02)
+    plane = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.02)
     plane_scene = scene_of(twin, plane)
     for _ in range(100):
         scene.step(H)
@@ -200,14 +238,21 @@ def test_fem_block_rests_on_a_rigid_floor_like_on_a_plane():
 
 # ---- (4) bone on bone: a ball in a cup --------------------------------------------------------
 
+
 def cup_surface(r_in, r_out, n_lat=8, n_lon=24):
     """A hemispherical cup (z <= 0) of inner radius r_in and outer r_out about the origin:
     outer and inner hemispheres (latitude-longitude grids, a vertex at each pole) and the
     flat rim between them, as a closed outward triangle surface."""
     theta = np.pi / 2 + np.linspace(0.0, np.pi / 2, n_lat + 1)[:-1]
     phi = np.linspace(0.0, 2 * np.pi, n_lon, endpoint=False)
-    rings = np.stack([np.outer(np.sin(theta), np.cos(phi)), np.outer(np.sin(theta),
-                      np.sin(phi)), np.outer(np.cos(theta), np.ones_like(phi))], axis=-1)
+    rings = np.stack(
+        [
+            np.outer(np.sin(theta), np.cos(phi)),
+            np.outer(np.sin(theta), np.sin(phi)),
+            np.outer(np.cos(theta), np.ones_like(phi)),
+        ],
+        axis=-1,
+    )
     vertices, triangles = [], []
     for r in (r_out, r_in):
         base = len(vertices)
@@ -221,7 +266,7 @@ def cup_surface(r_in, r_out, n_lat=8, n_lon=24):
                     triangles += [(a, c, d), (a, d, b)]
                 else:
                     triangles.append((a, pole, b))
-    inner = len(rings.reshape(-1, 3)) + 1           # the inner hemisphere's first vertex
+    inner = len(rings.reshape(-1, 3)) + 1  # the inner hemisphere's first vertex
     for j in range(n_lon):
         a, b = j, (j + 1) % n_lon
         triangles += [(a, b, inner + b), (a, inner + b, inner + a)]
@@ -230,8 +275,9 @@ def cup_surface(r_in, r_out, n_lat=8, n_lon=24):
     c = x[t].mean(axis=1)
     radius = np.linalg.norm(c, axis=1)
     rim = np.abs(c[:, 2]) < 1e-12
-    want = np.where(rim[:, None], [0.0, 0.0, 1.0],
-                    np.where((radius > 0.5 * (r_in + r_out))[:, None], c, -c))
+    want = np.where(
+        rim[:, None], [0.0, 0.0, 1.0], np.where((radius > 0.5 * (r_in + r_out))[:, None], c, -c)
+    )
     flip = np.einsum("ij,ij->i", n, want) < 0
     t[flip] = t[flip][:, ::-1]
     return x, t
@@ -255,11 +301,17 @@ def test_ball_in_a_cup_is_held_like_a_spherical_joint(icosphere):
     load to 1e-9 (a spherical joint's reaction), the ball is at rest and its centre within
     the clearance of the cup's."""
     r_cup, mass = 0.05, 1.0
-    cup = af.RigidBody("cup", 1.0, np.eye(3), motion="fixed",
-                       surface=cup_surface(r_cup, 1.4 * r_cup))
+    cup = af.RigidBody(
+        "cup", 1.0, np.eye(3), motion="fixed", surface=cup_surface(r_cup, 1.4 * r_cup)
+    )
     V, F = icosphere(2, 0.98 * r_cup)
-    ball = af.RigidBody("ball", mass, 0.4 * mass * (0.98 * r_cup) ** 2 * np.eye(3),
-                        position=(0.0, 0.0, 0.002), surface=(V, F))
+    ball = af.RigidBody(
+        "ball",
+        mass,
+        0.4 * mass * (0.98 * r_cup) ** 2 * np.eye(3),
+        position=(0.0, 0.0, 0.002),
+        surface=(V, F),
+    )
     side = np.array([0.3 * mass * G, 0.0, 0.0])
     contact = af.MeshContact(ball, cup, tolerance=TOL, margin=0.01)
     scene = scene_of(ball, cup, contact, SideLoad(ball, side))
@@ -275,6 +327,7 @@ def test_ball_in_a_cup_is_held_like_a_spherical_joint(icosphere):
 
 
 # ---- (5) two elastic balls colliding ---------------------------------------------------------
+
 
 def fem_ball(center, radius=0.05, size=0.025, name="ball"):
     """A neo-Hookean ball (E = 1e5 Pa, 1000 kg/m^3) of P1 tetrahedra meshed by gmsh."""
@@ -304,8 +357,7 @@ def test_colliding_elastic_balls_keep_momentum_and_never_gain_energy():
     passes the tolerance of 0.1 mm (the rows hold the contact linearized over the step: the
     triangles turn and the vertices slide 2 cm/step across them, and a few steps are
     halved); they part again."""
-    left, right = fem_ball((0.0, 0.0, 0.0), name="left"), fem_ball((0.102, 0.02, 0.0),
-                                                                    name="right")
+    left, right = fem_ball((0.0, 0.0, 0.0), name="left"), fem_ball((0.102, 0.02, 0.0), name="right")
     left.v.x.array.reshape(-1, 3)[:, 0] = 1.0
     right.v.x.array.reshape(-1, 3)[:, 0] = -1.0
     contact = af.MeshContact(left, right, tolerance=1e-4, margin=0.03)
@@ -323,10 +375,11 @@ def test_colliding_elastic_balls_keep_momentum_and_never_gain_energy():
     assert np.all(np.diff(energy) <= 1e-12 * energy[0]), np.diff(energy).max()
     assert energy[-1] < energy[0]
     mean_v = [b.v.x.array.reshape(-1, 3).mean(axis=0) for b in (left, right)]
-    assert mean_v[0][0] < mean_v[1][0]                          # parting
+    assert mean_v[0][0] < mean_v[1][0]  # parting
 
 
 # ---- (6) a stack of boxes -------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("turn", [0.0, 0.3], ids=["aligned", "turned"])
 def test_a_stack_of_four_boxes_carries_the_weight_above_each_interface(turn):
@@ -337,30 +390,36 @@ def test_a_stack_of_four_boxes_carries_the_weight_above_each_interface(turn):
     boxes = []
     for k in range(4):
         a, b, c = SIZE
-        boxes.append(af.RigidBody(f"box {k}", MASS, MASS / 12 * np.diag(
-            [b * b + c * c, a * a + c * c, a * a + b * b]),
-            position=(0.0, 0.0, (k + 0.5) * SIZE[2] + (k + 1) * 0.001),
-            surface=box_surface(SIZE, turn * k)))
-    plane = af.PlaneContact(boxes[0], (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
-                            margin=0.02)
-    contacts = [af.MeshContact(upper, lower, tolerance=TOL, margin=0.02)
-                for lower, upper in zip(boxes, boxes[1:])]
+        boxes.append(
+            af.RigidBody(
+                f"box {k}",
+                MASS,
+                MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b]),
+                position=(0.0, 0.0, (k + 0.5) * SIZE[2] + (k + 1) * 0.001),
+                surface=box_surface(SIZE, turn * k),
+            )
+        )
+    plane = af.PlaneContact(boxes[0], (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.02)
+    contacts = [
+        af.MeshContact(upper, lower, tolerance=TOL, margin=0.02)
+        for lower, upper in zip(boxes, boxes[1:])
+    ]
     scene = scene_of(*boxes, plane, *contacts)
     for _ in range(60):
         scene.step(H)
         assert all(c.constraint_failure() is None for c in contacts)
     weight = MASS * G
     assert abs(scene.contact_forces(plane).normal.sum() / (4 * weight) - 1.0) < 1e-9
-    for k, contact in enumerate(contacts):                  # box k + 1 on box k
+    for k, contact in enumerate(contacts):  # box k + 1 on box k
         resultant = scene.contact_forces(contact).resultant
-        np.testing.assert_allclose(resultant, [0.0, 0.0, (3 - k) * weight],
-                                   atol=1e-9 * weight)
+        np.testing.assert_allclose(resultant, [0.0, 0.0, (3 - k) * weight], atol=1e-9 * weight)
     for box in boxes:
         assert np.abs(box.twist).max() < 1e-9
         np.testing.assert_allclose(box.position[:2], 0.0, atol=1e-9)
 
 
 # ---- (7) friction between meshes -------------------------------------------------------------
+
 
 @pytest.mark.parametrize("mu", [0.6, 0.5])
 def test_rigid_box_on_an_inclined_rigid_slab_sticks_or_slides(mu):
@@ -373,11 +432,19 @@ def test_rigid_box_on_an_inclined_rigid_slab_sticks_or_slides(mu):
     normal = np.array([-np.sin(theta), 0.0, np.cos(theta)])
     uphill = np.array([np.cos(theta), 0.0, np.sin(theta)])
     frame = np.column_stack([uphill, [0.0, 1.0, 0.0], normal])
-    slab = af.RigidBody("slab", 1.0, np.eye(3), position=-0.5 * normal, rotation=frame,
-                        motion="fixed", surface=box_surface([3.0, 2.0, 1.0]))
+    slab = af.RigidBody(
+        "slab",
+        1.0,
+        np.eye(3),
+        position=-0.5 * normal,
+        rotation=frame,
+        motion="fixed",
+        surface=box_surface([3.0, 2.0, 1.0]),
+    )
     box = rigid_box(0.0)
-    box.rotation = frame @ np.array([[np.cos(0.2), -np.sin(0.2), 0.0],
-                                     [np.sin(0.2), np.cos(0.2), 0.0], [0.0, 0.0, 1.0]])
+    box.rotation = frame @ np.array(
+        [[np.cos(0.2), -np.sin(0.2), 0.0], [np.sin(0.2), np.cos(0.2), 0.0], [0.0, 0.0, 1.0]]
+    )
     box.position = 0.5 * SIZE[2] * normal
     contact = af.MeshContact(box, slab, mu=mu, tolerance=TOL, margin=0.05)
     scene = scene_of(box, slab, contact)
@@ -387,8 +454,9 @@ def test_rigid_box_on_an_inclined_rigid_slab_sticks_or_slides(mu):
         assert contact.constraint_failure() is None
     slip = box.position - start
     forces = scene.contact_forces(contact)
-    assert abs((forces.normal @ forces.directions) @ normal / (MASS * G * np.cos(theta))
-               - 1.0) < 1e-9
+    assert (
+        abs((forces.normal @ forces.directions) @ normal / (MASS * G * np.cos(theta)) - 1.0) < 1e-9
+    )
     if mu == 0.6:
         assert np.linalg.norm(slip) < 1e-9
     else:
@@ -406,14 +474,18 @@ def test_a_pad_draped_over_a_ball_with_friction_settles_its_friction_passes():
     import pyvista as pv
 
     ball = pv.Sphere(radius=0.03, theta_resolution=32, phi_resolution=32).triangulate()
-    condyle = af.RigidBody.from_surface("condyle", ball.points,
-                                        ball.faces.reshape(-1, 4)[:, 1:], 1900.0,
-                                        motion="fixed")
-    box = dmesh.create_box(MPI.COMM_SELF, [np.array([-0.05, -0.05, 0.032]),
-                                           np.array([0.05, 0.05, 0.047])], [10, 10, 2],
-                           dmesh.CellType.hexahedron)
-    pad = af.FemBody(box, af.NeoHookean.from_young_poisson(2e4, 0.45), 1050.0,
-                     rayleigh=(5.0, 0.002), name="pad")
+    condyle = af.RigidBody.from_surface(
+        "condyle", ball.points, ball.faces.reshape(-1, 4)[:, 1:], 1900.0, motion="fixed"
+    )
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([-0.05, -0.05, 0.032]), np.array([0.05, 0.05, 0.047])],
+        [10, 10, 2],
+        dmesh.CellType.hexahedron,
+    )
+    pad = af.FemBody(
+        box, af.NeoHookean.from_young_poisson(2e4, 0.45), 1050.0, rayleigh=(5.0, 0.002), name="pad"
+    )
     contact = af.MeshContact(pad, condyle, mu=0.4, tolerance=1e-5, margin=0.01)
     scene = scene_of(pad, condyle, contact)
     for _ in range(16):
@@ -421,10 +493,11 @@ def test_a_pad_draped_over_a_ball_with_friction_settles_its_friction_passes():
         assert contact.constraint_failure() is None
     assert scene.t > 0.075 and scene.halvings == 0
     lift = scene.contact_forces(contact).resultant[2]
-    assert 0.2 < lift / (pad.total_mass() * G) < 5.0        # landed, pressing
+    assert 0.2 < lift / (pad.total_mass() * G) < 5.0  # landed, pressing
 
 
 # ---- (8) a surface embedded in an FEM grid --------------------------------------------------
+
 
 @pytest.mark.parametrize("kind", ["plane", "mesh"])
 def test_an_embedded_surface_carries_its_grid_on_the_floor(kind, icosphere):
@@ -440,8 +513,9 @@ def test_an_embedded_surface_carries_its_grid_on_the_floor(kind, icosphere):
     lowest = ball.positions()[:, 2].min()
     floor_at = lowest - 0.002
     if kind == "plane":
-        contact = af.PlaneContact(ball, (0.0, 0.0, floor_at), (0.0, 0.0, 1.0), tolerance=TOL,
-                                  margin=0.02)
+        contact = af.PlaneContact(
+            ball, (0.0, 0.0, floor_at), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.02
+        )
         scene = scene_of(grid, contact)
     else:
         ground = floor(floor_at)
@@ -453,7 +527,7 @@ def test_an_embedded_surface_carries_its_grid_on_the_floor(kind, icosphere):
         assert contact.constraint_failure() is None
     heights = ball.positions()[:, 2] - floor_at
     assert heights.min() > -TOL and heights.min() < 1e-6
-    assert heights_of(grid).min() < floor_at - 0.01                 # the grid went through
+    assert heights_of(grid).min() < floor_at - 0.01  # the grid went through
     weight = grid.total_mass() * G
     forces = scene.contact_forces(contact)
     total = forces.normal.sum() if kind == "plane" else forces.resultant[2]
@@ -465,6 +539,7 @@ def heights_of(body):
 
 
 # ---- (9) the queries ------------------------------------------------------------------------
+
 
 def test_signed_distances_on_a_prebuilt_tree_are_libigls(icosphere):
     """_signed_distance (libigl's AABB tree built once, the pseudonormal of the closest
@@ -479,16 +554,21 @@ def test_signed_distances_on_a_prebuilt_tree_are_libigls(icosphere):
     for x, t in (box_surface([1.0, 2.0, 0.5], 0.3), icosphere(2, 1.0)):
         x, t = np.asarray(x, float), np.asarray(t, np.int64)
         mids = 0.5 * (x[t[:, 0]] + x[t[:, 1]])
-        points = np.vstack([rng.uniform(1.3 * x.min(axis=0), 1.3 * x.max(axis=0), (2000, 3)),
-                            1.02 * x + 1e-3 * rng.normal(size=x.shape),
-                            1.02 * mids + 1e-3 * rng.normal(size=mids.shape)])
-        S0, I0, C0, N0 = igl.signed_distance(points, x, t,
-                                             sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+        points = np.vstack(
+            [
+                rng.uniform(1.3 * x.min(axis=0), 1.3 * x.max(axis=0), (2000, 3)),
+                1.02 * x + 1e-3 * rng.normal(size=x.shape),
+                1.02 * mids + 1e-3 * rng.normal(size=mids.shape),
+            ]
+        )
+        S0, I0, C0, N0 = igl.signed_distance(
+            points, x, t, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL
+        )
         S, I, C, N = mc._signed_distance(mc._geometry(x, t, mc._edges(t)), points)
         assert (S < 0).sum() > 100 and (S > 0).sum() > 100
         np.testing.assert_allclose(S, S0, rtol=0, atol=1e-14)
         np.testing.assert_allclose(C, C0, rtol=0, atol=1e-14)
-        same = I == I0                  # a tie between two triangles may pick either
+        same = I == I0  # a tie between two triangles may pick either
         assert same.mean() > 0.99
         np.testing.assert_allclose(N[same], N0[same], rtol=0, atol=1e-12)
 
@@ -499,13 +579,23 @@ def pressed_balls(icosphere):
     from scipy.spatial.transform import Rotation
 
     V, F = icosphere(2, 0.06)
-    ball = af.RigidBody("ball", 1.0, np.eye(3), position=(0.03, -0.02, 0.1 + 0.055),
-                        rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
-                        surface=(V, F))
+    ball = af.RigidBody(
+        "ball",
+        1.0,
+        np.eye(3),
+        position=(0.03, -0.02, 0.1 + 0.055),
+        rotation=Rotation.from_rotvec([0.4, -0.7, 1.1]).as_matrix(),
+        surface=(V, F),
+    )
     V, F = icosphere(1, 0.08)
-    other = af.RigidBody("coarse ball", 1.0, np.eye(3), position=(0.0, 0.0, 0.05),
-                         rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
-                         surface=(V, F))
+    other = af.RigidBody(
+        "coarse ball",
+        1.0,
+        np.eye(3),
+        position=(0.0, 0.0, 0.05),
+        rotation=Rotation.from_rotvec([0.05, 0.1, -0.6]).as_matrix(),
+        surface=(V, F),
+    )
     return ball, other
 
 
@@ -520,21 +610,28 @@ def test_pairs_in_a_rigid_bodys_frame_are_the_pairs_in_the_world(icosphere):
     contact = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
     framed = contact._pairs()
     world = af.MeshContact(ball, box, tolerance=0.02, margin=0.03)
-    world._in_frame = lambda side, x: (mc._geometry(x, world._tris[side], world._edges[side]),
-                                       np.eye(3), np.zeros(3))
+    world._in_frame = lambda side, x: (
+        mc._geometry(x, world._tris[side], world._edges[side]),
+        np.eye(3),
+        np.zeros(3),
+    )
     plain = world._pairs()
     assert len(framed.phi) > 20 and set(framed.which[:, 0]) == {0, 1}
-    assert framed.phi.min() < 0                                     # pressed in
+    assert framed.phi.min() < 0  # pressed in
     # the same vertices, distances, directions and closest points (W x = x_v - c); the
     # triangle of a closest point on a shared edge or vertex is a tie either may pick
     np.testing.assert_array_equal(framed.which[:, :2], plain.which[:, :2])
-    for a, b in ((framed.phi, plain.phi), (framed.e, plain.e),
-                 (framed.W @ framed.x, plain.W @ plain.x)):
+    for a, b in (
+        (framed.phi, plain.phi),
+        (framed.e, plain.e),
+        (framed.W @ framed.x, plain.W @ plain.x),
+    ):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
     assert framed.deepest[:3] == pytest.approx(plain.deepest[:3], abs=1e-12)
 
 
 # ---- (10) how the rows turn: the second derivative of the pairs' distances -------------------
+
 
 def _features(kind, X):
     """(w, e, s, spans, count) of one pair of ``kind`` at its points X (4, 3), from first
@@ -546,20 +643,35 @@ def _features(kind, X):
         n /= np.linalg.norm(n)
         E = np.column_stack([y1 - y0, y2 - y0])
         b = np.linalg.solve(E.T @ E, E.T @ (x - y0))
-        return (np.array([1.0, b.sum() - 1.0, -b[0], -b[1]]), n, n @ (x - y0),
-                [[0, -1, 1, 0], [0, -1, 0, 1]], 2)
+        return (
+            np.array([1.0, b.sum() - 1.0, -b[0], -b[1]]),
+            n,
+            n @ (x - y0),
+            [[0, -1, 1, 0], [0, -1, 0, 1]],
+            2,
+        )
     if kind in ("edge", "vertex"):
         x, y, z, _ = X
         t = (x - y) @ (z - y) / ((z - y) @ (z - y)) if kind == "edge" else 0.0
         d = x - y - t * (z - y)
-        return (np.array([1.0, t - 1.0, -t, 0.0]), d / np.linalg.norm(d), np.linalg.norm(d),
-                [[0, -1, 1, 0], [0, 0, 0, 0]], 1 if kind == "edge" else 0)
+        return (
+            np.array([1.0, t - 1.0, -t, 0.0]),
+            d / np.linalg.norm(d),
+            np.linalg.norm(d),
+            [[0, -1, 1, 0], [0, 0, 0, 0]],
+            1 if kind == "edge" else 0,
+        )
     a0, a1, b0, b1 = X
     u, v = a1 - a0, b1 - b0
     s, t = np.linalg.solve([[u @ u, -u @ v], [-u @ v, v @ v]], [-u @ (a0 - b0), v @ (a0 - b0)])
     d = a0 + s * u - b0 - t * v
-    return (np.array([1.0 - s, s, t - 1.0, -t]), d / np.linalg.norm(d), np.linalg.norm(d),
-            [[-1, 1, 0, 0], [0, 0, -1, 1]], 2)
+    return (
+        np.array([1.0 - s, s, t - 1.0, -t]),
+        d / np.linalg.norm(d),
+        np.linalg.norm(d),
+        [[-1, 1, 0, 0], [0, 0, -1, 1]],
+        2,
+    )
 
 
 @pytest.mark.parametrize("kind", ["face", "edge", "vertex", "edges"])
@@ -575,11 +687,21 @@ def test_the_distance_hessian_is_the_derivative_of_the_rows(kind, rng):
     for _ in range(3):
         X = rng.normal(size=(4, 3))
         w, e, s, spans, count = _features(kind, X)
-        H = distance_hessians(X[None], w[None], np.array(spans, float)[None],
-                              np.array([count]), e[None], np.array([s]))[0]
+        H = distance_hessians(
+            X[None],
+            w[None],
+            np.array(spans, float)[None],
+            np.array([count]),
+            e[None],
+            np.array([s]),
+        )[0]
         h = 1e-6
-        fd = np.column_stack([(gradient(X.ravel() + h * d) - gradient(X.ravel() - h * d)) / (2 * h)
-                              for d in np.eye(12)])
+        fd = np.column_stack(
+            [
+                (gradient(X.ravel() + h * d) - gradient(X.ravel() - h * d)) / (2 * h)
+                for d in np.eye(12)
+            ]
+        )
         np.testing.assert_allclose(H, fd, rtol=0, atol=1e-7 * np.abs(fd).max())
 
 
@@ -593,20 +715,22 @@ def test_a_pressed_pair_of_balls_rows_turn_by_their_stiffness(icosphere):
     ball, other = pressed_balls(icosphere)
     contact = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)
 
-    def lam_of(rows):       # by (side, vertex): a closest point on a shared edge or vertex
-        keys = np.asarray(rows.keys)        # may take either triangle (same row)
+    def lam_of(rows):  # by (side, vertex): a closest point on a shared edge or vertex
+        keys = np.asarray(rows.keys)  # may take either triangle (same row)
         return 1.0 + (keys[:, 0] + 3 * keys[:, 1]) % 5 / 4.0
 
-    block, = contact.row_blocks()
+    (block,) = contact.row_blocks()
     lam = lam_of(block)
     K = block.stiffness(lam).toarray()
     pairs = contact._pairs()
     assert set(pairs.span_count) >= {0, 2} or set(pairs.span_count) >= {1, 2}
 
     def forces():
-        rows, = contact.row_blocks()
-        np.testing.assert_array_equal(np.sort(np.asarray(rows.keys)[:, :2], axis=0),
-                                      np.sort(np.asarray(block.keys)[:, :2], axis=0))
+        (rows,) = contact.row_blocks()
+        np.testing.assert_array_equal(
+            np.sort(np.asarray(rows.keys)[:, :2], axis=0),
+            np.sort(np.asarray(block.keys)[:, :2], axis=0),
+        )
         return np.concatenate([G.T @ lam_of(rows) for _, G in rows.jacobians])
 
     h = 1e-7
@@ -621,11 +745,11 @@ def test_a_pressed_pair_of_balls_rows_turn_by_their_stiffness(icosphere):
                 out.append(forces())
             body.position, body.rotation = p, R
             fd.append((out[0] - out[1]) / (2 * h))
-    np.testing.assert_allclose(K, np.column_stack(fd), rtol=0,
-                               atol=1e-6 * np.abs(K).max())
+    np.testing.assert_allclose(K, np.column_stack(fd), rtol=0, atol=1e-6 * np.abs(K).max())
 
 
 # ---- (11) statics holds the pairs' features -------------------------------------------------
+
 
 def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
     """MeshContact.hold_pairs: held where they were found, the pairs are the found ones
@@ -639,7 +763,7 @@ def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
 
     ball, other = pressed_balls(icosphere)
     contact = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)
-    order = lambda p: np.lexsort(p.which.T[::-1])           # noqa: E731
+    order = lambda p: np.lexsort(p.which.T[::-1])  # noqa: E731
 
     def keyed(p):
         k = order(p)
@@ -655,9 +779,12 @@ def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
     fresh = af.MeshContact(ball, other, tolerance=0.02, margin=0.03)._pairs()
 
     def by_vertex(p):
-        return {(int(s), int(v)): {tuple(w) for w in p.which[(p.which[:, 0] == s)
-                                                              & (p.which[:, 1] == v)]}
-                for s, v in p.which[p.which[:, 0] < 2, :2]}
+        return {
+            (int(s), int(v)): {
+                tuple(w) for w in p.which[(p.which[:, 0] == s) & (p.which[:, 1] == v)]
+            }
+            for s, v in p.which[p.which[:, 0] < 2, :2]
+        }
 
     before, now, new = by_vertex(found), by_vertex(held), by_vertex(fresh)
     assert all(now[v] == before[v] for v in before)
@@ -665,9 +792,8 @@ def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
     assert all(now[v] == new[v] for v in now if v not in before)
     vertex = (held.which[:, 0] < 2) & (held.span_count >= 0)
     d = (held.W @ held.x)[vertex]
-    np.testing.assert_allclose(d, held.phi[vertex, None] * held.e[vertex], rtol=0,
-                               atol=1e-12)
-    y = held.x[held.cols[vertex]]                           # (k, 4, 3): x_v, y_0, y_1, y_2
+    np.testing.assert_allclose(d, held.phi[vertex, None] * held.e[vertex], rtol=0, atol=1e-12)
+    y = held.x[held.cols[vertex]]  # (k, 4, 3): x_v, y_0, y_1, y_2
     spans = np.einsum("kij,kjl->kil", held.spans[vertex], y)
     count = held.span_count[vertex]
     for i in range(2):

@@ -84,20 +84,25 @@ def direct(scene_module):
 def compare(result, reference, rtol):
     u, u_ref = np.array(result["u"]), np.array(reference["u"])
     scale = np.abs(u_ref).max()
-    assert scale > 1e-3                                   # the beam sagged with the bone
+    assert scale > 1e-3  # the beam sagged with the bone
     assert np.abs(u - u_ref).max() <= rtol * scale
     assert np.abs(np.array(result["bone"]) - reference["bone"]).max() <= rtol * scale
-    np.testing.assert_allclose(result["resultant"], reference["resultant"], rtol=0,
-                               atol=rtol * np.abs(reference["resultant"]).max())
+    np.testing.assert_allclose(
+        result["resultant"],
+        reference["resultant"],
+        rtol=0,
+        atol=rtol * np.abs(reference["resultant"]).max(),
+    )
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial comparison")
 def test_rigid_contact_with_carried_fem_in_the_schur_island_equals_the_direct_step(
-        scene_module, direct):
+    scene_module, direct
+):
     _, ns = scene_module
     schur = ns["run"](*ns["build"](MPI.COMM_SELF, island_solver="schur"))
     assert schur["schur"] and not direct["schur"]
-    assert np.array(direct["resultant"])[2] > 1.0           # the bone rests on the block
+    assert np.array(direct["resultant"])[2] > 1.0  # the bone rests on the block
     compare(schur, direct, 1e-9)
 
 

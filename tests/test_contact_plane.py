@@ -28,10 +28,9 @@ from artifem.errors import InputError, StepFailed
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
 G, H = 9.81, 0.01
-SIZE = np.array([0.2, 0.2, 0.1])                    # the box (m), 2 kg
+SIZE = np.array([0.2, 0.2, 0.1])  # the box (m), 2 kg
 MASS = 2.0
-CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) \
-    * SIZE / 2
+CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * SIZE / 2
 TOL = 1e-6
 
 
@@ -50,12 +49,16 @@ def scene_of(*items, **kwargs):
 def fem_block(lift=0.0, name="block", rotation=np.eye(3), rayleigh=(10.0, 1e-3)):
     """A 0.1 m neo-Hookean cube of 4 x 4 x 4 hexahedra, 1 kg, its bottom face at z = lift
     (then turned by ``rotation`` about the origin)."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.0, 0.0, lift]),
-                                           np.array([0.1, 0.1, 0.1 + lift])],
-                           [4, 4, 4], dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([0.0, 0.0, lift]), np.array([0.1, 0.1, 0.1 + lift])],
+        [4, 4, 4],
+        dmesh.CellType.hexahedron,
+    )
     msh.geometry.x[:] = msh.geometry.x @ rotation.T
-    return af.FemBody(msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                      rayleigh=rayleigh, name=name)
+    return af.FemBody(
+        msh, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, rayleigh=rayleigh, name=name
+    )
 
 
 def heights(body):
@@ -70,6 +73,7 @@ def bottom_dofs(body):
 
 # ---- (1) a rigid box dropped on a horizontal plane -----------------------------------------
 
+
 def test_rigid_box_dropped_on_a_plane_comes_to_rest_without_rebound():
     """Dropped flat from 5 cm (1 m/s at impact, 0.01 m per step; margin 5 cm): it lands in
     the step that reaches the plane and stops (an inelastic impact). Measured: no rebound
@@ -77,8 +81,9 @@ def test_rigid_box_dropped_on_a_plane_comes_to_rest_without_rebound():
     penetration 0, 2 active normal rows (of the 4 bottom corners: the impulses of the
     redundant rows are indeterminate) and the same forces for 1,000 steps."""
     box = rigid_box(position=(0.0, 0.0, SIZE[2] / 2 + 0.05))
-    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS,
-                              tolerance=TOL, margin=0.05)
+    contact = af.PlaneContact(
+        box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS, tolerance=TOL, margin=0.05
+    )
     scene = scene_of(box, contact)
     rest = SIZE[2] / 2
     landed = None
@@ -87,11 +92,11 @@ def test_rigid_box_dropped_on_a_plane_comes_to_rest_without_rebound():
         assert contact.distances().min() >= -TOL
         if landed is None and box.position[2] - rest < 1e-12:
             landed = k
-        if landed is not None:                      # no rebound
+        if landed is not None:  # no rebound
             assert box.position[2] - rest < TOL
     assert landed is not None and landed < 15
     first = scene.contact_forces(contact)
-    np.testing.assert_array_equal(np.sort(first.points), [0, 2, 4, 6])    # the bottom corners
+    np.testing.assert_array_equal(np.sort(first.points), [0, 2, 4, 6])  # the bottom corners
     active = first.normal > 0
     rows = scene.last_solve["constraint_rows"]
     for _ in range(1000):
@@ -111,7 +116,7 @@ def test_rigid_box_dropped_on_a_plane_comes_to_rest_without_rebound():
 
 THETA = np.radians(30.0)
 NORMAL = np.array([-np.sin(THETA), 0.0, np.cos(THETA)])
-UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])      # t_1 of the plane
+UPHILL = np.array([np.cos(THETA), 0.0, np.sin(THETA)])  # t_1 of the plane
 
 
 @pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
@@ -121,10 +126,12 @@ def test_rigid_box_on_an_incline_sticks_or_slides_with_coulomb_friction(mu, inte
     slip below 1e-16 m), 0.5 slides along the slope with g (sin 30 - mu cos 30) = 0.6571 m/s^2
     (measured to 2e-15 relative: the friction bound takes the normal impulses of the same
     step, so the first step slides with friction too). The normal force is m g cos 30."""
-    box = rigid_box(position=NORMAL * SIZE[2] / 2,
-                    rotation=np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL]))
-    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), NORMAL, mu=mu, points=CORNERS,
-                              tolerance=TOL, margin=0.05)
+    box = rigid_box(
+        position=NORMAL * SIZE[2] / 2, rotation=np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
+    )
+    contact = af.PlaneContact(
+        box, (0.0, 0.0, 0.0), NORMAL, mu=mu, points=CORNERS, tolerance=TOL, margin=0.05
+    )
     scene = scene_of(box, contact, integrator=integrator)
     start = box.position.copy()
     for _ in range(100):
@@ -134,19 +141,22 @@ def test_rigid_box_on_an_incline_sticks_or_slides_with_coulomb_friction(mu, inte
     slip = box.position - start
     if mu == 0.6:
         assert np.linalg.norm(slip) < 1e-9
-        np.testing.assert_allclose(forces.friction.sum(axis=0) @ UPHILL,
-                                   MASS * G * np.sin(THETA), rtol=1e-9)
+        np.testing.assert_allclose(
+            forces.friction.sum(axis=0) @ UPHILL, MASS * G * np.sin(THETA), rtol=1e-9
+        )
     else:
         a = G * (np.sin(THETA) - mu * np.cos(THETA))
         assert abs(a - 0.657) < 1e-3
         assert abs(-box.velocity @ UPHILL / (100 * H) / a - 1.0) < 1e-3
         assert abs(slip @ NORMAL) < TOL and abs(slip[1]) < 1e-12
-        np.testing.assert_allclose(forces.friction.sum(axis=0) @ UPHILL,
-                                   mu * MASS * G * np.cos(THETA), rtol=1e-9)
+        np.testing.assert_allclose(
+            forces.friction.sum(axis=0) @ UPHILL, mu * MASS * G * np.cos(THETA), rtol=1e-9
+        )
     assert contact.distances().min() >= -TOL
 
 
 # ---- (3) an FEM block dropped on the plane -------------------------------------------------
+
 
 def test_fem_block_dropped_on_a_plane_comes_to_rest_on_its_bottom_nodes():
     """A 0.1 m cube (1 kg, E = 1e5 Pa, Rayleigh (10, 1e-3)) dropped from 1 cm: the contact
@@ -155,8 +165,7 @@ def test_fem_block_dropped_on_a_plane_comes_to_rest_on_its_bottom_nodes():
     node at -3e-18 m; the same 25 active rows from step 50 to step 1,050, one trial of the
     warm-started active set per step, and no rebound (the bottom stays on the plane)."""
     block = fem_block(lift=0.01)
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
-                              margin=0.02)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.02)
     scene = scene_of(block, contact)
     assert scene.islands() == ([], [block])
     weight = block.total_mass() * G
@@ -170,8 +179,9 @@ def test_fem_block_dropped_on_a_plane_comes_to_rest_on_its_bottom_nodes():
             assert scene.last_solve["trials"] == 1
             assert np.abs(heights(block)[bottom_dofs(block)]).max() < TOL
     bottom = np.flatnonzero(np.isclose(block.mesh.geometry.x[:, 2], 0.01))
-    np.testing.assert_array_equal(np.sort(forces.points),
-                                  np.sort(block.mesh.geometry.input_global_indices[bottom]))
+    np.testing.assert_array_equal(
+        np.sort(forces.points), np.sort(block.mesh.geometry.input_global_indices[bottom])
+    )
     assert abs(forces.normal.sum() / weight - 1.0) < 1e-9
     assert np.abs(block.v.x.array).max() < 1e-9
 
@@ -185,8 +195,7 @@ def test_fem_block_on_an_incline_sticks_or_slides_once_settled(mu):
     velocity gains g (sin 30 - mu cos 30) per second from 0.5 s to 1 s (measured to 1e-9)."""
     turn = np.column_stack([UPHILL, [0.0, 1.0, 0.0], NORMAL])
     block = fem_block(rotation=turn, rayleigh=(0.0, 1e-3))
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=TOL,
-                              margin=0.02)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), NORMAL, mu=mu, tolerance=TOL, margin=0.02)
     scene = scene_of(block, contact)
     mass = block.total_mass()
     bottom = np.flatnonzero(np.abs(block.V.tabulate_dof_coordinates() @ NORMAL) < 1e-12)
@@ -215,10 +224,15 @@ def test_fem_block_on_an_incline_sticks_or_slides_once_settled(mu):
 
 # ---- (4) statics ----------------------------------------------------------------------------
 
+
 def cantilever():
     """A 0.3 x 0.03 x 0.03 m beam (E = 1e6 Pa, 10 x 2 x 2 hexahedra) clamped at x = 0."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.3, 0.03, 0.03])],
-                           [10, 2, 2], dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([0.3, 0.03, 0.03])],
+        [10, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
     body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e6, 0.3), 1000.0, name="beam")
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     return body
@@ -234,8 +248,7 @@ def test_static_cantilever_rests_its_free_end_on_the_plane():
     scene_of(free).solve_static()
     assert heights(free).min() < -0.05
     body = cantilever()
-    contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), tolerance=TOL,
-                              margin=0.03)
+    contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.03)
     scene = scene_of(body, contact)
     scene.solve_static(load_steps=4)
     phi = contact.distances()
@@ -258,8 +271,9 @@ def test_static_friction_sticks_to_where_the_increment_found_the_point():
     had left the node), and every other one slid against its friction force."""
     mu = 0.3
     body = cantilever()
-    contact = af.PlaneContact(body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), mu=mu,
-                              tolerance=TOL, margin=0.03)
+    contact = af.PlaneContact(
+        body, (0.0, 0.0, -0.01), (0.0, 0.0, 1.0), mu=mu, tolerance=TOL, margin=0.03
+    )
     scene = scene_of(body, contact)
     start = contact._points.positions().copy()
     scene.solve_static(load_steps=1)
@@ -278,13 +292,15 @@ def test_static_friction_sticks_to_where_the_increment_found_the_point():
 
 # ---- (5) failures and bad input ------------------------------------------------------------
 
+
 def test_a_point_from_beyond_the_margin_fails_the_step_with_a_clear_message():
     """1 m/s at 1 cm per step against a 1 mm margin: the corners cross the plane by up to
     0.01 m within a step that had no rows for them; with no fallback and no halving the
     step fails and says what to change."""
     box = rigid_box(position=(0.0, 0.0, SIZE[2] / 2 + 0.002), velocity=(0.0, 0.0, -1.0))
-    contact = af.PlaneContact(box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS,
-                              tolerance=TOL, margin=1e-3)
+    contact = af.PlaneContact(
+        box, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), points=CORNERS, tolerance=TOL, margin=1e-3
+    )
     scene = scene_of(box, contact, fallback=None, max_halvings=0)
     with pytest.raises(StepFailed, match="below the plane.*margin should be at least"):
         scene.step(H)
@@ -309,8 +325,11 @@ def test_bad_contact_input_is_a_clear_error_before_the_run():
         scene.step(H)
     block = fem_block(lift=-1e-3)
     scene = scene_of(block, af.PlaneContact(block, *plane, tolerance=TOL))
-    with pytest.raises(InputError, match=r"node \d+ of 'block' is 0.001 below the plane "
-                                         r"\(25 points"):
+    with pytest.raises(
+        InputError,
+        match=r"node \d+ of 'block' is 0.001 below the plane "
+        r"\(25 points",
+    ):
         scene.check()
     # a contact on a body that is not in the scene
     other = fem_block(name="other")
@@ -328,8 +347,11 @@ def test_the_distributed_island_refuses_a_contact_on_an_fem_body():
     block = fem_block(lift=0.01)
     contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), margin=0.02)
     scene = scene_of(block, contact, island_solver="schur")
-    with pytest.raises(InputError, match=r"constraints on FEM bodies \(contact\) \(run it in "
-                                         r"serial with island_solver='direct'\)"):
+    with pytest.raises(
+        InputError,
+        match=r"constraints on FEM bodies \(contact\) \(run it in "
+        r"serial with island_solver='direct'\)",
+    ):
         scene.step(H)
     assert scene.t == 0.0 and np.abs(block.u.x.array).max() == 0.0
 
@@ -342,26 +364,30 @@ def test_a_reduced_block_with_the_complete_basis_is_the_full_block():
     from artifem.reduction.reduced_body import ReducedFemBody, all_points
 
     block, twin = fem_block(lift=0.005), fem_block(lift=0.005)
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
-                              tolerance=TOL, margin=0.02)
+    contact = af.PlaneContact(
+        block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5, tolerance=TOL, margin=0.02
+    )
     n = 3 * twin.V.dofmap.index_map.size_local
     reduced = ReducedFemBody(twin, np.eye(n), all_points(twin), name="reduced block")
-    twin_contact = af.PlaneContact(twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5,
-                                   tolerance=TOL, margin=0.02).onto_reduced(reduced)
+    twin_contact = af.PlaneContact(
+        twin, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), mu=0.5, tolerance=TOL, margin=0.02
+    ).onto_reduced(reduced)
     assert twin_contact.bodies == (reduced,)
     scene, reduced_scene = scene_of(block, contact), scene_of(reduced, twin_contact)
     for _ in range(40):
         scene.step(H)
         reduced_scene.step(H)
     u = block.u.x.array[:n]
-    assert heights(block).min() < 1e-6                    # landed
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-10 * np.abs(u).max())
+    assert heights(block).min() < 1e-6  # landed
+    np.testing.assert_allclose(
+        reduced.nodal_displacement(), u, rtol=0, atol=1e-10 * np.abs(u).max()
+    )
     full_forces = scene.contact_forces(contact)
     reduced_forces = reduced_scene.contact_forces(twin_contact)
     np.testing.assert_array_equal(full_forces.points, reduced_forces.points)
-    np.testing.assert_allclose(reduced_forces.normal, full_forces.normal, rtol=0,
-                               atol=1e-9 * block.total_mass() * G)
+    np.testing.assert_allclose(
+        reduced_forces.normal, full_forces.normal, rtol=0, atol=1e-9 * block.total_mass() * G
+    )
 
 
 def test_simulate_records_contact_forces_per_point_and_writes_the_pressure(tmp_path):
@@ -370,12 +396,19 @@ def test_simulate_records_contact_forces_per_point_and_writes_the_pressure(tmp_p
     pressure (fixed length), and with ``vtx`` the series ``block_contact_pressure.bp``
     beside the displacement's. At rest the pressure times the nodes' areas is the weight."""
     block = fem_block(lift=0.005)
-    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL,
-                              margin=0.02)
+    contact = af.PlaneContact(block, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), tolerance=TOL, margin=0.02)
     scene = scene_of(block, contact)
-    run = af.simulate(scene, 0.3, H, vtx=tmp_path, progress=False, record={
-        "normal": lambda s: s.contact_forces(contact).normal,
-        "pressure": lambda s: s.contact_pressure(contact)["block"].nodal})
+    run = af.simulate(
+        scene,
+        0.3,
+        H,
+        vtx=tmp_path,
+        progress=False,
+        record={
+            "normal": lambda s: s.contact_forces(contact).normal,
+            "pressure": lambda s: s.contact_pressure(contact)["block"].nodal,
+        },
+    )
     counts = [len(f) for f in run.records["normal"]]
     assert run.records["normal"].dtype == object and counts[0] == 0 and counts[-1] == 25
     assert run.records["pressure"].shape == (31, len(block.V.tabulate_dof_coordinates()))

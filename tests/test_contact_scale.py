@@ -16,8 +16,7 @@ from mpi4py import MPI
 
 from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.scene import constraints
-from artifem.scene.constraints import (ActiveSetMemory, StepRows, solve_constrained,
-                                       use_kkt)
+from artifem.scene.constraints import ActiveSetMemory, StepRows, solve_constrained, use_kkt
 from artifem.scene.direct_solver import DENSE_MAX, DirectSolver
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial solves")
@@ -39,31 +38,40 @@ def _points_problem(rng, nodes=200, contacts=60, mu=0.5, redundant=0):
     m_i = 1.0 + rng.random(n)
     chain = sparse.diags([-np.ones(n - 3), 2 * np.ones(n), -np.ones(n - 3)], [-3, 0, 3])
     A = sparse.csr_matrix(sparse.diags(m_i) + H * H * 1e3 * chain)
-    b = H * np.concatenate([[0.3 * G, -0.1 * G, -G] * nodes]) * np.repeat(m_i[::3], 3) \
-        + 1e-3 * rng.standard_normal(n)
+    b = H * np.concatenate([[0.3 * G, -0.1 * G, -G] * nodes]) * np.repeat(
+        m_i[::3], 3
+    ) + 1e-3 * rng.standard_normal(n)
     idx = np.sort(rng.choice(nodes, contacts, replace=False))
     idx = np.concatenate([idx, idx[:redundant]])
     k = len(idx)
     dirs = [2, 0, 1] if mu > 0 else [2]
     cols = np.concatenate([3 * idx + d for d in dirs])
-    Gm = sparse.csr_matrix((np.ones(len(cols)), (np.arange(len(cols)), cols)),
-                           shape=(len(cols), n))
-    gap = rng.uniform(-0.5, 1.5, k) * G * H * H          # phi: within reach or not
-    gap[k - redundant:] = gap[:redundant]                   # a repeated row's own phi
+    Gm = sparse.csr_matrix((np.ones(len(cols)), (np.arange(len(cols)), cols)), shape=(len(cols), n))
+    gap = rng.uniform(-0.5, 1.5, k) * G * H * H  # phi: within reach or not
+    gap[k - redundant :] = gap[:redundant]  # a repeated row's own phi
     c = np.concatenate([-gap / H, np.zeros(len(cols) - k)])
     lo, hi = np.zeros(len(cols)), np.zeros(len(cols))
     hi[:k] = np.inf
 
     keys = np.column_stack([np.tile(np.arange(k), len(dirs)), np.repeat(np.arange(len(dirs)), k)])
-    block = RowBlock(_Owner(), np.zeros(len(cols)), ((None, Gm),), lo, hi, lambda lam: None,
-                     Friction.tangents(k, mu) if mu > 0 else None, keys)
+    block = RowBlock(
+        _Owner(),
+        np.zeros(len(cols)),
+        ((None, Gm),),
+        lo,
+        hi,
+        lambda lam: None,
+        Friction.tangents(k, mu) if mu > 0 else None,
+        keys,
+    )
     return A, b, [StepRows(block, Gm, c)]
 
 
 def _solve(A, b, rows, path, memory=None):
     info = {}
-    z, lam, active = solve_constrained(DirectSolver(), A, b, rows, "test", path=path,
-                                       memory=memory, info=info)
+    z, lam, active = solve_constrained(
+        DirectSolver(), A, b, rows, "test", path=path, memory=memory, info=info
+    )
     return z, lam, active, info
 
 
@@ -80,10 +88,10 @@ def test_kkt_and_schur_give_the_same_velocities_and_impulses(rng, mu):
     assert 0 < n1 == n2 < len(lam1)
     np.testing.assert_allclose(z1, z2, rtol=0, atol=1e-10 * np.abs(z2).max())
     np.testing.assert_allclose(lam1, lam2, rtol=0, atol=1e-10 * np.abs(lam2).max())
-    if mu:                              # some friction rows slide (held at the bound)
+    if mu:  # some friction rows slide (held at the bound)
         k = 60
         cap = mu * lam2[:k]
-        assert np.any(np.isclose(np.abs(lam2[k:2 * k]), cap) & (cap > 0))
+        assert np.any(np.isclose(np.abs(lam2[k : 2 * k]), cap) & (cap > 0))
 
 
 def test_kkt_low_rank_updates_give_the_factorizations_answer(rng, monkeypatch):
@@ -137,7 +145,7 @@ def test_warm_start_gives_the_same_answer_in_fewer_trials(rng, path):
     pass again, refined, with the bounds of the refined impulses)."""
     A, b, rows = _points_problem(rng, contacts=40)
     memory = ActiveSetMemory()
-    _solve(A, b, rows, path, memory)                    # the last step
+    _solve(A, b, rows, path, memory)  # the last step
     g = rows[0]
     nxt = [StepRows(g.block, g.G, g.c * 1.01)]
     z_cold, lam_cold, _, cold = _solve(A, b * 1.01, nxt, path)
@@ -155,6 +163,7 @@ def test_many_rows_at_once_settle_a_resting_block():
     start from the last one's (1 trial, 1 factorization); the velocities equal the Schur
     path's to round-off and the normal forces bear the block."""
     from artifem.bench_contact import fem_scene, forced_path
+
     runs = {}
     for path in (None, "schur"):
         scene, body, pc = fem_scene((9, 9, 2), None)
@@ -163,8 +172,12 @@ def test_many_rows_at_once_settle_a_resting_block():
             for _ in range(4):
                 scene.step(H)
                 trials.append(scene.last_solve["trials"])
-        runs[path] = (body.v.x.array.copy(), scene.contact_forces(pc), trials,
-                      scene.last_solve["path"])
+        runs[path] = (
+            body.v.x.array.copy(),
+            scene.contact_forces(pc),
+            trials,
+            scene.last_solve["path"],
+        )
     v, forces, trials, taken = runs[None]
     assert taken == "kkt" and runs["schur"][3] == "schur"
     assert forces.normal.size == 100 and np.all(forces.normal > 0)
@@ -178,16 +191,28 @@ def test_bench_contact_quick_writes_its_json(tmp_path):
     """``artifem bench contact --quick``: the cases of the three kinds with the parts of the
     step, the no-contact references, and the KKT and Schur paths alike."""
     from artifem.cli import main
+
     out = tmp_path / "contact.json"
-    assert main(["bench", "contact", "--quick", "--steps", "1", "--warmup", "1",
-                 "--out", str(out)]) == 0
+    assert (
+        main(["bench", "contact", "--quick", "--steps", "1", "--warmup", "1", "--out", str(out)])
+        == 0
+    )
     report = json.loads(out.read_text())
     assert report["benchmark"] == "contact"
     kinds = {c["kind"] for c in report["cases"]}
     assert kinds == {"rigid", "fem", "plate"}
     for case in report["cases"]:
-        for key in ("rows", "active_rows", "path", "step_ms", "detection_ms", "mapping_ms",
-                    "solve_ms", "trials_per_step", "ratio_to_no_contact"):
+        for key in (
+            "rows",
+            "active_rows",
+            "path",
+            "step_ms",
+            "detection_ms",
+            "mapping_ms",
+            "solve_ms",
+            "trials_per_step",
+            "ratio_to_no_contact",
+        ):
             assert key in case
     assert any(c["path"] == "kkt" for c in report["cases"])
     agree = report["agreement"]

@@ -57,9 +57,11 @@ CELLS = {"hexahedron": dmesh.CellType.hexahedron, "tetrahedron": dmesh.CellType.
 def exact_displacement(x, m):
     """u_e(X) written once for numpy (m=np) and UFL (m=ufl): smooth, non-zero on the boundary."""
     s, c, pi = m.sin, m.cos, np.pi
-    return [AMPLITUDE * s(pi * x[0]) * c(pi * x[1] / 2) + 0.02 * x[2] ** 2,
-            AMPLITUDE * s(pi * x[1]) * (1 + x[0]) + 0.01 * x[0] * x[2],
-            AMPLITUDE * c(pi * x[2] / 2) * x[1] - 0.03 * x[0] * x[1] * x[2]]
+    return [
+        AMPLITUDE * s(pi * x[0]) * c(pi * x[1] / 2) + 0.02 * x[2] ** 2,
+        AMPLITUDE * s(pi * x[1]) * (1 + x[0]) + 0.01 * x[0] * x[2],
+        AMPLITUDE * c(pi * x[2] / 2) * x[1] - 0.03 * x[0] * x[1] * x[2],
+    ]
 
 
 def boundary_input_nodes(msh) -> np.ndarray:
@@ -78,8 +80,9 @@ def manufactured_errors(cell: str, n: int, material) -> tuple[float, float]:
     F_e = ufl.variable(ufl.Identity(3) + ufl.grad(u_e))
     P_e = ufl.diff(material.strain_energy(F_e), F_e)
     body.set_body_force(-ufl.div(P_e))
-    body.fix_nodes(boundary_input_nodes(msh),
-                   displacement=lambda x: np.array(exact_displacement(x, np)))
+    body.fix_nodes(
+        boundary_input_nodes(msh), displacement=lambda x: np.array(exact_displacement(x, np))
+    )
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     scene.solve_static()
@@ -104,8 +107,10 @@ def check_rates(cell: str, material):
     l2 = [r[0] for r in results]
     h1 = [r[1] for r in results]
     l2_rates, h1_rates = observed_rates(l2), observed_rates(h1)
-    print(f"{cell} {type(material).__name__}: L2 {np.round(l2, 8)} rates {np.round(l2_rates, 3)}; "
-          f"H1 {np.round(h1, 6)} rates {np.round(h1_rates, 3)}")
+    print(
+        f"{cell} {type(material).__name__}: L2 {np.round(l2, 8)} rates {np.round(l2_rates, 3)}; "
+        f"H1 {np.round(h1, 6)} rates {np.round(h1_rates, 3)}"
+    )
     # The discretization error must actually be visible (the test can fail on a
     # solution that is exact or wrong by a constant): the coarse L2 error is a
     # fraction of the displacement amplitude, and errors decrease monotonically.
@@ -132,8 +137,9 @@ def test_manufactured_solution_is_not_trivially_satisfied():
     """Guard: without the body force the solver must NOT find u_e (error stays O(amplitude))."""
     msh = dmesh.create_unit_cube(MPI.COMM_WORLD, 4, 4, 4, dmesh.CellType.hexahedron)
     body = FemBody(msh, NEO, density=1.0)
-    body.fix_nodes(boundary_input_nodes(msh),
-                   displacement=lambda x: np.array(exact_displacement(x, np)))
+    body.fix_nodes(
+        boundary_input_nodes(msh), displacement=lambda x: np.array(exact_displacement(x, np))
+    )
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     scene.solve_static()

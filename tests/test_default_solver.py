@@ -106,7 +106,7 @@ def audit(scene, body) -> list[float]:
     solver = scene.linear_solver_for(body)
     solve, residuals = solver.solve, []
 
-    def checked(A, b, x, **options):        # options: the per-solve rtol of statics
+    def checked(A, b, x, **options):  # options: the per-solve rtol of statics
         b0 = b.copy()
         solve(A, b, x, **options)
         r = b0.duplicate()
@@ -124,9 +124,9 @@ def audit(scene, body) -> list[float]:
 def check_default_ran(scene, body, residuals) -> None:
     solver = scene.linear_solver_for(body)
     assert solver.method == DEFAULT_METHOD and solver.iterative
-    assert solver.direct_solves == 0                 # no fallback to MUMPS
+    assert solver.direct_solves == 0  # no fallback to MUMPS
     assert residuals and max(residuals) <= DEFAULT_RTOL * (1 + 1e-6), max(residuals)
-    assert solver.iterations > 1                     # CG iterated (MUMPS: one)
+    assert solver.iterations > 1  # CG iterated (MUMPS: one)
 
 
 def relative(a, b) -> float:
@@ -135,12 +135,18 @@ def relative(a, b) -> float:
 
 # ---- a free FEM body ------------------------------------------------------------------------
 
+
 def beam(name="beam", young=2e4):
     """A soft clamped beam (1 x 0.2 x 0.2 m, 8 x 2 x 2 hexahedra, 243 dofs), damped."""
-    box = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])], [8, 2, 2],
-                           dmesh.CellType.hexahedron)
-    body = af.FemBody(box, af.NeoHookean.from_young_poisson(young, 0.3), 1000.0,
-                      rayleigh=(0.5, 0.002), name=name)
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+        [8, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    body = af.FemBody(
+        box, af.NeoHookean.from_young_poisson(young, 0.3), 1000.0, rayleigh=(0.5, 0.002), name=name
+    )
     body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     return body
 
@@ -162,7 +168,7 @@ def test_free_fem_body_steps_agree_with_mumps(integrator):
         else:
             kappa = max(kappa, step_condition(body))
     u = runs["mumps"]
-    assert np.abs(u).max() > 0.02                        # the beam sagged (5 cm)
+    assert np.abs(u).max() > 0.02  # the beam sagged (5 cm)
     rtol = DEFAULT_RTOL if integrator == "semi-implicit" else 2 * IMPLICIT_RTOL
     assert relative(runs[DEFAULT_METHOD], u) <= steps * kappa * rtol
 
@@ -190,10 +196,21 @@ def test_free_fem_body_statics_agree_with_mumps():
 
 # ---- an embedded (voxel) FEM body -------------------------------------------------------------
 
+
 def cylinder_surface():
     import pyvista as pv
-    s = pv.Cylinder(center=(0.15, 0.0, 0.0), direction=(1.0, 0.0, 0.0), radius=0.05,
-                    height=0.3, resolution=24).triangulate().clean()
+
+    s = (
+        pv.Cylinder(
+            center=(0.15, 0.0, 0.0),
+            direction=(1.0, 0.0, 0.0),
+            radius=0.05,
+            height=0.3,
+            resolution=24,
+        )
+        .triangulate()
+        .clean()
+    )
     return np.asarray(s.points, dtype=float), s.faces.reshape(-1, 4)[:, 1:]
 
 
@@ -205,9 +222,10 @@ def test_voxel_fem_body_steps_agree_with_mumps():
     V, T = cylinder_surface()
     steps, runs, kappa = 10, {}, 0.0
     for solver in SOLVERS:
-        body = VoxelFemBody(V, T, af.NeoHookean.from_young_poisson(5e4, 0.3), 1000.0,
-                            (12, 4, 4), name="cylinder")
-        assert body.voxels.fraction.min() < 0.5          # cut cells: phi-weighted matrix
+        body = VoxelFemBody(
+            V, T, af.NeoHookean.from_young_poisson(5e4, 0.3), 1000.0, (12, 4, 4), name="cylinder"
+        )
+        assert body.voxels.fraction.min() < 0.5  # cut cells: phi-weighted matrix
         x = body.mesh.geometry.x
         body.fix_nodes(np.asarray(body.mesh.geometry.input_global_indices)[x[:, 0] < 1e-9])
         scene = af.Scene(gravity=(0, 0, -9.81), linear_solver=solver)
@@ -229,6 +247,7 @@ def test_voxel_fem_body_steps_agree_with_mumps():
 
 # ---- the coupled island, distributed (Schur) ------------------------------------------------
 
+
 def hinged(solver, island_solver="schur"):
     """The beam's far end carried by a bone hinged to the world (y axis), gravity."""
     body = beam()
@@ -245,7 +264,7 @@ def test_schur_island_agrees_with_mumps():
     for solver in SOLVERS:
         scene, body, bone, hinge = hinged(solver)
         scene.check()
-        assert scene._schur is not None                  # the FEM blocks by linear_solver
+        assert scene._schur is not None  # the FEM blocks by linear_solver
         residuals = audit(scene, body)
         for _ in range(steps):
             scene.step(H)
@@ -264,18 +283,20 @@ def test_schur_island_agrees_with_mumps():
         if k < steps:
             scene.step(H)
     (u_default, angle_default), (u, angle) = runs[DEFAULT_METHOD], runs["mumps"]
-    assert np.abs(u).max() > 0.02 and abs(angle) > 0.05          # the hinge turned
+    assert np.abs(u).max() > 0.02 and abs(angle) > 0.05  # the hinge turned
     bound = steps * 7 * kappa * DEFAULT_RTOL
     assert relative(u_default, u) <= bound
     assert abs(angle_default - angle) <= bound * abs(angle)
-    assert relative(body.u.x.array, u) < 1e-10          # direct island = Schur with MUMPS
+    assert relative(body.u.x.array, u) < 1e-10  # direct island = Schur with MUMPS
 
 
 # ---- the tongue -----------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def tongue_data():
     from artifem.models.tongue.model import load_tongue_data
+
     return load_tongue_data(0)
 
 
@@ -287,8 +308,12 @@ def test_tongue_default_solver_agrees_with_mumps(tongue_data, integrator, steps)
     solver is the default (with the hard constraint it is MUMPS)."""
     runs = {}
     for solver in SOLVERS:
-        tongue = Tongue(TongueConfig(level=0, integrator=integrator, incompressibility=PENALTY,
-                                     linear_solver=solver), data=tongue_data)
+        tongue = Tongue(
+            TongueConfig(
+                level=0, integrator=integrator, incompressibility=PENALTY, linear_solver=solver
+            ),
+            data=tongue_data,
+        )
         residuals = audit(tongue.scene, tongue.body)
         tongue.drive(Tongue.motion("protrusion"))
         for _ in range(steps):
@@ -297,5 +322,5 @@ def test_tongue_default_solver_agrees_with_mumps(tongue_data, integrator, steps)
         if solver == DEFAULT_METHOD:
             check_default_ran(tongue.scene, tongue.body, residuals)
     u = runs["mumps"]
-    assert np.abs(u).max() > 1e-4                       # the tongue moved
+    assert np.abs(u).max() > 1e-4  # the tongue moved
     assert np.abs(runs[DEFAULT_METHOD] - u).max() < 3e-7 * np.abs(u).max()

@@ -19,8 +19,12 @@ OUTPUTS = {
     "skin_pressure.py": ["skin_pressure.png", "block.bp"],
     "static_pressure.py": ["static_pressure.png"],
     "inflated_sphere.py": ["pressure_stretch.png", "inflated_sphere.png", "inflated_sphere.json"],
-    "contact_pad_on_bone.py": ["contact_pad_on_bone.png", "contact_pressure.png", "pad.bp",
-                               "pad_contact_pressure.bp"],
+    "contact_pad_on_bone.py": [
+        "contact_pad_on_bone.png",
+        "contact_pressure.png",
+        "pad.bp",
+        "pad_contact_pressure.bp",
+    ],
 }
 
 
@@ -31,8 +35,13 @@ def test_every_demo_is_listed():
 @pytest.mark.parametrize("script", sorted(p.name for p in DEMOS.glob("*.py")))
 def test_demo_runs(script, tmp_path):
     env = {**os.environ, "ARTIFEM_QUICK": "1"}
-    run = subprocess.run([sys.executable, str(DEMOS / script), str(tmp_path)],
-                         capture_output=True, text=True, timeout=600, env=env)
+    run = subprocess.run(
+        [sys.executable, str(DEMOS / script), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr
     for name in OUTPUTS[script]:

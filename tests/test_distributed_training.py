@@ -34,19 +34,24 @@ import distributed_training_job as job  # noqa: E402
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
 pytestmark = [
     pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="launches its own mpiexec"),
-    pytest.mark.skipif(not MPIEXEC.exists(), reason=f"no mpiexec next to {sys.executable}")]
+    pytest.mark.skipif(not MPIEXEC.exists(), reason=f"no mpiexec next to {sys.executable}"),
+]
 
 
 def launch(cache: Path, *flags: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(MPIEXEC), "-n", "2", sys.executable, job.__file__, str(cache),
-                           *flags], capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    return subprocess.run(
+        [str(MPIEXEC), "-n", "2", sys.executable, job.__file__, str(cache), *flags],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+    )
 
 
 def result(proc: subprocess.CompletedProcess) -> dict:
     assert proc.returncode == 0, proc.stdout + proc.stderr
     line = next(l for l in proc.stdout.splitlines() if l.startswith("RESULT "))
-    return json.loads(line[len("RESULT "):])
+    return json.loads(line[len("RESULT ") :])
 
 
 def test_two_ranks_share_the_training_and_resume(tmp_path):
@@ -55,8 +60,12 @@ def test_two_ranks_share_the_training_and_resume(tmp_path):
     assert (done["ranks"], done["jobs"], done["missing"]) == (2, 4, 4)
     assert done["by_rank"] == [["a", "c"], ["b", "d"]]
     shared = ArtifactCache(cache)
-    serial = Reductor(job.model(), Training(job.schedules(), job.DURATION, job.DT, 2),
-                      tmp_path / "serial", progress=False)
+    serial = Reductor(
+        job.model(),
+        Training(job.schedules(), job.DURATION, job.DT, 2),
+        tmp_path / "serial",
+        progress=False,
+    )
     assert serial.snapshot_keys() == done["keys"]
     runs = serial._training_runs()
     for key, run in zip(done["keys"], runs):
@@ -75,9 +84,13 @@ def test_a_failing_run_fails_every_rank_and_keeps_the_others(tmp_path):
     proc = launch(cache, "--fail")
     assert proc.returncode != 0
     assert "element 3 inverted (run 'c')" in proc.stderr
-    assert "rank 0 of 2 failed on job 'c'" in proc.stderr      # what rank 1 says
-    keys = Reductor(job.model(), Training(job.schedules(), job.DURATION, job.DT, 2),
-                    tmp_path / "other", progress=False).snapshot_keys()
+    assert "rank 0 of 2 failed on job 'c'" in proc.stderr  # what rank 1 says
+    keys = Reductor(
+        job.model(),
+        Training(job.schedules(), job.DURATION, job.DT, 2),
+        tmp_path / "other",
+        progress=False,
+    ).snapshot_keys()
     kept = [name for name, key in zip(job.LEVELS, keys) if ArtifactCache(cache).path(key).exists()]
     assert kept == ["a", "b", "d"]
 
@@ -87,7 +100,6 @@ def test_a_distributed_model_is_refused(tmp_path):
     assert proc.returncode != 0
     assert "body 'fem' is distributed over 2 ranks" in proc.stderr
     assert not list((tmp_path / "cache").glob("*.npz"))
-
 
 
 def test_a_study_under_two_ranks_trains_on_both_and_finishes_on_one(tmp_path):
@@ -100,17 +112,46 @@ def test_a_study_under_two_ranks_trains_on_both_and_finishes_on_one(tmp_path):
     out = tmp_path / "study"
     tests = str(Path(__file__).parent)
     proc = subprocess.run(
-        [str(MPIEXEC), "-n", "2", sys.executable, "-m", "artifem.cli", "study", "scene",
-         "test_reductor_load_cases:pulled_model", "--out", str(out), "--training-runs", "4",
-         "--duration", "0.2", "--snapshot-every", "2", "--r", "6", "--sampling", "all",
-         "--held-out", "1"], capture_output=True, text=True, timeout=600,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1",
-             "PYTHONPATH": os.pathsep.join([tests, os.environ.get("PYTHONPATH", "")])})
+        [
+            str(MPIEXEC),
+            "-n",
+            "2",
+            sys.executable,
+            "-m",
+            "artifem.cli",
+            "study",
+            "scene",
+            "test_reductor_load_cases:pulled_model",
+            "--out",
+            str(out),
+            "--training-runs",
+            "4",
+            "--duration",
+            "0.2",
+            "--snapshot-every",
+            "2",
+            "--r",
+            "6",
+            "--sampling",
+            "all",
+            "--held-out",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={
+            **os.environ,
+            "OPENBLAS_NUM_THREADS": "1",
+            "PYTHONPATH": os.pathsep.join([tests, os.environ.get("PYTHONPATH", "")]),
+        },
+    )
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
     training = json.loads((out / "training.json").read_text())
     assert training["ranks"] == 2 and training["missing"] == 4
-    assert sorted(n for names in training["by_rank"] for n in names) == \
-        [f"random-0-{i}" for i in range(4)]
-    assert all(training["by_rank"])                         # both ranks computed
+    assert sorted(n for names in training["by_rank"] for n in names) == [
+        f"random-0-{i}" for i in range(4)
+    ]
+    assert all(training["by_rank"])  # both ranks computed
     split = json.loads((out / "generalization.json").read_text())
     assert [len(split["sets"][s]) for s in ("training", "motions", "held-out")] == [4, 1, 1]

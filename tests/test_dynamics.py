@@ -28,9 +28,11 @@ INTEGRATORS = ["semi-implicit", "implicit"]
 
 # ---- helpers -------------------------------------------------------------------------------
 
+
 def box(size, n, cell=dmesh.CellType.hexahedron):
-    return dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.asarray(size, dtype=float)],
-                            list(n), cell)
+    return dmesh.create_box(
+        MPI.COMM_WORLD, [np.zeros(3), np.asarray(size, dtype=float)], list(n), cell
+    )
 
 
 def input_nodes(msh, mask) -> np.ndarray:
@@ -65,8 +67,9 @@ def first_mode(body: FemBody) -> tuple[float, np.ndarray]:
     m = body.M_lumped.array.copy()
     fixed = (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
     free = np.setdiff1d(np.arange(K_dense.shape[0]), fixed)
-    w2, phi = scipy.linalg.eigh(K_dense[np.ix_(free, free)], np.diag(m[free]),
-                                subset_by_index=[0, 1])
+    w2, phi = scipy.linalg.eigh(
+        K_dense[np.ix_(free, free)], np.diag(m[free]), subset_by_index=[0, 1]
+    )
     assert w2[1] > 1.5 * w2[0], "first mode must be well separated (rectangular section)"
     mode = np.zeros(K_dense.shape[0])
     mode[free] = phi[:, 0]
@@ -102,8 +105,6 @@ def mode_release(integrator: str, steps: int, final_time: float) -> np.ndarray:
     return body.displacement_at(tip).mean(axis=0)
 
 
-
-
 @pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
 def test_backward_euler_is_first_order_in_time(integrator):
     """Self-convergence: d_k = |u(dt_k) - u(dt_k/2)| halves when dt halves (order 1).
@@ -130,6 +131,7 @@ def test_backward_euler_is_first_order_in_time(integrator):
 
 # ---- (b) energy ----------------------------------------------------------------------------
 
+
 def energy_history(integrator, rayleigh, steps=60, dt=0.02):
     body, _ = cantilever(BEAM_MATERIAL, rayleigh=rayleigh, gravity=(0.0, 0.0, -9.81))
     scene = scene_with(body, integrator)
@@ -155,9 +157,9 @@ def test_rayleigh_damped_energy_never_grows(integrator):
     every step; it converges to the static minimum."""
     total, kinetic = energy_history(integrator, rayleigh=(2.0, 0.01))
     assert total[0] == 0.0
-    assert kinetic.max() > 1.0                      # it really fell
-    assert total[-1] < -20.0                        # and released potential energy
-    assert kinetic[-1] < 0.05 * kinetic.max()       # damping took most of the motion out
+    assert kinetic.max() > 1.0  # it really fell
+    assert total[-1] < -20.0  # and released potential energy
+    assert kinetic[-1] < 0.05 * kinetic.max()  # damping took most of the motion out
     assert_never_grows(total)
 
 
@@ -190,7 +192,7 @@ def test_backtracking_refuses_a_full_step_that_raises_the_merit_slightly():
         return abs(g + 2.0 * c * s_now[-1])
 
     s_now.append(1.0)
-    assert 0.0 < merit() - E0 < 1e-4 * abs(g) and residual() > abs(g)    # the case meant
+    assert 0.0 < merit() - E0 < 1e-4 * abs(g) and residual() > abs(g)  # the case meant
     s_now.clear()
     step = _backtrack(s_now.append, lambda: False, merit, E0, g, residual, abs(g))
     assert step == 0.5 and s_now == [1.0, 0.5]
@@ -201,12 +203,17 @@ def test_backtracking_refuses_a_full_step_that_raises_the_merit_slightly():
     assert step == 0.25 and s_now == [1.0, 0.5, 0.25]
     # no decrease anywhere: the search gives up below min_step
     s_now.clear()
-    assert _backtrack(s_now.append, lambda: False, lambda: E0 + 1.0, E0, g,
-                      lambda: 2.0, abs(g), min_step=0.1) is None
+    assert (
+        _backtrack(
+            s_now.append, lambda: False, lambda: E0 + 1.0, E0, g, lambda: 2.0, abs(g), min_step=0.1
+        )
+        is None
+    )
     assert s_now == [1.0, 0.5, 0.25, 0.125]
 
 
 # ---- (c) element inversion -----------------------------------------------------------------
+
 
 def soft_cube(total_load, integrator="semi-implicit", corner=False, **scene_kwargs):
     """A soft 1 m cube (E = 1 kPa) clamped at z = 0, pushed down on its top face (or corner)."""
@@ -241,14 +248,14 @@ def test_inversion_raises_a_clear_error_and_keeps_the_last_good_state():
     # The error names the time of the failing (smallest) sub-step: after the
     # last good state plus dt / 2**max_halvings.
     assert scene.t > 0
-    assert err.time == pytest.approx(scene.t + dt / 2 ** scene.max_halvings)
+    assert err.time == pytest.approx(scene.t + dt / 2**scene.max_halvings)
     message = str(err)
     assert f"t = {err.time:.6g}" in message and str(corner_cell) in message and "det F" in message
     # The body is left in the last good state: finite, nothing inverted.
     assert np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array))
     bad, min_det = body.inverted_elements()
     assert bad.size == 0 and min_det > 0
-    assert np.abs(body.u.x.array).max() > 1e-3     # and it is not the initial state
+    assert np.abs(body.u.x.array).max() > 1e-3  # and it is not the initial state
 
 
 def test_step_that_inverts_at_full_size_recovers_by_halving():
@@ -265,8 +272,12 @@ def test_step_that_inverts_at_full_size_recovers_by_halving():
     assert scene.t == pytest.approx(dt)
     bad, min_det = body.inverted_elements()
     assert bad.size == 0 and min_det > 0
-    assert body.displacement_at(input_nodes(body.mesh, body.mesh.geometry.x[:, 2] > 1 - 1e-12)
-                                )[:, 2].max() < -0.1
+    assert (
+        body.displacement_at(input_nodes(body.mesh, body.mesh.geometry.x[:, 2] > 1 - 1e-12))[
+            :, 2
+        ].max()
+        < -0.1
+    )
 
 
 def test_implicit_inversion_is_halved_or_reported_not_a_linear_solver_crash():
@@ -281,6 +292,7 @@ def test_implicit_inversion_is_halved_or_reported_not_a_linear_solver_crash():
 
 
 # ---- (d) muscles ---------------------------------------------------------------------------
+
 
 def muscle_beam():
     """A beam whose upper half (z > H/2) is a muscle with fibers along x."""
@@ -349,7 +361,7 @@ def test_cantilever_tip_deflection_matches_euler_bernoulli():
     displacement method converges from below: the coarse mesh is stiffer.
     """
     load = 1.0
-    euler_bernoulli = load * L_BEAM**3 / (3 * E_BEAM * I_BEAM)   # 0.04 m
+    euler_bernoulli = load * L_BEAM**3 / (3 * E_BEAM * I_BEAM)  # 0.04 m
     linear = LinearElastic.from_young_poisson(E_BEAM, NU_BEAM)
     coarse = tip_deflection(linear, (30, 2, 3), load)
     fine = tip_deflection(linear, (60, 3, 6), load)
@@ -362,7 +374,7 @@ def test_cantilever_tip_deflection_matches_euler_bernoulli():
 
 
 def test_static_neo_hookean_cantilever_under_a_very_small_load():
-    load = 0.01                          # tip deflection 0.4 mm = 0.04% of L
+    load = 0.01  # tip deflection 0.4 mm = 0.04% of L
     euler_bernoulli = load * L_BEAM**3 / (3 * E_BEAM * I_BEAM)
     neo = tip_deflection(NeoHookean.from_young_poisson(E_BEAM, NU_BEAM), (30, 2, 3), load)
     linear = tip_deflection(LinearElastic.from_young_poisson(E_BEAM, NU_BEAM), (30, 2, 3), load)
@@ -371,8 +383,9 @@ def test_static_neo_hookean_cantilever_under_a_very_small_load():
 
 
 def test_implicit_euler_settles_a_stiff_beam_under_gravity():
-    body, tip = cantilever(NeoHookean.from_young_poisson(1.0e8, 0.3),
-                           rayleigh=(5.0, 0.01), gravity=(0.0, 0.0, -9.81))
+    body, tip = cantilever(
+        NeoHookean.from_young_poisson(1.0e8, 0.3), rayleigh=(5.0, 0.01), gravity=(0.0, 0.0, -9.81)
+    )
     scene = scene_with(body, "implicit")
     for _ in range(30):
         scene.step(0.02)

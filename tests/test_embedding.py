@@ -71,7 +71,7 @@ def test_affine_displacement_reproduced_exactly(cell_type, kind):
     np.testing.assert_allclose(emb.positions(), pts + pts @ A.T + C, atol=1e-13)
     poly = emb.to_pyvista()
     assert poly.n_points == len(pts)
-    if kind == "triangle":      # the surface deforms by F = I + A: volume scales by det F
+    if kind == "triangle":  # the surface deforms by F = I + A: volume scales by det F
         vol0 = pv.PolyData(pts, np.c_[np.full(len(cells), 3), cells].ravel()).volume
         assert poly.volume == pytest.approx(np.linalg.det(np.eye(3) + A) * vol0, rel=1e-12)
 
@@ -82,7 +82,8 @@ def evaluate(function, points):
     msh = function.function_space.mesh
     tree = geometry.bb_tree(msh, msh.topology.dim)
     cells = geometry.compute_colliding_cells(
-        msh, geometry.compute_collisions_points(tree, points), points)
+        msh, geometry.compute_collisions_points(tree, points), points
+    )
     first = np.array([cells.links(i)[0] for i in range(len(points))], dtype=np.int32)
     return function.eval(points, first)
 
@@ -107,28 +108,39 @@ def test_velocities_and_forces_against_dolfinx_point_evaluation(cell_type):
     assert abs(work) > 1.0
     assert float(emb.force_to_nodes(f) @ v) == pytest.approx(work, rel=1e-10)
     # Total force is preserved (weights sum to one).
-    np.testing.assert_allclose(emb.force_to_nodes(f).reshape(-1, 3).sum(axis=0), f.sum(axis=0),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        emb.force_to_nodes(f).reshape(-1, 3).sum(axis=0), f.sum(axis=0), atol=1e-12
+    )
     # positions: x_rest + u_h(X), also against DOLFINx, and their derivative along v
     u = 0.01 * rng.standard_normal(n3)
     body.u.x.array[:n3] = u
     x = emb.positions()
-    np.testing.assert_allclose(x, emb.rest_positions + evaluate(body.u, emb.rest_positions),
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        x, emb.rest_positions + evaluate(body.u, emb.rest_positions), rtol=0, atol=1e-12
+    )
     body.u.x.array[:n3] = u + 1e-3 * v
-    np.testing.assert_allclose((emb.positions() - x) / 1e-3, v_h, rtol=0,
-                               atol=1e-9 * np.abs(v_h).max())
+    np.testing.assert_allclose(
+        (emb.positions() - x) / 1e-3, v_h, rtol=0, atol=1e-9 * np.abs(v_h).max()
+    )
 
 
 def test_outside_points_raise_or_snap_with_distance():
     # Undistorted box for exact distances.
-    plain = FemBody(dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [4, 4, 4],
-                                     dmesh.CellType.hexahedron),
-                    NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
-    pts = np.array([[0.5, 0.5, 0.5],        # inside
-                    [1.2, 0.5, 0.5],        # 0.2 beyond the face x = 1
-                    [-0.3, -0.4, 0.5],      # beyond the edge x = y = 0: distance 0.5
-                    [1.1, 1.2, 1.3]])       # beyond the corner: distance sqrt(.01+.04+.09)
+    plain = FemBody(
+        dmesh.create_box(
+            MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [4, 4, 4], dmesh.CellType.hexahedron
+        ),
+        NeoHookean.from_young_poisson(1.0e4, 0.3),
+        1000.0,
+    )
+    pts = np.array(
+        [
+            [0.5, 0.5, 0.5],  # inside
+            [1.2, 0.5, 0.5],  # 0.2 beyond the face x = 1
+            [-0.3, -0.4, 0.5],  # beyond the edge x = y = 0: distance 0.5
+            [1.1, 1.2, 1.3],
+        ]
+    )  # beyond the corner: distance sqrt(.01+.04+.09)
     with pytest.raises(OutsideMeshError, match=r"3 embedded point\(s\).*point 2 at distance 0.5"):
         EmbeddedMesh(plain, pts)
     emb = EmbeddedMesh(plain, pts, snap=True)
@@ -161,8 +173,9 @@ def test_reduced_body_G_is_full_G_times_U():
     f = rng.standard_normal((40, 3))
     # the generalized force is U^T of the full body's nodal force (itself checked against
     # DOLFINx's point evaluation above)
-    np.testing.assert_allclose(emb_red.force_to_nodes(f), U.T @ emb_full.force_to_nodes(f),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        emb_red.force_to_nodes(f), U.T @ emb_full.force_to_nodes(f), atol=1e-12
+    )
 
 
 def test_bad_input():
@@ -183,12 +196,18 @@ def test_point_attachment_snapping_to_a_hex_mesh_stays_in_the_element():
     corner of a box, the closest point of the mesh with weights in [0, 1] summing to one."""
     from artifem.multibody.point_attachments import shape_function_weights
 
-    body = FemBody(dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [3, 4, 5],
-                                    dmesh.CellType.hexahedron),
-                   NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
+    body = FemBody(
+        dmesh.create_box(
+            MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [3, 4, 5], dmesh.CellType.hexahedron
+        ),
+        NeoHookean.from_young_poisson(1.0e4, 0.3),
+        1000.0,
+    )
     x_nodes = body.V.tabulate_dof_coordinates()
-    for X, closest in (([0.4, 1.25, 0.55], [0.4, 1.0, 0.55]),         # beyond the face y = 1
-                       ([-0.1, 1.2, 1.3], [0.0, 1.0, 1.0])):          # beyond a corner
+    for X, closest in (
+        ([0.4, 1.25, 0.55], [0.4, 1.0, 0.55]),  # beyond the face y = 1
+        ([-0.1, 1.2, 1.3], [0.0, 1.0, 1.0]),
+    ):  # beyond a corner
         w = shape_function_weights(body, X, snap=True)
         assert w.weights.min() >= -1e-14 and w.weights.max() <= 1 + 1e-14
         assert w.weights.sum() == pytest.approx(1.0, abs=1e-14)
@@ -203,10 +222,24 @@ def test_point_attachment_snapping_to_a_hex_mesh_stays_in_the_element():
     import basix
     import basix.ufl
 
-    nodes = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.3, 1.2, 0.4],
-                      [0.0, 0.0, 1.0], [1.0, -0.3, 1.1], [-0.2, 1.0, 1.0], [0.6, 0.7, 1.5]])
-    msh = dmesh.create_mesh(MPI.COMM_SELF, np.arange(8, dtype=np.int64).reshape(1, 8),
-                            basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,)), nodes)
+    nodes = np.array(
+        [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.3, 1.2, 0.4],
+            [0.0, 0.0, 1.0],
+            [1.0, -0.3, 1.1],
+            [-0.2, 1.0, 1.0],
+            [0.6, 0.7, 1.5],
+        ]
+    )
+    msh = dmesh.create_mesh(
+        MPI.COMM_SELF,
+        np.arange(8, dtype=np.int64).reshape(1, 8),
+        basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,)),
+        nodes,
+    )
     body = FemBody(msh, NeoHookean.from_young_poisson(1.0e4, 0.3), 1000.0)
     grid = np.stack(np.meshgrid(*[np.linspace(0, 1, 21)] * 3, indexing="ij"), -1).reshape(-1, 3)
     hexahedron = basix.create_element(basix.ElementFamily.P, basix.CellType.hexahedron, 1)

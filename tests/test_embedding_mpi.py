@@ -132,8 +132,9 @@ def run(tmp_path: Path, ranks: int, mode: str = "embed"):
     return json.loads(out.read_text())
 
 
-needs_mpiexec = pytest.mark.skipif(not MPIEXEC.exists(),
-                                   reason=f"no mpiexec next to the interpreter ({MPIEXEC})")
+needs_mpiexec = pytest.mark.skipif(
+    not MPIEXEC.exists(), reason=f"no mpiexec next to the interpreter ({MPIEXEC})"
+)
 
 
 @needs_mpiexec
@@ -157,14 +158,16 @@ def test_two_ranks_equal_serial(tmp_path):
         # test_embedding, and their work here against the serial run.)
         for name in ("points", "surface"):
             assert p[f"work_nodes_{name}"] == pytest.approx(p[f"work_{name}"], rel=1e-12)
-        np.testing.assert_allclose(s["distance"][-5:], [0.2, 0.5, np.sqrt(0.11), 0.25, 0.2],
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            s["distance"][-5:], [0.2, 0.5, np.sqrt(0.11), 0.25, 0.2], atol=1e-12
+        )
         np.testing.assert_allclose(s["distance"][:-5], 0.0, atol=0)
-        assert max(s["surface_distance"]) > 0.1           # the sphere pokes out of the box
+        assert max(s["surface_distance"]) > 0.1  # the sphere pokes out of the box
         for key in ("distance", "surface_distance", "rest", "positions", "surface"):
             a, b = np.array(s[key]), np.array(p[key])
-            np.testing.assert_allclose(b, a, rtol=0, atol=1e-12 * np.abs(a).max(),
-                                       err_msg=f"{cell_type} {key}")
+            np.testing.assert_allclose(
+                b, a, rtol=0, atol=1e-12 * np.abs(a).max(), err_msg=f"{cell_type} {key}"
+            )
         for key in ("work_points", "work_surface"):
             assert p[key] == pytest.approx(s[key], rel=1e-12), key
 

@@ -103,26 +103,37 @@ def test_bad_input_is_refused_before_any_run(tmp_path):
 
 
 #: points trained on weak and moderate ramps; candidates: a full ramp, a fast one, a release
-POINTS_TRAINING = Training({"low": ramp(0.2), "mid": ramp(0.6)}, duration=0.3, dt=0.01,
-                           snapshot_every=2)
-POINTS_POOL = {"high": ramp(1.0), "fast": ramp(0.8, 0.02),
-               "release": ExcitationSchedule(np.array([0.0, 0.05, 0.15, 0.3]),
-                                             {"top": np.array([0.0, 1.0, 0.0, 0.0])})}
+POINTS_TRAINING = Training(
+    {"low": ramp(0.2), "mid": ramp(0.6)}, duration=0.3, dt=0.01, snapshot_every=2
+)
+POINTS_POOL = {
+    "high": ramp(1.0),
+    "fast": ramp(0.8, 0.02),
+    "release": ExcitationSchedule(
+        np.array([0.0, 0.05, 0.15, 0.3]), {"top": np.array([0.0, 1.0, 0.0, 0.0])}
+    ),
+}
 W4 = Basis("pod", 4)
 
 
 def point_errors(reduced, reference) -> dict[str, float]:
     """max_t mean node distance (mm) of each candidate's reduced run to the reference's."""
-    return {name: float(node_mean_mm(reduced_run(reduced, s, 0.3, 0.01)[0],
-                                     reduced_run(reference, s, 0.3, 0.01)[0]).max())
-            for name, s in POINTS_POOL.items()}
+    return {
+        name: float(
+            node_mean_mm(
+                reduced_run(reduced, s, 0.3, 0.01)[0], reduced_run(reference, s, 0.3, 0.01)[0]
+            ).max()
+        )
+        for name, s in POINTS_POOL.items()
+    }
 
 
 def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(tmp_path):
     reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
     spec = Points(40, tol=1e-3, training_states=20)
-    result = greedy_points(reductor, POINTS_POOL, basis=W4, points=spec, max_rounds=4,
-                           progress=False)
+    result = greedy_points(
+        reductor, POINTS_POOL, basis=W4, points=spec, max_rounds=4, progress=False
+    )
     first, last = result.history[0], result.history[-1]
     for entry in result.history:
         assert set(entry["indicators"]) == set(POINTS_POOL)
@@ -130,34 +141,46 @@ def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(t
         if entry["added"] is not None:
             assert entry["added"] == max(entry["indicators"], key=entry["indicators"].get)
     rounds = len(result.history) - (2 if result.stopped == "stalled" else 1)
-    kept = result.history[rounds]                     # the model returned
+    kept = result.history[rounds]  # the model returned
     assert kept["max_indicator"] < 0.2 * first["max_indicator"]
-    assert result.states[0].shape == (10 * rounds, W4.size)   # 10 visited states a round
+    assert result.states[0].shape == (10 * rounds, W4.size)  # 10 visited states a round
     everything = reductor.reduce(W4, Points(sampling="all"))
-    before = reductor.reduce(W4, spec)                # the cache still holds the first points
+    before = reductor.reduce(W4, spec)  # the cache still holds the first points
     assert before.points.m == first["points"] < result.reduced.points.m
-    same_count = reductor.reduce(W4, Points(result.reduced.points.m, tol=1e-9,
-                                            training_states=20))
-    errors = {"before": point_errors(before, everything),
-              "enriched": point_errors(result.reduced, everything),
-              "same count": point_errors(same_count, everything)}
+    same_count = reductor.reduce(W4, Points(result.reduced.points.m, tol=1e-9, training_states=20))
+    errors = {
+        "before": point_errors(before, everything),
+        "enriched": point_errors(result.reduced, everything),
+        "same count": point_errors(same_count, everything),
+    }
     # enriched / before, measured: 0.14, 0.04 and 0.46 (high, fast, release); enriched /
     # same count: 0.33, 0.05, 0.37
     for name in POINTS_POOL:
         assert errors["enriched"][name] < 0.5 * errors["before"][name]
         assert errors["enriched"][name] < 0.5 * errors["same count"][name]
-    assert not list(tmp_path.glob("full-run*"))       # no full run beyond the training
+    assert not list(tmp_path.glob("full-run*"))  # no full run beyond the training
 
 
-def test_point_enrichment_stops_at_the_tolerance_and_undoes_a_round_that_does_not_help(
-        tmp_path):
+def test_point_enrichment_stops_at_the_tolerance_and_undoes_a_round_that_does_not_help(tmp_path):
     reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
-    loose = greedy_points(reductor, POINTS_POOL, basis=W4, tol=1.0, progress=False,
-                          points=Points(40, tol=1e-3, training_states=20))
+    loose = greedy_points(
+        reductor,
+        POINTS_POOL,
+        basis=W4,
+        tol=1.0,
+        progress=False,
+        points=Points(40, tol=1e-3, training_states=20),
+    )
     assert loose.stopped == "tolerance" and loose.states is None and len(loose.history) == 1
     # eight points cannot fit the strong states: a later round raises the largest residual
-    few = greedy_points(reductor, POINTS_POOL, basis=W4, max_rounds=6, progress=False,
-                        points=Points(8, tol=1e-9, training_states=20))
+    few = greedy_points(
+        reductor,
+        POINTS_POOL,
+        basis=W4,
+        max_rounds=6,
+        progress=False,
+        points=Points(8, tol=1e-9, training_states=20),
+    )
     assert few.stopped == "stalled"
     *_, kept, undone = few.history
     assert undone["undone"] and undone["max_indicator"] >= kept["max_indicator"]

@@ -24,9 +24,11 @@ def foot(foot_cache):
 
 def test_osim_offsets_and_bodies():
     joints = fb.joint_frames()
-    expected = {"ankle_r": ("tibia_r", "talus_r", [0, -0.43, 0]),
-                "subtalar_r": ("talus_r", "calcn_r", [-0.04877, -0.04195, 0.00792]),
-                "mtp_r": ("calcn_r", "toes_r", [0.1788, -0.002, 0.00108])}
+    expected = {
+        "ankle_r": ("tibia_r", "talus_r", [0, -0.43, 0]),
+        "subtalar_r": ("talus_r", "calcn_r", [-0.04877, -0.04195, 0.00792]),
+        "mtp_r": ("calcn_r", "toes_r", [0.1788, -0.002, 0.00108]),
+    }
     for name, (parent, child, offset) in expected.items():
         j = joints[name]
         assert (j["parent"]["body"], j["child"]["body"]) == (parent, child)
@@ -34,7 +36,7 @@ def test_osim_offsets_and_bodies():
         for role in ("parent", "child"):
             assert np.allclose(j[role]["orientation"], 0)
         assert np.allclose(j["child"]["translation"], 0)
-        assert np.allclose(j["spatial"], np.eye(4))        # default pose: coordinates 0
+        assert np.allclose(j["spatial"], np.eye(4))  # default pose: coordinates 0
     fb.check_bodies()
     meshes = fb.body_meshes()
     assert meshes["tibia_r"] == ["tibia_r.vtp", "fibula_r.vtp"]
@@ -47,12 +49,14 @@ def test_bones_assembled(bones):
     by_name = {b.name: b for b in bones}
     raw = fb.read_vtp(fb.DATA / "calcaneous_rv.vtp")[0]
     talus_origin = np.array([0, -0.43, 0])
-    assert np.allclose(by_name["calcaneus"].vertices,
-                       raw + talus_origin + [-0.04877, -0.04195, 0.00792])
+    assert np.allclose(
+        by_name["calcaneus"].vertices, raw + talus_origin + [-0.04877, -0.04195, 0.00792]
+    )
     raw = fb.read_vtp(fb.DATA / "distal_phalanx1_rvs.vtp")[0]
-    assert np.allclose(by_name["distal_phalanx1"].vertices,
-                       raw + talus_origin + [-0.04877, -0.04195, 0.00792]
-                       + [0.1788, -0.002, 0.00108])
+    assert np.allclose(
+        by_name["distal_phalanx1"].vertices,
+        raw + talus_origin + [-0.04877, -0.04195, 0.00792] + [0.1788, -0.002, 0.00108],
+    )
     for b in bones:
         assert fb.edge_defects(b.triangles) == (0, 0), b.name
         assert fb.signed_volume(b.vertices, b.triangles) > 0, b.name
@@ -72,7 +76,7 @@ def test_skin_and_mesh(bones, foot):
     vol = np.einsum("ij,ij->i", b_ - a, np.cross(c_ - a, d - a)) / 6
     assert (vol > 0).all()
     holes = sum(fb.signed_volume(*foot.group_surfaces[g]) for g in foot.groups)
-    expected = fb.signed_volume(v, f) - holes     # the tibia's surface is cut at the cap
+    expected = fb.signed_volume(v, f) - holes  # the tibia's surface is cut at the cap
     assert vol.sum() == pytest.approx(expected, rel=0.03)
     tags = set(np.unique(foot.facet_tags))
     assert tags == {fm.SKIN, fm.CAP} | {foot.tag(g) for g in foot.groups}
@@ -83,7 +87,7 @@ def test_skin_and_mesh(bones, foot):
         x = foot.points[foot.facets[foot.facet_tags == foot.tag(g)]].mean(1)
         gb = [b for b in bones if b.group == g]
         d = np.min([np.abs(fs.signed_distance(x, b.vertices, b.triangles)) for b in gb], 0)
-        h = fm.LEVELS[0].h_bone                   # chords of the coarse surfaces
+        h = fm.LEVELS[0].h_bone  # chords of the coarse surfaces
         assert np.percentile(d, 95) < 0.3 * h and d.max() < 0.5 * h, g
 
 

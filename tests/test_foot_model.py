@@ -33,8 +33,8 @@ def test_the_scene_has_every_bone_group_and_joint(standing):
     assert {tuple(c.name.removesuffix(" joint").split("-")) for c in foot.joints} == set(JOINTS)
     assert all(b.mass > 0 for b in foot.bones.values())
     names = [p.name for p in foot.ligaments]
-    assert names[:len(fl.NAMED)] == list(fl.NAMED)
-    assert len(names) == len(fl.NAMED) + 4 * (len(JOINTS) - 1)     # capsules but the ankle
+    assert names[: len(fl.NAMED)] == list(fl.NAMED)
+    assert len(names) == len(fl.NAMED) + 4 * (len(JOINTS) - 1)  # capsules but the ankle
     assert {m: len(p) for m, p in foot.muscles.items()} == {"tibialis anterior": 2, "soleus": 1}
 
 
@@ -57,7 +57,7 @@ def test_standing_the_floor_carries_the_load_and_the_weight(standing):
     floor = foot.scene.contact_forces(foot.floor)
     assert floor.normal.sum() == pytest.approx(HALF_WEIGHT + weight, rel=1e-6)
     assert all(c.constraint_failure() is None for c in foot.joints)
-    assert foot.bones["tibia"].position[1] < y0            # the heel pad is compressed
+    assert foot.bones["tibia"].position[1] < y0  # the heel pad is compressed
     u = foot.tissue.u.x.array.reshape(-1, 3)
     x = foot.tissue.V.tabulate_dof_coordinates() + u
     assert x[:, 1].min() > foot.floor.offset - foot.floor.tolerance - 1e-12
@@ -71,7 +71,7 @@ def test_the_tibia_loads_potential_is_minus_its_work():
     for t in (0.0, 0.05, 0.2):
         e0 = load.potential_energy(t)
         tibia.position = tibia.position + np.array([0.0, 1e-3, 0.0])
-        (_, wrench), = load.master_loads(t)
+        ((_, wrench),) = load.master_loads(t)
         assert load.potential_energy(t) - e0 == pytest.approx(-wrench[1] * 1e-3, abs=1e-12)
 
 
@@ -88,8 +88,7 @@ def test_the_foot_stands_on_the_floor_by_the_static_solve(foot_cache):
     counts = foot.scene.solve_static()
     assert len(counts) == 1 and counts.failed == 0
     merit = np.array(counts.residuals[0])
-    tail = [(a, b) for a, b in zip(merit, merit[1:])
-            if 1e-9 * merit.max() < a < 1e-4 * merit.max()]
+    tail = [(a, b) for a, b in zip(merit, merit[1:]) if 1e-9 * merit.max() < a < 1e-4 * merit.max()]
     assert len(tail) >= 2 and all(b < 1e-2 * a for a, b in tail), merit
     weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
     floor = foot.scene.contact_forces(foot.floor)
@@ -111,7 +110,7 @@ def test_the_loaded_foot_stands_by_the_static_solve_with_adaptive_load_steps(foo
     the weight and the load, and nothing passes through the floor or a joint."""
     foot = build_foot(0, load=HALF_WEIGHT, ramp=0.0, cache=foot_cache)
     counts = foot.scene.solve_static(load_steps="auto")
-    assert max(counts) <= 10                # auto's cap on the increments that converged
+    assert max(counts) <= 10  # auto's cap on the increments that converged
     weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
     floor = foot.scene.contact_forces(foot.floor)
     assert floor.normal.sum() == pytest.approx(weight + HALF_WEIGHT, rel=1e-6)

@@ -17,7 +17,7 @@ from artifem.scene.inputs import LoadLevel
 def test_the_load_level_scales_the_tibia_load(foot_cache):
     foot = foot_case("standing", 0, cache=foot_cache)
     LoadLevel("tibia load").apply(foot.scene, 0.5)
-    (_, wrench), = foot.load.master_loads(1.0)
+    ((_, wrench),) = foot.load.master_loads(1.0)
     assert wrench[1] == pytest.approx(-0.5 * foot.load.force)
     with pytest.raises(UnknownNameError, match="0 load elements"):
         LoadLevel("no such load").check(foot.scene)
@@ -29,9 +29,9 @@ def training_cache(tmp_path_factory):
     return tmp_path_factory.mktemp("foot_reduced")
 
 
-def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(foot_cache,
-                                                                         training_cache,
-                                                                         tmp_path):
+def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(
+    foot_cache, training_cache, tmp_path
+):
     """0.1 s runs (the load's ramp), both configurations against one full run: the reduced
     tissue has the 6 POD vectors and the 11 bone groups' 12 lift columns each. On 100
     random points (the paper's) its mean node error on the held-out 90 kg stays a small
@@ -40,10 +40,8 @@ def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(foot_ca
     point circle (the sliding rows are then held at mu lambda_n of the same solve), the
     run ends and meets the issue's 1 mm. The per-step error and ms are the figures'
     series, and they plot."""
-    configs = {name: replace(config, level=0, duration=0.1)
-               for name, config in fr.CONFIGS.items()}
-    results = fr.compare("standing", configs, training_cache, progress=False,
-                         mesh_cache=foot_cache)
+    configs = {name: replace(config, level=0, duration=0.1) for name, config in fr.CONFIGS.items()}
+    results = fr.compare("standing", configs, training_cache, progress=False, mesh_cache=foot_cache)
     paper, trained = results["paper"], results["trained"]
     assert paper["pod_vectors"] == 6 and paper["lift_columns"] == 11 * 12
     assert paper["points"] == 100 and trained["points"] <= 100
@@ -51,13 +49,10 @@ def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(foot_ca
     assert paper["max_mean_node_error_mm"] < 0.25 * paper["max_displacement_mm"]
     assert trained["max_mean_node_error_mm"] < 1.0
     steps = round(0.1 / paper["config"]["dt"])
-    for r in (paper, trained):           # the per-step series the figures summarize
-        assert len(r["mean_node_error_mm"]) == len(r["reduced_ms"]) == len(r["full_ms"]) \
-            == steps
-        assert max(r["mean_node_error_mm"]) == pytest.approx(r["max_mean_node_error_mm"],
-                                                             abs=1e-4)
+    for r in (paper, trained):  # the per-step series the figures summarize
+        assert len(r["mean_node_error_mm"]) == len(r["reduced_ms"]) == len(r["full_ms"]) == steps
+        assert max(r["mean_node_error_mm"]) == pytest.approx(r["max_mean_node_error_mm"], abs=1e-4)
         assert np.median(r["reduced_ms"]) == pytest.approx(r["reduced_ms_per_step"], abs=0.05)
         assert np.mean(r["full_ms"]) == pytest.approx(r["full_ms_mean"], abs=0.05)
-    png = plot_reduced_comparison(tmp_path / "reduced.png", results, paper["config"]["dt"],
-                                  "test")
+    png = plot_reduced_comparison(tmp_path / "reduced.png", results, paper["config"]["dt"], "test")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000

@@ -12,9 +12,20 @@ import ufl
 from scipy.integrate import quad
 
 import artifem as af  # first: orders dolfinx_solver before dolfinx
-from artifem.forms import (BlemkerFiber, CombinedMaterial, LinearElastic, MooneyRivlin, NeoHookean,
-                           StVenantKirchhoff, fiber_stretch, green_lagrange, invariants,
-                           isochoric_invariants, jacobian, small_strain)
+from artifem.forms import (
+    BlemkerFiber,
+    CombinedMaterial,
+    LinearElastic,
+    MooneyRivlin,
+    NeoHookean,
+    StVenantKirchhoff,
+    fiber_stretch,
+    green_lagrange,
+    invariants,
+    isochoric_invariants,
+    jacobian,
+    small_strain,
+)
 from artifem.errors import InputError, SolverError
 from artifem.material_response import plot_stress_stretch, point_response, stress_stretch_curves
 from artifem.pointwise import PointEvaluator, evaluator_for
@@ -34,6 +45,7 @@ MR_NEARLY_INCOMPRESSIBLE = MooneyRivlin(1037.0, C20=486.0, kappa=1.037e6)
 
 
 # --- independent closed forms (numpy) --------------------------------------------------------
+
 
 def blemker_fL(l):
     if 0.4 <= l <= 0.6:
@@ -60,10 +72,14 @@ def fiber_closed_form(m, F, a0, excitation):
     lam = np.linalg.norm(F @ a0)
 
     def stress(s):
-        return m.max_stress * (excitation * blemker_fL(s / c) + blemker_fP(s / c, m.P1, m.P2, m.stretch_star))
+        return m.max_stress * (
+            excitation * blemker_fL(s / c) + blemker_fP(s / c, m.P1, m.P2, m.stretch_star)
+        )
 
     kinks = [c * b for b in (0.4, 0.6, 1.0, 1.4, 1.6, m.stretch_star)]
-    psi = quad(stress, 1.0, lam, points=[k for k in kinks if min(1, lam) < k < max(1, lam)], epsabs=1e-10)[0]
+    psi = quad(
+        stress, 1.0, lam, points=[k for k in kinks if min(1, lam) < k < max(1, lam)], epsabs=1e-10
+    )[0]
     return psi, stress(lam) * np.outer(F @ a0, a0) / lam
 
 
@@ -82,8 +98,10 @@ def svk_closed_form(m, F):
 
 def linear_closed_form(m, F):
     eps = 0.5 * (F + F.T) - I3
-    return (0.5 * m.lmbda * np.trace(eps) ** 2 + m.mu * np.trace(eps @ eps),
-            m.lmbda * np.trace(eps) * I3 + 2 * m.mu * eps)
+    return (
+        0.5 * m.lmbda * np.trace(eps) ** 2 + m.mu * np.trace(eps @ eps),
+        m.lmbda * np.trace(eps) * I3 + 2 * m.mu * eps,
+    )
 
 
 def mooney_rivlin_closed_form(m, F):
@@ -121,10 +139,18 @@ CASES = [
     ("linear_elastic", LINEAR, {}, lambda F: linear_closed_form(LINEAR, F)),
     ("mooney_rivlin_full_log", MR_FULL, {}, lambda F: mooney_rivlin_closed_form(MR_FULL, F)),
     ("mooney_rivlin_tongue", MR_TONGUE, {}, lambda F: mooney_rivlin_closed_form(MR_TONGUE, F)),
-    ("blemker_fiber", FIBER, {"a0": A0_OBLIQUE, "excitation": 0.4},
-     lambda F: fiber_closed_form(FIBER, F, A0_OBLIQUE, 0.4)),
-    ("mooney_rivlin_plus_fiber", TONGUE_MUSCLE, {"a0": A0_OBLIQUE, "excitation": 0.7},
-     lambda F: tongue_muscle_closed_form(F, A0_OBLIQUE, 0.7)),
+    (
+        "blemker_fiber",
+        FIBER,
+        {"a0": A0_OBLIQUE, "excitation": 0.4},
+        lambda F: fiber_closed_form(FIBER, F, A0_OBLIQUE, 0.4),
+    ),
+    (
+        "mooney_rivlin_plus_fiber",
+        TONGUE_MUSCLE,
+        {"a0": A0_OBLIQUE, "excitation": 0.7},
+        lambda F: tongue_muscle_closed_form(F, A0_OBLIQUE, 0.7),
+    ),
 ]
 CASE_IDS = [case[0] for case in CASES]
 
@@ -150,6 +176,7 @@ R = rotation([1.0, 2.0, 3.0], 0.7)
 
 # --- (1) stresses and energies against closed forms --------------------------------------------
 
+
 @pytest.mark.parametrize("deformation", DEFORMATIONS)
 @pytest.mark.parametrize("name, material, fields, closed_form", CASES, ids=CASE_IDS)
 def test_point_response_matches_closed_form(name, material, fields, closed_form, deformation):
@@ -169,8 +196,9 @@ def test_blemker_nominal_fiber_stress_on_every_branch(l):
     lam = FIBER.optimal_stretch * l
     F = np.diag([lam, lam**-0.5, lam**-0.5])
     _, P, _ = point_response(FIBER, F, a0=E1, excitation=excitation)
-    expected = FIBER.max_stress * (excitation * blemker_fL(l)
-                                   + blemker_fP(l, FIBER.P1, FIBER.P2, FIBER.stretch_star))
+    expected = FIBER.max_stress * (
+        excitation * blemker_fL(l) + blemker_fP(l, FIBER.P1, FIBER.P2, FIBER.stretch_star)
+    )
     assert P[0, 0] == pytest.approx(expected, rel=1e-10, abs=1e-6)
     assert FIBER.fiber_stress(lam, excitation) == pytest.approx(expected, rel=1e-12, abs=1e-6)
     np.testing.assert_allclose(np.delete(P.ravel(), 0), 0.0, atol=1e-8)
@@ -185,7 +213,7 @@ def test_blemker_energy_is_the_integral_of_the_fiber_stress_on_every_branch(l):
     F = np.diag([lam, lam**-0.5, lam**-0.5])
     psi, _, _ = point_response(FIBER, F, a0=E1, excitation=excitation)
     psi_exact, _ = fiber_closed_form(FIBER, F, E1, excitation)
-    assert abs(psi_exact) > 1e2                      # a real energy on every branch
+    assert abs(psi_exact) > 1e2  # a real energy on every branch
     assert psi == pytest.approx(psi_exact, rel=1e-9)
 
 
@@ -206,6 +234,7 @@ def test_blemker_passive_false_drops_passive_stress():
 
 # --- (2) tangent against finite differences ---------------------------------------------------
 
+
 @pytest.mark.parametrize("name, material, fields, closed_form", CASES, ids=CASE_IDS)
 def test_tangent_matches_central_differences(name, material, fields, closed_form):
     evaluate = evaluator_for(material, **fields)
@@ -216,7 +245,9 @@ def test_tangent_matches_central_differences(name, material, fields, closed_form
         for L in range(3):
             dF = np.zeros((3, 3))
             dF[k, L] = h
-            fd[:, :, k, L] = (evaluate(F_GENERAL + dF, **fields)[1] - evaluate(F_GENERAL - dF, **fields)[1]) / (2 * h)
+            fd[:, :, k, L] = (
+                evaluate(F_GENERAL + dF, **fields)[1] - evaluate(F_GENERAL - dF, **fields)[1]
+            ) / (2 * h)
     np.testing.assert_allclose(dPdF, fd, rtol=1e-6, atol=1e-7 * np.abs(dPdF).max())
     # a hyperelastic tangent has major symmetry A[iJkL] = A[kLiJ]
     np.testing.assert_allclose(dPdF, dPdF.transpose(2, 3, 0, 1), atol=1e-9 * np.abs(dPdF).max())
@@ -224,7 +255,9 @@ def test_tangent_matches_central_differences(name, material, fields, closed_form
 
 # --- (3) rigid rotations ----------------------------------------------------------------------
 
-ROTATION_CASES = [(name, m, dict(f, excitation=0.0) if "excitation" in f else f) for name, m, f, _ in CASES]
+ROTATION_CASES = [
+    (name, m, dict(f, excitation=0.0) if "excitation" in f else f) for name, m, f, _ in CASES
+]
 
 
 @pytest.mark.parametrize("name, material, fields", ROTATION_CASES, ids=CASE_IDS)
@@ -239,7 +272,9 @@ def test_rigid_rotation_is_stress_free_except_linear_elastic(name, material, fie
         np.testing.assert_allclose(P, 0.0, atol=1e-8)
 
 
-@pytest.mark.parametrize("name, material, fields, closed_form", CASES[:2] + CASES[3:], ids=CASE_IDS[:2] + CASE_IDS[3:])
+@pytest.mark.parametrize(
+    "name, material, fields, closed_form", CASES[:2] + CASES[3:], ids=CASE_IDS[:2] + CASE_IDS[3:]
+)
 def test_frame_indifference(name, material, fields, closed_form):
     """psi(R F) = psi(F), P(R F) = R P(F) (active fibers included)."""
     psi, P, _ = point_response(material, F_GENERAL, **fields)
@@ -255,29 +290,33 @@ def test_active_fiber_at_rest_length_carries_tension():
 
 # --- (4) validation ---------------------------------------------------------------------------
 
-@pytest.mark.parametrize("build, match", [
-    (lambda: MooneyRivlin(1037.0, kappa=-5.0), r"MooneyRivlin: kappa must be > 0, got -5\.0"),
-    (lambda: MooneyRivlin(1037.0, kappa=0.0), "kappa"),
-    (lambda: MooneyRivlin(-1.0, kappa=10.0), "MooneyRivlin: C10 must be >= 0"),
-    (lambda: MooneyRivlin(0.0, kappa=10.0), r"C10 \+ C01 must be > 0"),
-    (lambda: MooneyRivlin(1.0, C20=-2.0, kappa=10.0), "C20"),
-    (lambda: MooneyRivlin(1.0, C02=-2.0, kappa=10.0), "C02"),
-    (lambda: MooneyRivlin(1.0, C11=float("nan"), kappa=10.0), "C11 must be finite"),
-    (lambda: MooneyRivlin(1.0, kappa=10.0, bulk="cubic"), "bulk"),
-    (lambda: NeoHookean(0.0, 1.0), "NeoHookean: mu must be > 0, got 0.0"),
-    (lambda: NeoHookean(1.0, -1.0), "NeoHookean: lmbda"),
-    (lambda: StVenantKirchhoff(-1.0, 1.0), "StVenantKirchhoff: mu"),
-    (lambda: LinearElastic(1.0, float("inf")), "LinearElastic: lmbda must be finite"),
-    (lambda: NeoHookean.from_young_poisson(-1.0, 0.3), "NeoHookean: E must be > 0"),
-    (lambda: LinearElastic.from_young_poisson(1.0, 0.5), "LinearElastic: nu"),
-    (lambda: BlemkerFiber(0.0), "BlemkerFiber: max_stress must be > 0"),
-    (lambda: BlemkerFiber(1.0, optimal_stretch=-1.0), "optimal_stretch"),
-    (lambda: BlemkerFiber(1.0, P1=-0.1), "P1"),
-    (lambda: BlemkerFiber(1.0, P2=-0.1), "P2"),
-    (lambda: BlemkerFiber(1.0, stretch_star=1.0), "stretch_star must be > 1"),
-    (lambda: CombinedMaterial(), "at least one part"),
-    (lambda: CombinedMaterial(NEO, object()), "part 1"),
-])
+
+@pytest.mark.parametrize(
+    "build, match",
+    [
+        (lambda: MooneyRivlin(1037.0, kappa=-5.0), r"MooneyRivlin: kappa must be > 0, got -5\.0"),
+        (lambda: MooneyRivlin(1037.0, kappa=0.0), "kappa"),
+        (lambda: MooneyRivlin(-1.0, kappa=10.0), "MooneyRivlin: C10 must be >= 0"),
+        (lambda: MooneyRivlin(0.0, kappa=10.0), r"C10 \+ C01 must be > 0"),
+        (lambda: MooneyRivlin(1.0, C20=-2.0, kappa=10.0), "C20"),
+        (lambda: MooneyRivlin(1.0, C02=-2.0, kappa=10.0), "C02"),
+        (lambda: MooneyRivlin(1.0, C11=float("nan"), kappa=10.0), "C11 must be finite"),
+        (lambda: MooneyRivlin(1.0, kappa=10.0, bulk="cubic"), "bulk"),
+        (lambda: NeoHookean(0.0, 1.0), "NeoHookean: mu must be > 0, got 0.0"),
+        (lambda: NeoHookean(1.0, -1.0), "NeoHookean: lmbda"),
+        (lambda: StVenantKirchhoff(-1.0, 1.0), "StVenantKirchhoff: mu"),
+        (lambda: LinearElastic(1.0, float("inf")), "LinearElastic: lmbda must be finite"),
+        (lambda: NeoHookean.from_young_poisson(-1.0, 0.3), "NeoHookean: E must be > 0"),
+        (lambda: LinearElastic.from_young_poisson(1.0, 0.5), "LinearElastic: nu"),
+        (lambda: BlemkerFiber(0.0), "BlemkerFiber: max_stress must be > 0"),
+        (lambda: BlemkerFiber(1.0, optimal_stretch=-1.0), "optimal_stretch"),
+        (lambda: BlemkerFiber(1.0, P1=-0.1), "P1"),
+        (lambda: BlemkerFiber(1.0, P2=-0.1), "P2"),
+        (lambda: BlemkerFiber(1.0, stretch_star=1.0), "stretch_star must be > 1"),
+        (lambda: CombinedMaterial(), "at least one part"),
+        (lambda: CombinedMaterial(NEO, object()), "part 1"),
+    ],
+)
 def test_invalid_parameters_raise(build, match):
     """artifem's own InputError (a ValueError), caught by ``except af.ArtifemError``."""
     with pytest.raises(InputError, match=match) as info:
@@ -304,11 +343,14 @@ def test_bad_fields_are_rejected():
 
 def test_evaluators_are_compiled_once():
     assert evaluator_for(NEO) is evaluator_for(NEO)
-    assert evaluator_for(FIBER, a0=E1, excitation=0.2) is evaluator_for(FIBER, a0=A0_OBLIQUE, excitation=0.9)
+    assert evaluator_for(FIBER, a0=E1, excitation=0.2) is evaluator_for(
+        FIBER, a0=A0_OBLIQUE, excitation=0.9
+    )
     assert isinstance(evaluator_for(NEO), PointEvaluator)
 
 
 # --- (5) kinematics (UFL evaluated on literal matrices, no mesh) ------------------------------
+
 
 def test_kinematics_on_known_F():
     F = ufl.as_matrix(F_GENERAL.tolist())
@@ -322,13 +364,16 @@ def test_kinematics_on_known_F():
     I1b, I2b = (float(v) for v in isochoric_invariants(F))
     assert I1b == pytest.approx(J ** (-2 / 3) * I1) and I2b == pytest.approx(J ** (-4 / 3) * I2)
     assert float(fiber_stretch(F, ufl.as_vector(A0_OBLIQUE.tolist()))) == pytest.approx(
-        np.linalg.norm(F_GENERAL @ A0_OBLIQUE))
+        np.linalg.norm(F_GENERAL @ A0_OBLIQUE)
+    )
     E = green_lagrange(F)
     eps = small_strain(F)
     for i in range(3):
         for j in range(3):
             assert float(E[i, j]) == pytest.approx(0.5 * (C - I3)[i, j], abs=1e-14)
-            assert float(eps[i, j]) == pytest.approx((0.5 * (F_GENERAL + F_GENERAL.T) - I3)[i, j], abs=1e-14)
+            assert float(eps[i, j]) == pytest.approx(
+                (0.5 * (F_GENERAL + F_GENERAL.T) - I3)[i, j], abs=1e-14
+            )
 
 
 def test_isochoric_invariants_are_scale_invariant():
@@ -338,7 +383,9 @@ def test_isochoric_invariants_are_scale_invariant():
         assert float(dilated) == pytest.approx(float(plain), rel=1e-13)
     assert float(jacobian(scaled)) == pytest.approx(1.7**3 * np.linalg.det(F_GENERAL))
     # and equal 3 for a pure dilation
-    assert [float(v) for v in isochoric_invariants(2.5 * ufl.Identity(3))] == pytest.approx([3.0, 3.0])
+    assert [float(v) for v in isochoric_invariants(2.5 * ufl.Identity(3))] == pytest.approx(
+        [3.0, 3.0]
+    )
 
 
 # --- (6) stress-stretch curves ----------------------------------------------------------------
@@ -358,7 +405,9 @@ def test_uniaxial_curve_is_traction_free_and_nearly_isochoric(nearly_incompressi
     np.testing.assert_allclose(uniaxial["P22"], 0.0, atol=1e-9 * scale)
     np.testing.assert_allclose(uniaxial["P33"], 0.0, atol=1e-9 * scale)
     np.testing.assert_allclose(uniaxial["lateral_stretch_2"], STRETCHES**-0.5, rtol=2e-3)
-    np.testing.assert_allclose(uniaxial["lateral_stretch_3"], uniaxial["lateral_stretch_2"], rtol=1e-10)
+    np.testing.assert_allclose(
+        uniaxial["lateral_stretch_3"], uniaxial["lateral_stretch_2"], rtol=1e-10
+    )
     # P11 of the solved state is the point response at that state
     k = 7
     F = np.diag([STRETCHES[k], uniaxial["lateral_stretch_2"][k], uniaxial["lateral_stretch_3"][k]])

@@ -24,8 +24,14 @@ from artifem.reduction.cubature import IntegrationPoints
 from artifem.reduction.galerkin_gap import PARTS, galerkin_gap, held_instant, write_markdown
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
-from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
-                                        Training)
+from artifem.reduction.reductor import (
+    Basis,
+    Points,
+    ReducedModel,
+    ReducibleScene,
+    Reductor,
+    Training,
+)
 from artifem.reduction.schedules import random_schedules
 from artifem.reduction.training import ArtifactCache
 from artifem.scene import Scene
@@ -57,12 +63,20 @@ def test_a_complete_basis_has_no_gap(tmp_path):
     body = beam().fem_bodies[0]
     complete = ReducedModel(MODEL, full_basis(body), [], all_points(body))
     schedule = ExcitationSchedule.ramp_and_hold({"top": 0.4}, 0.1)
-    (row,) = galerkin_gap(complete, {"ramp": schedule}, 0.3, DT, ArtifactCache(tmp_path),
-                          progress=False)
-    assert "learned_pg_mm" not in row                   # no training states given
+    (row,) = galerkin_gap(
+        complete, {"ramp": schedule}, 0.3, DT, ArtifactCache(tmp_path), progress=False
+    )
+    assert "learned_pg_mm" not in row  # no training states given
     assert row["held"] and row["time"] >= 0.2
-    for key in ("reduced_mm", "best_mm", "energy_mm", "best_static_mm",
-                "galerkin_static_mm", "energy_static_mm", "oracle_pg_mm"):
+    for key in (
+        "reduced_mm",
+        "best_mm",
+        "energy_mm",
+        "best_static_mm",
+        "galerkin_static_mm",
+        "energy_static_mm",
+        "oracle_pg_mm",
+    ):
         assert row[key] < 1e-6, key
     # the beam still swings under gravity at t: its static equilibrium is elsewhere
     assert row["full_lag_mm"] > 1.0
@@ -70,32 +84,49 @@ def test_a_complete_basis_has_no_gap(tmp_path):
 
 
 def test_static_solve_is_the_energy_projection_and_the_oracle_the_best(tmp_path):
-    training = Training(random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1),
-                                         excitation=(0.0, 0.1)),
-                        duration=0.2, dt=DT, snapshot_every=1)
+    training = Training(
+        random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1), excitation=(0.0, 0.1)),
+        duration=0.2,
+        dt=DT,
+        snapshot_every=1,
+    )
     reductor = Reductor(MODEL, training, tmp_path / "cache", progress=False)
     reduced = reductor.reduce(Basis("pod", 3), Points(sampling="all"))
     schedule = ExcitationSchedule.ramp_and_hold({"top": 0.05}, 0.1)
-    (row,) = galerkin_gap(reduced, {"weak": schedule}, 0.3, DT,
-                          ArtifactCache(tmp_path / "cache"), training=reductor.snapshots()[0],
-                          learned_sizes=(4,), progress=False)
+    (row,) = galerkin_gap(
+        reduced,
+        {"weak": schedule},
+        0.3,
+        DT,
+        ArtifactCache(tmp_path / "cache"),
+        training=reductor.snapshots()[0],
+        learned_sizes=(4,),
+        progress=False,
+    )
     assert row["galerkin_static_mm"] == pytest.approx(row["energy_static_mm"], rel=0.05)
     assert row["oracle_pg_mm"] == pytest.approx(row["best_static_mm"], rel=0.05)
     # nearly linear: the oracle's test basis at the training states is the one here
     assert row["learned_pg_mm"]["4"] == pytest.approx(row["best_static_mm"], rel=0.05)
     assert row["best_static_mm"] < row["galerkin_static_mm"]
     assert set(row["residual_share"]) == set(PARTS)
-    assert max(row["residual_share"].values()) >= 0.5 - 1e-12   # a part is half the norm
+    assert max(row["residual_share"].values()) >= 0.5 - 1e-12  # a part is half the norm
     assert "| weak | " in write_markdown([row]) and "p = 4" in write_markdown([row])
 
 
 def test_leaving_out_the_penalty_is_the_body_without_it():
-    with_penalty, without = make_body(excitation=0.3), make_body(excitation=0.3,
-                                                                incompressibility=None)
+    with_penalty, without = (
+        make_body(excitation=0.3),
+        make_body(excitation=0.3, incompressibility=None),
+    )
     U = full_basis(with_penalty)[:, ::7]
-    table = quadrature_points(with_penalty)     # every point but the penalty's own
-    kept = np.concatenate([table.of_term(t) for t in with_penalty.energy_terms(merged=True)
-                           if t.name != "incompressibility"])
+    table = quadrature_points(with_penalty)  # every point but the penalty's own
+    kept = np.concatenate(
+        [
+            table.of_term(t)
+            for t in with_penalty.energy_terms(merged=True)
+            if t.name != "incompressibility"
+        ]
+    )
     points = IntegrationPoints(np.unique(kept), np.ones(np.unique(kept).size), "all")
     left_out = ReducedFemBody(with_penalty, U, points, leave_out=["incompressibility"])
     plain = ReducedFemBody(without, U, all_points(without))

@@ -17,8 +17,9 @@ MU = 1000.0
 
 
 def _box(n=(8, 2, 2), length=0.1, side=0.01):
-    return mesh.create_box(MPI.COMM_WORLD, [[0, 0, 0], [length, side, side]], list(n),
-                           mesh.CellType.hexahedron)
+    return mesh.create_box(
+        MPI.COMM_WORLD, [[0, 0, 0], [length, side, side]], list(n), mesh.CellType.hexahedron
+    )
 
 
 def _element_volume_change(body):
@@ -43,10 +44,13 @@ def _cantilever(material, incompressibility, load=2e-4):
 
 def test_affine_field_is_reproduced_with_the_penalty():
     """J is constant in an affine field, so the one-point penalty keeps the patch test exact."""
-    body = FemBody(_box((3, 3, 3), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0,
-                   incompressibility=100 * MU)
+    body = FemBody(
+        _box((3, 3, 3), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0, incompressibility=100 * MU
+    )
     A = np.array([[0.02, 0.01, 0.0], [0.0, -0.01, 0.005], [0.01, 0.0, 0.015]])
-    boundary = body.find_nodes(lambda x: np.isclose(x, 0).any(axis=0) | np.isclose(x, 1).any(axis=0))
+    boundary = body.find_nodes(
+        lambda x: np.isclose(x, 0).any(axis=0) | np.isclose(x, 1).any(axis=0)
+    )
     body.fix_nodes(boundary, displacement=lambda x: A @ x)
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
@@ -62,7 +66,7 @@ def test_penalty_reduces_volume_change_without_locking():
     soft = NeoHookean.from_young_poisson(3 * MU, 0.2)
     free, u_free = _cantilever(soft, None)
     penalized, u_pen = _cantilever(soft, 1000 * MU)
-    stiff_bulk = NeoHookean(soft.mu, soft.lmbda + 1000 * MU)       # same bulk, full integration
+    stiff_bulk = NeoHookean(soft.mu, soft.lmbda + 1000 * MU)  # same bulk, full integration
     _, u_locked = _cantilever(stiff_bulk, None)
     assert _element_volume_change(penalized) < 0.05 * _element_volume_change(free)
     # Incompressible bending is stiffer than nu = 0.2 by (1 + 0.2)/(1 + 0.5) in E for the same mu:
@@ -78,6 +82,7 @@ def test_penalty_must_be_positive():
 
 # ---- the hard constraint (artifem.incompressibility) ------------------------------------
 
+
 def _stretched_block(cell, hard: Incompressible, stretch: float = 1.3):
     """The unit cube stretched to ``stretch`` along x between symmetry planes x = y = z = 0,
     lateral faces free: incompressible, F = diag(s, s^-1/2, s^-1/2) exactly."""
@@ -85,9 +90,11 @@ def _stretched_block(cell, hard: Incompressible, stretch: float = 1.3):
     body = FemBody(domain, NeoHookean(MU, MU), 1000.0, incompressibility=hard)
     for k in range(3):
         body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
-    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
-                   displacement=lambda x: np.vstack([(stretch - 1) * x[0], 0 * x[1], 0 * x[2]]),
-                   components=(0,))
+    body.fix_nodes(
+        body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+        displacement=lambda x: np.vstack([(stretch - 1) * x[0], 0 * x[1], 0 * x[2]]),
+        components=(0,),
+    )
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     scene.solve_static(load_steps=2)
@@ -113,8 +120,9 @@ def test_uniaxial_stretch_is_isochoric_with_the_analytic_pressure(cell):
     assert abs(lo - p) < 1e-6 * MU and abs(hi - p) < 1e-6 * MU, (lo, hi, p)
     # the same material without the constraint changes its volume by tens of percent
     free = _stretched_block(cell, None, s)
-    free_J = np.linalg.det(np.diag(1 + np.ptp(free.u.x.array.reshape(-1, 3)
-                                              / np.ptp(X, axis=0), axis=0)))
+    free_J = np.linalg.det(
+        np.diag(1 + np.ptp(free.u.x.array.reshape(-1, 3) / np.ptp(X, axis=0), axis=0))
+    )
     assert abs(free_J - 1) > 0.05
 
 
@@ -135,15 +143,17 @@ def test_tangent_is_the_derivative_of_the_residual(rng):
     """K = dR/du with the augmented terms (G^T D G and the geometric -pi d^2 J) at a
     deformed state with non-zero multipliers: central differences of R along random
     directions."""
-    body = FemBody(_box((3, 2, 2)), NeoHookean(MU, MU), 1000.0,
-                   incompressibility=Incompressible(kappa=50 * MU))
+    body = FemBody(
+        _box((3, 2, 2)), NeoHookean(MU, MU), 1000.0, incompressibility=Incompressible(kappa=50 * MU)
+    )
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     body.compile()
     free = np.ones(body.u.x.array.size, dtype=bool)
     free.reshape(-1, 3)[body.fixed_dofs] = False
     body.u.x.array[free] = 1e-3 * rng.standard_normal(free.sum())
-    body.volume_constraint.p.x.array[:] = 0.1 * MU * rng.standard_normal(
-        body.volume_constraint.p.x.array.size)
+    body.volume_constraint.p.x.array[:] = (
+        0.1 * MU * rng.standard_normal(body.volume_constraint.p.x.array.size)
+    )
     body.assemble(tangent=True)
     K = body.K.copy().convert("dense").getDenseArray()
     u0 = body.u.x.array.copy()
@@ -175,8 +185,9 @@ def _falling_beam(inc, integrator: str, h: float, duration: float = 0.05):
     """A clamped soft beam (E = 3 mu, nu = 0.3) falls under gravity: (the largest element
     volume change over the steps, the tip's vertical displacement, the most pressure
     updates a step took)."""
-    body = FemBody(_box(), NeoHookean.from_young_poisson(3 * MU, 0.3), 1000.0,
-                   incompressibility=inc)
+    body = FemBody(
+        _box(), NeoHookean.from_young_poisson(3 * MU, 0.3), 1000.0, incompressibility=inc
+    )
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     scene = Scene(gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator)
     scene.add(body)
@@ -208,15 +219,21 @@ def test_the_semi_implicit_step_holds_the_linearized_constraint():
     penalty = _falling_beam(100 * MU, "semi-implicit", 5e-3)
     assert coarse[0] / fine[0] > 2.5, (coarse, fine)
     assert coarse[0] < penalty[0], (coarse, penalty)
-    assert abs(coarse[1] - fine[1]) < 0.05 * abs(fine[1])       # the same motion
+    assert abs(coarse[1] - fine[1]) < 0.05 * abs(fine[1])  # the same motion
 
 
 def _spun_cube(projections: int, step_tol: float = 1e-6, name: str = "cube"):
     """A free unit cube (2 x 2 x 2 hexahedra), hard-incompressible, spinning about z at
     omega = 30 rad/s."""
-    body = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(MU, 2 * MU), 1000.0, name=name,
-                   incompressibility=Incompressible(kappa=100 * MU, step_tol=step_tol,
-                                                    projections=projections))
+    body = FemBody(
+        _box((2, 2, 2), 1.0, 1.0),
+        NeoHookean(MU, 2 * MU),
+        1000.0,
+        name=name,
+        incompressibility=Incompressible(
+            kappa=100 * MU, step_tol=step_tol, projections=projections
+        ),
+    )
     X = body.V.tabulate_dof_coordinates()
     v = np.zeros_like(X)
     v[:, 0], v[:, 1] = -30.0 * (X[:, 1] - 0.5), 30.0 * (X[:, 0] - 0.5)
@@ -241,9 +258,12 @@ def test_a_step_that_leaves_the_volumes_off_is_projected_back(projections):
     violation = vc.violation()
     bound = (h * omega) ** 2
     for _ in range(projections):
-        bound = 0.5 * bound ** 2                # quadratic, with a constant below 0.5
-    assert violation == pytest.approx(0.09, rel=1e-6) if projections == 0 else \
-        violation <= max(bound, 1e-11), violation
+        bound = 0.5 * bound**2  # quadratic, with a constant below 0.5
+    assert (
+        violation == pytest.approx(0.09, rel=1e-6)
+        if projections == 0
+        else violation <= max(bound, 1e-11)
+    ), violation
     assert _element_volume_change(body) == pytest.approx(violation, rel=1e-6, abs=1e-11)
 
 
@@ -255,23 +275,26 @@ def test_a_step_still_off_after_its_projections_is_retried():
 
     def spun(fallback):
         body = _spun_cube(0, step_tol=1e-2)
-        scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps", fallback=fallback,
-                      max_halvings=0)
+        scene = Scene(
+            gravity=(0.0, 0.0, 0.0), linear_solver="mumps", fallback=fallback, max_halvings=0
+        )
         scene.add(body)
         return scene, body
 
     scene, body = spun(None)
-    with pytest.raises(StepFailed, match=r"element volumes off by more than the step's 0\.01 "
-                                         r"at element\(s\)"):
+    with pytest.raises(
+        StepFailed,
+        match=r"element volumes off by more than the step's 0\.01 "
+        r"at element\(s\)",
+    ):
         scene.step(0.01)
-    assert np.abs(body.u.x.array).max() == 0.0          # left at the start of the step
+    assert np.abs(body.u.x.array).max() == 0.0  # left at the start of the step
     scene, body = spun("implicit")
     scene.step(0.01)
     assert scene.fallbacks == 1 and _element_volume_change(body) < 1e-4
 
 
-@pytest.mark.parametrize("projections, step_tol", [(0, 1e-2), (3, 5e-3), (3, 1e-5),
-                                                    (3, 1e-6)])
+@pytest.mark.parametrize("projections, step_tol", [(0, 1e-2), (3, 5e-3), (3, 1e-5), (3, 1e-6)])
 def test_the_coupled_island_projects_as_the_body_alone(projections, step_tol):
     """The spun cube made part of the coupled island by an embedded twin of itself of
     negligible mass and stiffness (1e-9 of the cube's: the island is the cube) is
@@ -286,22 +309,25 @@ def test_the_coupled_island_projects_as_the_body_alone(projections, step_tol):
     alone = _spun_cube(projections, step_tol)
     SemiImplicitEuler().advance(alone, 0.01, LinearSolver(MPI.COMM_WORLD, "mumps"))
     master = _spun_cube(projections, step_tol, name="master")
-    twin = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(1e-9 * MU, 2e-9 * MU), 1e-9,
-                   name="twin")
+    twin = FemBody(_box((2, 2, 2), 1.0, 1.0), NeoHookean(1e-9 * MU, 2e-9 * MU), 1e-9, name="twin")
     scene = Scene(gravity=(0.0, 0.0, 0.0), fallback=None, max_halvings=0)
     scene.add(master, twin, af.EmbeddedFemAttachment(twin, master))
     assert scene.islands()[0] == []
     if projections == 0:
-        with pytest.raises(StepFailed, match=r"'master': element volumes off by more than "
-                                             r"the step's 0\.01"):
+        with pytest.raises(
+            StepFailed,
+            match=r"'master': element volumes off by more than "
+            r"the step's 0\.01",
+        ):
             scene.step(0.01)
         return
     scene.step(0.01)
     expected = _element_volume_change(alone)
     assert expected <= step_tol
     assert _element_volume_change(master) == pytest.approx(expected, rel=1e-4, abs=1e-11)
-    np.testing.assert_allclose(master.u.x.array, alone.u.x.array, rtol=0,
-                               atol=1e-8 * np.abs(alone.u.x.array).max())
+    np.testing.assert_allclose(
+        master.u.x.array, alone.u.x.array, rtol=0, atol=1e-8 * np.abs(alone.u.x.array).max()
+    )
 
 
 def test_a_reduced_or_bad_constraint_is_refused():
@@ -322,9 +348,14 @@ def _inflated_sphere(n: int, p: float, A: float = 1.0, B: float = 2.0):
     """The octant A <= R <= B (n x n x n hexahedra per patch, symmetry planes) of a
     Mooney-Rivlin (C10 = 1/2, so mu = 1) sphere with the hard constraint, under an internal
     pressure p: (inner stretch a / A, the body)."""
-    body = af.FemBody(af.spherical_shell_octant(A, B, n, n), af.MooneyRivlin(C10=0.5, kappa=1.0),
-                      1.0, incompressibility=Incompressible(kappa=100.0, tol=1e-8),
-                      gravity=(0, 0, 0), name="sphere")
+    body = af.FemBody(
+        af.spherical_shell_octant(A, B, n, n),
+        af.MooneyRivlin(C10=0.5, kappa=1.0),
+        1.0,
+        incompressibility=Incompressible(kappa=100.0, tol=1e-8),
+        gravity=(0, 0, 0),
+        name="sphere",
+    )
     for k in range(3):
         body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
     body.add_pressure(p, where=lambda x: np.linalg.norm(x, axis=0) < A + 1e-9, closed=True)
@@ -346,6 +377,7 @@ def test_inflated_sphere_converges_to_the_incompressible_solution_and_its_pressu
     volume-weighted RMS error 0.83 % and 0.38 % of p (O(h^2) at the element centres);
     every element volume kept to 1e-8."""
     from scipy.optimize import brentq
+
     A, B, p = 1.0, 2.0, 0.6
 
     def outer(la):
@@ -359,11 +391,12 @@ def test_inflated_sphere_converges_to_the_incompressible_solution_and_its_pressu
         vc.assemble(tangent=False)
         assert vc.violation() <= 1e-8
         geometry = body.mesh.geometry
-        R = np.linalg.norm(geometry.x[geometry.dofmaps[0][:vc.n_owned]].mean(axis=1), axis=1)
+        R = np.linalg.norm(geometry.x[geometry.dofmaps[0][: vc.n_owned]].mean(axis=1), axis=1)
         l = (1.0 + (exact**3 - 1.0) * (A / R) ** 3) ** (1.0 / 3.0)
         pi = 2.0 / 3.0 * (l**-4 - l**2) + _inflation_pressure(l, outer(exact))
-        rms = np.sqrt(np.sum(vc.volume * (vc.p.x.array[:vc.n_owned] - pi) ** 2)
-                      / np.sum(vc.volume))
+        rms = np.sqrt(
+            np.sum(vc.volume * (vc.p.x.array[: vc.n_owned] - pi) ** 2) / np.sum(vc.volume)
+        )
         errors.append(rms / p)
         la_h.append(la)
     e4, e6 = ((la - exact) / (exact - 1) for la in la_h)
@@ -376,19 +409,26 @@ def test_a_distributed_island_refuses_a_hard_body_with_a_clear_error():
     """Until the distributed (Schur) island updates the pressures, it refuses a body with the
     hard constraint (rather than hold its volumes as a penalty). (Reduced bodies:
     tests/test_reduced_incompressibility.py.)"""
-    body = FemBody(_box((2, 1, 1)), NeoHookean(MU, MU), 1000.0,
-                   incompressibility=Incompressible(kappa=10 * MU))
+    body = FemBody(
+        _box((2, 1, 1)), NeoHookean(MU, MU), 1000.0, incompressibility=Incompressible(kappa=10 * MU)
+    )
     bone = af.RigidBody("bone", 1.0, 1e-3 * np.eye(3))
     scene = Scene(gravity=(0.0, 0.0, 0.0), island_solver="schur")
-    scene.add(body, bone, af.NodeAttachment(body, body.find_nodes(lambda x: np.isclose(x[0], 0)),
-                                            bone))
+    scene.add(
+        body, bone, af.NodeAttachment(body, body.find_nodes(lambda x: np.isclose(x[0], 0)), bone)
+    )
     with pytest.raises(ValueError, match="hard incompressibility"):
         scene.step(1e-3)
 
 
 def _soft_beam(name, hard: Incompressible | None, clamped=True):
-    body = FemBody(_box(), NeoHookean.from_young_poisson(3 * MU, 0.3), 1000.0,
-                   incompressibility=hard, name=name)
+    body = FemBody(
+        _box(),
+        NeoHookean.from_young_poisson(3 * MU, 0.3),
+        1000.0,
+        incompressibility=hard,
+        name=name,
+    )
     if clamped:
         body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     return body
@@ -430,12 +470,15 @@ def test_the_tongue_simulates_with_its_volumes_held(tmp_path):
     import json
 
     from artifem.cli import main
-    assert main(["simulate", "tongue", "--out", str(tmp_path), "--duration", "0.05",
-                 "--no-progress"]) == 0
+
+    assert (
+        main(["simulate", "tongue", "--out", str(tmp_path), "--duration", "0.05", "--no-progress"])
+        == 0
+    )
     figures = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
     assert figures["incompressibility"] == "hard" and figures["steps"] == 5
     assert figures["max_volume_change"] <= 1e-4
-    for series in ("tongue.bp", "tongue_pressure.bp"):       # ParaView: u and the pressures
+    for series in ("tongue.bp", "tongue_pressure.bp"):  # ParaView: u and the pressures
         data = tmp_path / "protrusion" / series / "data.0"
         assert data.stat().st_size > 10_000, series
     low, high = figures["pressure_range_Pa"]
@@ -468,11 +511,15 @@ def test_a_constraint_that_cannot_be_met_names_its_elements(integrator):
     one iteration allowed), the step halves and then stops with an error naming the worst elements by
     input index and their volume change, the body left at the start of the failed step."""
     body = _soft_beam("beam", Incompressible(kappa=1.0 * MU, tol=1e-17, max_updates=1))
-    scene = Scene(gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator,
-                  max_halvings=1)
+    scene = Scene(
+        gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator, max_halvings=1
+    )
     scene.add(body)
-    with pytest.raises(af.StepFailed, match=r"FemBody 'beam': element volumes off by more "
-                                            r"than 1e-17 at element\(s\) \(input index"):
+    with pytest.raises(
+        af.StepFailed,
+        match=r"FemBody 'beam': element volumes off by more "
+        r"than 1e-17 at element\(s\) \(input index",
+    ):
         scene.step(5e-3)
     assert scene.t == 0.0 and np.abs(body.u.x.array).max() == 0.0
 
@@ -485,8 +532,25 @@ def test_the_incompressibility_study_writes_its_report(tmp_path):
     import json
 
     from artifem.cli import main
-    assert main(["study", "incompressibility", "--out", str(tmp_path), "--levels", "0",
-                 "--motions", "protrusion", "--duration", "0.03", "--no-progress"]) == 0
+
+    assert (
+        main(
+            [
+                "study",
+                "incompressibility",
+                "--out",
+                str(tmp_path),
+                "--levels",
+                "0",
+                "--motions",
+                "protrusion",
+                "--duration",
+                "0.03",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     report = json.loads((tmp_path / "incompressibility.json").read_text())
     runs = report["runs"]["level 0"]["protrusion"]
     assert abs(runs["hard"]["max_volume_change"]) <= 1e-4
@@ -495,8 +559,9 @@ def test_the_incompressibility_study_writes_its_report(tmp_path):
     assert "| 0 | protrusion | hard |" in (tmp_path / "report.md").read_text()
     for kind in ("penalty", "hard"):
         assert (tmp_path / f"motions_{kind}_level0.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert main(["study", "incompressibility", "--out", str(tmp_path / "bad"),
-                 "--levels", "2"]) == 2
+    assert (
+        main(["study", "incompressibility", "--out", str(tmp_path / "bad"), "--levels", "2"]) == 2
+    )
     assert not (tmp_path / "bad").exists()
 
 
@@ -535,6 +600,7 @@ def test_two_ranks_hold_the_volumes_as_one(tmp_path):
     import subprocess
     import sys
     from pathlib import Path
+
     mpiexec = Path(sys.executable).parent / "mpiexec"
     if not mpiexec.exists():
         pytest.skip(f"no mpiexec next to the interpreter ({mpiexec})")
@@ -564,12 +630,20 @@ def test_the_pressure_iteration_solves_its_schur_system(definite, rng, monkeypat
     response map B that ``respond`` stands for)."""
     import artifem.incompressibility as incompressibility
     from artifem.incompressibility import hold_linearized
+
     took_over = []
     conjugate_residuals = incompressibility._conjugate_residuals
-    monkeypatch.setattr(incompressibility, "_conjugate_residuals",
-                        lambda *a: took_over.append(1) or conjugate_residuals(*a))
-    body = FemBody(_box((3, 2, 2)), NeoHookean(MU, MU), 1000.0,
-                   incompressibility=Incompressible(kappa=10.0, tol=1e-10, max_updates=200))
+    monkeypatch.setattr(
+        incompressibility,
+        "_conjugate_residuals",
+        lambda *a: took_over.append(1) or conjugate_residuals(*a),
+    )
+    body = FemBody(
+        _box((3, 2, 2)),
+        NeoHookean(MU, MU),
+        1000.0,
+        incompressibility=Incompressible(kappa=10.0, tol=1e-10, max_updates=200),
+    )
     body.compile()
     vc = body.volume_constraint
     n = vc.n_owned
@@ -578,7 +652,7 @@ def test_the_pressure_iteration_solves_its_schur_system(definite, rng, monkeypat
     if not definite:
         eigenvalues[: n // 3] *= -1.0
     S = (Q * eigenvalues) @ Q.T
-    B = rng.standard_normal((7, n))                     # a stand-in velocity response
+    B = rng.standard_normal((7, n))  # a stand-in velocity response
     c0 = 1e-3 * vc.volume * rng.standard_normal(n)
     velocity, last = np.zeros(7), {}
 
@@ -604,14 +678,19 @@ def test_the_incompressibility_page_quotes_its_json():
     import json
     from pathlib import Path
 
-    from artifem.models.tongue.incompressibility import (format_reduced_table, format_report,
-                                                         format_speed_table)
+    from artifem.models.tongue.incompressibility import (
+        format_reduced_table,
+        format_report,
+        format_speed_table,
+    )
+
     root = Path(__file__).resolve().parents[1]
     page = (root / "docs" / "incompressibility.md").read_text()
     study = json.loads((root / "docs" / "incompressibility" / "incompressibility.json").read_text())
     bench = json.loads((root / "docs" / "benchmarks" / "tongue_incompressible.json").read_text())
-    reduced = json.loads((root / "docs" / "tongue_study" / "level0_hard" / "study.json")
-                         .read_text())
+    reduced = json.loads(
+        (root / "docs" / "tongue_study" / "level0_hard" / "study.json").read_text()
+    )
     for table in (format_speed_table(bench), format_report(study), format_reduced_table(reduced)):
         for line in table.splitlines():
             if line.startswith("|") and not line.startswith("|---"):

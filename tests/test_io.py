@@ -16,23 +16,31 @@ from mpi4py import MPI
 
 from artifem.io import mesh_info
 from artifem.io.ansys import read_ansys
-from artifem.io.mesh_checks import (check_orientation, degenerate_elements, element_jacobians,
-                                    volume)
+from artifem.io.mesh_checks import check_orientation, degenerate_elements, element_jacobians, volume
 from artifem.errors import MeshError
 from artifem.io.mesh_data import MeshData
 from artifem.io.readers import read_mesh
 from artifem.io.results import ResultWriter
-from artifem.io.to_dolfinx import (dolfinx_cell_ids, dolfinx_node_ids, dolfinx_node_to_input,
-                                   to_dolfinx)
+from artifem.io.to_dolfinx import (
+    dolfinx_cell_ids,
+    dolfinx_node_ids,
+    dolfinx_node_to_input,
+    to_dolfinx,
+)
 from artifem.render import render_bodies
 
 # The ArtiSynth tongue shipped with the project (models/data, with its LICENSE).
-TONGUE = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue" / "tongue.node"
-UNIT_HEX = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
-                     [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float)
-BASIX_HEX_CORNERS = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],
-                              [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]], dtype=float)
-
+TONGUE = (
+    Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue" / "tongue.node"
+)
+UNIT_HEX = np.array(
+    [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+    dtype=float,
+)
+BASIX_HEX_CORNERS = np.array(
+    [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]],
+    dtype=float,
+)
 
 
 @pytest.fixture(scope="module")
@@ -43,9 +51,15 @@ def tongue():
 def hex_mesh(cells, points=UNIT_HEX, source="test"):
     """MeshData of hexahedra on the given points, ids 1..M."""
     cells = np.atleast_2d(cells)
-    return MeshData(points=points, cell_type="hexahedron", cells=cells,
-                    node_ids=np.arange(1, len(points) + 1), cell_ids=np.arange(1, len(cells) + 1),
-                    cell_tags=np.zeros(len(cells)), source=source)
+    return MeshData(
+        points=points,
+        cell_type="hexahedron",
+        cells=cells,
+        node_ids=np.arange(1, len(points) + 1),
+        cell_ids=np.arange(1, len(cells) + 1),
+        cell_tags=np.zeros(len(cells)),
+        source=source,
+    )
 
 
 def write_ansys(tmp_path, nodes, elems, name="m"):
@@ -63,8 +77,9 @@ def elem_line(nodes, eid=1, mat=3):
 
 
 #: The six faces of a VTK-ordered hexahedron, counter-clockwise seen from outside.
-HEX_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6],
-                      [3, 0, 4, 7]])
+HEX_FACES = np.array(
+    [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+)
 
 
 def surface_volume(mesh):
@@ -72,7 +87,7 @@ def surface_volume(mesh):
     faces of int x . n dA: an algorithm independent of mesh_checks.volume (2x2x2 Gauss of
     det J). Exact with 2x2 Gauss per face: on a bilinear face x . (x_s x x_t) has degree 2
     in s and in t."""
-    x = mesh.points[np.asarray(mesh.cells)][:, HEX_FACES]          # (cells, 6, 4, 3)
+    x = mesh.points[np.asarray(mesh.cells)][:, HEX_FACES]  # (cells, 6, 4, 3)
     total = 0.0
     for s in 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0):
         for t in 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0):
@@ -87,11 +102,13 @@ def surface_volume(mesh):
 
 def dolfinx_volume(msh):
     dx = ufl.dx(domain=msh, metadata={"quadrature_degree": 2})
-    return msh.comm.allreduce(fem.assemble_scalar(fem.form(fem.Constant(msh, 1.0) * dx)),
-                              op=MPI.SUM)
+    return msh.comm.allreduce(
+        fem.assemble_scalar(fem.form(fem.Constant(msh, 1.0) * dx)), op=MPI.SUM
+    )
 
 
 # --- ANSYS reader --------------------------------------------------------------------------
+
 
 def test_tongue_read(tongue):
     assert tongue.cell_type == "hexahedron"
@@ -101,8 +118,9 @@ def test_tongue_read(tongue):
     assert dict(zip(*np.unique(tongue.cell_tags, return_counts=True))) == {1: 740}
     # first line of tongue.node and of tongue.elem
     np.testing.assert_allclose(tongue.points[0], [0.1136, -0.023972, 0.087835])
-    np.testing.assert_array_equal(tongue.node_ids[tongue.cells[0]],
-                                  [11, 9, 8, 10, 170, 171, 168, 169])
+    np.testing.assert_array_equal(
+        tongue.node_ids[tongue.cells[0]], [11, 9, 8, 10, 170, 171, 168, 169]
+    )
     assert read_mesh(TONGUE.with_suffix(".elem")).cells.shape == (740, 8)
 
 
@@ -127,19 +145,34 @@ def test_missing_files(tmp_path):
         read_mesh(tmp_path / "nope.vtu")
 
 
-@pytest.mark.parametrize("nodes, elems, message", [
-    ("1 0 0 0\n2 1 0\n", "", r"bad\.node:2: expected 4 columns"),
-    ("1 0 0 0\n\n2 1 0 x\n", "", r"bad\.node:3: node 2 has a non-numeric coordinate"),
-    ("1 0 0 0\n1 1 0 0\n", "", r"bad\.node:2: node id 1 already defined at line 1"),
-    (UNIT_NODES, elem_line(range(1, 9)) + "1 2 3 4 5 6 7 8 1 1 1 1 2\n",
-     r"bad\.elem:2: expected 14 columns"),
-    (UNIT_NODES, "! comment\n1 2 3 4 5 6 7 8 1 1 1 1 0 x\n",
-     r"bad\.elem:2: column 14 is not an integer"),
-    (UNIT_NODES, elem_line(range(1, 9)) + elem_line([1, 2, 3, 4, 5, 6, 7, 99], eid=7),
-     r"bad\.elem:2: element 7 references node id\(s\) 99 not defined"),
-    (UNIT_NODES, elem_line(range(1, 9)) + elem_line(range(1, 9)),
-     r"bad\.elem:2: element id 1 already defined at line 1"),
-])
+@pytest.mark.parametrize(
+    "nodes, elems, message",
+    [
+        ("1 0 0 0\n2 1 0\n", "", r"bad\.node:2: expected 4 columns"),
+        ("1 0 0 0\n\n2 1 0 x\n", "", r"bad\.node:3: node 2 has a non-numeric coordinate"),
+        ("1 0 0 0\n1 1 0 0\n", "", r"bad\.node:2: node id 1 already defined at line 1"),
+        (
+            UNIT_NODES,
+            elem_line(range(1, 9)) + "1 2 3 4 5 6 7 8 1 1 1 1 2\n",
+            r"bad\.elem:2: expected 14 columns",
+        ),
+        (
+            UNIT_NODES,
+            "! comment\n1 2 3 4 5 6 7 8 1 1 1 1 0 x\n",
+            r"bad\.elem:2: column 14 is not an integer",
+        ),
+        (
+            UNIT_NODES,
+            elem_line(range(1, 9)) + elem_line([1, 2, 3, 4, 5, 6, 7, 99], eid=7),
+            r"bad\.elem:2: element 7 references node id\(s\) 99 not defined",
+        ),
+        (
+            UNIT_NODES,
+            elem_line(range(1, 9)) + elem_line(range(1, 9)),
+            r"bad\.elem:2: element id 1 already defined at line 1",
+        ),
+    ],
+)
 def test_malformed_ansys(tmp_path, nodes, elems, message):
     node_path = write_ansys(tmp_path, nodes, elems, name="bad")
     with pytest.raises(MeshError, match=message):
@@ -149,41 +182,55 @@ def test_malformed_ansys(tmp_path, nodes, elems, message):
 def test_ansys_non_solid_elements_are_skipped_and_counted(tmp_path, capsys):
     """Shells, links and mass elements pad their unused node slots with id 0 (ANSYS EWRITE):
     the hexahedron is read, the others are counted by kind, and the mesh converts."""
-    elems = (elem_line([1, 2, 3, 4, 0, 0, 0, 0], eid=5)          # SHELL181 on the bottom face
-             + elem_line(range(1, 9), eid=6)
-             + elem_line([1, 8, 0, 0, 0, 0, 0, 0], eid=7)          # LINK180
-             + elem_line([5, 6, 7, 8, 0, 0, 0, 0], eid=8)
-             + elem_line([3, 0, 0, 0, 0, 0, 0, 0], eid=9))         # MASS21
+    elems = (
+        elem_line([1, 2, 3, 4, 0, 0, 0, 0], eid=5)  # SHELL181 on the bottom face
+        + elem_line(range(1, 9), eid=6)
+        + elem_line([1, 8, 0, 0, 0, 0, 0, 0], eid=7)  # LINK180
+        + elem_line([5, 6, 7, 8, 0, 0, 0, 0], eid=8)
+        + elem_line([3, 0, 0, 0, 0, 0, 0, 0], eid=9)
+    )  # MASS21
     node_path = write_ansys(tmp_path, UNIT_NODES, elems, name="mixed")
     for mesh in (read_ansys(node_path), read_mesh(node_path.with_suffix(".elem"))):
         assert mesh.cells.shape == (1, 8) and list(mesh.cell_ids) == [6]
-        assert mesh.skipped_cells == {"quad (shell or surface)": 2, "line (link or beam)": 1,
-                                      "vertex (mass element)": 1}
+        assert mesh.skipped_cells == {
+            "quad (shell or surface)": 2,
+            "line (link or beam)": 1,
+            "vertex (mass element)": 1,
+        }
         assert mesh.skipped_volume_cells == {}
     msh, _ = to_dolfinx(read_ansys(node_path), MPI.COMM_SELF)
     assert dolfinx_volume(msh) == pytest.approx(volume(read_ansys(node_path)), rel=1e-12)
     assert mesh_info.run(argparse.Namespace(paths=[str(node_path)], json=False)) == 0
-    assert "skipped cells  2 quad (shell or surface), 1 line (link or beam), 1 vertex" \
+    assert (
+        "skipped cells  2 quad (shell or surface), 1 line (link or beam), 1 vertex"
         in capsys.readouterr().out
+    )
     # padding still names nodes that do not exist, and a file of shells alone has no solid
     bad = write_ansys(tmp_path, UNIT_NODES, elem_line([1, 2, 99, 0, 0, 0, 0, 0], eid=3), "bad")
     with pytest.raises(MeshError, match=r"bad\.elem:1: element 3 references node id\(s\) 99"):
         read_ansys(bad)
     shells = write_ansys(tmp_path, UNIT_NODES, elem_line([1, 2, 3, 4, 0, 0, 0, 0]), "shells")
-    with pytest.raises(MeshError, match=r"no solid \(8-node\) elements found; only non-solid "
-                                        r"ones: 1 quad"):
+    with pytest.raises(
+        MeshError,
+        match=r"no solid \(8-node\) elements found; only non-solid "
+        r"ones: 1 quad",
+    ):
         read_ansys(shells)
 
 
-@pytest.mark.parametrize("nodes, collapse", [
-    ([1, 2, 3, 3, 5, 6, 7, 7], "wedge"),      # K=L, O=P
-    ([1, 2, 3, 4, 5, 5, 5, 5], "pyramid"),    # M=N=O=P
-    ([1, 2, 3, 3, 5, 5, 5, 5], "tetrahedron"),  # K=L, M=N=O=P
-    ([1, 2, 3, 1, 5, 6, 7, 8], "irregular"),
-])
+@pytest.mark.parametrize(
+    "nodes, collapse",
+    [
+        ([1, 2, 3, 3, 5, 6, 7, 7], "wedge"),  # K=L, O=P
+        ([1, 2, 3, 4, 5, 5, 5, 5], "pyramid"),  # M=N=O=P
+        ([1, 2, 3, 3, 5, 5, 5, 5], "tetrahedron"),  # K=L, M=N=O=P
+        ([1, 2, 3, 1, 5, 6, 7, 8], "irregular"),
+    ],
+)
 def test_degenerate_hex_rejected(tmp_path, nodes, collapse):
-    node_path = write_ansys(tmp_path, UNIT_NODES, elem_line(range(1, 9), eid=10)
-                            + elem_line(nodes, eid=42))
+    node_path = write_ansys(
+        tmp_path, UNIT_NODES, elem_line(range(1, 9), eid=10) + elem_line(nodes, eid=42)
+    )
     with pytest.raises(MeshError, match=f"element 42: {collapse}"):
         read_ansys(node_path)
     mesh = read_ansys(node_path, allow_degenerate=True)
@@ -218,8 +265,14 @@ def test_inverted_hex_reported_and_fixed():
 
 
 def test_inverted_tet_fixed():
-    tet = MeshData(points=UNIT_HEX[[0, 1, 3, 4]], cell_type="tetrahedron",
-                   cells=[[0, 2, 1, 3]], node_ids=np.arange(4), cell_ids=[5], cell_tags=[0])
+    tet = MeshData(
+        points=UNIT_HEX[[0, 1, 3, 4]],
+        cell_type="tetrahedron",
+        cells=[[0, 2, 1, 3]],
+        node_ids=np.arange(4),
+        cell_ids=[5],
+        cell_tags=[0],
+    )
     fixed, inverted = check_orientation(tet, fix=True)
     np.testing.assert_array_equal(inverted, [5])
     assert element_jacobians(fixed)[0] == pytest.approx(1.0)
@@ -256,6 +309,7 @@ def test_distorted_hex_volume_exact():
 
 # --- DOLFINx conversion --------------------------------------------------------------------
 
+
 def test_tongue_to_dolfinx_positive_det_j(tongue):
     msh, tags = to_dolfinx(tongue, MPI.COMM_SELF)
     num_cells = msh.topology.index_map(3).size_local
@@ -265,8 +319,7 @@ def test_tongue_to_dolfinx_positive_det_j(tongue):
     assert values.min() > 0
     # corner det J computed by dolfinx matches the MeshData check, element by element
     cell_rows = msh.topology.original_cell_index
-    np.testing.assert_allclose(values.min(axis=1), element_jacobians(tongue)[cell_rows],
-                               rtol=1e-10)
+    np.testing.assert_allclose(values.min(axis=1), element_jacobians(tongue)[cell_rows], rtol=1e-10)
     assert dolfinx_volume(msh) == pytest.approx(volume(tongue), rel=1e-12)
     assert dict(zip(*np.unique(tags.values, return_counts=True))) == {1: 740}
     rows = dolfinx_node_to_input(msh)
@@ -288,9 +341,14 @@ def test_tongue_to_dolfinx_two_ranks(tmp_path):
         "v = msh.comm.allreduce(fem.assemble_scalar(fem.form(1.0 * dx)), op=MPI.SUM)\n"
         "n = msh.comm.allreduce(msh.topology.index_map(3).size_local, op=MPI.SUM)\n"
         "t = msh.comm.allreduce(len(tags.values), op=MPI.SUM)\n"
-        "if msh.comm.rank == 0: print(v, n, t, msh.comm.size)\n")
-    out = subprocess.run([str(mpiexec), "-n", "2", sys.executable, str(script)],
-                         capture_output=True, text=True, timeout=300)
+        "if msh.comm.rank == 0: print(v, n, t, msh.comm.size)\n"
+    )
+    out = subprocess.run(
+        [str(mpiexec), "-n", "2", sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     v, n, t, size = out.stdout.split()
     assert float(v) == pytest.approx(surface_volume(read_ansys(TONGUE)), rel=1e-10)
@@ -299,8 +357,10 @@ def test_tongue_to_dolfinx_two_ranks(tmp_path):
 
 # --- gmsh and meshio -----------------------------------------------------------------------
 
+
 def _gmsh_box(path, hexes):
     import gmsh
+
     gmsh.initialize(interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
@@ -341,18 +401,26 @@ def test_gmsh_box(tmp_path, hexes):
 
 def test_geo_file(tmp_path):
     geo = tmp_path / "cyl.geo"
-    geo.write_text('SetFactory("OpenCASCADE");\nCylinder(1) = {0, 0, 0, 0, 0, 0.1, 0.02};\n'
-                   "Physical Volume(3) = {1};\n")
+    geo.write_text(
+        'SetFactory("OpenCASCADE");\nCylinder(1) = {0, 0, 0, 0, 0, 0.1, 0.02};\n'
+        "Physical Volume(3) = {1};\n"
+    )
     mesh = read_mesh(geo, gmsh_mesh_size=0.01)
     assert mesh.cell_type == "tetrahedron" and set(mesh.cell_tags) == {3}
-    exact = np.pi * 0.02 ** 2 * 0.1
+    exact = np.pi * 0.02**2 * 0.1
     assert 0.95 * exact < volume(mesh) < exact  # inscribed polygonal cylinder
 
 
 def test_vtu_round_trip(tmp_path, tongue):
     path = tmp_path / "tongue.vtu"
-    meshio.write(path, meshio.Mesh(tongue.points, [("hexahedron", tongue.cells)],
-                                   cell_data={"material": [tongue.cell_tags]}))
+    meshio.write(
+        path,
+        meshio.Mesh(
+            tongue.points,
+            [("hexahedron", tongue.cells)],
+            cell_data={"material": [tongue.cell_tags]},
+        ),
+    )
     back = read_mesh(path)
     np.testing.assert_array_equal(back.points, tongue.points)
     np.testing.assert_array_equal(back.cells, tongue.cells)
@@ -362,9 +430,17 @@ def test_vtu_round_trip(tmp_path, tongue):
 def test_mixed_mesh_reported_not_converted(tmp_path):
     points = np.vstack([UNIT_HEX, [[0.5, 0.5, 2.0]]])
     path = tmp_path / "mixed.vtu"
-    meshio.write(path, meshio.Mesh(points, [("hexahedron", [list(range(8))]),
-                                            ("tetra", [[4, 5, 7, 8]]),
-                                            ("triangle", [[0, 1, 2]])]))
+    meshio.write(
+        path,
+        meshio.Mesh(
+            points,
+            [
+                ("hexahedron", [list(range(8))]),
+                ("tetra", [[4, 5, 7, 8]]),
+                ("triangle", [[0, 1, 2]]),
+            ],
+        ),
+    )
     mesh = read_mesh(path)
     assert mesh.is_mixed and mesh.skipped_cells == {"triangle": 1}
     with pytest.raises(MeshError, match="single cell type"):
@@ -380,6 +456,7 @@ def test_unknown_extension():
 
 
 # --- mesh info -----------------------------------------------------------------------------
+
 
 def test_mesh_info_tongue(tongue):
     info = mesh_info.mesh_info([str(TONGUE), str(TONGUE.with_suffix(".elem"))])
@@ -409,6 +486,7 @@ def test_mesh_info_cli(capsys, tmp_path):
 
 # --- results and rendering -----------------------------------------------------------------
 
+
 def test_result_writer(tmp_path, tongue):
     msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
     u = fem.Function(fem.functionspace(msh, ("Lagrange", 1, (3,))), name="displacement")
@@ -426,9 +504,14 @@ def test_render_png(tmp_path, tongue):
     msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
     u = fem.Function(fem.functionspace(msh, ("Lagrange", 1, (3,))))
     u.interpolate(lambda x: np.vstack([0 * x[0], 0 * x[0], 0.2 * (x[0] - 0.057)]))
-    png = render_bodies(tmp_path / "img" / "tongue.png", [msh, (msh, u)],
-                        scalars=[None, "displacement"], titles=["rest", "deformed"],
-                        show_rest=True, window_size=(600, 400))
+    png = render_bodies(
+        tmp_path / "img" / "tongue.png",
+        [msh, (msh, u)],
+        scalars=[None, "displacement"],
+        titles=["rest", "deformed"],
+        show_rest=True,
+        window_size=(600, 400),
+    )
     assert png.stat().st_size > 10_000
     pixels = np.asarray(pv.read(png).point_data.active_scalars)
     assert pixels.std() > 10  # not a blank image
@@ -443,8 +526,9 @@ def test_render_draws_rigid_surfaces_beside_the_bodies(tmp_path, tongue, icosphe
     vertices, triangles = icosphere(2, 0.02)
     ball = (vertices + [0.05, 0.0, -0.04], triangles)
     plain = render_bodies(tmp_path / "plain.png", msh, window_size=(600, 400), camera="xz")
-    with_ball = render_bodies(tmp_path / "ball.png", msh, window_size=(600, 400), camera="xz",
-                              surfaces=[ball])
+    with_ball = render_bodies(
+        tmp_path / "ball.png", msh, window_size=(600, 400), camera="xz", surfaces=[ball]
+    )
     a = np.asarray(pv.read(plain).point_data.active_scalars, dtype=float)
     b = np.asarray(pv.read(with_ball).point_data.active_scalars, dtype=float)
     assert a.shape == b.shape and np.abs(a - b).mean() > 1.0

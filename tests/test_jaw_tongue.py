@@ -29,8 +29,8 @@ def opened(data):
 def test_jaw_surface_is_aligned_to_the_attachment_nodes(opened):
     s = opened[0]
     a = s.alignment
-    assert a["mean_distance"] < 2e-3 and a["max_distance"] < 6e-3      # measured 1.19 / 4.86 mm
-    assert 0.05 < s.jaw.mass < 0.3                                      # 1900 kg/m^3 bone
+    assert a["mean_distance"] < 2e-3 and a["max_distance"] < 6e-3  # measured 1.19 / 4.86 mm
+    assert 0.05 < s.jaw.mass < 0.3  # 1900 kg/m^3 bone
     # hinge posterior-superior of the jaw attachment nodes (x posterior, z up)
     nodes = s.attachment.positions()
     assert s.hinge[0] > nodes[:, 0].max() and s.hinge[2] > nodes[:, 2].max()
@@ -46,7 +46,7 @@ def test_short_run_is_finite_and_attachments_are_exact(opened):
 
 def test_jaw_turns_only_about_its_hinge(opened):
     s, rec, R0, axis0, _ = opened
-    assert rec["joint_error"].max() < 1e-5                  # m and rad, Baumgarte-stabilized
+    assert rec["joint_error"].max() < 1e-5  # m and rad, Baumgarte-stabilized
     dR = s.jaw.rotation @ R0.T
     angle = np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))
     w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
@@ -59,7 +59,7 @@ def test_jaw_turns_only_about_its_hinge(opened):
 
 def test_opening_the_jaw_lowers_the_attached_tongue_nodes(opened):
     s, rec, _, _, z0 = opened
-    assert rec["angle"][-1] > np.radians(2.0)               # the opener opened the jaw
+    assert rec["angle"][-1] > np.radians(2.0)  # the opener opened the jaw
     dz = s.attachment.positions()[:, 2] - z0
     assert dz.mean() < -1e-3 and np.all(dz < 0)
 
@@ -71,8 +71,9 @@ def test_welded_jaw_matches_the_plain_tongue(data):
     config = jt.JawTongueConfig(joint="welded", opener_force=0.0, closer_stiffness=0.0)
     s = jt.build_scene(config, data=data)
     jt.simulate(s, "protrusion", 0.1, DT)
-    plain = Tongue(TongueConfig(level=0, incompressibility=PENALTY, linear_solver="mumps"),
-                   data=data)
+    plain = Tongue(
+        TongueConfig(level=0, incompressibility=PENALTY, linear_solver="mumps"), data=data
+    )
     plain.scene.gravity = config.gravity
     plain.drive(Tongue.motion("protrusion"))
     for _ in range(10):

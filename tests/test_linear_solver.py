@@ -83,6 +83,7 @@ def _saddle_point(n=600, m=300):
     block whose pivots MUMPS' LU delays past its workspace estimate at ICNTL(14) = 0
     (INFOG(1) = -9, measured)."""
     from scipy import sparse
+
     A = sparse.random(n, n, density=0.01, random_state=1)
     A = A + A.T + 1e-3 * sparse.identity(n)
     B = sparse.random(m, n, density=0.02, random_state=2)
@@ -100,6 +101,7 @@ def test_mumps_workspace_too_small_is_enlarged_and_factored_again(monkeypatch):
     from artifem import linear_solver
     from artifem.scene import direct_solver
     from artifem.scene.direct_solver import DirectSolver
+
     monkeypatch.setattr(linear_solver, "MUMPS_ICNTL", {**linear_solver.MUMPS_ICNTL, 14: 0})
     monkeypatch.setattr(direct_solver, "MUMPS_ICNTL", {14: 0})
     K = _saddle_point()
@@ -108,9 +110,11 @@ def test_mumps_workspace_too_small_is_enlarged_and_factored_again(monkeypatch):
     scale = np.abs(expected).max()
     x = DirectSolver().solve(K, rhs, "the saddle point")
     assert np.abs(x - expected).max() < 1e-8 * scale
-    M = PETSc.Mat().createAIJ(size=K.shape, csr=(K.indptr.astype(PETSc.IntType),
-                                                 K.indices.astype(PETSc.IntType), K.data),
-                              comm=MPI.COMM_SELF)
+    M = PETSc.Mat().createAIJ(
+        size=K.shape,
+        csr=(K.indptr.astype(PETSc.IntType), K.indices.astype(PETSc.IntType), K.data),
+        comm=MPI.COMM_SELF,
+    )
     M.assemble()
     b = M.createVecLeft()
     b.setArray(rhs)

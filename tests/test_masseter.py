@@ -22,16 +22,26 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin
-from artifem.models.masseter import (COARSE, MODELS, MasseterConfig, MasseterShape, build_model,
-                                     fascicles, fiber_directions, membrane_mesh, simulate)
+from artifem.models.masseter import (
+    COARSE,
+    MODELS,
+    MasseterConfig,
+    MasseterShape,
+    build_model,
+    fascicles,
+    fiber_directions,
+    membrane_mesh,
+    simulate,
+)
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
 CONFIG = MasseterConfig(**COARSE)
 #: A straight, untapered block, fascicles vertical, the whole bottom face on the jaw:
 #: u = 0 is the exact equilibrium, and the jaw force is max_stress * a * W_b * T.
-STRAIGHT = dataclasses.replace(CONFIG, width_top=CONFIG.width_bottom, bulge=0.0, lean=0.0,
-                               bow=0.0, curve=0.0, jaw_strip=None)
+STRAIGHT = dataclasses.replace(
+    CONFIG, width_top=CONFIG.width_bottom, bulge=0.0, lean=0.0, bow=0.0, curve=0.0, jaw_strip=None
+)
 
 
 @pytest.fixture(scope="module")
@@ -44,17 +54,22 @@ def results():
 
 
 def test_fiber_directions_are_the_tangent_of_straight_fascicles():
-    config = dataclasses.replace(STRAIGHT, lean=0.006, width_top=0.02)   # straight, fanning
+    config = dataclasses.replace(STRAIGHT, lean=0.006, width_top=0.02)  # straight, fanning
     rng = np.random.default_rng(1)
     lines = fascicles(config)
     on_lines = np.concatenate([L[1:-1] + 1e-4 * (L[2:] - L[:-2]) for L in lines])
-    expected = np.concatenate([np.repeat(((L[-1] - L[0]) / np.linalg.norm(L[-1] - L[0]))[None],
-                                         len(L) - 2, axis=0) for L in lines])
+    expected = np.concatenate(
+        [
+            np.repeat(((L[-1] - L[0]) / np.linalg.norm(L[-1] - L[0]))[None], len(L) - 2, axis=0)
+            for L in lines
+        ]
+    )
     assert np.allclose(fiber_directions(on_lines, lines), expected, atol=1e-12)
     # parallel fascicles: every point of the muscle gets the common direction
     parallel = dataclasses.replace(STRAIGHT, lean=0.006)
-    ref = rng.uniform([0, 0, 0], [parallel.width_bottom, parallel.thickness, parallel.height],
-                      size=(200, 3))
+    ref = rng.uniform(
+        [0, 0, 0], [parallel.width_bottom, parallel.thickness, parallel.height], size=(200, 3)
+    )
     pts = MasseterShape(parallel).to_physical(ref)
     t = MasseterShape(parallel).fascicle_tangent(ref[:1])[0]
     assert np.allclose(fiber_directions(pts, fascicles(parallel)), t, atol=1e-12)
@@ -67,9 +82,13 @@ def test_fiber_directions_follow_curved_fascicles():
     ns, nt = CONFIG.fascicle_grid
     s, t = np.meshgrid((np.arange(ns) + 0.5) / ns, (np.arange(nt) + 0.5) / nt, indexing="ij")
     z = (np.arange(CONFIG.fascicle_segments) + 0.5) / CONFIG.fascicle_segments
-    ref = np.column_stack([np.repeat(s.ravel(), z.size) * CONFIG.width_bottom,
-                           np.repeat(t.ravel(), z.size) * CONFIG.thickness,
-                           np.tile(z, s.size) * CONFIG.height])
+    ref = np.column_stack(
+        [
+            np.repeat(s.ravel(), z.size) * CONFIG.width_bottom,
+            np.repeat(t.ravel(), z.size) * CONFIG.thickness,
+            np.tile(z, s.size) * CONFIG.height,
+        ]
+    )
     a0 = fiber_directions(shape.to_physical(ref), fascicles(CONFIG))
     cosine = np.einsum("ij,ij->i", a0, shape.fascicle_tangent(ref))
     assert np.degrees(np.arccos(np.clip(cosine, -1, 1))).max() < 1.0
@@ -87,8 +106,9 @@ def test_quadrature_fibers_of_both_primaries_follow_the_fascicles():
 
 
 def test_point_directions_in_femBody_equal_dg0_and_reject_bad_fields():
-    msh = dmesh.create_box(MPI.COMM_SELF, [[0, 0, 0], [1, 1, 1]], [2, 2, 2],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [[0, 0, 0], [1, 1, 1]], [2, 2, 2], dmesh.CellType.hexahedron
+    )
     a, b = (FemBody(msh, MooneyRivlin(1e3, kappa=1e4), 1000.0) for _ in range(2))
     q = fem.Function(a.quadrature_space())
     q.x.array.reshape(-1, 3)[:] = [0.6, 0.0, 0.8]
@@ -110,13 +130,19 @@ def test_point_directions_in_femBody_equal_dg0_and_reject_bad_fields():
 
 def test_wedge_membrane_mass_is_its_volume_times_density():
     P, prisms, tri = membrane_mesh(STRAIGHT, STRAIGHT.sheets[1])
-    msh = dmesh.create_mesh(MPI.COMM_SELF, prisms, basix.ufl.element("Lagrange", "prism", 1,
-                                                                       shape=(3,)), P)
+    msh = dmesh.create_mesh(
+        MPI.COMM_SELF, prisms, basix.ufl.element("Lagrange", "prism", 1, shape=(3,)), P
+    )
     body = FemBody(msh, MooneyRivlin(1e3, kappa=1e4), 1100.0)
     t, r0, r1 = STRAIGHT.sheets[1]
     s0, s1 = STRAIGHT.sheet_span
-    volume = (s1 - s0) * STRAIGHT.width_bottom * (r1 - r0) * STRAIGHT.height \
+    volume = (
+        (s1 - s0)
+        * STRAIGHT.width_bottom
+        * (r1 - r0)
+        * STRAIGHT.height
         * STRAIGHT.membrane_thickness
+    )
     assert body.total_mass() == pytest.approx(1100.0 * volume, rel=1e-12)
     assert tri.shape[0] == prisms.shape[0]
 
@@ -141,8 +167,9 @@ def test_membranes_follow_the_primary_exactly(results):
 def test_jaw_force_is_fiber_stress_times_section_when_exact(primary):
     model = build_model(STRAIGHT, primary, "none")
     r = simulate(model)
-    expected = STRAIGHT.max_stress * STRAIGHT.excitation * STRAIGHT.width_bottom \
-        * STRAIGHT.thickness
+    expected = (
+        STRAIGHT.max_stress * STRAIGHT.excitation * STRAIGHT.width_bottom * STRAIGHT.thickness
+    )
     assert r["max_displacement_mm"] < 1e-9
     assert np.allclose(r["jaw_force_N"], [0.0, 0.0, expected], rtol=1e-9, atol=1e-9 * expected)
 
@@ -150,7 +177,7 @@ def test_jaw_force_is_fiber_stress_times_section_when_exact(primary):
 def test_jaw_and_arch_forces_balance(results):
     for label, (_, r) in results.items():
         assert r["force_balance_N"] < 1e-8 * r["jaw_force_magnitude_N"], label
-        assert r["jaw_force_N"][2] > 0.5, label           # the jaw is pulled up, to the arch
+        assert r["jaw_force_N"][2] > 0.5, label  # the jaw is pulled up, to the arch
         assert r["min_det_F"] > 0.5, label
 
 
@@ -173,14 +200,19 @@ def test_embedding_and_conforming_jaw_forces_agree(results):
 
 def test_aponeuroses_stiffen_the_muscle_and_change_the_jaw_force_alike(results):
     def change(label, base):
-        return (results[label][1]["jaw_force_magnitude_N"]
-                / results[base][1]["jaw_force_magnitude_N"] - 1.0)
+        return (
+            results[label][1]["jaw_force_magnitude_N"] / results[base][1]["jaw_force_magnitude_N"]
+            - 1.0
+        )
 
-    for label, base in (("embedding/embedded", "embedding/none"),
-                        ("conforming/embedded", "conforming/none"),
-                        ("conforming/slabs", "conforming/none")):
-        assert (results[label][1]["max_displacement_mm"]
-                < 0.8 * results[base][1]["max_displacement_mm"]), label
+    for label, base in (
+        ("embedding/embedded", "embedding/none"),
+        ("conforming/embedded", "conforming/none"),
+        ("conforming/slabs", "conforming/none"),
+    ):
+        assert (
+            results[label][1]["max_displacement_mm"] < 0.8 * results[base][1]["max_displacement_mm"]
+        ), label
         assert change(label, base) < -0.03, (label, change(label, base))
     # a tendon as soft as the muscle changes next to nothing
     soft = dataclasses.replace(CONFIG, tendon_young=6 * CONFIG.muscle_c10)

@@ -28,36 +28,52 @@ TIMEOUT = 300
 
 #: model -> (the shortest options that take a few steps, files it must write in --out).
 MODELS = {
-    "beam": (["--duration", "0.03", "--cells", "8", "2", "2", "--no-progress"],
-             ["simulate.json", "beam.png", "beam.bp"]),
-    "tongue": (["--duration", "0.03", "--no-progress"],
-               ["protrusion/simulate.json", "protrusion/tongue.png"]),
+    "beam": (
+        ["--duration", "0.03", "--cells", "8", "2", "2", "--no-progress"],
+        ["simulate.json", "beam.png", "beam.bp"],
+    ),
+    "tongue": (
+        ["--duration", "0.03", "--no-progress"],
+        ["protrusion/simulate.json", "protrusion/tongue.png"],
+    ),
     "beam-ellipsoid": (["--duration", "0.03"], ["beam_ellipsoid.json", "beam_ellipsoid.png"]),
     "jaw-tongue": (["--duration", "0.03"], ["jaw_tongue.json", "jaw_tongue.png"]),
     "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
     "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
     "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),
-    "foot": (["--level", "0", "--duration", "0.01", "--timing-steps", "1", "--no-progress"],
-             ["standing/foot.json", "standing/foot.png", "standing/plantar_pressure.png"]),
+    "foot": (
+        ["--level", "0", "--duration", "0.01", "--timing-steps", "1", "--no-progress"],
+        ["standing/foot.json", "standing/foot.png", "standing/plantar_pressure.png"],
+    ),
 }
 
-pytestmark = pytest.mark.skipif(not MPIEXEC.exists(),
-                                reason=f"no mpiexec next to the interpreter ({MPIEXEC})")
+pytestmark = pytest.mark.skipif(
+    not MPIEXEC.exists(), reason=f"no mpiexec next to the interpreter ({MPIEXEC})"
+)
 
 
 def mpirun(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
     """``mpiexec -n 2 command``; fails the test, killing every process of it, at TIMEOUT."""
     full = [str(MPIEXEC), "-n", "2"] + command
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.Popen(full, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=cwd, env=env, start_new_session=True)
+    proc = subprocess.Popen(
+        full,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd,
+        env=env,
+        start_new_session=True,
+    )
     try:
         out, err = proc.communicate(timeout=TIMEOUT)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         out, err = proc.communicate()
-        pytest.fail(f"{' '.join(full)} still running after {TIMEOUT} s (a hang):\n"
-                    f"{out[-2000:]}\n{err[-2000:]}")
+        pytest.fail(
+            f"{' '.join(full)} still running after {TIMEOUT} s (a hang):\n"
+            f"{out[-2000:]}\n{err[-2000:]}"
+        )
     return subprocess.CompletedProcess(full, proc.returncode, out, err)
 
 
@@ -65,7 +81,7 @@ def test_every_simulate_model_is_launched():
     assert set(MODELS) == {path[1] for path in COMMANDS if path[0] == "simulate"}
 
 
-@pytest.mark.slow                       # 5-15 s each, about 60 s in all
+@pytest.mark.slow  # 5-15 s each, about 60 s in all
 @pytest.mark.parametrize("model", sorted(MODELS))
 def test_simulate_under_two_ranks(model, tmp_path):
     options, outputs = MODELS[model]
@@ -81,11 +97,12 @@ def test_simulate_under_two_ranks(model, tmp_path):
         if under_mpi == DISTRIBUTED:
             assert json.loads((out / outputs[0]).read_text())["ranks"] == 2
         else:
-            assert proc.stderr.count(said) == 1         # said by rank 0 only
+            assert proc.stderr.count(said) == 1  # said by rank 0 only
     else:
         assert proc.returncode == 2, f"{' '.join(proc.args)}:\n{proc.stdout}\n{proc.stderr}"
-        assert (f"artifem simulate {model}: error: refused under mpiexec (2 ranks): "
-                f"{under_mpi}") in proc.stderr
+        assert (
+            f"artifem simulate {model}: error: refused under mpiexec (2 ranks): {under_mpi}"
+        ) in proc.stderr
         assert not out.exists()
 
 
@@ -94,15 +111,17 @@ def test_refused_command_exits_2_before_any_work(tmp_path):
     proc = mpirun(ARTIFEM + ["bench", "fom", "--out", str(out)], tmp_path)
     assert proc.returncode == 2, proc.stderr
     reason = COMMANDS[("bench", "fom")][2]
-    assert proc.stderr.strip() == (f"artifem bench fom: error: refused under mpiexec "
-                                   f"(2 ranks): {reason}")
+    assert proc.stderr.strip() == (
+        f"artifem bench fom: error: refused under mpiexec (2 ranks): {reason}"
+    )
     assert not out.exists()
 
 
 def test_error_on_one_rank_ends_every_rank(tmp_path):
     """A distributed command whose rank 1 fails while rank 0 waits in a collective call
     (the jaw-tongue hang: an IndexError on one rank) ends with the error's status."""
-    (tmp_path / "one_rank_fails.py").write_text(textwrap.dedent('''
+    (tmp_path / "one_rank_fails.py").write_text(
+        textwrap.dedent('''
         from mpi4py import MPI
 
         def add_arguments(parser):
@@ -114,25 +133,29 @@ def test_error_on_one_rank_ends_every_rank(tmp_path):
                 raise ValueError("bad input seen on rank 1 only")
             comm.Barrier()
             return 0
-    '''))
-    (tmp_path / "launch.py").write_text(textwrap.dedent('''
+    ''')
+    )
+    (tmp_path / "launch.py").write_text(
+        textwrap.dedent('''
         import sys                      # sys.path[0]: this directory, with one_rank_fails
         from artifem import cli
 
         cli.COMMANDS = {("fails",): ("one_rank_fails", "test", cli.DISTRIBUTED)}
         sys.exit(cli.main(["fails"]))
-    '''))
+    ''')
+    )
     proc = mpirun([sys.executable, str(tmp_path / "launch.py")], tmp_path)
     assert proc.returncode == 2, proc.stderr
     assert "artifem: error (rank 1): bad input seen on rank 1 only" in proc.stderr
 
 
-@pytest.mark.slow                       # about 5 s: the jaw-tongue scene built on 2 ranks
+@pytest.mark.slow  # about 5 s: the jaw-tongue scene built on 2 ranks
 def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
     """jaw_tongue.simulate records one rank's tongue (its tip, u, the render): on a tongue
     built on 2 ranks it raises on every rank, where its tip lookup used to fail on the
     rank without the tip and leave the other in the step's barrier."""
-    (tmp_path / "distributed.py").write_text(textwrap.dedent('''
+    (tmp_path / "distributed.py").write_text(
+        textwrap.dedent('''
         import artifem  # noqa: F401  (before dolfinx)
         from mpi4py import MPI
 
@@ -144,21 +167,27 @@ def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
             jt.simulate(s, "protrusion", 0.02)
         except InputError as exc:
             print(f"rank {MPI.COMM_WORLD.rank}: {exc}")
-    '''))
+    ''')
+    )
     proc = mpirun([sys.executable, str(tmp_path / "distributed.py")], tmp_path)
     assert proc.returncode == 0, proc.stderr
     for rank in (0, 1):
-        assert (f"rank {rank}: jaw_tongue.simulate: the tongue is distributed over 2 MPI "
-                f"ranks") in proc.stdout
+        assert (
+            f"rank {rank}: jaw_tongue.simulate: the tongue is distributed over 2 MPI ranks"
+        ) in proc.stdout
 
 
 def test_serial_model_bad_input_exits_2_on_every_rank(tmp_path):
     """The bad input of a model run on one rank ends it in its one-line error, and every
     rank with its status."""
     missing = tmp_path / "missing.json"
-    proc = mpirun(ARTIFEM + ["simulate", "jaw-tongue", "--schedule", str(missing),
-                             "--out", str(tmp_path / "out")], tmp_path)
+    proc = mpirun(
+        ARTIFEM
+        + ["simulate", "jaw-tongue", "--schedule", str(missing), "--out", str(tmp_path / "out")],
+        tmp_path,
+    )
     assert proc.returncode == 2, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if "error" in line]
-    assert len(lines) == 1 and lines[0].startswith("artifem: error: ") and \
-        str(missing) in lines[0], proc.stderr
+    assert (
+        len(lines) == 1 and lines[0].startswith("artifem: error: ") and str(missing) in lines[0]
+    ), proc.stderr

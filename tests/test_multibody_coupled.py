@@ -40,13 +40,31 @@ G = 9.81
 HINGE_Y = axis_rotation((0.0, 1.0, 0.0))
 
 
-def box(size, cells, young=1e5, density=1000.0, rayleigh=(0.0, 0.0), gravity=(0, 0, -G),
-        origin=(0.0, 0.0, 0.0), name="fem"):
+def box(
+    size,
+    cells,
+    young=1e5,
+    density=1000.0,
+    rayleigh=(0.0, 0.0),
+    gravity=(0, 0, -G),
+    origin=(0.0, 0.0, 0.0),
+    name="fem",
+):
     origin = np.asarray(origin, dtype=float)
-    msh = dmesh.create_box(MPI.COMM_SELF, [origin, origin + np.asarray(size, float)],
-                           list(cells), dmesh.CellType.hexahedron)
-    return FemBody(msh, NeoHookean.from_young_poisson(young, 0.3), density, rayleigh=rayleigh,
-                   gravity=gravity, name=name)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [origin, origin + np.asarray(size, float)],
+        list(cells),
+        dmesh.CellType.hexahedron,
+    )
+    return FemBody(
+        msh,
+        NeoHookean.from_young_poisson(young, 0.3),
+        density,
+        rayleigh=rayleigh,
+        gravity=gravity,
+        name=name,
+    )
 
 
 def positions(body):
@@ -55,15 +73,24 @@ def positions(body):
 
 # ---- (1) fixed bone = fixed nodes ----------------------------------------------------------
 
+
 def test_beam_attached_to_a_fixed_bone_follows_the_clamped_beam():
     """Measured: max |u_attached - u_fixed| = 2e-16 m on |u| = 0.2 m after 20 steps."""
+
     def beam():
         return box((1.0, 0.2, 0.2), (10, 2, 2), rayleigh=(0.5, 0.01))
+
     clamped, attached = beam(), beam()
     end = clamped.find_nodes(lambda x: x[0] < 1e-12)
     clamped.fix_nodes(end)
-    bone = RigidBody("bone", 2.0, np.diag([1.0, 2.0, 3.0]), position=(-0.1, 0.13, 0.07),
-                     rotation=exp_so3([0.3, -0.5, 0.8]), motion="fixed")
+    bone = RigidBody(
+        "bone",
+        2.0,
+        np.diag([1.0, 2.0, 3.0]),
+        position=(-0.1, 0.13, 0.07),
+        rotation=exp_so3([0.3, -0.5, 0.8]),
+        motion="fixed",
+    )
     scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(attached, bone)
     scene.add(NodeAttachment(attached, end, bone))
@@ -72,27 +99,38 @@ def test_beam_attached_to_a_fixed_bone_follows_the_clamped_beam():
         step.advance(clamped, 0.01, solver)
         scene.step(0.01)
     scale = np.abs(clamped.u.x.array).max()
-    assert scale > 0.1                                   # it really moved
+    assert scale > 0.1  # it really moved
     assert np.abs(attached.u.x.array - clamped.u.x.array).max() < 1e-12 * scale
-    assert np.abs(attached.v.x.array - clamped.v.x.array).max() < 1e-12 * np.abs(
-        clamped.v.x.array).max()
+    assert (
+        np.abs(attached.v.x.array - clamped.v.x.array).max()
+        < 1e-12 * np.abs(clamped.v.x.array).max()
+    )
     assert max(scene.attachment_errors().values()) < 1e-15
 
 
 # ---- (2) a prescribed bone carries the body rigidly ----------------------------------------
 
+
 def carried_block_error(h, duration=0.5):
     """max over time and nodes of |x - x_rigid| / size for a stiff block carried by a bone
     that translates (v0) and turns (w0) at constant rates; the attachment's own error."""
     body = box((0.1, 0.1, 0.1), (3, 3, 3), young=1e8, gravity=(0, 0, 0))
-    p0, v0, w0 = np.array([0.05, 0.05, -0.02]), np.array([0.3, -0.2, 0.1]), np.array(
-        [0.5, -1.0, 2.0])
-    bone = RigidBody("bone", 1.0, np.eye(3), motion="prescribed",
-                     trajectory=lambda t: BodyState(p0 + v0 * t, exp_so3(t * w0), v0, w0))
+    p0, v0, w0 = (
+        np.array([0.05, 0.05, -0.02]),
+        np.array([0.3, -0.2, 0.1]),
+        np.array([0.5, -1.0, 2.0]),
+    )
+    bone = RigidBody(
+        "bone",
+        1.0,
+        np.eye(3),
+        motion="prescribed",
+        trajectory=lambda t: BodyState(p0 + v0 * t, exp_so3(t * w0), v0, w0),
+    )
     X = body.V.tabulate_dof_coordinates()
     body.v.x.array[:] = (v0 + np.cross(w0, X - p0)).ravel()
     scene = Scene(gravity=(0.0, 0.0, 0.0))
-    scene.add(body, bone)                                # places the bone on its trajectory
+    scene.add(body, bone)  # places the bone on its trajectory
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[2] < 1e-12), bone))
     worst, attach = 0.0, 0.0
     for _ in range(int(round(duration / h))):
@@ -116,18 +154,25 @@ def test_prescribed_bone_carries_the_block_rigidly():
     h2w2 = (5e-3) ** 2 * (w0 @ w0)
     assert coarse < h2w2
     assert 3.0 < coarse / fine < 5.0
-    assert attach < 1e-15                                 # set exactly from the pose
+    assert attach < 1e-15  # set exactly from the pose
 
 
 # ---- (3) virtual work and finite differences -----------------------------------------------
+
 
 def test_node_attachment_virtual_work_G_and_geometric_stiffness():
     rng = np.random.default_rng(3)
     body = box((0.2, 0.1, 0.1), (2, 1, 1))
     body.u.x.array[:] = 1e-2 * rng.standard_normal(body.u.x.array.size)
-    bone = RigidBody("bone", 1.0, np.eye(3), position=(-0.05, 0.02, 0.1),
-                     rotation=exp_so3([0.4, 0.1, -0.7]), velocity=rng.normal(size=3),
-                     angular_velocity=rng.normal(size=3))
+    bone = RigidBody(
+        "bone",
+        1.0,
+        np.eye(3),
+        position=(-0.05, 0.02, 0.1),
+        rotation=exp_so3([0.4, 0.1, -0.7]),
+        velocity=rng.normal(size=3),
+        angular_velocity=rng.normal(size=3),
+    )
     nodes = body.find_nodes(lambda x: x[0] < 1e-12)
     att = NodeAttachment(body, nodes, bone)
     np.testing.assert_allclose(att.positions(), positions(body)[att.dofs], atol=1e-15)
@@ -157,9 +202,9 @@ def test_node_attachment_virtual_work_G_and_geometric_stiffness():
             w[eps] = att.wrench(f)
         bone.rotation = R
         np.testing.assert_allclose((w[1e-6] - w[-1e-6]) / 2e-6, K[:, 3 + k], atol=1e-8)
-    assert np.abs(K[3:, 3:]).max() > 0.1                  # a real term
+    assert np.abs(K[3:, 3:]).max() > 0.1  # a real term
     frames = sum(Frame(bone, r).wrench_stiffness(fi) for r, fi in zip(att.offsets, f))
-    np.testing.assert_allclose(K, frames, atol=1e-14)      # rigid_body.Frame's, node by node
+    np.testing.assert_allclose(K, frames, atol=1e-14)  # rigid_body.Frame's, node by node
 
 
 def test_static_tangent_matches_finite_differences_through_an_attachment_chain():
@@ -171,14 +216,19 @@ def test_static_tangent_matches_finite_differences_through_an_attachment_chain()
     body.fix_nodes(body.find_nodes(lambda x: x[0] > 0.2 - 1e-12))
     body.u.x.array[:] = 0.01 * rng.standard_normal(body.u.x.array.size)
     body.u.x.array.reshape(-1, 3)[body.fixed_dofs] = 0.0
-    bone = RigidBody("bone", 0.5, np.diag([1e-3, 2e-3, 2.5e-3]), position=(-0.03, 0.05, 0.05),
-                     rotation=exp_so3([0.3, -0.2, 0.5]))
+    bone = RigidBody(
+        "bone",
+        0.5,
+        np.diag([1e-3, 2e-3, 2.5e-3]),
+        position=(-0.03, 0.05, 0.05),
+        rotation=exp_so3([0.3, -0.2, 0.5]),
+    )
     tip = RigidBody("tip", 0.2, np.diag([1e-4, 2e-4, 2.5e-4]), position=(-0.1, 0.02, 0.05))
     scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(body, bone, tip, RigidAttachment(tip, bone))
     scene.add(NodeAttachment(body, body.find_nodes(lambda x: x[0] < 1e-12), bone))
     n = scene.master_count()
-    assert n == 3 * (body.V.dofmap.index_map.size_local - 2 * 9) + 6   # tip is a slave
+    assert n == 3 * (body.V.dofmap.index_map.size_local - 2 * 9) + 6  # tip is a slave
     K = scene.static_tangent()
     scene.geometric_stiffness = False
     K_without = scene.static_tangent()
@@ -193,16 +243,17 @@ def test_static_tangent_matches_finite_differences_through_an_attachment_chain()
         fd = master_force_difference(scene, dq, eps)
         error = np.abs(fd + K @ dq).max()
         assert error < 1e-7 * np.abs(K @ dq).max()
-        if part != "fem":                                 # K_geo matters when the bone turns
+        if part != "fem":  # K_geo matters when the bone turns
             assert np.abs(fd + K_without @ dq).max() > 1e4 * error
     # The step uses the same stiffness: with no damping and no spin,
     # A_m(h) = P^T M P + h^2 (P^T K P - K_geo).
     h1, h2 = 1e-2, 2e-2
-    K_step = (scene.step_matrix(h2) - scene.step_matrix(h1)) / (h2 ** 2 - h1 ** 2)
+    K_step = (scene.step_matrix(h2) - scene.step_matrix(h1)) / (h2**2 - h1**2)
     assert abs(K_step - K).max() < 1e-9 * abs(K).max()
 
 
 # ---- (4) a free bone with a block ----------------------------------------------------------
+
 
 def test_free_bone_with_a_block_keeps_momentum_and_gains_no_energy():
     """No fixed dofs, no gravity, no Rayleigh damping, thrown with a twist.
@@ -215,8 +266,14 @@ def test_free_bone_with_a_block_keeps_momentum_and_gains_no_energy():
     """
     body = box((0.2, 0.1, 0.1), (4, 2, 2), young=2e4, gravity=(0, 0, 0))
     v0, w0 = np.array([0.3, -0.2, 0.1]), np.array([1.0, -3.0, 5.0])
-    bone = RigidBody("bone", 0.5, np.diag([1e-3, 2e-3, 2.5e-3]), position=(-0.03, 0.05, 0.05),
-                     velocity=v0, angular_velocity=w0)
+    bone = RigidBody(
+        "bone",
+        0.5,
+        np.diag([1e-3, 2e-3, 2.5e-3]),
+        position=(-0.03, 0.05, 0.05),
+        velocity=v0,
+        angular_velocity=w0,
+    )
     X = body.V.tabulate_dof_coordinates()
     body.v.x.array[:] = (v0 + np.cross(w0, X - bone.position)).ravel()
     scene = Scene(gravity=(0.0, 0.0, 0.0))
@@ -230,10 +287,11 @@ def test_free_bone_with_a_block_keeps_momentum_and_gains_no_energy():
         assert np.abs(scene.momentum() - P0).max() < 1e-13 * np.abs(P0).max()
     assert max(energies) < E0 * (1 + 1e-4)
     assert energies[-1] < E0
-    assert np.all(np.diff(energies[5:]) < 1e-9 * E0)      # then never rises
+    assert np.all(np.diff(energies[5:]) < 1e-9 * E0)  # then never rises
 
 
 # ---- (5) the beam with the ellipsoid (the paper's Fig. 11) ---------------------------------
+
 
 def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
     """Coupled static solve against the full FEM beam + stiff block (models/beam_ellipsoid.py).
@@ -246,8 +304,14 @@ def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
     20.408 mm: shear, Poisson and the Q1 elements) cancels and only the block's
     compliance remains.
     """
-    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_reference, build_scene,
-                                               euler_bernoulli_tip, tip_deflection)
+    from artifem.models.beam_ellipsoid import (
+        BeamEllipsoidConfig,
+        build_reference,
+        build_scene,
+        euler_bernoulli_tip,
+        tip_deflection,
+    )
+
     config = BeamEllipsoidConfig()
     scene, beam, ellipsoid, attachment = build_scene(config)
     iterations = scene.solve_static()
@@ -255,12 +319,13 @@ def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
     coupled = tip_deflection(beam, config)
     # the ellipsoid hangs where the face puts it, the face exactly on the pose
     assert max(scene.attachment_errors().values()) < 1e-15
-    assert ellipsoid.position[2] < config.center[2] - coupled     # below the face: it tilts
+    assert ellipsoid.position[2] < config.center[2] - coupled  # below the face: it tilts
     differences = []
     for ratio in (1e2, 1e3):
         reference = build_reference(config, stiffness_ratio=ratio)
-        solve_static(reference, LinearSolver(MPI.COMM_SELF, "mumps"), load_steps=5,
-                     max_iterations=50)
+        solve_static(
+            reference, LinearSolver(MPI.COMM_SELF, "mumps"), load_steps=5, max_iterations=50
+        )
         differences.append(abs(tip_deflection(reference, config) - coupled) / coupled)
     assert differences[1] < 1e-6
     assert differences[0] / differences[1] > 5.0
@@ -291,8 +356,13 @@ def test_beam_ellipsoid_swing_is_stable_and_overshoots_like_a_released_load():
     excites and the Rayleigh estimate of omega (10 % on omega moves the prediction 0.7 %).
     Without the step's dissipation it would be 2; a lost or doubled ellipsoid weight in the
     dynamics moves it by tens of percent."""
-    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_scene, swing,
-                                               tip_deflection)
+    from artifem.models.beam_ellipsoid import (
+        BeamEllipsoidConfig,
+        build_scene,
+        swing,
+        tip_deflection,
+    )
+
     config = BeamEllipsoidConfig()
     h = 2e-3
     scene, beam, ellipsoid, record, _ = swing(config, 0.3, h)
@@ -309,13 +379,14 @@ def test_beam_ellipsoid_swing_is_stable_and_overshoots_like_a_released_load():
 
 # ---- (6) joints in the same solve ----------------------------------------------------------
 
+
 def rod(name, length, theta, pivot=(0.0, 0.0, 0.0), mass=1.0):
     direction = np.array([np.sin(theta), 0.0, -np.cos(theta)])
-    R = np.array([[np.cos(theta), 0, np.sin(theta)], [0, 1, 0],
-                  [-np.sin(theta), 0, np.cos(theta)]])
-    inertia = mass * length ** 2 / 12 * np.diag([1.0, 1.0, 0.01])
-    return RigidBody(name, mass, inertia, position=np.asarray(pivot) + 0.5 * length * direction,
-                     rotation=R), np.asarray(pivot) + length * direction
+    R = np.array([[np.cos(theta), 0, np.sin(theta)], [0, 1, 0], [-np.sin(theta), 0, np.cos(theta)]])
+    inertia = mass * length**2 / 12 * np.diag([1.0, 1.0, 0.01])
+    return RigidBody(
+        name, mass, inertia, position=np.asarray(pivot) + 0.5 * length * direction, rotation=R
+    ), np.asarray(pivot) + length * direction
 
 
 def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
@@ -325,6 +396,7 @@ def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
     lambda_lim >= 0, G_lim z >= c_lim and lambda_lim (G_lim z - c_lim) = 0."""
     from artifem.scene.constraints import solve_constrained
     from artifem.scene.direct_solver import DirectSolver
+
     upper, elbow = rod("upper", 1.0, np.pi / 2)
     lower, _ = rod("lower", 1.0, np.pi / 2, pivot=elbow)
     lower.angular_velocity = np.array([0.0, 4.0, 0.0])
@@ -341,7 +413,7 @@ def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
         Gm = np.vstack([g.G for g in rows])
         c = np.concatenate([g.c for g in rows])
         limit = np.concatenate([g.block.bounded for g in rows])
-        assert limit.sum() == 2                          # the knee's two limit rows
+        assert limit.sum() == 2  # the knee's two limit rows
         scale = np.abs(b).max()
         assert np.abs(A @ z - Gm.T @ lam - b).max() < 1e-12 * scale
         assert np.abs(Gm[~limit] @ z - c[~limit]).max() < 1e-12 * max(1.0, np.abs(c).max())
@@ -350,7 +422,7 @@ def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
         assert np.abs(lam_l * slack).max() < 1e-9 * scale
         touched += int(lam_l.max() > 1e-9 * scale)
         scene.step(h)
-    assert touched > 0                                   # the limit was really active
+    assert touched > 0  # the limit was really active
     assert np.abs(knee.angle()) < 0.6 + 1e-9
 
 
@@ -361,8 +433,12 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
     (measured: 5.6e-6 relative at h = 2 ms; joint error 5e-9 m)."""
     L_rod, a = 0.3, 0.06
     block = box((a, a, a), (2, 2, 2), young=1e8, origin=(-a / 2, -a / 2, -L_rod - a))
-    rod_body = RigidBody("rod", 0.05, 0.05 * L_rod ** 2 / 12 * np.diag([1.0, 1.0, 0.01]),
-                         position=(0.0, 0.0, -L_rod / 2))
+    rod_body = RigidBody(
+        "rod",
+        0.05,
+        0.05 * L_rod**2 / 12 * np.diag([1.0, 1.0, 0.01]),
+        position=(0.0, 0.0, -L_rod / 2),
+    )
     theta0 = 0.05
     scene = Scene(gravity=(0.0, 0.0, -G))
     scene.add(block, rod_body, RevoluteJoint.at_world(rod_body, None, (0.0, 0.0, 0.0), HINGE_Y))
@@ -371,17 +447,20 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
     block.compile()
     m_i = block.M_lumped.array.reshape(-1, 3)[:, 0]
     X = block.V.tabulate_dof_coordinates()
-    I_O = rod_body.inertia[1, 1] + rod_body.mass * (L_rod / 2) ** 2 + m_i @ (X[:, 0] ** 2
-                                                                           + X[:, 2] ** 2)
+    I_O = (
+        rod_body.inertia[1, 1]
+        + rod_body.mass * (L_rod / 2) ** 2
+        + m_i @ (X[:, 0] ** 2 + X[:, 2] ** 2)
+    )
     md = rod_body.mass * L_rod / 2 + m_i @ (-X[:, 2])
-    T0 = 2 * np.pi * np.sqrt(I_O / (md * G)) * (1 + theta0 ** 2 / 16)
+    T0 = 2 * np.pi * np.sqrt(I_O / (md * G)) * (1 + theta0**2 / 16)
     # release at theta0: give every body the rotated pose by a static displacement of masters
     dq = np.zeros(scene.master_count())
     R0 = exp_so3([0.0, theta0, 0.0])
     block.u.x.array[:] = ((X @ R0.T) - X).ravel()
     layout = scene._ready()
     rod_body.position, rod_body.rotation = R0 @ rod_body.position, R0
-    layout.displace(dq)                                     # slaves onto the new pose
+    layout.displace(dq)  # slaves onto the new pose
     h, t, x = 2e-3, [], []
     for _ in range(int(3.5 / h)):
         scene.step(h)
@@ -396,6 +475,7 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
 
 
 # ---- (7) bad input -------------------------------------------------------------------------
+
 
 def scene_parts():
     body = box((0.2, 0.1, 0.1), (2, 1, 1))
@@ -414,8 +494,13 @@ def test_bad_attachments_are_clear_errors():
 
     scene = Scene()
     other = RigidBody("other", 1.0, np.eye(3), position=(0.3, 0.05, 0.05))
-    scene.add(body, bone, other, NodeAttachment(body, face, bone),
-              NodeAttachment(body, face[:1], other, name="second"))
+    scene.add(
+        body,
+        bone,
+        other,
+        NodeAttachment(body, face, bone),
+        NodeAttachment(body, face[:1], other, name="second"),
+    )
     with pytest.raises(ValueError, match=f"node {face[0]} of FEM body 'fem' is attached twice"):
         scene.step(1e-3)
 
@@ -433,10 +518,14 @@ def test_bad_attachments_are_clear_errors():
         scene.step(1e-3)
 
     body, _, face = scene_parts()
-    moving = RigidBody("moving", 1.0, np.eye(3), motion="prescribed",
-                       trajectory=lambda t: BodyState(np.array([1.0, 0, 0]), np.eye(3),
-                                                      np.zeros(3), np.zeros(3)))
-    attachment = NodeAttachment(body, face, moving)        # before the scene placed it
+    moving = RigidBody(
+        "moving",
+        1.0,
+        np.eye(3),
+        motion="prescribed",
+        trajectory=lambda t: BodyState(np.array([1.0, 0, 0]), np.eye(3), np.zeros(3), np.zeros(3)),
+    )
+    attachment = NodeAttachment(body, face, moving)  # before the scene placed it
     scene = Scene()
     scene.add(body, moving, attachment)
     with pytest.raises(ValueError, match="moved after the attachment was made"):
@@ -470,19 +559,26 @@ def test_static_solve_with_a_joint_welding_the_ellipsoid_to_the_world():
     faces fixed (measured: 3 Newton iterations, 7e-15 relative over all nodes for a midspan
     sag of 0.246 mm, |phi| = 1e-18)."""
     from artifem.models.beam_ellipsoid import BeamEllipsoidConfig, build_scene
+
     config = BeamEllipsoidConfig()
     scene, beam, ellipsoid, _ = build_scene(config)
     scene.add(FixedJoint.at_world(ellipsoid, None, ellipsoid.position))
     scene.solve_static()
     assert max(scene.constraint_errors().values()) < 1e-12
-    reference = box((config.length, config.width, config.height), config.cells,
-                    young=config.young, density=config.density)
-    reference.fix_nodes(reference.find_nodes(
-        lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], config.length)))
+    reference = box(
+        (config.length, config.width, config.height),
+        config.cells,
+        young=config.young,
+        density=config.density,
+    )
+    reference.fix_nodes(
+        reference.find_nodes(lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], config.length))
+    )
     solve_static(reference, LinearSolver(MPI.COMM_SELF, "mumps"))
     mid = beam.nearest_node((config.length / 2, config.width / 2, config.height / 2))
     sag = reference.displacement_at([mid])[0]
     assert sag[2] < -1e-4
     np.testing.assert_allclose(beam.displacement_at([mid])[0], sag, atol=1e-9 * abs(sag[2]))
-    np.testing.assert_allclose(beam.u.x.array, reference.u.x.array,
-                               atol=1e-8 * np.abs(reference.u.x.array).max())
+    np.testing.assert_allclose(
+        beam.u.x.array, reference.u.x.array, atol=1e-8 * np.abs(reference.u.x.array).max()
+    )

@@ -43,8 +43,15 @@ def end_nodes(body):
 
 
 def bone(motion="dynamic", **kw):
-    return RigidBody("bone", 0.3, np.diag([2e-3, 3e-3, 4e-3]), position=(1.1, 0.15, 0.1),
-                     rotation=exp_so3([0.2, -0.1, 0.3]), motion=motion, **kw)
+    return RigidBody(
+        "bone",
+        0.3,
+        np.diag([2e-3, 3e-3, 4e-3]),
+        position=(1.1, 0.15, 0.1),
+        rotation=exp_so3([0.2, -0.1, 0.3]),
+        motion=motion,
+        **kw,
+    )
 
 
 def lifted_basis(body, lift, extra=None):
@@ -66,25 +73,31 @@ def test_lift_reproduces_rigid_poses_and_its_jacobian():
     b = bone()
     lift = rigid_lift(body, end_nodes(body), b.position, b.rotation)
     X = body.V.tabulate_dof_coordinates()[lift.dofs]
-    p, R = np.array([0.9, 0.3, -0.2]), exp_so3([1.2, -0.7, 2.0])      # a large motion
+    p, R = np.array([0.9, 0.3, -0.2]), exp_so3([1.2, -0.7, 2.0])  # a large motion
     g = lift.coordinates(p, R)
     d = (lift.columns @ g).reshape(-1, 3)[lift.dofs]
     x_rigid = p + (X - b.position) @ (R @ b.rotation.T).T
     assert np.abs(X + d - x_rigid).max() < 1e-14
     assert np.abs(lift.columns[3 * body.fixed_dofs]).max() == 0.0
     twist, eps = np.array([0.3, -0.2, 0.5, 0.7, -1.1, 0.4]), 1e-6
-    g_of = [lift.coordinates(p + s * eps * twist[:3], exp_so3(s * eps * twist[3:]) @ R)
-            for s in (1, -1)]
+    g_of = [
+        lift.coordinates(p + s * eps * twist[:3], exp_so3(s * eps * twist[3:]) @ R) for s in (1, -1)
+    ]
     assert np.abs((g_of[0] - g_of[1]) / (2 * eps) - lift.jacobian(R) @ twist).max() < 1e-9
 
 
 def prescribed_bone():
-    p0, v0, w0 = np.array([1.1, 0.15, 0.1]), np.array([0.2, -0.1, 0.3]), np.array(
-        [0.8, -0.5, 1.0])
+    p0, v0, w0 = np.array([1.1, 0.15, 0.1]), np.array([0.2, -0.1, 0.3]), np.array([0.8, -0.5, 1.0])
     R0 = exp_so3([0.2, -0.1, 0.3])
-    return RigidBody("bone", 0.3, np.eye(3) * 1e-3, position=p0, rotation=R0,
-                     motion="prescribed",
-                     trajectory=lambda t: BodyState(p0 + v0 * t, exp_so3(t * w0) @ R0, v0, w0))
+    return RigidBody(
+        "bone",
+        0.3,
+        np.eye(3) * 1e-3,
+        position=p0,
+        rotation=R0,
+        motion="prescribed",
+        trajectory=lambda t: BodyState(p0 + v0 * t, exp_so3(t * w0) @ R0, v0, w0),
+    )
 
 
 def test_full_basis_reduced_body_on_a_prescribed_bone_matches_the_full_body():
@@ -102,11 +115,11 @@ def test_full_basis_reduced_body_on_a_prescribed_bone_matches_the_full_body():
     for _ in range(15):
         s_full.step(0.01)
         s_red.step(0.01)
-    u_full = full.u.x.array[:ndofs(full)]
+    u_full = full.u.x.array[: ndofs(full)]
     scale = np.abs(u_full).max()
     assert scale > 0.05
     assert np.abs(reduced.nodal_displacement() - u_full).max() < 1e-11 * scale
-    v_full = full.v.x.array[:ndofs(full)]
+    v_full = full.v.x.array[: ndofs(full)]
     assert np.abs(reduced.nodal_velocity() - v_full).max() < 1e-10 * np.abs(v_full).max()
 
 
@@ -132,7 +145,7 @@ def test_static_equilibrium_on_a_hinged_bone_matches_the_full_scene():
     s_red, _, b_red, reduced = hinged(lifted_basis)
     s_full.solve_static(load_steps=2)
     s_red.solve_static(load_steps=2)
-    u_full = full.u.x.array[:ndofs(full)]
+    u_full = full.u.x.array[: ndofs(full)]
     assert np.abs(u_full).max() > 0.02
     assert np.abs(reduced.nodal_displacement() - u_full).max() < 1e-8 * np.abs(u_full).max()
     assert np.abs(b_red.rotation - b_full.rotation).max() < 1e-8
@@ -159,7 +172,7 @@ def test_static_tangent_with_a_lift_matches_finite_differences():
     without K_geo 6e-3 / 0.2."""
     rng = np.random.default_rng(0)
     scene, _, b, reduced = hinged(lambda body, lift: lifted_basis(body, lift, 8), (0.0, 0.0))
-    scene.joints.clear()                                   # a free bone: all six directions
+    scene.joints.clear()  # a free bone: all six directions
     scene.check()
     reduced.set_q(reduced.q + np.r_[0.02 * rng.standard_normal(8), np.zeros(12)])
     n = scene.master_count()
@@ -179,7 +192,7 @@ def test_static_tangent_with_a_lift_matches_finite_differences():
         if part == "rotation":
             assert np.abs(fd + K_without @ dq).max() > 1e3 * error
     h1, h2 = 1e-2, 2e-2
-    K_step = (scene.step_matrix(h2) - scene.step_matrix(h1)) / (h2 ** 2 - h1 ** 2)
+    K_step = (scene.step_matrix(h2) - scene.step_matrix(h1)) / (h2**2 - h1**2)
     assert abs(K_step - K).max() < 1e-9 * abs(K).max()
 
 
@@ -187,6 +200,7 @@ def point_evaluation(function, X) -> np.ndarray:
     """function(X) (3,) by DOLFINx's own point evaluation (bounding-box tree, colliding
     cell, Function.eval): a reference that uses neither FemPoint's weights nor its G."""
     from dolfinx import geometry
+
     msh = function.function_space.mesh
     X = np.asarray(X, dtype=float).reshape(1, 3)
     tree = geometry.bb_tree(msh, msh.topology.dim)
@@ -203,8 +217,9 @@ def test_spring_on_a_reduced_point_matches_the_full_scene_and_does_virtual_work(
         X = np.array([0.8, 0.15, 0.2])
         w = shape_function_weights(body, X)
         if reduced:
-            free = np.setdiff1d(np.arange(ndofs(body)),
-                                (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel())
+            free = np.setdiff1d(
+                np.arange(ndofs(body)), (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
+            )
             U = np.zeros((ndofs(body), free.size))
             U[free, np.arange(free.size)] = 1.0
             target = ReducedFemBody(body, U, all_points(body))
@@ -218,7 +233,7 @@ def test_spring_on_a_reduced_point_matches_the_full_scene_and_does_virtual_work(
     s_red, _, reduced, point = scene_for(True)
     s_full.solve_static(load_steps=2)
     s_red.solve_static(load_steps=2)
-    u_full = full.u.x.array[:ndofs(full)]
+    u_full = full.u.x.array[: ndofs(full)]
     assert np.abs(reduced.nodal_displacement() - u_full).max() < 1e-8 * np.abs(u_full).max()
     # G is the derivative of the point's position: a central difference along qdot of
     # X + u_h(X), u_h the full body's displacement u_bar + U q evaluated by DOLFINx (no
@@ -233,7 +248,7 @@ def test_spring_on_a_reduced_point_matches_the_full_scene_and_does_virtual_work(
         x.append(X + point_evaluation(reduced.full.u, X))
     reduced.set_q(q0)
     v_fd = (x[0] - x[1]) / 2e-4
-    assert np.linalg.norm(v_fd) > 0.1                  # the point moves with these modes
+    assert np.linalg.norm(v_fd) > 0.1  # the point moves with these modes
     np.testing.assert_allclose(point.velocity(), v_fd, rtol=0, atol=1e-9 * np.linalg.norm(v_fd))
     # virtual work: the generalized force G^T f does the work of f on that motion
     f = np.array([0.3, -1.0, 2.0])
@@ -248,7 +263,7 @@ def test_bad_lift_attachments_are_clear_errors():
     with pytest.raises(ValueError, match="does not contain the lift"):
         LiftAttachment(wrong, lift, b)
     U = lifted_basis(body, lift, 4)
-    U[3 * lift.dofs[0], 0] = 1.0                           # a column moving a carried node
+    U[3 * lift.dofs[0], 0] = 1.0  # a column moving a carried node
     with pytest.raises(ValueError, match="would not follow the body"):
         LiftAttachment(ReducedFemBody(body, U, all_points(body)), lift, b)
     with pytest.raises(ValueError, match="fixed"):

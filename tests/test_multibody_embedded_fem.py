@@ -31,10 +31,17 @@ G = 9.81
 
 
 def box(lo, hi, cells, young=1e5, density=1000.0, name="fem", cell=dmesh.CellType.hexahedron):
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.asarray(lo, float), np.asarray(hi, float)],
-                           list(cells), cell)
-    return FemBody(msh, NeoHookean.from_young_poisson(young, 0.3), density,
-                   rayleigh=(0.3, 0.002), gravity=(0, 0, -G), name=name)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [np.asarray(lo, float), np.asarray(hi, float)], list(cells), cell
+    )
+    return FemBody(
+        msh,
+        NeoHookean.from_young_poisson(young, 0.3),
+        density,
+        rayleigh=(0.3, 0.002),
+        gravity=(0, 0, -G),
+        name=name,
+    )
 
 
 def beam(name="beam"):
@@ -65,22 +72,36 @@ def test_embedded_twin_doubles_everything_and_changes_nothing():
     assert np.abs(master.u.x.array - u).max() < 1e-12 * np.abs(u).max()
     X_t = twin.V.tabulate_dof_coordinates()
     x_master_at = master.V.tabulate_dof_coordinates() + master.u.x.array.reshape(-1, 3)
-    order = np.lexsort(X_t.T)                        # twin and master nodes pair up by position
-    assert np.abs((X_t + twin.u.x.array.reshape(-1, 3))[order]
-                  - x_master_at[np.lexsort(master.V.tabulate_dof_coordinates().T)]).max() < 1e-13
-    assert abs(scene.kinetic_energy() - 2 * scene_alone.kinetic_energy()) < 1e-10 * \
-        scene_alone.kinetic_energy()
+    order = np.lexsort(X_t.T)  # twin and master nodes pair up by position
+    assert (
+        np.abs(
+            (X_t + twin.u.x.array.reshape(-1, 3))[order]
+            - x_master_at[np.lexsort(master.V.tabulate_dof_coordinates().T)]
+        ).max()
+        < 1e-13
+    )
+    assert (
+        abs(scene.kinetic_energy() - 2 * scene_alone.kinetic_energy())
+        < 1e-10 * scene_alone.kinetic_energy()
+    )
 
 
 def test_non_matching_slave_follows_an_affine_master_field_exactly():
     master = box((0, 0, 0), (1.0, 0.5, 0.4), (5, 3, 2))
-    slave = box((0.13, 0.07, 0.11), (0.81, 0.33, 0.29), (4, 3, 3), name="slab",
-                cell=dmesh.CellType.tetrahedron)
+    slave = box(
+        (0.13, 0.07, 0.11),
+        (0.81, 0.33, 0.29),
+        (4, 3, 3),
+        name="slab",
+        cell=dmesh.CellType.tetrahedron,
+    )
     att = EmbeddedFemAttachment(slave, master)
     scene = Scene()
     scene.add(master, slave, att)
-    A, c = np.array([[0.1, -0.3, 0.2], [0.05, 0.02, -0.4], [0.3, 0.1, 0.0]]), np.array(
-        [0.01, -0.02, 0.03])
+    A, c = (
+        np.array([[0.1, -0.3, 0.2], [0.05, 0.02, -0.4], [0.3, 0.1, 0.0]]),
+        np.array([0.01, -0.02, 0.03]),
+    )
     X = master.V.tabulate_dof_coordinates()
     dq = (X @ A.T + c).ravel()
     scene.displace_masters(dq)
@@ -95,16 +116,27 @@ def test_static_tangent_through_an_embedded_chain_matches_finite_differences():
     rng = np.random.default_rng(0)
     master = box((0, 0, 0), (0.3, 0.1, 0.1), (4, 2, 2), young=2e4)
     master.fix_nodes(master.find_nodes(lambda x: x[0] > 0.3 - 1e-12))
-    slave = box((0.02, 0.01, 0.02), (0.2, 0.09, 0.08), (3, 2, 2), young=5e4, name="slave",
-                cell=dmesh.CellType.tetrahedron)
-    b = RigidBody("bone", 0.5, np.diag([1e-3, 2e-3, 2.5e-3]), position=(-0.03, 0.05, 0.05),
-                  rotation=exp_so3([0.3, -0.2, 0.5]))
+    slave = box(
+        (0.02, 0.01, 0.02),
+        (0.2, 0.09, 0.08),
+        (3, 2, 2),
+        young=5e4,
+        name="slave",
+        cell=dmesh.CellType.tetrahedron,
+    )
+    b = RigidBody(
+        "bone",
+        0.5,
+        np.diag([1e-3, 2e-3, 2.5e-3]),
+        position=(-0.03, 0.05, 0.05),
+        rotation=exp_so3([0.3, -0.2, 0.5]),
+    )
     scene = Scene(gravity=(0, 0, -G))
     scene.add(master, slave, b, EmbeddedFemAttachment(slave, master))
     scene.add(NodeAttachment(master, master.find_nodes(lambda x: x[0] < 1e-12), b))
     dq0 = 0.005 * rng.standard_normal(scene.master_count())
     dq0[-6:] = 0.0
-    scene.displace_masters(dq0)                        # deformed, so the forces are not zero
+    scene.displace_masters(dq0)  # deformed, so the forces are not zero
     n = scene.master_count()
     K = scene.static_tangent()
     for part in ("all", "rotation"):
@@ -162,8 +194,10 @@ def test_bad_embedding_and_loads_are_clear_errors():
     slave.fix_nodes(slave.find_nodes(lambda x: x[0] < 0.1 + 1e-12))
     with pytest.raises(ValueError, match="fixed nodes"):
         scene.check()
-    a, b = box((0, 0, 0), (1, 1, 1), (1, 1, 1), name="a"), box((0, 0, 0), (1, 1, 1), (1, 1, 1),
-                                                               name="b")
+    a, b = (
+        box((0, 0, 0), (1, 1, 1), (1, 1, 1), name="a"),
+        box((0, 0, 0), (1, 1, 1), (1, 1, 1), name="b"),
+    )
     loop = Scene()
     loop.add(a, b, EmbeddedFemAttachment(a, b), EmbeddedFemAttachment(b, a))
     with pytest.raises(ValueError, match="cycle"):

@@ -26,21 +26,34 @@ from artifem.multibody.attachments import FemPoint
 from artifem.multibody.point_paths import PointPath
 from artifem.scene import Scene
 from artifem.multibody.muscles import AxialSpring
-from artifem.multibody.point_attachments import (nearest_nodes, shape_function_weights,
-                                                 support_weights)
+from artifem.multibody.point_attachments import (
+    nearest_nodes,
+    shape_function_weights,
+    support_weights,
+)
 from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
 ANCHOR = np.array([1.1, 0.1, 0.7])
-POINT = np.array([0.95, 0.1, 0.2])          # on the top face near the tip
+POINT = np.array([0.95, 0.1, 0.2])  # on the top face near the tip
 
 
 def beam(gravity=(0.0, 0.0, 0.0), rayleigh=(0.0, 0.0)):
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])], [10, 2, 2],
-                           dmesh.CellType.hexahedron)
-    body = FemBody(msh, NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, rayleigh=rayleigh,
-                   gravity=gravity, name="beam")
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+        [10, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    body = FemBody(
+        msh,
+        NeoHookean.from_young_poisson(1e5, 0.3),
+        1000.0,
+        rayleigh=rayleigh,
+        gravity=gravity,
+        name="beam",
+    )
     body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     return body
 
@@ -60,8 +73,8 @@ def test_static_equilibrium_matches_the_equivalent_nodal_load(kind):
     scene.add(body, path)
     scene.solve_static(load_steps=1, rtol=1e-12)
     f_s = path.evaluate(scene.t).forces[1]
-    assert np.linalg.norm(f_s) > 1.0                              # really loaded
-    assert np.abs(body.u.x.array).max() > 0.02                    # really bent
+    assert np.linalg.norm(f_s) > 1.0  # really loaded
+    assert np.abs(body.u.x.array).max() > 0.02  # really bent
 
     ref = beam()
     inverse = {d: n for n, d in ref._input_node_to_dof().items()}
@@ -95,14 +108,15 @@ def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_grad
     bob = RigidBody("bob", 1.0, np.diag([0.1, 0.2, 0.3]), position=(1.2, 0.1, -0.5))
     pt = FemPoint(body, weights_of(body, "support24"))
     k, rest, c = 50.0, 0.2, 3.0
-    path = PointPath(AxialSpring(k, rest, damping=c),
-                     [ANCHOR, pt, Frame.at_world(bob, (1.1, 0.15, -0.4))])
+    path = PointPath(
+        AxialSpring(k, rest, damping=c), [ANCHOR, pt, Frame.at_world(bob, (1.1, 0.15, -0.4))]
+    )
     scene = Scene(gravity=(0, 0, 0))
     scene.add(body, bob, path)
     L = scene._ready()
     body.u.x.array[:] = 0.01 * rng.standard_normal(body.u.x.array.size)
     body.u.x.array.reshape(-1, 3)[body.fixed_dofs] = 0.0
-    bob.rotation = exp_so3(rng.standard_normal(3))        # the frame's lever turns with it
+    bob.rotation = exp_so3(rng.standard_normal(3))  # the frame's lever turns with it
     idx, G_local = L.path_map(path)
     G, P = np.zeros((G_local.shape[0], L.n_all)), L.prolongation()
     G[:, idx] = G_local
@@ -125,7 +139,7 @@ def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_grad
 
     F_rest = L.path_terms(scene.t, None)[0]
     directions = []
-    for rigid in (1.0, 0.0):                             # all masters, then the beam alone
+    for rigid in (1.0, 0.0):  # all masters, then the beam alone
         dq = rng.standard_normal(n)
         dq[-6:] *= rigid
         directions.append(dq)
@@ -157,8 +171,9 @@ def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_grad
 def test_path_stiffness_and_static_tangent_by_finite_differences():
     rng = np.random.default_rng(1)
     body = beam(gravity=(0, 0, -9.81))
-    bob = RigidBody("bob", 0.2, np.diag([1e-3, 2e-3, 3e-3]), position=(1.2, 0.1, -0.3),
-                    rotation=np.eye(3))
+    bob = RigidBody(
+        "bob", 0.2, np.diag([1e-3, 2e-3, 3e-3]), position=(1.2, 0.1, -0.3), rotation=np.eye(3)
+    )
     pt = FemPoint(body, weights_of(body, "element"))
     hang = PointPath(AxialSpring(80.0, 0.2), [pt, Frame.at_world(bob, (1.15, 0.12, -0.25))])
     pull = PointPath(AxialSpring(50.0, 0.3), [ANCHOR, pt])
@@ -173,7 +188,7 @@ def test_path_stiffness_and_static_tangent_by_finite_differences():
     du = rng.standard_normal(body.u.x.array.size)
     du.reshape(-1, 3)[body.fixed_dofs] = 0.0
     dz = np.zeros(L.n_all)
-    dz[o:o + du.size] = du
+    dz[o : o + du.size] = du
     eps = 1e-6
     saved = body.u.x.array.copy()
     body.u.x.array[:] = saved + eps * du
@@ -212,7 +227,7 @@ def test_stiff_spring_is_stable_in_the_implicit_step():
     for _ in range(100):
         scene.step(0.01)
         assert np.all(np.isfinite(body.u.x.array))
-        assert scene.energy() <= e0 * (1 + 1e-9)             # backward Euler: no energy gain
+        assert scene.energy() <= e0 * (1 + 1e-9)  # backward Euler: no energy gain
     # it pulled the point to about the spring's rest length from the anchor
     assert abs(np.linalg.norm(pt.position() - ANCHOR) - 0.45) < 0.01
     assert np.abs(body.v.x.array).max() < 10.0

@@ -17,8 +17,10 @@ ORIGIN = np.array([0.61, 0.17, 0.07])
 
 
 def frames(body):
-    return [FemFrame(body, ORIGIN),
-            FemFrame(body, ORIGIN, method="procrustes", support=nearest_nodes(body, ORIGIN, 12))]
+    return [
+        FemFrame(body, ORIGIN),
+        FemFrame(body, ORIGIN, method="procrustes", support=nearest_nodes(body, ORIGIN, 12)),
+    ]
 
 
 def rigid_motion(body, Q, t):
@@ -28,7 +30,7 @@ def rigid_motion(body, Q, t):
 
 def test_a_rigid_rotation_is_recovered_exactly():
     body = make_body()
-    Q = Rotation.from_rotvec([0.7, -1.9, 0.4]).as_matrix()          # a large rotation
+    Q = Rotation.from_rotvec([0.7, -1.9, 0.4]).as_matrix()  # a large rotation
     t = np.array([0.2, -0.1, 0.3])
     for frame in frames(body):
         body.u.x.array[:] = 0.0
@@ -48,15 +50,15 @@ def test_angular_velocity_jacobian_matches_finite_differences(which):
     rng = np.random.default_rng(which)
     Q = Rotation.from_rotvec([0.3, 0.5, -0.2]).as_matrix()
     rigid_motion(body, Q, np.zeros(3))
-    body.u.x.array[:ndofs(body)] += 0.02 * rng.standard_normal(ndofs(body))   # and deformed
+    body.u.x.array[: ndofs(body)] += 0.02 * rng.standard_normal(ndofs(body))  # and deformed
     frame = frames(body)[which]
     u0 = body.u.x.array.copy()
     v = rng.standard_normal(ndofs(body))
-    body.v.x.array[:ndofs(body)] = v
+    body.v.x.array[: ndofs(body)] = v
     w = frame.angular_velocity()
     eps = 1e-6
     R0 = frame.rotation()
-    body.u.x.array[:ndofs(body)] = u0[:ndofs(body)] + eps * v
+    body.u.x.array[: ndofs(body)] = u0[: ndofs(body)] + eps * v
     R1 = frame.rotation()
     body.u.x.array[:] = u0
     np.testing.assert_allclose(w, _spin(R1, R0, eps), rtol=1e-4, atol=1e-6 * np.abs(w).max())
@@ -65,9 +67,9 @@ def test_angular_velocity_jacobian_matches_finite_differences(which):
 def test_a_wrench_on_the_frame_does_the_work_of_its_nodal_forces():
     body = make_body()
     rng = np.random.default_rng(3)
-    body.u.x.array[:ndofs(body)] = 0.01 * rng.standard_normal(ndofs(body))
+    body.u.x.array[: ndofs(body)] = 0.01 * rng.standard_normal(ndofs(body))
     v = rng.standard_normal(ndofs(body))
-    body.v.x.array[:ndofs(body)] = v
+    body.v.x.array[: ndofs(body)] = v
     for frame in frames(body):
         f, tau = rng.standard_normal(3), rng.standard_normal(3)
         (od, of), (sd, sf) = frame.master_wrench(f, tau)
@@ -75,16 +77,18 @@ def test_a_wrench_on_the_frame_does_the_work_of_its_nodal_forces():
         np.add.at(nodal, od, of)
         np.add.at(nodal, sd, sf)
         va = frame.origin.weights @ v.reshape(-1, 3)[frame.origin.dofs]
-        assert f @ va + tau @ frame.angular_velocity() == pytest.approx(nodal.ravel() @ v,
-                                                                         rel=1e-12)
+        assert f @ va + tau @ frame.angular_velocity() == pytest.approx(
+            nodal.ravel() @ v, rel=1e-12
+        )
 
 
 def test_degenerate_supports_and_inverted_elements_are_errors():
     body = make_body()
     x = body.V.tabulate_dof_coordinates()
     inverse = {d: n for n, d in body._input_node_to_dof().items()}
-    line = [inverse[d] for d in np.flatnonzero((np.abs(x[:, 1]) < 1e-12) &
-                                                (np.abs(x[:, 2]) < 1e-12))]
+    line = [
+        inverse[d] for d in np.flatnonzero((np.abs(x[:, 1]) < 1e-12) & (np.abs(x[:, 2]) < 1e-12))
+    ]
     with pytest.raises(ValueError, match="collinear"):
         FemFrame(body, ORIGIN, method="procrustes", support=line)
     with pytest.raises(ValueError, match="method"):
@@ -99,7 +103,7 @@ def test_torque_stiffness_matches_finite_differences(which):
     body = make_body()
     rng = np.random.default_rng(10 + which)
     rigid_motion(body, Rotation.from_rotvec([0.4, -0.3, 0.9]).as_matrix(), np.zeros(3))
-    body.u.x.array[:ndofs(body)] += 0.02 * rng.standard_normal(ndofs(body))
+    body.u.x.array[: ndofs(body)] += 0.02 * rng.standard_normal(ndofs(body))
     frame = frames(body)[which]
     tau = rng.standard_normal(3)
     H = frame.torque_stiffness(tau)
@@ -110,6 +114,7 @@ def test_torque_stiffness_matches_finite_differences(which):
     def nodal(eps):
         body.u.x.array[rows] = u0[rows] + eps * dx
         return frame.angular_velocity_jacobian().T @ tau
+
     eps = 1e-6
     fd = (nodal(eps) - nodal(-eps)) / (2 * eps)
     body.u.x.array[:] = u0
@@ -124,8 +129,7 @@ def test_procrustes_frame_without_a_point_sits_at_the_support_centroid():
     np.testing.assert_allclose(frame.position(), x.mean(axis=0), atol=1e-15)
     Q = Rotation.from_rotvec([0.2, 1.1, -0.5]).as_matrix()
     rigid_motion(body, Q, np.array([0.1, 0.0, -0.2]))
-    np.testing.assert_allclose(frame.position(), Q @ x.mean(axis=0) + [0.1, 0.0, -0.2],
-                               atol=1e-13)
+    np.testing.assert_allclose(frame.position(), Q @ x.mean(axis=0) + [0.1, 0.0, -0.2], atol=1e-13)
     with pytest.raises(ValueError, match="origin point"):
         FemFrame(body)
 

@@ -38,7 +38,7 @@ from reduced_beam import make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
-TIP = np.array([0.93, 0.17, 0.08])          # inside the beam's last element (make_body)
+TIP = np.array([0.93, 0.17, 0.08])  # inside the beam's last element (make_body)
 
 
 def tip_frame(body, method):
@@ -49,8 +49,13 @@ def tip_frame(body, method):
 
 
 def weight(name="weight", position=(1.15, 0.12, 0.05)):
-    return RigidBody(name, 0.4, np.diag([2e-3, 3e-3, 4e-3]), position=position,
-                     rotation=exp_so3([0.3, -0.2, 0.5]))
+    return RigidBody(
+        name,
+        0.4,
+        np.diag([2e-3, 3e-3, 4e-3]),
+        position=position,
+        rotation=exp_so3([0.3, -0.2, 0.5]),
+    )
 
 
 def loaded_scene(body, method):
@@ -66,11 +71,12 @@ def loaded_scene(body, method):
 
 # ---- (1) G ---------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("method", ["polar", "procrustes"])
 def test_the_body_twist_is_J_times_the_node_velocities(method):
     body = make_body()
     rng = np.random.default_rng(1)
-    body.u.x.array[:ndofs(body)] = 0.02 * rng.standard_normal(ndofs(body))
+    body.u.x.array[: ndofs(body)] = 0.02 * rng.standard_normal(ndofs(body))
     frame = tip_frame(body, method)
     w = weight()
     att = FrameAttachment(w, frame)
@@ -82,17 +88,23 @@ def test_the_body_twist_is_J_times_the_node_velocities(method):
     eps = 1e-6
 
     def pose(sign):
-        body.u.x.array[:ndofs(body)] = u0[:ndofs(body)] + sign * eps * v
+        body.u.x.array[: ndofs(body)] = u0[: ndofs(body)] + sign * eps * v
         return att.pose()
+
     (p1, R1), (p0, R0) = pose(1), pose(-1)
     body.u.x.array[:] = u0
     spin = np.array([R1 @ R0.T - R0 @ R1.T])[0]
     w_fd = np.array([spin[2, 1], spin[0, 2], spin[1, 0]]) / (4 * eps)
-    np.testing.assert_allclose(J @ v, np.concatenate([(p1 - p0) / (2 * eps), w_fd]),
-                               rtol=1e-6, atol=1e-8 * np.abs(J @ v).max())
+    np.testing.assert_allclose(
+        J @ v,
+        np.concatenate([(p1 - p0) / (2 * eps), w_fd]),
+        rtol=1e-6,
+        atol=1e-8 * np.abs(J @ v).max(),
+    )
 
 
 # ---- (2) the static tangent -----------------------------------------------------------
+
 
 @pytest.mark.parametrize("method", ["polar", "procrustes"])
 def test_static_tangent_with_the_frame_stiffness_matches_finite_differences(method):
@@ -114,12 +126,18 @@ def test_static_tangent_with_the_frame_stiffness_matches_finite_differences(meth
 
 # ---- (3) the beam with the ellipsoid on a frame ------------------------------------------
 
+
 def test_ellipsoid_on_an_end_frame_deflects_the_beam_like_the_rigid_face():
     """Measured tip deflections: frame 19.7344 mm, rigid face 19.7355 mm (5e-5 apart: the
     face's own deformation under the load the frame spreads over it), stiff-block
     reference 19.7355 mm; Euler-Bernoulli 20.41 mm (3.3%, the mesh and shear)."""
-    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_scene,
-                                               euler_bernoulli_tip, tip_deflection)
+    from artifem.models.beam_ellipsoid import (
+        BeamEllipsoidConfig,
+        build_scene,
+        euler_bernoulli_tip,
+        tip_deflection,
+    )
+
     config = BeamEllipsoidConfig()
     tips = {}
     for attach in ("face", "frame"):
@@ -141,8 +159,13 @@ def test_ellipsoid_on_an_end_frame_swings_without_gaining_energy():
     omega^2 = g / static (the step damps the amplitude by (1 + (omega h)^2)^(-1/2) per step,
     over pi / (omega h) steps; test_multibody_coupled.released_load_overshoot): 1.932
     predicted, 1.922 measured, asserted within 2 % (the higher modes, Rayleigh's omega)."""
-    from artifem.models.beam_ellipsoid import (BeamEllipsoidConfig, build_scene, swing,
-                                               tip_deflection)
+    from artifem.models.beam_ellipsoid import (
+        BeamEllipsoidConfig,
+        build_scene,
+        swing,
+        tip_deflection,
+    )
+
     config = BeamEllipsoidConfig()
     h = 2e-3
     scene, beam, ellipsoid, record, _ = swing(config, 0.3, h, attach="frame")
@@ -160,14 +183,16 @@ def test_ellipsoid_on_an_end_frame_swings_without_gaining_energy():
 
 # ---- (4) reduced = full with the full basis ------------------------------------------------
 
+
 @pytest.mark.parametrize("method", ["polar", "procrustes"])
 def test_full_basis_reduced_beam_carrying_a_frame_body_equals_the_full_scene(method):
     """Round-off: asserted to 1e-12 m and 1e-12 in R after 15 steps."""
     runs = []
     for reduce in (False, True):
         body = make_body()
-        free = np.setdiff1d(np.arange(ndofs(body)),
-                            (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel())
+        free = np.setdiff1d(
+            np.arange(ndofs(body)), (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()
+        )
         U = np.zeros((ndofs(body), free.size))
         U[free, np.arange(free.size)] = 1.0
         master = ReducedFemBody(body, U, all_points(body)) if reduce else body
@@ -176,7 +201,7 @@ def test_full_basis_reduced_beam_carrying_a_frame_body_equals_the_full_scene(met
         scene.add(master, w, FrameAttachment(w, tip_frame(master, method)))
         for _ in range(15):
             scene.step(0.01)
-        u = master.nodal_displacement() if reduce else body.u.x.array[:ndofs(body)]
+        u = master.nodal_displacement() if reduce else body.u.x.array[: ndofs(body)]
         runs.append((u.copy(), w.position.copy(), w.rotation.copy()))
     (u0, p0, R0), (u1, p1, R1) = runs
     assert np.abs(u0).max() > 1e-2
@@ -191,8 +216,12 @@ L, W, H = 0.3, 0.05, 0.05
 
 
 def half_beam(x0, x1, nx, name):
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.array([x0, 0.0, 0.0]), np.array([x1, W, H])],
-                           [nx, 4, 4], dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([x0, 0.0, 0.0]), np.array([x1, W, H])],
+        [nx, 4, 4],
+        dmesh.CellType.hexahedron,
+    )
     return FemBody(msh, NeoHookean.from_young_poisson(5e6, 0.3), 1000.0, name=name)
 
 
@@ -205,8 +234,9 @@ def two_halves(joint):
     centre = np.array([L / 2, W / 2, H / 2])
     markers = []
     for body in (a, b):
-        frame = FemFrame(body, method="procrustes",
-                         support=body.find_nodes(lambda x: np.isclose(x[0], L / 2)))
+        frame = FemFrame(
+            body, method="procrustes", support=body.find_nodes(lambda x: np.isclose(x[0], L / 2))
+        )
         marker = RigidBody.marker(f"{body.name} cut", position=frame.position())
         scene.add(marker, FrameAttachment(marker, frame))
         markers.append(marker)
@@ -253,7 +283,7 @@ def test_outer_half_swings_on_a_hinge_between_frames_with_bounded_drift():
     assert max(drift) < 1e-9
     assert np.all(np.diff(energies) <= 1e-12)
     far = b.displacement_at([b.nearest_node((L, W / 2, H / 2))])[0]
-    assert -far[2] > 0.1                                # fell well below the hinge
+    assert -far[2] > 0.1  # fell well below the hinge
 
 
 def test_hinge_between_frames_on_reduced_halves_equals_the_full_scene():
@@ -264,35 +294,41 @@ def test_hinge_between_frames_on_reduced_halves_equals_the_full_scene():
         scene = Scene()
         halves, masters, markers = [], [], []
         for x0, name in ((0.0, "inner"), (L / 2, "outer")):
-            msh = dmesh.create_box(MPI.COMM_SELF, [np.array([x0, 0.0, 0.0]),
-                                                   np.array([x0 + L / 2, W, H])],
-                                   [3, 2, 2], dmesh.CellType.hexahedron)
+            msh = dmesh.create_box(
+                MPI.COMM_SELF,
+                [np.array([x0, 0.0, 0.0]), np.array([x0 + L / 2, W, H])],
+                [3, 2, 2],
+                dmesh.CellType.hexahedron,
+            )
             body = FemBody(msh, NeoHookean.from_young_poisson(2e5, 0.3), 1000.0, name=name)
             if x0 == 0.0:
                 body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
             n = 3 * body.V.dofmap.index_map.size_local
-            free = np.setdiff1d(np.arange(n), (3 * body.fixed_dofs[:, None]
-                                               + np.arange(3)).ravel())
+            free = np.setdiff1d(np.arange(n), (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel())
             U = np.zeros((n, free.size))
             U[free, np.arange(free.size)] = 1.0
             master = ReducedFemBody(body, U, all_points(body)) if reduce else body
-            frame = FemFrame(master, method="procrustes",
-                             support=body.find_nodes(lambda x: np.isclose(x[0], L / 2)))
+            frame = FemFrame(
+                master,
+                method="procrustes",
+                support=body.find_nodes(lambda x: np.isclose(x[0], L / 2)),
+            )
             marker = RigidBody.marker(f"{name} cut", position=frame.position())
             scene.add(master, marker, FrameAttachment(marker, frame))
             halves.append(body), masters.append(master), markers.append(marker)
-        scene.add(RevoluteJoint.at_world(*markers, (L / 2, W / 2, H / 2),
-                                         axis_rotation((0.0, 1.0, 0.0))))
+        scene.add(
+            RevoluteJoint.at_world(*markers, (L / 2, W / 2, H / 2), axis_rotation((0.0, 1.0, 0.0)))
+        )
         for _ in range(10):
             scene.step(5e-3)
-        runs.append([m.nodal_displacement() if reduce else m.u.x.array.copy()
-                     for m in masters])
+        runs.append([m.nodal_displacement() if reduce else m.u.x.array.copy() for m in masters])
     for full, reduced in zip(*runs):
         assert np.abs(full).max() > 1e-3
-        np.testing.assert_allclose(reduced[:full.size], full, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(reduced[: full.size], full, rtol=0, atol=1e-11)
 
 
 # ---- (6) bad input -------------------------------------------------------------------------
+
 
 def test_bad_frame_attachments_are_clear_errors():
     body = make_body()

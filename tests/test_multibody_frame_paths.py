@@ -26,16 +26,17 @@ def test_a_mass_on_a_spring_oscillates_at_its_natural_frequency():
     for _ in range(int(1.5 / h)):
         system.step(h)
         z.append(body.position[2])
-    z = np.array(z) + L0                                  # oscillation about -L0
+    z = np.array(z) + L0  # oscillation about -L0
     crossings = np.flatnonzero(np.diff(np.sign(z)) > 0) * h
     period = np.mean(np.diff(crossings))
     assert period == pytest.approx(2 * np.pi * np.sqrt(m / k), rel=2e-3)
-    assert abs(body.position[0]) + abs(body.position[1]) < 1e-12      # stays on the line
+    assert abs(body.position[0]) + abs(body.position[1]) < 1e-12  # stays on the line
 
 
 def test_a_hanging_weight_settles_where_the_muscle_holds_it():
-    params = ThelenParameters(max_isometric_force=100.0, optimal_fiber_length=0.1,
-                              tendon_slack_length=0.2)
+    params = ThelenParameters(
+        max_isometric_force=100.0, optimal_fiber_length=0.1, tendon_slack_length=0.2
+    )
     muscle = ThelenMuscle(params, excitation=0.5)
     body, top, bottom = hanging(mass=3.0, z=-0.31)
     body.velocity[:] = 0.0
@@ -44,20 +45,22 @@ def test_a_hanging_weight_settles_where_the_muscle_holds_it():
     system.add(body, path)
     for _ in range(3000):
         system.step(1e-3)
-    assert np.linalg.norm(body.velocity) < 1e-4                         # at rest
-    assert path.tension() == pytest.approx(3.0 * G, rel=1e-3)          # holds the weight
-    assert muscle.activation == pytest.approx(0.5, abs=1e-6)           # activation settled
+    assert np.linalg.norm(body.velocity) < 1e-4  # at rest
+    assert path.tension() == pytest.approx(3.0 * G, rel=1e-3)  # holds the weight
+    assert muscle.activation == pytest.approx(0.5, abs=1e-6)  # activation settled
 
 
 def test_stiffer_activation_lifts_the_weight():
-    params = ThelenParameters(max_isometric_force=100.0, optimal_fiber_length=0.1,
-                              tendon_slack_length=0.2)
+    params = ThelenParameters(
+        max_isometric_force=100.0, optimal_fiber_length=0.1, tendon_slack_length=0.2
+    )
     heights = []
     for level in (0.3, 0.8):
         body, top, bottom = hanging(mass=3.0, z=-0.31)
         system = Scene(gravity=(0.0, 0.0, -G))
-        system.add(body, FramePath(ThelenMuscle(params), [top, bottom],
-                                   excitation=lambda t, u=level: u))
+        system.add(
+            body, FramePath(ThelenMuscle(params), [top, bottom], excitation=lambda t, u=level: u)
+        )
         for _ in range(3000):
             system.step(1e-3)
         heights.append(body.position[2])
@@ -74,15 +77,19 @@ def test_bad_paths_are_clear_errors():
 
 def guided(body):
     """A vertical slider that holds the body's turns (statics has no inertia for them)."""
-    return SliderJoint(Frame.at_world(body, body.position, np.eye(3)),
-                       Frame.at_world(None, body.position, np.eye(3)), name="guide")
+    return SliderJoint(
+        Frame.at_world(body, body.position, np.eye(3)),
+        Frame.at_world(None, body.position, np.eye(3)),
+        name="guide",
+    )
 
 
 def test_the_static_solve_holds_the_weight_on_the_muscle():
     """Statics through a FramePath muscle (its energy the merit): the tension at the length
     found is the weight."""
-    params = ThelenParameters(max_isometric_force=100.0, optimal_fiber_length=0.1,
-                              tendon_slack_length=0.2)
+    params = ThelenParameters(
+        max_isometric_force=100.0, optimal_fiber_length=0.1, tendon_slack_length=0.2
+    )
     muscle = ThelenMuscle(params, excitation=0.5, activation_dynamics=False)
     # on the ascending limb of f_L (l_M = 0.6 l0), where the tension rises with the length
     body, top, bottom = hanging(mass=3.0, z=-0.26)
@@ -119,8 +126,12 @@ def test_a_load_elements_potential_enters_the_scenes_energy_and_its_statics():
     body, top, bottom = hanging(mass=1.0, z=-0.6)
     k, L0, f = 400.0, 0.5, np.array([0.0, 0.0, -30.0])
     system = Scene(gravity=(0.0, 0.0, 0.0))
-    system.add(body, FramePath(AxialSpring(k, L0), [top, bottom], name="spring"),
-               ConstantForce(body, f), guided(body))
+    system.add(
+        body,
+        FramePath(AxialSpring(k, L0), [top, bottom], name="spring"),
+        ConstantForce(body, f),
+        guided(body),
+    )
     e0 = system.potential_energy()
     body.position = body.position + np.array([0.0, 0.0, -1e-3])
     spring = 0.5 * k * ((0.601 - L0) ** 2 - (0.6 - L0) ** 2)

@@ -12,11 +12,20 @@ import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.errors import InputError
-from artifem.multibody.muscles import (AxialSpring, PathForces, PathGeometry, ThelenMuscle,
-                                       ThelenParameters, active_force_length,
-                                       force_velocity, force_velocity_inverse,
-                                       passive_force_length, tendon_force_strain,
-                                       tendon_toe_constants)
+from artifem.multibody.muscles import (
+    AxialSpring,
+    PathForces,
+    PathGeometry,
+    ThelenMuscle,
+    ThelenParameters,
+    active_force_length,
+    force_velocity,
+    force_velocity_inverse,
+    passive_force_length,
+    tendon_force_strain,
+    tendon_toe_constants,
+)
+
 
 def fd_jacobian(fun, z, eps=1e-7):
     """Central differences of fun (array -> array) with respect to every entry of z."""
@@ -26,7 +35,9 @@ def fd_jacobian(fun, z, eps=1e-7):
         zp, zm = z.copy().ravel(), z.copy().ravel()
         zp[k] += eps
         zm[k] -= eps
-        cols.append((fun(zp.reshape(z.shape)).ravel() - fun(zm.reshape(z.shape)).ravel()) / (2 * eps))
+        cols.append(
+            (fun(zp.reshape(z.shape)).ravel() - fun(zm.reshape(z.shape)).ravel()) / (2 * eps)
+        )
     return np.array(cols).T
 
 
@@ -50,11 +61,14 @@ def random_path(rng, n_points, length=0.3):
 
 # ---- curves ----------------------------------------------------------------------------------
 
+
 def test_active_force_length_is_thelen_gaussian():
     assert active_force_length(1.0) == 1.0
     gamma = 0.45
     for ln in (0.5, 0.8, 1.3, 1.7):
-        assert active_force_length(ln) == pytest.approx(math.exp(-(ln - 1) ** 2 / gamma), rel=1e-15)
+        assert active_force_length(ln) == pytest.approx(
+            math.exp(-((ln - 1) ** 2) / gamma), rel=1e-15
+        )
     # e^-1 at one width-root away from the optimum; a single peak at 1
     assert active_force_length(1 + math.sqrt(gamma)) == pytest.approx(math.exp(-1))
     ln = np.linspace(0.2, 1.8, 401)
@@ -70,23 +84,26 @@ def test_passive_force_length_reaches_one_at_eps0m():
         assert passive_force_length(1 + e0, kpe, e0) == pytest.approx(1.0, rel=1e-14)
         ln = 1.3
         assert passive_force_length(ln, kpe, e0) == pytest.approx(
-            (math.exp(kpe * (ln - 1) / e0) - 1) / (math.exp(kpe) - 1), rel=1e-14)
+            (math.exp(kpe * (ln - 1) / e0) - 1) / (math.exp(kpe) - 1), rel=1e-14
+        )
     ln = np.linspace(0.3, 1.9, 801)
     f, df = passive_force_length(ln, derivative=True)
     assert np.all(f[ln <= 1] == 0.0)
     assert np.all(np.diff(f) >= 0) and np.all(np.diff(f[ln > 1]) > 0)
-    assert passive_force_length(1.0 + 1e-12) < 1e-11        # continuous at the optimal length
+    assert passive_force_length(1.0 + 1e-12) < 1e-11  # continuous at the optimal length
     mask = np.abs(ln - 1) > 1e-3
     assert np.allclose(df[mask], fd_slope(passive_force_length, ln[mask]), rtol=1e-6, atol=1e-9)
 
 
 def test_force_velocity_reference_points():
     af, flen = 0.25, 1.4
-    assert force_velocity(-1.0) == 0.0                       # max shortening velocity
-    assert force_velocity(-2.0) == 0.0                       # beyond it: no active force
-    assert force_velocity(0.0) == 1.0                        # isometric
-    assert force_velocity(1e6) == pytest.approx(flen, rel=1e-5)   # lengthening plateau
-    assert force_velocity(-1e-12) == pytest.approx(1.0) and force_velocity(1e-12) == pytest.approx(1.0)
+    assert force_velocity(-1.0) == 0.0  # max shortening velocity
+    assert force_velocity(-2.0) == 0.0  # beyond it: no active force
+    assert force_velocity(0.0) == 1.0  # isometric
+    assert force_velocity(1e6) == pytest.approx(flen, rel=1e-5)  # lengthening plateau
+    assert force_velocity(-1e-12) == pytest.approx(1.0) and force_velocity(1e-12) == pytest.approx(
+        1.0
+    )
     v = np.linspace(-1.0, 5.0, 1201)
     f = force_velocity(v)
     assert np.all(np.diff(f) > 0) and np.all(f < flen)
@@ -106,15 +123,17 @@ def test_force_velocity_inverts_thelen_equation_6(af, flen, rng):
     vmax = 10.0
     for _ in range(50):
         a, fl = rng.uniform(0.05, 1.0), rng.uniform(0.2, 1.0)
-        fm = a * fl * rng.uniform(0.0, 0.999 * flen)        # active fiber force / F0
+        fm = a * fl * rng.uniform(0.0, 0.999 * flen)  # active fiber force / F0
         if fm <= a * fl:
             b = a * fl + fm / af
         else:
             b = (2 + 2 / af) * (a * fl * flen - fm) / (flen - 1)
-        vm = (0.25 + 0.75 * a) * vmax * (fm - a * fl) / b     # in optimal lengths per second
+        vm = (0.25 + 0.75 * a) * vmax * (fm - a * fl) / b  # in optimal lengths per second
         vn = vm / ((0.25 + 0.75 * a) * vmax)
         assert force_velocity(vn, af, flen) == pytest.approx(fm / (a * fl), rel=1e-12, abs=1e-14)
-        assert force_velocity_inverse(fm / (a * fl), af, flen) == pytest.approx(vn, rel=1e-12, abs=1e-14)
+        assert force_velocity_inverse(fm / (a * fl), af, flen) == pytest.approx(
+            vn, rel=1e-12, abs=1e-14
+        )
     f = np.linspace(0.0, 0.999 * flen, 300)
     assert np.allclose(force_velocity(force_velocity_inverse(f, af, flen), af, flen), f, atol=1e-12)
 
@@ -122,19 +141,23 @@ def test_force_velocity_inverts_thelen_equation_6(af, flen, rng):
 def test_tendon_force_strain_matches_thelen_constants():
     e0 = 0.04
     eps_toe, k_lin = tendon_toe_constants(e0)
-    assert eps_toe == pytest.approx(0.609 * e0, rel=1e-3)     # the paper's rounded constants
+    assert eps_toe == pytest.approx(0.609 * e0, rel=1e-3)  # the paper's rounded constants
     assert k_lin == pytest.approx(1.712 / e0, rel=1e-3)
-    exp3 = math.exp(3.0)                                        # OpenSim's exact ones
+    exp3 = math.exp(3.0)  # OpenSim's exact ones
     assert eps_toe == pytest.approx(99 * e0 * exp3 / (166 * exp3 - 67), rel=1e-14)
     assert tendon_force_strain(e0) == pytest.approx(1.0, rel=1e-14)
     assert tendon_force_strain(0.033, 0.033) == pytest.approx(1.0, rel=1e-14)
     assert tendon_force_strain(eps_toe) == pytest.approx(0.33, rel=1e-14)
     assert tendon_force_strain(0.0) == 0.0 and tendon_force_strain(-0.01) == 0.0
     e = 0.5 * eps_toe
-    assert tendon_force_strain(e) == pytest.approx(0.33 / (exp3 - 1) * (math.exp(3 * e / eps_toe) - 1))
+    assert tendon_force_strain(e) == pytest.approx(
+        0.33 / (exp3 - 1) * (math.exp(3 * e / eps_toe) - 1)
+    )
     # continuous value and slope at the end of the toe; monotone; derivative
-    lo, hi = tendon_force_strain(eps_toe * (1 - 1e-9), derivative=True), \
-        tendon_force_strain(eps_toe * (1 + 1e-9), derivative=True)
+    lo, hi = (
+        tendon_force_strain(eps_toe * (1 - 1e-9), derivative=True),
+        tendon_force_strain(eps_toe * (1 + 1e-9), derivative=True),
+    )
     assert lo[0] == pytest.approx(hi[0], abs=1e-7) and lo[1] == pytest.approx(hi[1], rel=1e-6)
     eps = np.linspace(-0.01, 0.08, 901)
     f, df = tendon_force_strain(eps, derivative=True)
@@ -158,23 +181,32 @@ def test_curve_constants_are_checked():
 
 # ---- path geometry ---------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("n_points", [2, 4])
 def test_path_geometry_derivatives(n_points, rng):
     x, v = random_path(rng, n_points)
     geo = PathGeometry.of(x, v)
-    assert np.allclose(geo.gradient, fd_jacobian(lambda y: np.array([PathGeometry.of(y).length]), x)
-                       .reshape(n_points, 3), atol=1e-8)
-    assert np.allclose(geo.hessian, fd_jacobian(lambda y: PathGeometry.of(y).gradient, x), atol=1e-6)
+    assert np.allclose(
+        geo.gradient,
+        fd_jacobian(lambda y: np.array([PathGeometry.of(y).length]), x).reshape(n_points, 3),
+        atol=1e-8,
+    )
+    assert np.allclose(
+        geo.hessian, fd_jacobian(lambda y: PathGeometry.of(y).gradient, x), atol=1e-6
+    )
     rate = fd_jacobian(lambda y: np.array([PathGeometry.of(y, v).length_rate]), x).ravel()
     assert np.allclose(geo.rate_gradient, rate, atol=1e-6)
     # Ldot is the time derivative of L along x + t v (abs: the difference quotient's
     # round-off, eps_mach L / 1e-7 ~ 1e-9 m/s, matters when Ldot itself is nearly 0)
     assert geo.length_rate == pytest.approx(
         (PathGeometry.of(x + 1e-7 * v).length - PathGeometry.of(x - 1e-7 * v).length) / 2e-7,
-        rel=1e-6, abs=1e-8)
+        rel=1e-6,
+        abs=1e-8,
+    )
 
 
 # ---- springs ---------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("n_points", [2, 3, 5])
 def test_spring_jacobians_match_finite_differences(n_points, rng):
@@ -222,7 +254,7 @@ def test_newtons_third_law(n_points, rng):
         f = element.evaluate(x, v).forces
         assert np.allclose(f.sum(axis=0), 0.0, atol=1e-12 * np.abs(f).max())
         assert np.allclose(np.cross(x, f).sum(axis=0), 0.0, atol=1e-11 * np.abs(f).max())
-        if n_points == 2:                                     # along the line, pulling together
+        if n_points == 2:  # along the line, pulling together
             d = x[1] - x[0]
             assert np.allclose(np.cross(f[0], d), 0.0, atol=1e-12 * np.abs(f).max())
             assert np.dot(f[0], d) > 0 or element is spring
@@ -246,7 +278,7 @@ def test_tension_only_spring_is_slack_when_short(rng):
     taut, linear = ligament.evaluate(x, v), spring.evaluate(x, v)
     assert np.array_equal(taut.forces, linear.forces)
     assert np.array_equal(taut.stiffness, linear.stiffness)
-    assert ligament.energy(x) == pytest.approx(0.5 * 100.0 * 0.3 ** 2)
+    assert ligament.energy(x) == pytest.approx(0.5 * 100.0 * 0.3**2)
     with pytest.raises(TypeError, match="tension_only must be True or False"):
         AxialSpring(1.0, tension_only="yes")
     with pytest.raises(ValueError, match="toe region needs tension_only"):
@@ -273,6 +305,7 @@ def test_ligament_toe_region_is_smooth_and_a_gradient(stretch, rng):
 
 # ---- Thelen muscle ---------------------------------------------------------------------------
 
+
 def test_rigid_tendon_isometric_force_at_optimal_length():
     f0, l0, lts = 500.0, 0.08, 0.12
     for alpha0 in (0.0, 0.3):
@@ -297,8 +330,14 @@ def test_rigid_tendon_force_composition():
     lm = math.hypot(length - 0.2, h)
     c = (length - 0.2) / lm
     vn = c * rate / ((0.25 + 0.75 * 0.45) * 10.0 * 0.1)
-    expected = 400.0 * (0.45 * active_force_length(lm / 0.1) * force_velocity(vn)
-                        + passive_force_length(lm / 0.1)) * c
+    expected = (
+        400.0
+        * (
+            0.45 * active_force_length(lm / 0.1) * force_velocity(vn)
+            + passive_force_length(lm / 0.1)
+        )
+        * c
+    )
     assert t == pytest.approx(expected, rel=1e-14)
     assert fiber.velocity == pytest.approx(c * rate)
 
@@ -314,12 +353,12 @@ def test_rigid_muscle_jacobians_match_finite_differences(n_points, alpha0, rng):
         r = m.evaluate(x, v)
         vn = r.fiber.velocity / ((0.25 + 0.75 * m.activation) * 1.0)
         if abs(vn) < 1e-3 or vn < -1 + 1e-3 or abs(r.fiber.length / 0.1 - 1) < 1e-3:
-            continue                                           # skip the curves' kinks
+            continue  # skip the curves' kinks
         assert relerr(r.stiffness, fd_jacobian(lambda y: m.evaluate(y, v).forces, x)) < 1e-5
         # eps 1e-5: at fast lengthening (v_n ~ 3) the damping is ~1e-4 of the forces, and the
         # round-off of a 1e-7 difference (eps_mach |f| / eps) would be 1e-5 of it
         assert relerr(r.damping, fd_jacobian(lambda w: m.evaluate(x, w).forces, v, 1e-5)) < 1e-5
-        assert np.abs(r.damping).max() > 0                    # force-velocity gives damping
+        assert np.abs(r.damping).max() > 0  # force-velocity gives damping
         checked += 1
 
 
@@ -337,11 +376,16 @@ def test_elastic_tendon_static_equilibrium():
     fiber = m.initialize_fiber(x)
     assert m.fiber_length == fiber.length
     tendon = 600.0 * tendon_force_strain(fiber.tendon_strain)
-    muscle = 600.0 * (0.8 * active_force_length(fiber.length / 0.1)
-                      + passive_force_length(fiber.length / 0.1)) * fiber.cos_pennation
+    muscle = (
+        600.0
+        * (0.8 * active_force_length(fiber.length / 0.1) + passive_force_length(fiber.length / 0.1))
+        * fiber.cos_pennation
+    )
     assert tendon == pytest.approx(muscle, rel=1e-10)
     # the geometry closes: L = lT + l_M cos(alpha)
-    assert 0.25 * (1 + fiber.tendon_strain) + fiber.length * fiber.cos_pennation == pytest.approx(0.36)
+    assert 0.25 * (1 + fiber.tendon_strain) + fiber.length * fiber.cos_pennation == pytest.approx(
+        0.36
+    )
     # a stiff tendon approaches the rigid-tendon force
     stiff = ThelenParameters(600.0, 0.1, 0.25, pennation_angle=0.2, fmax_tendon_strain=1e-5)
     rigid = ThelenMuscle(stiff, activation=0.8).evaluate(x).tension
@@ -357,11 +401,13 @@ def test_elastic_muscle_stiffness_matches_finite_differences(n_points, rng):
         x, v = random_path(rng, n_points, length=0.355)
         m = ThelenMuscle(p, tendon="elastic", activation=rng.uniform(0.2, 1.0))
         m.initialize_fiber(x)
-        y = x + 0.003 * rng.normal(size=x.shape)               # the step moved the points
+        y = x + 0.003 * rng.normal(size=x.shape)  # the step moved the points
         dt = 10 ** rng.uniform(-4, -2)
         r = m.evaluate(y, v, dt)
         assert not r.fiber.clamped and not r.fiber.slack
-        assert relerr(r.stiffness, fd_jacobian(lambda z: m.evaluate(z, v, dt).forces, y, 1e-8)) < 1e-5
+        assert (
+            relerr(r.stiffness, fd_jacobian(lambda z: m.evaluate(z, v, dt).forces, y, 1e-8)) < 1e-5
+        )
         assert np.all(r.damping == 0.0)
 
 
@@ -413,16 +459,18 @@ def test_activation_dynamics_match_thelen_closed_form():
 
     errors = [abs(rise(dt, 0.9) - 0.9) for dt in (1e-3, 5e-4, 2.5e-4)]
     assert errors[-1] < 1e-5
-    assert errors[0] / errors[1] > 3.0 and errors[1] / errors[2] > 3.0    # second order
+    assert errors[0] / errors[1] > 3.0 and errors[1] / errors[2] > 3.0  # second order
 
     m = ThelenMuscle(p, activation=1.0, excitation=0.0)
     t_end, a_prev = 0.1, 1.0
     for _ in range(400):
         m.update_activation(t_end / 400)
-        assert 0.0 <= m.activation <= a_prev                  # monotone, no overshoot
+        assert 0.0 <= m.activation <= a_prev  # monotone, no overshoot
         a_prev = m.activation
     a = m.activation
-    assert 2 * math.log(a / (0.5 + 1.5 * a)) == pytest.approx(2 * math.log(1 / 2) - t_end / td, abs=1e-5)
+    assert 2 * math.log(a / (0.5 + 1.5 * a)) == pytest.approx(
+        2 * math.log(1 / 2) - t_end / td, abs=1e-5
+    )
     # the initial time constants are those of the paper (15 ms, 50 ms at a = 0 and 1 scaled)
     assert m.activation_time_constant(0.0, 1.0) == pytest.approx(0.5 * 0.015)
     assert m.activation_time_constant(1.0, 0.0) == pytest.approx(0.050 / 2.0)
@@ -447,30 +495,37 @@ def test_excitation_equals_activation_without_dynamics():
 
 # ---- bad input -------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kwargs,match", [
-    (dict(stiffness=-1.0), "stiffness must be >= 0"),
-    (dict(stiffness=1.0, rest_length=-0.1), "rest_length must be >= 0"),
-    (dict(stiffness=1.0, damping=math.nan), "damping must be finite"),
-    (dict(stiffness="10"), "stiffness must be a real number"),
-])
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(stiffness=-1.0), "stiffness must be >= 0"),
+        (dict(stiffness=1.0, rest_length=-0.1), "rest_length must be >= 0"),
+        (dict(stiffness=1.0, damping=math.nan), "damping must be finite"),
+        (dict(stiffness="10"), "stiffness must be a real number"),
+    ],
+)
 def test_bad_spring_parameters(kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         AxialSpring(**kwargs)
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    (dict(max_isometric_force=0.0), "max_isometric_force must be > 0"),
-    (dict(optimal_fiber_length=-0.1), "optimal_fiber_length must be > 0"),
-    (dict(tendon_slack_length=-0.1), "tendon_slack_length must be >= 0"),
-    (dict(pennation_angle=30.0), r"pennation_angle must be in \[0, pi/2\).*degrees"),
-    (dict(pennation_angle=-0.1), "pennation_angle must be >= 0"),
-    (dict(flen=0.9), "flen must be > 1"),
-    (dict(af=0.0), "af must be > 0"),
-    (dict(activation_time_constant=math.inf), "activation_time_constant must be finite"),
-    (dict(tendon_f_toe=1.0), r"tendon_f_toe must be in \(0, 1\)"),
-    (dict(min_activation=1.0), r"min_activation must be in \[0, 1\)"),
-    (dict(force_velocity=1), "force_velocity must be True or False"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(max_isometric_force=0.0), "max_isometric_force must be > 0"),
+        (dict(optimal_fiber_length=-0.1), "optimal_fiber_length must be > 0"),
+        (dict(tendon_slack_length=-0.1), "tendon_slack_length must be >= 0"),
+        (dict(pennation_angle=30.0), r"pennation_angle must be in \[0, pi/2\).*degrees"),
+        (dict(pennation_angle=-0.1), "pennation_angle must be >= 0"),
+        (dict(flen=0.9), "flen must be > 1"),
+        (dict(af=0.0), "af must be > 0"),
+        (dict(activation_time_constant=math.inf), "activation_time_constant must be finite"),
+        (dict(tendon_f_toe=1.0), r"tendon_f_toe must be in \(0, 1\)"),
+        (dict(min_activation=1.0), r"min_activation must be in \[0, 1\)"),
+        (dict(force_velocity=1), "force_velocity must be True or False"),
+    ],
+)
 def test_bad_muscle_parameters(kwargs, match):
     base = dict(max_isometric_force=100.0, optimal_fiber_length=0.1, tendon_slack_length=0.2)
     with pytest.raises((ValueError, TypeError), match=match):
@@ -486,7 +541,9 @@ def test_bad_muscle_usage():
     with pytest.raises(TypeError, match="params must be ThelenParameters"):
         ThelenMuscle({"max_isometric_force": 100.0})
     m = ThelenMuscle(p, name="styloglossus")
-    with pytest.raises(ValueError, match=r"'styloglossus': excitation must be in \[0, 1\], got 1.5"):
+    with pytest.raises(
+        ValueError, match=r"'styloglossus': excitation must be in \[0, 1\], got 1.5"
+    ):
         m.set_excitation(1.5)
     with pytest.raises(ValueError, match="dt must be > 0"):
         m.update_activation(0.0)
@@ -512,9 +569,12 @@ def test_bad_points():
 def test_a_rigid_tendon_muscles_energy_is_the_potential_of_its_tension_at_rest(activation):
     """dW/dL = T(L, 0) at a fixed activation (statics' merit), over the slack, active and
     passive (l_M > l0) ranges; W = 0 while the path is slack."""
-    muscle = ThelenMuscle(ThelenParameters(300.0, 0.1, 0.15, pennation_angle=0.2),
-                          activation=activation, activation_dynamics=False,
-                          excitation=activation)
+    muscle = ThelenMuscle(
+        ThelenParameters(300.0, 0.1, 0.15, pennation_angle=0.2),
+        activation=activation,
+        activation_dynamics=False,
+        excitation=activation,
+    )
     assert muscle.conservative
 
     def path(length):

@@ -6,15 +6,19 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.multibody.point_attachments import (FemPointAttachment, ReducedPointAttachment,
-                                                 nearest_nodes, shape_function_weights,
-                                                 support_weights)
+from artifem.multibody.point_attachments import (
+    FemPointAttachment,
+    ReducedPointAttachment,
+    nearest_nodes,
+    shape_function_weights,
+    support_weights,
+)
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from reduced_beam import make_body, ndofs, random_basis
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="attachments are serial for now")
 
-INSIDE = np.array([0.61, 0.17, 0.07])            # inside the 1 x 0.3 x 0.2 beam, off the nodes
+INSIDE = np.array([0.61, 0.17, 0.07])  # inside the 1 x 0.3 x 0.2 beam, off the nodes
 
 
 def affine_displacement(body, A, c):
@@ -47,13 +51,14 @@ def test_more_support_nodes_spread_the_force_thinner():
     w4 = support_weights(body, INSIDE, nearest_nodes(body, INSIDE, 4))
     w24 = support_weights(body, INSIDE, nearest_nodes(body, INSIDE, 24))
     assert np.abs(w24.weights).max() < np.abs(w4.weights).max()
-    assert np.linalg.norm(w24.weights) < np.linalg.norm(w4.weights)   # minimum norm
+    assert np.linalg.norm(w24.weights) < np.linalg.norm(w4.weights)  # minimum norm
 
 
 def point_evaluation(function, X) -> np.ndarray:
     """function(X) (3,) by DOLFINx's own point evaluation (bounding-box tree, colliding
     cell, Function.eval): a reference that does not use the attachment's weights."""
     from dolfinx import geometry
+
     msh = function.function_space.mesh
     X = np.asarray(X, dtype=float).reshape(1, 3)
     tree = geometry.bb_tree(msh, msh.topology.dim)
@@ -67,7 +72,7 @@ def position_difference(body, position, du, eps=1e-4) -> np.ndarray:
     u0 = body.u.x.array.copy()
     x = []
     for sign in (1.0, -1.0):
-        body.u.x.array[:ndofs(body)] = u0[:ndofs(body)] + sign * eps * du
+        body.u.x.array[: ndofs(body)] = u0[: ndofs(body)] + sign * eps * du
         x.append(position())
     body.u.x.array[:] = u0
     return (x[0] - x[1]) / (2 * eps)
@@ -84,12 +89,13 @@ def test_virtual_work_and_G_of_full_and_reduced_attachments():
     weights = shape_function_weights(body, INSIDE)
     full = FemPointAttachment(body, weights)
     v = rng.standard_normal(ndofs(body))
-    body.v.x.array[:ndofs(body)] = v
+    body.v.x.array[: ndofs(body)] = v
     f = rng.standard_normal(3)
     u0 = rng.standard_normal(ndofs(body)) * 1e-3
-    body.u.x.array[:ndofs(body)] = u0
-    np.testing.assert_allclose(full.position(), INSIDE + point_evaluation(body.u, INSIDE),
-                               rtol=0, atol=1e-14)
+    body.u.x.array[: ndofs(body)] = u0
+    np.testing.assert_allclose(
+        full.position(), INSIDE + point_evaluation(body.u, INSIDE), rtol=0, atol=1e-14
+    )
     dx = position_difference(body, full.position, v)
     assert np.linalg.norm(dx) > 0.1
     np.testing.assert_allclose(full.velocity(), dx, rtol=0, atol=1e-9 * np.linalg.norm(dx))
@@ -121,7 +127,7 @@ def test_virtual_work_and_G_of_full_and_reduced_attachments():
 
 def test_points_outside_are_refused_or_snapped_with_their_distance():
     body = make_body()
-    outside = np.array([1.05, 0.1, 0.1])          # 5 cm beyond the tip face
+    outside = np.array([1.05, 0.1, 0.1])  # 5 cm beyond the tip face
     with pytest.raises(ValueError, match=r"outside FEM body .*distance 0.05"):
         shape_function_weights(body, outside)
     w = shape_function_weights(body, outside, snap=True)
@@ -133,7 +139,7 @@ def test_bad_supports_are_clear_errors():
     body = make_body()
     x = body.V.tabulate_dof_coordinates()
     inverse = {d: n for n, d in body._input_node_to_dof().items()}
-    flat = [inverse[d] for d in np.flatnonzero(np.abs(x[:, 2]) < 1e-12)[:6]]   # all at z = 0
+    flat = [inverse[d] for d in np.flatnonzero(np.abs(x[:, 2]) < 1e-12)[:6]]  # all at z = 0
     with pytest.raises(ValueError, match="coplanar"):
         support_weights(body, INSIDE, flat)
     with pytest.raises(ValueError, match="not nodes"):
@@ -146,27 +152,33 @@ def test_nonnegative_weights_partition_reproduce_and_keep_virtual_work():
     body = make_body()
     # where the min-norm weights are already >= 0 they are the answer
     nodes = nearest_nodes(body, INSIDE, 24)
-    np.testing.assert_allclose(support_weights(body, INSIDE, nodes, nonnegative=True).weights,
-                               support_weights(body, INSIDE, nodes).weights, atol=1e-12)
-    near = np.array([0.61, 0.17, 0.195])             # 5 mm under the top face
+    np.testing.assert_allclose(
+        support_weights(body, INSIDE, nodes, nonnegative=True).weights,
+        support_weights(body, INSIDE, nodes).weights,
+        atol=1e-12,
+    )
+    near = np.array([0.61, 0.17, 0.195])  # 5 mm under the top face
     nodes = nearest_nodes(body, near, 24)
     w24 = support_weights(body, near, nodes)
-    assert w24.weights.min() < -0.01                 # the min-norm weights are signed here
+    assert w24.weights.min() < -0.01  # the min-norm weights are signed here
     w = support_weights(body, near, nodes, nonnegative=True)
     assert w.weights.min() >= 0.0
     assert w.weights.sum() == pytest.approx(1.0, abs=1e-14)
     np.testing.assert_allclose(w.rest_position, near, atol=1e-14)
     # minimum norm among the non-negative weights: between the signed minimum and the
     # element's shape functions (also non-negative)
-    assert np.linalg.norm(w24.weights) - 1e-12 <= np.linalg.norm(w.weights) \
+    assert (
+        np.linalg.norm(w24.weights) - 1e-12
+        <= np.linalg.norm(w.weights)
         <= np.linalg.norm(shape_function_weights(body, near).weights) + 1e-12
+    )
     X = body.V.tabulate_dof_coordinates()[w.dofs]
     A = np.vstack([X.T, np.ones(len(X))])
     assert np.linalg.norm(A @ w.weights - np.append(near, 1.0)) < 1e-14
     att = FemPointAttachment(body, w)
     rng = np.random.default_rng(7)
     v, f = rng.standard_normal(ndofs(body)), rng.standard_normal(3)
-    body.v.x.array[:ndofs(body)] = v
+    body.v.x.array[: ndofs(body)] = v
     # virtual work: G^T f against f . a central difference of the point's position along v
     dx = position_difference(body, att.position, v)
     np.testing.assert_allclose(att.velocity(), dx, rtol=0, atol=1e-9 * np.linalg.norm(dx))
@@ -174,9 +186,12 @@ def test_nonnegative_weights_partition_reproduce_and_keep_virtual_work():
     # coplanar nodes are fine when the point lies in their hull: a face centre, 1/4 each
     x = body.V.tabulate_dof_coordinates()
     inverse = {d: n for n, d in body._input_node_to_dof().items()}
-    face = [inverse[d] for d in np.flatnonzero((np.abs(x[:, 2] - 0.2) < 1e-12)
-                                               & (x[:, 0] <= 0.25 + 1e-12)
-                                               & (x[:, 1] <= 0.15 + 1e-12))]
+    face = [
+        inverse[d]
+        for d in np.flatnonzero(
+            (np.abs(x[:, 2] - 0.2) < 1e-12) & (x[:, 0] <= 0.25 + 1e-12) & (x[:, 1] <= 0.15 + 1e-12)
+        )
+    ]
     centre = np.array([0.125, 0.075, 0.2])
     wf = support_weights(body, centre, face, nonnegative=True)
     np.testing.assert_allclose(wf.weights, 0.25, atol=1e-12)
@@ -184,7 +199,10 @@ def test_nonnegative_weights_partition_reproduce_and_keep_virtual_work():
 
 def test_nonnegative_weights_refuse_a_point_outside_the_hull_with_its_distance():
     body = make_body()
-    outside = np.array([1.05, 0.1, 0.1])              # 5 cm beyond the tip face
-    with pytest.raises(ValueError, match=r"not in the convex hull of its 24 support nodes "
-                                         r"\(distance 0.05\)"):
+    outside = np.array([1.05, 0.1, 0.1])  # 5 cm beyond the tip face
+    with pytest.raises(
+        ValueError,
+        match=r"not in the convex hull of its 24 support nodes "
+        r"\(distance 0.05\)",
+    ):
         support_weights(body, outside, nearest_nodes(body, outside, 24), nonnegative=True)

@@ -18,8 +18,14 @@ import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from artifem.multibody.joints import (FixedJoint, PlanarJoint, RevoluteJoint, SliderJoint,
-                                      SphericalJoint, axis_rotation)
+from artifem.multibody.joints import (
+    FixedJoint,
+    PlanarJoint,
+    RevoluteJoint,
+    SliderJoint,
+    SphericalJoint,
+    axis_rotation,
+)
 from artifem.multibody.rigid_body import BodyState, Frame, MassProperties, RigidBody, exp_so3
 from artifem.errors import StepFailed
 from artifem.multibody.attachments import RigidAttachment
@@ -35,6 +41,7 @@ ROWS = {FixedJoint: 6, SphericalJoint: 3, RevoluteJoint: 5, SliderJoint: 5, Plan
 
 
 # ---- helpers -------------------------------------------------------------------------------
+
 
 def box_surface(size, center=(0.0, 0.0, 0.0)):
     """The 8 corners and 12 outward triangles of an axis-aligned box."""
@@ -66,9 +73,10 @@ def rod(name, length, theta, pivot=(0.0, 0.0, 0.0), mass=1.0):
     angle theta from the downward vertical in the xz plane; its local z axis is the rod."""
     direction = np.array([np.sin(theta), 0.0, -np.cos(theta)])
     R = np.array([[np.cos(theta), 0, np.sin(theta)], [0, 1, 0], [-np.sin(theta), 0, np.cos(theta)]])
-    inertia = mass * length ** 2 / 12 * np.diag([1.0, 1.0, 0.01])
-    body = RigidBody(name, mass, inertia, position=np.asarray(pivot) + 0.5 * length * direction,
-                     rotation=R)
+    inertia = mass * length**2 / 12 * np.diag([1.0, 1.0, 0.01])
+    body = RigidBody(
+        name, mass, inertia, position=np.asarray(pivot) + 0.5 * length * direction, rotation=R
+    )
     return body, np.asarray(pivot) + length * direction
 
 
@@ -83,9 +91,16 @@ def zero_crossing_period(t, x):
 def two_body_joint(joint_type, seed, limits=None, world=False):
     """Two dynamic bodies at random poses (or one and the world), a joint with random frames."""
     rng = np.random.default_rng(seed)
-    bodies = [RigidBody(f"b{k}", 1.0 + k, np.diag([1.0, 1.5, 2.0]) * (1 + k),
-                        position=rng.normal(size=3), rotation=rotation(seed + 10 + k))
-              for k in range(2)]
+    bodies = [
+        RigidBody(
+            f"b{k}",
+            1.0 + k,
+            np.diag([1.0, 1.5, 2.0]) * (1 + k),
+            position=rng.normal(size=3),
+            rotation=rotation(seed + 10 + k),
+        )
+        for k in range(2)
+    ]
     frame_a = Frame(bodies[0], rng.normal(size=3), rotation(seed + 20))
     frame_b = Frame(None if world else bodies[1], rng.normal(size=3), rotation(seed + 21))
     kwargs = {"limits": limits} if limits is not None else {}
@@ -105,8 +120,9 @@ class Spring:
 
     def _mapped(self):
         fa, fb = self.frames
-        f = -self.k * (fa.world_position() - fb.world_position()) \
-            - self.c * (fa.velocity() - fb.velocity())
+        f = -self.k * (fa.world_position() - fb.world_position()) - self.c * (
+            fa.velocity() - fb.velocity()
+        )
         return point_force_wrenches(self.frames, [f, -f], self.k * self.pair, self.c * self.pair)
 
     def wrenches(self, t):
@@ -122,6 +138,7 @@ class Spring:
 
 # ---- (a) mass properties -------------------------------------------------------------------
 
+
 def test_box_mass_properties_translated_and_rotated():
     size, density = np.array([0.3, 0.5, 0.9]), 1100.0
     vertices, triangles = box_surface(size)
@@ -130,26 +147,25 @@ def test_box_mass_properties_translated_and_rotated():
     mass = density * size.prod()
     assert props.mass == pytest.approx(mass, rel=1e-12)
     np.testing.assert_allclose(props.center, shift, atol=1e-12)
-    np.testing.assert_allclose(props.inertia, Q @ box_inertia(mass, size) @ Q.T,
-                               atol=1e-11 * mass)
+    np.testing.assert_allclose(props.inertia, Q @ box_inertia(mass, size) @ Q.T, atol=1e-11 * mass)
 
 
 def test_sphere_mass_properties_converge_to_analytic(icosphere):
     radius, density = 0.2, 1000.0
-    mass = density * 4 / 3 * np.pi * radius ** 3
+    mass = density * 4 / 3 * np.pi * radius**3
     errors = []
     for level in (3, 4, 5):
         vertices, triangles = icosphere(level, radius)
         props = MassProperties.from_surface(vertices + [1.0, 2.0, 3.0], triangles, density)
         np.testing.assert_allclose(props.center, [1.0, 2.0, 3.0], atol=1e-12)
-        I_exact = 0.4 * mass * radius ** 2
+        I_exact = 0.4 * mass * radius**2
         assert np.abs(props.inertia - np.diag(np.diag(props.inertia))).max() < 1e-12 * I_exact
         errors.append((props.mass / mass - 1, props.inertia[0, 0] / I_exact - 1))
     errors = np.array(errors)
     # Inscribed polyhedra: both errors negative, second order in the edge length.
     assert np.all(errors < 0)
     np.testing.assert_allclose(errors[:-1] / errors[1:], 4.0, rtol=0.05)
-    assert np.abs(errors[-1]).max() < 1.5e-3          # level 5: 20480 triangles
+    assert np.abs(errors[-1]).max() < 1.5e-3  # level 5: 20480 triangles
 
 
 def test_hollow_box_is_outer_minus_offset_cavity():
@@ -158,19 +174,20 @@ def test_hollow_box_is_outer_minus_offset_cavity():
     cavity_center = np.array([0.2, -0.15, 0.1])
     vo, to = box_surface(outer)
     vi, ti = box_surface(inner, cavity_center)
-    props = MassProperties.from_surface(np.vstack([vo, vi]), np.vstack([to, ti[:, ::-1] + 8]),
-                                        1.0)
+    props = MassProperties.from_surface(np.vstack([vo, vi]), np.vstack([to, ti[:, ::-1] + 8]), 1.0)
     mo, mi = outer.prod(), inner.prod()
     mass = mo - mi
     com = -mi * cavity_center / mass
     assert props.mass == pytest.approx(mass, rel=1e-12)
     np.testing.assert_allclose(props.center, com, atol=1e-14)
 
-    def shifted(I, m, c):        # parallel axis theorem: about the hollow body's COM
+    def shifted(I, m, c):  # parallel axis theorem: about the hollow body's COM
         d = c - com
         return I + m * (d @ d * np.eye(3) - np.outer(d, d))
-    expected = shifted(box_inertia(mo, outer), mo, np.zeros(3)) \
-        - shifted(box_inertia(mi, inner), mi, cavity_center)
+
+    expected = shifted(box_inertia(mo, outer), mo, np.zeros(3)) - shifted(
+        box_inertia(mi, inner), mi, cavity_center
+    )
     np.testing.assert_allclose(props.inertia, expected, atol=1e-14)
 
 
@@ -183,14 +200,17 @@ def test_body_from_surface_sits_at_its_center_of_mass():
     assert body.mass == pytest.approx(40.0)
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda v, t: (v, t[1:]), "not closed"),
-    (lambda v, t: (v, t[:, ::-1]), "oriented inward"),
-    (lambda v, t: (v, np.vstack([t[:1, ::-1], t[1:]])), "inconsistently oriented"),
-    (lambda v, t: (v, np.vstack([t[:-1], [[0, 1, 99]]])), "indices"),
-    (lambda v, t: (v, np.vstack([t[:-1], [[0, 0, 1]]])), "repeat a vertex"),
-    (lambda v, t: (v * np.nan, t), "finite"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda v, t: (v, t[1:]), "not closed"),
+        (lambda v, t: (v, t[:, ::-1]), "oriented inward"),
+        (lambda v, t: (v, np.vstack([t[:1, ::-1], t[1:]])), "inconsistently oriented"),
+        (lambda v, t: (v, np.vstack([t[:-1], [[0, 1, 99]]])), "indices"),
+        (lambda v, t: (v, np.vstack([t[:-1], [[0, 0, 1]]])), "repeat a vertex"),
+        (lambda v, t: (v * np.nan, t), "finite"),
+    ],
+)
 def test_bad_surfaces_are_clear_errors(damage, message):
     vertices, triangles = damage(*box_surface([1.0, 1.0, 1.0]))
     with pytest.raises(ValueError, match=message) as info:
@@ -200,12 +220,17 @@ def test_bad_surfaces_are_clear_errors(damage, message):
 
 # ---- (b) pendulum periods ------------------------------------------------------------------
 
+
 def test_simple_pendulum_period():
     """A 1 mm sphere on a 1 m massless link: T = 2 pi sqrt(I_pivot / (m g L)) -> 2 pi sqrt(L/g)."""
     length, mass, radius, theta0, h = 1.0, 0.5, 1e-3, 0.05, 1e-3
-    inertia = 0.4 * mass * radius ** 2
-    bob = RigidBody("bob", mass, inertia * np.eye(3),
-                    position=(length * np.sin(theta0), 0.0, -length * np.cos(theta0)))
+    inertia = 0.4 * mass * radius**2
+    bob = RigidBody(
+        "bob",
+        mass,
+        inertia * np.eye(3),
+        position=(length * np.sin(theta0), 0.0, -length * np.cos(theta0)),
+    )
     system = Scene(GRAVITY)
     system.add(bob, SphericalJoint.at_world(bob, None, (0.0, 0.0, 0.0)))
     t, x = [], []
@@ -217,16 +242,17 @@ def test_simple_pendulum_period():
     T0 = 2 * np.pi * np.sqrt(length / G)
     assert abs(period / T0 - 1) < 5e-3
     # Sharper: with the rotary inertia and the finite-amplitude factor 1 + theta0^2 / 16.
-    exact = 2 * np.pi * np.sqrt((inertia + mass * length ** 2) / (mass * G * length))
-    assert abs(period / (exact * (1 + theta0 ** 2 / 16)) - 1) < 1e-4
+    exact = 2 * np.pi * np.sqrt((inertia + mass * length**2) / (mass * G * length))
+    assert abs(period / (exact * (1 + theta0**2 / 16)) - 1) < 1e-4
 
 
 def test_compound_pendulum_period():
     """A box rod from a surface, hinged at its top end: T = 2 pi sqrt(I_pivot / (m g d))."""
     size, theta0, h = np.array([0.04, 0.06, 0.8]), 0.05, 1e-3
     vertices, triangles = box_surface(size, center=[0.0, 0.0, -0.4])
-    Q = np.array([[np.cos(theta0), 0, np.sin(theta0)], [0, 1, 0],
-                  [-np.sin(theta0), 0, np.cos(theta0)]])
+    Q = np.array(
+        [[np.cos(theta0), 0, np.sin(theta0)], [0, 1, 0], [-np.sin(theta0), 0, np.cos(theta0)]]
+    )
     rod_body = RigidBody.from_surface("rod", vertices @ Q.T, triangles, 1000.0)
     system = Scene(GRAVITY)
     system.add(rod_body, RevoluteJoint.at_world(rod_body, None, (0.0, 0.0, 0.0), HINGE_Y))
@@ -240,18 +266,23 @@ def test_compound_pendulum_period():
     I_pivot = m * (size[0] ** 2 + size[2] ** 2) / 12 + m * d * d
     T0 = 2 * np.pi * np.sqrt(I_pivot / (m * G * d))
     assert abs(period / T0 - 1) < 5e-3
-    assert abs(period / (T0 * (1 + theta0 ** 2 / 16)) - 1) < 1e-4
+    assert abs(period / (T0 * (1 + theta0**2 / 16)) - 1) < 1e-4
 
 
 # ---- (c) double pendulum energy ------------------------------------------------------------
+
 
 def double_pendulum_energy_error(h, duration=10.0):
     """max |E(t) - E(0)| / (m g L) of two hinged rods released horizontal (chaotic motion)."""
     system = Scene(GRAVITY)
     rod1, elbow = rod("upper", 1.0, np.pi / 2)
     rod2, _ = rod("lower", 1.0, np.pi / 2, pivot=elbow)
-    system.add(rod1, rod2, RevoluteJoint.at_world(rod1, None, (0.0, 0.0, 0.0), HINGE_Y),
-               RevoluteJoint.at_world(rod2, rod1, elbow, HINGE_Y))
+    system.add(
+        rod1,
+        rod2,
+        RevoluteJoint.at_world(rod1, None, (0.0, 0.0, 0.0), HINGE_Y),
+        RevoluteJoint.at_world(rod2, rod1, elbow, HINGE_Y),
+    )
     E0 = system.energy()
     errors = []
     for _ in range(int(round(duration / h))):
@@ -259,7 +290,7 @@ def double_pendulum_energy_error(h, duration=10.0):
         errors.append(system.energy() - E0)
     errors = np.abs(errors) / (1.0 * G * 1.0)
     assert max(system.constraint_errors().values()) < 1e-4
-    return errors.max(), errors[-len(errors) // 10:].max()
+    return errors.max(), errors[-len(errors) // 10 :].max()
 
 
 def test_double_pendulum_energy_is_kept_to_first_order():
@@ -277,13 +308,15 @@ def test_double_pendulum_energy_is_kept_to_first_order():
 
 # ---- (d) joints: Jacobians, drift, no work -------------------------------------------------
 
+
 @pytest.mark.parametrize("world", [False, True])
 @pytest.mark.parametrize("joint_type", JOINTS)
 def test_joint_jacobian_matches_finite_difference(joint_type, world):
     """phi' = G_A u_A + G_B u_B at random (inconsistent) poses, bilateral and limit rows."""
     limits = {RevoluteJoint: (-2.0, 2.5), SliderJoint: (-1.0, 3.0)}.get(joint_type)
-    bodies, joint = two_body_joint(joint_type, seed=JOINTS.index(joint_type), limits=limits,
-                                   world=world)
+    bodies, joint = two_body_joint(
+        joint_type, seed=JOINTS.index(joint_type), limits=limits, world=world
+    )
     assert len(joint.constraint()) == ROWS[joint_type]
     assert len(joint.unilateral()) == (2 if limits else 0)
     rng = np.random.default_rng(5)
@@ -299,8 +332,7 @@ def test_joint_jacobian_matches_finite_difference(joint_type, world):
             values.append(rows_of().phi)
         for b, (p, R) in zip(bodies, poses):
             b.position, b.rotation = p, R
-        np.testing.assert_allclose((values[0] - values[1]) / 2e-6, expected, rtol=1e-7,
-                                   atol=1e-8)
+        np.testing.assert_allclose((values[0] - values[1]) / 2e-6, expected, rtol=1e-7, atol=1e-8)
 
 
 def test_joint_errors_and_coordinates_have_their_meaning():
@@ -312,25 +344,29 @@ def test_joint_errors_and_coordinates_have_their_meaning():
         """Put body (= frame A) at frame B's pose moved by a rotation and an offset in B's axes."""
         body.rotation = R_b @ exp_so3(rotvec_in_b)
         body.position = np.array([1.0, 2.0, 3.0]) + R_b @ offset_in_b
+
     frame_b = Frame(None, (1.0, 2.0, 3.0), R_b)
-    fixed, hinge, slider, planar = (cls(Frame(body), frame_b) for cls in
-                                    (FixedJoint, RevoluteJoint, SliderJoint, PlanarJoint))
+    fixed, hinge, slider, planar = (
+        cls(Frame(body), frame_b) for cls in (FixedJoint, RevoluteJoint, SliderJoint, PlanarJoint)
+    )
     pose_a([alpha, 0.0, 0.0], [0.0, 0.002, 0.0])
-    np.testing.assert_allclose(fixed.constraint().phi, [0, 0.002, 0, np.sin(alpha), 0, 0],
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        fixed.constraint().phi, [0, 0.002, 0, np.sin(alpha), 0, 0], atol=1e-15
+    )
     np.testing.assert_allclose(hinge.constraint().phi[3:], [np.sin(alpha), 0], atol=1e-15)
-    pose_a([0.0, 0.0, theta], [0.0, 0.0, s])             # a hinge turn and a slide along z
+    pose_a([0.0, 0.0, theta], [0.0, 0.0, s])  # a hinge turn and a slide along z
     assert hinge.angle() == pytest.approx(theta, abs=1e-14)
     assert slider.distance() == pytest.approx(s, abs=1e-14)
     np.testing.assert_allclose(hinge.constraint().phi[3:], 0, atol=1e-15)
     np.testing.assert_allclose(slider.constraint().phi[:2], 0, atol=1e-15)
-    pose_a([0.0, 0.0, theta], [0.4, -0.3, 0.0])          # a planar motion
+    pose_a([0.0, 0.0, theta], [0.4, -0.3, 0.0])  # a planar motion
     np.testing.assert_allclose(planar.constraint().phi, 0, atol=1e-15)
 
 
 def test_frame_jacobian_and_wrench_stiffness_match_finite_differences():
-    body = RigidBody("b", 2.0, np.diag([1.0, 2.0, 3.0]), position=(1.0, 2.0, 3.0),
-                     rotation=rotation(3))
+    body = RigidBody(
+        "b", 2.0, np.diag([1.0, 2.0, 3.0]), position=(1.0, 2.0, 3.0), rotation=rotation(3)
+    )
     frame = Frame(body, (0.3, -0.2, 0.5))
     force = np.array([1.0, -2.0, 0.5])
     u = np.random.default_rng(2).normal(size=6)
@@ -342,8 +378,9 @@ def test_frame_jacobian_and_wrench_stiffness_match_finite_differences():
         wrench.append(frame.wrench(force))
     body.position, body.rotation = pose
     np.testing.assert_allclose((x[0] - x[1]) / 2e-6, frame.jacobian() @ u, rtol=1e-8)
-    np.testing.assert_allclose((wrench[0] - wrench[1]) / 2e-6,
-                               frame.wrench_stiffness(force) @ u, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(
+        (wrench[0] - wrench[1]) / 2e-6, frame.wrench_stiffness(force) @ u, rtol=1e-7, atol=1e-9
+    )
     body.set_twist(u)
     np.testing.assert_allclose(frame.velocity(), frame.jacobian() @ u, rtol=1e-14)
 
@@ -354,15 +391,30 @@ def joint_scene(joint_type, seed=0):
     spring to the world keeps the second body from falling away along a slider or a plane."""
     system = Scene(GRAVITY)
     rng = np.random.default_rng(seed)
-    upper = RigidBody("upper", 1.0, np.diag([0.02, 0.03, 0.01]), position=(0.3, 0.0, -0.4),
-                      angular_velocity=rng.normal(size=3))
-    lower = RigidBody("lower", 0.5, np.diag([0.01, 0.005, 0.012]), position=(0.6, 0.1, -0.9),
-                      rotation=rotation(seed), velocity=rng.normal(size=3),
-                      angular_velocity=2 * rng.normal(size=3))
-    joint = joint_type.at_world(lower, upper, (0.5, 0.0, -0.7), rotation(seed + 1),
-                                name="tested")
-    system.add(upper, lower, SphericalJoint.at_world(upper, None, (0.0, 0.0, 0.0)), joint,
-               Spring(Frame(lower), Frame(None, (0.6, 0.1, -0.9)), 50.0))
+    upper = RigidBody(
+        "upper",
+        1.0,
+        np.diag([0.02, 0.03, 0.01]),
+        position=(0.3, 0.0, -0.4),
+        angular_velocity=rng.normal(size=3),
+    )
+    lower = RigidBody(
+        "lower",
+        0.5,
+        np.diag([0.01, 0.005, 0.012]),
+        position=(0.6, 0.1, -0.9),
+        rotation=rotation(seed),
+        velocity=rng.normal(size=3),
+        angular_velocity=2 * rng.normal(size=3),
+    )
+    joint = joint_type.at_world(lower, upper, (0.5, 0.0, -0.7), rotation(seed + 1), name="tested")
+    system.add(
+        upper,
+        lower,
+        SphericalJoint.at_world(upper, None, (0.0, 0.0, 0.0)),
+        joint,
+        Spring(Frame(lower), Frame(None, (0.6, 0.1, -0.9)), 50.0),
+    )
     return system, joint
 
 
@@ -407,8 +459,8 @@ def test_constraint_velocity_after_a_step_is_the_stabilization(joint_type, stabi
     power = wrench_a @ lower.twist + wrench_b @ upper.twist
     scale = np.linalg.norm(wrench_a) * np.linalg.norm(lower.twist)
     if stabilization:
-        assert abs(power) > 1e-9 * scale            # the correction does work ...
-        assert abs(power) < 1e-2 * scale            # ... of the order of phi / (h |u|)
+        assert abs(power) > 1e-9 * scale  # the correction does work ...
+        assert abs(power) < 1e-2 * scale  # ... of the order of phi / (h |u|)
     else:
         assert abs(power) < 1e-12 * scale
 
@@ -417,28 +469,35 @@ def test_redundant_joints_are_solved_with_minimum_norm_multipliers():
     """Two identical hinges (as in a closed loop): the KKT matrix is singular, the step is not."""
     rod1, _ = rod("rod", 1.0, 0.3)
     system = Scene(GRAVITY)
-    hinge = [RevoluteJoint.at_world(rod1, None, (0.0, 0.0, 0.0), HINGE_Y, name=f"h{k}")
-             for k in range(2)]
+    hinge = [
+        RevoluteJoint.at_world(rod1, None, (0.0, 0.0, 0.0), HINGE_Y, name=f"h{k}") for k in range(2)
+    ]
     system.add(rod1, *hinge)
     for _ in range(500):
         system.step(1e-3)
     assert max(system.constraint_errors().values()) < 1e-5
-    np.testing.assert_allclose(system.reaction(hinge[0])[0], system.reaction(hinge[1])[0],
-                               rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(
+        system.reaction(hinge[0])[0], system.reaction(hinge[1])[0], rtol=1e-8, atol=1e-10
+    )
 
 
 def test_fixed_body_is_the_world_for_its_joints():
     """A double pendulum hinged to a fixed body moves exactly as one hinged to the world."""
     trajectories = []
     for fixed in (False, True):
-        base = RigidBody("base", 5.0, np.eye(3), position=(0.2, 0.0, 0.3), rotation=rotation(1),
-                         motion="fixed")
+        base = RigidBody(
+            "base", 5.0, np.eye(3), position=(0.2, 0.0, 0.3), rotation=rotation(1), motion="fixed"
+        )
         rod1, elbow = rod("upper", 1.0, 1.0)
         rod2, _ = rod("lower", 1.0, -0.5, pivot=elbow)
         system = Scene(GRAVITY)
-        system.add(base, rod1, rod2,
-                   RevoluteJoint.at_world(rod1, base if fixed else None, (0, 0, 0), HINGE_Y),
-                   RevoluteJoint.at_world(rod2, rod1, elbow, HINGE_Y))
+        system.add(
+            base,
+            rod1,
+            rod2,
+            RevoluteJoint.at_world(rod1, base if fixed else None, (0, 0, 0), HINGE_Y),
+            RevoluteJoint.at_world(rod2, rod1, elbow, HINGE_Y),
+        )
         for _ in range(300):
             system.step(1e-3)
         trajectories.append(np.concatenate([rod2.position, rod2.twist]))
@@ -459,6 +518,7 @@ def test_hanging_body_reaction_is_its_weight():
 
 # ---- (e) free body -------------------------------------------------------------------------
 
+
 def test_free_body_conserves_momentum_and_stays_orthonormal():
     """Torque-free precession near the unstable intermediate axis (inertia 1 : 2 : 3), 10 s.
 
@@ -467,9 +527,15 @@ def test_free_body_conserves_momentum_and_stays_orthonormal():
     -0.47 % (the linearized implicit gyroscopic term dissipates, never adds).
     """
     R0 = rotation(7)
-    body = RigidBody("tumbler", 2.0, np.diag([1.0, 2.0, 3.0]), rotation=R0,
-                     position=(1.0, -1.0, 0.5), velocity=(0.1, 0.2, -0.3),
-                     angular_velocity=R0 @ [0.3, 2.0, 0.4])
+    body = RigidBody(
+        "tumbler",
+        2.0,
+        np.diag([1.0, 2.0, 3.0]),
+        rotation=R0,
+        position=(1.0, -1.0, 0.5),
+        velocity=(0.1, 0.2, -0.3),
+        angular_velocity=R0 @ [0.3, 2.0, 0.4],
+    )
     system = Scene((0.0, 0.0, 0.0))
     system.add(body)
     P0, L0 = system.momentum(), system.angular_momentum(about=body.position)
@@ -496,6 +562,7 @@ def test_free_body_conserves_momentum_and_stays_orthonormal():
 
 # ---- (f) prescribed bodies, limits, force elements -----------------------------------------
 
+
 def test_body_welded_to_a_prescribed_turntable_follows_it():
     """A turntable spins at omega about z; a body welded at radius r follows it and the weld
     carries the centripetal force m omega^2 r and the weight."""
@@ -503,9 +570,16 @@ def test_body_welded_to_a_prescribed_turntable_follows_it():
 
     def turntable(t):
         return BodyState(np.zeros(3), exp_so3([0, 0, omega * t]), np.zeros(3), [0, 0, omega])
+
     table = RigidBody("table", 1.0, np.eye(3), motion="prescribed", trajectory=turntable)
-    rider = RigidBody("rider", m, 0.01 * np.eye(3), position=(r, 0.0, 0.0),
-                      velocity=(0.0, omega * r, 0.0), angular_velocity=(0, 0, omega))
+    rider = RigidBody(
+        "rider",
+        m,
+        0.01 * np.eye(3),
+        position=(r, 0.0, 0.0),
+        velocity=(0.0, omega * r, 0.0),
+        angular_velocity=(0, 0, omega),
+    )
     weld = FixedJoint.at_world(rider, table, (r, 0.0, 0.0))
     system = Scene(GRAVITY)
     system.add(table, rider, weld)
@@ -517,8 +591,9 @@ def test_body_welded_to_a_prescribed_turntable_follows_it():
     np.testing.assert_allclose(rider.position, expected, atol=1e-5)
     assert max(system.constraint_errors().values()) < 1e-5
     force = system.reaction(weld)[0][:3]
-    np.testing.assert_allclose(force, -m * omega ** 2 * expected + [0, 0, m * G],
-                               rtol=0, atol=1e-2 * m * omega ** 2 * r)
+    np.testing.assert_allclose(
+        force, -m * omega**2 * expected + [0, 0, m * G], rtol=0, atol=1e-2 * m * omega**2 * r
+    )
 
 
 def test_body_carried_by_a_prescribed_body_moves_with_its_twist():
@@ -531,11 +606,12 @@ def test_body_carried_by_a_prescribed_body_moves_with_its_twist():
 
     def trajectory(t):
         return BodyState(p0 + v0 * t, exp_so3(w * t) @ R0, v0, w)
-    bone = RigidBody("bone", 1.0, np.eye(3), position=p0, rotation=R0, motion="prescribed",
-                     trajectory=trajectory)
+
+    bone = RigidBody(
+        "bone", 1.0, np.eye(3), position=p0, rotation=R0, motion="prescribed", trajectory=trajectory
+    )
     offset = np.array([0.3, -0.2, 0.5])
-    carried = RigidBody("carried", 0.5, 0.01 * np.eye(3), position=p0 + R0 @ offset,
-                        rotation=R0)
+    carried = RigidBody("carried", 0.5, 0.01 * np.eye(3), position=p0 + R0 @ offset, rotation=R0)
     system = Scene(GRAVITY)
     system.add(bone, carried, RigidAttachment(carried, bone))
     for _ in range(3):
@@ -543,8 +619,9 @@ def test_body_carried_by_a_prescribed_body_moves_with_its_twist():
         p, R, _, _ = trajectory(system.t)
         np.testing.assert_allclose(bone.position, p, atol=1e-14)
         np.testing.assert_allclose(carried.position, p + R @ offset, atol=1e-14)
-        np.testing.assert_allclose(carried.velocity, v0 + np.cross(w, carried.position - p),
-                                   atol=1e-13)
+        np.testing.assert_allclose(
+            carried.velocity, v0 + np.cross(w, carried.position - p), atol=1e-13
+        )
         np.testing.assert_allclose(carried.angular_velocity, w, atol=1e-14)
 
 
@@ -552,7 +629,7 @@ def test_revolute_limits_stop_the_swing():
     """A rod swung hard against limits (-0.5, 0.4) rad never passes them; at rest on the
     upper limit of a rod hinged horizontally, the limit carries the torque m g d."""
     rod1, _ = rod("rod", 1.0, 0.0)
-    rod1.angular_velocity = np.array([0.0, -6.0, 0.0])      # theta decreases
+    rod1.angular_velocity = np.array([0.0, -6.0, 0.0])  # theta decreases
     rod1.velocity = np.cross(rod1.angular_velocity, rod1.position)
     hinge = RevoluteJoint.at_world(rod1, None, (0.0, 0.0, 0.0), HINGE_Y, limits=(-0.5, 0.4))
     system = Scene(GRAVITY)
@@ -562,11 +639,10 @@ def test_revolute_limits_stop_the_swing():
         system.step(1e-3)
         angles.append(hinge.angle())
     assert min(angles) > -0.5 - 1e-9 and max(angles) < 0.4 + 1e-9
-    assert min(angles) < -0.5 + 1e-6 and max(angles) > 0.4 - 1e-6     # both limits touched
+    assert min(angles) < -0.5 + 1e-6 and max(angles) > 0.4 - 1e-6  # both limits touched
 
-    rod2, _ = rod("arm", 1.0, np.pi / 2)                     # horizontal: gravity turns it down
-    hinge2 = RevoluteJoint.at_world(rod2, None, (0.0, 0.0, 0.0), HINGE_Y,
-                                    limits=(-np.pi, 0.0))
+    rod2, _ = rod("arm", 1.0, np.pi / 2)  # horizontal: gravity turns it down
+    hinge2 = RevoluteJoint.at_world(rod2, None, (0.0, 0.0, 0.0), HINGE_Y, limits=(-np.pi, 0.0))
     system = Scene(GRAVITY)
     system.add(rod2, hinge2)
     for _ in range(100):
@@ -601,33 +677,44 @@ def test_slider_limit_with_partial_stabilization():
     h, beta = 1e-3, 0.5
 
     def block_on_slider(lower, velocity):
-        block = RigidBody("block", 2.0, 0.1 * np.eye(3), position=(0.0, 0.0, 1.0),
-                          velocity=(0.0, 0.0, velocity))
+        block = RigidBody(
+            "block", 2.0, 0.1 * np.eye(3), position=(0.0, 0.0, 1.0), velocity=(0.0, 0.0, velocity)
+        )
         slider = SliderJoint.at_world(block, None, (0.0, 0.0, 1.0), limits=(lower, 1.0))
         system = Scene(GRAVITY, stabilization=beta)
         system.add(block, slider)
         system.step(h)
         return slider.distance() - lower
 
-    assert block_on_slider(-1e-3, -2.0) == pytest.approx(0.0, abs=1e-12)   # 1 mm away, 2 mm/step
+    assert block_on_slider(-1e-3, -2.0) == pytest.approx(0.0, abs=1e-12)  # 1 mm away, 2 mm/step
     assert block_on_slider(0.01, -1.0) == pytest.approx(-0.5 * 0.01, rel=1e-9)
 
 
 def test_point_force_jacobians_match_finite_differences():
     """A damped spring between two spinning bodies: the mapped K_bc and D_bc are the
     derivatives of the wrenches along pose and velocity perturbations."""
-    bodies = [RigidBody(f"b{k}", 1.0, np.eye(3), position=np.random.default_rng(k).normal(size=3),
-                        rotation=rotation(9 + k)) for k in range(2)]
+    bodies = [
+        RigidBody(
+            f"b{k}",
+            1.0,
+            np.eye(3),
+            position=np.random.default_rng(k).normal(size=3),
+            rotation=rotation(9 + k),
+        )
+        for k in range(2)
+    ]
     rng = np.random.default_rng(3)
     for body in bodies:
         body.set_twist(rng.normal(size=6))
-    spring = Spring(Frame(bodies[0], (0.1, 0.4, -0.2)), Frame(bodies[1], (-0.3, 0.2, 0.1)),
-                    k=50.0, c=3.0)
+    spring = Spring(
+        Frame(bodies[0], (0.1, 0.4, -0.2)), Frame(bodies[1], (-0.3, 0.2, 0.1)), k=50.0, c=3.0
+    )
     blocks = {(id(bi), id(bj)): (K, D) for bi, bj, K, D in spring.jacobians(0.0)}
     assert len(blocks) == 4
 
     def wrenches():
         return {id(b): w for b, w in spring.wrenches(0.0)}
+
     du = [rng.normal(size=6) for _ in bodies]
     for j, body in enumerate(bodies):
         pose, twist = (body.position, body.rotation), body.twist
@@ -643,10 +730,18 @@ def test_point_force_jacobians_match_finite_differences():
         body.set_twist(twist)
         for bi in bodies:
             K, D = blocks[(id(bi), id(body))]
-            np.testing.assert_allclose((plus_minus[0][id(bi)] - plus_minus[1][id(bi)]) / 2e-6,
-                                       K @ du[j], rtol=1e-6, atol=1e-7)
-            np.testing.assert_allclose((velocity_pm[0][id(bi)] - velocity_pm[1][id(bi)]) / 2e-6,
-                                       D @ du[j], rtol=1e-6, atol=1e-7)
+            np.testing.assert_allclose(
+                (plus_minus[0][id(bi)] - plus_minus[1][id(bi)]) / 2e-6,
+                K @ du[j],
+                rtol=1e-6,
+                atol=1e-7,
+            )
+            np.testing.assert_allclose(
+                (velocity_pm[0][id(bi)] - velocity_pm[1][id(bi)]) / 2e-6,
+                D @ du[j],
+                rtol=1e-6,
+                atol=1e-7,
+            )
 
 
 def test_mass_towed_by_a_prescribed_body_keeps_its_offset():
@@ -655,12 +750,20 @@ def test_mass_towed_by_a_prescribed_body_keeps_its_offset():
     to round-off only with the spring's stiffness coupling to the prescribed velocity
     (b += h^2 K_ij u_j): without it the mass lags."""
     V = np.array([0.3, -0.2, 0.1])
-    tug = RigidBody("tug", 1.0, np.eye(3), motion="prescribed",
-                    trajectory=lambda t: BodyState(t * V, np.eye(3), V, np.zeros(3)))
+    tug = RigidBody(
+        "tug",
+        1.0,
+        np.eye(3),
+        motion="prescribed",
+        trajectory=lambda t: BodyState(t * V, np.eye(3), V, np.zeros(3)),
+    )
     barge = RigidBody("barge", 2.0, np.eye(3), position=(1.0, 0.0, 0.0), velocity=V)
     system = Scene((0.0, 0.0, 0.0))
-    system.add(tug, barge, Spring(Frame.at_world(barge, (1.0, 0, 0)),
-                                  Frame.at_world(tug, (1.0, 0, 0)), k=1e4))
+    system.add(
+        tug,
+        barge,
+        Spring(Frame.at_world(barge, (1.0, 0, 0)), Frame.at_world(tug, (1.0, 0, 0)), k=1e4),
+    )
     for _ in range(200):
         system.step(0.01)
     np.testing.assert_allclose(barge.position - tug.position, [1.0, 0.0, 0.0], atol=1e-12)
@@ -693,18 +796,22 @@ def test_spring_element_period_and_implicit_stability():
 
 # ---- (g) bad input -------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"mass": -1.0}, "mass must be positive"),
-    ({"inertia": np.diag([1.0, 1.0, 3.0])}, "triangle inequality"),
-    ({"inertia": np.diag([1.0, -1.0, 1.0])}, "principal moments"),
-    ({"inertia": [[1.0, 0.5, 0], [0, 1.0, 0], [0, 0, 1.0]]}, "symmetric"),
-    ({"rotation": 2 * np.eye(3)}, "not a rotation"),
-    ({"rotation": np.diag([1.0, 1.0, -1.0])}, "not a rotation"),
-    ({"position": (0.0, np.nan, 0.0)}, "position"),
-    ({"motion": "kinematic"}, "motion must be one of"),
-    ({"motion": "prescribed"}, "trajectory is required"),
-    ({"motion": "fixed", "velocity": (1.0, 0, 0)}, "fixed body cannot have a velocity"),
-])
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"mass": -1.0}, "mass must be positive"),
+        ({"inertia": np.diag([1.0, 1.0, 3.0])}, "triangle inequality"),
+        ({"inertia": np.diag([1.0, -1.0, 1.0])}, "principal moments"),
+        ({"inertia": [[1.0, 0.5, 0], [0, 1.0, 0], [0, 0, 1.0]]}, "symmetric"),
+        ({"rotation": 2 * np.eye(3)}, "not a rotation"),
+        ({"rotation": np.diag([1.0, 1.0, -1.0])}, "not a rotation"),
+        ({"position": (0.0, np.nan, 0.0)}, "position"),
+        ({"motion": "kinematic"}, "motion must be one of"),
+        ({"motion": "prescribed"}, "trajectory is required"),
+        ({"motion": "fixed", "velocity": (1.0, 0, 0)}, "fixed body cannot have a velocity"),
+    ],
+)
 def test_bad_rigid_bodies_are_clear_errors(kwargs, message):
     args = {"mass": 1.0, "inertia": np.eye(3)} | kwargs
     with pytest.raises(ValueError, match=message) as info:
@@ -749,6 +856,7 @@ def test_bad_systems_are_clear_errors():
     class BadElement:
         def wrenches(self, t):
             return [(jaw, np.zeros(3))]
+
     other = Scene(GRAVITY)
     other.add(jaw, BadElement())
     with pytest.raises(ValueError, match="BadElement: expected a finite array of shape"):
@@ -756,9 +864,11 @@ def test_bad_systems_are_clear_errors():
 
     def bad_trajectory(t):
         return BodyState(np.zeros(3), 2 * np.eye(3), np.zeros(3), np.zeros(3))
+
     with pytest.raises(ValueError, match="'cam': trajectory.*rotation"):
-        Scene().add(RigidBody("cam", 1.0, np.eye(3), motion="prescribed",
-                                    trajectory=bad_trajectory))
+        Scene().add(
+            RigidBody("cam", 1.0, np.eye(3), motion="prescribed", trajectory=bad_trajectory)
+        )
 
 
 def test_singular_step_is_reported():
@@ -771,7 +881,8 @@ def test_singular_step_is_reported():
 
         def jacobians(self, t):
             return [(body, body, np.diag([4.0, 0, 0, 0, 0, 0]), None)]
-    system = Scene(GRAVITY, max_halvings=0)       # halving would make it regular
+
+    system = Scene(GRAVITY, max_halvings=0)  # halving would make it regular
     system.add(body, Antispring())
     with pytest.raises(StepFailed, match="singular"):
-        system.step(0.5)                    # A_00 = m - h^2 K_00 = 1 - 0.25 * 4 = 0
+        system.step(0.5)  # A_00 = m - h^2 K_00 = 1 - 0.25 * 4 = 0

@@ -23,8 +23,9 @@ MATERIAL = NeoHookean.from_young_poisson(1e4, 0.3)
 
 
 def _box():
-    return mesh.create_box(MPI.COMM_WORLD, [[0, 0, 0], [1.0, 0.4, 0.4]], [5, 2, 2],
-                           mesh.CellType.hexahedron)
+    return mesh.create_box(
+        MPI.COMM_WORLD, [[0, 0, 0], [1.0, 0.4, 0.4]], [5, 2, 2], mesh.CellType.hexahedron
+    )
 
 
 def _muscles(body, rng):
@@ -35,15 +36,20 @@ def _muscles(body, rng):
     for k, (name, span) in enumerate(spans.items()):
         cells = np.array(list(span)) % n
         fiber = BlemkerFiber(max_stress=1e3 * (k + 1), P2=6.6 if name != "d" else 4.0)
-        body.add_muscle(name, cells, rng.standard_normal((cells.size, 3)), fiber,
-                        excitation=0.2 * (k + 1))
+        body.add_muscle(
+            name, cells, rng.standard_normal((cells.size, 3)), fiber, excitation=0.2 * (k + 1)
+        )
 
 
 def _alone(body, term):
     """(R, K) of one energy term assembled on its own at the body's u."""
     F = body.kinematics()
-    dx = ufl.Measure("dx", domain=body.mesh, metadata={"quadrature_degree": term.degree},
-                     subdomain_data=[(1, term.cells)])(1)
+    dx = ufl.Measure(
+        "dx",
+        domain=body.mesh,
+        metadata={"quadrature_degree": term.degree},
+        subdomain_data=[(1, term.cells)],
+    )(1)
     Pi = term.density(F, term.direction) * dx
     v, du = ufl.TestFunction(body.V), ufl.TrialFunction(body.V)
     R = ufl.derivative(Pi, body.u, v)
@@ -70,7 +76,7 @@ def test_the_layers_assemble_the_sum_of_the_muscles():
     bare = FemBody(_box(), MATERIAL, 1000.0, gravity=(0, 0, 0))
     _muscles(body, rng)
     layers = body._muscle_layers().layers
-    assert len(layers) == 3 + 1            # three deep for b, c, a; d alone
+    assert len(layers) == 3 + 1  # three deep for b, c, a; d alone
     u = 0.03 * rng.standard_normal(body.u.x.array.size)
     for excitations in ({}, {"a": 1.0, "b": 0.0, "c": 0.55, "d": 0.9}):
         for name, value in excitations.items():
@@ -95,11 +101,15 @@ def test_the_layers_compile_one_kernel_per_layer():
     rng = np.random.default_rng(1)
     body = FemBody(_box(), MATERIAL, 1000.0, gravity=(0, 0, 0))
     for k in range(10):
-        body.add_muscle(f"m{k}", [2 * k, 2 * k + 1], rng.standard_normal(3),
-                        BlemkerFiber(max_stress=100.0 * (k + 1)))
+        body.add_muscle(
+            f"m{k}",
+            [2 * k, 2 * k + 1],
+            rng.standard_normal(3),
+            BlemkerFiber(max_stress=100.0 * (k + 1)),
+        )
     assert len(body._muscle_layers().layers) == 1
     body.compile()
-    assert body._compiled["K"].num_integrals(fem.IntegralType.cell, 0) == 2   # material, layer
+    assert body._compiled["K"].num_integrals(fem.IntegralType.cell, 0) == 2  # material, layer
 
 
 @pytest.mark.parametrize("excitation", [0.0, 0.7])
@@ -115,10 +125,10 @@ def test_a_muscle_with_point_directions_merges_with_its_kind(excitation):
                 continue
             a0 = fem.Function(W)
             d = np.random.default_rng(len(name) + ord(name)).standard_normal(
-                (a0.x.array.size // 3, 3))
+                (a0.x.array.size // 3, 3)
+            )
             a0.x.array[:] = (d / np.linalg.norm(d, axis=1)[:, None]).ravel()
-            body.add_muscle(name, cells, a0, BlemkerFiber(max_stress=2e3),
-                            excitation=excitation)
+            body.add_muscle(name, cells, a0, BlemkerFiber(max_stress=2e3), excitation=excitation)
         body.u.x.array[:] = 0.05 * np.random.default_rng(11).standard_normal(body.u.x.array.size)
         energies.append(body.potential_energy())
     bare = FemBody(_box(), MATERIAL, 1000.0, gravity=(0, 0, 0))

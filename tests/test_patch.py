@@ -29,9 +29,7 @@ N = (4, 3, 3)
 CELLS = {"hexahedron": dmesh.CellType.hexahedron, "tetrahedron": dmesh.CellType.tetrahedron}
 
 # A general (non-symmetric) affine map with det(I + A) > 0: stretch, shear, rotation.
-A_AFFINE = np.array([[0.08, -0.05, 0.03],
-                     [0.04, -0.06, 0.07],
-                     [-0.02, 0.05, 0.10]])
+A_AFFINE = np.array([[0.08, -0.05, 0.03], [0.04, -0.06, 0.07], [-0.02, 0.05, 0.10]])
 C_AFFINE = np.array([0.01, -0.02, 0.015])
 
 MATERIALS = {
@@ -96,8 +94,9 @@ def test_patch_test_detects_a_wrong_boundary_value(cell):
     msh, interior = distorted_box(cell)
     body = FemBody(msh, MATERIALS["neo-hookean"], density=1000.0)
     inputs = np.asarray(msh.geometry.input_global_indices)
-    body.fix_nodes(inputs[~interior],
-                   displacement=lambda x: affine(x) + 0.02 * np.sin(3 * x[[1, 2, 0]]))
+    body.fix_nodes(
+        inputs[~interior], displacement=lambda x: affine(x) + 0.02 * np.sin(3 * x[[1, 2, 0]])
+    )
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     scene.solve_static()
@@ -133,7 +132,8 @@ def test_consistent_and_lumped_mass_give_the_same_momentum(cell):
         momenta[kind] = msh.comm.allreduce(local)
         # Kinetic energy of a rigid translation: 1/2 m |v|^2 for both mass kinds.
         assert body.kinetic_energy() == pytest.approx(
-            0.5 * rho * np.prod(BOX) * velocity @ velocity, rel=1e-12)
+            0.5 * rho * np.prod(BOX) * velocity @ velocity, rel=1e-12
+        )
         Mv.destroy()
     expected = rho * np.prod(BOX) * velocity
     np.testing.assert_allclose(momenta["lumped"], expected, rtol=1e-12)
@@ -147,8 +147,12 @@ def test_material_parameters_are_run_time_constants():
     msh, _ = distorted_box("hexahedron")
     tangents, masses, signatures = [], [], []
     for k, (kappa, rho) in enumerate([(1.0e4, 900.0), (2.0e4, 1000.0), (3.0e4, 1100.0)]):
-        body = FemBody(msh, MooneyRivlin(1037.0, C20=486.0, kappa=kappa), density=rho,
-                       incompressibility=100.0 * (k + 1))
+        body = FemBody(
+            msh,
+            MooneyRivlin(1037.0, C20=486.0, kappa=kappa),
+            density=rho,
+            incompressibility=100.0 * (k + 1),
+        )
         body.compile()
         body.assemble(tangent=True)
         form = body._compiled["K"]

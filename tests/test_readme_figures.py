@@ -22,7 +22,7 @@ def printed(text: str) -> tuple[float, float]:
     """(value, half a unit of its last printed digit) of '1,136', '61.4' or '**382.1**'."""
     text = text.strip().strip("*").replace(",", "")
     decimals = len(text.split(".")[1]) if "." in text else 0
-    return float(text), 0.5 * 10.0 ** -decimals + 1e-9
+    return float(text), 0.5 * 10.0**-decimals + 1e-9
 
 
 def agrees(text: str, value: float) -> bool:
@@ -32,20 +32,23 @@ def agrees(text: str, value: float) -> bool:
 
 def table_after(marker: str, text: str = README) -> list[list[str]]:
     """The cells of the first Markdown table after ``marker`` in ``text`` (the README)."""
-    lines = text[text.index(marker):].splitlines()
+    lines = text[text.index(marker) :].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     rows = []
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         rows.append([c.strip() for c in line.strip("|").split("|")])
     return rows
 
 
-@pytest.mark.parametrize("name, marker, key", [
-    ("fom.json", "(`docs/benchmarks/fom.json`)", "nodes"),
-    ("tongue.json", "`docs/benchmarks/tongue.json`:", "level"),
-])
+@pytest.mark.parametrize(
+    "name, marker, key",
+    [
+        ("fom.json", "(`docs/benchmarks/fom.json`)", "nodes"),
+        ("tongue.json", "`docs/benchmarks/tongue.json`:", "level"),
+    ],
+)
 def test_step_tables_match_the_benchmark_json(name, marker, key):
     cases = {(c[key], c["ranks"]): c for c in load(name)["cases"]}
     rows = table_after(marker)
@@ -67,33 +70,54 @@ def test_step_tables_match_the_benchmark_json(name, marker, key):
 def test_scene_step_costs_match_scenes_json():
     scenes = load("scenes.json")["scenes"]
     jt, air, mas = scenes["jaw-tongue"]["cases"], scenes["airway"], scenes["masseter"]["cases"]
-    text = re.sub(r"\s+", " ", README[README.index("`artifem bench scenes --out FILE.json` times"):])
-    m = re.search(r"jaw-tongue step takes ([\d.,]+) ms with the full tongue and ([\d.,]+) ms with "
-                  r"the reduced one \(([\d.]+)x\)", text)
+    text = re.sub(
+        r"\s+", " ", README[README.index("`artifem bench scenes --out FILE.json` times") :]
+    )
+    m = re.search(
+        r"jaw-tongue step takes ([\d.,]+) ms with the full tongue and ([\d.,]+) ms with "
+        r"the reduced one \(([\d.]+)x\)",
+        text,
+    )
     assert m, "the jaw-tongue sentence changed: update this test with it"
     assert agrees(m[1], jt["full"]["ms_per_step"]) and agrees(m[2], jt["reduced"]["ms_per_step"])
     assert agrees(m[3], jt["speedup"])
-    m = re.search(r"airway costs ([\d.,]+) ms per step with the full tongue and ([\d.,]+) ms with "
-                  r"its skin and the 1 kPa pressure; with the reduced tongue ([\d.,]+) and "
-                  r"([\d.,]+) ms \(([\d.]+)x and ([\d.]+)x", text)
+    m = re.search(
+        r"airway costs ([\d.,]+) ms per step with the full tongue and ([\d.,]+) ms with "
+        r"its skin and the 1 kPa pressure; with the reduced tongue ([\d.,]+) and "
+        r"([\d.,]+) ms \(([\d.]+)x and ([\d.]+)x",
+        text,
+    )
     assert m, "the airway sentence changed: update this test with it"
     full, red = air["cases"]["full"], air["cases"]["reduced"]
-    for shown, value in zip(m.groups(), [full["ms_per_step_without_airway"],
-                                         full["ms_per_step_with_skin_pressure"],
-                                         red["ms_per_step_without_airway"],
-                                         red["ms_per_step_with_skin_pressure"],
-                                         air["speedup"]["ms_per_step_without_airway"],
-                                         air["speedup"]["ms_per_step_with_skin_pressure"]]):
+    for shown, value in zip(
+        m.groups(),
+        [
+            full["ms_per_step_without_airway"],
+            full["ms_per_step_with_skin_pressure"],
+            red["ms_per_step_without_airway"],
+            red["ms_per_step_with_skin_pressure"],
+            air["speedup"]["ms_per_step_without_airway"],
+            air["speedup"]["ms_per_step_with_skin_pressure"],
+        ],
+    ):
         assert agrees(shown, value), (shown, value)
-    m = re.search(r"masseter takes ([\d.,]+) ms conforming, ([\d.,]+) ms conforming with embedded "
-                  r"membranes, ([\d.,]+) ms on the voxel grid with membranes, and ([\d.,]+) ms with "
-                  r"conforming aponeurosis slabs \(([\d.,]+) masters\)", text)
+    m = re.search(
+        r"masseter takes ([\d.,]+) ms conforming, ([\d.,]+) ms conforming with embedded "
+        r"membranes, ([\d.,]+) ms on the voxel grid with membranes, and ([\d.,]+) ms with "
+        r"conforming aponeurosis slabs \(([\d.,]+) masters\)",
+        text,
+    )
     assert m, "the masseter sentence changed: update this test with it"
-    for shown, value in zip(m.groups(), [mas["conforming/none"]["ms_per_step"],
-                                         mas["conforming/embedded"]["ms_per_step"],
-                                         mas["embedding/embedded"]["ms_per_step"],
-                                         mas["conforming/slabs"]["ms_per_step"],
-                                         mas["conforming/slabs"]["masters"]]):
+    for shown, value in zip(
+        m.groups(),
+        [
+            mas["conforming/none"]["ms_per_step"],
+            mas["conforming/embedded"]["ms_per_step"],
+            mas["embedding/embedded"]["ms_per_step"],
+            mas["conforming/slabs"]["ms_per_step"],
+            mas["conforming/slabs"]["masters"],
+        ],
+    ):
         assert abs(printed(shown)[0] - value) <= max(printed(shown)[1], 0.5), (shown, value)
 
 
@@ -106,15 +130,19 @@ def test_fom_targets_sentence_matches_fom_json():
 def test_jaw_tongue_reduced_table_matches_its_study_json():
     """| full | 78-83 |; | reduced | 4.5-4.8 (17x) | 0.82-1.06 mm; jaw angle within 0.15 deg |:
     ranges over the three motions of docs/jaw_tongue_reduced/jaw_tongue_reduced.json."""
-    study = json.loads((ROOT / "docs" / "jaw_tongue_reduced" / "jaw_tongue_reduced.json")
-                       .read_text())["motions"].values()
+    study = json.loads(
+        (ROOT / "docs" / "jaw_tongue_reduced" / "jaw_tongue_reduced.json").read_text()
+    )["motions"].values()
     rows = {r[0].split(" (")[0]: r for r in table_after("DIR`; POD of full jaw-tongue training")}
 
     def span(text):
         lo, hi = text.split(" ")[0].split("-")
         return lo, hi
 
-    full, reduced = [m["full_ms_per_step"] for m in study], [m["reduced_ms_per_step"] for m in study]
+    full, reduced = (
+        [m["full_ms_per_step"] for m in study],
+        [m["reduced_ms_per_step"] for m in study],
+    )
     lo, hi = span(rows["full"][1])
     assert agrees(lo, min(full)) and agrees(hi, max(full))
     lo, hi = span(rows["reduced"][1])
@@ -131,9 +159,12 @@ def test_jaw_tongue_reduced_table_matches_its_study_json():
 def test_mutation_figures_on_the_verification_page_match_mutation_json():
     totals = load("mutation.json")["totals"]
     page = (ROOT / "docs" / "verification.md").read_text()
-    text = re.sub(r"\s+", " ", page[page.index("## Mutation study"):])
-    m = re.search(r"(\d+) scripted mutations .*?: (\d+) killed, (\d+) survived, a kill rate of "
-                  r"(\d+) % \((\d+) % of the (\d+) non-equivalent mutants", text)
+    text = re.sub(r"\s+", " ", page[page.index("## Mutation study") :])
+    m = re.search(
+        r"(\d+) scripted mutations .*?: (\d+) killed, (\d+) survived, a kill rate of "
+        r"(\d+) % \((\d+) % of the (\d+) non-equivalent mutants",
+        text,
+    )
     assert m, "the mutation sentence changed: update this test with it"
     mutants, killed, survived, rate, rate_relevant, relevant = (int(g) for g in m.groups())
     assert (mutants, killed, survived) == (totals["mutants"], totals["killed"], totals["survived"])
@@ -146,8 +177,11 @@ def test_suite_figures_match_the_durations_json():
     """The README's size and time of the suite are those of the run that wrote
     tests/durations.json (``make test-durations``: a passing run, empty JIT cache)."""
     run = json.loads((ROOT / "tests" / "durations.json").read_text())
-    m = re.search(r"The run that wrote `tests/durations.json` .*? ran ([\d,]+) tests in "
-                  r"([\d.]+) minutes of pytest", re.sub(r"\s+", " ", README))
+    m = re.search(
+        r"The run that wrote `tests/durations.json` .*? ran ([\d,]+) tests in "
+        r"([\d.]+) minutes of pytest",
+        re.sub(r"\s+", " ", README),
+    )
     assert m, "the README's Verification section must quote tests/durations.json"
     assert int(m.group(1).replace(",", "")) == run["tests"]
     assert agrees(m.group(2), run["wall_s"] / 60.0)
@@ -161,12 +195,15 @@ def test_held_out_figures_match_the_generalization_jsons():
     docs/tongue_study/level0_generalization{_each_alone,}/, level0_greedy/ and
     level1_generalization/generalization.json."""
     page = (ROOT / "docs" / "tongue_study.md").read_text()
-    for label, folder in (("each exciter alone", "level0_generalization_each_alone"),
-                          ("and 20 random schedules", "level0_generalization"),
-                          ("and 20 greedy of a pool of 30", "level0_greedy"),
-                          ("level 1, and 20 random schedules", "level1_generalization")):
-        split = json.loads((ROOT / "docs" / "tongue_study" / folder / "generalization.json")
-                           .read_text())
+    for label, folder in (
+        ("each exciter alone", "level0_generalization_each_alone"),
+        ("and 20 random schedules", "level0_generalization"),
+        ("and 20 greedy of a pool of 30", "level0_greedy"),
+        ("level 1, and 20 random schedules", "level1_generalization"),
+    ):
+        split = json.loads(
+            (ROOT / "docs" / "tongue_study" / folder / "generalization.json").read_text()
+        )
         row = next(line for line in page.splitlines() if line.startswith(f"| {label}"))
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert int(cells[1]) == split["reduced"]["runs"]
@@ -175,11 +212,13 @@ def test_held_out_figures_match_the_generalization_jsons():
             errors = [r["max_error_mm"] for r in split["sets"][name]]
             lo, hi = cell.split("-")
             assert agrees(lo, min(errors)) and agrees(hi, max(errors))
-            quoted = {"each exciter alone": ("motions", "held-out"),
-                      "and 20 random schedules": ("held-out",),
-                      "and 20 greedy of a pool of 30": (),
-                      "level 1, and 20 random schedules": ()}[label]
-            if name in quoted:                              # the README's sentence
+            quoted = {
+                "each exciter alone": ("motions", "held-out"),
+                "and 20 random schedules": ("held-out",),
+                "and 20 greedy of a pool of 30": (),
+                "level 1, and 20 random schedules": (),
+            }[label]
+            if name in quoted:  # the README's sentence
                 assert f"{min(errors):.2f}-{max(errors):.2f} mm" in README.replace("\n", " ")
         ratios = [r["estimate_ratio"] for r in split["sets"]["held-out"]]
         lo, hi = cells[6].split("-")
@@ -192,8 +231,16 @@ def test_distributed_training_table_matches_its_jsons():
     page = (ROOT / "docs" / "tongue_study.md").read_text()
     one = None
     for ranks in (1, 2):
-        run = json.loads((ROOT / "docs" / "tongue_study" / "distributed_training" /
-                          f"ranks{ranks}" / "training.json").read_text())
+        run = json.loads(
+            (
+                ROOT
+                / "docs"
+                / "tongue_study"
+                / "distributed_training"
+                / f"ranks{ranks}"
+                / "training.json"
+            ).read_text()
+        )
         assert run["ranks"] == ranks and run["missing"] == run["runs"]
         row = next(line for line in page.splitlines() if line.startswith(f"| {ranks} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
@@ -208,11 +255,15 @@ def test_reduced_step_table_matches_the_bench_json():
     """docs/tongue_study.md's table of a reduced step's parts, from
     docs/benchmarks/reduced.json (artifem bench reduced)."""
     page = (ROOT / "docs" / "tongue_study.md").read_text()
-    penalty, hard = json.loads((ROOT / "docs" / "benchmarks" / "reduced.json")
-                               .read_text())["cases"]
+    penalty, hard = json.loads((ROOT / "docs" / "benchmarks" / "reduced.json").read_text())["cases"]
     assert (penalty["incompressibility"], hard["incompressibility"]) == ("penalty", "hard")
-    labels = {"stresses": "| stresses", "tangent": "| tangent", "force": "| force",
-              "kinematics": "| kinematics", "rest": "| rest"}
+    labels = {
+        "stresses": "| stresses",
+        "tangent": "| tangent",
+        "force": "| force",
+        "kinematics": "| kinematics",
+        "rest": "| rest",
+    }
     for part, label in labels.items():
         row = next(line for line in page.splitlines() if line.startswith(label))
         cells = [c.strip() for c in row.strip("|").split("|")]
@@ -230,10 +281,14 @@ def test_reduced_step_table_matches_the_bench_json():
     flops = ", ".join(f"{k['flops_per_point']:,}" for k in penalty["kernels"][2:])
     assert flops.replace(", 7", " and 7") in page.replace("\n", " ")
     assert f"{penalty['ms_per_step']:.3f} ms per step at r = 20, m = 300" in page
-    assert (f"{penalty['ms_per_step']:.3f} ms per step with the penalty and "
-            f"{hard['ms_per_step']:.3f} ms with the") in README.replace("\n", " ")
-    assert (f"{penalty['max_step_over_median']:.2f}x the median (penalty) and "
-            f"{hard['max_step_over_median']:.2f}x (hard)") in page.replace("\n", " ")
+    assert (
+        f"{penalty['ms_per_step']:.3f} ms per step with the penalty and "
+        f"{hard['ms_per_step']:.3f} ms with the"
+    ) in README.replace("\n", " ")
+    assert (
+        f"{penalty['max_step_over_median']:.2f}x the median (penalty) and "
+        f"{hard['max_step_over_median']:.2f}x (hard)"
+    ) in page.replace("\n", " ")
 
 
 def test_level1_split_figures_match_their_jsons():
@@ -256,8 +311,10 @@ def test_level1_split_figures_match_their_jsons():
     assert f"within {min(ratios):.2f}-{max(ratios):.2f} of the error" in page
     assert f"{training['wall_seconds']:,.0f} s on two ranks" in page
     text = README.replace("\n", " ")
-    assert f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at " \
-           f"{min(ms):.2f}-{max(ms):.2f} ms" in text
+    assert (
+        f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at "
+        f"{min(ms):.2f}-{max(ms):.2f} ms" in text
+    )
     assert f"{training['compute_seconds']:,.0f} s of computation" in page
     best = [r["projection_mm"] for r in held]
     every = [r["every_point_mm"] for r in held]
@@ -266,14 +323,17 @@ def test_level1_split_figures_match_their_jsons():
     ratio = [e / b for e, b in zip(every, best)]
     assert f"error, {min(ratio):.1f}-{max(ratio):.1f}x the best approximation" in page
     assert f"basis holds those runs within {max(best):.2f} mm" in text
-    r30 = json.loads((ROOT / "docs" / "tongue_study" / "level1_r30" / "generalization.json")
-                     .read_text())
+    r30 = json.loads(
+        (ROOT / "docs" / "tongue_study" / "level1_r30" / "generalization.json").read_text()
+    )
     assert r30["reduced"]["basis"]["r"] == 30 and r30["reduced"]["points"]["count"] == 300
     held = r30["sets"]["held-out"]
-    for pattern, key in (("lie within {}-{} mm", "projection_mm"),
-                         ("is off by {}-{} mm", "max_error_mm"),
-                         ("({}-{} mm with every point)", "every_point_mm"),
-                         ("at {}-{} ms per step", "reduced_ms_per_step")):
+    for pattern, key in (
+        ("lie within {}-{} mm", "projection_mm"),
+        ("is off by {}-{} mm", "max_error_mm"),
+        ("({}-{} mm with every point)", "every_point_mm"),
+        ("at {}-{} ms per step", "reduced_ms_per_step"),
+    ):
         values = [r[key] for r in held]
         assert pattern.format(f"{min(values):.2f}", f"{max(values):.2f}") in page, key
 
@@ -283,8 +343,9 @@ def test_styloglossus_reduced_sentence_matches_its_json():
     errors = [r["error_vs_full"] for r in table if "error_vs_full" in r]
     speedups = [e["speedup"] for e in errors]
     attachment = [e["attachment_mm"] for e in errors]
-    found = re.search(r"runs it (\d+)-(\d+)x faster with ([\d.]+)-([\d.]+) mm attachment error",
-                      README)
+    found = re.search(
+        r"runs it (\d+)-(\d+)x faster with ([\d.]+)-([\d.]+) mm attachment error", README
+    )
     assert found, "the README's styloglossus sentence is gone"
     assert agrees(found[1], min(speedups)) and agrees(found[2], max(speedups))
     assert agrees(found[3], min(attachment)) and agrees(found[4], max(attachment))
@@ -298,10 +359,12 @@ def test_jaw_tongue_split_figures_match_their_jsons():
     training = json.loads((root / "training.json").read_text())
     held = split["held-out"]
     text = re.sub(r"\s+", " ", README)
-    found = re.search(r"\((\d+) training runs shared over two ranks in ([\d.]+) s\) the reduced "
-                      r"model stays within ([\d.]+)-([\d.]+) mm of the full one on six held-out "
-                      r"schedules, (\d+)-(\d+)x faster, its estimate within ([\d.]+)-([\d.]+)",
-                      text)
+    found = re.search(
+        r"\((\d+) training runs shared over two ranks in ([\d.]+) s\) the reduced "
+        r"model stays within ([\d.]+)-([\d.]+) mm of the full one on six held-out "
+        r"schedules, (\d+)-(\d+)x faster, its estimate within ([\d.]+)-([\d.]+)",
+        text,
+    )
     assert found, "the README's jaw-tongue split sentence is gone"
     assert int(found[1]) == training["runs"] == training["missing"] and training["ranks"] == 2
     assert agrees(found[2], training["wall_seconds"])
@@ -313,10 +376,15 @@ def test_jaw_tongue_split_figures_match_their_jsons():
     assert agrees(found[5], min(speedups)) and agrees(found[6], max(speedups))
     assert agrees(found[7], min(ratios)) and agrees(found[8], max(ratios))
     page = (ROOT / "docs" / "reduction.md").read_text()
-    rows = {line.split("|")[1].strip(): [c.strip() for c in line.strip().strip("|").split("|")]
-            for line in page[page.index("| set | runs |"):].splitlines()[2:5]}
-    for label, name in (("training", "training"), ("the three", "motions"),
-                        ("held-out", "held-out")):
+    rows = {
+        line.split("|")[1].strip(): [c.strip() for c in line.strip().strip("|").split("|")]
+        for line in page[page.index("| set | runs |") :].splitlines()[2:5]
+    }
+    for label, name in (
+        ("training", "training"),
+        ("the three", "motions"),
+        ("held-out", "held-out"),
+    ):
         row = next(v for k, v in rows.items() if k.startswith(label))
         runs = split[name]
         assert int(row[1]) == len(runs)
@@ -330,9 +398,14 @@ def test_hard_against_penalty_bullet_matches_its_jsons():
     """docs/tongue_study.md: the same each-alone training, hard and penalty, with the
     error's sources."""
     page = (ROOT / "docs" / "tongue_study.md").read_text().replace("\n  ", " ")
-    held = {inc: json.loads((ROOT / "docs" / "tongue_study" / f"level0_sources_{inc}" /
-                             "generalization.json").read_text())["sets"]["held-out"]
-            for inc in ("hard", "penalty")}
+    held = {
+        inc: json.loads(
+            (
+                ROOT / "docs" / "tongue_study" / f"level0_sources_{inc}" / "generalization.json"
+            ).read_text()
+        )["sets"]["held-out"]
+        for inc in ("hard", "penalty")
+    }
 
     def span(values, unit=""):
         return f"{min(values):.2f}-{max(values):.2f}{unit}"
@@ -342,15 +415,21 @@ def test_hard_against_penalty_bullet_matches_its_jsons():
         return f"{min(ratios):.1f}-{max(ratios):.1f}x"
 
     hard, penalty = held["hard"], held["penalty"]
-    assert (f"off by {span([r['max_error_mm'] for r in hard], ' mm')} on the held-out "
-            f"schedules, against {span([r['max_error_mm'] for r in penalty], ' mm')} with "
-            "the penalty") in page
-    assert (f"at {span([r['reduced_ms_per_step'] for r in hard], ' ms')} per step against "
-            f"{span([r['reduced_ms_per_step'] for r in penalty], ' ms')}") in page
+    assert (
+        f"off by {span([r['max_error_mm'] for r in hard], ' mm')} on the held-out "
+        f"schedules, against {span([r['max_error_mm'] for r in penalty], ' mm')} with "
+        "the penalty"
+    ) in page
+    assert (
+        f"at {span([r['reduced_ms_per_step'] for r in hard], ' ms')} per step against "
+        f"{span([r['reduced_ms_per_step'] for r in penalty], ' ms')}"
+    ) in page
     assert f"its error is {gap(hard)} the best" in page and f"against {gap(penalty)} with" in page
     lower = sum(h["max_error_mm"] < p["max_error_mm"] for h, p in zip(hard, penalty))
-    assert f"lowers the error on {['no', 'one', 'two', 'three', 'four', 'five', 'all'][lower]} " \
-           "of the six" in page
+    assert (
+        f"lowers the error on {['no', 'one', 'two', 'three', 'four', 'five', 'all'][lower]} "
+        "of the six" in page
+    )
     assert [r["name"] for r in hard if r["full_failed"]] == ["held-out-1000-2"]
 
 
@@ -358,13 +437,15 @@ def test_robustness_page_matches_its_jsons():
     """docs/robustness.md's table: each row is docs/robustness/<directory>/robustness.json
     (``artifem study robustness``)."""
     page = (ROOT / "docs" / "robustness.md").read_text()
-    lines = page[page.index("| model (directory) |"):].splitlines()[2:]
-    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines
-            if line.startswith("|")]
+    lines = page[page.index("| model (directory) |") :].splitlines()[2:]
+    rows = [
+        [c.strip() for c in line.strip("|").split("|")] for line in lines if line.startswith("|")
+    ]
     assert len(rows) >= 3
     for name, finished, median, worst, fallbacks, halvings, det, volume in rows:
-        s = json.loads((ROOT / "docs" / "robustness" / name / "robustness.json").read_text()
-                       )["summary"]
+        s = json.loads((ROOT / "docs" / "robustness" / name / "robustness.json").read_text())[
+            "summary"
+        ]
         assert finished.replace(" ", "") == f"{s['finished']}/{s['schedules']}", name
         assert agrees(median, s["median_cost"]) and agrees(worst, s["worst_cost"]), name
         assert (int(fallbacks), int(halvings)) == (s["fallbacks"], s["halvings"]), name
@@ -378,27 +459,31 @@ def test_static_newton_counts_on_the_verification_page_match_their_json():
     scripts/static_newton_counts.py's rendering of docs/benchmarks/static_newton.json, and
     the membrane's first-increment deflections are that file's."""
     import importlib.util
+
     spec = importlib.util.spec_from_file_location(
-        "static_newton_counts", ROOT / "scripts" / "static_newton_counts.py")
+        "static_newton_counts", ROOT / "scripts" / "static_newton_counts.py"
+    )
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     results = load("static_newton.json")
     page = (ROOT / "docs" / "verification.md").read_text()
-    section = page[page.index("## Static Newton"):]
-    section = section[:section.index("\n## ")] if "\n## " in section else section
+    section = page[page.index("## Static Newton") :]
+    section = section[: section.index("\n## ")] if "\n## " in section else section
     rows = [line for line in section.splitlines() if line.startswith("| ")][1:]
     now = {line.strip("|").split("|")[-1].strip() for line in rows}
     for name in script.CASES:
         assert script.render(results[name]) in now, name
     first = results["membrane16_first_increment"]
     text = re.sub(r"\s+", " ", section)
-    m = re.search(r"deflects it ([\d.]+) m \(16 x 16\), (\w+) times its equilibrium "
-                  r"deflection of ([\d.]+) m", text)
+    m = re.search(
+        r"deflects it ([\d.]+) m \(16 x 16\), (\w+) times its equilibrium "
+        r"deflection of ([\d.]+) m",
+        text,
+    )
     assert m, "the membrane sentence changed: update this test with it"
     assert agrees(m[1], -first["linear_step_min_uz"])
     assert agrees(m[3], -first["equilibrium_min_uz"])
-    assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first[
-        "equilibrium_min_uz"] < 4.5
+    assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first["equilibrium_min_uz"] < 4.5
 
 
 def test_the_tongue_drop_on_the_contact_page_matches_its_json():
@@ -406,9 +491,12 @@ def test_the_tongue_drop_on_the_contact_page_matches_its_json():
     ``artifem bench contact --tongue`` (docs/benchmarks/contact_tongue.json)."""
     case = load("contact_tongue.json")["cases"][0]
     page = (ROOT / "docs" / "contact.md").read_text()
-    text = re.sub(r"\s+", " ", page[page.index("## The tongue dropped on a floor"):])
-    m = re.search(r"\*\*([\d.]+) ms per step\*\* \(median, ([\d.]+)x the free fall\), up to "
-                  r"(\d+) contact rows, the deepest node ([\d.e+-]+) mm below the floor", text)
+    text = re.sub(r"\s+", " ", page[page.index("## The tongue dropped on a floor") :])
+    m = re.search(
+        r"\*\*([\d.]+) ms per step\*\* \(median, ([\d.]+)x the free fall\), up to "
+        r"(\d+) contact rows, the deepest node ([\d.e+-]+) mm below the floor",
+        text,
+    )
     assert m, "the tongue sentence changed: update this test with it"
     assert agrees(m[1], case["step_ms"]) and agrees(m[2], case["ratio_to_no_contact"])
     assert int(m[3]) == case["max_rows"]
@@ -420,11 +508,17 @@ def test_the_tongue_drop_on_the_contact_page_matches_its_json():
 def test_the_contact_scale_figure_in_the_readme_matches_the_bench_json():
     """The README's contact cost at 500 active rows: the rule's path for the 484 points of
     ``artifem bench contact`` (docs/benchmarks/contact.json) on its largest block."""
-    cases = [c for c in load("contact.json")["cases"] if c["kind"] == "fem"
-             and c["points"] == 484 and c["mu"] == 0 and "forced_path" not in c]
+    cases = [
+        c
+        for c in load("contact.json")["cases"]
+        if c["kind"] == "fem" and c["points"] == 484 and c["mu"] == 0 and "forced_path" not in c
+    ]
     assert len(cases) == 1
-    m = re.search(r"500 active rows on a ([\d,]+)-node block cost ([\d.]+)x the step without "
-                  r"contact", re.sub(r"\s+", " ", README))
+    m = re.search(
+        r"500 active rows on a ([\d,]+)-node block cost ([\d.]+)x the step without "
+        r"contact",
+        re.sub(r"\s+", " ", README),
+    )
     assert m, "the README's contact sentence changed: update this test with it"
     assert int(m[1].replace(",", "")) == cases[0]["nodes"]
     assert agrees(m[2], cases[0]["ratio_to_no_contact"])
@@ -447,40 +541,60 @@ def test_the_foot_figures_match_its_json():
         row = next(r for k, r in rows.items() if k.startswith("reduced") and name in k)
         assert agrees(row[1], config["reduced_ms_per_step"]), name
     text = re.sub(r"\s+", " ", page)
-    m = re.search(r"floor carries ([\d.]+) N against ([\d.]+) N of load and weight "
-                  r"\(relative difference ([\d.e+-]+)\)", text)
+    m = re.search(
+        r"floor carries ([\d.]+) N against ([\d.]+) N of load and weight "
+        r"\(relative difference ([\d.e+-]+)\)",
+        text,
+    )
     assert m, "the foot page's balance sentence changed: update this test with it"
     assert agrees(m[1], standing["floor_normal_N"])
     assert agrees(m[2], standing["load_plus_weight_N"])
     assert float(m[3]) == pytest.approx(standing["relative_error"], rel=0.06)
-    m = re.search(r"against one full run of (\d+) ms per step, on 100 trained points: max "
-                  r"mean node error ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
-                  r"displacement ([\d.]+) mm\), (\d+) ms per step, ([\d.]+)x; on the paper's "
-                  r"100 random points: ([\d.]+) mm, (\d+) ms per step, ([\d.]+)x", text)
+    m = re.search(
+        r"against one full run of (\d+) ms per step, on 100 trained points: max "
+        r"mean node error ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
+        r"displacement ([\d.]+) mm\), (\d+) ms per step, ([\d.]+)x; on the paper's "
+        r"100 random points: ([\d.]+) mm, (\d+) ms per step, ([\d.]+)x",
+        text,
+    )
     assert m, "the foot page's reduced sentence changed: update this test with it"
-    for shown, value in zip(m.groups(), (
-            red["full_ms_per_step"], red["max_mean_node_error_mm"], red["max_node_error_mm"],
-            red["max_displacement_mm"], red["reduced_ms_per_step"], red["speedup"],
-            paper["max_mean_node_error_mm"], paper["reduced_ms_per_step"],
-            paper["speedup"])):
+    for shown, value in zip(
+        m.groups(),
+        (
+            red["full_ms_per_step"],
+            red["max_mean_node_error_mm"],
+            red["max_node_error_mm"],
+            red["max_displacement_mm"],
+            red["reduced_ms_per_step"],
+            red["speedup"],
+            paper["max_mean_node_error_mm"],
+            paper["reduced_ms_per_step"],
+            paper["speedup"],
+        ),
+    ):
         assert agrees(shown, value), (shown, value)
-    m = re.search(r"These are medians; the means are (\d+) ms \(trained\) and (\d+) ms "
-                  r"\(random\) against (\d+) ms", text)
+    m = re.search(
+        r"These are medians; the means are (\d+) ms \(trained\) and (\d+) ms "
+        r"\(random\) against (\d+) ms",
+        text,
+    )
     assert m, "the foot page's sentence on the means changed: update this test with it"
-    for shown, value in zip(m.groups(), (red["reduced_ms_mean"], paper["reduced_ms_mean"],
-                                         red["full_ms_mean"])):
+    for shown, value in zip(
+        m.groups(), (red["reduced_ms_mean"], paper["reduced_ms_mean"], red["full_ms_mean"])
+    ):
         assert agrees(shown, value), (shown, value)
     m = re.search(r"last 20 steps, the load settled, take (\d+) ms \(median\)", text)
     assert m and agrees(m[1], np.median(red["full_ms"][-20:]))
-    m = re.search(r"peak ([\d,.]+) kPa under the heel and ([\d.]+) kPa under the forefoot",
-                  text)
+    m = re.search(r"peak ([\d,.]+) kPa under the heel and ([\d.]+) kPa under the forefoot", text)
     assert m and agrees(m[1], standing["peak_pressure_by_region_kPa"]["rearfoot"])
     assert agrees(m[2], standing["peak_pressure_by_region_kPa"]["forefoot"])
-    m = re.search(r"The foot \(.*?\): ([\d,]+) nodes, ([\d,]+) ms per step with bones and "
-                  r"contact .*?; reduced on 100 trained points ([\d.]+) ms per step "
-                  r"\(median; mean ([\d.]+) ms.*?\), max mean node error ([\d.]+) mm .*?the "
-                  r"paper's 100 random points: ([\d.]+) mm\)",
-                  re.sub(r"\s+", " ", README))
+    m = re.search(
+        r"The foot \(.*?\): ([\d,]+) nodes, ([\d,]+) ms per step with bones and "
+        r"contact .*?; reduced on 100 trained points ([\d.]+) ms per step "
+        r"\(median; mean ([\d.]+) ms.*?\), max mean node error ([\d.]+) mm .*?the "
+        r"paper's 100 random points: ([\d.]+) mm\)",
+        re.sub(r"\s+", " ", README),
+    )
     assert m, "the README's foot sentence changed: update this test with it"
     assert int(m[1].replace(",", "")) == figures["nodes"]
     assert agrees(m[2], ms["with_bones_and_contact"])
@@ -498,48 +612,63 @@ def test_the_foot_lift_figures_match_its_json():
     text = re.sub(r"\s+", " ", (ROOT / "docs" / "foot.md").read_text())
     m = re.search(r"0.3 s, at (\d+) ms per step with bones and contact", text)
     assert m and agrees(m[1], figures["ms_per_step"]["with_bones_and_contact"])
-    m = re.search(r"against one full run \((\d+) ms per step\): on 100 trained points the max "
-                  r"mean node error is ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
-                  r"displacement ([\d.]+) mm\), (\d+) ms per step; on the paper's 100 random "
-                  r"points ([\d.]+) mm, (\d+) ms", text)
+    m = re.search(
+        r"against one full run \((\d+) ms per step\): on 100 trained points the max "
+        r"mean node error is ([\d.]+) mm \(largest node error ([\d.]+) mm; largest "
+        r"displacement ([\d.]+) mm\), (\d+) ms per step; on the paper's 100 random "
+        r"points ([\d.]+) mm, (\d+) ms",
+        text,
+    )
     assert m, "the foot page's reduced lift sentence changed: update this test with it"
     trained, paper = reduced["trained"], reduced["paper"]
-    for shown, value in zip(m.groups(), (trained["full_ms_per_step"],
-                                         trained["max_mean_node_error_mm"],
-                                         trained["max_node_error_mm"],
-                                         trained["max_displacement_mm"],
-                                         trained["reduced_ms_per_step"],
-                                         paper["max_mean_node_error_mm"],
-                                         paper["reduced_ms_per_step"])):
+    for shown, value in zip(
+        m.groups(),
+        (
+            trained["full_ms_per_step"],
+            trained["max_mean_node_error_mm"],
+            trained["max_node_error_mm"],
+            trained["max_displacement_mm"],
+            trained["reduced_ms_per_step"],
+            paper["max_mean_node_error_mm"],
+            paper["reduced_ms_per_step"],
+        ),
+    ):
         assert agrees(shown, value), (shown, value)
-    m = re.search(r"The talus turns ([\d.]+) degrees in dorsiflexion and the first metatarsal "
-                  r"rises by ([\d.]+) mm; the tibialis anterior pulls with (\d+) N and the "
-                  r"stretched soleus resists with (\d+) N", text)
+    m = re.search(
+        r"The talus turns ([\d.]+) degrees in dorsiflexion and the first metatarsal "
+        r"rises by ([\d.]+) mm; the tibialis anterior pulls with (\d+) N and the "
+        r"stretched soleus resists with (\d+) N",
+        text,
+    )
     assert m, "the foot page's lift sentence changed: update this test with it"
-    for shown, key in zip(m.groups(), ("talus_dorsiflexion_deg", "first_metatarsal_rise_mm",
-                                       "tibialis_anterior_N", "soleus_N")):
+    for shown, key in zip(
+        m.groups(),
+        ("talus_dorsiflexion_deg", "first_metatarsal_rise_mm", "tibialis_anterior_N", "soleus_N"),
+    ):
         assert agrees(shown, lift[key]), key
 
 
 def test_the_foot_reduced_configurations_match_their_json():
     """docs/foot.md's table of reduced configurations: scripts/foot_reduced_configs.py
     (docs/foot/reduced_configs_level0.json)."""
-    configs = json.loads((ROOT / "docs" / "foot" / "reduced_configs_level0.json")
-                         .read_text())["configs"]
-    rows = table_after("| POD vectors | integration points |",
-                       (ROOT / "docs" / "foot.md").read_text())
+    configs = json.loads((ROOT / "docs" / "foot" / "reduced_configs_level0.json").read_text())[
+        "configs"
+    ]
+    rows = table_after(
+        "| POD vectors | integration points |", (ROOT / "docs" / "foot.md").read_text()
+    )
     assert len(rows) == len(configs)
     for row, config in zip(rows, configs):
         assert int(row[0]) == config["pod_vectors"]
         assert row[1] == f"{config['points']} {config['sampling']}"
         if "failure" in config:
             shown = re.search(r"stops at t = ([\d.]+) s", row[2])[1]
-            assert agrees(shown, float(re.search(r"step failed at t = ([\d.]+) s",
-                                                 config["failure"])[1]))
+            assert agrees(
+                shown, float(re.search(r"step failed at t = ([\d.]+) s", config["failure"])[1])
+            )
         else:
             assert agrees(row[2], config["max_mean_node_error_mm"])
             assert agrees(row[3].split()[0], config["reduced_ms_per_step"])
-
 
 
 def test_registration_figures_match_their_jsons():
@@ -549,12 +678,13 @@ def test_registration_figures_match_their_jsons():
     from artifem.registration.skeletal import summary_table
 
     page = (ROOT / "docs" / "registration.md").read_text()
-    reports = {case: json.loads((ROOT / "docs" / "registration" / case /
-                                 "registration.json").read_text())
-               for case in ("rigid", "synthetic", "complete", "femur")}
+    reports = {
+        case: json.loads((ROOT / "docs" / "registration" / case / "registration.json").read_text())
+        for case in ("rigid", "synthetic", "complete", "femur")
+    }
     for case, report in reports.items():
         assert summary_table(report) in page, case
-    text = re.sub(r"\s+", " ", README[README.index("## Registration"):])
+    text = re.sub(r"\s+", " ", README[README.index("## Registration") :])
     methods = reports["synthetic"]["methods"]
     for method in ("jointed", "rigid", "affine", "single"):
         means = sorted(1e3 * r["mean"] for r in methods[method]["bones"].values())
@@ -576,8 +706,9 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
 
     raw = (ROOT / "docs" / "tongue_study.md").read_text()
     page = raw.replace("\n  ", " ")
-    folders = sorted(f.parent for f in (ROOT / "docs" / "tongue_study").glob(
-        "level*_gap/galerkin_gap.json"))
+    folders = sorted(
+        f.parent for f in (ROOT / "docs" / "tongue_study").glob("level*_gap/galerkin_gap.json")
+    )
     assert [f.name for f in folders][:1] == ["level0_gap"]
     for folder in folders:
         figures = json.loads((folder / "galerkin_gap.json").read_text())
@@ -587,31 +718,52 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
     def span(values, unit=""):
         return f"{min(values):.2f}-{max(values):.2f}{unit}"
 
-    assert "within " + span([abs(r["static_mm"] - r["reduced_mm"]) for r in runs],
-                            " mm") + " of the reduced run's error on every run" in page
+    assert (
+        "within "
+        + span([abs(r["static_mm"] - r["reduced_mm"]) for r in runs], " mm")
+        + " of the reduced run's error on every run"
+        in page
+    )
     ratios = [r["galerkin_static_mm"] / r["best_static_mm"] for r in runs]
     assert f"{min(ratios):.1f}-{max(ratios):.1f}x the mass-weighted best" in page
-    volumetric = [r["residual_share"]["volumetric"] for r in runs
-                  if max(r["residual_share"], key=r["residual_share"].get) == "volumetric"]
+    volumetric = [
+        r["residual_share"]["volumetric"]
+        for r in runs
+        if max(r["residual_share"], key=r["residual_share"].get) == "volumetric"
+    ]
     assert f"({span(volumetric)} of its norm, but for" in page
     assert "still " + span([r["full_lag_mm"] for r in runs], " mm") + " from its own" in page
     converged = [r for r in runs if np.isfinite(r["oracle_pg_mm"])]
-    assert (f"from {span([r['galerkin_static_mm'] for r in converged])} mm to "
-            f"{span([r['oracle_pg_mm'] for r in converged])} mm against a best approximation "
-            f"of {span([r['best_static_mm'] for r in converged], ' mm')}") in page
+    assert (
+        f"from {span([r['galerkin_static_mm'] for r in converged])} mm to "
+        f"{span([r['oracle_pg_mm'] for r in converged])} mm against a best approximation "
+        f"of {span([r['best_static_mm'] for r in converged], ' mm')}"
+    ) in page
     closer = [r for r in runs if r["without_volumetric_mm"] < r["static_mm"]]
     assert len(closer) == 1 and "further from the full run on five of the six" in page
     learned = {r["run"]: r["learned_pg_mm"] for r in runs}
-    helped = [r for r in runs if np.isfinite(learned[r["run"]]["80"])
-              and learned[r["run"]]["80"] < r["galerkin_static_mm"]]
-    assert len(helped) == 4 and (
-        f"brings the equilibrium error of four runs from "
-        f"{span([r['galerkin_static_mm'] for r in helped])} mm to "
-        f"{span([learned[r['run']]['80'] for r in helped])} mm (best "
-        f"{span([r['best_static_mm'] for r in helped])})") in page
+    helped = [
+        r
+        for r in runs
+        if np.isfinite(learned[r["run"]]["80"])
+        and learned[r["run"]]["80"] < r["galerkin_static_mm"]
+    ]
+    assert (
+        len(helped) == 4
+        and (
+            f"brings the equilibrium error of four runs from "
+            f"{span([r['galerkin_static_mm'] for r in helped])} mm to "
+            f"{span([learned[r['run']]['80'] for r in helped])} mm (best "
+            f"{span([r['best_static_mm'] for r in helped])})"
+        )
+        in page
+    )
     five = learned["held-out-1000-5"]
     assert f"worse than Galerkin ({five['20']:.2f} at p = 20 and 40" in page
     assert f"{five['40']:.2f}" == f"{five['20']:.2f}" and not np.isfinite(five["80"])
     assert not any(np.isfinite(v) for v in learned["held-out-1000-4"].values())
     readme = README.replace("\n", " ")
-    assert f"closes most of the gap on {['no', 'one', 'two', 'three', 'four', 'five', 'six'][len(helped)]} of six held-out runs at level 0" in readme
+    assert (
+        f"closes most of the gap on {['no', 'one', 'two', 'three', 'four', 'five', 'six'][len(helped)]} of six held-out runs at level 0"
+        in readme
+    )

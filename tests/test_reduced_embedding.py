@@ -50,18 +50,31 @@ from reduced_beam import Builds, make_body, ndofs
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
 
 DT = 0.01
-TRAINING = Training(random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1)),
-                    duration=0.2, dt=DT, snapshot_every=1)
+TRAINING = Training(
+    random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1)),
+    duration=0.2,
+    dt=DT,
+    snapshot_every=1,
+)
 SCHEDULE = next(iter(TRAINING.schedules.values()))
 
 
 def sheet(density: float = 1000.0) -> FemBody:
     """A thin 3 x 2 x 1 hex box inside the beam (0.6 x 0.2 x 0.04 m), nothing fixed."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.array([0.3, 0.05, 0.08]),
-                                           np.array([0.9, 0.25, 0.12])],
-                           [3, 2, 1], dmesh.CellType.hexahedron)
-    return FemBody(msh, NeoHookean.from_young_poisson(5e4, 0.3), density,
-                   rayleigh=(0.5, 0.01), gravity=(0.0, 0.0, -9.81), name="sheet")
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([0.3, 0.05, 0.08]), np.array([0.9, 0.25, 0.12])],
+        [3, 2, 1],
+        dmesh.CellType.hexahedron,
+    )
+    return FemBody(
+        msh,
+        NeoHookean.from_young_poisson(5e4, 0.3),
+        density,
+        rayleigh=(0.5, 0.01),
+        gravity=(0.0, 0.0, -9.81),
+        name="sheet",
+    )
 
 
 def beam_with_a_sheet(density: float = 1000.0) -> Scene:
@@ -77,8 +90,13 @@ def hinged_beam_with_a_sheet() -> Scene:
     the sheet's nodes near the end follow the bone through the basis' lift columns."""
     scene = beam_with_a_sheet()
     beam = scene.fem_bodies[0]
-    bone = RigidBody("bone", 0.3, np.diag([2e-3, 3e-3, 4e-3]), position=(1.1, 0.15, 0.1),
-                     rotation=exp_so3([0.2, -0.1, 0.3]))
+    bone = RigidBody(
+        "bone",
+        0.3,
+        np.diag([2e-3, 3e-3, 4e-3]),
+        position=(1.1, 0.15, 0.1),
+        rotation=exp_so3([0.2, -0.1, 0.3]),
+    )
     hinge = RevoluteJoint.at_world(bone, None, (1.2, 0.15, 0.1), axis_rotation((0, 0, 1)))
     end = beam.find_nodes(lambda x: x[0] > 1.0 - 1e-12)
     scene.add(bone, hinge, NodeAttachment(beam, end, bone, name="end"))
@@ -99,8 +117,11 @@ def run(scene: Scene, duration: float = 0.2, record=None) -> dict:
     beam = MODEL.fem_body_or_full(scene)
     n = ndofs(beam)
     record = dict(record or {})
-    record["beam"] = (lambda s: reduced.nodal_displacement().copy()) if reduced else \
-        (lambda s: beam.u.x.array[:n].copy())
+    record["beam"] = (
+        (lambda s: reduced.nodal_displacement().copy())
+        if reduced
+        else (lambda s: beam.u.x.array[:n].copy())
+    )
     record["sheet"] = lambda s: slave_of(s).u.x.array.copy()
     return simulate(scene, duration, DT, record=record, progress=False).records
 
@@ -108,18 +129,24 @@ def run(scene: Scene, duration: float = 0.2, record=None) -> dict:
 @pytest.mark.parametrize("make", [beam_with_a_sheet, hinged_beam_with_a_sheet])
 def test_every_snapshot_and_point_reproduce_the_beam_and_its_sheet(make, tmp_path):
     model = ReducibleScene(make.__name__, make, "fem", {"model": make.__name__})
-    reduced = reduce(model, TRAINING, basis=Basis("pod", 2 * 20),
-                     points=Points(sampling="all"), cache=tmp_path, progress=False)
+    reduced = reduce(
+        model,
+        TRAINING,
+        basis=Basis("pod", 2 * 20),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
     full = run(make())
     scene = reduced.scene()
-    body, = scene.reduced_bodies
-    attachment, = scene.embedded_attachments
+    (body,) = scene.reduced_bodies
+    (attachment,) = scene.embedded_attachments
     assert [b.name for b in scene.fem_bodies] == ["sheet"]
     assert attachment.name == "membrane" and attachment.master is body
     assert attachment.slave is slave_of(scene)
     if make is hinged_beam_with_a_sheet:
         assert [a.name for a in scene.lift_attachments] == ["end"]
-        assert np.abs(attachment.jacobian()[:, body.r - 12:]).max() > 0.1   # on the lift
+        assert np.abs(attachment.jacobian()[:, body.r - 12 :]).max() > 0.1  # on the lift
     red = run(scene)
     for part in ("beam", "sheet"):
         scale = np.abs(full[part]).max()
@@ -128,17 +155,25 @@ def test_every_snapshot_and_point_reproduce_the_beam_and_its_sheet(make, tmp_pat
 
 
 def test_a_small_basis_carries_the_sheet_exactly_and_feels_its_mass(tmp_path):
-    reduced = reduce(MODEL, TRAINING, basis=Basis("pod", 4), points=Points(sampling="all"),
-                     cache=tmp_path, progress=False)
+    reduced = reduce(
+        MODEL,
+        TRAINING,
+        basis=Basis("pod", 4),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
     scene = reduced.scene()
-    body, = scene.reduced_bodies
-    att, = scene.embedded_attachments
+    (body,) = scene.reduced_bodies
+    (att,) = scene.embedded_attachments
     X_m = body.full.V.tabulate_dof_coordinates().ravel()
     X_s = att.slave.V.tabulate_dof_coordinates().ravel()
 
-    def gap(s):             # |x_s - (W x_m + c)|, x_m from u = u_bar + U q on every node
-        return np.abs(X_s + att.slave.u.x.array - att.W @ (X_m + body.nodal_displacement())
-                      - att.offset).max()
+    def gap(s):  # |x_s - (W x_m + c)|, x_m from u = u_bar + U q on every node
+        return np.abs(
+            X_s + att.slave.u.x.array - att.W @ (X_m + body.nodal_displacement()) - att.offset
+        ).max()
+
     red = run(scene, record={"gap": gap})
     assert np.abs(red["sheet"]).max() > 0.05
     assert np.max(red["gap"]) < 1e-12
@@ -170,19 +205,24 @@ def test_a_small_basis_carries_the_sheet_exactly_and_feels_its_mass(tmp_path):
     assert change > 0.03 * np.abs(red["beam"]).max()
 
 
-def test_the_static_tangent_through_the_sheet_and_the_lift_matches_finite_differences(
-        tmp_path):
+def test_the_static_tangent_through_the_sheet_and_the_lift_matches_finite_differences(tmp_path):
     """The hinged beam reduced (r = 4 + 12 lift columns): the sheet's forces reach the
     bone's lever stiffness through (W U)^T on the lift columns."""
     model = ReducibleScene("hinged", hinged_beam_with_a_sheet, "fem", {"model": "hinged"})
-    scene = reduce(model, TRAINING, basis=Basis("pod", 4), points=Points(sampling="all"),
-                   cache=tmp_path, progress=False).scene()
+    scene = reduce(
+        model,
+        TRAINING,
+        basis=Basis("pod", 4),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    ).scene()
     rng = np.random.default_rng(0)
     n = scene.master_count()
     assert n == 4 + 6
     dq0 = np.zeros(n)
     dq0[:4] = 0.1 * rng.standard_normal(4)
-    scene.displace_masters(dq0)                        # deformed, so the forces are not zero
+    scene.displace_masters(dq0)  # deformed, so the forces are not zero
     K = scene.static_tangent()
     for part in ("all", "rotation"):
         dq = 1e-3 * rng.standard_normal(n)
@@ -195,16 +235,23 @@ def test_the_static_tangent_through_the_sheet_and_the_lift_matches_finite_differ
 def test_the_slave_of_an_embedded_attachment_is_refused_before_any_training(tmp_path):
     build = Builds(beam_with_a_sheet)
     rest = Training({"rest": ExcitationSchedule(np.array([0.0, 0.2]), {})}, 0.2, DT)
-    with pytest.raises(InputError, match="embedded attachment 'membrane' embeds 'sheet' in "
-                                         "'fem': its slave cannot be reduced"):
-        reduce(ReducibleScene("sheet", build, "sheet", {}), rest, cache=tmp_path,
-               progress=False)
+    with pytest.raises(
+        InputError,
+        match="embedded attachment 'membrane' embeds 'sheet' in 'fem': its slave cannot be reduced",
+    ):
+        reduce(ReducibleScene("sheet", build, "sheet", {}), rest, cache=tmp_path, progress=False)
     assert build.count == 1 and not list(tmp_path.glob("*.npz"))
     # and a reduced body of another body is not one the attachment can follow
     scene = beam_with_a_sheet()
-    att, = scene.embedded_attachments
-    reduced = reduce(MODEL, TRAINING, basis=Basis("pod", 2), points=Points(sampling="all"),
-                     cache=tmp_path, progress=False)
+    (att,) = scene.embedded_attachments
+    reduced = reduce(
+        MODEL,
+        TRAINING,
+        basis=Basis("pod", 2),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
     other = reduced.body(make_body(excitation=0.0, comm=MPI.COMM_SELF))
     with pytest.raises(InputError, match="is not a reduced body of its master 'fem'"):
         att.onto_reduced(other, None)
@@ -215,14 +262,23 @@ def test_the_masseter_with_two_bones_and_embedded_aponeuroses_reduces(tmp_path):
     from artifem.scene import simulate
 
     config = MasseterConfig(**COARSE)
-    model = ReducibleScene("masseter", lambda: build_model(config, "conforming",
-                                                           "embedded").scene,
-                           "masseter (conforming)", {"model": "masseter"})
+    model = ReducibleScene(
+        "masseter",
+        lambda: build_model(config, "conforming", "embedded").scene,
+        "masseter (conforming)",
+        {"model": "masseter"},
+    )
     schedule = ExcitationSchedule.ramp_and_hold({"masseter": 0.8}, 0.05)
     training = Training({"ramp": schedule}, duration=0.1, dt=0.01, snapshot_every=1)
-    reduced = reduce(model, training, basis=Basis("pod", 10), points=Points(sampling="all"),
-                     cache=tmp_path, progress=False)
-    jaw, arch = reduced.carriers                      # each lift holds the other's nodes
+    reduced = reduce(
+        model,
+        training,
+        basis=Basis("pod", 10),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
+    jaw, arch = reduced.carriers  # each lift holds the other's nodes
     for mine, other in ((jaw.lift, arch.lift), (arch.lift, jaw.lift)):
         rows = (3 * other.dofs[:, None] + np.arange(3)).ravel()
         assert np.abs(mine.columns[rows]).max() == 0.0
@@ -232,9 +288,12 @@ def test_the_masseter_with_two_bones_and_embedded_aponeuroses_reduces(tmp_path):
         body = model.fem_body_or_full(scene)
         red = next(iter(scene.reduced_bodies), None)
         n = 3 * body.V.dofmap.index_map.size_local
-        record = {"u": (lambda s: red.nodal_displacement().copy()) if red else
-                  (lambda s: body.u.x.array[:n].copy()),
-                  "attached": lambda s: max(s.attachment_errors().values())}
+        record = {
+            "u": (lambda s: red.nodal_displacement().copy())
+            if red
+            else (lambda s: body.u.x.array[:n].copy()),
+            "attached": lambda s: max(s.attachment_errors().values()),
+        }
         return simulate(scene, 0.1, 0.01, record=record, progress=False).records
 
     full = run(model.build())

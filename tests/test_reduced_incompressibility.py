@@ -36,12 +36,22 @@ TOL = 1e-10
 def _hard_beam(cell="hexahedron", tol=TOL, kappa=20 * 3.8e4):
     """The reduced-body tests' muscle beam (shear modulus 3.8e4 Pa) with the hard constraint."""
     if cell == "hexahedron":
-        return make_body(incompressibility=Incompressible(kappa=kappa, tol=tol),
-                         rayleigh=(0.5, 0.01))
-    msh = mesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.array([1.0, 0.3, 0.2])], [4, 2, 2],
-                          mesh.CellType.tetrahedron)
-    body = FemBody(msh, NeoHookean.from_young_poisson(1.0e5, 0.3), 1000.0, rayleigh=(0.5, 0.01),
-                   incompressibility=Incompressible(kappa=kappa, tol=tol))
+        return make_body(
+            incompressibility=Incompressible(kappa=kappa, tol=tol), rayleigh=(0.5, 0.01)
+        )
+    msh = mesh.create_box(
+        MPI.COMM_WORLD,
+        [np.zeros(3), np.array([1.0, 0.3, 0.2])],
+        [4, 2, 2],
+        mesh.CellType.tetrahedron,
+    )
+    body = FemBody(
+        msh,
+        NeoHookean.from_young_poisson(1.0e5, 0.3),
+        1000.0,
+        rayleigh=(0.5, 0.01),
+        incompressibility=Incompressible(kappa=kappa, tol=tol),
+    )
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     return body
 
@@ -67,8 +77,9 @@ def test_with_the_full_basis_and_pressure_space_it_is_the_full_body(cell, integr
     scene_full = Scene(gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator)
     scene_full.add(full)
     twin = _hard_beam(cell)
-    reduced = ReducedFemBody(twin, full_basis(twin), all_points(twin),
-                             pressure_basis=_identity_pressures(twin))
+    reduced = ReducedFemBody(
+        twin, full_basis(twin), all_points(twin), pressure_basis=_identity_pressures(twin)
+    )
     scene_red = Scene(gravity=(0.0, 0.0, -9.81), integrator=integrator)
     scene_red.add(reduced)
     for _ in range(6):
@@ -82,7 +93,7 @@ def test_with_the_full_basis_and_pressure_space_it_is_the_full_body(cell, integr
     # modes of the nodal pressure on tetrahedra): compare the pressure forces G^T p
     vc = full.volume_constraint
     vc.assemble(tangent=True)
-    p = vc.p.x.array[:vc.n_owned]
+    p = vc.p.x.array[: vc.n_owned]
     force, gap = full.u.x.petsc_vec.duplicate(), full.u.x.petsc_vec.duplicate()
     vc.force_of(p, 1.0, force)
     vc.force_of(reduced.volume_constraint.pressures() - p, 1.0, gap)
@@ -106,11 +117,17 @@ def test_the_post_stabilization_projects_as_the_full_bodys(projections):
     from artifem.linear_solver import LinearSolver
 
     def spun_cube():
-        msh = mesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [2, 2, 2],
-                              mesh.CellType.hexahedron)
-        body = FemBody(msh, NeoHookean(MU, 2 * MU), 1000.0,
-                       incompressibility=Incompressible(kappa=100 * MU, step_tol=1e-6,
-                                                        projections=projections))
+        msh = mesh.create_box(
+            MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [2, 2, 2], mesh.CellType.hexahedron
+        )
+        body = FemBody(
+            msh,
+            NeoHookean(MU, 2 * MU),
+            1000.0,
+            incompressibility=Incompressible(
+                kappa=100 * MU, step_tol=1e-6, projections=projections
+            ),
+        )
         X = body.V.tabulate_dof_coordinates()
         v = np.zeros_like(X)
         v[:, 0], v[:, 1] = -30.0 * (X[:, 1] - 0.5), 30.0 * (X[:, 0] - 0.5)
@@ -120,14 +137,15 @@ def test_the_post_stabilization_projects_as_the_full_bodys(projections):
     full.v.x.array[:] = v
     SemiImplicitEuler().advance(full, 0.01, LinearSolver(MPI.COMM_WORLD, "mumps"))
     twin, _ = spun_cube()
-    reduced = ReducedFemBody(twin, full_basis(twin), all_points(twin),
-                             pressure_basis=_identity_pressures(twin))
+    reduced = ReducedFemBody(
+        twin, full_basis(twin), all_points(twin), pressure_basis=_identity_pressures(twin)
+    )
     reduced.set_state((np.zeros(v.size), v))
     SemiImplicitEuler().advance_reduced(reduced, 0.01)
     expected = _element_volume_change(full)
-    assert expected > 1e-6                      # 9e-2, 2.5e-3, 2.0e-6: a comparison that can fail
+    assert expected > 1e-6  # 9e-2, 2.5e-3, 2.0e-6: a comparison that can fail
     assert reduced.volume_constraint.violation() == pytest.approx(expected, rel=1e-5, abs=1e-12)
-    assert np.abs(reduced.nodal_displacement() - full.u.x.array[:v.size]).max() < 1e-10
+    assert np.abs(reduced.nodal_displacement() - full.u.x.array[: v.size]).max() < 1e-10
 
 
 def test_static_solve_with_the_full_basis_is_the_full_static_solve():
@@ -136,12 +154,13 @@ def test_static_solve_with_the_full_basis_is_the_full_static_solve():
     scene.add(full)
     scene.solve_static(load_steps=2)
     twin = _hard_beam()
-    reduced = ReducedFemBody(twin, full_basis(twin), all_points(twin),
-                             pressure_basis=_identity_pressures(twin))
+    reduced = ReducedFemBody(
+        twin, full_basis(twin), all_points(twin), pressure_basis=_identity_pressures(twin)
+    )
     scene_red = Scene(gravity=(0.0, 0.0, -9.81))
     scene_red.add(reduced)
     scene_red.solve_static(load_steps=2)
-    u = full.u.x.array[:ndofs(full)]
+    u = full.u.x.array[: ndofs(full)]
     assert np.abs(reduced.nodal_displacement() - u).max() < 1e-7 * np.abs(u).max()
     assert reduced.volume_constraint.violation() < TOL
 
@@ -188,16 +207,22 @@ def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
     for _ in range(30):
         scene.step(0.01)
         u_s.append(full.u.x.array[:n].copy())
-        p_s.append(vc.p.x.array[:vc.n_owned].copy())
+        p_s.append(vc.p.x.array[: vc.n_owned].copy())
     change = _element_volume_change(full)
     size = np.abs(u_s[-1]).max()
     U = pod_basis(np.array(u_s), full.M_lumped.array[:n], r=8)[0]
     runs = {}
     for hold in (True, False):
         twin = _hard_beam(tol=1e-8)
-        reduced = ReducedFemBody(twin, U, all_points(twin), hold_volume=hold, pressure_basis=(
-            pressure_basis(np.array(p_s), vc.volume, 4, total_volume=False) if hold
-            else None))
+        reduced = ReducedFemBody(
+            twin,
+            U,
+            all_points(twin),
+            hold_volume=hold,
+            pressure_basis=(
+                pressure_basis(np.array(p_s), vc.volume, 4, total_volume=False) if hold else None
+            ),
+        )
         s = Scene(gravity=(0.0, 0.0, -9.81))
         s.add(reduced)
         error = 0.0
@@ -220,11 +245,16 @@ def test_the_constant_pressure_mode_holds_the_total_volume():
     for hold in (True, False):
         body = _hard_beam(tol=1e-9)
         V0 = body.volume()
-        Pi = pressure_basis(np.zeros((1, body.volume_constraint.n_owned)),
-                            body.volume_constraint.volume, 1)
-        reduced = ReducedFemBody(body, random_basis(body, 6, seed=4, scale=0.3),
-                                 all_points(body), hold_volume=hold,
-                                 pressure_basis=Pi if hold else None)
+        Pi = pressure_basis(
+            np.zeros((1, body.volume_constraint.n_owned)), body.volume_constraint.volume, 1
+        )
+        reduced = ReducedFemBody(
+            body,
+            random_basis(body, 6, seed=4, scale=0.3),
+            all_points(body),
+            hold_volume=hold,
+            pressure_basis=Pi if hold else None,
+        )
         scene = Scene(gravity=(0.0, 0.0, -9.81), integrator="implicit")
         scene.add(reduced)
         for _ in range(5):
@@ -246,7 +276,7 @@ def test_fitted_pressure_weights_match_the_constraint_jacobian_better_than_the_e
     for _ in range(12):
         scene.step(0.02)
         u_s.append(full.u.x.array[:n].copy())
-        p_s.append(vc.p.x.array[:vc.n_owned].copy())
+        p_s.append(vc.p.x.array[: vc.n_owned].copy())
     M = full.M_lumped.array[:n]
     U = pod_basis(np.array(u_s), M, r=6)[0]
     Pi = pressure_basis(np.array(p_s), vc.volume, 3)
@@ -264,7 +294,7 @@ def test_fitted_pressure_weights_match_the_constraint_jacobian_better_than_the_e
             fitted.set_q(state)
             C = exact.volume_constraint.jacobian()
             total += np.sum((fitted.volume_constraint.jacobian() - C) ** 2)
-            size += np.sum(C ** 2)
+            size += np.sum(C**2)
         return np.sqrt(total / size)
 
     assert abs(misfit(weights) - residual) < 1e-9
@@ -274,18 +304,17 @@ def test_fitted_pressure_weights_match_the_constraint_jacobian_better_than_the_e
 
 
 @pytest.mark.parametrize("total_volume", [True, False])
-def test_pressure_basis_is_orthonormal_in_the_pressure_mass_and_spans_the_snapshots(
-        total_volume):
+def test_pressure_basis_is_orthonormal_in_the_pressure_mass_and_spans_the_snapshots(total_volume):
     rng = np.random.default_rng(0)
     V = rng.uniform(0.5, 2.0, 40)
     modes = rng.standard_normal((40, 3))
-    P = rng.standard_normal((12, 3)) @ modes.T           # 12 snapshots of rank 3
+    P = rng.standard_normal((12, 3)) @ modes.T  # 12 snapshots of rank 3
     s = 4 if total_volume else 3
     Pi = pressure_basis(P, V, s, total_volume=total_volume)
     np.testing.assert_allclose(Pi.T @ (V[:, None] * Pi), np.eye(s), atol=1e-12)
     coef = np.linalg.lstsq(Pi, P.T, rcond=None)[0]
     assert np.abs(Pi @ coef - P.T).max() < 1e-10 * np.abs(P).max()
-    if total_volume:                                     # the first mode: the total volume
+    if total_volume:  # the first mode: the total volume
         np.testing.assert_allclose(Pi[:, 0], 1 / np.sqrt(V.sum()), rtol=1e-12)
     with pytest.raises(ValueError, match="span only 3 pressure modes"):
         pressure_basis(P, V, s + 1, total_volume=total_volume)
@@ -306,8 +335,9 @@ def test_bad_pressure_spaces_are_refused_clearly():
         ReducedFemBody(body, U, pts, pressure_basis=np.ones((n_p, 6)))
     soft = make_body()
     with pytest.raises(ValueError, match="needs a full body with the hard"):
-        ReducedFemBody(soft, random_basis(soft, 4), all_points(soft),
-                       pressure_basis=np.ones((10, 1)))
+        ReducedFemBody(
+            soft, random_basis(soft, 4), all_points(soft), pressure_basis=np.ones((10, 1))
+        )
 
 
 @pytest.mark.parametrize("integrator", ["semi-implicit", "implicit", "static"])
@@ -315,17 +345,24 @@ def test_in_the_coupled_island_it_is_the_full_body_there(integrator):
     """A spring from a world point pulls the beam's tip, so the body steps in the coupled
     island (its pressures solved with the island's KKT system): with the full basis and
     pressure space the reduced body moves as the full hard body does in the same island."""
-    tol = 1e-8                  # the island's implicit step: plain Uzawa around its Newton
+    tol = 1e-8  # the island's implicit step: plain Uzawa around its Newton
 
     def scene_of(reduced: bool):
         body = _hard_beam(tol=tol)
-        target = body if not reduced else ReducedFemBody(
-            body, full_basis(body), all_points(body), pressure_basis=_identity_pressures(body))
+        target = (
+            body
+            if not reduced
+            else ReducedFemBody(
+                body, full_basis(body), all_points(body), pressure_basis=_identity_pressures(body)
+            )
+        )
         point = FemPoint(target, shape_function_weights(body, np.array([1.0, 0.15, 0.1])))
-        scene = Scene(gravity=(0.0, 0.0, -9.81), linear_solver="mumps",
-                      integrator="semi-implicit" if integrator == "static" else integrator)
-        scene.add(target, PointPath(AxialSpring(2000.0, 0.1), [np.array([1.3, 0.15, 0.6]),
-                                                               point]))
+        scene = Scene(
+            gravity=(0.0, 0.0, -9.81),
+            linear_solver="mumps",
+            integrator="semi-implicit" if integrator == "static" else integrator,
+        )
+        scene.add(target, PointPath(AxialSpring(2000.0, 0.1), [np.array([1.3, 0.15, 0.6]), point]))
         return scene, body, target
 
     (scene_full, full, _), (scene_red, _, reduced) = scene_of(False), scene_of(True)
@@ -336,7 +373,7 @@ def test_in_the_coupled_island_it_is_the_full_body_there(integrator):
         else:
             for _ in range(3):
                 scene.step(0.01)
-    u = full.u.x.array[:ndofs(full)]
+    u = full.u.x.array[: ndofs(full)]
     assert np.abs(u).max() > 1e-3
     assert np.abs(reduced.nodal_displacement() - u).max() < 1e-5 * np.abs(u).max()
     if integrator != "semi-implicit":

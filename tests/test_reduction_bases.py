@@ -13,26 +13,33 @@ from mpi4py import MPI
 
 from artifem.fem_body import FemBody
 from artifem.forms import LinearElastic, NeoHookean
-from artifem.reduction.bases import (body_mass, extended_modes, linear_mode_residuals,
-                                     linear_modes, mass_orthonormality_error, pod_basis)
+from artifem.reduction.bases import (
+    body_mass,
+    extended_modes,
+    linear_mode_residuals,
+    linear_modes,
+    mass_orthonormality_error,
+    pod_basis,
+)
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial tests")
 
 E, NU, RHO = 1.0e6, 0.3, 1000.0
-BETA_L = (1.8751041, 4.6940911)        # Euler-Bernoulli cantilever roots of cos cosh = -1
+BETA_L = (1.8751041, 4.6940911)  # Euler-Bernoulli cantilever roots of cos cosh = -1
 
 
 def cantilever(length, h, n, material=None, mass="lumped"):
-    msh = dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.array([length, h, h])], list(n),
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_WORLD, [np.zeros(3), np.array([length, h, h])], list(n), dmesh.CellType.hexahedron
+    )
     body = FemBody(msh, material or NeoHookean.from_young_poisson(E, NU), RHO, mass=mass)
     body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     return body
 
 
 def euler_bernoulli(length, h, k):
-    I, A = h ** 4 / 12.0, h * h
-    return BETA_L[k] ** 2 * np.sqrt(E * I / (RHO * A * length ** 4))
+    I, A = h**4 / 12.0, h * h
+    return BETA_L[k] ** 2 * np.sqrt(E * I / (RHO * A * length**4))
 
 
 def fixed_rows(body):
@@ -64,6 +71,7 @@ def stocky():
 
 
 # ---- linear modes -----------------------------------------------------------------------------
+
 
 def test_cantilever_bending_frequencies_match_euler_bernoulli(slender):
     """omega_k = (beta_k L)^2 sqrt(E I / (rho A L^4)), k = 1, 2, each a y/z double eigenvalue.
@@ -103,7 +111,7 @@ def test_cantilever_bending_frequencies_match_euler_bernoulli(slender):
         err_fine = abs(omega[2 * k] / euler_bernoulli(2.0, 0.1, k) - 1)
         err_coarse = abs(np.sqrt(lam_c[2 * k]) / euler_bernoulli(2.0, 0.1, k) - 1)
         assert err_coarse > 2 * err_fine
-        assert np.sqrt(lam_c[2 * k]) > omega[2 * k]        # Q1 converges from above
+        assert np.sqrt(lam_c[2 * k]) > omega[2 * k]  # Q1 converges from above
 
 
 def test_linear_modes_orthonormal_fixed_and_residual(slender):
@@ -138,8 +146,9 @@ def test_linear_modes_equal_dense_reduced_problem():
     """The elimination is exact and returns no spurious (fixed-dof) modes: the eigenvalues
     equal the lowest ones of the dense problem restricted to the free dofs."""
     for mass_kind in ("lumped", "consistent"):
-        body = cantilever(1.0, 0.25, (6, 1, 1), LinearElastic.from_young_poisson(E, NU),
-                          mass=mass_kind)
+        body = cantilever(
+            1.0, 0.25, (6, 1, 1), LinearElastic.from_young_poisson(E, NU), mass=mass_kind
+        )
         r = 8
         U, lam = linear_modes(body, r)
         body.assemble(tangent=True, diag=1.0)
@@ -149,8 +158,7 @@ def test_linear_modes_equal_dense_reduced_problem():
         else:
             M = body.M_consistent.copy().convert("dense").getDenseArray()
         free = np.setdiff1d(np.arange(K.shape[0]), fixed_rows(body))
-        ref = scipy.linalg.eigh(K[np.ix_(free, free)], M[np.ix_(free, free)],
-                                eigvals_only=True)[:r]
+        ref = scipy.linalg.eigh(K[np.ix_(free, free)], M[np.ix_(free, free)], eigvals_only=True)[:r]
         assert np.allclose(lam, ref, rtol=1e-9), (mass_kind, lam, ref)
 
 
@@ -159,12 +167,13 @@ def test_linear_modes_bad_input(stocky):
     for r in (0, -3, 2.5, True):
         with pytest.raises(ValueError, match="positive integer"):
             linear_modes(body, r)
-    small = cantilever(1.0, 0.5, (1, 1, 1))        # 4 free nodes -> 12 free dofs
+    small = cantilever(1.0, 0.5, (1, 1, 1))  # 4 free nodes -> 12 free dofs
     with pytest.raises(ValueError, match="exceeds the 12 free dofs"):
         linear_modes(small, 13)
 
 
 # ---- extended modes ---------------------------------------------------------------------------
+
 
 def test_extended_modes(stocky):
     body, U, lam = stocky
@@ -181,7 +190,7 @@ def test_extended_modes(stocky):
         phi = U[:, k]
         assert m_projection_residual(Ue, m, phi) < 1e-10
         A = rng.normal(size=(3, 3))
-        affine = (phi.reshape(-1, 3) @ A.T).ravel()          # node-wise A phi_a
+        affine = (phi.reshape(-1, 3) @ A.T).ravel()  # node-wise A phi_a
         assert m_projection_residual(Ue, m, affine) < 1e-10
     # a generic displacement is not in the span
     assert m_projection_residual(Ue, m, rng.normal(size=U.shape[0]) * (m > 0)) > 0.5
@@ -195,7 +204,7 @@ def test_extended_modes_drops_dependent_vectors():
     n = 50
     m = rng.uniform(0.5, 2.0, 3 * n)
     phi = rng.normal(size=(n, 3))
-    phi[:, 0] = 0.0                          # no x-component: E_i0 phi = 0 for i = 0, 1, 2
+    phi[:, 0] = 0.0  # no x-component: E_i0 phi = 0 for i = 0, 1, 2
     phi = phi.ravel()
     phi /= np.sqrt(phi @ (m * phi))
     assert extended_modes(phi[:, None], m).shape == (3 * n, 6)
@@ -210,6 +219,7 @@ def test_extended_modes_drops_dependent_vectors():
 
 # ---- POD --------------------------------------------------------------------------------------
 
+
 def _m_orthonormal(rng, n, k, m):
     X = rng.normal(size=(n, k))
     w = np.sqrt(m)
@@ -221,7 +231,7 @@ def test_pod_recovers_known_subspace():
     rng = np.random.default_rng(2)
     n = 300
     m = rng.uniform(0.1, 3.0, n)
-    m[:6] = 0.0                                  # two fixed nodes: zero mass, zero snapshots
+    m[:6] = 0.0  # two fixed nodes: zero mass, zero snapshots
     m_safe = np.where(m > 0, m, 1.0)
     B = _m_orthonormal(rng, n, 3, m_safe)
     B[:6] = 0.0
@@ -240,7 +250,7 @@ def test_pod_recovers_known_subspace():
     assert mass_orthonormality_error(U2, m) < 1e-12
     assert np.allclose(s2, s)
     # energy_tol large enough to drop the weakest direction
-    frac = s[2] ** 2 / np.sum(s ** 2)
+    frac = s[2] ** 2 / np.sum(s**2)
     assert pod_basis(S.T, m, energy_tol=2 * frac)[0].shape[1] == 2
     assert pod_basis(S.T, m, energy_tol=0.5 * frac)[0].shape[1] == 3
     # a callable mass (method of snapshots) gives the same subspace
@@ -275,7 +285,7 @@ def test_pod_of_linear_modes_and_bad_input(stocky):
     with pytest.raises(ValueError, match=r"snapshots are rows, one per snapshot"):
         pod_basis(S.T, m[:-3], r=2)
     with pytest.raises(ValueError, match=r"\(n_snapshots, dofs\) = \(\d+, 12\)"):
-        pod_basis(S, m, r=2)                     # columns: the other convention, refused
+        pod_basis(S, m, r=2)  # columns: the other convention, refused
     with pytest.raises(ValueError, match="zero mass"):
         bad = S.copy()
         bad[fixed_rows(body)[0]] = 1.0
@@ -285,6 +295,7 @@ def test_pod_of_linear_modes_and_bad_input(stocky):
 
 
 # ---- modal derivatives ------------------------------------------------------------------------
+
 
 def _tangent_times(body, u, x):
     body.u.x.array[: u.size] = u
@@ -300,6 +311,7 @@ def _tangent_times(body, u, x):
 
 def test_modal_derivatives_solve_the_third_derivative_system():
     from artifem.reduction.bases import modal_derivatives
+
     body = cantilever(1.0, 0.1, (10, 2, 2))
     U, lam = linear_modes(body, 2)
     Psi = modal_derivatives(body, U)
@@ -309,8 +321,10 @@ def test_modal_derivatives_solve_the_third_derivative_system():
     eps = 1e-4
     for col, (i, j) in enumerate([(0, 0), (0, 1), (1, 1)]):
         # (dK/du . U_j) U_i by central differences of the tangent
-        dK = (_tangent_times(body, eps * U[:, j], U[:, i])
-              - _tangent_times(body, -eps * U[:, j], U[:, i])) / (2 * eps)
+        dK = (
+            _tangent_times(body, eps * U[:, j], U[:, i])
+            - _tangent_times(body, -eps * U[:, j], U[:, i])
+        ) / (2 * eps)
         K0psi = _tangent_times(body, np.zeros_like(U[:, 0]), Psi[:, col])
         assert np.linalg.norm((K0psi + dK)[free]) < 1e-6 * np.linalg.norm(dK[free])
         assert np.linalg.norm(Psi[:, col]) > 0
@@ -322,14 +336,15 @@ def test_modal_derivatives_solve_the_third_derivative_system():
 
 def test_modal_derivative_basis_is_mass_orthonormal_and_spans_the_modes():
     from artifem.reduction.bases import modal_derivative_basis, modal_derivatives
+
     body = cantilever(1.0, 0.1, (10, 2, 2))
     B = modal_derivative_basis(body, 3)
-    assert B.shape[1] == 3 + 6                    # r modes + r (r + 1) / 2 derivatives
+    assert B.shape[1] == 3 + 6  # r modes + r (r + 1) / 2 derivatives
     mass = body_mass(body)
     assert mass_orthonormality_error(B, mass) < 1e-12
     assert np.all(B[fixed_rows(body)] == 0.0)
     U, _ = linear_modes(body, 3)
     Psi = modal_derivatives(body, U)
-    for X in (U, Psi):                            # both lie in span(B) (M-projection exact)
+    for X in (U, Psi):  # both lie in span(B) (M-projection exact)
         P = B @ (B.T @ (mass[:, None] * X))
         assert np.linalg.norm(P - X) < 1e-8 * np.linalg.norm(X)

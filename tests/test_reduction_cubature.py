@@ -3,10 +3,16 @@
 import numpy as np
 import pytest
 
-from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points, trained_points_path
+from artifem.reduction.cubature import (
+    IntegrationPoints,
+    random_points,
+    trained_points,
+    trained_points_path,
+)
 
 
 # ---------------------------------------------------------------- random
+
 
 def test_random_points_keep_volume_and_are_reproducible():
     rng = np.random.default_rng(0)
@@ -45,6 +51,7 @@ def test_random_points_bad_volumes():
 
 # ---------------------------------------------------------------- trained
 
+
 def test_trained_recovers_exact_sparse_weights():
     rng = np.random.default_rng(1)
     T, n = 80, 50
@@ -69,8 +76,9 @@ def _smooth_training_matrix(n=400, seed=2):
     rows = []
     for k in range(4):
         for l in range(4):
-            rows.append(np.cos(np.pi * k * x[:, 0]) * np.cos(np.pi * l * x[:, 1])
-                        * (1.0 + 0.3 * x[:, 0]))
+            rows.append(
+                np.cos(np.pi * k * x[:, 0]) * np.cos(np.pi * l * x[:, 1]) * (1.0 + 0.3 * x[:, 0])
+            )
     return np.array(rows) * vol  # (16, n)
 
 
@@ -112,6 +120,7 @@ def test_trained_full_integration_is_always_reachable(seed):
 
 # ---------------------------------------------------------------- bad input
 
+
 def test_trained_bad_inputs_name_the_argument():
     G = np.random.default_rng(3).standard_normal((10, 6))
     with pytest.raises(ValueError, match="G"):
@@ -139,7 +148,7 @@ def test_integration_points_validates():
 def test_random_points_by_group_share_m_and_keep_each_group_volume():
     rng = np.random.default_rng(3)
     V = rng.uniform(0.5, 2.0, 90)
-    groups = np.repeat([2, 1], [80, 10])          # e.g. 8 Gauss points and 1 centre per cell
+    groups = np.repeat([2, 1], [80, 10])  # e.g. 8 Gauss points and 1 centre per cell
     pts = random_points(V, 27, rng=1, groups=groups)
     assert pts.m == 27
     chosen = groups[pts.indices]

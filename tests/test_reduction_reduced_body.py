@@ -38,13 +38,14 @@ def assert_projection_of_full(reduced, body, U, q, tangent_tol=1e-12):
     f, K = full_force_and_tangent(body, U @ q)
     f_ref, K_ref = U.T @ f, U.T @ K @ U
     np.testing.assert_allclose(reduced.force(), f_ref, rtol=0, atol=1e-12 * np.abs(f_ref).max())
-    np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0,
-                               atol=tangent_tol * np.abs(K_ref).max())
+    np.testing.assert_allclose(
+        reduced.tangent(), K_ref, rtol=0, atol=tangent_tol * np.abs(K_ref).max()
+    )
     return f_ref
 
 
 def full_force_and_tangent(body, u):
-    body.u.x.array[:u.size] = u
+    body.u.x.array[: u.size] = u
     body.u.x.scatter_forward()
     body.assemble(tangent=True)
     n = ndofs(body)
@@ -53,6 +54,7 @@ def full_force_and_tangent(body, u):
 
 
 # ---- (a) the key test: full basis, all cells ------------------------------------------------
+
 
 @pytest.mark.parametrize("mass", ["lumped", "consistent"])
 def test_full_basis_reproduces_the_full_trajectory(mass):
@@ -72,11 +74,13 @@ def test_full_basis_reproduces_the_full_trajectory(mass):
         scene.step(dt)
         reduced_scene.step(dt)
         u_full, v_full = body.u.x.array[:n], body.v.x.array[:n]
-        assert np.abs(u_full).max() > 1e-4          # it moves
-        np.testing.assert_allclose(reduced.nodal_displacement(), u_full,
-                                   rtol=0, atol=1e-10 * np.abs(u_full).max())
-        np.testing.assert_allclose(reduced.nodal_velocity(), v_full,
-                                   rtol=0, atol=1e-10 * np.abs(v_full).max())
+        assert np.abs(u_full).max() > 1e-4  # it moves
+        np.testing.assert_allclose(
+            reduced.nodal_displacement(), u_full, rtol=0, atol=1e-10 * np.abs(u_full).max()
+        )
+        np.testing.assert_allclose(
+            reduced.nodal_velocity(), v_full, rtol=0, atol=1e-10 * np.abs(v_full).max()
+        )
     assert reduced_scene.t == pytest.approx(scene.t)
 
 
@@ -98,17 +102,20 @@ def test_full_basis_reproduces_the_full_implicit_euler_with_rayleigh_damping():
         scene.step(0.01)
         reduced_scene.step(0.01)
         u_full, v_full = body.u.x.array[:n], body.v.x.array[:n]
-        np.testing.assert_allclose(reduced.nodal_displacement(), u_full,
-                                   rtol=0, atol=1e-10 * np.abs(u_full).max())
-        np.testing.assert_allclose(reduced.nodal_velocity(), v_full,
-                                   rtol=0, atol=1e-10 * np.abs(v_full).max())
+        np.testing.assert_allclose(
+            reduced.nodal_displacement(), u_full, rtol=0, atol=1e-10 * np.abs(u_full).max()
+        )
+        np.testing.assert_allclose(
+            reduced.nodal_velocity(), v_full, rtol=0, atol=1e-10 * np.abs(v_full).max()
+        )
         its = reduced_scene.integrator.iterations
         assert its == scene.integrator.iterations and 1 <= its <= 3
-    assert np.abs(u_full).max() > 1e-2                  # it moves
+    assert np.abs(u_full).max() > 1e-2  # it moves
     assert scene.halvings == reduced_scene.halvings == 0
 
 
 # ---- (b) U^T f consistency ------------------------------------------------------------------
+
 
 def test_reduced_force_and_tangent_are_projections_of_the_full_ones():
     body = make_body()
@@ -118,12 +125,11 @@ def test_reduced_force_and_tangent_are_projections_of_the_full_ones():
     reduced.set_q(q)
     f_full, K_full = full_force_and_tangent(body, U @ q)
     f_red = reduced.force()
-    np.testing.assert_allclose(f_red, U.T @ f_full, rtol=0,
-                               atol=1e-12 * np.abs(U.T @ f_full).max())
+    np.testing.assert_allclose(f_red, U.T @ f_full, rtol=0, atol=1e-12 * np.abs(U.T @ f_full).max())
     K_ref = U.T @ K_full @ U
     np.testing.assert_allclose(reduced.tangent(), K_ref, rtol=0, atol=1e-12 * np.abs(K_ref).max())
     # Mass: U^T M U with the lumped mass.
-    m = body.M_lumped.array[:ndofs(body)]
+    m = body.M_lumped.array[: ndofs(body)]
     np.testing.assert_allclose(reduced.M, U.T @ (m[:, None] * U), rtol=1e-13)
 
 
@@ -135,7 +141,7 @@ def test_reduced_potential_is_the_potential_of_the_reduced_force():
     body = make_body()
     U = random_basis(body, 6, seed=12)
     reduced = ReducedFemBody(body, U, all_points(body))
-    q = 1e-4 * rng.standard_normal(6)       # small: the internal force does not swamp the loads
+    q = 1e-4 * rng.standard_normal(6)  # small: the internal force does not swamp the loads
     reduced.set_q(q)
     f = reduced.force()
     assert np.linalg.norm(reduced.external_force()) > 0.2 * np.linalg.norm(f)
@@ -153,6 +159,7 @@ def test_reduced_potential_is_the_potential_of_the_reduced_force():
 
 # ---- (c) subset of cells with weights -------------------------------------------------------
 
+
 def weighted_full_residual(body, cells, weights):
     """Full-mesh assembly of the w-weighted internal energy (w = 0 off the subset)."""
     W = fem.functionspace(body.mesh, ("DG", 0))
@@ -169,7 +176,7 @@ def weighted_full_residual(body, cells, weights):
     centre = ufl.Measure("dx", domain=body.mesh, metadata={"quadrature_degree": 1})
     Pi += w * 0.5 * body.incompressibility * (ufl.det(F) - 1) ** 2 * centre
     R = fem.assemble_vector(fem.form(ufl.derivative(Pi, body.u, ufl.TestFunction(body.V))))
-    return R.array[:ndofs(body)].copy()
+    return R.array[: ndofs(body)].copy()
 
 
 def test_subset_with_weights_equals_the_weighted_full_assembly():
@@ -187,7 +194,7 @@ def test_subset_with_weights_equals_the_weighted_full_assembly():
     assert reduced.m == 5 * 9
     q = 1e-2 * rng.standard_normal(6)
     reduced.set_q(q)
-    body.u.x.array[:ndofs(body)] = U @ q
+    body.u.x.array[: ndofs(body)] = U @ q
     ref = U.T @ weighted_full_residual(body, cells, weights)
     got = reduced.internal_residual()
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
@@ -198,11 +205,13 @@ def test_subset_with_weights_equals_the_weighted_full_assembly():
     # At u = 0 with no excitation the internal force vanishes: only the external
     # part is left, and it must equal the full model's.
     reduced.set_q(np.zeros(6))
-    np.testing.assert_allclose(reduced.force(), U.T @ f0, rtol=0,
-                               atol=1e-12 * np.abs(U.T @ f0).max())
+    np.testing.assert_allclose(
+        reduced.force(), U.T @ f0, rtol=0, atol=1e-12 * np.abs(U.T @ f0).max()
+    )
 
 
 # ---- (d) muscles ----------------------------------------------------------------------------
+
 
 def test_full_body_excitation_drives_the_reduced_force():
     body = make_body(excitation=0.0)
@@ -231,13 +240,13 @@ def test_fused_kernels_of_overlapping_muscles_are_projections_of_the_full_body()
     rng = np.random.default_rng(11)
     front = original[centroids[:, 0] < 0.6]
     side = original[centroids[:, 1] < 0.15]
-    body.add_muscle("front", front, rng.standard_normal((front.size, 3)),
-                    BlemkerFiber(3.0e4), excitation=0.6)
-    body.add_muscle("side", side, (0.0, 1.0, 0.2), BlemkerFiber(1.0e4, P2=5.0),
-                    excitation=0.9)
+    body.add_muscle(
+        "front", front, rng.standard_normal((front.size, 3)), BlemkerFiber(3.0e4), excitation=0.6
+    )
+    body.add_muscle("side", side, (0.0, 1.0, 0.2), BlemkerFiber(1.0e4, P2=5.0), excitation=0.9)
     U = random_basis(body, 6, seed=12)
     reduced = ReducedFemBody(body, U, all_points(body))
-    assert max(len(k.slots) for k in reduced._stresses.kernels) >= 3   # fused terms
+    assert max(len(k.slots) for k in reduced._stresses.kernels) >= 3  # fused terms
     q = 1e-2 * np.random.default_rng(13).standard_normal(6)
     for excitations in ({}, {"top": 0.0, "front": 1.0, "side": 0.25}):
         for name, value in excitations.items():
@@ -247,6 +256,7 @@ def test_fused_kernels_of_overlapping_muscles_are_projections_of_the_full_body()
 
 
 # ---- (e) bad input and inversion ------------------------------------------------------------
+
 
 def test_basis_rows_at_fixed_dofs_must_be_zero():
     body = make_body()
@@ -263,12 +273,12 @@ def test_inversion_is_reported_with_input_cell_indices():
     U = full_basis(body)
     reduced = ReducedFemBody(body, U, all_points(body))
     u = np.zeros(ndofs(body))
-    x = body.V.tabulate_dof_coordinates()[:ndofs(body) // 3]
-    u[0::3] = -3.0 * x[:, 0] * (x[:, 0] > 0.5)       # fold the outer half back
+    x = body.V.tabulate_dof_coordinates()[: ndofs(body) // 3]
+    u[0::3] = -3.0 * x[:, 0] * (x[:, 0] > 0.5)  # fold the outer half back
     q = U.T @ u
     reduced.set_q(q)
     bad, min_det = reduced.inverted_elements()
-    body.u.x.array[:ndofs(body)] = U @ q
+    body.u.x.array[: ndofs(body)] = U @ q
     bad_full, min_full = body.inverted_elements()
     assert bad.size > 0 and min_det <= 0
     np.testing.assert_array_equal(bad, bad_full)
@@ -279,28 +289,29 @@ def test_inversion_is_reported_with_input_cell_indices():
     with pytest.raises(ElementInversionError) as info:
         strict.step(1e-6)
     assert info.value.elements.size > 0
-    np.testing.assert_array_equal(reduced.q, state[0])      # state kept
+    np.testing.assert_array_equal(reduced.q, state[0])  # state kept
 
 
 def test_full_mesh_inversion_sees_what_the_integration_points_cannot():
     """A corner node pushed through its cell: invisible to points outside that cell."""
     body = make_body()
-    x = body.V.tabulate_dof_coordinates()[:ndofs(body) // 3]
-    corner = int(np.argmax(x[:, 0] + x[:, 1] + x[:, 2]))       # (1, 0.3, 0.2): one hex only
+    x = body.V.tabulate_dof_coordinates()[: ndofs(body) // 3]
+    corner = int(np.argmax(x[:, 0] + x[:, 1] + x[:, 2]))  # (1, 0.3, 0.2): one hex only
     U = np.zeros((ndofs(body), 1))
     U[3 * corner, 0] = 1.0
     table = quadrature_points(body)
     corner_cells = np.unique(table.cell[np.any(table.dofs == corner, axis=1)])
     assert corner_cells.size == 1
     elsewhere = np.flatnonzero(table.cell != corner_cells[0])
-    reduced = ReducedFemBody(body, U, IntegrationPoints(elsewhere, np.ones(elsewhere.size),
-                                                        "random"))
-    reduced.set_q([-0.45])                      # the cell is 0.25 long in x
+    reduced = ReducedFemBody(
+        body, U, IntegrationPoints(elsewhere, np.ones(elsewhere.size), "random")
+    )
+    reduced.set_q([-0.45])  # the cell is 0.25 long in x
     bad, min_det = reduced.inverted_elements()
     assert bad.size == 0 and min_det > 0
     bad_full, min_full = reduced.full_mesh_inversion()
     assert bad_full.tolist() == body.input_cell_index(corner_cells).tolist() and min_full < 0
-    assert np.all(body.u.x.array == 0.0)        # the full body's state is left alone
+    assert np.all(body.u.x.array == 0.0)  # the full body's state is left alone
 
 
 def test_loads_changed_after_construction_act_on_the_reduced_body():

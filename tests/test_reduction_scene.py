@@ -49,17 +49,21 @@ def assert_same(reduced, body):
     """Reduced u = U q and v = U q' equal the full body's u, v to 1e-10 relative."""
     n = ndofs(body)
     u, v = body.u.x.array[:n], body.v.x.array[:n]
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-10 * np.abs(u).max())
-    np.testing.assert_allclose(reduced.U @ reduced.qdot, v, rtol=0,
-                               atol=1e-10 * np.abs(v).max())
+    np.testing.assert_allclose(
+        reduced.nodal_displacement(), u, rtol=0, atol=1e-10 * np.abs(u).max()
+    )
+    np.testing.assert_allclose(reduced.U @ reduced.qdot, v, rtol=0, atol=1e-10 * np.abs(v).max())
 
 
 # ---- (a) same trajectory as the full body ---------------------------------------------------
 
+
 def energies(scene) -> dict[str, float]:
-    return {"kinetic": scene.kinetic_energy(), "potential": scene.potential_energy(),
-            "total": scene.energy()}
+    return {
+        "kinetic": scene.kinetic_energy(),
+        "potential": scene.potential_energy(),
+        "total": scene.energy(),
+    }
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
@@ -79,7 +83,7 @@ def test_full_basis_reduced_body_in_a_scene_reproduces_the_full_body(integrator)
     for _ in range(10):
         full_scene.step(dt)
         reduced_scene.step(dt)
-        assert np.abs(body.u.x.array).max() > 1e-4          # it moves
+        assert np.abs(body.u.x.array).max() > 1e-4  # it moves
         assert_same(reduced, body)
     assert full_scene.halvings == reduced_scene.halvings == 0
     assert reduced_scene.t == pytest.approx(0.1)
@@ -93,6 +97,7 @@ def test_full_basis_reduced_body_in_a_scene_reproduces_the_full_body(integrator)
 
 # ---- (b) statics ----------------------------------------------------------------------------
 
+
 def test_reduced_static_solve_equals_the_full_one():
     body = make_body(young=1.0e6)
     reduced = full_reduced(body)
@@ -101,34 +106,33 @@ def test_reduced_static_solve_equals_the_full_one():
     scene.solve_static(load_steps=2)
     n = ndofs(body)
     u = body.u.x.array[:n]
-    assert np.abs(u).max() > 1e-2            # a large, nonlinear deflection
+    assert np.abs(u).max() > 1e-2  # a large, nonlinear deflection
 
     counts = solve_static_reduced(reduced, load_steps=2)
     assert len(counts) == 2 and all(0 < c <= 30 for c in counts)
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-8 * np.abs(u).max())
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0, atol=1e-8 * np.abs(u).max())
     # load steps chosen by the solver (integrators.ramp_load), from rest: the same answer
     reduced.set_q(np.zeros(reduced.r))
     counts = solve_static_reduced(reduced, load_steps="auto")
     assert counts.factors[-1] == 1.0 and max(counts) <= 10, counts
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-8 * np.abs(u).max())
-    weight = 1000.0 * 0.06 * 9.81                   # |gravity load| (N), the scale of f~
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0, atol=1e-8 * np.abs(u).max())
+    weight = 1000.0 * 0.06 * 9.81  # |gravity load| (N), the scale of f~
     assert np.linalg.norm(reduced.force()) < 1e-8 * weight
     # Through a Scene (already at equilibrium: no Newton step moves it).
     reduced_scene = Scene(gravity=body.gravity.value.copy())
     reduced_scene.add(reduced)
     reduced_scene.solve_static()
-    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0,
-                               atol=1e-8 * np.abs(u).max())
+    np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0, atol=1e-8 * np.abs(u).max())
 
 
 # ---- (c) inversion --------------------------------------------------------------------------
 
+
 def soft_cube(total_load, corner=False):
     """A soft 1 m cube (E = 1 kPa) clamped at z = 0, pushed down on its top face (or corner)."""
-    msh = dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [3, 3, 3],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_WORLD, [np.zeros(3), np.ones(3)], [3, 3, 3], dmesh.CellType.hexahedron
+    )
     body = FemBody(msh, NeoHookean.from_young_poisson(1.0e3, 0.3), 100.0, rayleigh=(1.0, 0.0))
     x = msh.geometry.x
     inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
@@ -200,7 +204,7 @@ def test_unrecoverable_inversion_names_the_elements_and_keeps_a_good_state():
     # at the start of the smallest sub-step that failed (finite, nothing inverted).
     assert scene.halvings >= scene.max_halvings
     assert scene.t > 0
-    assert err.time == pytest.approx(scene.t + dt / 2 ** scene.max_halvings)
+    assert err.time == pytest.approx(scene.t + dt / 2**scene.max_halvings)
     assert all(np.all(np.isfinite(a)) for a in reduced.state())
     bad, min_det = reduced.inverted_elements()
     assert bad.size == 0 and min_det > 0
@@ -208,6 +212,7 @@ def test_unrecoverable_inversion_names_the_elements_and_keeps_a_good_state():
 
 
 # ---- (d) energy -----------------------------------------------------------------------------
+
 
 def test_undamped_implicit_reduced_body_never_gains_energy():
     """Backward Euler on a conservative system dissipates at least the jump of the
@@ -230,7 +235,7 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
     reduced = ReducedFemBody(body, U, points)
     np.testing.assert_allclose(reduced.M, np.eye(r), atol=1e-12)
     q0 = rng.standard_normal(r)
-    reduced.set_q(0.02 * q0 / np.abs(U @ q0).max())      # 2 cm initial displacement
+    reduced.set_q(0.02 * q0 / np.abs(U @ q0).max())  # 2 cm initial displacement
 
     scene = Scene(gravity=(0.0, 0.0, 0.0), integrator="implicit")
     scene.add(reduced)
@@ -244,16 +249,17 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
         kinetic.append(scene.kinetic_energy())
     total, jumps = np.array(total), np.array(jumps)
     assert scene.halvings == 0
-    assert total[0] > 0 and max(kinetic) > 0.1 * total[0]      # it vibrates
+    assert total[0] > 0 and max(kinetic) > 0.1 * total[0]  # it vibrates
     change = np.diff(total)
     assert change.max() < 0, f"energy grew by {change.max():.3e}"
     # Dissipation at least the kinetic-energy jump (round-off of E: ~1e-13 of it).
     excess = change + jumps
     assert excess.max() <= 1e-10 * np.abs(total).max(), f"dissipation short by {excess.max():.3e}"
-    assert 0.01 * total[0] < total[-1] < 0.5 * total[0]       # dissipative, but not overdamped
+    assert 0.01 * total[0] < total[-1] < 0.5 * total[0]  # dissipative, but not overdamped
 
 
 # ---- (e) excitations --------------------------------------------------------------------------
+
 
 def test_excitation_controller_on_the_full_body_drives_the_reduced_body():
     """No loads, excitation 0: nothing moves until the controller ramps the muscle up.
@@ -261,8 +267,9 @@ def test_excitation_controller_on_the_full_body_drives_the_reduced_body():
     island: the twin shares the body's excitation constants, nothing couples them)."""
     body = make_body(excitation=0.0, gravity=(0.0, 0.0, 0.0), loads=False)
     reduced = full_reduced(body, name="twin")
-    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=ImplicitEuler(rtol=1e-12),
-                  linear_solver="mumps")
+    scene = Scene(
+        gravity=(0.0, 0.0, 0.0), integrator=ImplicitEuler(rtol=1e-12), linear_solver="mumps"
+    )
     scene.add(body, reduced)
     assert [b.name for b in scene.bodies] == [body.name, "twin"]
     assert scene.islands() == ([body, reduced], [])
@@ -282,7 +289,7 @@ def test_excitation_controller_on_the_full_body_drives_the_reduced_body():
 def test_a_static_reduced_solve_from_an_inverted_state_says_so():
     reduced = full_reduced(make_body(excitation=0.3))
     q = np.zeros(reduced.r)
-    q[0::3] = -2.0                          # every free node 2 m back past the clamp
+    q[0::3] = -2.0  # every free node 2 m back past the clamp
     reduced.set_q(q)
     with pytest.raises(StepFailed, match="inverted element"):
         solve_static_reduced(reduced)

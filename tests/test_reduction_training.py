@@ -40,8 +40,13 @@ from artifem.reduction.bases import body_mass, pod_basis
 from artifem.reduction.cubature import trained_points, trained_points_path
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
-from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
-                                        project, record_snapshots)
+from artifem.reduction.training import (
+    ArtifactCache,
+    Snapshots,
+    force_training_matrix,
+    project,
+    record_snapshots,
+)
 from artifem.scene import Scene
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
@@ -49,25 +54,39 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody 
 
 # ---- (a) ArtifactCache ----------------------------------------------------------------------
 
+
 def test_cache_key_is_stable_for_equal_inputs_and_differs_for_different_ones():
     key = ArtifactCache.key
     a = key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01, every=5)
     # Same inputs, keyword and dict order swapped, the array rebuilt, numpy scalars.
-    b = key("snapshots", every=np.int64(5), dt=np.float64(0.01),
-            model={"fixed": np.array([0, 1, 2, 3]), "nu": 0.3, "E": 1e5})
+    b = key(
+        "snapshots",
+        every=np.int64(5),
+        dt=np.float64(0.01),
+        model={"fixed": np.array([0, 1, 2, 3]), "nu": 0.3, "E": 1e5},
+    )
     assert a == b
-    assert a == key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01,
-                    every=5)                                   # deterministic
+    assert a == key(
+        "snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01, every=5
+    )  # deterministic
     assert a.startswith("snapshots-") and "/" not in a and " " not in a
     different = [
         key("basis", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01, every=5),
         key("snapshots", model={"E": 2e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01, every=5),
-        key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.array([0, 1, 2, 4])},
-            dt=0.01, every=5),
+        key(
+            "snapshots",
+            model={"E": 1e5, "nu": 0.3, "fixed": np.array([0, 1, 2, 4])},
+            dt=0.01,
+            every=5,
+        ),
         key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.02, every=5),
         key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4)}, dt=0.01),
-        key("snapshots", model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4).reshape(2, 2)},
-            dt=0.01, every=5),
+        key(
+            "snapshots",
+            model={"E": 1e5, "nu": 0.3, "fixed": np.arange(4).reshape(2, 2)},
+            dt=0.01,
+            every=5,
+        ),
     ]
     assert len({a, *different}) == 1 + len(different)
 
@@ -77,11 +96,14 @@ def test_cache_key_accepts_numpy_bool_scalars():
 
 
 def test_cache_save_load_round_trip(tmp_path):
-    cache = ArtifactCache(tmp_path / "nested" / "cache")          # created on demand
+    cache = ArtifactCache(tmp_path / "nested" / "cache")  # created on demand
     key = cache.key("basis", r=3)
     assert cache.load(key) is None
-    arrays = {"U": np.random.default_rng(0).standard_normal((6, 3)),
-              "index": np.arange(5, dtype=np.int64), "residual": np.array(1.5e-3)}
+    arrays = {
+        "U": np.random.default_rng(0).standard_normal((6, 3)),
+        "index": np.arange(5, dtype=np.int64),
+        "residual": np.array(1.5e-3),
+    }
     cache.save(key, arrays)
     assert cache.path(key) == tmp_path / "nested" / "cache" / f"{key}.npz"
     loaded = cache.load(key)
@@ -101,7 +123,7 @@ def test_cache_get_computes_once_then_loads(tmp_path):
 
     def compute():
         calls.append(1)
-        return {"x": [1.0, 2.0, 3.0], "n": 7}             # lists and scalars become arrays
+        return {"x": [1.0, 2.0, 3.0], "n": 7}  # lists and scalars become arrays
 
     key = cache.key("thing", a=1)
     first = cache.get(key, compute)
@@ -115,7 +137,8 @@ def test_cache_get_computes_once_then_loads(tmp_path):
     cache.get(cache.key("thing", a=2), compute)
     assert len(calls) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        [f"{cache.key('thing', a=1)}.npz", f"{cache.key('thing', a=2)}.npz"])
+        [f"{cache.key('thing', a=1)}.npz", f"{cache.key('thing', a=2)}.npz"]
+    )
 
 
 def test_cache_failed_compute_leaves_nothing_and_is_computed_again(tmp_path):
@@ -125,7 +148,7 @@ def test_cache_failed_compute_leaves_nothing_and_is_computed_again(tmp_path):
 
     def interrupted():
         calls.append("interrupted")
-        raise KeyboardInterrupt                     # a killed run, mid-computation
+        raise KeyboardInterrupt  # a killed run, mid-computation
 
     def failing():
         calls.append("failing")
@@ -135,7 +158,7 @@ def test_cache_failed_compute_leaves_nothing_and_is_computed_again(tmp_path):
         cache.get(key, interrupted)
     with pytest.raises(RuntimeError, match="diverged"):
         cache.get(key, failing)
-    assert list(tmp_path.iterdir()) == []           # no artifact, no *.tmp
+    assert list(tmp_path.iterdir()) == []  # no artifact, no *.tmp
     assert cache.load(key) is None
     found = cache.get(key, lambda: calls.append("ok") or {"u": np.ones(3)})
     assert calls == ["interrupted", "failing", "ok"]
@@ -164,7 +187,7 @@ def test_cache_failed_save_leaves_no_temporary_file(tmp_path):
 
 # ---- the beam ---------------------------------------------------------------------------------
 
-TIP_LOAD = (0.0, 2.0, 0.0)          # N per tip node
+TIP_LOAD = (0.0, 2.0, 0.0)  # N per tip node
 GRAVITY = (0.0, 0.0, -9.81)
 
 
@@ -172,10 +195,20 @@ def make_body(rayleigh=(2.0, 0.01)):
     """A 4x2x2 hex beam (1 x 0.3 x 0.2 m) clamped at x = 0, a muscle in its top half
     (BlemkerFiber, excitation 0), an incompressibility penalty and a tip load. The loads
     (tip load, gravity) act only with load_factor 1; tests set it and body.gravity."""
-    msh = dmesh.create_box(MPI.COMM_WORLD, [np.zeros(3), np.array([1.0, 0.3, 0.2])],
-                           [4, 2, 2], dmesh.CellType.hexahedron)
-    body = FemBody(msh, NeoHookean.from_young_poisson(1.0e5, 0.3), 1000.0,
-                   rayleigh=rayleigh, gravity=(0.0, 0.0, 0.0), incompressibility=2.0e5)
+    msh = dmesh.create_box(
+        MPI.COMM_WORLD,
+        [np.zeros(3), np.array([1.0, 0.3, 0.2])],
+        [4, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    body = FemBody(
+        msh,
+        NeoHookean.from_young_poisson(1.0e5, 0.3),
+        1000.0,
+        rayleigh=rayleigh,
+        gravity=(0.0, 0.0, 0.0),
+        incompressibility=2.0e5,
+    )
     x = msh.geometry.x
     inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
     body.fix_nodes(inputs[x[:, 0] < 1e-12])
@@ -203,10 +236,12 @@ def reset(body, excitation=0.0, load_factor=0.0, gravity=(0.0, 0.0, 0.0)):
 
 
 #: Training runs: (muscle ramp target or None, load factor, gravity).
-TRAINING = [(1.0, 0.0, (0.0, 0.0, 0.0)),          # the muscle alone, ramped to 1 over 0.2 s
-            (None, 1.0, (0.0, 0.0, 0.0)),         # the tip load alone
-            (None, 1.0, GRAVITY),                 # tip load and gravity
-            (0.5, 1.0, GRAVITY)]                  # all three
+TRAINING = [
+    (1.0, 0.0, (0.0, 0.0, 0.0)),  # the muscle alone, ramped to 1 over 0.2 s
+    (None, 1.0, (0.0, 0.0, 0.0)),  # the tip load alone
+    (None, 1.0, GRAVITY),  # tip load and gravity
+    (0.5, 1.0, GRAVITY),
+]  # all three
 
 
 def record_training(body) -> Snapshots:
@@ -218,9 +253,9 @@ def record_training(body) -> Snapshots:
         scene.add(body)
         if target is not None:
             scene.add_controller(
-                ExcitationSchedule.ramp_and_hold({"top": target}, 0.2).controller(body))
-        parts.append(record_snapshots(scene, body, duration=0.4, dt=0.01, every=2,
-                                      progress=False))
+                ExcitationSchedule.ramp_and_hold({"top": target}, 0.2).controller(body)
+            )
+        parts.append(record_snapshots(scene, body, duration=0.4, dt=0.01, every=2, progress=False))
     reset(body)
     return Snapshots.concatenate(parts)
 
@@ -249,9 +284,9 @@ def test_training_snapshots_cover_the_variants(beam):
     np.testing.assert_allclose(a[60:, 0], np.minimum(0.05 * np.arange(1, 21), 0.5))
     assert np.all(np.isfinite(u))
     tip = u.reshape(80, -1, 3)
-    assert np.abs(tip[:20, :, 2]).max() > 0.05         # the muscle bends the beam
-    assert np.abs(tip[20:40, :, 1]).max() > 1e-3       # the tip load pushes it sideways
-    assert tip[40:60, :, 2].min() < -1e-2              # gravity pulls it down
+    assert np.abs(tip[:20, :, 2]).max() > 0.05  # the muscle bends the beam
+    assert np.abs(tip[20:40, :, 1]).max() > 1e-3  # the tip load pushes it sideways
+    assert tip[40:60, :, 2].min() < -1e-2  # gravity pulls it down
     assert np.all(u[:, (3 * body.fixed_dofs[:, None] + np.arange(3)).ravel()] == 0.0)
 
 
@@ -281,7 +316,7 @@ def test_training_forces_are_the_reduced_internal_forces_and_trained_points_fit_
     assert r == 6
     body.set_excitation("top", 0.37)
     G, b = training_forces(body, U, q, snapshots.excitations)
-    assert float(body.muscles["top"].excitation.value) == 0.37      # restored
+    assert float(body.muscles["top"].excitation.value) == 0.37  # restored
     n_points = quadrature_points(body).size
     assert n_points == 9 * 16 and G.shape == (S * r, n_points) and b.shape == (S * r,)
     np.testing.assert_allclose(b, G.sum(axis=1), rtol=1e-14, atol=0)
@@ -304,17 +339,16 @@ def test_training_forces_are_the_reduced_internal_forces_and_trained_points_fit_
         R = full_internal_residual(body, U @ q[s], snapshots.excitations[s, 0])
         ref = U.T @ R
         assert np.abs(ref).max() > 1e-3 * scale
-        np.testing.assert_allclose(b[s * r:(s + 1) * r], ref, rtol=0, atol=1e-11 * scale)
+        np.testing.assert_allclose(b[s * r : (s + 1) * r], ref, rtol=0, atol=1e-11 * scale)
 
     # Trained points: the fit meets tol with a fraction of the points ...
     tol = 1e-3
     points = trained_points(G, b, tol=tol)
     assert points.method == "trained" and points.residual <= tol
-    assert 6 <= points.m < n_points // 2          # measured: 47 of 144
+    assert 6 <= points.m < n_points // 2  # measured: 47 of 144
     fit = G[:, points.indices] @ points.weights
     assert np.linalg.norm(fit - b) <= tol * np.linalg.norm(b)
-    assert np.linalg.norm(fit - b) / np.linalg.norm(b) == pytest.approx(points.residual,
-                                                                        rel=1e-9)
+    assert np.linalg.norm(fit - b) / np.linalg.norm(b) == pytest.approx(points.residual, rel=1e-9)
     # ... and a reduced body on those points reproduces the stacked training forces.
     reduced = ReducedFemBody(body, U, points)
     forces = []
@@ -337,14 +371,16 @@ def test_one_element_basis_is_recovered_exactly(beam):
     body, snapshots, mass = beam
     reset(body)
     n = ndofs(body)
-    X = body.V.tabulate_dof_coordinates()[:n // 3]
+    X = body.V.tabulate_dof_coordinates()[: n // 3]
     corner = int(np.argmin(np.linalg.norm(X - [1.0, 0.3, 0.2], axis=1)))
     assert np.allclose(X[corner], [1.0, 0.3, 0.2])
     U = np.zeros((n, 3))
     U[3 * corner + np.arange(3), np.arange(3)] = 1.0 / np.sqrt(mass[3 * corner + np.arange(3)])
     q = project(U, mass, snapshots.displacements)
-    np.testing.assert_allclose(U @ q[7], np.where(np.repeat(np.arange(n // 3) == corner, 3),
-                                                  snapshots.displacements[7], 0.0))
+    np.testing.assert_allclose(
+        U @ q[7],
+        np.where(np.repeat(np.arange(n // 3) == corner, 3), snapshots.displacements[7], 0.0),
+    )
     # A whole-beam displacement at one node alone crushes its element: keep the states
     # whose projection inverts nothing (checked at every point).
     everything = ReducedFemBody(body, U, all_points(body))
@@ -355,14 +391,13 @@ def test_one_element_basis_is_recovered_exactly(beam):
             keep.append(s)
     assert len(keep) >= 40
     q, a = q[keep], snapshots.excitations[keep]
-    assert a.max() > 0.5                        # muscle states among them
+    assert a.max() > 0.5  # muscle states among them
     G, b = training_forces(body, U, q, a)
     table = quadrature_points(body)
     element = np.flatnonzero(np.any(table.dofs == corner, axis=1))
     assert element.size == 9 and np.unique(table.cell[element]).size == 1
     assert np.array_equal(np.flatnonzero(np.linalg.norm(G, axis=0)), element)
-    np.testing.assert_allclose(G[:, element] @ np.ones(9), b, rtol=0,
-                               atol=1e-14 * np.abs(b).max())
+    np.testing.assert_allclose(G[:, element] @ np.ones(9), b, rtol=0, atol=1e-14 * np.abs(b).max())
     points = trained_points(G, b, tol=1e-10)
     np.testing.assert_array_equal(points.indices, element)
     np.testing.assert_allclose(points.weights, 1.0, rtol=1e-8)
@@ -372,13 +407,13 @@ def test_one_element_basis_is_recovered_exactly(beam):
 
 # ---- (d) accuracy against the full model ------------------------------------------------------
 
-TEST_MOTION = ExcitationSchedule.ramp_and_hold({"top": 0.8}, 0.15)   # not a training run
+TEST_MOTION = ExcitationSchedule.ramp_and_hold({"top": 0.8}, 0.15)  # not a training run
 DT, STEPS = 0.01, 30
 
 
 def full_run(body):
     reset(body)
-    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")    # as reset() left it
+    scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")  # as reset() left it
     scene.add(body)
     scene.add_controller(TEST_MOTION.controller(body))
     n = ndofs(body)
@@ -393,7 +428,7 @@ def full_run(body):
 def reduced_run(body, U, points):
     reset(body)
     reduced = ReducedFemBody(body, U, points)
-    scene = Scene(gravity=(0.0, 0.0, 0.0))              # as reset() left it
+    scene = Scene(gravity=(0.0, 0.0, 0.0))  # as reset() left it
     scene.add(reduced)
     scene.add_controller(TEST_MOTION.controller(body))
     u = [reduced.nodal_displacement()]
@@ -407,22 +442,25 @@ def reduced_run(body, U, points):
 
 def max_mean_error(u, u_ref):
     """Max over time of the mean over nodes of |u - u_ref| (m)."""
-    return float(np.linalg.norm((u - u_ref).reshape(u.shape[0], -1, 3), axis=2)
-                 .mean(axis=1).max())
+    return float(np.linalg.norm((u - u_ref).reshape(u.shape[0], -1, 3), axis=2).mean(axis=1).max())
 
 
 def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(beam):
     body, snapshots, mass = beam
     u_full = full_run(body)
-    assert np.abs(u_full).max() > 0.05                        # 12.7 cm tip motion
+    assert np.abs(u_full).max() > 0.05  # 12.7 cm tip motion
     scale = np.linalg.norm(u_full.reshape(STEPS + 1, -1, 3), axis=2).mean(axis=1).max()
 
     # r = 1, 2, 4 with every point (measured: 0.052, 0.025, 0.0078 m).
-    by_r = [max_mean_error(reduced_run(body, pod_basis(snapshots.displacements, mass,
-                                                       r=r)[0], all_points(body)), u_full)
-            for r in (1, 2, 4)]
+    by_r = [
+        max_mean_error(
+            reduced_run(body, pod_basis(snapshots.displacements, mass, r=r)[0], all_points(body)),
+            u_full,
+        )
+        for r in (1, 2, 4)
+    ]
     assert by_r[0] > by_r[1] > by_r[2] > 0, by_r
-    assert by_r[2] < 0.25 * scale         # r = 4: 16% of the mean displacement (measured)
+    assert by_r[2] < 0.25 * scale  # r = 4: 16% of the mean displacement (measured)
 
     # r = 4 with m = 5, 20 trained points and all 144 (measured: 0.01874, 0.00781, 0.00782 m).
     U, _ = pod_basis(snapshots.displacements, mass, r=4)
@@ -431,15 +469,18 @@ def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(be
     path = trained_points_path(G, b, sizes=[5, 20], tol=1e-6)
     assert path[5].m == 5 and path[20].m == 20
     assert path[5].residual > path[20].residual
-    runs = [reduced_run(body, U, path[5]), reduced_run(body, U, path[20]),
-            reduced_run(body, U, all_points(body))]
+    runs = [
+        reduced_run(body, U, path[5]),
+        reduced_run(body, U, path[20]),
+        reduced_run(body, U, all_points(body)),
+    ]
     by_m = [max_mean_error(u, u_full) for u in runs]
     # Against the full model the error is the basis error plus the cubature error, and the
     # two can partly cancel: 20 trained points end 0.2% *closer* to the full model than the
     # exact quadrature of the same basis. Hence a 5% slack on the last comparison only.
     assert by_m[0] > by_m[1], by_m
     assert by_m[2] <= 1.05 * by_m[1], by_m
-    assert by_m[2] == pytest.approx(by_r[2], rel=1e-12)        # the same run as r = 4 above
+    assert by_m[2] == pytest.approx(by_r[2], rel=1e-12)  # the same run as r = 4 above
     # The cubature error alone (against the all-points reduced run) decreases strictly.
     cubature = [max_mean_error(u, runs[2]) for u in runs[:2]]
     assert cubature[0] > cubature[1] > 0, cubature
@@ -448,6 +489,7 @@ def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(be
 
 
 # ---- (e) energy -----------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("start", ["displacement", "velocity"])
 def test_undamped_trained_reduced_model_never_gains_energy(beam, start):
@@ -471,20 +513,19 @@ def test_undamped_trained_reduced_model_never_gains_energy(beam, start):
         # Thrown from rest with the muscle held at 0.3.
         reset(body, excitation=0.3)
         reduced.set_state((np.zeros(6), 20.0 * q[5]))
-    scene = Scene(gravity=(0.0, 0.0, 0.0))              # no loads
+    scene = Scene(gravity=(0.0, 0.0, 0.0))  # no loads
     scene.add(reduced)
     energy = [(scene.energy(), scene.kinetic_energy(), scene.potential_energy())]
     for _ in range(300):
         scene.step(0.002)
         energy.append((scene.energy(), scene.kinetic_energy(), scene.potential_energy()))
     assert scene.halvings == 0
-    assert float(body.muscles["top"].excitation.value) == (0.0 if start == "displacement"
-                                                           else 0.3)
+    assert float(body.muscles["top"].excitation.value) == (0.0 if start == "displacement" else 0.3)
     total, kinetic, potential = np.array(energy).T
     assert np.all(np.isfinite(total))
     swing = potential.max() - potential.min()
-    assert kinetic.max() > 0.2 * swing > 0                      # it vibrates
-    assert np.sum(np.diff(np.sign(np.diff(kinetic))) != 0) >= 4   # several kinetic peaks
+    assert kinetic.max() > 0.2 * swing > 0  # it vibrates
+    assert np.sum(np.diff(np.sign(np.diff(kinetic))) != 0) >= 4  # several kinetic peaks
     change = np.diff(total)
     assert change.max() <= 1e-12 * np.abs(total).max(), f"energy grew by {change.max():.3e}"
     assert total[-1] < total[0]

@@ -32,8 +32,7 @@ from artifem.excitation import ExcitationSchedule
 from artifem.multibody.attachments import FemFrame, FrameAttachment, NodeAttachment
 from artifem.multibody.joints import RevoluteJoint, axis_rotation
 from artifem.multibody.rigid_body import RigidBody, exp_so3
-from artifem.reduction.reductor import (Basis, Points, ReducibleScene, Reductor, Training,
-                                        reduce)
+from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, Training, reduce
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
 from artifem.scene.inputs import Gravity, SurfaceLoadLevel
@@ -53,8 +52,13 @@ def free_beam() -> Scene:
 def hinged_beam() -> Scene:
     """The beam's free end (x = 1) rides on a bone hinged to the world about z."""
     body = make_body(excitation=0.0)
-    bone = RigidBody("bone", 0.3, np.diag([2e-3, 3e-3, 4e-3]), position=(1.1, 0.15, 0.1),
-                     rotation=exp_so3([0.2, -0.1, 0.3]))
+    bone = RigidBody(
+        "bone",
+        0.3,
+        np.diag([2e-3, 3e-3, 4e-3]),
+        position=(1.1, 0.15, 0.1),
+        rotation=exp_so3([0.2, -0.1, 0.3]),
+    )
     hinge = RevoluteJoint.at_world(bone, None, (1.2, 0.15, 0.1), axis_rotation((0, 0, 1)))
     scene = Scene(gravity=(0.0, 0.0, -9.81))
     end = body.find_nodes(lambda x: x[0] > 1.0 - 1e-12)
@@ -77,8 +81,11 @@ def run(model: ReducibleScene, scene: Scene, schedule, duration: float) -> dict:
     reduced = next(iter(scene.reduced_bodies), None)
     full = model.fem_body_or_full(scene)
     n = ndofs(full)
-    record = {"u": (lambda s: reduced.nodal_displacement().copy()) if reduced else
-              (lambda s: full.u.x.array[:n].copy())}
+    record = {
+        "u": (lambda s: reduced.nodal_displacement().copy())
+        if reduced
+        else (lambda s: full.u.x.array[:n].copy())
+    }
     if scene.node_attachments or scene.lift_attachments:
         record["attached"] = lambda s: max(s.attachment_errors().values())
     if scene.frame_attachments:
@@ -86,18 +93,29 @@ def run(model: ReducibleScene, scene: Scene, schedule, duration: float) -> dict:
     return simulate(scene, duration, DT, record=record, progress=False).records
 
 
-TRAINING = Training(random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1)),
-                    duration=0.2, dt=DT, snapshot_every=1)
-HELD_OUT = ExcitationSchedule(np.array([0.0, 0.1, 0.15, 0.2]),
-                              {"top": np.array([0.0, 0.8, 0.8, 0.3])})
+TRAINING = Training(
+    random_schedules(["top"], 2, seed=1, duration=0.2, active=(1, 1)),
+    duration=0.2,
+    dt=DT,
+    snapshot_every=1,
+)
+HELD_OUT = ExcitationSchedule(
+    np.array([0.0, 0.1, 0.15, 0.2]), {"top": np.array([0.0, 0.8, 0.8, 0.3])}
+)
 
 
 @pytest.mark.parametrize("make", [free_beam, hinged_beam, beam_with_a_rigid_tip])
 def test_every_snapshot_and_point_reproduce_the_full_scene(make, tmp_path):
     model = ReducibleScene(make.__name__, make, "fem", {"model": make.__name__})
     S = 2 * 20
-    reduced = reduce(model, TRAINING, basis=Basis("pod", S), points=Points(sampling="all"),
-                     cache=tmp_path, progress=False)
+    reduced = reduce(
+        model,
+        TRAINING,
+        basis=Basis("pod", S),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
     schedule = next(iter(TRAINING.schedules.values()))
     full = run(model, make(), schedule, 0.2)
     scene = reduced.scene()
@@ -110,8 +128,8 @@ def test_every_snapshot_and_point_reproduce_the_full_scene(make, tmp_path):
         assert [a.name for a in scene.lift_attachments] == ["end"]
         assert reduced.training["basis"]["lift_columns"] == 12
         assert red["attached"].max() < 1e-12
-    if make is beam_with_a_rigid_tip:       # the frame went onto the reduced body
-        attachment, = scene.frame_attachments
+    if make is beam_with_a_rigid_tip:  # the frame went onto the reduced body
+        (attachment,) = scene.frame_attachments
         assert attachment.frame.body is scene.reduced_bodies[0]
         assert np.abs(red["tip"] - full["tip"]).max() < 1e-6 * scale
 
@@ -133,8 +151,9 @@ def test_trained_points_on_a_carried_body_stay_near_every_point(tmp_path):
     model = ReducibleScene("hinged", hinged_beam, "fem", {"model": "hinged"})
     reductor = Reductor(model, TRAINING, tmp_path, progress=False)
     full = run(model, hinged_beam(), HELD_OUT, 0.2)
-    every = run(model, reductor.reduce(Basis("pod", 6), Points(sampling="all")).scene(),
-                HELD_OUT, 0.2)
+    every = run(
+        model, reductor.reduce(Basis("pod", 6), Points(sampling="all")).scene(), HELD_OUT, 0.2
+    )
     trained = reductor.reduce(Basis("pod", 6), Points(60, tol=1e-6, training_states=40))
     assert trained.points.m <= 60 and trained.points.residual < 1e-3
     some = run(model, trained.scene(), HELD_OUT, 0.2)
@@ -149,9 +168,9 @@ def test_a_second_reduction_loads_every_stage_from_the_cache(tmp_path):
     model = ReducibleScene("hinged", build, "fem", {"model": "hinged"})
     spec = dict(basis=Basis("pod", 5), points=Points(40, tol=1e-6, training_states=20))
     first = reduce(model, TRAINING, cache=tmp_path, progress=False, **spec)
-    assert build.count == 1 + len(TRAINING.schedules)        # the model, then each run
+    assert build.count == 1 + len(TRAINING.schedules)  # the model, then each run
     second = reduce(model, TRAINING, cache=tmp_path, progress=False, **spec)
-    assert build.count == 2 + len(TRAINING.schedules)        # the model only
+    assert build.count == 2 + len(TRAINING.schedules)  # the model only
     assert np.array_equal(first.basis, second.basis)
     assert np.array_equal(first.points.indices, second.points.indices)
     assert first.training == second.training
@@ -168,6 +187,7 @@ def test_bad_input_is_refused_before_any_training_run(tmp_path):
 
     class Push:
         """A load element on the beam (no onto_reduced)."""
+
         name = "push"
 
         def __init__(self, body):
@@ -180,29 +200,33 @@ def test_bad_input_is_refused_before_any_training_run(tmp_path):
         scene = free_beam()
         scene.add(Push(scene.fem_bodies[0]))
         return scene
+
     with pytest.raises(InputError, match="Push 'push' couples 'fem'"):
-        reduce(ReducibleScene("beam", Builds(with_push), "fem", {}), TRAINING,
-               cache=tmp_path)
+        reduce(ReducibleScene("beam", Builds(with_push), "fem", {}), TRAINING, cache=tmp_path)
     with pytest.raises(UnknownNameError, match="no surface load 'lid'"):
-        reduce(ReducibleScene("beam", build, "fem", {},
-                              loads={"lid": SurfaceLoadLevel("fem", "lid", 100.0)}),
-               TRAINING, cache=tmp_path)
+        reduce(
+            ReducibleScene(
+                "beam", build, "fem", {}, loads={"lid": SurfaceLoadLevel("fem", "lid", 100.0)}
+            ),
+            TRAINING,
+            cache=tmp_path,
+        )
     with pytest.raises(InputError, match=r"\['top'\] name both an exciter and a load"):
-        reduce(ReducibleScene("beam", build, "fem", {}, loads={"top": Gravity()}),
-               TRAINING, cache=tmp_path)
+        reduce(
+            ReducibleScene("beam", build, "fem", {}, loads={"top": Gravity()}),
+            TRAINING,
+            cache=tmp_path,
+        )
     assert build.count == 4 and not list(tmp_path.glob("*.npz"))
 
 
 def test_random_schedules_are_seeded_space_filling_and_release():
     exciters = [f"m{k}" for k in range(6)]
-    a = random_schedules(exciters, 12, seed=7, duration=1.0, excitation=(0.1, 1.0),
-                         active=(2, 4))
-    b = random_schedules(exciters, 12, seed=7, duration=1.0, excitation=(0.1, 1.0),
-                         active=(2, 4))
-    c = random_schedules(exciters, 12, seed=8, duration=1.0, excitation=(0.1, 1.0),
-                         active=(2, 4))
+    a = random_schedules(exciters, 12, seed=7, duration=1.0, excitation=(0.1, 1.0), active=(2, 4))
+    b = random_schedules(exciters, 12, seed=7, duration=1.0, excitation=(0.1, 1.0), active=(2, 4))
+    c = random_schedules(exciters, 12, seed=8, duration=1.0, excitation=(0.1, 1.0), active=(2, 4))
     assert list(a) == [f"random-7-{i}" for i in range(12)]
-    for (s, t) in zip(a.values(), b.values()):
+    for s, t in zip(a.values(), b.values()):
         assert np.array_equal(s.times, t.times) and s.values.keys() == t.values.keys()
         assert all(np.array_equal(s.values[k], t.values[k]) for k in s.values)
     assert any(not np.array_equal(s.times, t.times) for s, t in zip(a.values(), c.values()))
@@ -229,26 +253,32 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
     from artifem.reduction.generalization import generalization_study
 
     motion = ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)
-    model = ReducibleScene("free", free_beam, "fem", {"model": "free"},
-                           motions={"ramp": motion})
-    figures = generalization_study(Reductor(model, TRAINING, tmp_path / "cache",
-                                            progress=False), tmp_path, basis=Basis("pod", 3),
-                                   points=Points(sampling="all"),
-                                   reference=(Basis("pod", 12), Points(sampling="all")),
-                                   held_out=3, seed=99, duration=0.2, progress=False)
+    model = ReducibleScene("free", free_beam, "fem", {"model": "free"}, motions={"ramp": motion})
+    figures = generalization_study(
+        Reductor(model, TRAINING, tmp_path / "cache", progress=False),
+        tmp_path,
+        basis=Basis("pod", 3),
+        points=Points(sampling="all"),
+        reference=(Basis("pod", 12), Points(sampling="all")),
+        held_out=3,
+        seed=99,
+        duration=0.2,
+        progress=False,
+    )
     sets = figures["sets"]
     assert [len(sets[s]) for s in ("training", "motions", "held-out")] == [2, 1, 3]
     assert figures["reduced"]["basis"]["r"] == 3 and figures["reference"]["basis"]["r"] == 12
     for runs in sets.values():
         for r in runs:
             assert not r["failed"] and r["max_error_mm"] > 0.1
-            assert (r["speedup"] is None) == (r in sets["training"])   # no 2nd full run
+            assert (r["speedup"] is None) == (r in sets["training"])  # no 2nd full run
             assert 1 / 3 <= r["estimate_ratio"] <= 3
     assert "## held-out" in (tmp_path / "generalization.md").read_text()
     assert (tmp_path / "generalization.png").stat().st_size > 10_000
-    worst = figures["worst"]            # the render: the worst held-out moment
+    worst = figures["worst"]  # the render: the worst held-out moment
     assert worst["set"] == "held-out" and worst["mean_error_mm"] == pytest.approx(
-        max(r["max_error_mm"] for r in sets["held-out"]), rel=1e-12)
+        max(r["max_error_mm"] for r in sets["held-out"]), rel=1e-12
+    )
     assert worst["max_node_error_mm"] > worst["mean_error_mm"]
     assert (tmp_path / "generalization_worst.png").stat().st_size > 10_000
     assert "generalization_worst.png" in (tmp_path / "generalization.md").read_text()
@@ -263,12 +293,25 @@ def test_error_sources_split_the_error_into_basis_cubature_and_dynamics(tmp_path
     from artifem.reduction.evaluation import compare
     from artifem.reduction.generalization import error_sources, generalization_study
 
-    model = ReducibleScene("free", free_beam, "fem", {"model": "free"},
-                           motions={"ramp": ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)})
+    model = ReducibleScene(
+        "free",
+        free_beam,
+        "fem",
+        {"model": "free"},
+        motions={"ramp": ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)},
+    )
     reductor = Reductor(model, TRAINING, tmp_path / "cache", progress=False)
-    figures = generalization_study(reductor, tmp_path, basis=Basis("pod", 3),
-                                   points=Points(sampling="all"), held_out=2, seed=99,
-                                   duration=0.2, sources=True, progress=False)
+    figures = generalization_study(
+        reductor,
+        tmp_path,
+        basis=Basis("pod", 3),
+        points=Points(sampling="all"),
+        held_out=2,
+        seed=99,
+        duration=0.2,
+        sources=True,
+        progress=False,
+    )
     for name in ("motions", "held-out"):
         for r in figures["sets"][name]:
             assert r["every_point_mm"] == pytest.approx(r["max_error_mm"], rel=1e-12)
@@ -276,10 +319,17 @@ def test_error_sources_split_the_error_into_basis_cubature_and_dynamics(tmp_path
     assert "best in the basis (mm)" in (tmp_path / "generalization.md").read_text()
     name, schedule = next(iter(TRAINING.schedules.items()))
     every_snapshot = reductor.reduce(Basis("pod", 2 * 20), Points(12, tol=1e-9))
-    found = error_sources(reductor, every_snapshot, {name: schedule}, 0.2, DT,
-                          progress=False)[name]
-    error = np.nanmax(compare(every_snapshot, {name: schedule}, duration=0.2, dt=DT,
-                              cache=tmp_path / "cache", progress=False)[0].error_mm)
+    found = error_sources(reductor, every_snapshot, {name: schedule}, 0.2, DT, progress=False)[name]
+    error = np.nanmax(
+        compare(
+            every_snapshot,
+            {name: schedule},
+            duration=0.2,
+            dt=DT,
+            cache=tmp_path / "cache",
+            progress=False,
+        )[0].error_mm
+    )
     assert found["projection_mm"] < 1e-9
     assert found["every_point_mm"] < 1e-6 < 0.01 < error
 
@@ -287,11 +337,13 @@ def test_error_sources_split_the_error_into_basis_cubature_and_dynamics(tmp_path
 def test_a_held_out_set_drawn_with_the_training_seed_is_refused(tmp_path):
     from artifem.reduction.generalization import held_out_schedules
 
-    training = Training(random_schedules(["top"], 2, seed=5, duration=0.2, prefix="held-out"),
-                        0.2, DT)
+    training = Training(
+        random_schedules(["top"], 2, seed=5, duration=0.2, prefix="held-out"), 0.2, DT
+    )
     with pytest.raises(InputError, match="seed the training did not use"):
-        held_out_schedules(ReducibleScene("free", free_beam, "fem", {}), ["top"], training,
-                           2, 5, 0.2)
+        held_out_schedules(
+            ReducibleScene("free", free_beam, "fem", {}), ["top"], training, 2, 5, 0.2
+        )
 
 
 def test_a_hard_body_is_reduced_with_its_pressure_space(tmp_path):
@@ -305,24 +357,41 @@ def test_a_hard_body_is_reduced_with_its_pressure_space(tmp_path):
 
     def hard_beam() -> Scene:
         scene = Scene(gravity=(0.0, 0.0, -9.81))
-        scene.add(make_body(excitation=0.0, rayleigh=(0.5, 0.01),
-                            incompressibility=Incompressible(kappa=7.6e5, tol=1e-10)))
+        scene.add(
+            make_body(
+                excitation=0.0,
+                rayleigh=(0.5, 0.01),
+                incompressibility=Incompressible(kappa=7.6e5, tol=1e-10),
+            )
+        )
         return scene
+
     model = ReducibleScene("hard", hard_beam, "fem", {"model": "hard"})
     schedule = next(iter(TRAINING.schedules.values()))
     full = run(model, hard_beam(), schedule, 0.2)["u"]
     scale = np.abs(full).max()
     for modes, tol in ((16, 1e-6), (3, 1e-2)):
-        reduced = reduce(model, TRAINING, basis=Basis("pod", 40), points=Points(sampling="all"),
-                         cache=tmp_path, pressure_modes=modes, progress=False)
+        reduced = reduce(
+            model,
+            TRAINING,
+            basis=Basis("pod", 40),
+            points=Points(sampling="all"),
+            cache=tmp_path,
+            pressure_modes=modes,
+            progress=False,
+        )
         assert reduced.pressure_basis.shape[1] == modes
-        assert np.abs(run(model, reduced.scene(), schedule, 0.2)["u"] - full).max() \
-            < tol * scale
-    figures = generalization_study(Reductor(model, TRAINING, tmp_path, pressure_modes=3,
-                                            progress=False),
-                                   tmp_path / "split", basis=Basis("pod", 4),
-                                   points=Points(40, tol=1e-6, training_states=20),
-                                   held_out=1, seed=99, duration=0.2, progress=False)
+        assert np.abs(run(model, reduced.scene(), schedule, 0.2)["u"] - full).max() < tol * scale
+    figures = generalization_study(
+        Reductor(model, TRAINING, tmp_path, pressure_modes=3, progress=False),
+        tmp_path / "split",
+        basis=Basis("pod", 4),
+        points=Points(40, tol=1e-6, training_states=20),
+        held_out=1,
+        seed=99,
+        duration=0.2,
+        progress=False,
+    )
     assert figures["reduced"]["points"]["count"] <= 40
     assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
 
@@ -342,14 +411,23 @@ def test_a_full_model_that_fails_ends_its_comparison_there(tmp_path):
         def stop(s, t0, t1):
             if failing["on"] and s.fem_bodies and t1 > 0.1 + 1e-9:
                 raise StepFailed("the full beam stops at 0.1 s")
+
         scene.add_controller(stop)
         return scene
+
     model = ReducibleScene("failing", failing_beam, "fem", {"model": "failing"})
-    reduced = reduce(model, TRAINING, basis=Basis("pod", 4), points=Points(sampling="all"),
-                     cache=tmp_path, progress=False)
+    reduced = reduce(
+        model,
+        TRAINING,
+        basis=Basis("pod", 4),
+        points=Points(sampling="all"),
+        cache=tmp_path,
+        progress=False,
+    )
     failing["on"] = True
-    (c,) = compare(reduced, {"held out": HELD_OUT}, duration=0.2, dt=DT, cache=tmp_path,
-                   progress=False)
+    (c,) = compare(
+        reduced, {"held out": HELD_OUT}, duration=0.2, dt=DT, cache=tmp_path, progress=False
+    )
     s = c.summary()
     assert s["full_failed"] and "stops at 0.1 s" in s["full_error"] and not s["failed"]
     assert np.all(np.isfinite(c.error_mm[:11])) and np.all(np.isnan(c.error_mm[11:]))

@@ -37,8 +37,11 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies 
 
 DT = 0.01
 TIP, ANCHOR = np.array([1.0, 0.15, 0.1]), np.array([1.0, 0.8, 0.1])
-LOADS = {"pull": PathExcitation("sideways"), "press": SurfaceLoadLevel("fem", "top", 400.0),
-         "gravity": Gravity((0.0, 0.0, -9.81))}
+LOADS = {
+    "pull": PathExcitation("sideways"),
+    "press": SurfaceLoadLevel("fem", "top", 400.0),
+    "gravity": Gravity((0.0, 0.0, -9.81)),
+}
 
 
 def pulled_beam() -> Scene:
@@ -49,16 +52,27 @@ def pulled_beam() -> Scene:
     L = float(np.linalg.norm(ANCHOR - TIP))
     muscle = ThelenMuscle(ThelenParameters(40.0, 0.8 * L, 0.2 * L), name="sideways")
     scene = Scene(gravity=(0.0, 0.0, 0.0))
-    scene.add(body, PointPath(muscle, [ANCHOR, FemPoint(body, shape_function_weights(
-        body, TIP), name="tip")], name="sideways"))
+    scene.add(
+        body,
+        PointPath(
+            muscle,
+            [ANCHOR, FemPoint(body, shape_function_weights(body, TIP), name="tip")],
+            name="sideways",
+        ),
+    )
     return scene
 
 
 def pulled_model() -> ReducibleScene:
     """The pulled beam as a reductor's model (also for ``artifem study scene``)."""
-    return ReducibleScene("pulled", pulled_beam, "fem", {"model": "pulled"}, loads=LOADS,
-                          motions={"press": ExcitationSchedule.ramp_and_hold({"press": 1.0},
-                                                                             0.1)})
+    return ReducibleScene(
+        "pulled",
+        pulled_beam,
+        "fem",
+        {"model": "pulled"},
+        loads=LOADS,
+        motions={"press": ExcitationSchedule.ramp_and_hold({"press": 1.0}, 0.1)},
+    )
 
 
 MODEL = pulled_model()
@@ -69,16 +83,24 @@ def run(scene: Scene, schedule: ExcitationSchedule, duration: float) -> np.ndarr
     reduced = next(iter(scene.reduced_bodies), None)
     n = ndofs(MODEL.fem_body_or_full(scene))
     full = MODEL.fem_body_or_full(scene)
-    record = (lambda s: reduced.nodal_displacement().copy()) if reduced else \
-        (lambda s: full.u.x.array[:n].copy())
+    record = (
+        (lambda s: reduced.nodal_displacement().copy())
+        if reduced
+        else (lambda s: full.u.x.array[:n].copy())
+    )
     return simulate(scene, duration, DT, record={"u": record}, progress=False).records["u"]
 
 
 def test_scene_inputs_set_what_they_name():
     scene = pulled_beam()
-    schedule = ExcitationSchedule(np.array([0.0, 1.0]), {"pull": np.array([0.0, 0.5]),
-                                                        "press": np.array([0.0, 1.0]),
-                                                        "gravity": np.array([1.0, 0.0])})
+    schedule = ExcitationSchedule(
+        np.array([0.0, 1.0]),
+        {
+            "pull": np.array([0.0, 0.5]),
+            "press": np.array([0.0, 1.0]),
+            "gravity": np.array([1.0, 0.0]),
+        },
+    )
     controller(schedule, LOADS)(scene, 0.0, 0.5)
     assert np.allclose(scene.gravity, [0.0, 0.0, -0.5 * 9.81])
     assert scene.fem_bodies[0].surface_loads["top"].get() == pytest.approx(200.0)
@@ -91,13 +113,20 @@ def test_scene_inputs_set_what_they_name():
         SurfaceLoadLevel("fem", "top", (0.0, 0.0, 1.0)).apply(scene, 0.5)
 
 
-TRAINING = Training(random_schedules(["pull", "press", "gravity", "top"], 3, seed=3,
-                                     duration=0.2, active=(2, 3)),
-                    duration=0.2, dt=DT, snapshot_every=1)
-HELD_OUT = ExcitationSchedule(np.array([0.0, 0.08, 0.2]),
-                              {"pull": np.array([0.0, 0.9, 0.6]),
-                               "press": np.array([0.0, 0.7, 0.7]),
-                               "gravity": np.array([0.0, 0.5, 0.5])})
+TRAINING = Training(
+    random_schedules(["pull", "press", "gravity", "top"], 3, seed=3, duration=0.2, active=(2, 3)),
+    duration=0.2,
+    dt=DT,
+    snapshot_every=1,
+)
+HELD_OUT = ExcitationSchedule(
+    np.array([0.0, 0.08, 0.2]),
+    {
+        "pull": np.array([0.0, 0.9, 0.6]),
+        "press": np.array([0.0, 0.7, 0.7]),
+        "gravity": np.array([0.0, 0.5, 0.5]),
+    },
+)
 
 
 def test_every_snapshot_and_point_of_a_load_case_training_reproduce_the_full_scene(tmp_path):
@@ -107,7 +136,7 @@ def test_every_snapshot_and_point_of_a_load_case_training_reproduce_the_full_sce
     assert len(set(schedule.values) & set(LOADS)) >= 2
     full = run(pulled_beam(), schedule, 0.2)
     scene = reduced.scene()
-    path, = scene.paths
+    (path,) = scene.paths
     assert path.name == "sideways" and path.bodies == tuple(scene.reduced_bodies)
     red = run(scene, schedule, 0.2)
     scale = np.abs(full).max()
@@ -117,12 +146,14 @@ def test_every_snapshot_and_point_of_a_load_case_training_reproduce_the_full_sce
 
 def test_a_basis_trained_on_load_cases_follows_a_held_out_load_case(tmp_path):
     full = run(pulled_beam(), HELD_OUT, 0.2)
-    muscle_only = Training(random_schedules(["top"], 3, seed=3, duration=0.2),
-                           duration=0.2, dt=DT, snapshot_every=1)
+    muscle_only = Training(
+        random_schedules(["top"], 3, seed=3, duration=0.2), duration=0.2, dt=DT, snapshot_every=1
+    )
     errors = {}
     for name, training in (("loads", TRAINING), ("muscle", muscle_only)):
         reduced = Reductor(MODEL, training, tmp_path, progress=False).reduce(
-            Basis("pod", 6), Points(sampling="all"))
+            Basis("pod", 6), Points(sampling="all")
+        )
         errors[name] = np.abs(run(reduced.scene(), HELD_OUT, 0.2) - full).max()
     scale = np.abs(full).max()
     assert errors["loads"] < 0.05 * scale
@@ -135,9 +166,25 @@ def test_the_scene_study_command_splits_any_model(tmp_path):
     from artifem.cli import main
 
     out = tmp_path / "study"
-    args = ["study", "scene", "test_reductor_load_cases:pulled_model", "--out", str(out),
-            "--training-runs", "4", "--duration", "0.2", "--snapshot-every", "2", "--r", "6",
-            "--sampling", "all", "--held-out", "2"]
+    args = [
+        "study",
+        "scene",
+        "test_reductor_load_cases:pulled_model",
+        "--out",
+        str(out),
+        "--training-runs",
+        "4",
+        "--duration",
+        "0.2",
+        "--snapshot-every",
+        "2",
+        "--r",
+        "6",
+        "--sampling",
+        "all",
+        "--held-out",
+        "2",
+    ]
     assert main(args) == 0
     training = json.loads((out / "training.json").read_text())
     assert training["runs"] == training["missing"] == 4 and training["ranks"] == 1
@@ -147,15 +194,19 @@ def test_the_scene_study_command_splits_any_model(tmp_path):
     assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
     assert figures["worst"]["set"] == "held-out"
     assert (out / "generalization_worst.png").stat().st_size > 10_000
-    assert main(args) == 0              # again: all from the cache, the record of the
-    assert json.loads((out / "training.json").read_text()) == training      # training kept
+    assert main(args) == 0  # again: all from the cache, the record of the
+    assert json.loads((out / "training.json").read_text()) == training  # training kept
 
 
-@pytest.mark.parametrize("spec, message", [
-    ("pulled_model", "give the model as MODULE:FUNCTION"),
-    ("no_such_module_here:f", "cannot import 'no_such_module_here'"),
-    ("test_reductor_load_cases:nothing", "has no 'nothing'"),
-    ("test_reductor_load_cases:pulled_beam", "returned a Scene, not a ReducibleScene")])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("pulled_model", "give the model as MODULE:FUNCTION"),
+        ("no_such_module_here:f", "cannot import 'no_such_module_here'"),
+        ("test_reductor_load_cases:nothing", "has no 'nothing'"),
+        ("test_reductor_load_cases:pulled_beam", "returned a Scene, not a ReducibleScene"),
+    ],
+)
 def test_the_scene_study_refuses_a_bad_model_spec(spec, message, tmp_path, capsys):
     from artifem.cli import main
 
@@ -169,20 +220,40 @@ def test_the_scene_study_enriches_its_points_without_a_full_run(tmp_path, capsys
     from artifem.cli import main
 
     out = tmp_path / "study"
-    base = ["study", "scene", "test_reductor_load_cases:pulled_model", "--out", str(out),
-            "--training-runs", "3", "--duration", "0.2", "--snapshot-every", "2", "--r", "6",
-            "--points", "30", "--held-out", "1", "--point-pool", "2", "--point-rounds", "1"]
+    base = [
+        "study",
+        "scene",
+        "test_reductor_load_cases:pulled_model",
+        "--out",
+        str(out),
+        "--training-runs",
+        "3",
+        "--duration",
+        "0.2",
+        "--snapshot-every",
+        "2",
+        "--r",
+        "6",
+        "--points",
+        "30",
+        "--held-out",
+        "1",
+        "--point-pool",
+        "2",
+        "--point-rounds",
+        "1",
+    ]
     assert main(base) == 0
     record = json.loads((out / "points.json").read_text())
     assert record["pool"] == 2 and record["seed"] == 2000 and len(record["history"]) == 2
     first = record["history"][0]
     assert set(first["indicators"]) == {"points-2000-0", "points-2000-1"}
     assert first["added"] == max(first["indicators"], key=first["indicators"].get)
-    kept = 10 if record["stopped"] == "rounds" else 0      # "stalled": the round undone
+    kept = 10 if record["stopped"] == "rounds" else 0  # "stalled": the round undone
     assert record["stopped"] in ("rounds", "stalled") and record["extra_states"] == kept
     figures = json.loads((out / "generalization.json").read_text())
     assert figures["reduced"]["points"]["extra_states"] == kept
-    assert len(list((out / "cache").glob("full-run-*"))) == 2    # the motion and held-out
+    assert len(list((out / "cache").glob("full-run-*"))) == 2  # the motion and held-out
     capsys.readouterr()
     assert main([*base, "--point-seed", "0"]) == 2
     assert "--point-seed 0 is also --training-seed" in capsys.readouterr().err

@@ -32,8 +32,9 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies 
 
 DT = 0.01
 END = np.array([1.0, 0.15, 0.1])
-MOTION = PrescribedMotion("clamp", translation=(0.0, 0.08, 0.04), rotation=(0.0, 0.0, 0.3),
-                          pivot=tuple(END))
+MOTION = PrescribedMotion(
+    "clamp", translation=(0.0, 0.08, 0.04), rotation=(0.0, 0.0, 0.3), pivot=tuple(END)
+)
 LOADS = {"move": MOTION}
 
 
@@ -45,8 +46,9 @@ def moved_beam() -> Scene:
     """The beam (clamped at x = 0), its free end's nodes on the prescribed clamp (at rest
     until the input moves it), gravity."""
     body = make_body(excitation=0.0, loads=False, comm=MPI.COMM_SELF)
-    clamp = RigidBody("clamp", 1.0, 1e-3 * np.eye(3), position=END, motion="prescribed",
-                      trajectory=at_rest)
+    clamp = RigidBody(
+        "clamp", 1.0, 1e-3 * np.eye(3), position=END, motion="prescribed", trajectory=at_rest
+    )
     end = body.find_nodes(lambda x: x[0] > 1.0 - 1e-12)
     scene = Scene(gravity=(0.0, 0.0, -9.81))
     scene.add(body, clamp, NodeAttachment(body, end, clamp, name="end"))
@@ -62,9 +64,12 @@ def run(scene: Scene, schedule: ExcitationSchedule, duration: float) -> dict:
     reduced = next(iter(scene.reduced_bodies), None)
     full = MODEL.fem_body_or_full(scene)
     n = ndofs(full)
-    record = {"u": (lambda s: reduced.nodal_displacement().copy()) if reduced else
-              (lambda s: full.u.x.array[:n].copy()),
-              "attached": lambda s: max(s.attachment_errors().values())}
+    record = {
+        "u": (lambda s: reduced.nodal_displacement().copy())
+        if reduced
+        else (lambda s: full.u.x.array[:n].copy()),
+        "attached": lambda s: max(s.attachment_errors().values()),
+    }
     return simulate(scene, duration, DT, record=record, progress=False).records
 
 
@@ -73,7 +78,7 @@ def test_the_input_moves_the_prescribed_body_by_its_level():
     clamp = scene.rigid_bodies[0]
     ramp = ExcitationSchedule(np.array([0.0, 0.05]), {"move": np.array([0.0, 0.5])})
     scene.add_controller(controller(ramp, LOADS))
-    scene.step(DT)                                     # level 0.1 at t = 0.01
+    scene.step(DT)  # level 0.1 at t = 0.01
     p1, R1 = MOTION.pose(at_rest(DT), 0.1)
     assert np.allclose(clamp.position, p1, atol=1e-15)
     assert np.allclose(clamp.rotation, R1, atol=1e-15)
@@ -84,10 +89,10 @@ def test_the_input_moves_the_prescribed_body_by_its_level():
     p, R = MOTION.pose(at_rest(0.1), 0.5)
     assert np.allclose(clamp.position, p, atol=1e-15) and np.allclose(clamp.rotation, R)
     assert np.allclose(R, exp_so3([0.0, 0.0, 0.15]))
-    assert np.allclose(p, END + [0.0, 0.04, 0.02])        # the pivot is the end's centre
-    assert clamp.trajectory.base is at_rest                # levels do not stack
+    assert np.allclose(p, END + [0.0, 0.04, 0.02])  # the pivot is the end's centre
+    assert clamp.trajectory.base is at_rest  # levels do not stack
     assert max(scene.attachment_errors().values()) < 1e-12
-    assert np.abs(clamp.velocity).max() < 1e-12            # held: at rest again
+    assert np.abs(clamp.velocity).max() < 1e-12  # held: at rest again
 
 
 def test_bad_prescribed_motions_are_refused_by_name():
@@ -101,23 +106,34 @@ def test_bad_prescribed_motions_are_refused_by_name():
     with pytest.raises(InputError, match="rotation must be 3 finite numbers"):
         PrescribedMotion("clamp", rotation=(0.0, np.nan, 0.0))
     with pytest.raises(UnknownNameError, match="no rigid body 'jaw'"):
-        Reductor(ReducibleScene("bad", moved_beam, "fem", {"model": "bad"},
-                                loads={"move": PrescribedMotion("jaw")}), TRAINING, "unused",
-                 progress=False)
+        Reductor(
+            ReducibleScene(
+                "bad", moved_beam, "fem", {"model": "bad"}, loads={"move": PrescribedMotion("jaw")}
+            ),
+            TRAINING,
+            "unused",
+            progress=False,
+        )
 
 
 #: ramps and releases short enough to reach their levels within the runs
 SHORT = {"duration": 0.2, "ramp": (0.03, 0.1), "release": (0.03, 0.1), "onset": 0.05}
-TRAINING = Training(random_schedules(["top", "move"], 3, seed=5, active=(1, 2), **SHORT),
-                    duration=0.2, dt=DT, snapshot_every=1)
-HELD_OUT = ExcitationSchedule(np.array([0.0, 0.08, 0.2]),
-                              {"move": np.array([0.0, 0.9, 0.4]),
-                               "top": np.array([0.0, 0.3, 0.3])})
+TRAINING = Training(
+    random_schedules(["top", "move"], 3, seed=5, active=(1, 2), **SHORT),
+    duration=0.2,
+    dt=DT,
+    snapshot_every=1,
+)
+HELD_OUT = ExcitationSchedule(
+    np.array([0.0, 0.08, 0.2]),
+    {"move": np.array([0.0, 0.9, 0.4]), "top": np.array([0.0, 0.3, 0.3])},
+)
 
 
 def test_every_snapshot_and_point_of_a_motion_training_reproduce_the_full_scene(tmp_path):
     reduced = Reductor(MODEL, TRAINING, tmp_path, progress=False).reduce(
-        Basis("pod", 3 * 20), Points(sampling="all"))
+        Basis("pod", 3 * 20), Points(sampling="all")
+    )
     assert reduced.training["basis"]["lift_columns"] == 12
     schedule = next(s for s in TRAINING.schedules.values() if "move" in s.values)
     full = run(moved_beam(), schedule, 0.2)
@@ -130,12 +146,14 @@ def test_every_snapshot_and_point_of_a_motion_training_reproduce_the_full_scene(
 
 def test_a_basis_trained_on_motions_follows_a_held_out_motion(tmp_path):
     full = run(moved_beam(), HELD_OUT, 0.2)["u"]
-    muscle_only = Training(random_schedules(["top"], 3, seed=5, **SHORT),
-                           duration=0.2, dt=DT, snapshot_every=1)
+    muscle_only = Training(
+        random_schedules(["top"], 3, seed=5, **SHORT), duration=0.2, dt=DT, snapshot_every=1
+    )
     errors = {}
     for name, training in (("motions", TRAINING), ("muscle", muscle_only)):
         reduced = Reductor(MODEL, training, tmp_path, progress=False).reduce(
-            Basis("pod", 10), Points(sampling="all"))
+            Basis("pod", 10), Points(sampling="all")
+        )
         errors[name] = np.abs(run(reduced.scene(), HELD_OUT, 0.2)["u"] - full).max()
     scale = np.abs(full).max()
     assert errors["motions"] < 0.03 * scale

@@ -26,8 +26,10 @@ def _surfaces(rng):
 
 def _along(x, faces, target, both_ways, v, h, part):
     """The central difference of ``_terms(...)[part]`` along v with step h."""
-    return (_terms(x + h * v, faces, target, both_ways)[part]
-            - _terms(x - h * v, faces, target, both_ways)[part]) / (2 * h)
+    return (
+        _terms(x + h * v, faces, target, both_ways)[part]
+        - _terms(x - h * v, faces, target, both_ways)[part]
+    ) / (2 * h)
 
 
 def _terms(x, faces, target, both_ways):
@@ -52,15 +54,20 @@ def test_the_stiffness_is_the_derivative_of_the_forces(rng, both_ways):
     _, _, K = _terms(x, faces, target, both_ways)
     for v in rng.standard_normal((3, *x.shape)):
         Kv = K @ v.ravel()
-        np.testing.assert_allclose(_along(x, faces, target, both_ways, v, 1e-7, 1).ravel(),
-                                   Kv, rtol=0, atol=1e-6 * np.abs(Kv).max())
+        np.testing.assert_allclose(
+            _along(x, faces, target, both_ways, v, 1e-7, 1).ravel(),
+            Kv,
+            rtol=0,
+            atol=1e-6 * np.abs(Kv).max(),
+        )
     assert abs(K - K.T).max() < 1e-12 * abs(K).max()
 
 
 CENTRE = np.full(3, 0.1)
 #: the target's rigid motion x -> R (x - CENTRE) + CENTRE + T: 10 degrees, (10, -5, 8) mm
-R = Rotation.from_rotvec(np.radians(10.0) * np.array([0.3, 0.5, 0.8])
-                         / np.linalg.norm([0.3, 0.5, 0.8])).as_matrix()
+R = Rotation.from_rotvec(
+    np.radians(10.0) * np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+).as_matrix()
 T = np.array([0.01, -0.005, 0.008])
 
 
@@ -80,11 +87,13 @@ def _registered_cube(vertices, faces, **forces):
     from dolfinx import mesh as dmesh
     from mpi4py import MPI
 
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.2)], [4, 4, 4],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.2)], [4, 4, 4], dmesh.CellType.hexahedron
+    )
     body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e4, 0.3), 1000.0, name="cube")
-    element = RegistrationForces(af.SkinMesh(vertices, faces, masters=[body], name="bone"),
-                                 **forces)
+    element = RegistrationForces(
+        af.SkinMesh(vertices, faces, masters=[body], name="bone"), **forces
+    )
     scene = af.Scene(gravity=(0.0, 0.0, 0.0))
     scene.add(body, element)
     scene.solve_static()
@@ -102,8 +111,9 @@ def test_a_free_cube_is_registered_rigidly_onto_its_moved_surface():
     vertices, faces = _ellipsoid()
     target = TriangleSurface((vertices - CENTRE) @ R.T + CENTRE + T, faces)
     for both_ways in (True, False):
-        error, forces = _registered_cube(vertices, faces, target=target, weight=1e3,
-                                         both_ways=both_ways)
+        error, forces = _registered_cube(
+            vertices, faces, target=target, weight=1e3, both_ways=both_ways
+        )
         assert error < 1e-9
         assert forces.potential_energy(0.0) < 1e-18
     with pytest.raises(InputError, match="weight"):
@@ -121,13 +131,23 @@ def test_landmarks_alone_register_a_rigid_motion():
     picks = [int(np.argmax(vertices[:, k])) for k in range(3)]
     gaps = moved[picks] - vertices[picks]
     skin = af.SkinMesh(vertices, faces, masters=[af.RigidBody("b", 1.0, np.eye(3))])
-    unmoved = RegistrationForces(skin, TriangleSurface(moved, faces), 0.0,
-                                 landmarks=(picks, moved[picks]), landmark_weight=1e3)
-    assert unmoved.potential_energy(0.0) == pytest.approx(0.5e3 * np.sum(gaps ** 2))
+    unmoved = RegistrationForces(
+        skin,
+        TriangleSurface(moved, faces),
+        0.0,
+        landmarks=(picks, moved[picks]),
+        landmark_weight=1e3,
+    )
+    assert unmoved.potential_energy(0.0) == pytest.approx(0.5e3 * np.sum(gaps**2))
     np.testing.assert_allclose(unmoved.vertex_forces()[picks], 1e3 * gaps)
-    error, _ = _registered_cube(vertices, faces, target=TriangleSurface(moved, faces),
-                                weight=0.0, landmarks=(picks, moved[picks]),
-                                landmark_weight=1e3)
+    error, _ = _registered_cube(
+        vertices,
+        faces,
+        target=TriangleSurface(moved, faces),
+        weight=0.0,
+        landmarks=(picks, moved[picks]),
+        landmark_weight=1e3,
+    )
     assert error < 1e-9
     with pytest.raises(InputError, match="landmarks"):
         RegistrationForces(skin, unmoved.target, 1.0, landmarks=([0, skin.n], moved[:2]))
@@ -147,5 +167,5 @@ def test_a_partial_target_registers_by_the_pairs_off_its_border():
     assert not TriangleSurface(moved, faces).border_edges.size
     error, forces = _registered_cube(vertices, faces, target=partial, weight=1e3)
     assert error < 1e-9
-    assert (~forces.features().kept).sum() > 0.1 * len(vertices)        # pairs dropped
+    assert (~forces.features().kept).sum() > 0.1 * len(vertices)  # pairs dropped
     assert forces.distances().max() < 1e-9

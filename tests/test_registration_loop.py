@@ -26,8 +26,9 @@ def _scene():
     vertices = np.asarray(ellipsoid.points) + centre
     faces = np.asarray(ellipsoid.faces).reshape(-1, 4)[:, 1:]
     target = TriangleSurface(1.1 * (vertices - centre) + centre, faces)
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.2)], [4, 4, 4],
-                           dmesh.CellType.hexahedron)
+    msh = dmesh.create_box(
+        MPI.COMM_SELF, [np.zeros(3), np.full(3, 0.2)], [4, 4, 4], dmesh.CellType.hexahedron
+    )
     body = af.FemBody(msh, af.NeoHookean.from_young_poisson(1e4, 0.3), 1000.0, name="cube")
     forces = RegistrationForces(af.SkinMesh(vertices, faces, masters=[body]), target, 1.0)
     scene = af.Scene(gravity=(0.0, 0.0, 0.0))
@@ -39,7 +40,7 @@ def test_the_mean_distance_falls_with_the_weight_and_the_loop_stops(tmp_path):
     scene, body, forces = _scene()
     result = register(scene, [forces], WEIGHTS, tol=1e-4)
     d = np.array(result.mean_distance)
-    assert d[0] > 1e-3                                  # the cube resists at w = 10
+    assert d[0] > 1e-3  # the cube resists at w = 10
     assert np.all(np.diff(d) < 0)
     assert result.converged and len(d) < len(WEIGHTS)
     assert abs(d[-1] - d[-2]) < 1e-4 <= abs(d[-2] - d[-3])
@@ -52,12 +53,11 @@ def test_a_resumed_registration_ends_where_an_uninterrupted_one_does(tmp_path):
     scene, body, forces = _scene()
     checkpoint = tmp_path / "registration.pkl"
     register(scene, [forces], WEIGHTS[:2], tol=1e-7, checkpoint=checkpoint)
-    scene, body, forces = _scene()                      # a new process: a fresh scene
+    scene, body, forces = _scene()  # a new process: a fresh scene
     resumed = register(scene, [forces], WEIGHTS, tol=1e-7, checkpoint=checkpoint)
     assert resumed.weights == full.weights
     np.testing.assert_allclose(resumed.mean_distance, full.mean_distance, rtol=1e-12)
-    np.testing.assert_allclose(body.u.x.array, u_full, rtol=0,
-                               atol=1e-12 * np.abs(u_full).max())
+    np.testing.assert_allclose(body.u.x.array, u_full, rtol=0, atol=1e-12 * np.abs(u_full).max())
     with pytest.raises(InputError, match="checkpoint"):
         register(scene, [forces], [5.0, 50.0], checkpoint=checkpoint)
 
@@ -94,5 +94,5 @@ def test_a_stage_that_fails_is_preceded_by_an_intermediate_weight():
     which fails too, then 31.6, 100, 316 and 1000."""
     scene, body, forces = _scene()
     result = register(_Jumpy(scene, forces), [forces], [10.0, 1000.0], tol=1e-9)
-    np.testing.assert_allclose(result.weights, [10.0, 10 ** 1.5, 100.0, 10 ** 2.5, 1000.0])
+    np.testing.assert_allclose(result.weights, [10.0, 10**1.5, 100.0, 10**2.5, 1000.0])
     assert np.all(np.diff(result.mean_distance) < 0)

@@ -14,8 +14,7 @@ from artifem.registration import TriangleSurface, icp, kabsch
 def _box():
     """The unit cube's 8 vertices and 12 outward triangles."""
     v = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4),
-             (1, 5, 7, 3)]
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     return v, np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
 
 
@@ -26,7 +25,7 @@ def test_kabsch_recovers_a_rigid_motion_and_not_a_reflection(rng):
     R_fit, t_fit = kabsch(p, p @ R.T + t)
     np.testing.assert_allclose(R_fit, R, atol=1e-13)
     np.testing.assert_allclose(t_fit, t, atol=1e-13)
-    mirrored = p * np.array([1.0, 1.0, -1.0])        # the best proper rotation, det +1
+    mirrored = p * np.array([1.0, 1.0, -1.0])  # the best proper rotation, det +1
     R_fit, _ = kabsch(p, mirrored)
     assert np.linalg.det(R_fit) == pytest.approx(1.0, abs=1e-12)
     with pytest.raises(InputError, match="kabsch"):
@@ -38,8 +37,9 @@ def test_closest_points_on_a_cube_are_exact():
     cube = TriangleSurface(v, f)
     points = np.array([[0.5, 0.5, 2.0], [2.0, 2.0, 2.0], [0.5, 0.25, 0.5], [-1.0, 0.3, 0.5]])
     d, c = cube.closest(points)
-    np.testing.assert_allclose(c, [[0.5, 0.5, 1.0], [1.0, 1.0, 1.0], [0.5, 0.0, 0.5],
-                                   [0.0, 0.3, 0.5]], atol=1e-15)
+    np.testing.assert_allclose(
+        c, [[0.5, 0.5, 1.0], [1.0, 1.0, 1.0], [0.5, 0.0, 0.5], [0.0, 0.3, 0.5]], atol=1e-15
+    )
     np.testing.assert_allclose(d, [1.0, np.sqrt(3.0), 0.25, 1.0], atol=1e-15)
     with pytest.raises(InputError, match="outside"):
         TriangleSurface(v, f + 8)
@@ -97,7 +97,8 @@ def test_affine_fit_and_affine_icp_recover_a_scaled_and_sheared_motion(rng):
 
     p = rng.standard_normal((30, 3))
     A = Rotation.from_rotvec([0.1, 0.2, -0.1]).as_matrix() @ np.array(
-        [[1.1, 0.05, 0.0], [0.0, 0.95, 0.02], [0.0, 0.0, 1.05]])
+        [[1.1, 0.05, 0.0], [0.0, 0.95, 0.02], [0.0, 0.0, 1.05]]
+    )
     t = np.array([0.02, -0.01, 0.03])
     A_fit, t_fit = affine_fit(p, p @ A.T + t)
     np.testing.assert_allclose(A_fit, A, atol=1e-13)
@@ -119,8 +120,14 @@ def test_the_border_of_an_open_surface():
     diagonal or inside are not."""
     square = TriangleSurface([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
     assert square.border_vertices.all() and square.border_edges.size == 4
-    points = np.array([[0.5, 0.0, 0.0], [1.0, 1.0, 0.0], [0.5, 0.5, 0.0], [0.7, 0.2, 0.0],
-                       [0.0, 0.3, 0.0]])
+    points = np.array(
+        [[0.5, 0.0, 0.0], [1.0, 1.0, 0.0], [0.5, 0.5, 0.0], [0.7, 0.2, 0.0], [0.0, 0.3, 0.0]]
+    )
     _, c, tri = square.closest_triangles(points + [0.0, 0.0, 0.2])
-    assert square.on_border(tri, square.barycentric(c, tri)).tolist() == \
-        [True, True, False, False, True]
+    assert square.on_border(tri, square.barycentric(c, tri)).tolist() == [
+        True,
+        True,
+        False,
+        False,
+        True,
+    ]

@@ -31,8 +31,15 @@ MATERIAL = NeoHookean.from_young_poisson(1e6, 0.3)
 def rigid_case(tmp_path_factory):
     out = tmp_path_factory.mktemp("rigid")
     ref, target = cases.write_case("rigid", out / "input")
-    report = register_skeleton(ref, target, out, material=MATERIAL, cell_size=CELL,
-                               methods=("rigid", "jointed"), progress=lambda s: None)
+    report = register_skeleton(
+        ref,
+        target,
+        out,
+        material=MATERIAL,
+        cell_size=CELL,
+        methods=("rigid", "jointed"),
+        progress=lambda s: None,
+    )
     return out, report
 
 
@@ -41,7 +48,7 @@ def test_the_reference_reads_back_and_poses_about_its_hinges(tmp_path):
     skeleton.write(tmp_path)
     again = Skeleton.read(tmp_path)
     for bone, (V, T) in skeleton.bones.items():
-        np.testing.assert_allclose(again.bones[bone][0], V, atol=1e-7)   # float32 in VTP
+        np.testing.assert_allclose(again.bones[bone][0], V, atol=1e-7)  # float32 in VTP
         np.testing.assert_array_equal(again.bones[bone][1], T)
     ankle = skeleton.hinge("ankle")
     posed = skeleton.posed({"ankle": 0.3})
@@ -50,8 +57,9 @@ def test_the_reference_reads_back_and_poses_about_its_hinges(tmp_path):
     R, t = ankle.rotation(0.3)
     for bone in ("talus", "calcaneus"):
         np.testing.assert_allclose(posed[bone], skeleton.bones[bone][0] @ R.T + t, atol=1e-15)
-    assert np.allclose(R @ ankle.axis, ankle.axis) and np.allclose(R @ ankle.centre + t,
-                                                                   ankle.centre)
+    assert np.allclose(R @ ankle.axis, ankle.axis) and np.allclose(
+        R @ ankle.centre + t, ankle.centre
+    )
 
 
 def test_a_rigidly_posed_target_gives_back_the_joint_angles(rigid_case):
@@ -71,10 +79,19 @@ def test_a_rigidly_posed_target_gives_back_the_joint_angles(rigid_case):
 
 def test_jointed_bones_fit_a_deformed_partial_target_better_than_the_baselines(tmp_path):
     ref, target = cases.write_case("synthetic", tmp_path / "input")
-    report = register_skeleton(ref, target, tmp_path, material=MATERIAL, cell_size=CELL,
-                               methods=("rigid", "single", "jointed"), progress=lambda s: None)
-    mean = {m: np.mean([r["mean"] for r in row["bones"].values()])
-            for m, row in report["methods"].items()}
+    report = register_skeleton(
+        ref,
+        target,
+        tmp_path,
+        material=MATERIAL,
+        cell_size=CELL,
+        methods=("rigid", "single", "jointed"),
+        progress=lambda s: None,
+    )
+    mean = {
+        m: np.mean([r["mean"] for r in row["bones"].values()])
+        for m, row in report["methods"].items()
+    }
     assert mean["jointed"] < mean["rigid"] and mean["jointed"] < mean["single"]
     jointed = report["methods"]["jointed"]
     assert jointed["joint_constraint_error"] < 1e-6
@@ -88,8 +105,15 @@ def _copy(rigid_case, tmp_path):
 
 
 def _run(ref, target, tmp_path):
-    register_skeleton(ref, target, tmp_path / "out", material=MATERIAL, cell_size=CELL,
-                      methods=("jointed",), progress=lambda s: None)
+    register_skeleton(
+        ref,
+        target,
+        tmp_path / "out",
+        material=MATERIAL,
+        cell_size=CELL,
+        methods=("jointed",),
+        progress=lambda s: None,
+    )
 
 
 def test_bad_input_is_refused_before_any_solve(rigid_case, tmp_path):
@@ -100,15 +124,17 @@ def test_bad_input_is_refused_before_any_solve(rigid_case, tmp_path):
     with pytest.raises(InputError, match="bone 'tibia'.*units off"):
         _run(ref, target, tmp_path)
     # a bone without a target
-    (target / "target.json").write_text(json.dumps(
-        {**spec, "bones": {b: f for b, f in spec["bones"].items() if b != "talus"}}))
+    (target / "target.json").write_text(
+        json.dumps({**spec, "bones": {b: f for b, f in spec["bones"].items() if b != "talus"}})
+    )
     with pytest.raises(InputError, match="no target for bone.*talus"):
         _run(ref, target, tmp_path)
     # a target far from its bone
     V, T = read_surface(target / "calcaneus.stl")
     write_surface(target / "far.stl", V + [0.0, 0.0, 0.3], T)
-    (target / "target.json").write_text(json.dumps(
-        {**spec, "bones": {**spec["bones"], "calcaneus": "far.stl"}}))
+    (target / "target.json").write_text(
+        json.dumps({**spec, "bones": {**spec["bones"], "calcaneus": "far.stl"}})
+    )
     with pytest.raises(InputError, match="pre-alignment: bone 'calcaneus'"):
         _run(ref, target, tmp_path)
     (target / "target.json").write_text(json.dumps(spec))
@@ -135,28 +161,58 @@ def test_the_register_command_writes_its_report(rigid_case, tmp_path):
     from artifem.cli import main
 
     out, _ = rigid_case
-    assert main(["register", "--reference", str(out / "input" / "reference"), "--target",
-                 str(out / "input" / "target"), "--out", str(tmp_path), "--methods",
-                 "rigid,affine"]) == 0
+    assert (
+        main(
+            [
+                "register",
+                "--reference",
+                str(out / "input" / "reference"),
+                "--target",
+                str(out / "input" / "target"),
+                "--out",
+                str(tmp_path),
+                "--methods",
+                "rigid,affine",
+            ]
+        )
+        == 0
+    )
     report = json.loads((tmp_path / "registration.json").read_text())
     assert set(report["methods"]) == {"rigid", "affine"}
     for row in report["methods"]["rigid"]["bones"].values():
         assert row["mean"] < 1e-6
-    assert main(["register", "--reference", str(out / "input" / "reference"), "--target",
-                 str(out / "input" / "target"), "--out", str(tmp_path), "--methods",
-                 "elastic"]) == 2
+    assert (
+        main(
+            [
+                "register",
+                "--reference",
+                str(out / "input" / "reference"),
+                "--target",
+                str(out / "input" / "target"),
+                "--out",
+                str(tmp_path),
+                "--methods",
+                "elastic",
+            ]
+        )
+        == 2
+    )
 
 
-def test_an_interrupted_registration_resumes_where_it_stopped(rigid_case, tmp_path,
-                                                              monkeypatch):
+def test_an_interrupted_registration_resumes_where_it_stopped(rigid_case, tmp_path, monkeypatch):
     """The jointed method stopped after its first weight stage (its checkpoint written),
     then run again with resume=True: the same bones as an uninterrupted run, and no
     checkpoint left."""
     import artifem.registration.skeletal as skeletal
 
     ref, target = rigid_case[0] / "input" / "reference", rigid_case[0] / "input" / "target"
-    options = dict(material=MATERIAL, cell_size=CELL, weights=(1e2, 1e3),
-                   methods=("jointed",), progress=lambda s: None)
+    options = dict(
+        material=MATERIAL,
+        cell_size=CELL,
+        weights=(1e2, 1e3),
+        methods=("jointed",),
+        progress=lambda s: None,
+    )
     whole = register_skeleton(ref, target, tmp_path / "whole", **options)
     real = skeletal.register
 
@@ -173,5 +229,6 @@ def test_an_interrupted_registration_resumes_where_it_stopped(rigid_case, tmp_pa
     assert not (tmp_path / "run" / "jointed.checkpoint").exists()
     assert resumed["methods"]["jointed"]["weights"] == [1e2, 1e3]
     for bone, row in whole["methods"]["jointed"]["bones"].items():
-        assert resumed["methods"]["jointed"]["bones"][bone]["mean"] == \
-            pytest.approx(row["mean"], rel=1e-9, abs=1e-15)
+        assert resumed["methods"]["jointed"]["bones"][bone]["mean"] == pytest.approx(
+            row["mean"], rel=1e-9, abs=1e-15
+        )

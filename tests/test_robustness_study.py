@@ -21,17 +21,17 @@ def test_the_schedules_are_valid_and_of_every_kind():
         assert s.times[0] == 0.0 and s.times[-1] == pytest.approx(1.0)
         values = np.array(list(s.values.values()))
         assert values.min() >= 0.0 and values.max() <= 1.0 and values[:, 0].max() == 0.0
-        switches = np.abs(np.diff(values, axis=1)) / np.diff(s.times)      # per second
+        switches = np.abs(np.diff(values, axis=1)) / np.diff(s.times)  # per second
         if kind == "coactivation":
             assert len(s.values) == 2 and values[:, -1].min() == 1.0
         elif kind == "all":
             assert sorted(s.values) == EXCITERS and np.ptp(values[:, -1]) == 0.0
         elif kind == "pulses":
             assert 1 <= len(s.values) <= 3
-            assert (switches > 400).sum(axis=1).min() >= 10        # on and off, fast, often
+            assert (switches > 400).sum(axis=1).min() >= 10  # on and off, fast, often
         elif kind == "release":
             assert values[:, -1].max() == 0.0 and values.max(axis=1).min() >= 0.5
-            assert switches.max() > 400                             # dropped within 1 ms
+            assert switches.max() > 400  # dropped within 1 ms
         else:
             assert 2 <= len(s.values) <= 4
 
@@ -46,10 +46,14 @@ def test_the_same_seed_draws_the_same_schedules():
     assert any(not np.array_equal(a[n][1].times, c[m][1].times) for n, m in zip(a, c))
 
 
-@pytest.mark.parametrize("exciters, count, duration, fragment", [
-    (["A", "A"], 3, 1.0, "distinct names"),
-    (EXCITERS, 0, 1.0, "count must be a positive integer"),
-    (EXCITERS, 3, -1.0, "duration must be positive")])
+@pytest.mark.parametrize(
+    "exciters, count, duration, fragment",
+    [
+        (["A", "A"], 3, 1.0, "distinct names"),
+        (EXCITERS, 0, 1.0, "count must be a positive integer"),
+        (EXCITERS, 3, -1.0, "duration must be positive"),
+    ],
+)
 def test_bad_input(exciters, count, duration, fragment):
     with pytest.raises(InputError, match=fragment):
         hard_schedules(exciters, count, seed=0, duration=duration)
@@ -59,8 +63,7 @@ def test_a_short_study_of_the_tongue_reports_every_run(tmp_path):
     """Five schedules (one of each kind), two steps each, default settings: every run is
     reported with its outcome, its cost against the study's semi-implicit step and its
     health figures, and the report files are written."""
-    result = robustness_study(load("tongue"), 5, seed=0, duration=0.02, dt=0.01,
-                              progress=False)
+    result = robustness_study(load("tongue"), 5, seed=0, duration=0.02, dt=0.01, progress=False)
     write_report(result, tmp_path)
     saved = json.loads((tmp_path / "robustness.json").read_text())
     assert saved["summary"] == result["summary"]
@@ -71,7 +74,7 @@ def test_a_short_study_of_the_tongue_reports_every_run(tmp_path):
     summary = result["summary"]
     assert summary["finished"] == sum(r["outcome"] == "finished" for r in runs.values())
     assert summary["fallbacks"] == sum(r["fallbacks"] for r in runs.values())
-    step = summary["semi_implicit_step_ms"]          # None: every step of the study retried
+    step = summary["semi_implicit_step_ms"]  # None: every step of the study retried
     for r in runs.values():
         assert (r["cost"] is None) == (step is None or r["steps"] == 0)
         if r["outcome"] == "finished":
@@ -88,8 +91,9 @@ def test_every_run_starts_from_rest_with_every_input_off():
     from artifem.robustness_study import _run
 
     model = load("tongue")
-    drawn = hard_schedules(list(model.inputs(model.fem_body(model.build()))), 4, seed=0,
-                           duration=0.02)
+    drawn = hard_schedules(
+        list(model.inputs(model.fem_body(model.build()))), 4, seed=0, duration=0.02
+    )
     every, some = drawn["all-0-3"][1], drawn["smooth-0-0"][1]
     assert len(some.values) < len(every.values)
 

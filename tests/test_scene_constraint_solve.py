@@ -38,8 +38,14 @@ def test_bounded_rows_solve_meets_complementarity_for_any_bounds(rng):
     z1, lam1, _ = solve_constrained(DirectSolver(), A, b, rows, "test")
     # the case meant: a multiplier held at a non-zero bound
     assert np.any(((lam1 == lo) | (lam1 == hi)) & (lo != hi) & (lam1 != 0.0))
-    z2, lam2, _ = solve_saddle(DirectSolver(), lambda K, Ga: np.block(
-        [[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K, A, b, rows, "test")
+    z2, lam2, _ = solve_saddle(
+        DirectSolver(),
+        lambda K, Ga: np.block([[K, Ga.T], [Ga, np.zeros((len(Ga), len(Ga)))]]) if len(Ga) else K,
+        A,
+        b,
+        rows,
+        "test",
+    )
     np.testing.assert_allclose(z1, z2, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(lam1, lam2, rtol=1e-10, atol=1e-12)
     # every state of the bounded rows: 0 active (equality), 1 held at lo, 2 held at hi
@@ -56,12 +62,16 @@ def test_bounded_rows_solve_meets_complementarity_for_any_bounds(rng):
         z, lam[on] = x[:n], x[n:]
         slack = G @ z - c
         tol = 1e-9
-        ok = np.all(lam >= lo - tol) and np.all(lam <= hi + tol) \
-            and np.all(slack[state == 1] >= -tol) and np.all(slack[state == 2] <= tol)
+        ok = (
+            np.all(lam >= lo - tol)
+            and np.all(lam <= hi + tol)
+            and np.all(slack[state == 1] >= -tol)
+            and np.all(slack[state == 2] <= tol)
+        )
         if ok:
             found.append((z, lam))
     assert found, "no complementary solution"
-    for z, lam in found:                    # the solution is unique (A SPD, G full rank)
+    for z, lam in found:  # the solution is unique (A SPD, G full rank)
         np.testing.assert_allclose(z, z1, rtol=1e-9, atol=1e-10)
         np.testing.assert_allclose(lam, lam1, rtol=1e-9, atol=1e-10)
 
@@ -77,8 +87,15 @@ def test_friction_rows_take_the_normal_impulses_of_the_same_solve(path):
     A = m * np.eye(2)
     G = np.eye(2)[[1, 0]]
     lo, hi = np.array([0.0, 0.0]), np.array([np.inf, 0.0])
-    block = RowBlock(_Owner(), np.zeros(2), ((None, G),), lo, hi, lambda lam: None,
-                     friction=Friction(np.array([-1, 0]), np.array([0.0, mu])))
+    block = RowBlock(
+        _Owner(),
+        np.zeros(2),
+        ((None, G),),
+        lo,
+        hi,
+        lambda lam: None,
+        friction=Friction(np.array([-1, 0]), np.array([0.0, mu])),
+    )
     rows = [StepRows(block, G, np.zeros(2))]
     for F, v_x in ((0.8 * mu * m * g, 0.0), (1.5 * mu * m * g, h * 0.5 * mu * g)):
         b = h * np.array([F, -m * g])
@@ -104,7 +121,7 @@ def test_anderson_mixing_finds_an_affine_maps_fixed_point_in_a_few_passes():
     x, plain, history = np.zeros(3), np.zeros(3), []
     for _ in range(5):
         history.append((T @ x + d, x))
-        del history[:-constraints.ANDERSON_DEPTH]
+        del history[: -constraints.ANDERSON_DEPTH]
         x = constraints._anderson(history)
     for _ in range(8):
         plain = T @ plain + d
@@ -133,8 +150,15 @@ def test_sliding_rows_held_at_mu_lambda_n_of_the_same_solve(monkeypatch, F):
     A = np.diag([m, m, 0.1])
     G = np.array([[0.0, 1.0, -0.2], [0.0, 1.0, 0.2], [1.0, 0.0, 0.1], [1.0, 0.0, 0.1]])
     lo, hi = np.array([0.0, 0.0, 0.0, 0.0]), np.array([np.inf, np.inf, 0.0, 0.0])
-    block = RowBlock(_Owner(), np.zeros(4), ((None, G),), lo, hi, lambda lam: None,
-                     friction=Friction(np.array([-1, -1, 0, 1]), np.array([0, 0, mu, mu])))
+    block = RowBlock(
+        _Owner(),
+        np.zeros(4),
+        ((None, G),),
+        lo,
+        hi,
+        lambda lam: None,
+        friction=Friction(np.array([-1, -1, 0, 1]), np.array([0, 0, mu, mu])),
+    )
     rows = [StepRows(block, G, np.zeros(4))]
     b = h * np.array([F * m * g, -m * g, 0.0])
     reference = solve_constrained(DirectSolver(), A, b, rows, "test", path="schur")
@@ -142,8 +166,10 @@ def test_sliding_rows_held_at_mu_lambda_n_of_the_same_solve(monkeypatch, F):
     z_ref, lam_ref = reference[:2]
     assert np.all(lam_ref[:2] > 0) and lam_ref[0] != pytest.approx(lam_ref[1])
     np.testing.assert_allclose(np.abs(lam_ref[2:]).sum(), h * min(F, mu) * m * g, rtol=1e-9)
-    solves = [solve_constrained(DirectSolver(), A, b, rows, "test", path=path)[:2]
-              for path in ("schur", "kkt")]
+    solves = [
+        solve_constrained(DirectSolver(), A, b, rows, "test", path=path)[:2]
+        for path in ("schur", "kkt")
+    ]
     # the statics' trials on their own (not from the Schur complement's active set)
     monkeypatch.setattr(constraints, "_schur_start", lambda *args: None)
     solves.append(solve_saddle(DirectSolver(), _kkt, A, b, rows, "test")[:2])
@@ -177,10 +203,9 @@ def test_saddle_starts_from_the_schur_complement_active_set(rng):
     G = rng.standard_normal((m, n))
     c = rng.standard_normal(m)
     lo, hi = np.zeros(m), np.full(m, np.inf)
-    rows = [StepRows(RowBlock(_Owner(), np.zeros(m), ((None, G),), lo, hi, lambda lam: None),
-                     G, c)]
+    rows = [StepRows(RowBlock(_Owner(), np.zeros(m), ((None, G),), lo, hi, lambda lam: None), G, c)]
     z1, lam1, _ = solve_constrained(DirectSolver(), K, b, rows, "test")
-    assert 3 < np.count_nonzero(lam1) < m - 3         # the case meant: some rows active
+    assert 3 < np.count_nonzero(lam1) < m - 3  # the case meant: some rows active
     kkt, calls = _counting_kkt()
     z2, lam2, active = solve_saddle(DirectSolver(), kkt, K, b, rows, "test")
     assert len(calls) == 1 and calls[0] == np.count_nonzero(active)
@@ -190,12 +215,23 @@ def test_saddle_starts_from_the_schur_complement_active_set(rng):
     K = np.diag([0.0, 2.0, 3.0])
     b = np.array([0.0, 1.0, 1.0])
     G = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
-    rows = [StepRows(RowBlock(_Owner(), np.zeros(2), ((None, G),), np.array([-np.inf, 0.0]),
-                              np.array([np.inf, np.inf]), lambda lam: None), G,
-                     np.array([0.1, 1.0]))]
+    rows = [
+        StepRows(
+            RowBlock(
+                _Owner(),
+                np.zeros(2),
+                ((None, G),),
+                np.array([-np.inf, 0.0]),
+                np.array([np.inf, np.inf]),
+                lambda lam: None,
+            ),
+            G,
+            np.array([0.1, 1.0]),
+        )
+    ]
     kkt, calls = _counting_kkt()
     z, lam, active = solve_saddle(DirectSolver(), kkt, K, b, rows, "test")
-    assert len(calls) == 2                            # held at 0 first, then active
+    assert len(calls) == 2  # held at 0 first, then active
     np.testing.assert_allclose(z, [0.1, 0.9, 1.0 / 3.0], atol=1e-12)
     assert active.all() and lam[1] > 0
     np.testing.assert_allclose(K @ z - G.T @ lam, b, atol=1e-12)
@@ -223,16 +259,21 @@ def test_circling_pivots_from_the_last_steps_set_start_again_cold(monkeypatch):
         return pivots(*args)
 
     monkeypatch.setattr(constraints, "_pivots", circling)
-    warm = (np.array([True, True, True, True]), np.zeros(4, bool), np.ones(4, bool),
-            np.array([0.1, 0.1, 0.0, 0.0]))
+    warm = (
+        np.array([True, True, True, True]),
+        np.zeros(4, bool),
+        np.ones(4, bool),
+        np.array([0.1, 0.1, 0.0, 0.0]),
+    )
     lam, *_ = constraints._active_set(lo, hi, 1e-10, system.trial, "test", friction, warm)
-    assert calls == [False, True, False, True]       # warm: a pass, the pivots; cold: again
+    assert calls == [False, True, False, True]  # warm: a pass, the pivots; cold: again
     np.testing.assert_allclose(lam[:2], reference[0][:2], rtol=0, atol=1e-12)
     np.testing.assert_allclose(lam[2] + lam[3], reference[0][2] + reference[0][3], atol=1e-12)
 
 
-@pytest.mark.parametrize("seed", [77, 317, 331, 370, 570, 849, 973, 1631, 1682, 1947, 2122,
-                                  2529, 2753])
+@pytest.mark.parametrize(
+    "seed", [77, 317, 331, 370, 570, 849, 973, 1631, 1682, 1947, 2122, 2529, 2753]
+)
 def test_pivots_that_come_back_settle_on_the_regularized_block(seed):
     """Feasible contact-like problems (lambda >= 0 on every row, G z >= c) whose rows
     outnumber the coordinates and are parallel to 1e-9 in bunches (a fine surface's points
@@ -245,15 +286,17 @@ def test_pivots_that_come_back_settle_on_the_regularized_block(seed):
     n = int(rng.integers(2, 6))
     m = int(rng.integers(n + 1, 3 * n + 3))
     base = rng.normal(size=(n + 1, n))
-    G = base[rng.integers(0, n + 1, m)] * rng.uniform(0.5, 2, (m, 1)) \
-        + 1e-9 * rng.normal(size=(m, n))
+    G = base[rng.integers(0, n + 1, m)] * rng.uniform(0.5, 2, (m, 1)) + 1e-9 * rng.normal(
+        size=(m, n)
+    )
     A = np.eye(n) * rng.uniform(1, 3, n)
     b = rng.normal(size=n)
     c = G @ rng.normal(size=n) - np.abs(rng.normal(size=m)) * (rng.random(m) < 0.5)
     lo, hi = np.zeros(m), np.full(m, np.inf)
     system = constraints._Schur(DirectSolver(), A, b, G, G, c, lo, hi, "test")
-    lam, active, _, z = constraints._active_set(lo, hi, 1e-10, system.trial, "test",
-                                                proximal=system.proximal)
+    lam, active, _, z = constraints._active_set(
+        lo, hi, 1e-10, system.trial, "test", proximal=system.proximal
+    )
     slack = G @ z - c
     scale = 1e-6 * max(1.0, np.abs(lam).max())
     assert lam.min() >= 0.0 and slack.min() > -scale

@@ -33,10 +33,15 @@ G = 9.81
 def beam(name, clamped=True):
     """A soft beam (no stiffness-proportional damping: ImplicitEuler's D = alpha M + beta K
     takes K at the start of the step, the coupled step at its end)."""
-    box = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])], [8, 2, 2],
-                           dmesh.CellType.hexahedron)
-    body = af.FemBody(box, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                      rayleigh=(0.3, 0.0), name=name)
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+        [8, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    body = af.FemBody(
+        box, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, rayleigh=(0.3, 0.0), name=name
+    )
     if clamped:
         body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     return body
@@ -44,10 +49,11 @@ def beam(name, clamped=True):
 
 def test_coupled_implicit_step_equals_implicit_euler_on_its_own():
     alone = beam("alone")
-    scene_alone = af.Scene(gravity=(0, 0, -G), integrator=ImplicitEuler(rtol=1e-12),
-                           linear_solver="mumps")
+    scene_alone = af.Scene(
+        gravity=(0, 0, -G), integrator=ImplicitEuler(rtol=1e-12), linear_solver="mumps"
+    )
     scene_alone.add(alone)
-    master, twin = beam("master"), beam("twin", clamped=False)    # W carries the clamp
+    master, twin = beam("master"), beam("twin", clamped=False)  # W carries the clamp
     scene = af.Scene(gravity=(0, 0, -G), integrator=ImplicitEuler(rtol=1e-12))
     scene.add(master, twin, af.EmbeddedFemAttachment(twin, master))
     assert scene.islands()[0] == [] and scene_alone.islands() == ([alone], [])
@@ -65,10 +71,16 @@ def hinged_rod(theta0=0.6, integrator="implicit"):
     length, mass = 1.0, 1.0
     c, s = np.cos(theta0), np.sin(theta0)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    rod = af.RigidBody("rod", mass, mass * length ** 2 / 12 * np.diag([1.0, 1.0, 0.01]),
-                       position=R @ (0.0, 0.0, -0.5 * length), rotation=R)
-    hinge = af.RevoluteJoint.at_world(rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)),
-                                      name="hinge")
+    rod = af.RigidBody(
+        "rod",
+        mass,
+        mass * length**2 / 12 * np.diag([1.0, 1.0, 0.01]),
+        position=R @ (0.0, 0.0, -0.5 * length),
+        rotation=R,
+    )
+    hinge = af.RevoluteJoint.at_world(
+        rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)), name="hinge"
+    )
     scene = af.Scene(gravity=(0, 0, -G), integrator=integrator)
     scene.add(rod, hinge)
     return scene, rod
@@ -89,8 +101,8 @@ def test_implicit_pendulum_dissipates_holds_its_hinge_and_converges_at_first_ord
         energy.append(scene.energy())
         assert scene.constraint_errors()["hinge"] < 1e-8
     rises = np.diff(energy)
-    assert rises.max() <= 1e-9 * abs(energy[0])               # backward Euler: no gain
-    assert energy[-1] < energy[0] - 1e-3                       # and a visible loss
+    assert rises.max() <= 1e-9 * abs(energy[0])  # backward Euler: no gain
+    assert energy[-1] < energy[0] - 1e-3  # and a visible loss
     reference = swing(1.25e-4, "semi-implicit")
     errors = [np.linalg.norm(swing(h, "implicit") - reference) for h in (4e-3, 2e-3)]
     assert errors[0] > 1e-4
@@ -98,18 +110,26 @@ def test_implicit_pendulum_dissipates_holds_its_hinge_and_converges_at_first_ord
 
 
 def bone_and_tissue(integrator):
-    bone = af.RigidBody("bone", 0.5, 0.5 * 0.3 ** 2 / 12 * np.diag([0.01, 1.0, 1.0]),
-                        position=(0.15, 0.0, 0.0))
-    hinge = af.RevoluteJoint.at_world(bone, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)),
-                                      name="hinge")
-    box = dmesh.create_box(MPI.COMM_SELF, [np.array([0.05, -0.03, -0.06]),
-                                           np.array([0.29, 0.03, 0.0])], [6, 2, 2],
-                           dmesh.CellType.hexahedron)
-    tissue = af.FemBody(box, af.NeoHookean.from_young_poisson(2e4, 0.45), 1050.0,
-                        rayleigh=(2.0, 0.0), name="tissue")
+    bone = af.RigidBody(
+        "bone", 0.5, 0.5 * 0.3**2 / 12 * np.diag([0.01, 1.0, 1.0]), position=(0.15, 0.0, 0.0)
+    )
+    hinge = af.RevoluteJoint.at_world(
+        bone, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)), name="hinge"
+    )
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.array([0.05, -0.03, -0.06]), np.array([0.29, 0.03, 0.0])],
+        [6, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    tissue = af.FemBody(
+        box, af.NeoHookean.from_young_poisson(2e4, 0.45), 1050.0, rayleigh=(2.0, 0.0), name="tissue"
+    )
     carried = af.NodeAttachment(tissue, tissue.find_nodes(lambda x: x[2] > -1e-9), bone)
-    muscle = af.FramePath(af.AxialSpring(400.0, rest_length=0.2, damping=2.0),
-                          [af.Frame(None, (0.0, 0.0, 0.3)), af.Frame.at_world(bone, (0.3, 0, 0))])
+    muscle = af.FramePath(
+        af.AxialSpring(400.0, rest_length=0.2, damping=2.0),
+        [af.Frame(None, (0.0, 0.0, 0.3)), af.Frame.at_world(bone, (0.3, 0, 0))],
+    )
     scene = af.Scene(gravity=(0, 0, -G), integrator=integrator)
     scene.add(bone, hinge, tissue, carried, muscle)
     return scene, bone, tissue
@@ -117,7 +137,7 @@ def bone_and_tissue(integrator):
 
 def test_one_implicit_step_differs_from_the_semi_implicit_one_at_second_order():
     start, _, _ = bone_and_tissue("semi-implicit")
-    for _ in range(5):                                         # a moving state
+    for _ in range(5):  # a moving state
         start.step(0.01)
     state = start.save_state()
     gaps = []

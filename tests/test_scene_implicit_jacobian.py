@@ -29,12 +29,23 @@ H = 0.01
 
 def carried_beam():
     """A soft beam whose end nodes ride on a spinning, translating rigid body."""
-    body = af.RigidBody("carrier", 2.0, 0.02 * np.diag([1.0, 2.0, 1.5]), position=(0.0, 0.1, 0.1),
-                        velocity=(0.1, 0.0, 0.0), angular_velocity=(0.5, 1.5, -0.7))
-    box = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])], [4, 1, 1],
-                           dmesh.CellType.hexahedron)
-    beam = af.FemBody(box, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0,
-                      rayleigh=(0.3, 0.0), name="beam")
+    body = af.RigidBody(
+        "carrier",
+        2.0,
+        0.02 * np.diag([1.0, 2.0, 1.5]),
+        position=(0.0, 0.1, 0.1),
+        velocity=(0.1, 0.0, 0.0),
+        angular_velocity=(0.5, 1.5, -0.7),
+    )
+    box = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+        [4, 1, 1],
+        dmesh.CellType.hexahedron,
+    )
+    beam = af.FemBody(
+        box, af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, rayleigh=(0.3, 0.0), name="beam"
+    )
     carried = af.NodeAttachment(beam, beam.find_nodes(lambda x: x[0] < 1e-12), body)
     scene = af.Scene(gravity=(0, 0, -G), integrator="implicit")
     scene.add(body, beam, carried)
@@ -45,10 +56,17 @@ def hinged_rod(theta0=0.6, limits=None, spin=(0.0, 0.0, 0.0)):
     """A rod hinged at the world origin about y, under gravity (a loaded joint)."""
     c, s = np.cos(theta0), np.sin(theta0)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    rod = af.RigidBody("rod", 1.0, np.diag([1.0, 1.0, 0.01]) / 12, position=R @ (0.0, 0.0, -0.5),
-                       rotation=R, angular_velocity=spin)
-    hinge = af.RevoluteJoint.at_world(rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)),
-                                      name="hinge", limits=limits)
+    rod = af.RigidBody(
+        "rod",
+        1.0,
+        np.diag([1.0, 1.0, 0.01]) / 12,
+        position=R @ (0.0, 0.0, -0.5),
+        rotation=R,
+        angular_velocity=spin,
+    )
+    hinge = af.RevoluteJoint.at_world(
+        rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)), name="hinge", limits=limits
+    )
     scene = af.Scene(gravity=(0, 0, -G), integrator="implicit")
     scene.add(rod, hinge)
     return scene, rod, hinge
@@ -63,7 +81,7 @@ def check(scene, z_m, lam):
     n = z_m.size
     layout = scene._ready()
     M = _dense(layout.prolongation().T @ layout.mass_matrix() @ layout.prolongation())
-    scale = np.abs(FD[:n] - M).max()            # the configuration-dependent part
+    scale = np.abs(FD[:n] - M).max()  # the configuration-dependent part
     assert scale > 0
     assert np.abs(FD[:n] - Jac[:n]).max() <= 1e-5 * scale
     if FD.shape[0] > n:
@@ -85,8 +103,10 @@ def test_jacobian_of_a_loaded_hinge_is_the_residual_derivative(rng):
     layout = scene._ready()
     z = layout.current_velocities()[layout.master_rows]
     lam = last_impulses(scene)
-    assert np.abs(lam).max() > 1e-3 * H                   # the hinge carries the rod
-    check(scene, z + 0.1 * rng.standard_normal(z.size), lam + 0.1 * H * rng.standard_normal(lam.size))
+    assert np.abs(lam).max() > 1e-3 * H  # the hinge carries the rod
+    check(
+        scene, z + 0.1 * rng.standard_normal(z.size), lam + 0.1 * H * rng.standard_normal(lam.size)
+    )
 
 
 def pressed_on_its_limit():
@@ -94,8 +114,11 @@ def pressed_on_its_limit():
     rests pressed on it."""
     scene, rod, hinge = hinged_rod(theta0=0.6, limits=(-1.0, 0.0))
     angle0 = hinge.angle()
-    scene, rod, hinge = hinged_rod(theta0=0.6, limits=(angle0 - 0.2, angle0 + 0.05)) \
-        if angle0 < 0 else hinged_rod(theta0=0.6, limits=(angle0 - 0.05, angle0 + 0.2))
+    scene, rod, hinge = (
+        hinged_rod(theta0=0.6, limits=(angle0 - 0.2, angle0 + 0.05))
+        if angle0 < 0
+        else hinged_rod(theta0=0.6, limits=(angle0 - 0.05, angle0 + 0.2))
+    )
     return scene, hinge
 
 
@@ -104,7 +127,7 @@ def test_jacobian_with_an_active_joint_limit_is_the_residual_derivative(rng):
     for _ in range(20):
         scene.step(H)
     lam = last_impulses(scene)
-    assert np.abs(lam[-2:]).max() > 1e-3 * H              # the limit pushes
+    assert np.abs(lam[-2:]).max() > 1e-3 * H  # the limit pushes
     layout = scene._ready()
     z = layout.current_velocities()[layout.master_rows]
     check(scene, z + 0.1 * rng.standard_normal(z.size), lam)
@@ -113,19 +136,38 @@ def test_jacobian_with_an_active_joint_limit_is_the_residual_derivative(rng):
 @pytest.mark.parametrize("kind", ["revolute", "slider", "fixed", "spherical", "planar"])
 @pytest.mark.parametrize("on_world", [False, True])
 def test_joint_rows_stiffness_is_the_derivative_of_their_wrenches(rng, kind, on_world):
-    cls = {"revolute": af.RevoluteJoint, "slider": af.SliderJoint, "fixed": af.FixedJoint,
-           "spherical": af.SphericalJoint, "planar": af.PlanarJoint}[kind]
+    cls = {
+        "revolute": af.RevoluteJoint,
+        "slider": af.SliderJoint,
+        "fixed": af.FixedJoint,
+        "spherical": af.SphericalJoint,
+        "planar": af.PlanarJoint,
+    }[kind]
     limits = {"limits": (-1.0, 1.0)} if kind in ("revolute", "slider") else {}
-    a = af.RigidBody("a", 1.0, np.eye(3), position=rng.standard_normal(3),
-                     rotation=exp_so3(rng.standard_normal(3)))
-    b = None if on_world else af.RigidBody("b", 1.0, np.eye(3), position=rng.standard_normal(3),
-                                           rotation=exp_so3(rng.standard_normal(3)))
+    a = af.RigidBody(
+        "a",
+        1.0,
+        np.eye(3),
+        position=rng.standard_normal(3),
+        rotation=exp_so3(rng.standard_normal(3)),
+    )
+    b = (
+        None
+        if on_world
+        else af.RigidBody(
+            "b",
+            1.0,
+            np.eye(3),
+            position=rng.standard_normal(3),
+            rotation=exp_so3(rng.standard_normal(3)),
+        )
+    )
     joint = cls.at_world(a, b, rng.standard_normal(3), exp_so3(rng.standard_normal(3)), **limits)
-    for body in (a, b):                                   # off the joint: phi != 0
+    for body in (a, b):  # off the joint: phi != 0
         if body is not None:
             body.position = body.position + 0.1 * rng.standard_normal(3)
             body.rotation = exp_so3(0.2 * rng.standard_normal(3)) @ body.rotation
-    blocks = joint.row_blocks()                         # bilateral rows, then the limits
+    blocks = joint.row_blocks()  # bilateral rows, then the limits
     assert [x.bounded.all() for x in blocks] == ([False, True] if limits else [False])
     for k, block in enumerate(blocks):
         lam = rng.standard_normal(len(block))

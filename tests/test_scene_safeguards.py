@@ -54,20 +54,28 @@ class Glitch:
 def hinged_beam(glitch: bool = False):
     """A beam carried at x = 0 by a bone hinged to the world about y, pulled up near its tip
     by a Thelen muscle (activation dynamics on) whose excitation ramps in 0.02 s."""
-    msh = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([1.0, 0.2, 0.2])], [10, 2, 2],
-                           dmesh.CellType.hexahedron)
-    beam = FemBody(msh, NeoHookean.from_young_poisson(2e5, 0.3), 1000.0, rayleigh=(0.5, 0.0),
-                   name="beam")
+    msh = dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array([1.0, 0.2, 0.2])],
+        [10, 2, 2],
+        dmesh.CellType.hexahedron,
+    )
+    beam = FemBody(
+        msh, NeoHookean.from_young_poisson(2e5, 0.3), 1000.0, rayleigh=(0.5, 0.0), name="beam"
+    )
     bone = RigidBody("bone", 2.0, 0.01 * np.eye(3), position=(0.0, 0.1, 0.1))
     carried = NodeAttachment(beam, beam.find_nodes(lambda x: x[0] < 1e-12), bone)
-    y_up = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])      # frame z = world y
+    y_up = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # frame z = world y
     hinge = RevoluteJoint.at_world(bone, None, (0.0, 0.1, 0.1), y_up, name="hinge")
     params = ThelenParameters(200.0, 0.4, 0.3)
     muscle = ThelenMuscle(params, excitation=0.0, name="lifter")
     schedule = ExcitationSchedule.ramp_and_hold({"lifter": 0.8}, 0.02)
-    path = PointPath(muscle, [np.array([0.95, 0.1, 0.9]),
-                              FemPoint(beam, shape_function_weights(beam, TIP))],
-                     excitation=lambda t: schedule.at(t)["lifter"], name="lifter")
+    path = PointPath(
+        muscle,
+        [np.array([0.95, 0.1, 0.9]), FemPoint(beam, shape_function_weights(beam, TIP))],
+        excitation=lambda t: schedule.at(t)["lifter"],
+        name="lifter",
+    )
     scene = Scene(gravity=(0.0, 0.0, -9.81))
     scene.add(beam, bone, carried, hinge, path)
     if glitch:
@@ -76,9 +84,15 @@ def hinged_beam(glitch: bool = False):
 
 
 def snapshot(scene, beam, bone, muscle):
-    return {"t": scene.t, "u": beam.u.x.array.copy(), "v": beam.v.x.array.copy(),
-            "p": bone.position.copy(), "R": bone.rotation.copy(), "w": bone.twist,
-            "activation": muscle.activation}
+    return {
+        "t": scene.t,
+        "u": beam.u.x.array.copy(),
+        "v": beam.v.x.array.copy(),
+        "p": bone.position.copy(),
+        "R": bone.rotation.copy(),
+        "w": bone.twist,
+        "activation": muscle.activation,
+    }
 
 
 def assert_same(a, b, rtol=1e-12):
@@ -102,16 +116,16 @@ def test_a_failed_step_is_undone_and_retried_by_the_implicit_step_before_halving
     twin.integrator = type(failing.fallback)()
     twin.step(H)
     a, b = snapshot(failing, *parts_f), snapshot(twin, *parts_t)
-    assert np.abs(b["u"]).max() > 1e-5                                  # it moved
+    assert np.abs(b["u"]).max() > 1e-5  # it moved
     assert_same(a, b, rtol=1e-10)
 
 
 def test_a_failed_step_is_undone_and_retried_as_two_exact_half_steps():
     failing, *parts_f = hinged_beam(glitch=True)
-    failing.fallback = None                      # halving alone (the fallback: above)
+    failing.fallback = None  # halving alone (the fallback: above)
     calls = []
     failing.add_controller(lambda scene, t0, t1: calls.append((t0, t1)))
-    failing.step(H)                              # the first try inverts: halved once
+    failing.step(H)  # the first try inverts: halved once
     assert failing.halvings == 1
     assert calls == [(0.0, H), (0.0, H / 2), (H / 2, H)]
 
@@ -121,7 +135,7 @@ def test_a_failed_step_is_undone_and_retried_as_two_exact_half_steps():
     assert twin.halvings == 0
     a, b = snapshot(failing, *parts_f), snapshot(twin, *parts_t)
     assert a["t"] == pytest.approx(H)
-    assert np.abs(b["u"]).max() > 1e-5 and b["activation"] > 0.05      # it moved, it activated
+    assert np.abs(b["u"]).max() > 1e-5 and b["activation"] > 0.05  # it moved, it activated
     assert_same(a, b)
     assert 0 < failing.min_det_F == pytest.approx(twin.min_det_F, rel=1e-12)
 
@@ -154,7 +168,7 @@ def test_unrecoverable_inversion_names_body_time_elements_and_keeps_the_last_goo
     scene.step(H)
     good = snapshot(scene, beam, bone, muscle)
 
-    class Crush:                                 # every step inverts, whatever its size
+    class Crush:  # every step inverts, whatever its size
         bodies = (beam,)
 
         def master_loads(self, t):
@@ -167,7 +181,7 @@ def test_unrecoverable_inversion_names_body_time_elements_and_keeps_the_last_goo
         scene.step(H)
     e = err.value
     assert e.body == "beam" and e.min_det <= 0 and e.elements.size > 0
-    assert e.time == pytest.approx(H + H / 4)     # the smallest step after 2 halvings
+    assert e.time == pytest.approx(H + H / 4)  # the smallest step after 2 halvings
     assert "'beam'" in str(e) and "after 2 halvings" in str(e)
     assert scene.halvings == 2
     assert_same(snapshot(scene, beam, bone, muscle), good, rtol=0.0)
@@ -185,8 +199,9 @@ def test_a_solver_failure_is_retried_then_reported():
             raise StepFailed("the load could not be evaluated")
 
     scene.add(Broken())
-    with pytest.raises(StepFailed, match="the load could not be evaluated; step 0.005 s after "
-                                         "1 halvings"):
+    with pytest.raises(
+        StepFailed, match="the load could not be evaluated; step 0.005 s after 1 halvings"
+    ):
         scene.step(H)
     assert scene.t == 0.0 and scene.halvings == 1
 
@@ -212,18 +227,37 @@ def test_jaw_tongue_with_every_exciter_stepped_to_one_runs(tmp_path):
 
     s = jt.build_scene(jt.JawTongueConfig())
     exciters = sorted(s.tongue.data.exciters)
-    schedule = ExcitationSchedule(np.array([0.0, 1e-3, 1.0]),
-                                  {name: [0.0, 1.0, 1.0] for name in exciters})
+    schedule = ExcitationSchedule(
+        np.array([0.0, 1e-3, 1.0]), {name: [0.0, 1.0, 1.0] for name in exciters}
+    )
     out = jt.simulate(s, schedule, 0.5, 0.05)
     assert len(out["t"]) == 11 and out["t"][-1] == pytest.approx(0.5)
     assert 0 < s.scene.min_det_F < 1
     assert all(b.inverted_elements()[0].size == 0 for b in s.scene.bodies)
     assert all(np.all(np.isfinite(a)) for b in s.scene.bodies for a in b.state())
-    assert np.abs(out["tip"][-1]).max() > 1e-3            # the muscles moved the tongue
+    assert np.abs(out["tip"][-1]).max() > 1e-3  # the muscles moved the tongue
 
     # the command line runs it too
     path = tmp_path / "all.json"
-    path.write_text(json.dumps({"times": [0.0, 1e-3, 1.0],
-                                "excitations": {n: [0.0, 1.0, 1.0] for n in exciters}}))
-    assert main(["simulate", "jaw-tongue", "--schedule", str(path), "--dt", "0.05",
-                 "--duration", "0.5", "--out", str(tmp_path / "o")]) == 0
+    path.write_text(
+        json.dumps(
+            {"times": [0.0, 1e-3, 1.0], "excitations": {n: [0.0, 1.0, 1.0] for n in exciters}}
+        )
+    )
+    assert (
+        main(
+            [
+                "simulate",
+                "jaw-tongue",
+                "--schedule",
+                str(path),
+                "--dt",
+                "0.05",
+                "--duration",
+                "0.5",
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 0
+    )

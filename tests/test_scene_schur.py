@@ -89,7 +89,7 @@ def direct(scene_module):
 def compare(result, reference, rtol):
     u, u_ref = np.array(result["u"]), np.array(reference["u"])
     scale = np.abs(u_ref).max()
-    assert scale > 1e-3                                   # the beam moved
+    assert scale > 1e-3  # the beam moved
     assert np.abs(u - u_ref).max() <= rtol * scale
     assert np.abs(np.array(result["bone"]) - reference["bone"]).max() <= rtol * scale
     assert abs(result["angle"] - reference["angle"]) <= rtol * max(abs(reference["angle"]), 1e-3)
@@ -126,8 +126,12 @@ def test_what_the_schur_island_does_not_take_is_a_clear_error(scene_module):
     with pytest.raises(InputError, match="steps semi-implicitly only"):
         scene.step(0.01)
     scene, beam, bone = ns["build"](MPI.COMM_SELF, island_solver="schur")
-    scene.add(af.PointPath(af.AxialSpring(10.0), [af.FemPoint(
-        beam, af.shape_function_weights(beam, (0.5, 0.1, 0.1))), (0.5, 0.1, 1.0)]))
+    scene.add(
+        af.PointPath(
+            af.AxialSpring(10.0),
+            [af.FemPoint(beam, af.shape_function_weights(beam, (0.5, 0.1, 0.1))), (0.5, 0.1, 1.0)],
+        )
+    )
     with pytest.raises(InputError, match="also has point paths"):
         scene.step(0.01)
     with pytest.raises(InputError, match="island_solver must be"):
@@ -146,27 +150,45 @@ def test_schur_step_with_a_moving_prescribed_body_equals_the_direct_step():
 
     def trajectory(t):
         w = 3.0
-        return BodyState((0.9 + 0.1 * np.sin(w * t), 0.1, 0.6 - 0.1 * np.cos(w * t)),
-                         exp_so3((0.0, 0.0, 0.5 * t)),
-                         (0.1 * w * np.cos(w * t), 0.0, 0.1 * w * np.sin(w * t)),
-                         (0.0, 0.0, 0.5))
+        return BodyState(
+            (0.9 + 0.1 * np.sin(w * t), 0.1, 0.6 - 0.1 * np.cos(w * t)),
+            exp_so3((0.0, 0.0, 0.5 * t)),
+            (0.1 * w * np.cos(w * t), 0.0, 0.1 * w * np.sin(w * t)),
+            (0.0, 0.0, 0.5),
+        )
 
     def build(island_solver):
-        box = dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array([0.6, 0.2, 0.2])],
-                               [4, 2, 2], dmesh.CellType.hexahedron)
-        beam = af.FemBody(box, af.NeoHookean.from_young_poisson(2e4, 0.3), 1000.0,
-                          rayleigh=(0.5, 0.002), name="beam")
+        box = dmesh.create_box(
+            MPI.COMM_SELF,
+            [np.zeros(3), np.array([0.6, 0.2, 0.2])],
+            [4, 2, 2],
+            dmesh.CellType.hexahedron,
+        )
+        beam = af.FemBody(
+            box,
+            af.NeoHookean.from_young_poisson(2e4, 0.3),
+            1000.0,
+            rayleigh=(0.5, 0.002),
+            name="beam",
+        )
         beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
         bone = af.RigidBody("bone", 2.0, 0.05 * np.eye(3), position=(0.7, 0.1, 0.1))
         p0, R0, _, _ = trajectory(0.0)
-        anchor = af.RigidBody("anchor", 1.0, np.eye(3), position=p0, rotation=R0,
-                              motion="prescribed", trajectory=trajectory)
+        anchor = af.RigidBody(
+            "anchor",
+            1.0,
+            np.eye(3),
+            position=p0,
+            rotation=R0,
+            motion="prescribed",
+            trajectory=trajectory,
+        )
         end = af.NodeAttachment(beam, beam.find_nodes(lambda x: x[0] > 0.6 - 1e-9), bone)
-        spring = af.FramePath(af.AxialSpring(300.0, rest_length=0.2, damping=5.0),
-                              [af.Frame.at_world(anchor, (0.9, 0.1, 0.5)),
-                               af.Frame.at_world(bone, (0.7, 0.1, 0.1))])
-        scene = af.Scene(gravity=(0, 0, -9.81), linear_solver="mumps",
-                         island_solver=island_solver)
+        spring = af.FramePath(
+            af.AxialSpring(300.0, rest_length=0.2, damping=5.0),
+            [af.Frame.at_world(anchor, (0.9, 0.1, 0.5)), af.Frame.at_world(bone, (0.7, 0.1, 0.1))],
+        )
+        scene = af.Scene(gravity=(0, 0, -9.81), linear_solver="mumps", island_solver=island_solver)
         scene.add(beam, bone, anchor, end, spring)
         for _ in range(6):
             scene.step(0.01)
@@ -176,9 +198,11 @@ def test_schur_step_with_a_moving_prescribed_body_equals_the_direct_step():
     direct, beam_d, bone_d = build("direct")
     assert schur._schur is not None and direct._schur is None
     u, u_ref = beam_s.u.x.array, beam_d.u.x.array
-    assert np.abs(u_ref).max() > 1e-3                     # the beam moved
+    assert np.abs(u_ref).max() > 1e-3  # the beam moved
     assert np.abs(u - u_ref).max() <= 1e-9 * np.abs(u_ref).max()
     v_ref = bone_d.velocity
     assert np.abs(bone_s.velocity - v_ref).max() <= 1e-9 * np.abs(v_ref).max()
-    assert np.abs(bone_s.angular_velocity - bone_d.angular_velocity).max() <= \
-        1e-9 * np.abs(bone_d.angular_velocity).max()
+    assert (
+        np.abs(bone_s.angular_velocity - bone_d.angular_velocity).max()
+        <= 1e-9 * np.abs(bone_d.angular_velocity).max()
+    )

@@ -31,12 +31,21 @@ def sprung_rod(theta0=0.6, limits=None):
     pulled by a zero-length spring toward (0, 0, -ANCHOR)."""
     c, s = np.cos(theta0), np.sin(theta0)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    rod = af.RigidBody("rod", M, M * LENGTH ** 2 / 12 * np.diag([1.0, 1.0, 0.01]),
-                       position=R @ (0.0, 0.0, -0.5 * LENGTH), rotation=R)
-    hinge = af.RevoluteJoint.at_world(rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)),
-                                      name="hinge", limits=limits)
-    spring = FramePath(AxialSpring(K_SPRING), [Frame(rod, (0.0, 0.0, -0.5 * LENGTH)),
-                                               Frame(None, (0.0, 0.0, -ANCHOR))], name="spring")
+    rod = af.RigidBody(
+        "rod",
+        M,
+        M * LENGTH**2 / 12 * np.diag([1.0, 1.0, 0.01]),
+        position=R @ (0.0, 0.0, -0.5 * LENGTH),
+        rotation=R,
+    )
+    hinge = af.RevoluteJoint.at_world(
+        rod, None, (0.0, 0.0, 0.0), axis_rotation((0, 1, 0)), name="hinge", limits=limits
+    )
+    spring = FramePath(
+        AxialSpring(K_SPRING),
+        [Frame(rod, (0.0, 0.0, -0.5 * LENGTH)), Frame(None, (0.0, 0.0, -ANCHOR))],
+        name="spring",
+    )
     scene = af.Scene(gravity=(0, 0, -G))
     scene.add(rod, hinge, spring)
     return scene, rod, hinge
@@ -70,8 +79,8 @@ def test_free_hinged_rod_hangs_straight_down():
 def test_static_rod_rests_on_the_angle_limit_it_would_cross(limit):
     scene, rod, hinge = sprung_rod(limits=(-limit, limit))
     scene.solve_static()
-    assert abs(hinge.angle()) == pytest.approx(limit, abs=1e-10)       # on the limit
-    deflection = 0.6 - limit                                            # from hanging
+    assert abs(hinge.angle()) == pytest.approx(limit, abs=1e-10)  # on the limit
+    deflection = 0.6 - limit  # from hanging
     tip = rod.position + rod.rotation @ (0.0, 0.0, -0.5 * LENGTH)
     assert np.hypot(tip[0], tip[1]) == pytest.approx(LENGTH * np.sin(deflection), abs=1e-10)
     lam, residual = kkt_multipliers(scene, touching=1)
@@ -88,8 +97,9 @@ def test_a_limit_the_equilibrium_does_not_reach_changes_nothing():
     kkt_multipliers(scene, touching=0)
 
 
-@pytest.mark.parametrize("limits, z", [(None, ANCHOR - 2.0 * G / 50.0), ((-1.0, 0.4), 1.4),
-                                       ((0.9, 2.0), 1.9)])
+@pytest.mark.parametrize(
+    "limits, z", [(None, ANCHOR - 2.0 * G / 50.0), ((-1.0, 0.4), 1.4), ((0.9, 2.0), 1.9)]
+)
 def test_static_slider_rests_on_its_distance_limit(limits, z):
     """A 2 kg block on a vertical slider through (0, 0, 1), hung from a spring (k = 50)
     anchored at z = 2: free at 2 - m g / k = 1.608; the upper limit 0.4 holds it at 1.4

@@ -18,16 +18,23 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial checks")
 
 
 def box(n, size):
-    return dmesh.create_box(MPI.COMM_SELF, [np.zeros(3), np.array(size, dtype=float)], list(n),
-                            dmesh.CellType.hexahedron)
+    return dmesh.create_box(
+        MPI.COMM_SELF,
+        [np.zeros(3), np.array(size, dtype=float)],
+        list(n),
+        dmesh.CellType.hexahedron,
+    )
 
 
 def cantilever(hard: bool = False):
     """1 x 0.2 x 0.2 (tests/test_surface_loads.py's cantilever, coarser), clamped at x = 0."""
     E, nu = 1e5, 0.3
-    body = af.FemBody(box((6, 2, 2), (1.0, 0.2, 0.2)), af.NeoHookean.from_young_poisson(E, nu),
-                      1000.0, incompressibility=Incompressible(kappa=10 * E / 2.6) if hard
-                      else None)
+    body = af.FemBody(
+        box((6, 2, 2), (1.0, 0.2, 0.2)),
+        af.NeoHookean.from_young_poisson(E, nu),
+        1000.0,
+        incompressibility=Incompressible(kappa=10 * E / 2.6) if hard else None,
+    )
     body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     return body
 
@@ -39,12 +46,12 @@ def top(x):
 def assert_quadratic(residuals, counts):
     """Each increment's residuals fall to the tolerance with r_{k+1} / r_k^2 bounded once
     r_k is small (relative to the first residual of the increment)."""
-    assert max(counts) <= 10, counts     # target 6: not yet on the hard or first increments
+    assert max(counts) <= 10, counts  # target 6: not yet on the hard or first increments
     for norms in residuals:
         r0 = norms[0]
         rel = [r / r0 for r in norms]
         close = [(a, b) for a, b in zip(rel, rel[1:]) if a < 1e-2 and b > 1e-12]
-        for a, b in close:                  # the absolute ratio, as test_surface_loads
+        for a, b in close:  # the absolute ratio, as test_surface_loads
             assert (b * r0) / (a * r0) ** 2 < 10.0, (norms, b * r0 / (a * r0) ** 2)
 
 
@@ -73,8 +80,9 @@ def test_quadratic_under_a_follower_pressure(hard, direct_solver):
 def long_beam():
     """10 x 1 x 1 neo-Hookean (E = 10, nu = 0.3), clamped at x = 0, follower pressure 0.004
     on its bottom face (docs/verification.md's 10:1 beam)."""
-    body = af.FemBody(box((20, 2, 2), (10.0, 1.0, 1.0)),
-                      af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0)
+    body = af.FemBody(
+        box((20, 2, 2), (10.0, 1.0, 1.0)), af.NeoHookean.from_young_poisson(10.0, 0.3), 1.0
+    )
     body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     body.add_pressure(0.004, where=lambda x: np.isclose(x[2], 0.0))
     return body
@@ -96,7 +104,7 @@ def test_the_predictor_extrapolates_a_quadratic_exactly():
     w = _extrapolation_weights(nodes, x)
     for poly in ([1.0], [2.0, -3.0], [0.5, 1.0, -4.0]):
         assert abs(w @ np.polyval(poly, nodes) - np.polyval(poly, x)) < 1e-12
-    assert abs(w @ np.power(nodes, 3) - x ** 3) > 1e-3      # not a cubic
+    assert abs(w @ np.power(nodes, 3) - x**3) > 1e-3  # not a cubic
 
 
 def test_the_long_beam_is_solved_by_adaptive_load_steps():
@@ -109,7 +117,7 @@ def test_the_long_beam_is_solved_by_adaptive_load_steps():
     counts = scene.solve_static(load_steps="auto")
     assert body.load_factor.value == 1.0
     tip = body.u.x.array.reshape(-1, 3)[:, 2].max()
-    assert tip > 2.0, tip                   # bent far up (large rotation)
+    assert tip > 2.0, tip  # bent far up (large rotation)
     assert max(counts) <= 10 and len(counts) <= 20, counts
     body.assemble(tangent=False)
     r = body.R.copy()
@@ -118,7 +126,7 @@ def test_the_long_beam_is_solved_by_adaptive_load_steps():
     fixed = long_beam()
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(fixed)
-    scene.solve_static(load_steps=1)        # one step: cut until it converges
+    scene.solve_static(load_steps=1)  # one step: cut until it converges
     assert np.abs(fixed.u.x.array - body.u.x.array).max() < 1e-6
 
 
@@ -129,8 +137,11 @@ def _compressed_cube(s: float):
     body = af.FemBody(box((3, 3, 3), (1.0, 1.0, 1.0)), af.NeoHookean(1e3, 1e3), 1000.0)
     for k in range(3):
         body.fix_nodes(body.find_nodes(lambda x, k=k: np.isclose(x[k], 0.0)), components=(k,))
-    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
-                   displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1], 0 * x[2]]))
+    body.fix_nodes(
+        body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+        components=(0,),
+        displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1], 0 * x[2]]),
+    )
     return body
 
 
@@ -140,15 +151,18 @@ def test_a_prescribed_compression_deeper_than_an_element_reaches_the_closed_form
     linear predictor of the prescribed step (the free nodes follow it), and the cube reaches
     the closed form in one increment; a second prescription from that equilibrium too."""
     from scipy.optimize import brentq
+
     body = _compressed_cube(0.5)
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     X = body.V.tabulate_dof_coordinates()
     for s in (0.5, 0.4):
         if s == 0.4:
-            body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
-                           displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1],
-                                                             0 * x[2]]))
+            body.fix_nodes(
+                body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+                components=(0,),
+                displacement=lambda x: np.vstack([(s - 1) * x[0], 0 * x[1], 0 * x[2]]),
+            )
         counts = scene.solve_static(load_steps=1)
         assert counts.failed == 0 and max(counts) <= 6
         lateral = brentq(lambda l, s=s: 1e3 * (l**2 - 1) + 1e3 * np.log(s * l**2), 1.0, 3.0)
@@ -160,12 +174,16 @@ def test_the_load_steps_ramp_the_prescribed_displacement():
     """Each of four load increments ends with the prescribed face at its share of the way,
     before + k/4 (after - before), from the equilibrium the prescription was written on."""
     from artifem.linear_solver import LinearSolver
+
     body = _compressed_cube(0.8)
     solve_static(body, LinearSolver(MPI.COMM_SELF, "mumps"))
     face = body.local_dofs(body.find_nodes(lambda x: np.isclose(x[0], 1.0)))
     before = body.u.x.array.reshape(-1, 3)[face, 0].copy()
-    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)), components=(0,),
-                   displacement=lambda x: np.vstack([-0.5 * x[0], 0 * x[1], 0 * x[2]]))
+    body.fix_nodes(
+        body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+        components=(0,),
+        displacement=lambda x: np.vstack([-0.5 * x[0], 0 * x[1], 0 * x[2]]),
+    )
     after = body.u.x.array.reshape(-1, 3)[face, 0].copy()
     seen = []
 
@@ -173,12 +191,12 @@ def test_the_load_steps_ramp_the_prescribed_displacement():
         def update(self, n):
             seen.append(body.u.x.array.reshape(-1, 3)[face, 0].copy())
 
-    counts = solve_static(body, LinearSolver(MPI.COMM_SELF, "mumps"), load_steps=4,
-                          progress=Progress())
+    counts = solve_static(
+        body, LinearSolver(MPI.COMM_SELF, "mumps"), load_steps=4, progress=Progress()
+    )
     assert counts.factors == [0.25, 0.5, 0.75, 1.0]
     for k, values in enumerate(seen, start=1):
-        np.testing.assert_allclose(values, before + k / 4 * (after - before), rtol=0,
-                                   atol=1e-15)
+        np.testing.assert_allclose(values, before + k / 4 * (after - before), rtol=0, atol=1e-15)
 
 
 def test_a_failed_static_solve_keeps_its_prescription_for_the_next():
@@ -186,6 +204,7 @@ def test_a_failed_static_solve_keeps_its_prescription_for_the_next():
     prescribed displacement written and the rest of the state where it was; the next solve
     ramps it from there and converges."""
     from artifem import integrators
+
     body = _compressed_cube(0.5)
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
@@ -200,18 +219,21 @@ def test_a_failed_static_solve_keeps_its_prescription_for_the_next():
     np.testing.assert_array_equal(body.u.x.array, start)
     scene.solve_static(load_steps=1)
     assert body.u.x.array.reshape(-1, 3)[:, 0].min() == pytest.approx(-0.5, abs=1e-12)
-    assert np.abs(body.u.x.array.reshape(-1, 3)[:, 1]).max() > 0.1       # it bulged
+    assert np.abs(body.u.x.array.reshape(-1, 3)[:, 1]).max() > 0.1  # it bulged
 
 
 def test_the_coupled_island_ramps_a_prescribed_compression_as_the_body_alone():
     """The cube clamped at x = 0 and its face x = 1 pushed to x = 0.5 (deeper than an
     element, so that it must be ramped) solved on its own and in a coupled island (a plane
     contact far below puts it there): the same equilibrium."""
+
     def clamped(island: bool):
         body = af.FemBody(box((3, 3, 3), (1.0, 1.0, 1.0)), af.NeoHookean(1e3, 1e3), 1000.0)
         body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
-        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
-                       displacement=lambda x: np.vstack([-0.5 * x[0], 0 * x[1], 0 * x[2]]))
+        body.fix_nodes(
+            body.find_nodes(lambda x: np.isclose(x[0], 1.0)),
+            displacement=lambda x: np.vstack([-0.5 * x[0], 0 * x[1], 0 * x[2]]),
+        )
         scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
         scene.add(body)
         if island:

@@ -25,9 +25,16 @@ from mpi4py import MPI
 
 from artifem.models.tongue.model import load_tongue_data
 from artifem.errors import InputError
-from artifem.models.styloglossus import (STYLOID, ReducedConfig, SUPPORTS, attachment_points,
-                                         boundary_facet_centroids, reduce_tongue, reducible,
-                                         simulate)
+from artifem.models.styloglossus import (
+    STYLOID,
+    ReducedConfig,
+    SUPPORTS,
+    attachment_points,
+    boundary_facet_centroids,
+    reduce_tongue,
+    reducible,
+    simulate,
+)
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
@@ -43,8 +50,9 @@ def data():
 def results(data):
     runs = {f"excitation {k}": simulate(k, duration=DURATION, data=data) for k in (4, 24)}
     for name, (k, nonneg) in SUPPORTS.items():
-        runs[f"tension {name}"] = simulate(k, nonnegative=nonneg, load="tension",
-                                           duration=DURATION, data=data)
+        runs[f"tension {name}"] = simulate(
+            k, nonnegative=nonneg, load="tension", duration=DURATION, data=data
+        )
     return runs
 
 
@@ -52,16 +60,17 @@ def peak(r):
     return max(r["peak_von_mises_near_attachment_Pa"].values())
 
 
-@pytest.mark.parametrize("run", ["excitation 4", "excitation 24", "tension 4", "tension 24",
-                                 "tension 24+"])
+@pytest.mark.parametrize(
+    "run", ["excitation 4", "excitation 24", "tension 4", "tension 24", "tension 24+"]
+)
 def test_runs_and_moves_toward_the_styloid_points(results, run):
     r = results[run]
     assert r["min_det_F"] > 0.2
     for side, styloid in STYLOID.items():
         d = np.array(r["attachment_displacement_m"][side])
         p = np.array(r["attachment_points"][side])
-        assert d[0] > 1e-3 and d[2] > 1e-3                 # posterior and superior
-        assert np.sign(d[1]) == np.sign(styloid[1])        # toward its own side
+        assert d[0] > 1e-3 and d[2] > 1e-3  # posterior and superior
+        assert np.sign(d[1]) == np.sign(styloid[1])  # toward its own side
         assert d @ (styloid - p) > 0.5 * np.linalg.norm(d) * np.linalg.norm(styloid - p)
         assert r["tension_N"][side] > 0.3
     # left/right symmetric
@@ -94,8 +103,11 @@ def test_nonnegative_weights_of_a_surface_point_stay_on_its_facet(results):
         assert w[np.isin(r["_support_dofs"][side], facet)].sum() > 0.9
 
 
-@pytest.mark.xfail(strict=True, reason="24 non-negative weights of a surface point sit on its "
-                   "facet: the peak doubles (module docstring)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="24 non-negative weights of a surface point sit on its "
+    "facet: the peak doubles (module docstring)",
+)
 def test_equal_tension_24_nonnegative_nodes_lower_the_peak_stress(results):
     assert peak(results["tension 24+"]) < peak(results["tension 4"])
 
@@ -106,8 +118,9 @@ def test_reduced_tongue_follows_the_full_attachment(data, results, tmp_path_fact
     once: the paths went onto the reduced body, the attachment displacement is close to the
     full one, the stress is reconstructed."""
     rc = ReducedConfig(r=10, points=80, force_snapshots=30, snapshot_every=3)
-    model = reduce_tongue("24", tmp_path_factory.mktemp("styloglossus_cache"), rc, data=data,
-                          duration=DURATION)
+    model = reduce_tongue(
+        "24", tmp_path_factory.mktemp("styloglossus_cache"), rc, data=data, duration=DURATION
+    )
     assert model.training["runs"] == 2 and model.r == 10
     red = simulate(24, load="tension", reduced=model, duration=DURATION, data=data)
     full = results["tension 24"]

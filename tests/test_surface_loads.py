@@ -33,7 +33,7 @@ class LU:
         self.ksp.getPC().setFactorSolverType("mumps")
         self.norms = []
 
-    def solve(self, A, b, x, rtol=None):        # a direct solve: no tolerance to take
+    def solve(self, A, b, x, rtol=None):  # a direct solve: no tolerance to take
         self.norms.append(b.norm())
         self.ksp.setOperators(A)
         self.ksp.solve(b, x)
@@ -41,6 +41,7 @@ class LU:
 
 
 # ---- meshes and bodies --------------------------------------------------------------------
+
 
 def symmetry_planes(body, planes=(0, 1, 2)) -> None:
     """u_k = 0 on the plane X_k = 0 (only that component)."""
@@ -54,9 +55,13 @@ def box(n=(4, 2, 2), size=(2.0, 1.0, 1.0), cell=dmesh.CellType.hexahedron):
 
 def cantilever(name="beam"):
     """A soft cantilever (clamped at x = 0); its top face z = 0.2 is the loaded surface."""
-    beam = af.FemBody(box((10, 2, 2), (1.0, 0.2, 0.2)),
-                      af.NeoHookean.from_young_poisson(1e5, 0.3), 1000.0, gravity=(0, 0, 0),
-                      name=name)
+    beam = af.FemBody(
+        box((10, 2, 2), (1.0, 0.2, 0.2)),
+        af.NeoHookean.from_young_poisson(1e5, 0.3),
+        1000.0,
+        gravity=(0, 0, 0),
+        name=name,
+    )
     beam.fix_nodes(beam.find_nodes(lambda x: x[0] < 1e-12))
     return beam
 
@@ -78,6 +83,7 @@ def tangent(body) -> np.ndarray:
 
 # ---- (a) the inflated thick sphere ---------------------------------------------------------
 
+
 def inflation_pressure(la: float, mu: float, A: float, B: float) -> float:
     """Internal pressure of an incompressible neo-Hookean (W = mu/2 (I1 - 3)) thick sphere
     A <= R <= B whose inner radius is stretched by la = a / A (outer face free).
@@ -93,15 +99,27 @@ def inflation_pressure(la: float, mu: float, A: float, B: float) -> float:
     return 2 * mu * (1 / lb - 1 / la) + 0.5 * mu * (lb**-4 - la**-4)
 
 
-def inflate(n: int, p: float, mu: float = 1.0, A: float = 1.0, B: float = 2.0,
-            closed: bool = True, load_steps: int = 3):
+def inflate(
+    n: int,
+    p: float,
+    mu: float = 1.0,
+    A: float = 1.0,
+    B: float = 2.0,
+    closed: bool = True,
+    load_steps: int = 3,
+):
     """The octant (n x n x n hexahedra per patch) under internal pressure p: la, lb, body."""
-    body = af.FemBody(af.spherical_shell_octant(A, B, n, n), af.MooneyRivlin(C10=mu / 2, kappa=mu), 1.0,
-                      incompressibility=1e3 * mu, gravity=(0, 0, 0), name="sphere")
+    body = af.FemBody(
+        af.spherical_shell_octant(A, B, n, n),
+        af.MooneyRivlin(C10=mu / 2, kappa=mu),
+        1.0,
+        incompressibility=1e3 * mu,
+        gravity=(0, 0, 0),
+        name="sphere",
+    )
     symmetry_planes(body)
     body.add_pressure(p, where=lambda x: np.linalg.norm(x, axis=0) < A + 1e-9, closed=closed)
-    counts = solve_static(body, LinearSolver(MPI.COMM_SELF, "mumps", body.V),
-                          load_steps=load_steps)
+    counts = solve_static(body, LinearSolver(MPI.COMM_SELF, "mumps", body.V), load_steps=load_steps)
     X = body.V.tabulate_dof_coordinates()
     x = X + body.u.x.array.reshape(-1, 3)
     R = np.linalg.norm(X, axis=1)
@@ -136,11 +154,14 @@ def test_closed_pressure_potential_is_consistent_and_its_tangent_symmetric(rng):
     symmetric on the free dofs (so LinearSolver's Cholesky is exact for it). A pressure
     on a face with a free border (the cantilever's top) has no potential: its tangent is
     unsymmetric."""
-    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
-                      gravity=(0, 0, 0))
+    body = af.FemBody(
+        af.spherical_shell_octant(1.0, 2.0, 2, 2),
+        af.MooneyRivlin(C10=0.5, kappa=5.0),
+        1.0,
+        gravity=(0, 0, 0),
+    )
     symmetry_planes(body)
-    load = body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9,
-                             closed=True)
+    load = body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9, closed=True)
     free = np.setdiff1d(np.arange(body.u.x.array.size), body.fixed_components)
     body.u.x.array[free] = 0.05 * rng.standard_normal(free.size)
     R = residual(body)
@@ -179,6 +200,7 @@ def test_a_closed_pressure_with_a_free_border_is_refused():
 
 
 # ---- (b) Newton's quadratic convergence ----------------------------------------------------
+
 
 def newton_residuals(body, solver, iterations=8) -> list[float]:
     """Plain Newton (no line search) on R(u) = 0: the residual norms (free dofs)."""
@@ -224,11 +246,15 @@ def test_newton_converges_quadratically_under_a_follower_pressure():
 def test_the_sphere_converges_quadratically_with_the_closed_pressure():
     """The same on the nearly incompressible sphere, with LinearSolver's Cholesky (the
     closed pressure's tangent is symmetric): measured ratios 1.5e-3, 0.16, 3.8."""
-    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 3, 3), af.MooneyRivlin(C10=0.5, kappa=1.0), 1.0,
-                      incompressibility=1e3, gravity=(0, 0, 0))
+    body = af.FemBody(
+        af.spherical_shell_octant(1.0, 2.0, 3, 3),
+        af.MooneyRivlin(C10=0.5, kappa=1.0),
+        1.0,
+        incompressibility=1e3,
+        gravity=(0, 0, 0),
+    )
     symmetry_planes(body)
-    load = body.add_pressure(0.5, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9,
-                             closed=True)
+    load = body.add_pressure(0.5, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9, closed=True)
     solver = LinearSolver(MPI.COMM_SELF, "mumps", body.V)
     solve_static(body, solver, load_steps=2)
     load.set(0.6)
@@ -241,12 +267,17 @@ def test_the_sphere_converges_quadratically_with_the_closed_pressure():
 
 # ---- (c) tangent and potential against finite differences ----------------------------------
 
+
 @pytest.mark.parametrize("cell", [dmesh.CellType.hexahedron, dmesh.CellType.tetrahedron])
 def test_tangent_is_the_derivative_of_the_residual(cell, rng):
     """K d = (R(u + eps d) - R(u - eps d)) / (2 eps) at a deformed state, with a follower
     pressure and a dead traction on overlapping faces (relative error measured ~1e-9)."""
-    body = af.FemBody(box((3, 2, 2), (1.0, 0.5, 0.5), cell),
-                      af.NeoHookean.from_young_poisson(1e3, 0.3), 1.0, gravity=(0, 0, 0))
+    body = af.FemBody(
+        box((3, 2, 2), (1.0, 0.5, 0.5), cell),
+        af.NeoHookean.from_young_poisson(1e3, 0.3),
+        1.0,
+        gravity=(0, 0, 0),
+    )
     body.fix_nodes(body.find_nodes(lambda x: x[0] < 1e-12))
     body.add_pressure(80.0, where=lambda x: np.isclose(x[2], 0.5))
     body.add_traction((10.0, -20.0, 30.0), where=lambda x: x[2] > 0.25)  # top face again
@@ -281,10 +312,12 @@ def test_residual_is_the_sum_of_its_terms_assembled_alone(rng):
     alone = np.zeros_like(u)
     for load in (p, t):
         tags = dmesh.meshtags(domain, 2, load.facets, np.ones_like(load.facets))
-        ds = ufl.Measure("ds", domain=domain, subdomain_data=tags,
-                         metadata={"quadrature_degree": 2})(1)
-        form = fem.form(load.virtual_work(loaded.u, ufl.TestFunction(loaded.V),
-                                          loaded.load_factor, ds))
+        ds = ufl.Measure(
+            "ds", domain=domain, subdomain_data=tags, metadata={"quadrature_degree": 2}
+        )(1)
+        form = fem.form(
+            load.virtual_work(loaded.u, ufl.TestFunction(loaded.V), loaded.load_factor, ds)
+        )
         alone += fem_petsc.assemble_vector(form).array
     assert np.abs(residual(loaded) - residual(bare) + alone).max() < 1e-12 * np.abs(alone).max()
 
@@ -299,6 +332,7 @@ def test_a_body_without_surface_loads_has_no_facet_integral():
 
 
 # ---- (d) the bar in uniaxial tension ---------------------------------------------------------
+
 
 def uniaxial(material, load):
     """(axial, lateral) stretches of a compressible neo-Hookean bar whose first
@@ -324,7 +358,7 @@ def test_bar_under_end_load_matches_the_uniaxial_solution(kind):
     material = af.NeoHookean.from_young_poisson(1e4, 0.3)
     body = af.FemBody(box(), material, 1000.0, gravity=(0, 0, 0))
     symmetry_planes(body)
-    end = lambda x: np.isclose(x[0], L)                               # noqa: E731
+    end = lambda x: np.isclose(x[0], L)  # noqa: E731
     if kind == "traction":
         body.add_traction((T, 0.0, 0.0), where=end)
         a, b = uniaxial(material, lambda b: T)
@@ -359,6 +393,7 @@ def test_dead_traction_potential_is_consistent(rng):
 
 # ---- setting loads between steps, and every solver sees them ---------------------------------
 
+
 def test_a_load_is_set_between_steps_and_ramped_by_the_load_factor():
     beam = cantilever()
     load = beam.add_pressure(100.0, where=top)
@@ -366,7 +401,7 @@ def test_a_load_is_set_between_steps_and_ramped_by_the_load_factor():
     compiled = beam._compiled
     f100 = -residual(beam)
     load.set(250.0)
-    assert beam._compiled is compiled                            # no recompilation
+    assert beam._compiled is compiled  # no recompilation
     np.testing.assert_allclose(-residual(beam), 2.5 * f100, rtol=1e-12, atol=1e-14)
     beam.load_factor.value = 0.5
     np.testing.assert_allclose(-residual(beam), 1.25 * f100, rtol=1e-12, atol=1e-14)
@@ -386,8 +421,12 @@ def test_the_scene_and_the_body_solver_agree_on_a_follower_pressure():
     solve_static(alone, LU(), load_steps=6)
     scene = af.Scene(gravity=(0.0, 0.0, 0.0))
     base = af.RigidBody("base", 1.0, np.eye(3), motion="fixed")
-    scene.add(island, coupled, base,
-              af.NodeAttachment(coupled, coupled.find_nodes(lambda x: x[0] < 1e-12), base))
+    scene.add(
+        island,
+        coupled,
+        base,
+        af.NodeAttachment(coupled, coupled.find_nodes(lambda x: x[0] < 1e-12), base),
+    )
     scene.solve_static(load_steps=6)
     for body in (island, coupled):
         assert np.abs(body.u.x.array - alone.u.x.array).max() < 1e-8, body.name
@@ -400,19 +439,30 @@ def test_a_controller_sets_the_pressure_during_a_simulation():
     scene.add(beam)
     seen = []
     scene.add_controller(lambda s, t0, t1: (load.set(1e3 * t1), seen.append(load.get())))
-    run = af.simulate(scene, 0.03, 0.01, progress=False,
-                      record={"tip": lambda s: beam.u.x.array.reshape(-1, 3)[:, 2].min()})
+    run = af.simulate(
+        scene,
+        0.03,
+        0.01,
+        progress=False,
+        record={"tip": lambda s: beam.u.x.array.reshape(-1, 3)[:, 2].min()},
+    )
     assert seen == pytest.approx([10.0, 20.0, 30.0])
     assert np.all(np.diff(run.records["tip"]) < 0)
 
 
 # ---- (e) choosing facets ---------------------------------------------------------------------
 
+
 def top_surface(triangles: bool):
     """The cantilever's top face as a surface mesh: quads, or each quad split in two."""
     grid = np.array([[x, y, 0.2] for y in np.linspace(0, 0.2, 3) for x in np.linspace(0, 1, 11)])
-    quads = np.array([(j * 11 + i, j * 11 + i + 1, j * 11 + i + 12, j * 11 + i + 11)
-                      for j in range(2) for i in range(10)])
+    quads = np.array(
+        [
+            (j * 11 + i, j * 11 + i + 1, j * 11 + i + 12, j * 11 + i + 11)
+            for j in range(2)
+            for i in range(10)
+        ]
+    )
     if not triangles:
         return grid, quads
     return grid, np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
@@ -426,10 +476,12 @@ def test_predicate_tags_and_surface_mesh_choose_the_same_facets():
     boundary = dmesh.exterior_facet_indices(domain.topology)
     values = np.where(np.isin(boundary, facets), 7, 3).astype(np.int32)
     tags = dmesh.meshtags(domain, 2, boundary, values)
-    loads = [beam.add_pressure(100.0, where=top, name="where"),
-             beam.add_pressure(100.0, tags=tags, values=7, name="tags"),
-             beam.add_pressure(100.0, surface=top_surface(False), name="quads"),
-             beam.add_pressure(100.0, surface=top_surface(True), name="triangles")]
+    loads = [
+        beam.add_pressure(100.0, where=top, name="where"),
+        beam.add_pressure(100.0, tags=tags, values=7, name="tags"),
+        beam.add_pressure(100.0, surface=top_surface(False), name="quads"),
+        beam.add_pressure(100.0, surface=top_surface(True), name="triangles"),
+    ]
     for load in loads:
         np.testing.assert_array_equal(load.facets, np.sort(facets))
     f = []
@@ -473,9 +525,10 @@ def test_bad_surface_loads_are_clear_errors():
     # surface meshes: faces off the body are named; a facet covered in part
     vertices, faces = top_surface(True)
     lifted = vertices.copy()
-    lifted[0, 2] += 0.01                                   # a corner of faces 0 and 1
-    with pytest.raises(af.InputError,
-                       match=r"2 of 40 surface face\(s\) match no boundary facet .* faces \[0, 1\]$"):
+    lifted[0, 2] += 0.01  # a corner of faces 0 and 1
+    with pytest.raises(
+        af.InputError, match=r"2 of 40 surface face\(s\) match no boundary facet .* faces \[0, 1\]$"
+    ):
         beam.add_pressure(1.0, surface=(lifted, faces))
     with pytest.raises(af.InputError, match="covers 1 boundary facet"):
         beam.add_pressure(1.0, surface=(vertices, faces[1:]))
@@ -487,12 +540,12 @@ def test_bad_surface_loads_are_clear_errors():
 
 # ---- component-wise fixed nodes --------------------------------------------------------------
 
+
 def test_component_wise_fixes():
     """fix_nodes(..., components=): only those components are fixed (residual, tangent,
     velocity, the implicit step, the coupled Scene); callers of fixed_dofs (whole nodes)
     refuse them with a clear error instead of leaving them free."""
-    body = af.FemBody(box(), af.NeoHookean.from_young_poisson(1e4, 0.3), 1000.0,
-                      gravity=(0, 0, 0))
+    body = af.FemBody(box(), af.NeoHookean.from_young_poisson(1e4, 0.3), 1000.0, gravity=(0, 0, 0))
     plane = body.find_nodes(lambda x: np.isclose(x[0], 0.0))
     body.fix_nodes(plane, components=(0,))
     dofs = body.local_dofs(plane)
@@ -509,8 +562,13 @@ def test_component_wise_fixes():
     # the plane nodes keep x and move in z
     scene = af.Scene(gravity=(0.0, 0.0, -9.81))
     base = af.RigidBody("base", 1.0, np.eye(3), motion="fixed")
-    scene.add(body, base, af.NodeAttachment(body, body.find_nodes(
-        lambda x: np.isclose(x[0], 2.0) & np.isclose(x[1], 0.0)), base))
+    scene.add(
+        body,
+        base,
+        af.NodeAttachment(
+            body, body.find_nodes(lambda x: np.isclose(x[0], 2.0) & np.isclose(x[1], 0.0)), base
+        ),
+    )
     scene.solve_static()
     u = body.u.x.array.reshape(-1, 3)
     assert np.all(u[dofs, 0] == 0.0) and np.abs(u[dofs, 2]).max() > 1e-4
@@ -528,14 +586,16 @@ def test_component_wise_fixes():
     whole = af.FemBody(box(), af.NeoHookean.from_young_poisson(1e4, 0.3), 1.0)
     whole.fix_nodes(plane)
     np.testing.assert_array_equal(whole.fixed_dofs, np.sort(dofs))
-    np.testing.assert_array_equal(whole.fixed_components,
-                                  np.sort((3 * dofs[:, None] + np.arange(3)).ravel()))
+    np.testing.assert_array_equal(
+        whole.fixed_components, np.sort((3 * dofs[:, None] + np.arange(3)).ravel())
+    )
     for bad in ((3,), (0, 0), (), ("x",), (True,)):
         with pytest.raises(af.InputError, match="components must be distinct indices"):
             whole.fix_nodes(plane, components=bad)
 
 
 # ---- reduced bodies --------------------------------------------------------------------------
+
 
 def basis(body, r=None, rng=None) -> np.ndarray:
     """The complete basis of the free dofs (r None), or r random columns; zero fixed rows."""
@@ -577,16 +637,16 @@ def test_reduced_body_feels_the_surface_loads_of_its_full_body(rng):
     q = 0.1 * rng.standard_normal(7)
     reduced.set_q(q)
     f, K = full_force_and_tangent(beam, U @ q)
-    np.testing.assert_allclose(reduced.force(), U.T @ f, rtol=0,
-                               atol=1e-13 * np.abs(U.T @ f).max())
-    np.testing.assert_allclose(reduced.tangent(), U.T @ K @ U, rtol=0,
-                               atol=1e-13 * np.abs(U.T @ K @ U).max())
+    np.testing.assert_allclose(reduced.force(), U.T @ f, rtol=0, atol=1e-13 * np.abs(U.T @ f).max())
+    np.testing.assert_allclose(
+        reduced.tangent(), U.T @ K @ U, rtol=0, atol=1e-13 * np.abs(U.T @ K @ U).max()
+    )
     # the complete basis: the same static solution
     beam.u.x.array[:] = 0.0
     complete = ReducedFemBody(beam, basis(beam), all_points(beam))
     solve_static_reduced(complete, load_steps=12)
     solve_static(beam, LU(), load_steps=12)
-    u = beam.u.x.array[:complete.U.shape[0]]
+    u = beam.u.x.array[: complete.U.shape[0]]
     assert np.abs(complete.nodal_displacement() - u).max() < 1e-10 * np.abs(u).max()
 
 
@@ -595,16 +655,21 @@ def test_reduced_body_keeps_the_closed_pressure_potential(rng):
     basis: Pi~(q) is the full body's Pi(U q) (the same -p V), and f~ = U^T f."""
     from artifem.reduction.reduced_body import ReducedFemBody, all_points
 
-    body = af.FemBody(af.spherical_shell_octant(1.0, 2.0, 2, 2), af.MooneyRivlin(C10=0.5, kappa=5.0), 1.0,
-                      gravity=(0, 0, 0))
+    body = af.FemBody(
+        af.spherical_shell_octant(1.0, 2.0, 2, 2),
+        af.MooneyRivlin(C10=0.5, kappa=5.0),
+        1.0,
+        gravity=(0, 0, 0),
+    )
     symmetry_planes(body)
     body.add_pressure(0.3, where=lambda x: np.linalg.norm(x, axis=0) < 1 + 1e-9, closed=True)
     U = basis(body)
     reduced = ReducedFemBody(body, U, all_points(body))
     q = 0.02 * rng.standard_normal(U.shape[1])
     reduced.set_q(q)
-    body.u.x.array[:U.shape[0]] = U @ q
-    assert abs(reduced.potential_energy() - body.potential_energy()) < \
-        1e-12 * abs(body.potential_energy())
+    body.u.x.array[: U.shape[0]] = U @ q
+    assert abs(reduced.potential_energy() - body.potential_energy()) < 1e-12 * abs(
+        body.potential_energy()
+    )
     f, _ = full_force_and_tangent(body, U @ q)
     np.testing.assert_allclose(reduced.force(), U.T @ f, rtol=0, atol=1e-12 * np.abs(f).max())

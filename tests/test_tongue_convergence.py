@@ -39,10 +39,11 @@ TOLERANCE_MM, TOLERANCE_REL = 1.5 * MEASURED_MM, 1.5 * MEASURED_REL
 @pytest.mark.slow
 def test_protrusion_tip_level0_agrees_with_level1(level1_protrusion):
     d0 = landmark_mm(run_motions(0, ("protrusion",))["protrusion"], "tip", 1.0)
-    _, level1 = level1_protrusion            # run_motions(1, ("protrusion",))["protrusion"]
+    _, level1 = level1_protrusion  # run_motions(1, ("protrusion",))["protrusion"]
     assert level1["outcome"] == "finished", (  # run_motions raises SolverError otherwise
         f"tongue protrusion at level 1 did not finish: "
-        f"{level1.get('error') or level1.get('inversion')}")
+        f"{level1.get('error') or level1.get('inversion')}"
+    )
     d1 = landmark_mm(level1, "tip", 1.0)
     assert np.all(np.isfinite(d0)) and np.all(np.isfinite(d1))
     n1 = np.linalg.norm(d1)

@@ -11,18 +11,46 @@ from artifem.io.mesh_checks import element_jacobians, element_volumes, volume
 from artifem.io.mesh_data import MeshData
 from artifem.io.readers import read_mesh
 from artifem.io.refine import carry_cell_set, carry_node_set, refine_hexahedra
-from artifem.models.tongue.apdl import (read_fibers, read_muscle_elements, read_muscle_groups,
-                                        read_muscle_names)
-from artifem.models.tongue.fibers import (EXTRA_NODES, bundle_geometry, element_directions,
-                                          fiber_points)
+from artifem.models.tongue.apdl import (
+    read_fibers,
+    read_muscle_elements,
+    read_muscle_groups,
+    read_muscle_names,
+)
+from artifem.models.tongue.fibers import (
+    EXTRA_NODES,
+    bundle_geometry,
+    element_directions,
+    fiber_points,
+)
 
 DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
 
 # Counts read from CreateMuscles.mac / Fibers.mac (see the report of this issue).
-ELEMENTS = {"GGP": 49, "GGM": 11, "GGA": 14, "STY": 16, "GH": 12, "MH": 24, "HG": 20,
-            "VERT": 94, "TRANS": 132, "IL": 14}
-FIBERS = {"GGP": 12, "GGM": 4, "GGA": 6, "STY": 9, "GH": 6, "MH": 14, "HG": 10,
-          "VERT": 27, "TRANS": 51, "IL": 4}
+ELEMENTS = {
+    "GGP": 49,
+    "GGM": 11,
+    "GGA": 14,
+    "STY": 16,
+    "GH": 12,
+    "MH": 24,
+    "HG": 20,
+    "VERT": 94,
+    "TRANS": 132,
+    "IL": 14,
+}
+FIBERS = {
+    "GGP": 12,
+    "GGM": 4,
+    "GGA": 6,
+    "STY": 9,
+    "GH": 6,
+    "MH": 14,
+    "HG": 10,
+    "VERT": 27,
+    "TRANS": 51,
+    "IL": 4,
+}
 NAMES = [f"{m}_{s}" for m in ELEMENTS for s in "LR"] + ["SL"]
 PAIRS = [(f"{m}_L", f"{m}_R") for m in ELEMENTS]
 # Coordinates are written with 7 significant digits (0.1 um); the worst mirror
@@ -66,6 +94,7 @@ def centroids(md, ids):
 
 # ---------------------------------------------------------------- CreateMuscles.mac
 
+
 def test_bundles_names_counts_and_ids(md, bundles):
     assert read_muscle_names(DATA / "CreateMuscles.mac") == NAMES
     assert list(bundles) == NAMES  # NEW_TISSUE is an empty selection: no component
@@ -91,14 +120,19 @@ def test_midplane_and_bundle_mirror_pairs(md, bundles):
 
 def test_apdl_selection_semantics(tmp_path):
     mac = tmp_path / "sel.mac"
-    mac.write_bytes("! commentaire d\xe9fini en latin-1\n/NOPR\n*DIM,x,,3\nn = 3\n"
-                    "ESEL,S,ELEM,,1,10\nESEL,U,ELEM,,2,10,2\nESEL,A,ELEM,,20\n"
-                    "ESEL,R,ELEM,,1,20,3  ! keeps 1, 7, ... of the set\nCM,A,ELEM\n"
-                    "ESEL,NONE\nCM,EMPTY,ELEM\nESEL,S,ELEM,,5\nCMSEL,A,A\nCM,B,ELEM\n"
-                    "ESEL,ALL\nESEL,U,ELEM,,1,3\nCM,C,ELEM\n".encode("latin-1"))
+    mac.write_bytes(
+        "! commentaire d\xe9fini en latin-1\n/NOPR\n*DIM,x,,3\nn = 3\n"
+        "ESEL,S,ELEM,,1,10\nESEL,U,ELEM,,2,10,2\nESEL,A,ELEM,,20\n"
+        "ESEL,R,ELEM,,1,20,3  ! keeps 1, 7, ... of the set\nCM,A,ELEM\n"
+        "ESEL,NONE\nCM,EMPTY,ELEM\nESEL,S,ELEM,,5\nCMSEL,A,A\nCM,B,ELEM\n"
+        "ESEL,ALL\nESEL,U,ELEM,,1,3\nCM,C,ELEM\n".encode("latin-1")
+    )
     got = read_muscle_elements(mac, all_elements=np.arange(1, 8))
-    assert {k: v.tolist() for k, v in got.items()} == {"A": [1, 7], "B": [1, 5, 7],
-                                                       "C": [4, 5, 6, 7]}
+    assert {k: v.tolist() for k, v in got.items()} == {
+        "A": [1, 7],
+        "B": [1, 5, 7],
+        "C": [4, 5, 6, 7],
+    }
     with pytest.raises(ValueError, match=r"sel\.mac:15: ESEL,ALL"):
         read_muscle_elements(mac)  # ALL needs the mesh's elements
     bad = tmp_path / "bad.mac"
@@ -115,6 +149,7 @@ def test_apdl_selection_semantics(tmp_path):
 
 
 # ---------------------------------------------------------------- Fibers.mac
+
 
 def test_fibers_counts_nodes_and_pairing(md, bundles, fibers):
     # Fibers.mac has no muscleName array: without names it cannot be read.
@@ -144,12 +179,15 @@ def test_fibers_mirror(fibers_xyz):
             assert a.shape == b.shape and np.abs(a - mirrored(b)).max() < MIRROR_TOL, left
     sl = fibers_xyz["SL"]
     for a in sl:  # SL is one bundle across the midplane: its fiber set mirrors onto itself
-        assert min(np.abs(mirrored(a) - b).max() if b.shape == a.shape else np.inf
-                   for b in sl) < MIRROR_TOL
+        assert (
+            min(np.abs(mirrored(a) - b).max() if b.shape == a.shape else np.inf for b in sl)
+            < MIRROR_TOL
+        )
     assert EXTRA_NODES[4037][1] < 0 < EXTRA_NODES[4042][1]
 
 
 # ---------------------------------------------------------------- element directions
+
 
 def _nearest_segment_bruteforce(c, polylines):
     best = (np.inf, None)
@@ -173,8 +211,9 @@ def test_element_directions_follow_nearest_segment(md, bundles, fibers_xyz):
         assert dirs.shape == (len(rows), 3) and dist.shape == (len(rows),)
         assert np.allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-14)
         for k, row in enumerate(rows):
-            ref_dist, ref_dir = _nearest_segment_bruteforce(md.points[md.cells[row]].mean(0),
-                                                            fibers_xyz[name])
+            ref_dist, ref_dir = _nearest_segment_bruteforce(
+                md.points[md.cells[row]].mean(0), fibers_xyz[name]
+            )
             assert abs(np.dot(dirs[k], ref_dir)) == pytest.approx(1.0, abs=1e-12)
             assert dist[k] == pytest.approx(ref_dist, abs=1e-15)
         # Every element has a fiber of its bundle within one element diameter of
@@ -189,6 +228,7 @@ def test_directions_anatomy(md, bundles, fibers_xyz):
     TRANS y 0.90; GH x 0.99; SL x 0.64 (z 0.59: it follows the curved dorsum
     down to the root); IL x 0.72; VERT z 0.54 (x 0.67: vertical to the curved
     dorsum, not to the xy plane); sagittal muscles |y| <= 0.25."""
+
     def dirs(name):
         rows = md.cell_rows(bundles[name])
         return element_directions(md.points, md.cells, rows, fibers_xyz[name])[0]
@@ -225,13 +265,19 @@ def test_bundle_geometry(md, bundles, fibers):
 
 # ---------------------------------------------------------------- refinement
 
+
 def _hex_edges_faces(cells):
     """Unique edges and faces of a VTK-ordered hex mesh, from the reference cube."""
     ref = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
-    local_edges = [(i, j) for i in range(8) for j in range(i + 1, 8)
-                   if sum(a != b for a, b in zip(ref[i], ref[j])) == 1]
-    local_faces = [tuple(i for i in range(8) if ref[i][ax] == side)
-                   for ax in range(3) for side in (0, 1)]
+    local_edges = [
+        (i, j)
+        for i in range(8)
+        for j in range(i + 1, 8)
+        if sum(a != b for a, b in zip(ref[i], ref[j])) == 1
+    ]
+    local_faces = [
+        tuple(i for i in range(8) if ref[i][ax] == side) for ax in range(3) for side in (0, 1)
+    ]
     edges = {frozenset(int(c[i]) for i in e) for c in cells for e in local_edges}
     faces = {frozenset(int(c[i]) for i in f) for c in cells for f in local_faces}
     return edges, faces
@@ -272,8 +318,14 @@ def test_refined_tongue(md, refined):
 def _face_counts(cells):
     out = {}
     for c in cells:
-        for f in ((0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6),
-                  (3, 0, 4, 7)):
+        for f in (
+            (0, 1, 2, 3),
+            (4, 5, 6, 7),
+            (0, 1, 5, 4),
+            (1, 2, 6, 5),
+            (2, 3, 7, 6),
+            (3, 0, 4, 7),
+        ):
             key = frozenset(c[list(f)].tolist())
             out[key] = out.get(key, 0) + 1
     return out
@@ -314,14 +366,22 @@ def test_carry_jaw_attachment_set(md, refined):
 
 
 def test_refine_unit_cube():
-    cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
-                     [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float)
-    md = MeshData(points=cube, cell_type="hexahedron", cells=np.arange(8)[None],
-                  node_ids=np.arange(1, 9), cell_ids=[7], cell_tags=[3])
+    cube = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+        dtype=float,
+    )
+    md = MeshData(
+        points=cube,
+        cell_type="hexahedron",
+        cells=np.arange(8)[None],
+        node_ids=np.arange(1, 9),
+        cell_ids=[7],
+        cell_tags=[3],
+    )
     ref = refine_hexahedra(md)
     r = ref.mesh
     assert r.points.shape == (27, 3) and r.cells.shape == (8, 8)
-    grid = {tuple(p) for p in (np.array(np.meshgrid(*[[0, .5, 1]] * 3)).reshape(3, -1).T)}
+    grid = {tuple(p) for p in (np.array(np.meshgrid(*[[0, 0.5, 1]] * 3)).reshape(3, -1).T)}
     assert {tuple(p) for p in r.points} == grid
     vols = element_volumes(r.points, "hexahedron", r.cells)
     assert np.allclose(vols, 1 / 8, rtol=1e-14)

@@ -29,6 +29,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models.tongue.hard_cases import build_case, run_built
 from hard_case_checks import PENALTY, check_outcome, check_protrusion_variants, make_runs
 
+
 @pytest.fixture(scope="module")
 def runs(request):
     return make_runs(request)
@@ -49,9 +50,16 @@ def test_protrusion_variants_end_on_the_same_state(integrator, runs):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["incompressible_dt_0.05", "incompressible_step",
-                                  "incompressible_all_exciters", "incompressible_coactivation",
-                                  "incompressible_all_step"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "incompressible_dt_0.05",
+        "incompressible_step",
+        "incompressible_all_exciters",
+        "incompressible_coactivation",
+        "incompressible_all_step",
+    ],
+)
 def test_hard_incompressibility_on_a_hard_case(name, runs):
     """The tongue's default (hard incompressibility, semi-implicit with the implicit
     fallback) finishes the hard cases, 1 s each: the protrusion targets switched on at
@@ -68,7 +76,7 @@ def test_hard_incompressibility_on_a_hard_case(name, runs):
     assert result["outcome"] == "finished", result.get("error")
     assert abs(result["volume_change"]) <= 1e-4
     if name in ("incompressible_coactivation", "incompressible_all_step"):
-        assert result["fallbacks"] > 0     # the semi-implicit step inverts elements there
+        assert result["fallbacks"] > 0  # the semi-implicit step inverts elements there
 
 
 @pytest.mark.slow
@@ -98,7 +106,9 @@ def test_the_semi_implicit_step_alone_stops_with_a_clear_error():
     body = tongue.body
     assert np.all(np.isfinite(body.u.x.array)) and body.inverted_elements()[0].size == 0
     assert result["outcome"] == "inversion error", result
-    assert result["fallbacks"] == 0 and result["t_reached"] < dt     # within the first step
-    assert re.match(r"element inversion at t = [\d.e-]+ s: det F = -?[\d.e-]+ <= 0 in \d+ "
-                    r"element\(s\) of body 'tongue' \[\d+", result["inversion"]["message"]), \
-        result["inversion"]["message"]
+    assert result["fallbacks"] == 0 and result["t_reached"] < dt  # within the first step
+    assert re.match(
+        r"element inversion at t = [\d.e-]+ s: det F = -?[\d.e-]+ <= 0 in \d+ "
+        r"element\(s\) of body 'tongue' \[\d+",
+        result["inversion"]["message"],
+    ), result["inversion"]["message"]

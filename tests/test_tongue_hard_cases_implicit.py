@@ -10,8 +10,13 @@ with ``python -m artifem.models.tongue.hard_cases --cases level_1 --integrators 
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from hard_case_checks import (LEVEL0, assert_same_landmarks, check_outcome,
-                              check_protrusion_variants, make_runs)
+from hard_case_checks import (
+    LEVEL0,
+    assert_same_landmarks,
+    check_outcome,
+    check_protrusion_variants,
+    make_runs,
+)
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +36,7 @@ def test_hard_case_implicit(name, runs):
 @pytest.mark.parametrize("name", LEVEL0)
 def test_both_integrators_end_on_the_same_state(name, runs):
     semi, implicit = runs(name, "semi-implicit")[1], runs(name, "implicit")[1]
-    for r in (semi, implicit):                  # documented: every case finishes, no halving
+    for r in (semi, implicit):  # documented: every case finishes, no halving
         assert (r["outcome"], r["halvings"]) == ("finished", 0), (name, r.get("error"))
     assert_same_landmarks(semi, implicit, name)
 
@@ -40,5 +45,3 @@ def test_both_integrators_end_on_the_same_state(name, runs):
 @pytest.mark.parametrize("integrator", ["implicit"])
 def test_protrusion_variants_end_on_the_same_state(integrator, runs):
     check_protrusion_variants(runs, integrator)
-
-

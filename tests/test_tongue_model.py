@@ -7,8 +7,14 @@ import pytest
 
 from artifem.cli import main
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DATA, MOTIONS, Tongue, TongueConfig, load_tongue_data,
-                                         read_max_forces)
+from artifem.models.tongue.model import (
+    DATA,
+    MOTIONS,
+    Tongue,
+    TongueConfig,
+    load_tongue_data,
+    read_max_forces,
+)
 from artifem.scene import simulate
 
 EXCITERS = ["GGA", "GGM", "GGP", "GH", "HG", "IL", "MH", "SL", "STY", "TRANS", "VERT"]
@@ -26,8 +32,7 @@ def motions(tongue):
     for name in MOTIONS:
         tongue.reset()
         tongue.drive(Tongue.motion(name))
-        traj = simulate(tongue.scene, 1.0, 0.01, record=tongue.landmark_records(),
-                        progress=False)
+        traj = simulate(tongue.scene, 1.0, 0.01, record=tongue.landmark_records(), progress=False)
         assert traj.halvings == 0 and traj.min_det_F > 0.2
         out[name] = {k: 1e3 * v[-1] for k, v in traj.records.items()}
     return out
@@ -35,7 +40,9 @@ def motions(tongue):
 
 def test_exciters_are_the_eleven_bilateral_muscles(tongue):
     assert tongue.exciters == EXCITERS
-    assert tongue.data.exciters["GGP"] == ["GGP_L", "GGP_R"] and tongue.data.exciters["SL"] == ["SL"]
+    assert tongue.data.exciters["GGP"] == ["GGP_L", "GGP_R"] and tongue.data.exciters["SL"] == [
+        "SL"
+    ]
     tongue.reset()
     tongue.set_excitations({"HG": 0.6})
     assert tongue.body.muscles["HG_L"].excitation.value == 0.6
@@ -57,7 +64,9 @@ def test_max_stress_carries_the_muscle_force_through_its_cross_section():
     data = load_tongue_data(0)
     forces = read_max_forces(DATA / "MuscleMaxForce.txt")
     for exciter, bundles in data.exciters.items():
-        total = sum(data.max_stress[b] * data.geometry[b]["cross_section_inside_m2"] for b in bundles)
+        total = sum(
+            data.max_stress[b] * data.geometry[b]["cross_section_inside_m2"] for b in bundles
+        )
         assert total == pytest.approx(forces[exciter], rel=1e-12)
     assert all(1e4 < s < 1e6 for s in data.max_stress.values())
 
@@ -69,14 +78,14 @@ def test_level_one_carries_muscles_and_attachments_over():
         assert len(fine.bundles[name]) == 8 * len(rows)
         assert np.allclose(np.linalg.norm(fine.directions[name], axis=1), 1.0)
     assert set(coarse.fixed_nodes) <= set(fine.fixed_nodes)
-    for name, row in coarse.landmarks.items():          # the same material points
+    for name, row in coarse.landmarks.items():  # the same material points
         assert np.array_equal(fine.mesh.points[fine.landmarks[name]], coarse.mesh.points[row])
 
 
 def test_protrusion_moves_the_tip_forward(motions):
     tip = motions["protrusion"]["tip"]
-    assert tip[0] < -1.0                      # anterior is -x in the data's frame
-    assert abs(tip[1]) < 1e-3                 # mm: the data mirror across y = 0 to 4e-6 m
+    assert tip[0] < -1.0  # anterior is -x in the data's frame
+    assert abs(tip[1]) < 1e-3  # mm: the data mirror across y = 0 to 4e-6 m
 
 
 def test_retraction_moves_the_tip_back(motions):
@@ -90,14 +99,25 @@ def test_retroflexion_raises_the_tip(motions):
 
 
 def test_simulate_tongue_command_writes_results(tmp_path):
-    status = main(["simulate", "tongue", "--motion", "retraction", "--duration", "0.1",
-                   "--out", str(tmp_path), "--no-progress"])
+    status = main(
+        [
+            "simulate",
+            "tongue",
+            "--motion",
+            "retraction",
+            "--duration",
+            "0.1",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert status == 0
     figures = json.loads((tmp_path / "retraction" / "simulate.json").read_text())
     assert (figures["nodes"], figures["elements"], figures["steps"]) == (946, 740, 10)
-    assert "ms_per_step" in figures and figures["min_det_F"] > 0    # reported; not inverted
+    assert "ms_per_step" in figures and figures["min_det_F"] > 0  # reported; not inverted
     assert set(figures["landmarks"]) == {"tip", "top", "base"}
-    assert figures["landmarks"]["tip"][0] > 0           # moving back already
+    assert figures["landmarks"]["tip"][0] > 0  # moving back already
     assert (tmp_path / "retraction" / "tongue.png").stat().st_size > 10_000
     assert (tmp_path / "retraction" / "tongue.bp").exists()
 
@@ -110,4 +130,4 @@ def test_simulate_tongue_rejects_an_unknown_exciter_in_a_schedule(tmp_path, monk
     schedule.write_text(json.dumps({"times": [0, 1], "excitations": {"GGQ": [0, 1]}}))
     with pytest.raises(KeyError, match="GGQ"):
         main(["simulate", "tongue", "--schedule", str(schedule), "--out", str(tmp_path / "o")])
-    assert not (tmp_path / "o").exists()                # failed before writing anything
+    assert not (tmp_path / "o").exists()  # failed before writing anything

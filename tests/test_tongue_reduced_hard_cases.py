@@ -52,8 +52,13 @@ from artifem.reduction.bases import body_mass, extended_modes, linear_modes, pod
 from artifem.reduction.cubature import random_points, trained_points
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
-                                        project, record_snapshots)
+from artifem.reduction.training import (
+    ArtifactCache,
+    Snapshots,
+    force_training_matrix,
+    project,
+    record_snapshots,
+)
 from artifem.scene import Scene
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="ReducedFemBody is serial")
@@ -67,8 +72,9 @@ POINTS = 200
 #: pressure space trained on hard runs: tests/test_reduced_incompressibility.py).
 PENALTY_CASES = [name for name in CASES if not name.startswith("incompressible_")]
 LEVEL_0 = [name for name in PENALTY_CASES if CASES[name].config.get("level", 0) == 0]
-CONFIGS = ([(name, "pod", sampling) for name in LEVEL_0 for sampling in ("trained", "random")]
-           + [("level_1", "extended-modal", "random")])
+CONFIGS = [(name, "pod", sampling) for name in LEVEL_0 for sampling in ("trained", "random")] + [
+    ("level_1", "extended-modal", "random")
+]
 
 
 def test_every_hard_case_is_covered():
@@ -89,11 +95,20 @@ def training(tmp_path_factory) -> Snapshots:
 
         def run(exciter=exciter):
             tongue.reset()
-            tongue.drive(ExcitationSchedule.ramp_and_hold({exciter: TRAINING["excitation"]},
-                                                          TRAINING["ramp"]))
-            return record_snapshots(tongue.scene, body, duration=TRAINING["duration"],
-                                    dt=TRAINING["dt"], every=TRAINING["every"],
-                                    progress=False).as_arrays()
+            tongue.drive(
+                ExcitationSchedule.ramp_and_hold(
+                    {exciter: TRAINING["excitation"]}, TRAINING["ramp"]
+                )
+            )
+            return record_snapshots(
+                tongue.scene,
+                body,
+                duration=TRAINING["duration"],
+                dt=TRAINING["dt"],
+                every=TRAINING["every"],
+                progress=False,
+            ).as_arrays()
+
         data = cache.get(key, run)
         parts.append(Snapshots(data["displacements"], data["excitations"]))
         keys.append(key)
@@ -103,10 +118,12 @@ def training(tmp_path_factory) -> Snapshots:
         np.testing.assert_array_equal(part.displacements, data["displacements"])
     snapshots = Snapshots.concatenate(parts)
     steps = round(TRAINING["duration"] / TRAINING["dt"])
-    assert snapshots.displacements.shape == (len(tongue.exciters) * steps // TRAINING["every"],
-                                             3 * body.V.dofmap.index_map.size_local)
+    assert snapshots.displacements.shape == (
+        len(tongue.exciters) * steps // TRAINING["every"],
+        3 * body.V.dofmap.index_map.size_local,
+    )
     assert np.all(np.isfinite(snapshots.displacements))
-    assert np.abs(snapshots.displacements).max() > 5e-3        # the exciters move it (m)
+    assert np.abs(snapshots.displacements).max() > 5e-3  # the exciters move it (m)
     return snapshots
 
 
@@ -124,17 +141,19 @@ def reduced_tongue(tongue, basis: str, sampling: str, snapshots: Snapshots | Non
         q = project(U, mass, snapshots.displacements)
         G, b = force_training_matrix(body, U, q, snapshots.excitations, progress=False)
         points = trained_points(G, b, tol=1e-6, max_points=POINTS)
-        assert points.m == POINTS and points.residual < 0.05       # measured: 2e-3 to 7e-3
+        assert points.m == POINTS and points.residual < 0.05  # measured: 2e-3 to 7e-3
     else:
         points = random_points(table.volume, POINTS, rng=0, groups=table.degree)
     tongue.reset()
     return ReducedFemBody(body, U, points, name=f"tongue_{basis}_{sampling}")
 
 
-@pytest.mark.parametrize("name, basis, sampling", CONFIGS,
-                         ids=[f"{n}-{b}-{s}" for n, b, s in CONFIGS])
-def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(name, basis, sampling,
-                                                                     request):
+@pytest.mark.parametrize(
+    "name, basis, sampling", CONFIGS, ids=[f"{n}-{b}-{s}" for n, b, s in CONFIGS]
+)
+def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(
+    name, basis, sampling, request
+):
     snapshots = request.getfixturevalue("training") if basis == "pod" else None
     tongue, schedule, dt = build_case(name, "semi-implicit")
     reduced = reduced_tongue(tongue, basis, sampling, snapshots)
@@ -153,7 +172,8 @@ def test_reduced_hard_case_finishes_or_stops_with_an_inversion_error(name, basis
             break
         q, qdot = reduced.state()
         assert np.all(np.isfinite(q)) and np.all(np.isfinite(qdot)), (
-            f"non-finite state at t = {scene.t:.3f} s")
+            f"non-finite state at t = {scene.t:.3f} s"
+        )
         largest = max(largest, float(np.abs(reduced.nodal_displacement()).max()))
 
     # Whatever happened, the state left behind is finite and uninverted.

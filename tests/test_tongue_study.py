@@ -36,18 +36,29 @@ def test_study_json_has_every_configuration(quick_study):
     data = json.loads((quick_study / "study.json").read_text())
     # 2x2x2 Gauss points per hexahedron (the penalty's element centres are not there: the
     # hard constraint's volumes are its own terms)
-    assert data["model"] == {"name": "tongue", "level": 0, "nodes": 946, "elements": 740,
-                             "dofs": 2838, "quadrature_points": 740 * 8}
+    assert data["model"] == {
+        "name": "tongue",
+        "level": 0,
+        "nodes": 946,
+        "elements": 740,
+        "dofs": 2838,
+        "quadrature_points": 740 * 8,
+    }
     config = study.quick_config()
     runs = data["runs"]
-    expected = {(b, m, s, mo) for b in config.bases for m in config.points
-                for s in config.samplings for mo in config.motions}
+    expected = {
+        (b, m, s, mo)
+        for b in config.bases
+        for m in config.points
+        for s in config.samplings
+        for mo in config.motions
+    }
     assert {(r["basis"], r["points"], r["sampling"], r["motion"]) for r in runs} == expected
     full_ms = data["full"]["ms_per_step"]
     for r in runs:
         assert not r["failed"], r
         assert 0 < r["mean_error_mm"] <= r["max_error_mm"] <= r["max_node_error_mm"]
-        assert r["max_error_mm"] < 5.0, r          # a 60 mm tongue moving ~10 mm
+        assert r["max_error_mm"] < 5.0, r  # a 60 mm tongue moving ~10 mm
         # speed: reported (targets in the study JSON), not asserted; the ratio is the right way up
         assert r["speedup"] == pytest.approx(full_ms / r["ms_per_step"])
     pod = [r for r in runs if r["basis"] == "trained-pod" and r["sampling"] == "trained"]
@@ -57,7 +68,7 @@ def test_study_json_has_every_configuration(quick_study):
     assert series["times"].shape == (steps + 1,)
     for r in runs:
         error = series[f"error/{r['id']}"]
-        assert error[0] == pytest.approx(0.0, abs=1e-9)      # both start at rest
+        assert error[0] == pytest.approx(0.0, abs=1e-9)  # both start at rest
         assert np.nanmax(error) == pytest.approx(r["max_error_mm"])
 
 
@@ -74,8 +85,8 @@ def test_report_and_pictures_exist(quick_study):
 
 def test_second_run_reuses_the_training_and_resumes_a_lost_artifact(quick_study, monkeypatch):
     snapshots = sorted((quick_study / "cache").glob("reductor-snapshots-*.npz"))
-    assert len(snapshots) == 11                     # one training run per exciter
-    snapshots[3].unlink()                           # as if the run had stopped there
+    assert len(snapshots) == 11  # one training run per exciter
+    snapshots[3].unlink()  # as if the run had stopped there
     calls = []
     real = reductor.Reductor._run
 
@@ -89,7 +100,7 @@ def test_second_run_reuses_the_training_and_resumes_a_lost_artifact(quick_study,
     monkeypatch.setattr(reductor.Reductor, "_run", counting)
     monkeypatch.setattr(reductor, "force_training_matrix", no_training)
     assert main(["study", "tongue", "--quick", "--out", str(quick_study)]) == 0
-    assert len(calls) == 1                          # only the lost training run again
+    assert len(calls) == 1  # only the lost training run again
     assert len(list((quick_study / "cache").glob("reductor-snapshots-*.npz"))) == 11
     done = json.loads((quick_study / "training.json").read_text())
     assert (done["ranks"], done["runs"], done["missing"]) == (1, 11, 1)
@@ -102,16 +113,35 @@ def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_s
     (weights fitted to the constraint), and their volume change is a fraction of the
     ``--incompressibility penalty`` study's reduced body on the same configuration (quick
     runs: 0.2 % against 1.3 %, measured)."""
-    assert main(["study", "tongue", "--quick", "--incompressibility", "penalty", "--bases",
-                 "trained-pod", "--points", "120", "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "study",
+                "tongue",
+                "--quick",
+                "--incompressibility",
+                "penalty",
+                "--bases",
+                "trained-pod",
+                "--points",
+                "120",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     hard = json.loads((quick_study / "study.json").read_text())
     penalty = json.loads((tmp_path / "study.json").read_text())
     assert hard["incompressibility"] == "hard" and penalty["incompressibility"] == "penalty"
     assert "the constant one (the total volume)" in (quick_study / "report.md").read_text()
 
     def run(data, sampling):
-        return next(r for r in data["runs"] if (r["basis"], r["points"], r["sampling"])
-                    == ("trained-pod", 120, sampling))
+        return next(
+            r
+            for r in data["runs"]
+            if (r["basis"], r["points"], r["sampling"]) == ("trained-pod", 120, sampling)
+        )
 
     for sampling in ("trained", "random"):
         h, p = run(hard, sampling), run(penalty, sampling)
@@ -122,18 +152,36 @@ def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_s
 
 def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, tmp_path):
     shutil.copytree(quick_study / "cache", tmp_path / "cache")
-    assert main(["study", "tongue", "--quick", "--greedy-pool", "2", "--greedy-runs", "1",
-                 "--train-only", "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "study",
+                "tongue",
+                "--quick",
+                "--greedy-pool",
+                "2",
+                "--greedy-runs",
+                "1",
+                "--train-only",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     text = (tmp_path / "greedy.json").read_text()
-    assert "Infinity" not in text and "NaN" not in text          # strict JSON
+    assert "Infinity" not in text and "NaN" not in text  # strict JSON
     greedy = json.loads(text)
     assert greedy["stopped"] in ("size", "pool") and greedy["runs"] == 12
     first = greedy["history"][0]
     assert set(first["estimates_mm"]) == {"greedy-2-0", "greedy-2-1"}
     # the worst first; a candidate the full hard tongue cannot run (it inverts elements
     # under one of them) is rejected with why; a failed reduced run counts as the worst
-    kept = {k: np.inf if v is None else v for k, v in first["estimates_mm"].items()
-            if k not in first["rejected"]}
+    kept = {
+        k: np.inf if v is None else v
+        for k, v in first["estimates_mm"].items()
+        if k not in first["rejected"]
+    }
     assert first["added"] == max(kept, key=kept.get)
     assert all("inversion" in why for why in first["rejected"].values())
     assert len(list((tmp_path / "cache").glob("reductor-snapshots-*.npz"))) == 12
@@ -145,10 +193,26 @@ def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, 
 
 def test_the_report_lists_the_greedy_iterations():
     from artifem.reduction.study_report import greedy_lines
-    text = "\n".join(greedy_lines({
-        "pool": 3, "seed": 2, "stopped": "size", "runs": 12, "wall_seconds": 5.0,
-        "history": [{"runs": 11, "max_estimate_mm": 1.234, "added": "a",
-                     "rejected": {"b": "inverted"}},
-                    {"runs": 12, "max_estimate_mm": None, "added": None, "rejected": {}}]}))
+
+    text = "\n".join(
+        greedy_lines(
+            {
+                "pool": 3,
+                "seed": 2,
+                "stopped": "size",
+                "runs": 12,
+                "wall_seconds": 5.0,
+                "history": [
+                    {
+                        "runs": 11,
+                        "max_estimate_mm": 1.234,
+                        "added": "a",
+                        "rejected": {"b": "inverted"},
+                    },
+                    {"runs": 12, "max_estimate_mm": None, "added": None, "rejected": {}},
+                ],
+            }
+        )
+    )
     assert "stopped: size, 12 runs" in text
     assert "| 0 | 11 | 1.23 | a | b |" in text and "| 1 | 12 | — | - | - |" in text

@@ -15,5 +15,4 @@ def test_the_cache_is_under_xdg_cache_home_or_dot_cache(monkeypatch, tmp_path):
         monkeypatch.setenv("XDG_CACHE_HOME", unset)
         assert user_cache("foot") == tmp_path / "home" / ".cache" / "artifem" / "foot"
     monkeypatch.delenv("XDG_CACHE_HOME")
-    assert user_cache("foot-reduced") == pathlib.Path.home() / ".cache" / "artifem" / \
-        "foot-reduced"
+    assert user_cache("foot-reduced") == pathlib.Path.home() / ".cache" / "artifem" / "foot-reduced"

@@ -9,8 +9,13 @@ import pyvista as pv
 from mpi4py import MPI
 
 from artifem.embedding import EmbeddedMesh
-from artifem.embedding.voxel_fem import (VoxelFemBody, enclosed_volume, surface_area, voxelize,
-                                         winding_number)
+from artifem.embedding.voxel_fem import (
+    VoxelFemBody,
+    enclosed_volume,
+    surface_area,
+    voxelize,
+    winding_number,
+)
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.integrators import solve_static
@@ -33,7 +38,7 @@ def test_inside_tests_agree_and_winding_number_is_one_inside():
     P = (rng.random((400, 3)) - 0.5) * 0.12
     w = winding_number(P, V, T)
     r = np.linalg.norm(P, axis=1)
-    clear = np.abs(r - 0.05) > 0.003          # away from the faceted sphere's surface
+    clear = np.abs(r - 0.05) > 0.003  # away from the faceted sphere's surface
     np.testing.assert_allclose(w[clear], (r[clear] < 0.05).astype(float), atol=1e-9)
     a = voxelize(V, T, (5, 5, 5), inside="vtk")
     b = voxelize(V, T, (5, 5, 5), inside="winding")
@@ -49,13 +54,13 @@ def test_weighted_mass_conserves_the_enclosed_volume():
         body = VoxelFemBody(V, T, MATERIAL, RHO, (n, n, n), samples=4)
         vox = body.voxels
         assert np.all((vox.fraction > 0) & (vox.fraction <= 1))
-        assert body.mesh.topology.index_map(3).size_local == vox.fraction.size <= n ** 3
+        assert body.mesh.topology.index_map(3).size_local == vox.fraction.size <= n**3
         if n > 4:
-            assert vox.fraction.size < n ** 3          # empty corner cells dropped
-        mass = body.total_mass()                       # assembled: int rho phi dX
+            assert vox.fraction.size < n**3  # empty corner cells dropped
+        mass = body.total_mass()  # assembled: int rho phi dX
         assert mass == pytest.approx(body.weighted_mass(), rel=1e-12)
         error = abs(mass - RHO * volume)
-        assert error <= RHO * 2.0 * area * vox.sample_diagonal      # the band bound
+        assert error <= RHO * 2.0 * area * vox.sample_diagonal  # the band bound
         errors.append(error / (RHO * volume))
     # Measured: 1.9e-2, 4.3e-3, 1.5e-4 (the band bound: 1.3, 0.65, 0.33).
     assert errors[0] < 0.03 and errors[1] < 0.01 and errors[2] < 1e-3
@@ -105,8 +110,7 @@ def boundary_surface(msh):
     c, x = msh.geometry.dofmaps[0], msh.geometry.x
     faces = np.concatenate([c[:, [1, 2, 3]], c[:, [0, 3, 2]], c[:, [0, 1, 3]], c[:, [0, 2, 1]]])
     opposite = np.concatenate([c[:, 0], c[:, 1], c[:, 2], c[:, 3]])
-    _, idx, count = np.unique(np.sort(faces, axis=1), axis=0, return_index=True,
-                              return_counts=True)
+    _, idx, count = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
     F, d = faces[idx[count == 1]], opposite[idx[count == 1]]
     normal = np.cross(x[F[:, 1]] - x[F[:, 0]], x[F[:, 2]] - x[F[:, 0]])
     inward = np.einsum("ij,ij->i", normal, x[d] - x[F[:, 0]]) > 0
@@ -131,10 +135,10 @@ def test_cylinder_under_gravity_matches_conforming_tets():
     assert enclosed_volume(S, T) == pytest.approx(np.pi * R * R * L, rel=1e-2)
     tip_points = S[np.abs(S[:, 0] - L) < 1e-9]
     reference = tip_deflection(FemBody(msh, MATERIAL, RHO, gravity=(0, 0, -9.81)), tip_points)
-    euler_bernoulli = -RHO * 9.81 * L ** 4 / (2 * 5.0e6 * R * R)
-    assert reference == pytest.approx(euler_bernoulli, rel=0.03)     # measured 1.2 %
+    euler_bernoulli = -RHO * 9.81 * L**4 / (2 * 5.0e6 * R * R)
+    assert reference == pytest.approx(euler_bernoulli, rel=0.03)  # measured 1.2 %
     errors = []
-    for n in (4, 8):      # cubic cells: (3n, n, n) over the bounding box, 192 and 1440 cells
+    for n in (4, 8):  # cubic cells: (3n, n, n) over the bounding box, 192 and 1440 cells
         body = VoxelFemBody(S, T, MATERIAL, RHO, (3 * n, n, n), gravity=(0, 0, -9.81))
         errors.append(abs(tip_deflection(body, tip_points) / reference - 1.0))
     # Measured: 12.5 % (n = 4), 0.9 % (n = 8); n = 2: 31 %, n = 6: 2.7 %.

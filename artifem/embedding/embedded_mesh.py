@@ -70,13 +70,13 @@ class PointLocation:
     """Result of :func:`locate_points`: the points this rank owns (all of them in serial)."""
 
     def __init__(self, indices, cells, reference, weights, points, distance):
-        self.indices = indices          # (m,) indices of the owned points in the input
-        self.cells = cells              # (m,) local cell of each owned point
-        self.reference = reference      # (m, 3) reference coordinates
-        self.weights = weights          # (m, k) shape-function values (k nodes per cell)
-        self.points = points            # (m, 3) located (possibly snapped) points
-        self.distance = distance        # (p,) distance of every input point from the mesh
-                                        #      (0 inside; the same on every rank)
+        self.indices = indices  # (m,) indices of the owned points in the input
+        self.cells = cells  # (m,) local cell of each owned point
+        self.reference = reference  # (m, 3) reference coordinates
+        self.weights = weights  # (m, k) shape-function values (k nodes per cell)
+        self.points = points  # (m, 3) located (possibly snapped) points
+        self.distance = distance  # (p,) distance of every input point from the mesh
+        #      (0 inside; the same on every rank)
 
 
 def _full_body(body):
@@ -86,8 +86,14 @@ def _full_body(body):
     return body, None
 
 
-def _pull_back(element, nodes: np.ndarray, x: np.ndarray, centre: np.ndarray,
-               tol: float = 1e-12, max_iterations: int = 30):
+def _pull_back(
+    element,
+    nodes: np.ndarray,
+    x: np.ndarray,
+    centre: np.ndarray,
+    tol: float = 1e-12,
+    max_iterations: int = 30,
+):
     """Reference coordinates (p, 3) of points x (p, 3) in cells with node coordinates
     (p, k, 3), and whether each converged.
 
@@ -97,16 +103,17 @@ def _pull_back(element, nodes: np.ndarray, x: np.ndarray, centre: np.ndarray,
     scale = np.maximum(np.ptp(nodes, axis=1).max(axis=1), np.finfo(float).tiny)
     converged = np.zeros(x.shape[0], dtype=bool)
     for _ in range(max_iterations if x.shape[0] else 0):
-        tab = element.tabulate(1, xi)[..., 0]                     # (4, p, k)
-        phi = np.einsum("ipk,pkd->ipd", tab, nodes)                # x and its derivatives
-        residual = x - phi[0]                                      # (p, 3)
-        J = np.transpose(phi[1:4], (1, 2, 0))                      # (p, d, reference dir)
+        tab = element.tabulate(1, xi)[..., 0]  # (4, p, k)
+        phi = np.einsum("ipk,pkd->ipd", tab, nodes)  # x and its derivatives
+        residual = x - phi[0]  # (p, 3)
+        J = np.transpose(phi[1:4], (1, 2, 0))  # (p, d, reference dir)
         dxi = np.linalg.solve(J, residual[..., None])[..., 0]
         xi = xi + dxi
         # Reference coordinates are O(1); round-off in x amplified by J^-1 limits dxi to
         # about 1e-14 (x / h), so converge on 1e-12.
-        converged = ((np.abs(dxi).max(axis=1) <= tol)
-                     & (np.abs(residual).max(axis=1) <= 1e-8 * scale))
+        converged = (np.abs(dxi).max(axis=1) <= tol) & (
+            np.abs(residual).max(axis=1) <= 1e-8 * scale
+        )
         if converged.all():
             break
     return xi, converged
@@ -121,8 +128,9 @@ def _outside_reference(cell_name: str, xi: np.ndarray) -> np.ndarray:
     return np.maximum(excess, 0.0)
 
 
-def _closest_in_hexahedra(element, nodes: np.ndarray, X: np.ndarray,
-                          max_iterations: int = 200) -> np.ndarray:
+def _closest_in_hexahedra(
+    element, nodes: np.ndarray, X: np.ndarray, max_iterations: int = 200
+) -> np.ndarray:
     """Reference coordinates xi in [0, 1]^3 of the closest points of trilinear cells with
     nodes (p, 8, 3) to points X (p, 3): argmin |x(xi) - X|^2 by an active-set Gauss-Newton
     (coordinates on a bound whose gradient points outward stay there; the others take the
@@ -130,6 +138,7 @@ def _closest_in_hexahedra(element, nodes: np.ndarray, X: np.ndarray,
     projected gradient step; from the cell centres, vectorized over the points. (The
     pull-back of the closest point of a distorted cell's convex hull can land on a spurious
     root far outside the cell, hence extrapolated weights.)"""
+
     def residual(xi, idx):
         return np.einsum("pk,pkd->pd", element.tabulate(0, xi)[0, :, :, 0], nodes[idx]) - X[idx]
 
@@ -140,7 +149,7 @@ def _closest_in_hexahedra(element, nodes: np.ndarray, X: np.ndarray,
         while todo.size and alpha > 1e-8:
             trial = np.clip(xi[todo] + alpha * step[todo], 0.0, 1.0)
             r_trial = residual(trial, idx[todo])
-            ok = (r_trial ** 2).sum(axis=1) < (r[todo] ** 2).sum(axis=1)
+            ok = (r_trial**2).sum(axis=1) < (r[todo] ** 2).sum(axis=1)
             xi[todo[ok]], r[todo[ok]], decreased[todo[ok]] = trial[ok], r_trial[ok], True
             todo, alpha = todo[~ok], 0.5 * alpha
         return xi, r, decreased
@@ -153,8 +162,8 @@ def _closest_in_hexahedra(element, nodes: np.ndarray, X: np.ndarray,
         if active.size == 0:
             break
         xa, ra = xi[active], r[active]
-        tab = element.tabulate(1, xa)[1:4, :, :, 0]                          # (3, a, k)
-        J = np.einsum("ipk,pkd->pdi", tab, nodes[active])                    # dx/dxi
+        tab = element.tabulate(1, xa)[1:4, :, :, 0]  # (3, a, k)
+        J = np.einsum("ipk,pkd->pdi", tab, nodes[active])  # dx/dxi
         g = np.einsum("pdi,pd->pi", J, ra)
         free = ~(((xa <= 0.0) & (g > 0)) | ((xa >= 1.0) & (g < 0)))
         both = free[:, :, None] & free[:, None, :]
@@ -165,7 +174,8 @@ def _closest_in_hexahedra(element, nodes: np.ndarray, X: np.ndarray,
             stuck = np.flatnonzero(~decreased)
             lipschitz = np.maximum(np.linalg.norm(J[stuck], 2, axis=(1, 2)) ** 2, 1e-300)
             new[stuck], r_new[stuck], decreased[stuck] = descend(
-                xa[stuck], ra[stuck], -g[stuck] / lipschitz[:, None], active[stuck])
+                xa[stuck], ra[stuck], -g[stuck] / lipschitz[:, None], active[stuck]
+            )
         done = ~decreased | (np.abs(new - xa).max(axis=1) < 1e-14)
         xi[active], r[active] = new, r_new
         active = active[~done]
@@ -193,29 +203,34 @@ def locate_points(body, points, *, snap: bool = False, tol: float = 1e-10) -> Po
     msh = body.mesh
     comm = msh.comm
     if msh.geometry.cmaps[0].degree != 1:
-        raise NotImplementedError(f"embedding in FEM body {body.name!r} needs a degree-1 "
-                                  f"geometry, got {msh.geometry.cmaps[0].degree}")
+        raise NotImplementedError(
+            f"embedding in FEM body {body.name!r} needs a degree-1 "
+            f"geometry, got {msh.geometry.cmaps[0].degree}"
+        )
     X = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
     p = X.shape[0]
     tdim = msh.topology.dim
     owned_cells = np.arange(msh.topology.index_map(tdim).size_local, dtype=np.int32)
     x_geom, geom_dofs = msh.geometry.x, msh.geometry.dofmaps[0]
-    element = basix.create_element(basix.ElementFamily.P,
-                                   getattr(basix.CellType, body.cell_name), 1)
+    element = basix.create_element(
+        basix.ElementFamily.P, getattr(basix.CellType, body.cell_name), 1
+    )
     centre = basix.geometry(element.cell_type).mean(axis=0)
     tree = geometry.bb_tree(msh, tdim, padding=tol, entities=owned_cells)
 
     # Inside: of all (point, colliding owned cell) pairs, the cell the point lies deepest in.
     colliding = geometry.compute_colliding_cells(
-        msh, geometry.compute_collisions_points(tree, X), X)
+        msh, geometry.compute_collisions_points(tree, X), X
+    )
     pair_point = np.repeat(np.arange(p), np.diff(colliding.offsets))
     pair_cell = np.asarray(colliding.array, dtype=np.int32)
     pair_xi, converged = _pull_back(element, x_geom[geom_dofs[pair_cell]], X[pair_point], centre)
     depth = np.where(converged, _outside_reference(body.cell_name, pair_xi), np.inf)
-    depth[depth <= 1e-12] = 0.0                   # round-off on a shared face: a tie
+    depth[depth <= 1e-12] = 0.0  # round-off on a shared face: a tie
     order = np.lexsort((depth, pair_point))
-    first = order[np.r_[True, pair_point[order][1:] != pair_point[order][:-1]]] \
-        if order.size else order
+    first = (
+        order[np.r_[True, pair_point[order][1:] != pair_point[order][:-1]]] if order.size else order
+    )
     best = np.full(p, np.inf)
     best[pair_point[first]] = depth[first]
     owner, best = _lowest(comm, best)
@@ -233,15 +248,17 @@ def locate_points(body, points, *, snap: bool = False, tol: float = 1e-10) -> Po
         d = np.full(outside.size, np.inf)
         if owned_cells.size:
             midpoints = geometry.create_midpoint_tree(msh, tdim, owned_cells)
-            near = np.asarray(geometry.compute_closest_entity(tree, midpoints, msh, Xo),
-                              dtype=np.int32)
+            near = np.asarray(
+                geometry.compute_closest_entity(tree, midpoints, msh, Xo), dtype=np.int32
+            )
             nodes = x_geom[geom_dofs[near]]
             if body.cell_name == "hexahedron":
                 xi_o = _closest_in_hexahedra(element, nodes, Xo)
                 y = np.einsum("pk,pkd->pd", element.tabulate(0, xi_o)[0, :, :, 0], nodes)
-            else:                                 # convex cells: GJK, then the pull-back
-                y = Xo + np.array([geometry.compute_distance_gjk(c, x.reshape(1, 3))
-                                   for c, x in zip(nodes, Xo)])
+            else:  # convex cells: GJK, then the pull-back
+                y = Xo + np.array(
+                    [geometry.compute_distance_gjk(c, x.reshape(1, 3)) for c, x in zip(nodes, Xo)]
+                )
                 xi_o = _pull_back(element, nodes, y, centre)[0]
             d = np.linalg.norm(y - Xo, axis=1)
             cells[outside], xi[outside], located[outside] = near, xi_o, y
@@ -251,8 +268,9 @@ def locate_points(body, points, *, snap: bool = False, tol: float = 1e-10) -> Po
             raise OutsideMeshError(body.name, far, distance)
 
     mine = np.flatnonzero(owner == comm.rank)
-    w = element.tabulate(0, xi[mine])[0, :, :, 0] if mine.size else \
-        np.zeros((0, element.dim))                                  # (m, k)
+    w = (
+        element.tabulate(0, xi[mine])[0, :, :, 0] if mine.size else np.zeros((0, element.dim))
+    )  # (m, k)
     return PointLocation(mine, cells[mine], xi[mine], w, located[mine], distance)
 
 
@@ -278,15 +296,27 @@ class EmbeddedMesh:
         distance: (p,) distance each point was moved by snapping (0 inside).
     """
 
-    def __init__(self, body, points, cells=None, cell_type: str = "vertex", *,
-                 snap: bool = False, tol: float = 1e-10, name: str = "embedded"):
+    def __init__(
+        self,
+        body,
+        points,
+        cells=None,
+        cell_type: str = "vertex",
+        *,
+        snap: bool = False,
+        tol: float = 1e-10,
+        name: str = "embedded",
+    ):
         if cell_type not in CELL_TYPES:
-            raise InputError(f"EmbeddedMesh {name!r}: cell_type must be one of "
-                             f"{sorted(CELL_TYPES)}, got {cell_type!r}")
+            raise InputError(
+                f"EmbeddedMesh {name!r}: cell_type must be one of "
+                f"{sorted(CELL_TYPES)}, got {cell_type!r}"
+            )
         points = np.asarray(points, dtype=float)
         if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
-            raise InputError(f"EmbeddedMesh {name!r}: points must have shape (p, 3), p >= 1, "
-                             f"got {points.shape}")
+            raise InputError(
+                f"EmbeddedMesh {name!r}: points must have shape (p, 3), p >= 1, got {points.shape}"
+            )
         k = CELL_TYPES[cell_type]
         if cells is None:
             cells = np.arange(points.shape[0]).reshape(-1, 1) if k == 1 else None
@@ -294,11 +324,14 @@ class EmbeddedMesh:
                 raise InputError(f"EmbeddedMesh {name!r}: a {cell_type} mesh needs cells")
         cells = np.asarray(cells, dtype=np.int64)
         if cells.ndim != 2 or cells.shape[1] != k:
-            raise InputError(f"EmbeddedMesh {name!r}: {cell_type} cells must have shape "
-                             f"(c, {k}), got {cells.shape}")
+            raise InputError(
+                f"EmbeddedMesh {name!r}: {cell_type} cells must have shape "
+                f"(c, {k}), got {cells.shape}"
+            )
         if cells.size and (cells.min() < 0 or cells.max() >= points.shape[0]):
-            raise InputError(f"EmbeddedMesh {name!r}: cell vertex indices out of range "
-                             f"[0, {points.shape[0]})")
+            raise InputError(
+                f"EmbeddedMesh {name!r}: cell vertex indices out of range [0, {points.shape[0]})"
+            )
         self.name, self.body, self.cell_type, self.cells = name, body, cell_type, cells
         self.full, self.reduced = _full_body(body)
         loc = locate_points(self.full, points, snap=snap, tol=tol)
@@ -311,19 +344,20 @@ class EmbeddedMesh:
         imap = V.dofmap.index_map
         n = imap.size_local + imap.num_ghosts
         self._n_owned = imap.size_local
-        dofs = V.dofmap.list[loc.cells].astype(np.int64)              # (m, k)
+        dofs = V.dofmap.list[loc.cells].astype(np.int64)  # (m, k)
         m, kk = dofs.shape
-        rows = (3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :])
+        rows = 3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :]
         rows = np.broadcast_to(rows, (m, kk, 3))
         cols = 3 * dofs[:, :, None] + np.arange(3)[None, None, :]
         vals = np.broadcast_to(loc.weights[:, :, None], (m, kk, 3))
-        self.G = sparse.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())),
-                                   shape=(3 * m, 3 * n))
+        self.G = sparse.csr_matrix(
+            (vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, 3 * n)
+        )
         comm = self.full.mesh.comm
         if comm.size > 1:
             counts = np.array(comm.allgather(3 * m))
             self._gathered = (counts, np.concatenate(comm.allgather(self.owned)))
-            self._nodal = fem.Function(V)                # G^T f with ghosts, summed to owners
+            self._nodal = fem.Function(V)  # G^T f with ghosts, summed to owners
         X_nodes = V.tabulate_dof_coordinates()[:n]
         self._rest_owned = self.G @ X_nodes.ravel()
         self.rest_positions = self._gather(self._rest_owned)
@@ -364,21 +398,24 @@ class EmbeddedMesh:
         """Current velocities (p, 3) (collective)."""
         if self.reduced is not None:
             return (self.G_reduced @ self.reduced.qdot).reshape(-1, 3)
-        return self._gather(self.G @ self.full.v.x.array[:self.G.shape[1]])
+        return self._gather(self.G @ self.full.v.x.array[: self.G.shape[1]])
 
     def contact_points(self, points=None) -> EmbeddedPoints:
         """The vertices contact may push (:mod:`artifem.contact_points`; ``points`` must be
         None: every vertex); the rows act on the master body."""
         if points is not None:
-            raise InputError(f"EmbeddedMesh {self.name!r}: contact takes all its vertices "
-                             "(points=None)")
+            raise InputError(
+                f"EmbeddedMesh {self.name!r}: contact takes all its vertices (points=None)"
+            )
         return EmbeddedPoints(self)
 
     def contact_surface(self) -> tuple[EmbeddedPoints, np.ndarray]:
         """(the vertices, the triangles) of an embedded triangle surface."""
         if self.cell_type != "triangle":
-            raise InputError(f"EmbeddedMesh {self.name!r}: a contact surface must be a "
-                             f"triangle mesh, this one is a {self.cell_type} mesh")
+            raise InputError(
+                f"EmbeddedMesh {self.name!r}: a contact surface must be a "
+                f"triangle mesh, this one is a {self.cell_type} mesh"
+            )
         return EmbeddedPoints(self), self.cells
 
     def force_to_nodes(self, f) -> np.ndarray:
@@ -387,8 +424,10 @@ class EmbeddedMesh:
         reduced body."""
         f = np.asarray(f, dtype=float).reshape(-1)
         if f.size != 3 * self.num_points:
-            raise InputError(f"EmbeddedMesh {self.name!r}: expected {self.num_points} x 3 "
-                             f"forces, got {f.size} values")
+            raise InputError(
+                f"EmbeddedMesh {self.name!r}: expected {self.num_points} x 3 "
+                f"forces, got {f.size} values"
+            )
         if self.reduced is not None:
             return self.G_reduced.T @ f
         local = self.G.T @ f.reshape(-1, 3)[self.owned].ravel()
@@ -396,7 +435,7 @@ class EmbeddedMesh:
             return local
         self._nodal.x.array[:] = local
         self._nodal.x.scatter_reverse(la.InsertMode.add)
-        return self._nodal.x.array[:3 * self._n_owned].copy()
+        return self._nodal.x.array[: 3 * self._n_owned].copy()
 
     def to_pyvista(self):
         """The embedded mesh at its current positions as a pyvista PolyData."""

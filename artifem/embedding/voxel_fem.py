@@ -56,16 +56,24 @@ from artifem.errors import InputError
 from artifem.embedding.embedded_mesh import EmbeddedMesh
 from artifem.fem_body import FemBody
 
-__all__ = ["Voxelization", "voxelize", "voxel_mesh", "winding_number", "enclosed_volume",
-           "surface_area", "VoxelFemBody"]
+__all__ = [
+    "Voxelization",
+    "voxelize",
+    "voxel_mesh",
+    "winding_number",
+    "enclosed_volume",
+    "surface_area",
+    "VoxelFemBody",
+]
 
 
 def _check_surface(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
     V = np.asarray(vertices, dtype=float)
     T = np.asarray(triangles, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or T.ndim != 2 or T.shape[1] != 3 or T.size == 0:
-        raise InputError(f"a surface needs vertices (n, 3) and triangles (m, 3), got "
-                         f"{V.shape} and {T.shape}")
+        raise InputError(
+            f"a surface needs vertices (n, 3) and triangles (m, 3), got {V.shape} and {T.shape}"
+        )
     if T.min() < 0 or T.max() >= V.shape[0]:
         raise InputError("triangle vertex indices out of range")
     return V, T
@@ -97,13 +105,17 @@ def winding_number(points, vertices, triangles, chunk: int = 4_000_000) -> np.nd
     step = max(1, chunk // T.shape[0])
     A, B, C = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
     for s in range(0, P.shape[0], step):
-        p = P[s:s + step, None, :]
+        p = P[s : s + step, None, :]
         a, b, c = A[None] - p, B[None] - p, C[None] - p
         la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
         num = np.einsum("ptk,ptk->pt", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("ptk,ptk->pt", a, b) * lc
-               + np.einsum("ptk,ptk->pt", b, c) * la + np.einsum("ptk,ptk->pt", c, a) * lb)
-        out[s:s + step] = np.arctan2(num, den).sum(axis=1) / (2.0 * np.pi)
+        den = (
+            la * lb * lc
+            + np.einsum("ptk,ptk->pt", a, b) * lc
+            + np.einsum("ptk,ptk->pt", b, c) * la
+            + np.einsum("ptk,ptk->pt", c, a) * lb
+        )
+        out[s : s + step] = np.arctan2(num, den).sum(axis=1) / (2.0 * np.pi)
     return out
 
 
@@ -111,13 +123,13 @@ def winding_number(points, vertices, triangles, chunk: int = 4_000_000) -> np.nd
 class Voxelization:
     """Kept cells of a regular grid around a surface, with their inside volume fractions."""
 
-    origin: np.ndarray          # (3,) lower corner of the grid
-    spacing: np.ndarray         # (3,) cell edge lengths
-    divisions: tuple            # (nx, ny, nz) cells of the full grid
-    ijk: np.ndarray             # (c, 3) grid indices of the kept cells
-    fraction: np.ndarray        # (c,) inside volume fraction, in (0, 1]
-    samples: int                # s: s^3 sub-cell samples in cells near the surface
-    sampled: int                # how many cells were sampled
+    origin: np.ndarray  # (3,) lower corner of the grid
+    spacing: np.ndarray  # (3,) cell edge lengths
+    divisions: tuple  # (nx, ny, nz) cells of the full grid
+    ijk: np.ndarray  # (c, 3) grid indices of the kept cells
+    fraction: np.ndarray  # (c,) inside volume fraction, in (0, 1]
+    samples: int  # s: s^3 sub-cell samples in cells near the surface
+    sampled: int  # how many cells were sampled
 
     @property
     def cell_volume(self) -> float:
@@ -134,8 +146,16 @@ class Voxelization:
         return float(np.linalg.norm(self.spacing) / self.samples)
 
 
-def voxelize(vertices, triangles, divisions=None, *, cell_size: float | None = None,
-             bounds=None, samples: int = 4, inside: str = "vtk") -> Voxelization:
+def voxelize(
+    vertices,
+    triangles,
+    divisions=None,
+    *,
+    cell_size: float | None = None,
+    bounds=None,
+    samples: int = 4,
+    inside: str = "vtk",
+) -> Voxelization:
     """Inside volume fractions of the cells of a regular grid around a closed surface.
 
     Args:
@@ -153,8 +173,11 @@ def voxelize(vertices, triangles, divisions=None, *, cell_size: float | None = N
         raise InputError(f"voxelize: inside must be 'vtk' or 'winding', got {inside!r}")
     if enclosed_volume(V, T) < 0:
         T = T[:, ::-1]
-    lo, hi = (V.min(axis=0), V.max(axis=0)) if bounds is None else \
-        (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
+    lo, hi = (
+        (V.min(axis=0), V.max(axis=0))
+        if bounds is None
+        else (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
+    )
     if (divisions is None) == (cell_size is None):
         raise InputError("voxelize: give exactly one of divisions and cell_size")
     if divisions is None:
@@ -174,8 +197,9 @@ def voxelize(vertices, triangles, divisions=None, *, cell_size: float | None = N
     ijk = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij"), -1).reshape(-1, 3)
     centres = lo + (ijk + 0.5) * h
     surface = pv.PolyData(V, np.c_[np.full(len(T), 3), T].ravel())
-    dist = np.abs(np.asarray(pv.PolyData(centres).compute_implicit_distance(surface)
-                             ["implicit_distance"]))
+    dist = np.abs(
+        np.asarray(pv.PolyData(centres).compute_implicit_distance(surface)["implicit_distance"])
+    )
     near = dist <= 0.5 * np.linalg.norm(h) * (1.0 + 1e-9)
     fraction = np.zeros(len(ijk))
     far = ~near
@@ -184,26 +208,29 @@ def voxelize(vertices, triangles, divisions=None, *, cell_size: float | None = N
         if inside == "winding":
             return winding_number(points, V, T) > 0.5
         selected = pv.PolyData(points).select_interior_points(
-            surface, method="cell_locator", check_surface=False)
+            surface, method="cell_locator", check_surface=False
+        )
         return np.asarray(selected["selected_points"], dtype=bool)
 
     fraction[far] = is_inside(centres[far]).astype(float)
     if np.any(near):
         g = (np.arange(samples) + 0.5) / samples
-        sub = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)      # (s^3, 3)
+        sub = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # (s^3, 3)
         pts = lo + (ijk[near][:, None, :] + sub[None]) * h
         fraction[near] = is_inside(pts.reshape(-1, 3)).reshape(-1, sub.shape[0]).mean(axis=1)
     keep = fraction > 0
-    return Voxelization(lo, h, tuple(int(k) for k in n), ijk[keep], fraction[keep], samples,
-                        int(near.sum()))
+    return Voxelization(
+        lo, h, tuple(int(k) for k in n), ijk[keep], fraction[keep], samples, int(near.sum())
+    )
 
 
 def voxel_mesh(vox: Voxelization, comm: MPI.Comm = MPI.COMM_WORLD) -> dmesh.Mesh:
     """The kept cells as a DOLFINx hexahedral mesh (input cell c is ``vox.ijk[c]``)."""
-    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],
-                        [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]])     # basix order
+    corners = np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]]
+    )  # basix order
     nx, ny, nz = vox.divisions
-    node_ijk = vox.ijk[:, None, :] + corners[None]                        # (c, 8, 3)
+    node_ijk = vox.ijk[:, None, :] + corners[None]  # (c, 8, 3)
     node_id = (node_ijk[..., 0] * (ny + 1) + node_ijk[..., 1]) * (nz + 1) + node_ijk[..., 2]
     used, cells = np.unique(node_id, return_inverse=True)
     cells = cells.reshape(-1, 8).astype(np.int64)
@@ -233,11 +260,30 @@ class VoxelFemBody(FemBody):
             whose samples all fell outside lies in a dropped cell; see ``surface.distance``).
     """
 
-    def __init__(self, vertices, triangles, material, density: float, divisions=None, *,
-                 cell_size: float | None = None, bounds=None, samples: int = 4,
-                 inside: str = "vtk", comm: MPI.Comm = MPI.COMM_WORLD, **kwargs):
-        vox = voxelize(vertices, triangles, divisions, cell_size=cell_size, bounds=bounds,
-                       samples=samples, inside=inside)
+    def __init__(
+        self,
+        vertices,
+        triangles,
+        material,
+        density: float,
+        divisions=None,
+        *,
+        cell_size: float | None = None,
+        bounds=None,
+        samples: int = 4,
+        inside: str = "vtk",
+        comm: MPI.Comm = MPI.COMM_WORLD,
+        **kwargs,
+    ):
+        vox = voxelize(
+            vertices,
+            triangles,
+            divisions,
+            cell_size=cell_size,
+            bounds=bounds,
+            samples=samples,
+            inside=inside,
+        )
         msh = voxel_mesh(vox, comm)
         super().__init__(msh, material, density, **kwargs)
         self.voxels, self.solid_density = vox, float(density)
@@ -248,15 +294,20 @@ class VoxelFemBody(FemBody):
         n_local = imap.size_local + imap.num_ghosts
         original = np.asarray(msh.topology.original_cell_index[:n_local])
         self.fraction.x.array[W.dofmap.list[:n_local, 0]] = vox.fraction[original]
-        self.density = self.solid_density * self.fraction          # UFL: rho phi
+        self.density = self.solid_density * self.fraction  # UFL: rho phi
         V, T = _check_surface(vertices, triangles)
-        self.surface = EmbeddedMesh(self, V, T, "triangle", snap=True, name="surface") \
-            if comm.size == 1 else None
+        self.surface = (
+            EmbeddedMesh(self, V, T, "triangle", snap=True, name="surface")
+            if comm.size == 1
+            else None
+        )
 
     def energy_terms(self, merged: bool = False):
         phi = self.fraction
-        return [dataclasses.replace(t, density=lambda F, a0, d=t.density: phi * d(F, a0))
-                for t in super().energy_terms(merged)]
+        return [
+            dataclasses.replace(t, density=lambda F, a0, d=t.density: phi * d(F, a0))
+            for t in super().energy_terms(merged)
+        ]
 
     def set_body_force(self, b) -> None:
         """Body force per unit solid volume (weighted by phi here)."""

@@ -1,6 +1,6 @@
 """Meshes in (readers, checks, the DOLFINx mesh) and results out.
 
-    from artifem.io import read_mesh, MeshData, check_orientation, to_dolfinx
+from artifem.io import read_mesh, MeshData, check_orientation, to_dolfinx
 """
 
 from artifem import lazy_exports
@@ -10,8 +10,9 @@ _PUBLIC = {
     "read_mesh": "artifem.io.readers",
     "read_ansys": "artifem.io.ansys",
     "MeshData": "artifem.io.mesh_data",
-    **dict.fromkeys(["check_orientation", "degenerate_elements", "element_volumes"],
-                    "artifem.io.mesh_checks"),
+    **dict.fromkeys(
+        ["check_orientation", "degenerate_elements", "element_volumes"], "artifem.io.mesh_checks"
+    ),
     "to_dolfinx": "artifem.io.to_dolfinx",
     "spherical_shell_octant": "artifem.io.shell_mesh",
 }

@@ -27,8 +27,12 @@ from artifem.io.mesh_data import MeshData, require_file
 ELEM_COLUMNS = 14
 MATERIAL_COLUMN = 8
 #: Kind of a zero-padded (non-solid) element by its number of distinct nodes.
-PADDED_KIND = {1: "vertex (mass element)", 2: "line (link or beam)",
-               3: "triangle (shell)", 4: "quad (shell or surface)"}
+PADDED_KIND = {
+    1: "vertex (mass element)",
+    2: "line (link or beam)",
+    3: "triangle (shell)",
+    4: "quad (shell or surface)",
+}
 
 
 def _data_lines(path: Path):
@@ -54,17 +58,19 @@ def read_ansys_nodes(node_path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     ids, coords, line_of_id = [], [], {}
     for lineno, fields in _data_lines(path):
         if len(fields) != 4:
-            raise MeshError(
-                f"{path}:{lineno}: expected 4 columns (id x y z), found {len(fields)}")
+            raise MeshError(f"{path}:{lineno}: expected 4 columns (id x y z), found {len(fields)}")
         node_id = _parse_int(fields[0], path, lineno, "node id")
         try:
             xyz = [float(v) for v in fields[1:]]
         except ValueError:
-            raise MeshError(f"{path}:{lineno}: node {node_id} has a non-numeric coordinate: "
-                            f"{' '.join(fields[1:])!r}") from None
+            raise MeshError(
+                f"{path}:{lineno}: node {node_id} has a non-numeric coordinate: "
+                f"{' '.join(fields[1:])!r}"
+            ) from None
         if node_id in line_of_id:
-            raise MeshError(f"{path}:{lineno}: node id {node_id} already defined "
-                            f"at line {line_of_id[node_id]}")
+            raise MeshError(
+                f"{path}:{lineno}: node id {node_id} already defined at line {line_of_id[node_id]}"
+            )
         line_of_id[node_id] = lineno
         ids.append(node_id)
         coords.append(xyz)
@@ -73,8 +79,9 @@ def read_ansys_nodes(node_path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(ids, dtype=np.int64), np.array(coords, dtype=np.float64)
 
 
-def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
-               allow_degenerate: bool = False) -> MeshData:
+def read_ansys(
+    node_path: str | Path, elem_path: str | Path | None = None, allow_degenerate: bool = False
+) -> MeshData:
     """Read an ANSYS .node/.elem pair into MeshData (hexahedra, VTK = SOLID185 order).
 
     ``elem_path`` defaults to ``node_path`` with the suffix ``.elem``.  Hexahedra
@@ -95,20 +102,23 @@ def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
             raise MeshError(
                 f"{elem_path}:{lineno}: expected {ELEM_COLUMNS} columns (8 node ids, "
                 f"MAT TYPE REAL SECNUM ESYS, element id), found {len(fields)}; only 8-node "
-                f"hexahedra on one line each are supported")
-        values = [_parse_int(v, elem_path, lineno, f"column {c + 1}")
-                  for c, v in enumerate(fields)]
+                f"hexahedra on one line each are supported"
+            )
+        values = [_parse_int(v, elem_path, lineno, f"column {c + 1}") for c, v in enumerate(fields)]
         elem_id = values[-1]
         if elem_id in line_of_elem:
-            raise MeshError(f"{elem_path}:{lineno}: element id {elem_id} already defined "
-                            f"at line {line_of_elem[elem_id]}")
+            raise MeshError(
+                f"{elem_path}:{lineno}: element id {elem_id} already defined "
+                f"at line {line_of_elem[elem_id]}"
+            )
         line_of_elem[elem_id] = lineno
-        nodes = [n for n in values[:8] if n != 0]          # 0 pads a non-solid element
+        nodes = [n for n in values[:8] if n != 0]  # 0 pads a non-solid element
         missing = [n for n in nodes if n not in row_of_node]
         if missing:
             raise MeshError(
                 f"{elem_path}:{lineno}: element {elem_id} references node id(s) "
-                f"{', '.join(map(str, missing))} not defined in {node_path}")
+                f"{', '.join(map(str, missing))} not defined in {node_path}"
+            )
         if len(nodes) < 8:
             kind = PADDED_KIND.get(len(set(nodes)), f"zero-padded {len(set(nodes))}-node element")
             skipped[kind] = skipped.get(kind, 0) + 1
@@ -118,14 +128,21 @@ def read_ansys(node_path: str | Path, elem_path: str | Path | None = None,
         tags.append(values[MATERIAL_COLUMN])
     if not cells:
         others = ", ".join(f"{n} {t}" for t, n in skipped.items())
-        raise MeshError(f"{elem_path}: no solid (8-node) elements found"
-                        + (f"; only non-solid ones: {others}" if others else ""))
+        raise MeshError(
+            f"{elem_path}: no solid (8-node) elements found"
+            + (f"; only non-solid ones: {others}" if others else "")
+        )
 
-    mesh = MeshData(points=points, cell_type="hexahedron",
-                    cells=np.array(cells, dtype=np.int64), node_ids=node_ids,
-                    cell_ids=np.array(cell_ids, dtype=np.int64),
-                    cell_tags=np.array(tags, dtype=np.int32), source=str(elem_path),
-                    skipped_cells=skipped)
+    mesh = MeshData(
+        points=points,
+        cell_type="hexahedron",
+        cells=np.array(cells, dtype=np.int64),
+        node_ids=node_ids,
+        cell_ids=np.array(cell_ids, dtype=np.int64),
+        cell_tags=np.array(tags, dtype=np.int32),
+        source=str(elem_path),
+        skipped_cells=skipped,
+    )
     if not allow_degenerate:
         reject_degenerate(mesh)
     return mesh

@@ -15,16 +15,38 @@ from artifem.errors import MeshError
 from artifem.io.mesh_data import MeshData
 
 # VTK hexahedron vertex of each reference corner (a, b, c) in {0,1}^3.
-_HEX_VTK_AT = {(0, 0, 0): 0, (1, 0, 0): 1, (1, 1, 0): 2, (0, 1, 0): 3,
-               (0, 0, 1): 4, (1, 0, 1): 5, (1, 1, 1): 6, (0, 1, 1): 7}
+_HEX_VTK_AT = {
+    (0, 0, 0): 0,
+    (1, 0, 0): 1,
+    (1, 1, 0): 2,
+    (0, 1, 0): 3,
+    (0, 0, 1): 4,
+    (1, 0, 1): 5,
+    (1, 1, 1): 6,
+    (0, 1, 1): 7,
+}
 _HEX_FACES = [(0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
-_HEX_EDGES = {frozenset(e) for e in [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7),
-                                     (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]}
+_HEX_EDGES = {
+    frozenset(e)
+    for e in [
+        (0, 1),
+        (1, 2),
+        (2, 3),
+        (3, 0),
+        (4, 5),
+        (5, 6),
+        (6, 7),
+        (7, 4),
+        (0, 4),
+        (1, 5),
+        (2, 6),
+        (3, 7),
+    ]
+}
 
 #: Node permutation that reverses an element's orientation (VTK order):
 #: hexahedra swap bottom and top faces, tetrahedra swap nodes 1 and 2.
-REORIENT = {"hexahedron": np.array([4, 5, 6, 7, 0, 1, 2, 3]),
-            "tetrahedron": np.array([0, 2, 1, 3])}
+REORIENT = {"hexahedron": np.array([4, 5, 6, 7, 0, 1, 2, 3]), "tetrahedron": np.array([0, 2, 1, 3])}
 
 
 def _hex_corner_edges():
@@ -53,8 +75,7 @@ def corner_jacobians(points: np.ndarray, cell_type: str, cells: np.ndarray) -> n
     if cell_type == "hexahedron":
         e = _HEX_CORNER_EDGES
         cols = x[:, e[..., 1], :] - x[:, e[..., 0], :]  # (M, 8, 3 axes, 3)
-        return np.einsum("mcj,mcj->mc", cols[:, :, 0],
-                         np.cross(cols[:, :, 1], cols[:, :, 2]))
+        return np.einsum("mcj,mcj->mc", cols[:, :, 0], np.cross(cols[:, :, 1], cols[:, :, 2]))
     if cell_type == "tetrahedron":
         d = x[:, 1:, :] - x[:, :1, :]
         return np.einsum("mj,mj->m", d[:, 0], np.cross(d[:, 1], d[:, 2]))[:, None]
@@ -66,8 +87,9 @@ def element_jacobians(mesh: MeshData) -> np.ndarray:
     return corner_jacobians(mesh.points, mesh.cell_type, mesh.cells).min(axis=1)
 
 
-def classify_orientation(points: np.ndarray, cell_type: str,
-                         cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def classify_orientation(
+    points: np.ndarray, cell_type: str, cells: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Row indices of (inverted, tangled) elements.
 
     Inverted: det J < 0 at every corner (a reversed node ordering, fixable).
@@ -99,7 +121,8 @@ def check_orientation(mesh: MeshData, fix: bool = False) -> tuple[MeshData, np.n
         raise MeshError(
             f"{mesh.source}: {len(tangled)} {mesh.cell_type} element(s) with det J of "
             f"mixed sign or zero at their corners (tangled or degenerate, cannot be fixed "
-            f"by renumbering): ids {_ids(mesh, tangled)}")
+            f"by renumbering): ids {_ids(mesh, tangled)}"
+        )
     if fix and len(inverted):
         cells = mesh.cells.copy()
         cells[inverted] = cells[inverted][:, REORIENT[mesh.cell_type]]
@@ -132,13 +155,20 @@ def _hex_collapse(cell: np.ndarray) -> str:
     faces = [frozenset(f) for f in _HEX_FACES]
     distinct = len(groups)
     sizes = [len(g) for g in repeated]
-    if sizes == [2, 2] and all(g in _HEX_EDGES for g in repeated) \
-            and repeated[0] | repeated[1] in faces:
+    if (
+        sizes == [2, 2]
+        and all(g in _HEX_EDGES for g in repeated)
+        and repeated[0] | repeated[1] in faces
+    ):
         return "wedge (a face collapsed to an edge)"
     if sizes == [4] and repeated[0] in faces:
         return "pyramid (a face collapsed to a point)"
-    if sizes == [2, 4] and repeated[1] in faces and repeated[0] in _HEX_EDGES \
-            and not repeated[0] & repeated[1]:
+    if (
+        sizes == [2, 4]
+        and repeated[1] in faces
+        and repeated[0] in _HEX_EDGES
+        and not repeated[0] & repeated[1]
+    ):
         return "tetrahedron (a face collapsed to a point, the opposite face to a triangle)"
     return f"irregular collapse ({distinct} distinct nodes)"
 
@@ -152,7 +182,8 @@ def reject_degenerate(mesh: MeshData) -> None:
         raise MeshError(
             f"{mesh.source}: {len(found)} degenerate {mesh.cell_type} element(s) with "
             f"repeated node ids ({listing}{more}); a DOLFINx mesh holds one cell type, "
-            f"so split or remesh them")
+            f"so split or remesh them"
+        )
 
 
 # 2-point Gauss rule on [0, 1]: exact for the degree-2-per-variable det J of a trilinear map.
@@ -184,5 +215,6 @@ def element_volumes(points: np.ndarray, cell_type: str, cells: np.ndarray) -> np
 
 def volume(mesh: MeshData) -> float:
     """Total volume of all volume cells of the mesh (sum of |element volume|)."""
-    return float(sum(np.abs(element_volumes(mesh.points, t, c)).sum()
-                     for t, c in mesh.cells_by_type.items()))
+    return float(
+        sum(np.abs(element_volumes(mesh.points, t, c)).sum() for t, c in mesh.cells_by_type.items())
+    )

@@ -66,17 +66,21 @@ class MeshData:
         if self.cell_type not in VERTICES_PER_CELL:
             raise MeshError(
                 f"{self.source}: unsupported cell type {self.cell_type!r}; "
-                f"supported: {', '.join(VERTICES_PER_CELL)}")
+                f"supported: {', '.join(VERTICES_PER_CELL)}"
+            )
         if self.points.ndim != 2 or self.points.shape[1] != 3:
             raise MeshError(f"{self.source}: points must be (N, 3), got {self.points.shape}")
         k = VERTICES_PER_CELL[self.cell_type]
         if self.cells.ndim != 2 or self.cells.shape[1] != k:
             raise MeshError(
-                f"{self.source}: {self.cell_type} cells must be (M, {k}), got {self.cells.shape}")
+                f"{self.source}: {self.cell_type} cells must be (M, {k}), got {self.cells.shape}"
+            )
         m, n = len(self.cells), len(self.points)
-        for name, arr, size in (("node_ids", self.node_ids, n),
-                                ("cell_ids", self.cell_ids, m),
-                                ("cell_tags", self.cell_tags, m)):
+        for name, arr, size in (
+            ("node_ids", self.node_ids, n),
+            ("cell_ids", self.cell_ids, m),
+            ("cell_tags", self.cell_tags, m),
+        ):
             if arr.shape != (size,):
                 raise MeshError(f"{self.source}: {name} must have shape ({size},), got {arr.shape}")
         if m and (self.cells.min() < 0 or self.cells.max() >= n):

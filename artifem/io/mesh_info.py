@@ -10,8 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from artifem.io.mesh_checks import (classify_orientation, corner_jacobians,
-                                    degenerate_elements, volume)
+from artifem.io.mesh_checks import (
+    classify_orientation,
+    corner_jacobians,
+    degenerate_elements,
+    volume,
+)
 from artifem.errors import MeshError
 from artifem.io.mesh_data import MeshData
 from artifem.io.readers import read_mesh
@@ -25,10 +29,16 @@ def _blocks(mesh: MeshData) -> list[MeshData]:
     blocks = [mesh]
     for cell_type, cells in mesh.cells_by_type.items():
         if cell_type != mesh.cell_type:
-            blocks.append(replace(mesh, cell_type=cell_type, cells=cells,
-                                  cell_ids=np.arange(len(cells)),
-                                  cell_tags=np.zeros(len(cells), dtype=np.int32),
-                                  cells_by_type={cell_type: cells}))
+            blocks.append(
+                replace(
+                    mesh,
+                    cell_type=cell_type,
+                    cells=cells,
+                    cell_ids=np.arange(len(cells)),
+                    cell_tags=np.zeros(len(cells), dtype=np.int32),
+                    cells_by_type={cell_type: cells},
+                )
+            )
     return blocks
 
 
@@ -54,6 +64,7 @@ def describe(mesh: MeshData) -> dict:
     }
     min_det, min_ratio, inverted, tangled, degenerate = None, None, [], [], []
     for block in _blocks(mesh):
+
         def label(rows, block=block):
             ids = block.cell_ids[rows].tolist()
             return ids if block is mesh else [f"{block.cell_type} {i}" for i in ids]
@@ -70,8 +81,10 @@ def describe(mesh: MeshData) -> dict:
         inv, tan = classify_orientation(block.points, block.cell_type, block.cells)
         inverted += label(inv)
         tangled += label(tan)
-        degenerate += [{"element": label([row])[0], "collapses_to": what}
-                       for row, what in degenerate_elements(block)]
+        degenerate += [
+            {"element": label([row])[0], "collapses_to": what}
+            for row, what in degenerate_elements(block)
+        ]
     info["min_det_j"] = min_det
     info["min_det_j_ratio"] = min_ratio
     info["inverted"] = {"count": len(inverted), "elements": inverted[:_ID_LIST_LIMIT]}
@@ -98,12 +111,15 @@ def mesh_info(paths: list[str]) -> dict[str, dict]:
 
 def _format(path: str, info: dict) -> str:
     """Readable multi-line table of one describe() result."""
+
     def vec(v):
         return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
 
     def bad(entry):
-        shown = [f"{e['element']} -> {e['collapses_to']}" if isinstance(e, dict) else str(e)
-                 for e in entry["elements"]]
+        shown = [
+            f"{e['element']} -> {e['collapses_to']}" if isinstance(e, dict) else str(e)
+            for e in entry["elements"]
+        ]
         more = " ..." if entry["count"] > len(shown) else ""
         return f"{entry['count']}" + (f": {', '.join(shown)}{more}" if shown else "")
 
@@ -111,15 +127,20 @@ def _format(path: str, info: dict) -> str:
     rows = [
         ("nodes", f"{info['nodes']} ({info['unused_nodes']} not used by any element)"),
         ("elements", ", ".join(f"{n} {t}" for t, n in info["elements"].items())),
-        ("skipped cells", ", ".join(f"{n} {t}" for t, n in info["skipped_cells"].items())
-         or "none"),
+        (
+            "skipped cells",
+            ", ".join(f"{n} {t}" for t, n in info["skipped_cells"].items()) or "none",
+        ),
         ("cell tags", ", ".join(f"{t}: {n}" for t, n in info["cell_tags"].items())),
         ("volume", f"{info['volume']:.6g}"),
         ("bounding box", f"min {vec(box['min'])}  max {vec(box['max'])}"),
         ("box size", vec(box["size"])),
         ("min det J", f"{info['min_det_j']['value']:.4g} (element {info['min_det_j']['element']})"),
-        ("min det ratio", f"{info['min_det_j_ratio']['value']:.4g} "
-                          f"(element {info['min_det_j_ratio']['element']})"),
+        (
+            "min det ratio",
+            f"{info['min_det_j_ratio']['value']:.4g} "
+            f"(element {info['min_det_j_ratio']['element']})",
+        ),
         ("inverted", bad(info["inverted"])),
         ("tangled", bad(info["tangled"])),
         ("degenerate", bad(info["degenerate"])),
@@ -129,8 +150,12 @@ def _format(path: str, info: dict) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the `mesh info` arguments (paths, --json) to ``parser``."""
-    parser.add_argument("paths", nargs="+", metavar="PATH",
-                        help="mesh files (.node/.elem, .msh, .geo, .vtu, .inp, ...)")
+    parser.add_argument(
+        "paths",
+        nargs="+",
+        metavar="PATH",
+        help="mesh files (.node/.elem, .msh, .geo, .vtu, .inp, ...)",
+    )
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 

@@ -34,8 +34,9 @@ def supported_extensions() -> list[str]:
     return sorted(set(_ANSYS_SUFFIXES) | set(_GMSH_SUFFIXES) | set(meshio.extension_to_filetypes))
 
 
-def read_mesh(path: str | Path, allow_degenerate: bool = False,
-              gmsh_mesh_size: float | None = None) -> MeshData:
+def read_mesh(
+    path: str | Path, allow_degenerate: bool = False, gmsh_mesh_size: float | None = None
+) -> MeshData:
     """Read the volume mesh in ``path`` (format from its extension) into MeshData.
 
     Elements with repeated nodes raise MeshError unless ``allow_degenerate``;
@@ -44,15 +45,18 @@ def read_mesh(path: str | Path, allow_degenerate: bool = False,
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in _ANSYS_SUFFIXES:
-        mesh = read_ansys(path.with_suffix(".node"), path.with_suffix(".elem"),
-                          allow_degenerate=True)
+        mesh = read_ansys(
+            path.with_suffix(".node"), path.with_suffix(".elem"), allow_degenerate=True
+        )
     elif suffix == ".geo":
         mesh = _read_geo(require_file(path), gmsh_mesh_size)
     elif suffix in meshio.extension_to_filetypes:
         mesh = _read_meshio(require_file(path))
     else:
-        raise MeshError(f"{path}: unknown mesh file extension {suffix!r}; supported: "
-                        f"{', '.join(supported_extensions())}")
+        raise MeshError(
+            f"{path}: unknown mesh file extension {suffix!r}; supported: "
+            f"{', '.join(supported_extensions())}"
+        )
     if not allow_degenerate:
         reject_degenerate(mesh)
     return mesh
@@ -107,17 +111,29 @@ def _read_meshio(path: Path) -> MeshData:
             skipped[block.type] = skipped.get(block.type, 0) + len(block.data)
             continue
         blocks.setdefault(cell_type, []).append(np.asarray(block.data, dtype=np.int64))
-        block_tags = (np.asarray(m.cell_data[tag_key][i]).reshape(-1) if tag_key
-                      else np.zeros(len(block.data)))
+        block_tags = (
+            np.asarray(m.cell_data[tag_key][i]).reshape(-1)
+            if tag_key
+            else np.zeros(len(block.data))
+        )
         tags.setdefault(cell_type, []).append(block_tags.astype(np.int32))
     if not blocks:
-        raise MeshError(f"{path}: no hexahedra or tetrahedra found (cells in file: "
-                        f"{', '.join(f'{n} {t}' for t, n in skipped.items()) or 'none'})")
+        raise MeshError(
+            f"{path}: no hexahedra or tetrahedra found (cells in file: "
+            f"{', '.join(f'{n} {t}' for t, n in skipped.items()) or 'none'})"
+        )
 
     cells_by_type = {t: np.concatenate(b) for t, b in blocks.items()}
     primary = max(cells_by_type, key=lambda t: len(cells_by_type[t]))
     cells = cells_by_type[primary]
-    return MeshData(points=points, cell_type=primary, cells=cells,
-                    node_ids=np.arange(len(points)), cell_ids=np.arange(len(cells)),
-                    cell_tags=np.concatenate(tags[primary]), source=str(path),
-                    cells_by_type=cells_by_type, skipped_cells=skipped)
+    return MeshData(
+        points=points,
+        cell_type=primary,
+        cells=cells,
+        node_ids=np.arange(len(points)),
+        cell_ids=np.arange(len(cells)),
+        cell_tags=np.concatenate(tags[primary]),
+        source=str(path),
+        cells_by_type=cells_by_type,
+        skipped_cells=skipped,
+    )

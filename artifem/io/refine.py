@@ -32,14 +32,24 @@ from artifem.errors import MeshError
 from artifem.io.mesh_data import MeshData
 
 # VTK hexahedron corner at reference position (a, b, c) in {0, 1}^3, and back.
-_VTK_AT = {(0, 0, 0): 0, (1, 0, 0): 1, (1, 1, 0): 2, (0, 1, 0): 3,
-           (0, 0, 1): 4, (1, 0, 1): 5, (1, 1, 1): 6, (0, 1, 1): 7}
+_VTK_AT = {
+    (0, 0, 0): 0,
+    (1, 0, 0): 1,
+    (1, 1, 0): 2,
+    (0, 1, 0): 3,
+    (0, 0, 1): 4,
+    (1, 0, 1): 5,
+    (1, 1, 1): 6,
+    (0, 1, 1): 7,
+}
 _REF_OF = {v: k for k, v in _VTK_AT.items()}
 #: Local corner pairs of the 12 edges and quadruples of the 6 faces (VTK numbering).
-HEX_EDGES = np.array([(0, 1), (1, 2), (3, 2), (0, 3), (4, 5), (5, 6), (7, 6), (4, 7),
-                      (0, 4), (1, 5), (2, 6), (3, 7)])
-HEX_FACES = np.array([(0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5),
-                      (3, 2, 6, 7), (0, 3, 7, 4)])
+HEX_EDGES = np.array(
+    [(0, 1), (1, 2), (3, 2), (0, 3), (4, 5), (5, 6), (7, 6), (4, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
+)
+HEX_FACES = np.array(
+    [(0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (3, 2, 6, 7), (0, 3, 7, 4)]
+)
 
 
 def _lattice_table() -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +66,9 @@ def _lattice_table() -> tuple[np.ndarray, np.ndarray]:
         for j in range(3):
             for k in range(3):
                 choices = [(0, 1) if t == 1 else (t // 2,) for t in (i, j, k)]
-                corners = frozenset(_VTK_AT[(a, b, c)] for a in choices[0]
-                                    for b in choices[1] for c in choices[2])
+                corners = frozenset(
+                    _VTK_AT[(a, b, c)] for a in choices[0] for b in choices[1] for c in choices[2]
+                )
                 n_mid = (i == 1) + (j == 1) + (k == 1)
                 kind[i, j, k] = n_mid
                 if n_mid == 0:
@@ -109,19 +120,22 @@ class RefinedMesh:
 def refine_hexahedra(md: MeshData) -> RefinedMesh:
     """Split every hexahedron of ``md`` into 8 conforming children (module docstring)."""
     if md.cell_type != "hexahedron":
-        raise MeshError(f"{md.source}: refine_hexahedra needs a hexahedral mesh, "
-                        f"got {md.cell_type}")
+        raise MeshError(
+            f"{md.source}: refine_hexahedra needs a hexahedral mesh, got {md.cell_type}"
+        )
     if md.is_mixed:
         raise MeshError(f"{md.source}: cannot refine a mixed mesh ({', '.join(md.cells_by_type)})")
     cells = md.cells
     m, n = len(cells), len(md.points)
     repeated = np.flatnonzero(np.array([len(np.unique(c)) < 8 for c in cells], dtype=bool))
     if repeated.size:
-        raise MeshError(f"{md.source}: cannot refine hexahedra with repeated nodes (degenerate): "
-                        f"elements {md.cell_ids[repeated[:20]].tolist()}")
+        raise MeshError(
+            f"{md.source}: cannot refine hexahedra with repeated nodes (degenerate): "
+            f"elements {md.cell_ids[repeated[:20]].tolist()}"
+        )
 
-    edge_keys = np.sort(cells[:, HEX_EDGES], axis=2).reshape(-1, 2)          # (12M, 2)
-    face_keys = np.sort(cells[:, HEX_FACES], axis=2).reshape(-1, 4)          # (6M, 4)
+    edge_keys = np.sort(cells[:, HEX_EDGES], axis=2).reshape(-1, 2)  # (12M, 2)
+    face_keys = np.sort(cells[:, HEX_FACES], axis=2).reshape(-1, 4)  # (6M, 4)
     edge_parents, edge_of = np.unique(edge_keys, axis=0, return_inverse=True)
     face_parents, face_of = np.unique(face_keys, axis=0, return_inverse=True)
     edge_of = edge_of.reshape(m, 12)
@@ -129,10 +143,14 @@ def refine_hexahedra(md: MeshData) -> RefinedMesh:
     n_e, n_f = len(edge_parents), len(face_parents)
     centre_parents = np.sort(cells, axis=1)
 
-    points = np.concatenate([md.points,
-                             md.points[edge_parents].mean(axis=1),
-                             md.points[face_parents].mean(axis=1),
-                             md.points[cells].mean(axis=1)])
+    points = np.concatenate(
+        [
+            md.points,
+            md.points[edge_parents].mean(axis=1),
+            md.points[face_parents].mean(axis=1),
+            md.points[cells].mean(axis=1),
+        ]
+    )
 
     # Refined row of every lattice point of every cell: (M, 3, 3, 3).
     lattice = np.empty((m, 3, 3, 3), dtype=np.int64)
@@ -152,17 +170,30 @@ def refine_hexahedra(md: MeshData) -> RefinedMesh:
     new_cells = lattice[:, ch[..., 0], ch[..., 1], ch[..., 2]].reshape(8 * m, 8)
 
     first_new = int(md.node_ids.max()) + 1 if n else 1
-    node_ids = np.concatenate([md.node_ids,
-                               first_new + np.arange(len(points) - n, dtype=np.int64)])
-    mesh = MeshData(points=points, cell_type="hexahedron", cells=new_cells, node_ids=node_ids,
-                    cell_ids=np.arange(1, 8 * m + 1), cell_tags=np.repeat(md.cell_tags, 8),
-                    source=f"{md.source} (refined 2x2x2)" if md.source else "refined 2x2x2")
-    node_parents = ([row for row in edge_parents] + [row for row in face_parents]
-                    + [row for row in centre_parents])
-    return RefinedMesh(mesh=mesh, parent_cell=np.repeat(np.arange(m), 8),
-                       node_parents=node_parents, n_coarse_nodes=n,
-                       edge_parents=edge_parents, face_parents=face_parents,
-                       centre_parents=centre_parents)
+    node_ids = np.concatenate([md.node_ids, first_new + np.arange(len(points) - n, dtype=np.int64)])
+    mesh = MeshData(
+        points=points,
+        cell_type="hexahedron",
+        cells=new_cells,
+        node_ids=node_ids,
+        cell_ids=np.arange(1, 8 * m + 1),
+        cell_tags=np.repeat(md.cell_tags, 8),
+        source=f"{md.source} (refined 2x2x2)" if md.source else "refined 2x2x2",
+    )
+    node_parents = (
+        [row for row in edge_parents]
+        + [row for row in face_parents]
+        + [row for row in centre_parents]
+    )
+    return RefinedMesh(
+        mesh=mesh,
+        parent_cell=np.repeat(np.arange(m), 8),
+        node_parents=node_parents,
+        n_coarse_nodes=n,
+        edge_parents=edge_parents,
+        face_parents=face_parents,
+        centre_parents=centre_parents,
+    )
 
 
 def carry_node_set(refined: RefinedMesh, rows) -> np.ndarray:

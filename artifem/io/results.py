@@ -26,8 +26,12 @@ class ResultWriter:
     functions must share one element type (dolfinx checks and raises).
     """
 
-    def __init__(self, path: str | Path, functions: fem.Function | Sequence[fem.Function],
-                 engine: str = "BP4"):
+    def __init__(
+        self,
+        path: str | Path,
+        functions: fem.Function | Sequence[fem.Function],
+        engine: str = "BP4",
+    ):
         self.functions = [functions] if isinstance(functions, fem.Function) else list(functions)
         if not self.functions:
             raise InputError("ResultWriter needs at least one Function to write")
@@ -39,8 +43,7 @@ class ResultWriter:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self.comm.barrier()
         if self.use_vtx:
-            self._writer = dolfinx.io.VTXWriter(self.comm, self.path, self.functions,
-                                                engine=engine)
+            self._writer = dolfinx.io.VTXWriter(self.comm, self.path, self.functions, engine=engine)
         else:
             self._writer = dolfinx.io.XDMFFile(self.comm, self.path, "w")
             self._writer.write_mesh(msh)

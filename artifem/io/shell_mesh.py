@@ -19,12 +19,15 @@ from artifem.errors import InputError
 __all__ = ["spherical_shell_octant"]
 
 
-def spherical_shell_octant(inner: float, outer: float, n: int, layers: int,
-                           comm=MPI.COMM_SELF) -> dmesh.Mesh:
+def spherical_shell_octant(
+    inner: float, outer: float, n: int, layers: int, comm=MPI.COMM_SELF
+) -> dmesh.Mesh:
     """Q1 hexahedra of the octant shell inner <= |X| <= outer (module docstring)."""
     if not 0.0 < inner < outer or int(n) != n or n < 1 or int(layers) != layers or layers < 1:
-        raise InputError(f"spherical_shell_octant: need 0 < inner < outer and n, layers >= 1 "
-                         f"integers, got {inner}, {outer}, {n}, {layers}")
+        raise InputError(
+            f"spherical_shell_octant: need 0 < inner < outer and n, layers >= 1 "
+            f"integers, got {inner}, {outer}, {n}, {layers}"
+        )
     index, grid = {}, []
     for ijk in np.ndindex(n + 1, n + 1, n + 1):
         if max(ijk) == n:
@@ -49,7 +52,7 @@ def spherical_shell_octant(inner: float, outer: float, n: int, layers: int,
         for q in quads:
             c = [layer * len(grid) + k for k in q] + [(layer + 1) * len(grid) + k for k in q]
             if np.cross(x[c[1]] - x[c[0]], x[c[2]] - x[c[0]]) @ (x[c[4]] - x[c[0]]) < 0:
-                c = [c[0], c[2], c[1], c[3], c[4], c[6], c[5], c[7]]      # right-handed
+                c = [c[0], c[2], c[1], c[3], c[4], c[6], c[5], c[7]]  # right-handed
             cells.append(c)
     element = basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,))
     cells = np.array(cells, dtype=np.int64) if comm.rank == 0 else np.zeros((0, 8), np.int64)

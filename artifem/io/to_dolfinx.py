@@ -22,12 +22,15 @@ from artifem.errors import MeshError
 from artifem.io.mesh_data import MeshData
 
 #: Column permutation from VTK node order to DOLFINx/basix node order, per cell type.
-VTK_TO_DOLFINX = {"hexahedron": np.array([0, 1, 3, 2, 4, 5, 7, 6]),
-                  "tetrahedron": np.array([0, 1, 2, 3])}
+VTK_TO_DOLFINX = {
+    "hexahedron": np.array([0, 1, 3, 2, 4, 5, 7, 6]),
+    "tetrahedron": np.array([0, 1, 2, 3]),
+}
 
 
-def to_dolfinx(mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD,
-               reorient: bool = True) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags | None]:
+def to_dolfinx(
+    mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD, reorient: bool = True
+) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags | None]:
     """Build (DOLFINx mesh, cell MeshTags of ``mesh.cell_tags``) from MeshData.
 
     Degenerate, tangled, duplicated and mixed-type meshes are refused with MeshError
@@ -39,19 +42,25 @@ def to_dolfinx(mesh: MeshData, comm: MPI.Comm = MPI.COMM_WORLD,
     """
     if mesh.is_mixed:
         counts = ", ".join(f"{len(c)} {t}" for t, c in mesh.cells_by_type.items())
-        raise MeshError(f"{mesh.source}: mixed mesh ({counts}); DOLFINx conversion supports "
-                        f"a single cell type per mesh")
+        raise MeshError(
+            f"{mesh.source}: mixed mesh ({counts}); DOLFINx conversion supports "
+            f"a single cell type per mesh"
+        )
     if mesh.skipped_volume_cells:
         counts = ", ".join(f"{n} {t}" for t, n in mesh.skipped_volume_cells.items())
-        raise MeshError(f"{mesh.source}: has volume cells that are not linear hexahedra or "
-                        f"tetrahedra ({counts}); converting the rest would leave holes")
+        raise MeshError(
+            f"{mesh.source}: has volume cells that are not linear hexahedra or "
+            f"tetrahedra ({counts}); converting the rest would leave holes"
+        )
     reject_degenerate(mesh)
     fixed, inverted = check_orientation(mesh, fix=reorient)
     _reject_duplicate_cells(mesh)
     if len(inverted) and not reorient:
-        raise MeshError(f"{mesh.source}: {len(inverted)} inverted element(s) (negative det J "
-                        f"everywhere), ids {', '.join(map(str, inverted[:20]))}; "
-                        f"pass reorient=True to renumber them")
+        raise MeshError(
+            f"{mesh.source}: {len(inverted)} inverted element(s) (negative det J "
+            f"everywhere), ids {', '.join(map(str, inverted[:20]))}; "
+            f"pass reorient=True to renumber them"
+        )
 
     element = basix.ufl.element("Lagrange", mesh.cell_type, 1, shape=(3,))
     k = fixed.cells.shape[1]
@@ -71,10 +80,13 @@ def _reject_duplicate_cells(mesh: MeshData) -> None:
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     duplicates = np.flatnonzero(first[inverse.ravel()] != np.arange(len(keys)))
     if duplicates.size:
-        pairs = ", ".join(f"{mesh.element_label(d)} repeats {mesh.element_label(first[inverse.ravel()[d]])}"
-                          for d in duplicates[:10])
-        raise MeshError(f"{mesh.source}: {duplicates.size} element(s) on the same nodes as "
-                        f"another: {pairs}")
+        pairs = ", ".join(
+            f"{mesh.element_label(d)} repeats {mesh.element_label(first[inverse.ravel()[d]])}"
+            for d in duplicates[:10]
+        )
+        raise MeshError(
+            f"{mesh.source}: {duplicates.size} element(s) on the same nodes as another: {pairs}"
+        )
 
 
 def _cell_tags(msh: dolfinx.mesh.Mesh, input_tags: np.ndarray) -> dolfinx.mesh.MeshTags | None:

@@ -27,8 +27,16 @@ from artifem.multibody.rigid_body import RigidBody, orthonormalize, skew, skews
 from artifem.reduction.reduced_body import ReducedFemBody
 from artifem.reduction.rigid_lift import RigidLift
 
-__all__ = ["EmbeddedFemAttachment", "FemPoint", "FrameAttachment", "LiftAttachment",
-           "NodeAttachment", "RigidAttachment", "dof_positions", "pose_gap"]
+__all__ = [
+    "EmbeddedFemAttachment",
+    "FemPoint",
+    "FrameAttachment",
+    "LiftAttachment",
+    "NodeAttachment",
+    "RigidAttachment",
+    "dof_positions",
+    "pose_gap",
+]
 
 
 def dof_positions(fem: FemBody) -> np.ndarray:
@@ -70,12 +78,13 @@ class NodeAttachment:
             raise InputError(f"{what}: unknown nodes: {exc}") from None
         unique, counts = np.unique(nodes, return_counts=True)
         if np.any(counts > 1):
-            raise InputError(f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed "
-                             "more than once")
+            raise InputError(
+                f"{what}: nodes {unique[counts > 1][:10].tolist()} are listed more than once"
+            )
         self.fem, self.body, self.nodes = fem, body, nodes
-        self.dofs = fem.local_dofs(nodes).astype(np.int64)     # this rank's (owned, ghost)
+        self.dofs = fem.local_dofs(nodes).astype(np.int64)  # this rank's (owned, ghost)
         x = dof_positions(fem)[self.dofs]
-        self.offsets = (x - body.position) @ body.rotation        # r_i = R^T (x_i - p), rows
+        self.offsets = (x - body.position) @ body.rotation  # r_i = R^T (x_i - p), rows
 
     @property
     def bodies(self) -> tuple:
@@ -106,7 +115,7 @@ class NodeAttachment:
 
     def jacobian(self) -> np.ndarray:
         """G (3n x 6), rows [1, -[R r_i]x] per node: v = G u."""
-        n = len(self.offsets)                # the nodes on this rank
+        n = len(self.offsets)  # the nodes on this rank
         G = np.zeros((n, 3, 6))
         G[:, :, :3] = np.eye(3)
         G[:, :, 3:] = -skews(self.levers())
@@ -145,15 +154,20 @@ class RigidAttachment:
     def __init__(self, slave: RigidBody, master: RigidBody, *, name: str = ""):
         for b in (slave, master):
             if not isinstance(b, RigidBody):
-                raise TypeError(f"RigidAttachment: expected RigidBody objects, got "
-                                f"{type(b).__name__}")
+                raise TypeError(
+                    f"RigidAttachment: expected RigidBody objects, got {type(b).__name__}"
+                )
         self.name = name or f"{slave.name}->{master.name}"
         if slave is master:
-            raise InputError(f"rigid attachment {self.name!r}: a body cannot be attached to "
-                             "itself (an attachment cycle)")
+            raise InputError(
+                f"rigid attachment {self.name!r}: a body cannot be attached to "
+                "itself (an attachment cycle)"
+            )
         if slave.motion != "dynamic":
-            raise InputError(f"rigid attachment {self.name!r}: the slave {slave.name!r} is "
-                             f"{slave.motion}; only a dynamic body can follow another")
+            raise InputError(
+                f"rigid attachment {self.name!r}: the slave {slave.name!r} is "
+                f"{slave.motion}; only a dynamic body can follow another"
+            )
         self.slave, self.master = slave, master
         self.offset = master.rotation.T @ (slave.position - master.position)
         self.relative_rotation = master.rotation.T @ slave.rotation
@@ -205,11 +219,14 @@ class FrameAttachment:
             raise TypeError(f"FrameAttachment: expected a FemFrame, got {type(frame).__name__}")
         self.name = name or f"{slave.name}->{frame.body.name}"
         if slave.motion != "dynamic":
-            raise InputError(f"frame attachment {self.name!r}: the slave {slave.name!r} is "
-                             f"{slave.motion}; only a dynamic body can follow a frame")
+            raise InputError(
+                f"frame attachment {self.name!r}: the slave {slave.name!r} is "
+                f"{slave.motion}; only a dynamic body can follow a frame"
+            )
         if frame.full.mesh.comm.size != 1:
-            raise NotImplementedError(f"frame attachment {self.name!r}: coupled scenes run in "
-                                      "serial only for now")
+            raise NotImplementedError(
+                f"frame attachment {self.name!r}: coupled scenes run in serial only for now"
+            )
         self.slave, self.frame = slave, frame
         R_f = frame.rotation()
         self.offset = R_f.T @ (slave.position - frame.position())
@@ -232,8 +249,9 @@ class FrameAttachment:
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, R) the frame gives the body now."""
         R_f = self.frame.rotation()
-        return self.frame.position() + R_f @ self.offset, \
-            orthonormalize(R_f @ self.relative_rotation)
+        return self.frame.position() + R_f @ self.offset, orthonormalize(
+            R_f @ self.relative_rotation
+        )
 
     def _blocks(self):
         """[(rows, J_part)] on the FEM body's blocked dofs (origin, support), and d."""
@@ -292,28 +310,40 @@ class EmbeddedFemAttachment:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "embedded_attachments"
 
-    def __init__(self, slave: FemBody, master: FemBody | ReducedFemBody, *,
-                 snap: bool = False, name: str = ""):
+    def __init__(
+        self,
+        slave: FemBody,
+        master: FemBody | ReducedFemBody,
+        *,
+        snap: bool = False,
+        name: str = "",
+    ):
         if not isinstance(slave, FemBody):
-            raise TypeError(f"EmbeddedFemAttachment: expected a FemBody slave, got "
-                            f"{type(slave).__name__}")
+            raise TypeError(
+                f"EmbeddedFemAttachment: expected a FemBody slave, got {type(slave).__name__}"
+            )
         if not isinstance(master, (FemBody, ReducedFemBody)):
-            raise TypeError(f"EmbeddedFemAttachment: expected a FemBody or ReducedFemBody "
-                            f"master, got {type(master).__name__}")
+            raise TypeError(
+                f"EmbeddedFemAttachment: expected a FemBody or ReducedFemBody "
+                f"master, got {type(master).__name__}"
+            )
         self.name = name or f"{slave.name}->{master.name}"
         full = master.full if isinstance(master, ReducedFemBody) else master
         if slave is full:
-            raise InputError(f"embedded attachment {self.name!r}: a body cannot be embedded "
-                             "in itself (an attachment cycle)")
+            raise InputError(
+                f"embedded attachment {self.name!r}: a body cannot be embedded "
+                "in itself (an attachment cycle)"
+            )
         for b in (slave, full):
             if b.mesh.comm.size != 1:
-                raise NotImplementedError(f"embedded attachment {self.name!r}: coupled scenes "
-                                          "run in serial only for now")
+                raise NotImplementedError(
+                    f"embedded attachment {self.name!r}: coupled scenes run in serial only for now"
+                )
         self.slave, self.master, self.snap = slave, master, snap
         rest = slave.V.tabulate_dof_coordinates()
         self._rest = rest.ravel()
         self.embedded = EmbeddedMesh(master, rest, snap=snap, name=self.name)
-        self.W = self.embedded.G.tocsr()        # on the full master's blocked dofs
+        self.W = self.embedded.G.tocsr()  # on the full master's blocked dofs
         self.distance = self.embedded.distance
         self.offset = dof_positions(slave).ravel() - self.embedded.positions().ravel()
 
@@ -329,8 +359,10 @@ class EmbeddedFemAttachment:
         """Why this attachment cannot follow ``body`` onto a reduced body (a reductor asks
         before any training), else None: only its master can be reduced."""
         if body is self.slave:
-            return (f"embedded attachment {self.name!r} embeds {body.name!r} in "
-                    f"{self.master.name!r}: its slave cannot be reduced (only its master)")
+            return (
+                f"embedded attachment {self.name!r} embeds {body.name!r} in "
+                f"{self.master.name!r}: its slave cannot be reduced (only its master)"
+            )
         return None
 
     def onto_reduced(self, reduced: ReducedFemBody, lift=None) -> EmbeddedFemAttachment:
@@ -341,8 +373,10 @@ class EmbeddedFemAttachment:
         if reason is not None:
             raise InputError(reason)
         if reduced.full is not self.master:
-            raise InputError(f"embedded attachment {self.name!r}: {reduced.name!r} is not a "
-                             f"reduced body of its master {self.master.name!r}")
+            raise InputError(
+                f"embedded attachment {self.name!r}: {reduced.name!r} is not a "
+                f"reduced body of its master {self.master.name!r}"
+            )
         return EmbeddedFemAttachment(self.slave, reduced, snap=self.snap, name=self.name)
 
     def jacobian(self):
@@ -380,11 +414,13 @@ class LiftAttachment:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "lift_attachments"
 
-    def __init__(self, reduced: ReducedFemBody, lift: RigidLift, body: RigidBody, *,
-                 name: str = ""):
+    def __init__(
+        self, reduced: ReducedFemBody, lift: RigidLift, body: RigidBody, *, name: str = ""
+    ):
         if not isinstance(reduced, ReducedFemBody):
-            raise TypeError(f"LiftAttachment: expected a ReducedFemBody, got "
-                            f"{type(reduced).__name__}")
+            raise TypeError(
+                f"LiftAttachment: expected a ReducedFemBody, got {type(reduced).__name__}"
+            )
         if not isinstance(lift, RigidLift):
             raise TypeError(f"LiftAttachment: expected a RigidLift, got {type(lift).__name__}")
         if not isinstance(body, RigidBody):
@@ -395,18 +431,22 @@ class LiftAttachment:
         if U.shape[0] != L.shape[0]:
             raise InputError(f"{what}: the lift has {L.shape[0]} rows, the basis {U.shape[0]}")
         scale = float(np.abs(L).max())
-        match = [k for k in range(U.shape[1] - 11)
-                 if np.abs(U[:, k:k + 12] - L).max() <= 1e-12 * scale]
+        match = [
+            k for k in range(U.shape[1] - 11) if np.abs(U[:, k : k + 12] - L).max() <= 1e-12 * scale
+        ]
         if not match:
-            raise InputError(f"{what}: the basis of {reduced.name!r} does not contain the "
-                             "lift's 12 columns")
+            raise InputError(
+                f"{what}: the basis of {reduced.name!r} does not contain the lift's 12 columns"
+            )
         self.first = match[0]
         rows = (3 * lift.dofs[:, None] + np.arange(3)).ravel()
-        others = np.delete(U[rows], np.s_[self.first:self.first + 12], axis=1)
+        others = np.delete(U[rows], np.s_[self.first : self.first + 12], axis=1)
         if others.size and np.abs(others).max() > 1e-9 * max(1.0, float(np.abs(U).max())):
-            raise InputError(f"{what}: basis columns other than the lift move the carried "
-                             f"nodes (up to {np.abs(others).max():.3g}); they would not "
-                             "follow the body")
+            raise InputError(
+                f"{what}: basis columns other than the lift move the carried "
+                f"nodes (up to {np.abs(others).max():.3g}); they would not "
+                "follow the body"
+            )
         self.reduced, self.lift, self.body = reduced, lift, body
         self.columns = np.arange(self.first, self.first + 12)
         self._rest = reduced.full.V.tabulate_dof_coordinates()[lift.dofs]
@@ -442,11 +482,11 @@ class FemPoint:
     x_a' = G q' with G = sum_j w_j U_j (3 x r), the paper's reduced point attachment.
     """
 
-    def __init__(self, fem: FemBody | ReducedFemBody, weights: FemPointWeights, *,
-                 name: str = ""):
+    def __init__(self, fem: FemBody | ReducedFemBody, weights: FemPointWeights, *, name: str = ""):
         if not isinstance(fem, (FemBody, ReducedFemBody)):
-            raise TypeError(f"FemPoint: expected a FemBody or ReducedFemBody, got "
-                            f"{type(fem).__name__}")
+            raise TypeError(
+                f"FemPoint: expected a FemBody or ReducedFemBody, got {type(fem).__name__}"
+            )
         if not isinstance(weights, FemPointWeights):
             raise TypeError(f"FemPoint: expected FemPointWeights, got {type(weights).__name__}")
         full = fem.full if isinstance(fem, ReducedFemBody) else fem
@@ -483,5 +523,6 @@ def pose_gap(att) -> float:
     """max |p - p_s|, |R - R_s| between the pose an attachment gives its slave body and the
     body's own pose (m and rad-like; round-off when in place)."""
     p, R = att.pose()
-    return max(float(np.abs(p - att.slave.position).max()),
-               float(np.abs(R - att.slave.rotation).max()))
+    return max(
+        float(np.abs(p - att.slave.position).max()), float(np.abs(R - att.slave.rotation).max())
+    )

@@ -132,12 +132,15 @@ class RowBlock:
         if self.keys is not None and len(self.keys) != m:
             raise InputError(f"{what}: {len(self.keys)} row keys for {m} rows")
         if self.friction is not None and (
-                self.friction.normal.shape != (m,) or self.friction.mu.shape != (m,)
-                or np.any(self.friction.normal >= m)
-                or np.any(self.friction.rows[np.maximum(self.friction.normal, 0)]
-                          & self.friction.rows)):
-            raise InputError(f"{what}: friction needs {m} normal indices and coefficients, "
-                             "each friction row's normal a row of the block that is not one")
+            self.friction.normal.shape != (m,)
+            or self.friction.mu.shape != (m,)
+            or np.any(self.friction.normal >= m)
+            or np.any(self.friction.rows[np.maximum(self.friction.normal, 0)] & self.friction.rows)
+        ):
+            raise InputError(
+                f"{what}: friction needs {m} normal indices and coefficients, "
+                "each friction row's normal a row of the block that is not one"
+            )
         if self.compliance is not None:
             C = np.asarray(self.compliance, dtype=float)
             if C.shape != (m,) or not np.all(np.isfinite(C)) or np.any(C < 0):
@@ -149,15 +152,27 @@ class RowBlock:
     def bilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:
         """Equality rows phi = 0, lambda free."""
         m = len(phi)
-        return cls(owner, np.asarray(phi, dtype=float), tuple(jacobians),
-                   np.full(m, -np.inf), np.full(m, np.inf), stiffness)
+        return cls(
+            owner,
+            np.asarray(phi, dtype=float),
+            tuple(jacobians),
+            np.full(m, -np.inf),
+            np.full(m, np.inf),
+            stiffness,
+        )
 
     @classmethod
     def unilateral(cls, owner, phi, jacobians, stiffness) -> RowBlock:
         """Inequality rows phi >= 0, lambda >= 0 (limits, contact normals)."""
         m = len(phi)
-        return cls(owner, np.asarray(phi, dtype=float), tuple(jacobians),
-                   np.zeros(m), np.full(m, np.inf), stiffness)
+        return cls(
+            owner,
+            np.asarray(phi, dtype=float),
+            tuple(jacobians),
+            np.zeros(m),
+            np.full(m, np.inf),
+            stiffness,
+        )
 
     def __len__(self) -> int:
         return self.phi.shape[0]
@@ -183,8 +198,9 @@ class RowBlock:
     def gap(self) -> np.ndarray:
         """The part of phi the rows forbid: phi on free rows, min(phi, 0) on bounded ones,
         0 on compliant ones (their penetration is the law's)."""
-        return np.where(self.bounded, np.where(self.compliant, 0.0, np.minimum(self.phi, 0.0)),
-                        self.phi)
+        return np.where(
+            self.bounded, np.where(self.compliant, 0.0, np.minimum(self.phi, 0.0)), self.phi
+        )
 
 
 def _check_bounds(lo: np.ndarray, hi: np.ndarray, m: int, what: str) -> None:

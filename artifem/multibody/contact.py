@@ -87,8 +87,9 @@ def check_options(what: str, mu: float, tolerance: float, margin: float) -> None
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"{what}: tolerance must be > 0, got {tolerance!r}")
     if not (np.isfinite(margin) and margin > tolerance):
-        raise InputError(f"{what}: margin must be finite and > tolerance ({tolerance:g}), "
-                         f"got {margin!r}")
+        raise InputError(
+            f"{what}: margin must be finite and > tolerance ({tolerance:g}), got {margin!r}"
+        )
 
 
 class PlaneContact:
@@ -115,23 +116,36 @@ class PlaneContact:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "contacts"
 
-    def __init__(self, body, point, normal, *, mu: float = 0.0, points=None,
-                 tolerance: float = 1e-5, margin: float = 1e-2, name: str = "",
-                 foundation=None):
+    def __init__(
+        self,
+        body,
+        point,
+        normal,
+        *,
+        mu: float = 0.0,
+        points=None,
+        tolerance: float = 1e-5,
+        margin: float = 1e-2,
+        name: str = "",
+        foundation=None,
+    ):
         self.name = name or f"contact of {getattr(body, 'name', body)!r}"
         what = f"contact {self.name!r}"
         n = np.asarray(normal, dtype=float)
         norm = np.linalg.norm(n) if n.shape == (3,) and np.all(np.isfinite(n)) else 0.0
         if not norm > 0:
-            raise InputError(f"{what}: the plane normal must be a non-zero finite 3-vector, "
-                             f"got {normal!r}")
+            raise InputError(
+                f"{what}: the plane normal must be a non-zero finite 3-vector, got {normal!r}"
+            )
         p0 = np.asarray(point, dtype=float)
         if p0.shape != (3,) or not np.all(np.isfinite(p0)):
             raise InputError(f"{what}: the plane point must be 3 finite numbers, got {point!r}")
         check_options(what, mu, tolerance, margin)
         if not callable(getattr(body, "contact_points", None)):
-            raise InputError(f"{what}: {type(body).__name__} {getattr(body, 'name', '')!r} "
-                             "has no contact points (rigid, full and reduced FEM bodies do)")
+            raise InputError(
+                f"{what}: {type(body).__name__} {getattr(body, 'name', '')!r} "
+                "has no contact points (rigid, full and reduced FEM bodies do)"
+            )
         self._points = body.contact_points(points)
         self.body, self._given = body, points
         basis = axis_rotation(n)
@@ -139,7 +153,7 @@ class PlaneContact:
         self.offset = float(self.normal @ p0)
         self.mu, self.tolerance, self.margin = float(mu), float(tolerance), float(margin)
         self.foundation = None if foundation is None else foundation.checked(what)
-        if self.foundation is not None:        # the points know their areas
+        if self.foundation is not None:  # the points know their areas
             self._points.facing_areas(np.zeros(0, dtype=int), np.zeros((0, 3)))
 
     @property
@@ -150,9 +164,17 @@ class PlaneContact:
     def onto_reduced(self, reduced, lift=None) -> PlaneContact:
         """The same contact on the reduced body that replaces this one's (the reductor:
         :mod:`artifem.reduction.reductor`), on the same nodes."""
-        return PlaneContact(reduced, self.offset * self.normal, self.normal, mu=self.mu,
-                            points=self._given, tolerance=self.tolerance, margin=self.margin,
-                            name=self.name, foundation=self.foundation)
+        return PlaneContact(
+            reduced,
+            self.offset * self.normal,
+            self.normal,
+            mu=self.mu,
+            points=self._given,
+            tolerance=self.tolerance,
+            margin=self.margin,
+            name=self.name,
+            foundation=self.foundation,
+        )
 
     @property
     def labels(self) -> np.ndarray:
@@ -172,9 +194,10 @@ class PlaneContact:
         k = near.size
         if not k:
             return []
-        directions = np.vstack([np.tile(self.normal, (k, 1))]
-                               + ([np.repeat(t[None], k, axis=0) for t in self.tangents]
-                                  if self.mu > 0 else []))
+        directions = np.vstack(
+            [np.tile(self.normal, (k, 1))]
+            + ([np.repeat(t[None], k, axis=0) for t in self.tangents] if self.mu > 0 else [])
+        )
         idx = np.tile(near, len(directions) // k)
         m = len(idx)
         lo = np.zeros(m)
@@ -182,13 +205,20 @@ class PlaneContact:
         hi[:k] = np.inf
         W = sparse.csr_matrix((np.ones(m), (np.arange(m), idx)), shape=(m, len(self._points)))
         G = self._points.rows(W, directions)
-        return [PlaneContactRows(
-            self, np.concatenate([phi[near], np.zeros(m - k)]), ((self._points.body, G),), lo,
-            hi,
-            lambda lam: self._points.stiffness(W, lam[:, None] * directions),
-            Friction.tangents(k, self.mu) if self.mu > 0 else None,
-            np.column_stack([idx, np.repeat(np.arange(m // k), k)]), points=near,
-            compliance=self._compliance(near, m))]
+        return [
+            PlaneContactRows(
+                self,
+                np.concatenate([phi[near], np.zeros(m - k)]),
+                ((self._points.body, G),),
+                lo,
+                hi,
+                lambda lam: self._points.stiffness(W, lam[:, None] * directions),
+                Friction.tangents(k, self.mu) if self.mu > 0 else None,
+                np.column_stack([idx, np.repeat(np.arange(m // k), k)]),
+                points=near,
+                compliance=self._compliance(near, m),
+            )
+        ]
 
     def _compliance(self, near: np.ndarray, m: int):
         """The normal rows' compliance of the foundation (friction rows hard), or None."""
@@ -201,8 +231,11 @@ class PlaneContact:
     def allowed_depth(self) -> float:
         """The penetration a step may end with: ``tolerance``, or with a foundation
         max(tolerance, its thickness)."""
-        return self.tolerance if self.foundation is None else \
-            max(self.tolerance, self.foundation.thickness)
+        return (
+            self.tolerance
+            if self.foundation is None
+            else max(self.tolerance, self.foundation.thickness)
+        )
 
     def hold_pairs(self, hold: bool) -> None:
         """Nothing to hold: every point meets the one plane (the constraint protocol)."""
@@ -214,22 +247,26 @@ class PlaneContact:
         if not deep.size:
             return None
         i = int(deep[0])
-        return (f"contact {self.name!r}: {self._points.describe(i)} of {self.body.name!r} is "
-                f"{-phi[i]:.3g} below the plane ({deep.size} points deeper than the tolerance "
-                f"{self.allowed_depth:g}, the deepest {-phi.min():.3g}; a point that comes from "
-                f"beyond the margin {self.margin:g} within one step has no row: the margin "
-                "should be at least the largest approach speed times the step)")
+        return (
+            f"contact {self.name!r}: {self._points.describe(i)} of {self.body.name!r} is "
+            f"{-phi[i]:.3g} below the plane ({deep.size} points deeper than the tolerance "
+            f"{self.allowed_depth:g}, the deepest {-phi.min():.3g}; a point that comes from "
+            f"beyond the margin {self.margin:g} within one step has no row: the margin "
+            "should be at least the largest approach speed times the step)"
+        )
 
     def forces(self, parts: list, h: float) -> ContactForces:
         """The forces of the impulses ``parts`` [(block, lambda)] of a step of size h."""
         if not parts:
             return ContactForces(np.zeros(0, dtype=int), np.zeros(0), np.zeros((0, 3)))
-        (block, lam), = parts
+        ((block, lam),) = parts
         k = len(block.points)
         friction = np.zeros((k, 3))
         if self.mu > 0:
-            friction = (np.outer(lam[k:2 * k], self.tangents[0])
-                        + np.outer(lam[2 * k:], self.tangents[1])) / h
+            friction = (
+                np.outer(lam[k : 2 * k], self.tangents[0])
+                + np.outer(lam[2 * k :], self.tangents[1])
+            ) / h
         return ContactForces(self.labels[block.points], lam[:k] / h, friction)
 
     def normal_forces(self, parts: list, h: float) -> list:
@@ -238,5 +275,5 @@ class PlaneContact:
         (:func:`~artifem.multibody.contact_pressure.contact_pressure`)."""
         f = np.zeros(len(self._points))
         for block, lam in parts:
-            f[block.points] += lam[:len(block.points)] / h
+            f[block.points] += lam[: len(block.points)] / h
         return [(self._points, f)]

@@ -40,8 +40,9 @@ class ContactPressure(NamedTuple):
     nodal: np.ndarray
 
 
-def boundary_areas(body: FemBody, *, quadrature_degree: int = 2,
-                   configuration: str = "reference") -> np.ndarray:
+def boundary_areas(
+    body: FemBody, *, quadrature_degree: int = 2, configuration: str = "reference"
+) -> np.ndarray:
     """A_i = int over the exterior facets of N_i dA, at every local node (owned and ghost),
     indexed by the body's block dofs (equal to a scalar P1 space's dofs on its mesh).
 
@@ -49,13 +50,16 @@ def boundary_areas(body: FemBody, *, quadrature_degree: int = 2,
     displacement u). ``quadrature_degree``: of the facet integral (2 integrates the
     reference one exactly; the current one's J |F^-T N| is piecewise constant on P1)."""
     if configuration not in ("reference", "current"):
-        raise InputError(f"boundary_areas: configuration must be 'reference' or 'current', "
-                         f"got {configuration!r}")
+        raise InputError(
+            f"boundary_areas: configuration must be 'reference' or 'current', got {configuration!r}"
+        )
     domain = body.mesh
     S = fem.functionspace(domain, ("Lagrange", 1))
     if not np.array_equal(S.dofmap.list, body.V.dofmap.list):
-        raise InputError(f"FemBody {body.name!r}: its scalar P1 dofs differ from its block "
-                         "dofs; the nodal areas cannot be indexed by node")
+        raise InputError(
+            f"FemBody {body.name!r}: its scalar P1 dofs differ from its block "
+            "dofs; the nodal areas cannot be indexed by node"
+        )
     v = ufl.TestFunction(S)
     ds = ufl.Measure("ds", domain=domain, metadata={"quadrature_degree": quadrature_degree})
     if configuration == "reference":
@@ -71,9 +75,14 @@ def boundary_areas(body: FemBody, *, quadrature_degree: int = 2,
     return b.array.copy()
 
 
-def contact_pressure(points, normal_force: np.ndarray, *, quadrature_degree: int = 2,
-                     configuration: str = "reference",
-                     areas: np.ndarray | None = None) -> ContactPressure:
+def contact_pressure(
+    points,
+    normal_force: np.ndarray,
+    *,
+    quadrature_degree: int = 2,
+    configuration: str = "reference",
+    areas: np.ndarray | None = None,
+) -> ContactPressure:
     """p_j = f_n,j / A_j at a contact's point set on an FEM body (module docstring):
     ``points`` a point set of :mod:`artifem.contact_points` whose ``mesh_body`` is the FEM
     body (a reduced body's full body), ``normal_force`` (len(points),) its normal forces,
@@ -81,17 +90,21 @@ def contact_pressure(points, normal_force: np.ndarray, *, quadrature_degree: int
     A_j: :func:`boundary_areas`, or ``areas``, its result computed before)."""
     body = getattr(points, "mesh_body", None)
     if body is None:
-        raise InputError(f"a contact pressure is for FEM bodies' nodes; these points have no "
-                         f"FEM mesh ({type(points).__name__})")
+        raise InputError(
+            f"a contact pressure is for FEM bodies' nodes; these points have no "
+            f"FEM mesh ({type(points).__name__})"
+        )
     if areas is None:
-        areas = boundary_areas(body, quadrature_degree=quadrature_degree,
-                               configuration=configuration)
+        areas = boundary_areas(
+            body, quadrature_degree=quadrature_degree, configuration=configuration
+        )
     dofs = np.asarray(points.dofs)
     area = areas[dofs]
     if np.any(area <= 0):
         bad = np.asarray(points.labels)[area <= 0][:10].tolist()
-        raise InputError(f"FemBody {body.name!r}: nodes {bad} have no boundary area (not on "
-                         "an exterior facet)")
+        raise InputError(
+            f"FemBody {body.name!r}: nodes {bad} have no boundary area (not on an exterior facet)"
+        )
     pressure = np.asarray(normal_force, dtype=float) / area
     nodal = np.zeros(areas.shape)
     nodal[dofs] = pressure

@@ -32,8 +32,9 @@ import numpy as np
 __all__ = ["distance_hessians"]
 
 
-def distance_hessians(X: np.ndarray, w: np.ndarray, C: np.ndarray, spans: np.ndarray,
-                      e: np.ndarray, s: np.ndarray) -> np.ndarray:
+def distance_hessians(
+    X: np.ndarray, w: np.ndarray, C: np.ndarray, spans: np.ndarray, e: np.ndarray, s: np.ndarray
+) -> np.ndarray:
     """(k, 12, 12) the Hessians d^2 s / dX^2 of k pairs (module docstring) over their
     points' coordinates (point j's x, y, z at 3 j .. 3 j + 2).
 
@@ -47,26 +48,26 @@ def distance_hessians(X: np.ndarray, w: np.ndarray, C: np.ndarray, spans: np.nda
     k = len(s)
     if not k:
         return np.zeros((0, 12, 12))
-    on = np.arange(2)[None, :] < spans[:, None]                       # (k, 2)
+    on = np.arange(2)[None, :] < spans[:, None]  # (k, 2)
     C = np.where(on[:, :, None], C, 0.0)
-    Z = np.einsum("kij,kja->kai", C, X)                                # (k, 3, 2)
+    Z = np.einsum("kij,kja->kai", C, X)  # (k, 3, 2)
     T = np.einsum("kai,kaj->kij", Z, Z) + np.where(on, 0.0, 1.0)[:, :, None] * np.eye(2)
     Tinv = np.linalg.inv(T)
     eye = np.eye(3)
     # d_delta = D dX (k, 3, 12): w_j on point j's own coordinate; dZ^T e = ZE dX (k, 2, 12)
     D = np.einsum("kj,ab->kajb", w, eye).reshape(k, 3, 12)
     ZE = np.einsum("kij,kb->kijb", C, e).reshape(k, 2, 12)
-    dgamma = -np.einsum("kij,kjn->kin", Tinv, s[:, None, None] * ZE
-                        + np.einsum("kai,kan->kin", Z, D))
+    dgamma = -np.einsum(
+        "kij,kjn->kin", Tinv, s[:, None, None] * ZE + np.einsum("kai,kan->kin", Z, D)
+    )
     ZT = np.einsum("kai,kij->kaj", Z, Tinv)
     de = -np.einsum("kai,kin->kan", ZT, ZE)
-    curved = spans < 2                  # P_perp is zero when the spans and e fill space
+    curved = spans < 2  # P_perp is zero when the spans and e fill space
     if np.any(curved):
         c = np.flatnonzero(curved)
-        P = eye - np.einsum("ka,kb->kab", e[c], e[c]) \
-            - np.einsum("kai,kbi->kab", ZT[c], Z[c])
+        P = eye - np.einsum("ka,kb->kab", e[c], e[c]) - np.einsum("kai,kbi->kab", ZT[c], Z[c])
         de[c] += np.einsum("kab,kbn->kan", P, D[c]) / s[c, None, None]
-    dw = np.einsum("kij,kin->kjn", C, dgamma)                         # (k, 4, 12)
+    dw = np.einsum("kij,kin->kjn", C, dgamma)  # (k, 4, 12)
     H = np.einsum("ka,kjn->kjan", e, dw) + np.einsum("kj,kan->kjan", w, de)
     H = H.reshape(k, 12, 12)
     return 0.5 * (H + H.transpose(0, 2, 1))

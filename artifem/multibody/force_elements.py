@@ -44,8 +44,9 @@ class ForceElement(Protocol):
     def wrenches(self, t: float) -> Iterable[tuple[RigidBody, np.ndarray]]: ...
 
 
-def point_force_wrenches(frames: Sequence[Frame], forces, stiffness=None, damping=None
-                         ) -> tuple[list[tuple[RigidBody, np.ndarray]], list[JacobianBlock]]:
+def point_force_wrenches(
+    frames: Sequence[Frame], forces, stiffness=None, damping=None
+) -> tuple[list[tuple[RigidBody, np.ndarray]], list[JacobianBlock]]:
     """Map forces on points carried by frames to body wrenches and ForceElement Jacobians.
 
     Point i is the origin x_i of ``frames[i]`` (on body b_i; world frames carry
@@ -70,6 +71,7 @@ def point_force_wrenches(frames: Sequence[Frame], forces, stiffness=None, dampin
 
     def block(bi, bj):
         return blocks.setdefault((id(bi), id(bj)), [bi, bj, np.zeros((6, 6)), np.zeros((6, 6))])
+
     for frame, f in zip(frames, forces):
         if frame.body is not None:
             block(frame.body, frame.body)[2] += frame.wrench_stiffness(f)
@@ -82,9 +84,9 @@ def point_force_wrenches(frames: Sequence[Frame], forces, stiffness=None, dampin
             entry = block(fi.body, fj.body)
             Gi, Gj = fi.jacobian(), fj.jacobian()
             if K is not None:
-                entry[2] += Gi.T @ K[3 * i:3 * i + 3, 3 * j:3 * j + 3] @ Gj
+                entry[2] += Gi.T @ K[3 * i : 3 * i + 3, 3 * j : 3 * j + 3] @ Gj
             if D is not None:
-                Dij = D[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+                Dij = D[3 * i : 3 * i + 3, 3 * j : 3 * j + 3]
                 entry[3] += Gi.T @ Dij @ Gj
                 entry[2][:, 3:] -= Gi.T @ Dij @ skew(fj.body.angular_velocity) @ skew(fj.lever())
     return ([tuple(w) for w in wrenches.values()], [tuple(b) for b in blocks.values()])

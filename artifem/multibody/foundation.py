@@ -51,14 +51,17 @@ class ElasticFoundation:
         """Itself, or an InputError naming ``what`` (the contact) for a bad parameter."""
         E, nu, t = self.young, self.poisson, self.thickness
         if not (isinstance(E, Real) and np.isfinite(E) and E > 0):
-            raise InputError(f"{what}: the foundation's Young's modulus must be finite and "
-                             f"> 0, got {E!r}")
+            raise InputError(
+                f"{what}: the foundation's Young's modulus must be finite and > 0, got {E!r}"
+            )
         if not (isinstance(nu, Real) and -1.0 < nu < 0.5):
-            raise InputError(f"{what}: the foundation's Poisson's ratio must be in (-1, 0.5), "
-                             f"got {nu!r}")
+            raise InputError(
+                f"{what}: the foundation's Poisson's ratio must be in (-1, 0.5), got {nu!r}"
+            )
         if not (isinstance(t, Real) and np.isfinite(t) and t > 0):
-            raise InputError(f"{what}: the foundation's thickness must be finite and > 0, "
-                             f"got {t!r}")
+            raise InputError(
+                f"{what}: the foundation's thickness must be finite and > 0, got {t!r}"
+            )
         return self
 
     @property

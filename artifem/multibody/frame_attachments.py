@@ -74,9 +74,11 @@ def polar_rotation(A: np.ndarray, planar: bool = False) -> tuple[np.ndarray, np.
     R = U diag(1, 1, det U V^T) V^T, and only a collapse to rank 1 is an error.
     """
     if collapsed(A, planar):
-        raise InputError(f"polar_rotation: singular values {np.linalg.svd(A, compute_uv=False)}"
-                         f", det A = {np.linalg.det(A):.3g}: the support collapsed or "
-                         f"inverted; the frame's rotation is undefined")
+        raise InputError(
+            f"polar_rotation: singular values {np.linalg.svd(A, compute_uv=False)}"
+            f", det A = {np.linalg.det(A):.3g}: the support collapsed or "
+            f"inverted; the frame's rotation is undefined"
+        )
     U, s, Vt = np.linalg.svd(A)
     if planar:
         U[:, 2] *= np.linalg.det(U @ Vt)
@@ -102,17 +104,31 @@ class FemFrame:
             element's shape functions).
     """
 
-    def __init__(self, body, point=None, *, method: str = "polar", support=None,
-                 support_weights=None, snap: bool = False):
+    def __init__(
+        self,
+        body,
+        point=None,
+        *,
+        method: str = "polar",
+        support=None,
+        support_weights=None,
+        snap: bool = False,
+    ):
         if method not in ("polar", "procrustes"):
             raise InputError(f"FemFrame: method must be 'polar' or 'procrustes', got {method!r}")
         full = getattr(body, "full", body)
         if not isinstance(full, FemBody):
-            raise TypeError(f"FemFrame: expected a FemBody or ReducedFemBody, got "
-                            f"{type(body).__name__}")
+            raise TypeError(
+                f"FemFrame: expected a FemBody or ReducedFemBody, got {type(body).__name__}"
+            )
         self.body, self.full, self.method = body, full, method
-        self._spec = {"point": point, "method": method, "support": support,
-                      "support_weights": support_weights, "snap": snap}
+        self._spec = {
+            "point": point,
+            "method": method,
+            "support": support,
+            "support_weights": support_weights,
+            "snap": snap,
+        }
         self.planar = False
         self.reduced = full is not body
         x = full.V.tabulate_dof_coordinates()
@@ -129,20 +145,29 @@ class FemFrame:
             nodes = np.asarray(support, dtype=np.int64)
             self.dofs = full.local_dofs(nodes).astype(np.int64)
             if self.dofs.size != nodes.size:
-                raise InputError(f"FemFrame: support nodes {nodes.tolist()[:10]} are not all "
-                                 f"nodes of FEM body {full.name!r}")
-            m = np.ones(nodes.size) if support_weights is None else \
-                np.asarray(support_weights, dtype=float)
+                raise InputError(
+                    f"FemFrame: support nodes {nodes.tolist()[:10]} are not all "
+                    f"nodes of FEM body {full.name!r}"
+                )
+            m = (
+                np.ones(nodes.size)
+                if support_weights is None
+                else np.asarray(support_weights, dtype=float)
+            )
             if m.shape != nodes.shape or not np.all(m > 0):
-                raise InputError(f"FemFrame: support_weights must be {nodes.size} positive "
-                                 f"numbers, got {support_weights!r}")
+                raise InputError(
+                    f"FemFrame: support_weights must be {nodes.size} positive "
+                    f"numbers, got {support_weights!r}"
+                )
             X = x[self.dofs]
             centroid = m @ X / m.sum()
             self.c = m[:, None] * (X - centroid)
             s = np.linalg.svd(X.T @ self.c, compute_uv=False)
             if not s[1] > 1e-10 * s[0]:
-                raise InputError(f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear: "
-                                 f"no rotation can be fitted")
+                raise InputError(
+                    f"FemFrame: support nodes {nodes.tolist()[:10]} are collinear: "
+                    f"no rotation can be fitted"
+                )
             self.planar = not s[2] > 1e-10 * s[0]
             if point is None:
                 self.origin = FemPointWeights(self.dofs, m / m.sum(), centroid)
@@ -155,8 +180,10 @@ class FemFrame:
         """This frame on ``reduced``, the reduced body of its full FEM body: the same
         origin, method and support, read from q."""
         if getattr(reduced, "full", None) is not self.full:
-            raise InputError(f"FemFrame on {self.full.name!r}: {getattr(reduced, 'name', '')!r} "
-                             "is not a reduced body of it")
+            raise InputError(
+                f"FemFrame on {self.full.name!r}: {getattr(reduced, 'name', '')!r} "
+                "is not a reduced body of it"
+            )
         return FemFrame(reduced, **self._spec)
 
     def _gradients(self, X: np.ndarray) -> np.ndarray:
@@ -165,11 +192,12 @@ class FemFrame:
         cell = self.origin.cell
         nodes = msh.geometry.x[msh.geometry.dofmaps[0][cell]]
         ref = msh.geometry.cmaps[0].pull_back(X.reshape(1, 3), nodes)
-        element = basix.create_element(basix.ElementFamily.P,
-                                       getattr(basix.CellType, self.full.cell_name), 1)
-        dN = element.tabulate(1, ref)[1:4, 0, :, 0]                      # (3, k) d/dxi
-        J = nodes.T @ dN.T                                               # dx/dxi
-        return dN.T @ np.linalg.inv(J)                                   # (k, 3) dN/dX
+        element = basix.create_element(
+            basix.ElementFamily.P, getattr(basix.CellType, self.full.cell_name), 1
+        )
+        dN = element.tabulate(1, ref)[1:4, 0, :, 0]  # (3, k) d/dxi
+        J = nodes.T @ dN.T  # dx/dxi
+        return dN.T @ np.linalg.inv(J)  # (k, 3) dN/dX
 
     # ---- state ----------------------------------------------------------------------------
 
@@ -211,7 +239,7 @@ class FemFrame:
         for A' = e_a c_j^T, R^T A' - A'^T R = [c_j x R_a]x."""
         R, S = polar_rotation(self.matrix(), self.planar)
         N_inv = np.linalg.inv(np.trace(S) * np.eye(3) - S)
-        cols = np.cross(self.c[:, None, :], R[None, :, :])              # (k, a, 3)
+        cols = np.cross(self.c[:, None, :], R[None, :, :])  # (k, a, 3)
         return np.einsum("ij,kaj->ika", R @ N_inv, cols).reshape(3, -1)
 
     def angular_velocity(self) -> np.ndarray:
@@ -230,7 +258,7 @@ class FemFrame:
         N_inv = np.linalg.inv(np.trace(S) * np.eye(3) - S)
         Rt_tau = R.T @ tau
         m = N_inv @ Rt_tau
-        dB = np.zeros((3, 3, 3, 3))                     # [e, d] -> dB (a, b) for dA = E_ed
+        dB = np.zeros((3, 3, 3, 3))  # [e, d] -> dB (a, b) for dA = E_ed
         for e in range(3):
             for d in range(3):
                 dA = np.zeros((3, 3))
@@ -240,7 +268,7 @@ class FemFrame:
                 dR = R @ _skew(dw)
                 dS = R.T @ dA - _skew(dw) @ S
                 dm = -N_inv @ ((np.trace(dS) * np.eye(3) - dS) @ m + _skew(dw) @ Rt_tau)
-                dB[e, d] = dR @ _skew(m) + R @ _skew(dm)          # rows: dR_a x m + R_a x dm
+                dB[e, d] = dR @ _skew(m) + R @ _skew(dm)  # rows: dR_a x m + R_a x dm
         H = np.einsum("edab,jb,kd->jake", dB, self.c, self.c)
         k = self.dofs.size
         return H.reshape(3 * k, 3 * k)

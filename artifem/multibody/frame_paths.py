@@ -102,8 +102,9 @@ class PathElement:
         schedule ``excitation(t)``; the activation follows as under a schedule): what a
         scene input sets each step (:class:`~artifem.scene.inputs.PathExcitation`)."""
         if not hasattr(self.element, "set_excitation"):
-            raise InputError(f"path {self.name!r}: {type(self.element).__name__} takes no "
-                             "excitation")
+            raise InputError(
+                f"path {self.name!r}: {type(self.element).__name__} takes no excitation"
+            )
         value = float(value)
         if not np.isfinite(value):
             raise InputError(f"path {self.name!r}: excitation must be finite, got {value!r}")
@@ -123,11 +124,18 @@ class PathElement:
 class FramePath(PathElement):
     """A spring or muscle through ``frames`` (at least two), a force element of a Scene."""
 
-    def __init__(self, element, frames: Sequence[Frame], *,
-                 excitation: Callable[[float], float] | None = None, name: str = "path"):
+    def __init__(
+        self,
+        element,
+        frames: Sequence[Frame],
+        *,
+        excitation: Callable[[float], float] | None = None,
+        name: str = "path",
+    ):
         if len(frames) < 2:
-            raise InputError(f"FramePath {name!r}: a path needs at least two frames, "
-                             f"got {len(frames)}")
+            raise InputError(
+                f"FramePath {name!r}: a path needs at least two frames, got {len(frames)}"
+            )
         self.element, self.frames, self.name = element, list(frames), name
         self._timed = TimedPath(element, excitation, f"FramePath {name!r}")
 
@@ -147,6 +155,7 @@ class FramePath(PathElement):
 
     def jacobians(self, t: float):
         result = self._evaluate(t)
-        _, blocks = point_force_wrenches(self.frames, result.forces, result.stiffness,
-                                         result.damping)
+        _, blocks = point_force_wrenches(
+            self.frames, result.forces, result.stiffness, result.damping
+        )
         return blocks

@@ -44,8 +44,16 @@ from artifem.errors import InputError
 from artifem.multibody.constraint_rows import RowBlock
 from artifem.multibody.rigid_body import Frame, RigidBody, cross, skew, skews
 
-__all__ = ["ConstraintRows", "FixedJoint", "Joint", "PlanarJoint", "RevoluteJoint",
-           "SliderJoint", "SphericalJoint", "axis_rotation"]
+__all__ = [
+    "ConstraintRows",
+    "FixedJoint",
+    "Joint",
+    "PlanarJoint",
+    "RevoluteJoint",
+    "SliderJoint",
+    "SphericalJoint",
+    "axis_rotation",
+]
 
 
 def _levi_civita() -> np.ndarray:
@@ -105,7 +113,7 @@ def _translation_rows(fa: Frame, fb: Frame, axes: np.ndarray) -> ConstraintRows:
 def _rotation_rows(fa: Frame, fb: Frame, coefficients: np.ndarray) -> ConstraintRows:
     """phi_r = sum_ij C_rij a_i . b_j, angular rows +-sum_ij C_rij a_i x b_j (module docstring)."""
     A, B = fa.world_rotation(), fb.world_rotation()
-    crosses = cross(A.T[:, None, :], B.T[None, :, :])           # [i, j] = a_i x b_j
+    crosses = cross(A.T[:, None, :], B.T[None, :, :])  # [i, j] = a_i x b_j
     phi = np.einsum("rij,ij->r", coefficients, A.T @ B)
     rows = np.einsum("rij,ijk->rk", coefficients, crosses)
     zeros = np.zeros_like(rows)
@@ -113,8 +121,11 @@ def _rotation_rows(fa: Frame, fb: Frame, coefficients: np.ndarray) -> Constraint
 
 
 def _stack(*blocks: ConstraintRows) -> ConstraintRows:
-    return ConstraintRows(np.concatenate([b.phi for b in blocks]),
-                          np.vstack([b.G_a for b in blocks]), np.vstack([b.G_b for b in blocks]))
+    return ConstraintRows(
+        np.concatenate([b.phi for b in blocks]),
+        np.vstack([b.G_a for b in blocks]),
+        np.vstack([b.G_b for b in blocks]),
+    )
 
 
 def _check_limits(limits, bounds: tuple[float, float], what: str):
@@ -125,8 +136,10 @@ def _check_limits(limits, bounds: tuple[float, float], what: str):
     except (TypeError, ValueError):
         raise InputError(f"{what}: limits must be (lower, upper), got {limits!r}") from None
     if not (np.isfinite(lower) and np.isfinite(upper) and bounds[0] <= lower < upper <= bounds[1]):
-        raise InputError(f"{what}: limits need finite {bounds[0]:g} <= lower < upper <= "
-                         f"{bounds[1]:g}, got ({lower:g}, {upper:g})")
+        raise InputError(
+            f"{what}: limits need finite {bounds[0]:g} <= lower < upper <= "
+            f"{bounds[1]:g}, got ({lower:g}, {upper:g})"
+        )
     return lower, upper
 
 
@@ -168,11 +181,15 @@ class Joint:
             object.__setattr__(self, "limits", _check_limits(self.limits, self.LIMIT_BOUNDS, what))
 
     @classmethod
-    def at_world(cls, body_a: RigidBody | None, body_b: RigidBody | None, position,
-                 rotation=None, **kwargs) -> Joint:
+    def at_world(
+        cls, body_a: RigidBody | None, body_b: RigidBody | None, position, rotation=None, **kwargs
+    ) -> Joint:
         """The joint whose two frames coincide now at the world pose (position, rotation)."""
-        return cls(Frame.at_world(body_a, position, rotation),
-                   Frame.at_world(body_b, position, rotation), **kwargs)
+        return cls(
+            Frame.at_world(body_a, position, rotation),
+            Frame.at_world(body_b, position, rotation),
+            **kwargs,
+        )
 
     @property
     def bodies(self) -> tuple[RigidBody | None, RigidBody | None]:
@@ -183,13 +200,18 @@ class Joint:
         constraint_rows`): its bilateral rows (:meth:`constraint`, impulses free) and, with
         ``limits``, its limit rows (:meth:`unilateral`, impulses >= 0)."""
         rows = self.constraint()
-        blocks = [RowBlock.bilateral(self, rows.phi, zip(self.bodies, (rows.G_a, rows.G_b)),
-                                     self.constraint_stiffness)]
+        blocks = [
+            RowBlock.bilateral(
+                self, rows.phi, zip(self.bodies, (rows.G_a, rows.G_b)), self.constraint_stiffness
+            )
+        ]
         if self.limits is not None:
             rows = self.unilateral()
-            blocks.append(RowBlock.unilateral(self, rows.phi,
-                                              zip(self.bodies, (rows.G_a, rows.G_b)),
-                                              self.limit_stiffness))
+            blocks.append(
+                RowBlock.unilateral(
+                    self, rows.phi, zip(self.bodies, (rows.G_a, rows.G_b)), self.limit_stiffness
+                )
+            )
         return blocks
 
     def constraint_failure(self) -> None:
@@ -220,8 +242,9 @@ class Joint:
             axes = self.frame_b.world_rotation()[:, list(self.TRANSLATION)]
             K += _translation_stiffness(self.frame_a, self.frame_b, axes @ lam[:n_t])
         if len(self.ROTATION):
-            K += _rotation_stiffness(self.frame_a, self.frame_b,
-                                     np.einsum("r,rij->ij", lam[n_t:], self.ROTATION))
+            K += _rotation_stiffness(
+                self.frame_a, self.frame_b, np.einsum("r,rij->ij", lam[n_t:], self.ROTATION)
+            )
         return K
 
     def unilateral(self) -> ConstraintRows:
@@ -230,8 +253,9 @@ class Joint:
             return ConstraintRows(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
         value, G_a, G_b = self._coordinate_rows()
         lower, upper = self.limits
-        return ConstraintRows(np.array([value - lower, upper - value]),
-                              np.vstack([G_a, -G_a]), np.vstack([G_b, -G_b]))
+        return ConstraintRows(
+            np.array([value - lower, upper - value]), np.vstack([G_a, -G_a]), np.vstack([G_b, -G_b])
+        )
 
     def limit_stiffness(self, lam) -> np.ndarray:
         """d(G^T lambda)/dq of :meth:`Joint.unilateral`'s two rows (+G, -G) at fixed ``lam``."""
@@ -277,8 +301,11 @@ class RevoluteJoint(Joint):
         s, c = a_x @ B[:, 1], a_x @ B[:, 0]
         row = (c * cross(a_x, B[:, 1]) - s * cross(a_x, B[:, 0])) / (c * c + s * s)
         zeros = np.zeros(3)
-        return (float(np.arctan2(s, c)), np.concatenate([zeros, row])[None],
-                np.concatenate([zeros, -row])[None])
+        return (
+            float(np.arctan2(s, c)),
+            np.concatenate([zeros, row])[None],
+            np.concatenate([zeros, -row])[None],
+        )
 
     def _coordinate_stiffness(self, lam: float) -> np.ndarray:
         """The angle row g = (c (a_x x b_y) - s (a_x x b_x)) / (c^2 + s^2) on [0; g] (A) and
@@ -291,7 +318,7 @@ class RevoluteJoint(Joint):
         u, w = cross(a_x, b_y), cross(a_x, b_x)
         n = c * c + s * s
         g = (c * u - s * w) / n
-        dn = 2.0 * (c * w + s * u)                       # dn = dn . (dtheta_A - dtheta_B)
+        dn = 2.0 * (c * w + s * u)  # dn = dn . (dtheta_A - dtheta_B)
         base = (np.outer(u, w) - np.outer(w, u) - np.outer(g, dn)) / n
         Ax, By, Bx = skew(a_x), skew(b_y), skew(b_x)
         dA = base + (c * By @ Ax - s * Bx @ Ax) / n
@@ -301,9 +328,9 @@ class RevoluteJoint(Joint):
             if not on:
                 continue
             if a:
-                K[r:r + 3, 3:6] = sign * lam * dA
+                K[r : r + 3, 3:6] = sign * lam * dA
             if b:
-                K[r:r + 3, 9:12] = sign * lam * dB
+                K[r : r + 3, 9:12] = sign * lam * dB
         return K
 
 
@@ -312,7 +339,7 @@ class SliderJoint(Joint):
 
     TRANSLATION = (0, 1)
     ROTATION = LOCK_ROTATION
-    LIMIT_BOUNDS = (-np.inf, np.inf)              # any finite pair
+    LIMIT_BOUNDS = (-np.inf, np.inf)  # any finite pair
 
     def distance(self) -> float:
         """s = b_z . (x_A - x_B)."""
@@ -323,8 +350,9 @@ class SliderJoint(Joint):
         return float(rows.phi[0]), rows.G_a, rows.G_b
 
     def _coordinate_stiffness(self, lam: float) -> np.ndarray:
-        return _translation_stiffness(self.frame_a, self.frame_b,
-                                      lam * self.frame_b.world_rotation()[:, 2])
+        return _translation_stiffness(
+            self.frame_a, self.frame_b, lam * self.frame_b.world_rotation()[:, 2]
+        )
 
 
 class PlanarJoint(Joint):
@@ -340,6 +368,7 @@ class PlanarJoint(Joint):
 # p += dp, R = exp([dtheta]x) R (world), rows the wrenches G_A^T lambda and G_B^T lambda.
 # A frame on the world has no rows and no columns (left zero).
 
+
 def _translation_stiffness(fa: Frame, fb: Frame, force: np.ndarray) -> np.ndarray:
     """Of translation rows whose reaction is the world force f = sum_k lambda_k b_k at x_A
     (b_k the axes of frame B, turning with body B): on A [f; r_A x f], on B
@@ -349,12 +378,12 @@ def _translation_stiffness(fa: Frame, fb: Frame, force: np.ndarray) -> np.ndarra
     a, b = fa.body is not None, fb.body is not None
     r_a = fa.lever()
     if a:
-        K[3:6, 3:6] = F @ skew(r_a)                 # the lever of A turns
+        K[3:6, 3:6] = F @ skew(r_a)  # the lever of A turns
     if b:
         e = fa.world_position() - fb.body.position
-        K[9:12, 9:12] = skew(e) @ F                 # f turns with B, lever fixed
-        K[6:9, 9:12] = F                            # -f turns with B
-        K[9:12, 6:9] = -F                           # the lever x_A - p_B shortens with p_B
+        K[9:12, 9:12] = skew(e) @ F  # f turns with B, lever fixed
+        K[6:9, 9:12] = F  # -f turns with B
+        K[9:12, 6:9] = -F  # the lever x_A - p_B shortens with p_B
         if a:
             K[0:3, 9:12] = -F
             K[3:6, 9:12] = -skew(r_a) @ F
@@ -367,16 +396,16 @@ def _rotation_stiffness(fa: Frame, fb: Frame, M: np.ndarray) -> np.ndarray:
     """Of rotation rows with the torque tau_A = sum_ij M_ij a_i x b_j = -tau_B."""
     K = np.zeros((12, 12))
     A, B = fa.world_rotation(), fb.world_rotation()
-    SA, SB = skews(A.T), skews(B.T)                 # [a_i]x, [b_j]x
-    dA = np.einsum("ij,jkl,ilm->km", M, SB, SA)     # sum M_ij [b_j]x [a_i]x
-    dB = -np.einsum("ij,ikl,jlm->km", M, SA, SB)    # -sum M_ij [a_i]x [b_j]x
+    SA, SB = skews(A.T), skews(B.T)  # [a_i]x, [b_j]x
+    dA = np.einsum("ij,jkl,ilm->km", M, SB, SA)  # sum M_ij [b_j]x [a_i]x
+    dB = -np.einsum("ij,ikl,jlm->km", M, SA, SB)  # -sum M_ij [a_i]x [b_j]x
     a, b = fa.body is not None, fb.body is not None
     for on, sign in ((a, 1.0), (b, -1.0)):
         if not on:
             continue
         r = 3 if sign > 0 else 9
         if a:
-            K[r:r + 3, 3:6] = sign * dA
+            K[r : r + 3, 3:6] = sign * dA
         if b:
-            K[r:r + 3, 9:12] = sign * dB
+            K[r : r + 3, 9:12] = sign * dB
     return K

@@ -95,7 +95,7 @@ class MeshContactRows(RowBlock):
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     side_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tangents: tuple = ()
-    weights: object = None          # W (k x n_all) of the normal rows
+    weights: object = None  # W (k x n_all) of the normal rows
 
 
 def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -124,7 +124,7 @@ def _feature_spans(b: np.ndarray, pseudo: np.ndarray) -> tuple[np.ndarray, np.nd
     spans = np.broadcast_to(_FACE_SPANS, (len(b), 2, 4)).copy()
     edge = np.flatnonzero(count == 1)
     if edge.size:
-        corners = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]   # the nonzero two
+        corners = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]  # the nonzero two
         spans[edge] = 0.0
         spans[edge, 0, 1 + corners[:, 0]] = -1.0
         spans[edge, 0, 1 + corners[:, 1]] = 1.0
@@ -174,12 +174,11 @@ def _held_pairs(held: _Pairs, x: np.ndarray) -> tuple:
         bary[face] = _barycentric(xv[face] - s[:, None] * n, y0, y1, y2)
         e[face] = n
     line = count == 1
-    if line.any():                  # the span's -1 and +1 corners: the edge p -> q
+    if line.any():  # the span's -1 and +1 corners: the edge p -> q
         p, q = np.argmin(spans[line, 0, 1:], axis=1), np.argmax(spans[line, 0, 1:], axis=1)
         rows = np.arange(line.sum())
         yp, yq = y[line][rows, p], y[line][rows, q]
-        t = np.einsum("ij,ij->i", xv[line] - yp, yq - yp) / \
-            np.einsum("ij,ij->i", yq - yp, yq - yp)
+        t = np.einsum("ij,ij->i", xv[line] - yp, yq - yp) / np.einsum("ij,ij->i", yq - yp, yq - yp)
         b = np.zeros((len(rows), 3))
         b[rows, p], b[rows, q] = 1.0 - t, t
         bary[line] = b
@@ -188,8 +187,11 @@ def _held_pairs(held: _Pairs, x: np.ndarray) -> tuple:
     d = xv - c
     dist = np.linalg.norm(d, axis=1)
     turn &= dist > 0.0
-    e[turn] = d[turn] / dist[turn, None] * np.where(
-        np.einsum("ij,ij->i", d[turn], e[turn]) < 0, -1.0, 1.0)[:, None]
+    e[turn] = (
+        d[turn]
+        / dist[turn, None]
+        * np.where(np.einsum("ij,ij->i", d[turn], e[turn]) < 0, -1.0, 1.0)[:, None]
+    )
     weights[:, 1:] = -bary
     return (cols, weights, e, np.einsum("ij,ij->i", e, d), held.which[on], spans, count)
 
@@ -226,8 +228,9 @@ def _edges(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 SHARP_ANGLE = np.radians(30.0)
 
 
-def _sharp(x: np.ndarray, tris: np.ndarray, edges: np.ndarray, faces: np.ndarray,
-           normals: np.ndarray) -> np.ndarray:
+def _sharp(
+    x: np.ndarray, tris: np.ndarray, edges: np.ndarray, faces: np.ndarray, normals: np.ndarray
+) -> np.ndarray:
     """(m,) bool: the convex edges whose triangles' normals differ by more than
     :data:`SHARP_ANGLE` (a box's edges; not the facets of a smooth surface, whose crossing
     edges leave vertices of one over triangles of the other, nor a split quadrilateral's
@@ -280,16 +283,24 @@ def _geometry(x: np.ndarray, tris: np.ndarray, edges) -> _Geometry:
     tree.init(x, tris)
     normals = _face_normals(x, tris)
     edge_normals, _, emap = igl.per_edge_normals(
-        x, tris, igl.PER_EDGE_NORMALS_WEIGHTING_TYPE_UNIFORM)
+        x, tris, igl.PER_EDGE_NORMALS_WEIGHTING_TYPE_UNIFORM
+    )
     y = x[tris]
     centroids = y.mean(axis=1)
-    return _Geometry(x, tris, normals, _vertex_normals(x, tris),
-                     _sharp(x, tris, edges[0], edges[1], normals), tree,
-                     igl.per_vertex_normals(x, tris,
-                                            igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_ANGLE),
-                     edge_normals, emap, cKDTree(centroids),
-                     float(np.linalg.norm(y - centroids[:, None], axis=2).max()),
-                     (x.min(axis=0), x.max(axis=0)))
+    return _Geometry(
+        x,
+        tris,
+        normals,
+        _vertex_normals(x, tris),
+        _sharp(x, tris, edges[0], edges[1], normals),
+        tree,
+        igl.per_vertex_normals(x, tris, igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_ANGLE),
+        edge_normals,
+        emap,
+        cKDTree(centroids),
+        float(np.linalg.norm(y - centroids[:, None], axis=2).max()),
+        (x.min(axis=0), x.max(axis=0)),
+    )
 
 
 def _signed_distance(g: _Geometry, points: np.ndarray):
@@ -338,13 +349,17 @@ def _check_closed(x: np.ndarray, tris: np.ndarray, name: str) -> None:
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     if np.any(counts != 2):
         e = unique[counts != 2][0]
-        raise InputError(f"mesh contact: the surface of {name!r} is not closed: "
-                         f"{int(np.sum(counts != 2))} edges not shared by exactly two triangles, "
-                         f"e.g. vertices ({e[0]}, {e[1]}) (contact needs a closed surface)")
+        raise InputError(
+            f"mesh contact: the surface of {name!r} is not closed: "
+            f"{int(np.sum(counts != 2))} edges not shared by exactly two triangles, "
+            f"e.g. vertices ({e[0]}, {e[1]}) (contact needs a closed surface)"
+        )
     a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
     if np.einsum("ij,ij->", a, np.cross(b, c)) <= 0:
-        raise InputError(f"mesh contact: the surface of {name!r} encloses a non-positive "
-                         "volume: its triangles must be oriented outward")
+        raise InputError(
+            f"mesh contact: the surface of {name!r} encloses a non-positive "
+            "volume: its triangles must be oriented outward"
+        )
 
 
 class MeshContact:
@@ -372,9 +387,18 @@ class MeshContact:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "contacts"
 
-    def __init__(self, a, b, *, mu: float = 0.0, tolerance: float = 1e-5,
-                 margin: float = 1e-2, offset: float = 0.0, name: str = "",
-                 foundation=None):
+    def __init__(
+        self,
+        a,
+        b,
+        *,
+        mu: float = 0.0,
+        tolerance: float = 1e-5,
+        margin: float = 1e-2,
+        offset: float = 0.0,
+        name: str = "",
+        foundation=None,
+    ):
         self.name = name or f"contact of {a.name!r} and {b.name!r}"
         what = f"contact {self.name!r}"
         if a is b:
@@ -388,22 +412,25 @@ class MeshContact:
         self.foundation = None if foundation is None else foundation.checked(what)
         for body in (a, b):
             if not callable(getattr(body, "contact_surface", None)):
-                raise InputError(f"{what}: {type(body).__name__} {body.name!r} has no contact "
-                                 "surface (rigid bodies with a surface, full and reduced FEM "
-                                 "bodies and embedded triangle meshes do)")
+                raise InputError(
+                    f"{what}: {type(body).__name__} {body.name!r} has no contact "
+                    "surface (rigid bodies with a surface, full and reduced FEM "
+                    "bodies and embedded triangle meshes do)"
+                )
         (pa, ta), (pb, tb) = self._surfaces = (a.contact_surface(), b.contact_surface())
         if pa.body is pb.body:
-            raise InputError(f"{what}: both surfaces move with {pa.body.name!r} (self-contact "
-                             "is not supported)")
+            raise InputError(
+                f"{what}: both surfaces move with {pa.body.name!r} (self-contact is not supported)"
+            )
         xa, xb = pa.positions(), pb.positions()
         _check_closed(xa, ta, a.name)
         _check_closed(xb, tb, b.name)
         self._na = len(xa)
         self._edges = (_edges(ta), _edges(tb))
         self._tris = (np.asarray(ta, dtype=np.int64), np.asarray(tb, dtype=np.int64))
-        self._at_rest = [None, None]    # a rigid side's _Geometry in its body frame
-        self._last_pairs = None     # (the surfaces' vertices, held, pairs): _pairs's memo
-        self._held = None           # the pairs whose features are held (hold_pairs)
+        self._at_rest = [None, None]  # a rigid side's _Geometry in its body frame
+        self._last_pairs = None  # (the surfaces' vertices, held, pairs): _pairs's memo
+        self._held = None  # the pairs whose features are held (hold_pairs)
 
     @property
     def bodies(self) -> tuple:
@@ -413,19 +440,31 @@ class MeshContact:
     def onto_reduced(self, reduced, lift=None) -> MeshContact:
         """The same contact with the reduced body in place of the full body it replaces
         (the reductor: :mod:`artifem.reduction.reductor`)."""
-        a, b = (reduced if getattr(reduced, "full", None) is body else body
-                for body in (self.a, self.b))
-        return MeshContact(a, b, mu=self.mu, tolerance=self.tolerance, margin=self.margin,
-                           offset=self.offset, name=self.name, foundation=self.foundation)
+        a, b = (
+            reduced if getattr(reduced, "full", None) is body else body for body in (self.a, self.b)
+        )
+        return MeshContact(
+            a,
+            b,
+            mu=self.mu,
+            tolerance=self.tolerance,
+            margin=self.margin,
+            offset=self.offset,
+            name=self.name,
+            foundation=self.foundation,
+        )
 
     def _pairs(self) -> _Pairs:
         """The pairs of the current state (module docstring): vertex over triangle both
         ways, and edge across edge."""
         xs = (self._surfaces[0][0].positions(), self._surfaces[1][0].positions())
         last = self._last_pairs
-        if last is not None and last[1] is self._held and \
-                all(np.array_equal(x, y) for x, y in zip(last[0], xs)):
-            return last[2]              # the same state: a step's failure check, the next rows
+        if (
+            last is not None
+            and last[1] is self._held
+            and all(np.array_equal(x, y) for x, y in zip(last[0], xs))
+        ):
+            return last[2]  # the same state: a step's failure check, the next rows
         frames = (self._in_frame(0, xs[0]), self._in_frame(1, xs[1]))
         offsets = (0, len(xs[0]))
         parts, deepest = [], None
@@ -437,7 +476,7 @@ class MeshContact:
             parts.append(part)
             if deep is not None and (deepest is None or deep[0] < deepest[0]):
                 deepest = (deep[0], side, deep[1], deep[2])
-        if self._held is not None:      # held vertices keep their features
+        if self._held is not None:  # held vertices keep their features
             held = _held_pairs(self._held, np.vstack(xs))
             for side in (0, 1):
                 mine = held[4][:, 0] == side
@@ -453,17 +492,36 @@ class MeshContact:
             deepest = (deepest[0] - self.offset,) + deepest[1:]
         cols = [p[0] for p in parts]
         k = sum(len(c) for c in cols)
-        rows = np.concatenate([np.repeat(np.arange(len(c)), c.shape[1]) + sum(
-            len(q) for q in cols[:i]) for i, c in enumerate(cols)]) if k else np.zeros(0, int)
+        rows = (
+            np.concatenate(
+                [
+                    np.repeat(np.arange(len(c)), c.shape[1]) + sum(len(q) for q in cols[:i])
+                    for i, c in enumerate(cols)
+                ]
+            )
+            if k
+            else np.zeros(0, int)
+        )
         x = np.vstack(xs)
-        W = sparse.csr_matrix((np.concatenate([p[1].ravel() for p in parts]),
-                               (rows, np.concatenate([c.ravel() for c in cols]))),
-                              shape=(k, len(x)))
-        pairs = _Pairs(W, np.vstack([p[2] for p in parts]),
-                       np.concatenate([p[3] for p in parts]) - self.offset,
-                       np.vstack([p[4] for p in parts]), deepest, x, np.vstack(cols),
-                       np.vstack([p[1] for p in parts]), np.vstack([p[5] for p in parts]),
-                       np.concatenate([p[6] for p in parts]))
+        W = sparse.csr_matrix(
+            (
+                np.concatenate([p[1].ravel() for p in parts]),
+                (rows, np.concatenate([c.ravel() for c in cols])),
+            ),
+            shape=(k, len(x)),
+        )
+        pairs = _Pairs(
+            W,
+            np.vstack([p[2] for p in parts]),
+            np.concatenate([p[3] for p in parts]) - self.offset,
+            np.vstack([p[4] for p in parts]),
+            deepest,
+            x,
+            np.vstack(cols),
+            np.vstack([p[1] for p in parts]),
+            np.vstack([p[5] for p in parts]),
+            np.concatenate([p[6] for p in parts]),
+        )
         self._last_pairs = ((xs[0].copy(), xs[1].copy()), self._held, pairs)
         return pairs
 
@@ -517,10 +575,17 @@ class MeshContact:
           contact (|s| below 1e-3 tolerance).
         """
         g, R, p = other
-        xp = (xw - p) @ R                               # in other's frame
+        xp = (xw - p) @ R  # in other's frame
         xq, tq = g.x, g.tris
-        empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
-                 np.zeros((0, 3), int), np.zeros((0, 2, 4)), np.zeros(0, int))
+        empty = (
+            np.zeros((0, 4), int),
+            np.zeros((0, 4)),
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros((0, 3), int),
+            np.zeros((0, 2, 4)),
+            np.zeros(0, int),
+        )
         lo, hi = g.box[0] - self._reach, g.box[1] + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
@@ -540,16 +605,14 @@ class MeshContact:
         c = xp[v] - s[:, None] * n
         bary = _barycentric(c, y[:, 0], y[:, 1], y[:, 2])
         g_own, R_own, _ = own
-        m = g_own.vertex_normals[v] @ (R_own.T @ R)     # own's normals, in other's frame
+        m = g_own.vertex_normals[v] @ (R_own.T @ R)  # own's normals, in other's frame
         facing = np.einsum("ij,ij->i", n, m) < 0
-        keep = (s >= -self.tolerance) & (s < self._reach) & np.all(bary >= -1e-12, axis=1) \
-            & facing
+        keep = (s >= -self.tolerance) & (s < self._reach) & np.all(bary >= -1e-12, axis=1) & facing
         v, f, s, n, bary = v[keep], f[keep], s[keep], n[keep], bary[keep]
-        alone = ~np.isin(near, v)                       # over no facing triangle
+        alone = ~np.isin(near, v)  # over no facing triangle
         d = xp[near[alone]] - C[alone]
         small = np.abs(S[alone]) <= 1e-3 * self.tolerance
-        e = np.where(small[:, None], _unit(N[alone]),
-                     d / np.where(small, 1.0, S[alone])[:, None])
+        e = np.where(small[:, None], _unit(N[alone]), d / np.where(small, 1.0, S[alone])[:, None])
         tri = tq[I[alone]]
         b = _barycentric(C[alone], xq[tri[:, 0]], xq[tri[:, 1]], xq[tri[:, 2]])
         spans, count = _feature_spans(b, small)
@@ -559,8 +622,15 @@ class MeshContact:
         bary, e, s = np.vstack([bary, b]), np.vstack([n, e]) @ R.T, np.r_[s, S[alone]]
         cols = np.column_stack([v, tq[f]])
         weights = np.column_stack([np.ones(len(v)), -bary])
-        return (cols, weights, e, s, np.column_stack([np.zeros(len(v), int), v, f]), spans,
-                count), deepest
+        return (
+            cols,
+            weights,
+            e,
+            s,
+            np.column_stack([np.zeros(len(v), int), v, f]),
+            spans,
+            count,
+        ), deepest
 
     def _edge_pairs(self, xs, frames):
         """(cols (k, 4): a's edge's vertices then b's, weights (k, 4): 1 - s, s, -(1 - t),
@@ -575,20 +645,30 @@ class MeshContact:
         xa, xb = xs
         (ga, Ra, _), (gb, Rb, _) = frames
         (ea, fa), (eb, fb) = self._edges
-        empty = (np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
-                 np.zeros((0, 3), int), np.zeros((0, 2, 4)), np.zeros(0, int))
+        empty = (
+            np.zeros((0, 4), int),
+            np.zeros((0, 4)),
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros((0, 3), int),
+            np.zeros((0, 2, 4)),
+            np.zeros(0, int),
+        )
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
         # only sharp edges of both meet edge on edge: the candidates are among those
         sharp_b = np.flatnonzero(gb.sharp)
         mid_a, mid_b = xa[ea].mean(axis=1), xb[eb[sharp_b]].mean(axis=1)
         half_a = 0.5 * np.linalg.norm(xa[ea[:, 1]] - xa[ea[:, 0]], axis=1)
         half_b = 0.5 * np.linalg.norm(xb[eb[sharp_b, 1]] - xb[eb[sharp_b, 0]], axis=1)
-        cand = np.flatnonzero(ga.sharp & np.all((mid_a + half_a[:, None] >= lo)
-                                                & (mid_a - half_a[:, None] <= hi), axis=1))
+        cand = np.flatnonzero(
+            ga.sharp
+            & np.all((mid_a + half_a[:, None] >= lo) & (mid_a - half_a[:, None] <= hi), axis=1)
+        )
         if not cand.size or not sharp_b.size:
             return empty, None
-        k, j = _close_pairs(mid_a[cand], cKDTree(mid_b), half_a[cand].max() + half_b.max()
-                            + self._reach)
+        k, j = _close_pairs(
+            mid_a[cand], cKDTree(mid_b), half_a[cand].max() + half_b.max() + self._reach
+        )
         i, j = cand[k], sharp_b[j]
         a0, a1, b0, b1 = xa[ea[i, 0]], xa[ea[i, 1]], xb[eb[j, 0]], xb[eb[j, 1]]
         s, t = _segment_closest(a0, a1, b0, b1)
@@ -601,8 +681,11 @@ class MeshContact:
         e = _unit(np.cross(a1 - a0, b1 - b0))
         e *= np.where(np.einsum("ij,ij->i", e, mb - ma) < 0, -1.0, 1.0)[:, None]
         phi = np.einsum("ij,ij->i", e, pa - pb)
-        keep = (np.linalg.norm(pa - pb, axis=1) < self._reach) \
-            & (np.einsum("ij,ij->i", e, mb) > 0) & (np.einsum("ij,ij->i", e, ma) < 0)
+        keep = (
+            (np.linalg.norm(pa - pb, axis=1) < self._reach)
+            & (np.einsum("ij,ij->i", e, mb) > 0)
+            & (np.einsum("ij,ij->i", e, ma) < 0)
+        )
         i, j, s, t, e, phi = i[keep], j[keep], s[keep], t[keep], e[keep], phi[keep]
         deepest = None
         if phi.size:
@@ -612,16 +695,25 @@ class MeshContact:
         i, j, s, t, e, phi = i[close], j[close], s[close], t[close], e[close], phi[close]
         cols = np.column_stack([ea[i], eb[j]])
         weights = np.column_stack([1.0 - s, s, -(1.0 - t), -t])
-        return (cols, weights, e, phi, np.column_stack([np.full(len(i), 2), i, j]),
-                np.broadcast_to(_EDGE_SPANS, (len(i), 2, 4)), np.full(len(i), 2)), deepest
+        return (
+            cols,
+            weights,
+            e,
+            phi,
+            np.column_stack([np.full(len(i), 2), i, j]),
+            np.broadcast_to(_EDGE_SPANS, (len(i), 2, 4)),
+            np.full(len(i), 2),
+        ), deepest
 
     def _describe(self, kind: int, i: int, j: int) -> str:
         """A pair (:class:`_Pairs` ``which``) in words."""
         a, b = self.a.name, self.b.name
         if kind == 2:
             (ea, _), (eb, _) = self._edges
-            return (f"the edge of vertices {ea[i].tolist()} of {a!r} and the edge of vertices "
-                    f"{eb[j].tolist()} of {b!r}")
+            return (
+                f"the edge of vertices {ea[i].tolist()} of {a!r} and the edge of vertices "
+                f"{eb[j].tolist()} of {b!r}"
+            )
         own, other = (a, b) if kind == 0 else (b, a)
         return f"vertex {i} of {own!r} and triangle {j} of {other!r}"
 
@@ -646,20 +738,32 @@ class MeshContact:
 
         def stiffness(lam):
             f = lam[:, None] * directions
-            return sparse.block_diag([sparse.csr_matrix(pa.stiffness(Wa, f)),
-                                      sparse.csr_matrix(pb.stiffness(Wb, f))],
-                                     format="csr") + \
-                self._turning(pairs, lam[:k], (Ga.shape[1], Gb.shape[1]))
+            return sparse.block_diag(
+                [sparse.csr_matrix(pa.stiffness(Wa, f)), sparse.csr_matrix(pb.stiffness(Wb, f))],
+                format="csr",
+            ) + self._turning(pairs, lam[:k], (Ga.shape[1], Gb.shape[1]))
 
         side_a = np.asarray(W[:, :na].sum(axis=1)).ravel()
-        return [MeshContactRows(
-            self, np.concatenate([phi, np.zeros(m - k)]),
-            ((pa.body, Ga), (pb.body, Gb)),
-            lo, hi, stiffness, Friction.tangents(k, self.mu) if self.mu > 0 else None,
-            np.column_stack([np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]),
-            points=(W[:, na:] @ x[na:]) / -side_a[:, None], normals=e, side_a=side_a,
-            tangents=(bases[:, :, 0], bases[:, :, 1]) if self.mu > 0 else (), weights=W,
-            compliance=self._compliance(pairs, m))]
+        return [
+            MeshContactRows(
+                self,
+                np.concatenate([phi, np.zeros(m - k)]),
+                ((pa.body, Ga), (pb.body, Gb)),
+                lo,
+                hi,
+                stiffness,
+                Friction.tangents(k, self.mu) if self.mu > 0 else None,
+                np.column_stack(
+                    [np.tile(pairs.which, (m // k, 1)), np.repeat(np.arange(m // k), k)]
+                ),
+                points=(W[:, na:] @ x[na:]) / -side_a[:, None],
+                normals=e,
+                side_a=side_a,
+                tangents=(bases[:, :, 0], bases[:, :, 1]) if self.mu > 0 else (),
+                weights=W,
+                compliance=self._compliance(pairs, m),
+            )
+        ]
 
     def _turning(self, pairs: _Pairs, lam: np.ndarray, sizes: tuple) -> sparse.csr_matrix:
         """J^T (sum_k lambda_k d^2 s_k / dX^2) J on both bodies' coordinates: how the
@@ -676,23 +780,32 @@ class MeshContact:
             return sparse.csr_matrix((n_a + n_b, n_a + n_b))
         cols = pairs.cols[used]
         H = lam[used, None, None] * distance_hessians(
-            pairs.x[cols], pairs.weights[used], pairs.spans[used], pairs.span_count[used],
-            pairs.e[used], pairs.phi[used] + self.offset)
+            pairs.x[cols],
+            pairs.weights[used],
+            pairs.spans[used],
+            pairs.span_count[used],
+            pairs.e[used],
+            pairs.phi[used] + self.offset,
+        )
         verts, local = np.unique(cols, return_inverse=True)
         local = local.reshape(cols.shape)
         # J: three rows per vertex (its x, y, z) on its body's coordinates
         J = []
-        for points, mine, start, n in ((pa, verts[verts < na], 0, na),
-                                       (pb, verts[verts >= na], na, size - na)):
-            select = sparse.csr_matrix((np.ones(3 * len(mine)),
-                                        (np.arange(3 * len(mine)), np.repeat(mine - start, 3))),
-                                       shape=(3 * len(mine), n))
+        for points, mine, start, n in (
+            (pa, verts[verts < na], 0, na),
+            (pb, verts[verts >= na], na, size - na),
+        ):
+            select = sparse.csr_matrix(
+                (np.ones(3 * len(mine)), (np.arange(3 * len(mine)), np.repeat(mine - start, 3))),
+                shape=(3 * len(mine), n),
+            )
             J.append(sparse.csr_matrix(points.rows(select, np.tile(np.eye(3), (len(mine), 1)))))
         J = sparse.block_diag(J, format="csr")
         dofs = (3 * local[:, :, None] + np.arange(3)).reshape(len(used), 12)
-        Hs = sparse.csr_matrix((H.ravel(), (np.repeat(dofs, 12, axis=1).ravel(),
-                                            np.tile(dofs, (1, 12)).ravel())),
-                               shape=(3 * len(verts), 3 * len(verts)))
+        Hs = sparse.csr_matrix(
+            (H.ravel(), (np.repeat(dofs, 12, axis=1).ravel(), np.tile(dofs, (1, 12)).ravel())),
+            shape=(3 * len(verts), 3 * len(verts)),
+        )
         return sparse.csr_matrix(J.T @ Hs @ J)
 
     def _compliance(self, pairs: _Pairs, m: int):
@@ -707,39 +820,53 @@ class MeshContact:
         for side, (points, _) in enumerate(self._surfaces):
             rows = np.flatnonzero(pairs.which[:, 0] == side)
             if rows.size:
-                _, inverse, counts = np.unique(pairs.which[rows, 1], return_inverse=True,
-                                               return_counts=True)
-                areas[rows] = points.facing_areas(pairs.which[rows, 1], pairs.e[rows]) \
-                    / counts[inverse]
+                _, inverse, counts = np.unique(
+                    pairs.which[rows, 1], return_inverse=True, return_counts=True
+                )
+                areas[rows] = (
+                    points.facing_areas(pairs.which[rows, 1], pairs.e[rows]) / counts[inverse]
+                )
         return self.foundation.compliance(areas)
 
     def constraint_failure(self) -> str | None:
         """A vertex of either surface deeper than ``tolerance`` inside the other, or two
         edges crossed by more, if any."""
         deepest = self._pairs().deepest
-        allowed = self.tolerance if self.foundation is None else \
-            max(self.tolerance, self.foundation.thickness)
+        allowed = (
+            self.tolerance
+            if self.foundation is None
+            else max(self.tolerance, self.foundation.thickness)
+        )
         if deepest is None or deepest[0] >= -allowed:
             return None
         depth, kind, i, j = deepest
         what = "the vertex is" if kind < 2 else "they are crossed by"
-        return (f"contact {self.name!r}: {self._describe(kind, i, j)}: {what} {-depth:.3g} "
-                f"inside (the tolerance is {allowed:g}; a pair that comes from beyond "
-                f"the margin {self.margin:g} within one step has no row: the margin should be "
-                "at least the largest approach speed times the step)")
+        return (
+            f"contact {self.name!r}: {self._describe(kind, i, j)}: {what} {-depth:.3g} "
+            f"inside (the tolerance is {allowed:g}; a pair that comes from beyond "
+            f"the margin {self.margin:g} within one step has no row: the margin should be "
+            "at least the largest approach speed times the step)"
+        )
 
     def forces(self, parts: list, h: float) -> MeshContactForces:
         """The forces of the impulses ``parts`` [(block, lambda)] of a step of size h."""
         if not parts:
-            return MeshContactForces(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
-                                     np.zeros((0, 3)))
-        (block, lam), = parts
+            return MeshContactForces(
+                np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+            )
+        ((block, lam),) = parts
         k = len(block.points)
         side = block.side_a[:, None]
         friction = np.zeros((k, 3))
         if self.mu > 0:
-            friction = side * (lam[k:2 * k, None] * block.tangents[0]
-                               + lam[2 * k:, None] * block.tangents[1]) / h
+            friction = (
+                side
+                * (
+                    lam[k : 2 * k, None] * block.tangents[0]
+                    + lam[2 * k :, None] * block.tangents[1]
+                )
+                / h
+            )
         return MeshContactForces(block.points, lam[:k] / h, side * block.normals, friction)
 
     def normal_forces(self, parts: list, h: float) -> list:
@@ -751,4 +878,4 @@ class MeshContact:
         for block, lam in parts:
             k = len(block.points)
             f += abs(block.weights).T @ (lam[:k] / h)
-        return [(pa, f[:len(pa)]), (pb, f[len(pa):])]
+        return [(pa, f[: len(pa)]), (pb, f[len(pa) :])]

@@ -89,8 +89,10 @@ def _curve_param(curve: str, name: str, value, *, lower: float = 0.0) -> float:
 def _points(name: str, array, n: int | None = None) -> np.ndarray:
     arr = np.asarray(array, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 2:
-        raise InputError(f"{name} must be an (n, 3) array with n >= 2 path points "
-                         f"(the two ends and any via points), got shape {arr.shape}")
+        raise InputError(
+            f"{name} must be an (n, 3) array with n >= 2 path points "
+            f"(the two ends and any via points), got shape {arr.shape}"
+        )
     if n is not None and arr.shape[0] != n:
         raise InputError(f"{name} has {arr.shape[0]} points, the positions have {n}")
     if not np.all(np.isfinite(arr)):
@@ -119,13 +121,14 @@ def active_force_length(fiber_length, width: float = 0.45, *, derivative: bool =
     """
     gamma = _curve_param("active_force_length", "width (gamma)", width)
     x = np.asarray(fiber_length, dtype=float)
-    f = np.exp(-(x - 1.0) ** 2 / gamma)
+    f = np.exp(-((x - 1.0) ** 2) / gamma)
     df = -2.0 * (x - 1.0) / gamma * f if derivative else None
     return _result(f, df, x.ndim == 0)
 
 
-def passive_force_length(fiber_length, shape: float = 5.0, strain_at_one: float = 0.6, *,
-                         derivative: bool = False):
+def passive_force_length(
+    fiber_length, shape: float = 5.0, strain_at_one: float = 0.6, *, derivative: bool = False
+):
     """Passive force-length multiplier, Thelen 2003 eq. (3):
 
         f_PE = (exp(k_PE (l - 1)/eps0M) - 1) / (exp(k_PE) - 1)   for l > 1, 0 otherwise,
@@ -151,8 +154,14 @@ def _fv_lengthening_slope(af: float, c1_at_zero: bool) -> float:
     return (1.0 + 1.0 / af) if c1_at_zero else (2.0 + 2.0 / af)
 
 
-def force_velocity(velocity, af: float = 0.25, flen: float = 1.4, *, c1_at_zero: bool = False,
-                   derivative: bool = False):
+def force_velocity(
+    velocity,
+    af: float = 0.25,
+    flen: float = 1.4,
+    *,
+    c1_at_zero: bool = False,
+    derivative: bool = False,
+):
     """Force-velocity multiplier f_V(v), the inverse of Thelen 2003 eqs. (6)-(7).
 
     ``velocity`` is the fiber velocity normalized by the activation-scaled
@@ -187,8 +196,7 @@ def force_velocity(velocity, af: float = 0.25, flen: float = 1.4, *, c1_at_zero:
     return _result(f, df, v.ndim == 0)
 
 
-def force_velocity_inverse(force, af: float = 0.25, flen: float = 1.4, *,
-                           c1_at_zero: bool = False):
+def force_velocity_inverse(force, af: float = 0.25, flen: float = 1.4, *, c1_at_zero: bool = False):
     """Normalized fiber velocity for a force-velocity multiplier f in [0, F_len): Thelen 2003
     eqs. (6)-(7),
 
@@ -202,16 +210,21 @@ def force_velocity_inverse(force, af: float = 0.25, flen: float = 1.4, *,
     k = _fv_lengthening_slope(af, c1_at_zero)
     f = np.asarray(force, dtype=float)
     if np.any(~np.isfinite(f)) or np.any(f < 0.0) or np.any(f >= flen):
-        raise InputError(f"force_velocity_inverse: multipliers must lie in [0, flen={flen}), "
-                         f"got range [{np.min(f)}, {np.max(f)}]")
+        raise InputError(
+            f"force_velocity_inverse: multipliers must lie in [0, flen={flen}), "
+            f"got range [{np.min(f)}, {np.max(f)}]"
+        )
     fs = np.minimum(f, 1.0)
     fl = np.maximum(f, 1.0)
-    v = np.where(f <= 1.0, (fs - 1.0) / (1.0 + fs / af), (fl - 1.0) * (flen - 1.0) / (k * (flen - fl)))
+    v = np.where(
+        f <= 1.0, (fs - 1.0) / (1.0 + fs / af), (fl - 1.0) * (flen - 1.0) / (k * (flen - fl))
+    )
     return _result(v, None, f.ndim == 0)
 
 
-def tendon_toe_constants(strain_at_one: float = 0.04, k_toe: float = 3.0,
-                         f_toe: float = 0.33) -> tuple[float, float]:
+def tendon_toe_constants(
+    strain_at_one: float = 0.04, k_toe: float = 3.0, f_toe: float = 0.33
+) -> tuple[float, float]:
     """(eps_toe, k_lin) of the tendon curve: the toe ends at eps_toe with force F_toe and the
     linear part has slope k_lin; both chosen so that f_T(eps0T) = 1 and the slope is
     continuous at eps_toe:
@@ -233,8 +246,14 @@ def tendon_toe_constants(strain_at_one: float = 0.04, k_toe: float = 3.0,
     return eps_toe, (1.0 - ft) / (e0 - eps_toe)
 
 
-def tendon_force_strain(strain, strain_at_one: float = 0.04, k_toe: float = 3.0,
-                        f_toe: float = 0.33, *, derivative: bool = False):
+def tendon_force_strain(
+    strain,
+    strain_at_one: float = 0.04,
+    k_toe: float = 3.0,
+    f_toe: float = 0.33,
+    *,
+    derivative: bool = False,
+):
     """Normalized tendon force, Thelen 2003 eq. (5):
 
         f_T = F_toe/(e^k_toe - 1) (exp(k_toe eps/eps_toe) - 1)   0 < eps <= eps_toe
@@ -266,6 +285,7 @@ def tendon_force_strain(strain, strain_at_one: float = 0.04, k_toe: float = 3.0,
 class PathGeometry:
     """Length L, rate Ldot, gradient g = dL/dx (n, 3), Hessian H = d2L/dx2 (3n, 3n) and
     dLdot/dx = H v (3n,) of a polyline through n points."""
+
     length: float
     length_rate: float
     gradient: np.ndarray
@@ -283,8 +303,10 @@ class PathGeometry:
         short = np.flatnonzero(seg <= 1e-12 * scale)
         if short.size:
             i = int(short[0])
-            raise InputError(f"path points {i} and {i + 1} coincide (segment length {seg[i]:.3g}): "
-                             "the force direction is undefined")
+            raise InputError(
+                f"path points {i} and {i + 1} coincide (segment length {seg[i]:.3g}): "
+                "the force direction is undefined"
+            )
         u = d / seg[:, None]
         g = np.zeros((n, 3))
         g[:-1] -= u
@@ -311,6 +333,7 @@ class PathForces:
     ``block(matrix, i, j)`` gives the 3x3 block of point i's force by point j.
     ``fiber`` carries the muscle's fiber state (None for springs).
     """
+
     forces: np.ndarray
     stiffness: np.ndarray
     damping: np.ndarray
@@ -322,19 +345,35 @@ class PathForces:
     fiber: FiberState | None = None
 
     @classmethod
-    def from_tension(cls, geometry: PathGeometry, tension: float, dt_dl: float, dt_dldot: float,
-                     fiber: FiberState | None = None) -> PathForces:
+    def from_tension(
+        cls,
+        geometry: PathGeometry,
+        tension: float,
+        dt_dl: float,
+        dt_dldot: float,
+        fiber: FiberState | None = None,
+    ) -> PathForces:
         g = geometry.gradient.ravel()
         forces = -tension * geometry.gradient
-        stiffness = -np.outer(g, dt_dl * g + dt_dldot * geometry.rate_gradient) \
-            - tension * geometry.hessian
+        stiffness = (
+            -np.outer(g, dt_dl * g + dt_dldot * geometry.rate_gradient) - tension * geometry.hessian
+        )
         damping = -dt_dldot * np.outer(g, g)
-        return cls(forces, stiffness, damping, float(tension), float(dt_dl), float(dt_dldot),
-                   geometry.length, geometry.length_rate, fiber)
+        return cls(
+            forces,
+            stiffness,
+            damping,
+            float(tension),
+            float(dt_dl),
+            float(dt_dldot),
+            geometry.length,
+            geometry.length_rate,
+            fiber,
+        )
 
     @staticmethod
     def block(matrix: np.ndarray, i: int, j: int) -> np.ndarray:
-        return matrix[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+        return matrix[3 * i : 3 * i + 3, 3 * j : 3 * j + 3]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -359,6 +398,7 @@ class AxialSpring:
     so T and dT/dL are continuous (a linearized step does not flip between slack and taut
     across a kink); without a toe dT/dL jumps from 0 to k at L0.
     """
+
     stiffness: float
     rest_length: float = 0.0
     damping: float = 0.0
@@ -366,13 +406,17 @@ class AxialSpring:
     toe: float = 0.0
 
     def __post_init__(self):
-        object.__setattr__(self, "stiffness", _nonnegative("AxialSpring", "stiffness", self.stiffness))
-        object.__setattr__(self, "rest_length",
-                           _nonnegative("AxialSpring", "rest_length", self.rest_length))
+        object.__setattr__(
+            self, "stiffness", _nonnegative("AxialSpring", "stiffness", self.stiffness)
+        )
+        object.__setattr__(
+            self, "rest_length", _nonnegative("AxialSpring", "rest_length", self.rest_length)
+        )
         object.__setattr__(self, "damping", _nonnegative("AxialSpring", "damping", self.damping))
         if not isinstance(self.tension_only, (bool, np.bool_)):
-            raise TypeError(f"AxialSpring: tension_only must be True or False, "
-                            f"got {self.tension_only!r}")
+            raise TypeError(
+                f"AxialSpring: tension_only must be True or False, got {self.tension_only!r}"
+            )
         object.__setattr__(self, "toe", _nonnegative("AxialSpring", "toe", self.toe))
         if self.toe > 0 and not self.tension_only:
             raise InputError("AxialSpring: a toe region needs tension_only=True")
@@ -386,8 +430,11 @@ class AxialSpring:
         if d <= 0.0:
             return 0.0, 0.0, 0.0
         if d < t:
-            return (k * d * d / (2 * t) + c * length_rate * d / t,
-                    (k * d + c * length_rate) / t, c * d / t)
+            return (
+                k * d * d / (2 * t) + c * length_rate * d / t,
+                (k * d + c * length_rate) / t,
+                c * d / t,
+            )
         return k * (d - t / 2) + c * length_rate, k, c
 
     def energy(self, positions) -> float:
@@ -400,13 +447,15 @@ class AxialSpring:
         if d <= 0.0:
             return 0.0
         if d < t:
-            return k * d ** 3 / (6 * t)
+            return k * d**3 / (6 * t)
         return k * t * t / 6 + 0.5 * k * ((d - t / 2) ** 2 - t * t / 4)
 
     def evaluate(self, positions, velocities=None, dt: float | None = None) -> PathForces:
         """Forces and Jacobians at the given point positions (n, 3) and velocities (n, 3)."""
         geometry = PathGeometry.of(positions, velocities)
-        return PathForces.from_tension(geometry, *self.tension(geometry.length, geometry.length_rate))
+        return PathForces.from_tension(
+            geometry, *self.tension(geometry.length, geometry.length_rate)
+        )
 
     def commit(self, result: PathForces) -> None:
         """Nothing to store (same interface as ThelenMuscle)."""
@@ -442,6 +491,7 @@ class ThelenParameters:
     force_velocity           False ignores f_V (f_V = 1, no damping)
     fv_c1_at_zero            ArtiSynth's continuous-slope f_V at v = 0
     """
+
     max_isometric_force: float
     optimal_fiber_length: float
     tendon_slack_length: float
@@ -464,10 +514,19 @@ class ThelenParameters:
 
     def __post_init__(self):
         owner = "ThelenParameters"
-        positive = ("max_isometric_force", "optimal_fiber_length", "max_contraction_velocity",
-                    "activation_time_constant", "deactivation_time_constant", "active_width",
-                    "passive_shape", "fmax_muscle_strain", "af", "fmax_tendon_strain",
-                    "tendon_k_toe")
+        positive = (
+            "max_isometric_force",
+            "optimal_fiber_length",
+            "max_contraction_velocity",
+            "activation_time_constant",
+            "deactivation_time_constant",
+            "active_width",
+            "passive_shape",
+            "fmax_muscle_strain",
+            "af",
+            "fmax_tendon_strain",
+            "tendon_k_toe",
+        )
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name in ("force_velocity", "fv_c1_at_zero"):
@@ -479,17 +538,23 @@ class ThelenParameters:
             else:
                 object.__setattr__(self, f.name, _nonnegative(owner, f.name, value))
         if not self.pennation_angle < math.pi / 2:
-            raise InputError(f"{owner}: pennation_angle must be in [0, pi/2) rad, "
-                             f"got {self.pennation_angle} (degrees given?)")
+            raise InputError(
+                f"{owner}: pennation_angle must be in [0, pi/2) rad, "
+                f"got {self.pennation_angle} (degrees given?)"
+            )
         if not self.pennation_angle <= self.max_pennation_angle < math.pi / 2:
-            raise InputError(f"{owner}: max_pennation_angle must be in [pennation_angle, pi/2), "
-                             f"got {self.max_pennation_angle}")
+            raise InputError(
+                f"{owner}: max_pennation_angle must be in [pennation_angle, pi/2), "
+                f"got {self.max_pennation_angle}"
+            )
         if self.flen <= 1.0:
             raise InputError(f"{owner}: flen must be > 1, got {self.flen}")
         if not 0.0 < self.tendon_f_toe < 1.0:
             raise InputError(f"{owner}: tendon_f_toe must be in (0, 1), got {self.tendon_f_toe}")
         if self.min_activation >= 1.0:
-            raise InputError(f"{owner}: min_activation must be in [0, 1), got {self.min_activation}")
+            raise InputError(
+                f"{owner}: min_activation must be in [0, 1), got {self.min_activation}"
+            )
 
     @property
     def width(self) -> float:
@@ -504,6 +569,7 @@ class FiberState:
     ``clamped``: the elastic-tendon fiber sits at its minimum length (no
     equilibrium above it). ``slack``: path too short for the tendon, no force.
     """
+
     length: float
     velocity: float
     cos_pennation: float
@@ -561,18 +627,30 @@ class ThelenMuscle:
     step, ``commit(r)`` with the result at the accepted state.
     """
 
-    def __init__(self, params: ThelenParameters, *, tendon: str = "rigid",
-                 activation: float | None = None, excitation: float = 0.0,
-                 activation_dynamics: bool = True, name: str = "muscle"):
+    def __init__(
+        self,
+        params: ThelenParameters,
+        *,
+        tendon: str = "rigid",
+        activation: float | None = None,
+        excitation: float = 0.0,
+        activation_dynamics: bool = True,
+        name: str = "muscle",
+    ):
         if not isinstance(params, ThelenParameters):
-            raise TypeError(f"ThelenMuscle {name!r}: params must be ThelenParameters, "
-                            f"got {type(params).__name__}")
+            raise TypeError(
+                f"ThelenMuscle {name!r}: params must be ThelenParameters, "
+                f"got {type(params).__name__}"
+            )
         if tendon not in ("rigid", "elastic"):
-            raise InputError(f"ThelenMuscle {name!r}: tendon must be 'rigid' or 'elastic', "
-                             f"got {tendon!r}")
+            raise InputError(
+                f"ThelenMuscle {name!r}: tendon must be 'rigid' or 'elastic', got {tendon!r}"
+            )
         if tendon == "elastic" and params.tendon_slack_length <= 0.0:
-            raise InputError(f"ThelenMuscle {name!r}: an elastic tendon needs "
-                             f"tendon_slack_length > 0, got {params.tendon_slack_length}")
+            raise InputError(
+                f"ThelenMuscle {name!r}: an elastic tendon needs "
+                f"tendon_slack_length > 0, got {params.tendon_slack_length}"
+            )
         self.params = params
         self.tendon = tendon
         self.name = name
@@ -648,8 +726,9 @@ class ThelenMuscle:
 
     def _tendon(self, strain: float):
         p = self.params
-        return tendon_force_strain(strain, p.fmax_tendon_strain, p.tendon_k_toe, p.tendon_f_toe,
-                                   derivative=True)
+        return tendon_force_strain(
+            strain, p.fmax_tendon_strain, p.tendon_k_toe, p.tendon_f_toe, derivative=True
+        )
 
     def _vmax(self, activation: float) -> float:
         """Activation-scaled maximum shortening speed (0.25 + 0.75 a) v_max l0 [m/s]."""
@@ -661,14 +740,14 @@ class ThelenMuscle:
     def _rigid(self, length: float, rate: float):
         p = self.params
         a = self._activation
-        x = length - p.tendon_slack_length        # fiber length along the tendon, l_M cos(alpha)
+        x = length - p.tendon_slack_length  # fiber length along the tendon, l_M cos(alpha)
         h = p.width
         if x <= 0.0:
             fiber = FiberState(h, 0.0, 0.0, a, 0.0, 0.0, 1.0, 0.0, 0.0, slack=True)
             return 0.0, 0.0, 0.0, fiber
         lm = math.hypot(x, h)
-        c = x / lm                                 # cos(alpha)
-        dc = h * h / lm ** 3                       # d cos(alpha) / dL
+        c = x / lm  # cos(alpha)
+        dc = h * h / lm**3  # d cos(alpha) / dL
         l0, f0 = p.optimal_fiber_length, p.max_isometric_force
         vscale = self._vmax(a)
         vm = c * rate
@@ -690,8 +769,13 @@ class ThelenMuscle:
         """Residual R = F_T - F_M cos(alpha), dR/dl_M, dR/dL, and the pieces, at fiber length lm."""
         p = self.params
         a = self._activation
-        h, l0, f0, lts = p.width, p.optimal_fiber_length, p.max_isometric_force, p.tendon_slack_length
-        proj = math.sqrt(max(lm * lm - h * h, 0.0))     # l_M cos(alpha)
+        h, l0, f0, lts = (
+            p.width,
+            p.optimal_fiber_length,
+            p.max_isometric_force,
+            p.tendon_slack_length,
+        )
+        proj = math.sqrt(max(lm * lm - h * h, 0.0))  # l_M cos(alpha)
         c = proj / lm
         dproj = lm / proj
         dc = h * h / (proj * lm * lm)
@@ -713,12 +797,12 @@ class ThelenMuscle:
         p = self.params
         h, lts = p.width, p.tendon_slack_length
         lo = self._min_fiber_length()
-        hi = math.hypot(length - lts, h) if length > lts else 0.0   # tendon exactly slack
-        if hi <= lo:                                   # tendon slack for every admissible l_M
+        hi = math.hypot(length - lts, h) if length > lts else 0.0  # tendon exactly slack
+        if hi <= lo:  # tendon slack for every admissible l_M
             _, _, _, ft, fiber = self._equilibrium(lo, length, lm_prev, dt)
             return ft, 0.0, replace(fiber, slack=True)
         r_lo, drm, drl, ft, fiber = self._equilibrium(lo, length, lm_prev, dt)
-        if r_lo <= 0.0:                                # fiber pulled to its minimum length
+        if r_lo <= 0.0:  # fiber pulled to its minimum length
             return ft, drl, replace(fiber, clamped=True)
         tol = 1e-12 * p.max_isometric_force
         guess = lm_prev if lm_prev is not None else p.optimal_fiber_length
@@ -734,11 +818,13 @@ class ThelenMuscle:
             step = lm - r / drm if drm < 0.0 else None
             lm = step if step is not None and lo < step < hi else 0.5 * (lo + hi)
         else:
-            raise SolverError(f"ThelenMuscle {self.name!r}: fiber equilibrium did not converge "
-                              f"at path length {length} (residual {r:.3g} N)")
+            raise SolverError(
+                f"ThelenMuscle {self.name!r}: fiber equilibrium did not converge "
+                f"at path length {length} (residual {r:.3g} N)"
+            )
         # T = F_T(L, l_M(L)): dT/dL = dF_T/dL + dF_T/dl_M dl_M/dL with dl_M/dL = -R_L/R_lM,
         # dF_T/dL = R_L and dF_T/dl_M = -R_L d(l_M cos alpha)/dl_M = -R_L l_M/(l_M cos alpha).
-        dproj = fiber.length / math.sqrt(fiber.length ** 2 - h * h)
+        dproj = fiber.length / math.sqrt(fiber.length**2 - h * h)
         dtdl = drl if drm == 0.0 else drl + drl * drl * dproj / drm
         return ft, dtdl, fiber
 
@@ -746,8 +832,10 @@ class ThelenMuscle:
         """Elastic tendon: set the fiber length to the static (v_M = 0) equilibrium at the
         path through ``positions`` with the current activation."""
         if self.tendon != "elastic":
-            raise InputError(f"ThelenMuscle {self.name!r}: initialize_fiber is for the elastic tendon "
-                             "(the rigid-tendon fiber follows the path length)")
+            raise InputError(
+                f"ThelenMuscle {self.name!r}: initialize_fiber is for the elastic tendon "
+                "(the rigid-tendon fiber follows the path length)"
+            )
         length = PathGeometry.of(positions).length
         _, _, fiber = self._solve_fiber(length, None, None)
         self._fiber_length = fiber.length
@@ -764,13 +852,19 @@ class ThelenMuscle:
         """(T, dT/dL, dT/dLdot, FiberState) at path length L and rate Ldot."""
         length = _real(f"ThelenMuscle {self.name!r}", "length", length)
         if self.tendon == "rigid":
-            return self._rigid(length, _real(f"ThelenMuscle {self.name!r}", "length_rate", length_rate))
+            return self._rigid(
+                length, _real(f"ThelenMuscle {self.name!r}", "length_rate", length_rate)
+            )
         if self._fiber_length is None:
-            raise SolverError(f"ThelenMuscle {self.name!r}: elastic tendon without a fiber state; "
-                              "call initialize_fiber(positions) first")
+            raise SolverError(
+                f"ThelenMuscle {self.name!r}: elastic tendon without a fiber state; "
+                "call initialize_fiber(positions) first"
+            )
         if dt is None:
-            raise InputError(f"ThelenMuscle {self.name!r}: the elastic tendon needs the step size dt "
-                             "(backward-Euler fiber velocity)")
+            raise InputError(
+                f"ThelenMuscle {self.name!r}: the elastic tendon needs the step size dt "
+                "(backward-Euler fiber velocity)"
+            )
         dt = _positive(f"ThelenMuscle {self.name!r}", "dt", dt)
         tension, dtdl, fiber = self._solve_fiber(length, self._fiber_length, dt)
         return tension, dtdl, 0.0, fiber
@@ -792,8 +886,10 @@ class ThelenMuscle:
 
         zero while the path is slack (L <= lTS)."""
         if not self.conservative:
-            raise InputError(f"ThelenMuscle {self.name!r}: an elastic tendon has no energy "
-                             "(its fiber length is a state)")
+            raise InputError(
+                f"ThelenMuscle {self.name!r}: an elastic tendon has no energy "
+                "(its fiber length is a state)"
+            )
         p = self.params
         x = PathGeometry.of(positions).length - p.tendon_slack_length
         if x <= 0.0:
@@ -803,10 +899,18 @@ class ThelenMuscle:
 
         def primitive(lm: float) -> float:
             ln = lm / l0
-            active = self._activation * l0 * math.sqrt(math.pi * gamma) / 2 * \
-                math.erf((ln - 1.0) / math.sqrt(gamma))
-            passive = l0 * (e0 / kpe * math.expm1(kpe * (ln - 1.0) / e0) - (ln - 1.0)) / \
-                math.expm1(kpe) if ln > 1.0 else 0.0
+            active = (
+                self._activation
+                * l0
+                * math.sqrt(math.pi * gamma)
+                / 2
+                * math.erf((ln - 1.0) / math.sqrt(gamma))
+            )
+            passive = (
+                l0 * (e0 / kpe * math.expm1(kpe * (ln - 1.0) / e0) - (ln - 1.0)) / math.expm1(kpe)
+                if ln > 1.0
+                else 0.0
+            )
             return active + passive
 
         return p.max_isometric_force * (primitive(math.hypot(x, h)) - primitive(h))

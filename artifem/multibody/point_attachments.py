@@ -36,8 +36,15 @@ from artifem.errors import InputError, SolverError
 from artifem.embedding.embedded_mesh import locate_points
 from artifem.fem_body import FemBody
 
-__all__ = ["FemPointWeights", "shape_function_weights", "support_weights", "nonnegative_weights",
-           "nearest_nodes", "FemPointAttachment", "ReducedPointAttachment"]
+__all__ = [
+    "FemPointWeights",
+    "shape_function_weights",
+    "support_weights",
+    "nonnegative_weights",
+    "nearest_nodes",
+    "FemPointAttachment",
+    "ReducedPointAttachment",
+]
 
 
 @dataclass(frozen=True)
@@ -46,14 +53,13 @@ class FemPointWeights:
 
     dofs: np.ndarray
     weights: np.ndarray
-    rest_position: np.ndarray        # X_a as reproduced by the weights
-    distance: float = 0.0            # how far the requested point was from the mesh
-    cell: int = -1                   # the containing element (local), -1 for a node support
+    rest_position: np.ndarray  # X_a as reproduced by the weights
+    distance: float = 0.0  # how far the requested point was from the mesh
+    cell: int = -1  # the containing element (local), -1 for a node support
 
     def __post_init__(self):
         if self.dofs.shape != self.weights.shape or self.dofs.ndim != 1 or self.dofs.size == 0:
-            raise InputError("an attached point needs one weight per support dof, and at "
-                             "least one")
+            raise InputError("an attached point needs one weight per support dof, and at least one")
         if abs(float(self.weights.sum()) - 1.0) > 1e-10:
             raise InputError(f"attachment weights must sum to 1, got {self.weights.sum():.12g}")
 
@@ -63,8 +69,9 @@ def _node_positions(body: FemBody) -> np.ndarray:
     return body.V.tabulate_dof_coordinates()
 
 
-def shape_function_weights(body: FemBody, point, *, snap: bool = False,
-                           tol: float = 1e-10) -> FemPointWeights:
+def shape_function_weights(
+    body: FemBody, point, *, snap: bool = False, tol: float = 1e-10
+) -> FemPointWeights:
     """Weights of the element containing ``point`` (its shape functions at the point), from
     :func:`~artifem.embedding.embedded_mesh.locate_points`. Serial.
 
@@ -73,16 +80,20 @@ def shape_function_weights(body: FemBody, point, *, snap: bool = False,
     (weights in [0, 1]; the distance is kept in the result).
     """
     if body.mesh.comm.size != 1:
-        raise NotImplementedError(f"point attachments to FEM body {body.name!r} are serial "
-                                  f"for now (use EmbeddedMesh in parallel)")
+        raise NotImplementedError(
+            f"point attachments to FEM body {body.name!r} are serial "
+            f"for now (use EmbeddedMesh in parallel)"
+        )
     X = np.asarray(point, dtype=float).reshape(1, 3)
     loc = locate_points(body, X, snap=True, tol=tol)
     cell, w, distance = int(loc.cells[0]), loc.weights[0], float(loc.distance[0])
     if distance > tol and not snap:
-        raise InputError(f"point {X[0].tolist()} is outside FEM body {body.name!r} "
-                         f"(distance {distance:.4g} to element "
-                         f"{int(body.input_cell_index([cell])[0])}); pass snap=True to "
-                         f"attach it to the closest point of that element")
+        raise InputError(
+            f"point {X[0].tolist()} is outside FEM body {body.name!r} "
+            f"(distance {distance:.4g} to element "
+            f"{int(body.input_cell_index([cell])[0])}); pass snap=True to "
+            f"attach it to the closest point of that element"
+        )
     dofs = body.V.dofmap.list[cell].astype(np.int64)
     return FemPointWeights(dofs, w, w @ _node_positions(body)[dofs], distance, cell)
 
@@ -103,7 +114,7 @@ def nearest_nodes(body: FemBody, point, k: int) -> np.ndarray:
             spanning = trial
         if len(spanning) == 4:
             break
-    rest = [d for d in order if d not in spanning][:k - len(spanning)]
+    rest = [d for d in order if d not in spanning][: k - len(spanning)]
     local = np.array(sorted(spanning + rest, key=lambda d: np.linalg.norm(x[d] - X)))
     inverse = {d: n for n, d in body._input_node_to_dof().items()}
     return np.array([inverse[int(d)] for d in local], dtype=np.int64)
@@ -127,14 +138,18 @@ def support_weights(body: FemBody, point, nodes, *, nonnegative: bool = False) -
         try:
             w = nonnegative_weights(Xj, X)
         except ValueError as e:
-            raise InputError(f"FEM body {body.name!r}, support nodes "
-                             f"{[int(n) for n in nodes[:10]]}{'...' if nodes.size > 10 else ''}:"
-                             f" {e}") from None
+            raise InputError(
+                f"FEM body {body.name!r}, support nodes "
+                f"{[int(n) for n in nodes[:10]]}{'...' if nodes.size > 10 else ''}:"
+                f" {e}"
+            ) from None
         return FemPointWeights(dofs, w, w @ Xj)
-    A = np.vstack([Xj.T, np.ones(len(dofs))])                          # (4, k)
+    A = np.vstack([Xj.T, np.ones(len(dofs))])  # (4, k)
     if np.linalg.matrix_rank(A) < 4:
-        raise InputError(f"support nodes {[int(n) for n in nodes[:10]]} are coplanar: they "
-                         f"cannot reproduce an arbitrary point")
+        raise InputError(
+            f"support nodes {[int(n) for n in nodes[:10]]} are coplanar: they "
+            f"cannot reproduce an arbitrary point"
+        )
     w = A.T @ np.linalg.solve(A @ A.T, np.append(X, 1.0))
     return FemPointWeights(dofs, w, w @ Xj)
 
@@ -158,33 +173,48 @@ def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
     h = float(np.linalg.norm(Xj - X, axis=1).max())
     if h == 0.0:
         return np.full(len(Xj), 1.0 / len(Xj))
-    A = np.vstack([((Xj - X) / h).T, np.ones(len(Xj))])                 # (4, k)
+    A = np.vstack([((Xj - X) / h).T, np.ones(len(Xj))])  # (4, k)
     b = np.array([0.0, 0.0, 0.0, 1.0])
     k = len(Xj)
     feasible = linprog(np.zeros(k), A_eq=A, b_eq=b, bounds=(0.0, None), method="highs")
     if feasible.status not in (0, 2):
-        raise SolverError(f"nonnegative_weights: feasibility LP failed for point {X.tolist()} "
-                          f"on {k} nodes: {feasible.message}")
-    if feasible.status == 2:                                             # infeasible
+        raise SolverError(
+            f"nonnegative_weights: feasibility LP failed for point {X.tolist()} "
+            f"on {k} nodes: {feasible.message}"
+        )
+    if feasible.status == 2:  # infeasible
         # distance of the point to the hull: min |Y^T w| over the simplex
         Y = A[:3]
-        near = minimize(lambda w: 0.5 * np.sum((Y @ w) ** 2), np.full(k, 1.0 / k),
-                        jac=lambda w: Y.T @ (Y @ w), bounds=[(0.0, None)] * k,
-                        constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
-                                      "jac": lambda w: np.ones(k)}],
-                        method="SLSQP", options={"ftol": 1e-15})
+        near = minimize(
+            lambda w: 0.5 * np.sum((Y @ w) ** 2),
+            np.full(k, 1.0 / k),
+            jac=lambda w: Y.T @ (Y @ w),
+            bounds=[(0.0, None)] * k,
+            constraints=[
+                {"type": "eq", "fun": lambda w: w.sum() - 1.0, "jac": lambda w: np.ones(k)}
+            ],
+            method="SLSQP",
+            options={"ftol": 1e-15},
+        )
         distance = h * float(np.linalg.norm(Y @ np.clip(near.x, 0.0, None)))
-        raise InputError(f"point {X.tolist()} is not in the convex hull of its {k} support "
-                         f"nodes (distance {distance:.4g}): no non-negative weights reproduce "
-                         f"it; use more or other nodes, or signed weights")
+        raise InputError(
+            f"point {X.tolist()} is not in the convex hull of its {k} support "
+            f"nodes (distance {distance:.4g}): no non-negative weights reproduce "
+            f"it; use more or other nodes, or signed weights"
+        )
     # independent rows of A w = b (coplanar nodes make A rank 3; SLSQP needs full rank)
     left, sigma, right = np.linalg.svd(A, full_matrices=False)
     rank = int(np.count_nonzero(sigma > 1e-12 * sigma[0]))
     A_eq, b_eq = sigma[:rank, None] * right[:rank], left[:, :rank].T @ b
-    qp = minimize(lambda w: 0.5 * w @ w, feasible.x, jac=lambda w: w,
-                  bounds=[(0.0, None)] * k, method="SLSQP", options={"ftol": 1e-15},
-                  constraints=[{"type": "eq", "fun": lambda w: A_eq @ w - b_eq,
-                                "jac": lambda w: A_eq}])
+    qp = minimize(
+        lambda w: 0.5 * w @ w,
+        feasible.x,
+        jac=lambda w: w,
+        bounds=[(0.0, None)] * k,
+        method="SLSQP",
+        options={"ftol": 1e-15},
+        constraints=[{"type": "eq", "fun": lambda w: A_eq @ w - b_eq, "jac": lambda w: A_eq}],
+    )
     w = np.zeros(k)
     support = qp.x > tol * max(float(qp.x.max()), 1.0 / k)
     w[support] = np.linalg.pinv(A[:, support]) @ b
@@ -192,9 +222,11 @@ def nonnegative_weights(nodes, point, *, tol: float = 1e-9) -> np.ndarray:
     lam = np.linalg.lstsq(A[:, support].T, w[support], rcond=None)[0]
     dual = float((A[:, ~support].T @ lam).max(initial=0.0))
     if w.min() < -tol or np.linalg.norm(A @ w - b) > tol or dual > tol:
-        raise SolverError(f"nonnegative_weights: no optimal weights found for point "
-                          f"{X.tolist()} on {k} nodes ({qp.message}; min w {w.min():.3g}, "
-                          f"residual {np.linalg.norm(A @ w - b):.3g}, dual {dual:.3g})")
+        raise SolverError(
+            f"nonnegative_weights: no optimal weights found for point "
+            f"{X.tolist()} on {k} nodes ({qp.message}; min w {w.min():.3g}, "
+            f"residual {np.linalg.norm(A @ w - b):.3g}, dual {dual:.3g})"
+        )
     return np.clip(w, 0.0, None) / np.clip(w, 0.0, None).sum()
 
 

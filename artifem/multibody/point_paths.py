@@ -30,20 +30,26 @@ class PointPath(PathElement):
             else:
                 x = np.asarray(p, dtype=float)
                 if x.shape != (3,) or not np.all(np.isfinite(x)):
-                    raise InputError(f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
-                                     f"finite numbers (a fixed world point), got {p!r}")
+                    raise InputError(
+                        f"PointPath {name!r}: a point is a FemPoint, a Frame or 3 "
+                        f"finite numbers (a fixed world point), got {p!r}"
+                    )
                 pts.append(Frame(None, x))
         if len(pts) < 2:
-            raise InputError(f"PointPath {name!r}: a path needs at least two points, "
-                             f"got {len(pts)}")
+            raise InputError(
+                f"PointPath {name!r}: a path needs at least two points, got {len(pts)}"
+            )
         self.element, self.points, self.name = element, pts, name
         self._timed = TimedPath(element, excitation, f"PointPath {name!r}")
 
     @property
     def bodies(self) -> tuple:
         """The scene bodies its points are on (FEM, reduced or rigid; world points: none)."""
-        return tuple(p.fem if isinstance(p, FemPoint) else p.body for p in self.points
-                     if isinstance(p, FemPoint) or p.body is not None)
+        return tuple(
+            p.fem if isinstance(p, FemPoint) else p.body
+            for p in self.points
+            if isinstance(p, FemPoint) or p.body is not None
+        )
 
     def __repr__(self) -> str:
         return f"PointPath({self.name!r}, {len(self.points)} points)"
@@ -53,18 +59,23 @@ class PointPath(PathElement):
         its points there keep their weights, now with G = sum_j w_j U_j (:class:`FemPoint`).
         The element and its excitation schedule are this path's (a reductor swaps the
         path at rest, before any step). ``lift``: unused, a path carries no nodes."""
-        points = [FemPoint(reduced, p.weights, name=p.name)
-                  if isinstance(p, FemPoint) and p.fem is reduced.full else p
-                  for p in self.points]
+        points = [
+            FemPoint(reduced, p.weights, name=p.name)
+            if isinstance(p, FemPoint) and p.fem is reduced.full
+            else p
+            for p in self.points
+        ]
         if all(a is b for a, b in zip(points, self.points)):
-            raise InputError(f"PointPath {self.name!r}: no point of it is on "
-                             f"{reduced.full.name!r}, the body {reduced.name!r} reduces")
-        return PointPath(self.element, points, excitation=self._timed.excitation,
-                         name=self.name)
+            raise InputError(
+                f"PointPath {self.name!r}: no point of it is on "
+                f"{reduced.full.name!r}, the body {reduced.name!r} reduces"
+            )
+        return PointPath(self.element, points, excitation=self._timed.excitation, name=self.name)
 
     def positions(self) -> np.ndarray:
-        return np.array([p.position() if isinstance(p, FemPoint) else p.world_position()
-                         for p in self.points])
+        return np.array(
+            [p.position() if isinstance(p, FemPoint) else p.world_position() for p in self.points]
+        )
 
     def velocities(self) -> np.ndarray:
         return np.array([p.velocity() for p in self.points])

@@ -46,8 +46,17 @@ from scipy import sparse
 from artifem.contact_points import facing_areas
 from artifem.errors import InputError
 
-__all__ = ["BodyPoints", "BodyState", "Frame", "MassProperties", "RigidBody", "cross", "exp_so3",
-           "orthonormalize", "skew"]
+__all__ = [
+    "BodyPoints",
+    "BodyState",
+    "Frame",
+    "MassProperties",
+    "RigidBody",
+    "cross",
+    "exp_so3",
+    "orthonormalize",
+    "skew",
+]
 
 MOTIONS = ("dynamic", "fixed", "prescribed")
 ORTHONORMAL_TOL = 1e-12
@@ -71,11 +80,17 @@ def cross(a, b) -> np.ndarray:
     """a x b over the last axis (broadcasting); np.cross without its per-call overhead."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.ndim == b.ndim == 1:
-        return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                         a[0] * b[1] - a[1] * b[0]])
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+        return np.array(
+            [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+        )
+    return np.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        axis=-1,
+    )
 
 
 def exp_so3(phi) -> np.ndarray:
@@ -83,7 +98,7 @@ def exp_so3(phi) -> np.ndarray:
     phi = np.asarray(phi, dtype=float)
     t = float(np.linalg.norm(phi))
     K = skew(phi)
-    if t < 1e-8:                        # series to second order; error O(t^3) < round-off
+    if t < 1e-8:  # series to second order; error O(t^3) < round-off
         return np.eye(3) + K + 0.5 * K @ K
     return np.eye(3) + (np.sin(t) / t) * K + ((1.0 - np.cos(t)) / (t * t)) * K @ K
 
@@ -94,9 +109,9 @@ def dexp_so3(phi) -> np.ndarray:
     phi = np.asarray(phi, dtype=float)
     t = float(np.linalg.norm(phi))
     K = skew(phi)
-    if t < 1e-6:                        # series: error O(t^3)
+    if t < 1e-6:  # series: error O(t^3)
         return np.eye(3) + 0.5 * K + K @ K / 6.0
-    return np.eye(3) + ((1.0 - np.cos(t)) / (t * t)) * K + ((t - np.sin(t)) / t ** 3) * K @ K
+    return np.eye(3) + ((1.0 - np.cos(t)) / (t * t)) * K + ((t - np.sin(t)) / t**3) * K @ K
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:
@@ -128,13 +143,16 @@ def _check_surface(vertices: np.ndarray, triangles: np.ndarray, what: str) -> No
     if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
         raise InputError(f"{what}: vertices must be a finite (n, 3) array, got {vertices.shape}")
     if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.shape[0] < 4:
-        raise InputError(f"{what}: triangles must be an (m >= 4, 3) integer array, "
-                         f"got {triangles.shape}")
+        raise InputError(
+            f"{what}: triangles must be an (m >= 4, 3) integer array, got {triangles.shape}"
+        )
     if triangles.min() < 0 or triangles.max() >= len(vertices):
         raise InputError(f"{what}: triangle indices must be in [0, {len(vertices)})")
-    repeated = np.flatnonzero((triangles[:, 0] == triangles[:, 1])
-                              | (triangles[:, 1] == triangles[:, 2])
-                              | (triangles[:, 2] == triangles[:, 0]))
+    repeated = np.flatnonzero(
+        (triangles[:, 0] == triangles[:, 1])
+        | (triangles[:, 1] == triangles[:, 2])
+        | (triangles[:, 2] == triangles[:, 0])
+    )
     if repeated.size:
         raise InputError(f"{what}: triangles {repeated[:5].tolist()} repeat a vertex")
     n = len(vertices)
@@ -143,14 +161,18 @@ def _check_surface(vertices: np.ndarray, triangles: np.ndarray, what: str) -> No
     codes, counts = np.unique(i * n + j, return_counts=True)
     if np.any(counts > 1):
         e = codes[counts > 1][0]
-        raise InputError(f"{what}: edge ({e // n}, {e % n}) is used twice in the same direction: "
-                         "the triangles are inconsistently oriented or the surface is "
-                         "non-manifold")
+        raise InputError(
+            f"{what}: edge ({e // n}, {e % n}) is used twice in the same direction: "
+            "the triangles are inconsistently oriented or the surface is "
+            "non-manifold"
+        )
     boundary = codes[~np.isin((codes % n) * n + codes // n, codes)]
     if boundary.size:
         e = boundary[0]
-        raise InputError(f"{what}: the surface is not closed: {boundary.size} boundary edges, "
-                         f"e.g. ({e // n}, {e % n})")
+        raise InputError(
+            f"{what}: the surface is not closed: {boundary.size} boundary edges, "
+            f"e.g. ({e // n}, {e % n})"
+        )
 
 
 @dataclass(frozen=True)
@@ -174,13 +196,16 @@ class MassProperties:
         principal = np.linalg.eigvalsh(inertia)
         tol = 1e-9 * principal[-1]
         if principal[0] <= 0 or principal[0] + principal[1] < principal[2] - tol:
-            raise InputError(f"inertia has principal moments {principal.tolist()}: they must be "
-                             "positive and satisfy the triangle inequality I1 + I2 >= I3")
+            raise InputError(
+                f"inertia has principal moments {principal.tolist()}: they must be "
+                "positive and satisfy the triangle inequality I1 + I2 >= I3"
+            )
         object.__setattr__(self, "inertia", inertia)
 
     @classmethod
-    def from_surface(cls, vertices, triangles, density: float,
-                     what: str = "surface") -> MassProperties:
+    def from_surface(
+        cls, vertices, triangles, density: float, what: str = "surface"
+    ) -> MassProperties:
         """Mass properties of the solid bounded by a closed outward triangle surface.
 
         See the module docstring for the equations. ``what`` names the surface
@@ -194,17 +219,23 @@ class MassProperties:
         if not np.issubdtype(triangles.dtype, np.integer):
             raise InputError(f"{what}: triangles must be integer vertex indices")
         _check_surface(vertices, triangles, what)
-        c0 = vertices.mean(axis=0)                  # conditioning: translated meshes stay exact
+        c0 = vertices.mean(axis=0)  # conditioning: translated meshes stay exact
         a, b, c = (vertices[triangles[:, k]] - c0 for k in range(3))
         d = np.einsum("ij,ij->i", a, cross(b, c))
         s = a + b + c
         volume = d.sum() / 6.0
         if not volume > 0:
-            raise InputError(f"{what}: enclosed volume {volume:.3g} <= 0: the triangles are "
-                             "oriented inward (inverted surface)")
+            raise InputError(
+                f"{what}: enclosed volume {volume:.3g} <= 0: the triangles are "
+                "oriented inward (inverted surface)"
+            )
         e = (d @ s) / 24.0 / volume
-        C = np.einsum("i,ij,ik->jk", d, a, a) + np.einsum("i,ij,ik->jk", d, b, b) \
-            + np.einsum("i,ij,ik->jk", d, c, c) + np.einsum("i,ij,ik->jk", d, s, s)
+        C = (
+            np.einsum("i,ij,ik->jk", d, a, a)
+            + np.einsum("i,ij,ik->jk", d, b, b)
+            + np.einsum("i,ij,ik->jk", d, c, c)
+            + np.einsum("i,ij,ik->jk", d, s, s)
+        )
         C = C / 120.0 - volume * np.outer(e, e)
         return cls(density * volume, c0 + e, density * (np.trace(C) * np.eye(3) - C))
 
@@ -239,10 +270,20 @@ class RigidBody:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "rigid_bodies"
 
-    def __init__(self, name: str, mass: float, inertia, *, position=(0.0, 0.0, 0.0),
-                 rotation=None, velocity=(0.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.0),
-                 motion: str = "dynamic", trajectory: Trajectory | None = None,
-                 surface: tuple[np.ndarray, np.ndarray] | None = None):
+    def __init__(
+        self,
+        name: str,
+        mass: float,
+        inertia,
+        *,
+        position=(0.0, 0.0, 0.0),
+        rotation=None,
+        velocity=(0.0, 0.0, 0.0),
+        angular_velocity=(0.0, 0.0, 0.0),
+        motion: str = "dynamic",
+        trajectory: Trajectory | None = None,
+        surface: tuple[np.ndarray, np.ndarray] | None = None,
+    ):
         self.name = str(name)
         what = f"rigid body {self.name!r}"
         try:
@@ -252,8 +293,10 @@ class RigidBody:
         if motion not in MOTIONS:
             raise InputError(f"{what}: motion must be one of {MOTIONS}, got {motion!r}")
         if (motion == "prescribed") != (trajectory is not None):
-            raise InputError(f"{what}: a trajectory is required for, and only for, "
-                             f"motion='prescribed' (motion={motion!r})")
+            raise InputError(
+                f"{what}: a trajectory is required for, and only for, "
+                f"motion='prescribed' (motion={motion!r})"
+            )
         self.mass = props.mass
         self.inertia = props.inertia
         self.motion = motion
@@ -267,21 +310,24 @@ class RigidBody:
             raise InputError(f"{what}: a fixed body cannot have a velocity")
 
     @classmethod
-    def from_surface(cls, name: str, vertices, triangles, density: float,
-                     **kwargs) -> RigidBody:
+    def from_surface(cls, name: str, vertices, triangles, density: float, **kwargs) -> RigidBody:
         """A body of uniform ``density`` bounded by a closed outward triangle surface.
 
         The body frame is the mesh frame translated to the COM: p = COM, R = 1,
         and ``surface`` holds the vertices relative to the COM.
         """
-        props = MassProperties.from_surface(vertices, triangles, density,
-                                            what=f"rigid body {name!r}: surface")
+        props = MassProperties.from_surface(
+            vertices, triangles, density, what=f"rigid body {name!r}: surface"
+        )
         if "position" in kwargs or "rotation" in kwargs:
-            raise InputError(f"rigid body {name!r}: the pose of a body built from a surface is "
-                             "the surface's (COM, identity rotation); move the surface instead")
+            raise InputError(
+                f"rigid body {name!r}: the pose of a body built from a surface is "
+                "the surface's (COM, identity rotation); move the surface instead"
+            )
         surface = (np.asarray(vertices, dtype=float) - props.center, np.asarray(triangles))
-        return cls(name, props.mass, props.inertia, position=props.center, surface=surface,
-                   **kwargs)
+        return cls(
+            name, props.mass, props.inertia, position=props.center, surface=surface, **kwargs
+        )
 
     @classmethod
     def marker(cls, name: str, *, position=(0.0, 0.0, 0.0), rotation=None) -> RigidBody:
@@ -366,8 +412,10 @@ class RigidBody:
 
     def angular_momentum(self, about=(0.0, 0.0, 0.0)) -> np.ndarray:
         """L = (p - about) x m v + I_w w."""
-        return (cross(self.position - np.asarray(about, dtype=float), self.mass * self.velocity)
-                + self.inertia_world() @ self.angular_velocity)
+        return (
+            cross(self.position - np.asarray(about, dtype=float), self.mass * self.velocity)
+            + self.inertia_world() @ self.angular_velocity
+        )
 
     def advance_pose(self, h: float) -> None:
         """p += h v, R = exp(h [w]x) R, re-orthonormalized when round-off demands it."""
@@ -381,10 +429,12 @@ class RigidBody:
         """A prescribed body's trajectory at time t, validated."""
         what = f"rigid body {self.name!r}: trajectory({t:g})"
         state = BodyState(*self.trajectory(t))
-        return BodyState(_vector(state.position, f"{what} position"),
-                         _rotation(state.rotation, f"{what} rotation"),
-                         _vector(state.velocity, f"{what} velocity"),
-                         _vector(state.angular_velocity, f"{what} angular velocity"))
+        return BodyState(
+            _vector(state.position, f"{what} position"),
+            _rotation(state.rotation, f"{what} rotation"),
+            _vector(state.velocity, f"{what} velocity"),
+            _vector(state.angular_velocity, f"{what} angular velocity"),
+        )
 
     def follow_trajectory(self, t: float) -> None:
         """Put a prescribed body at its trajectory's pose and twist at time t."""
@@ -397,16 +447,20 @@ class RigidBody:
         the body frame about the COM, or the surface's vertices."""
         if points is None:
             if self.surface is None:
-                raise InputError(f"rigid body {self.name!r} has no surface: give the contact "
-                                 "points (body frame, about the COM)")
+                raise InputError(
+                    f"rigid body {self.name!r} has no surface: give the contact "
+                    "points (body frame, about the COM)"
+                )
             points = self.surface[0]
         return BodyPoints(self, points)
 
     def contact_surface(self) -> tuple[BodyPoints, np.ndarray]:
         """(the surface's vertices, its triangles); an InputError without a surface."""
         if self.surface is None:
-            raise InputError(f"rigid body {self.name!r} has no surface for contact: give "
-                             "surface=(vertices, triangles) or use RigidBody.from_surface")
+            raise InputError(
+                f"rigid body {self.name!r} has no surface for contact: give "
+                "surface=(vertices, triangles) or use RigidBody.from_surface"
+            )
         return BodyPoints(self, self.surface[0]), np.asarray(self.surface[1])
 
     def to_world(self, points) -> np.ndarray:
@@ -489,13 +543,19 @@ class BodyPoints:
     def __init__(self, body: RigidBody, points):
         self.body = body
         self.local = np.asarray(points, dtype=float)
-        if self.local.ndim != 2 or self.local.shape[1] != 3 or not len(self.local) \
-                or not np.all(np.isfinite(self.local)):
-            raise InputError(f"rigid body {body.name!r}: contact points must be a finite "
-                             f"(n >= 1, 3) array, got shape {self.local.shape}")
+        if (
+            self.local.ndim != 2
+            or self.local.shape[1] != 3
+            or not len(self.local)
+            or not np.all(np.isfinite(self.local))
+        ):
+            raise InputError(
+                f"rigid body {body.name!r}: contact points must be a finite "
+                f"(n >= 1, 3) array, got shape {self.local.shape}"
+            )
         self.labels = np.arange(len(self.local))
-        self.mesh_body = None                       # no FEM mesh: no contact pressure
-        self._areas = None                          # facing_areas's, in the body frame
+        self.mesh_body = None  # no FEM mesh: no contact pressure
+        self._areas = None  # facing_areas's, in the body frame
 
     def __len__(self) -> int:
         return len(self.local)
@@ -531,16 +591,24 @@ class BodyPoints:
         (:func:`~artifem.contact_points.facing_areas`): a third of each adjacent
         surface triangle facing it, projected on it, at the current pose. The points must
         be the surface's vertices (the default contact points)."""
-        if self._areas is None:         # the triangles' vector areas in the body frame
+        if self._areas is None:  # the triangles' vector areas in the body frame
             surface = self.body.surface
-            if surface is None or np.shape(surface[0]) != self.local.shape \
-                    or not np.allclose(surface[0], self.local):
-                raise InputError(f"rigid body {self.body.name!r}: an elastic foundation "
-                                 "needs the contact points to be the body's surface "
-                                 "vertices (the default), to know the area each stands for")
+            if (
+                surface is None
+                or np.shape(surface[0]) != self.local.shape
+                or not np.allclose(surface[0], self.local)
+            ):
+                raise InputError(
+                    f"rigid body {self.body.name!r}: an elastic foundation "
+                    "needs the contact points to be the body's surface "
+                    "vertices (the default), to know the area each stands for"
+                )
             x, tris = self.local, np.asarray(surface[1])
-            self._areas = (0.5 * np.cross(x[tris[:, 1]] - x[tris[:, 0]],
-                                          x[tris[:, 2]] - x[tris[:, 0]]), tris)
-        area, tris = self._areas        # a_world . e = a_body . R^T e
-        return facing_areas(area, tris, indices, np.asarray(directions) @ self.body.rotation,
-                            len(self.local))
+            self._areas = (
+                0.5 * np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]),
+                tris,
+            )
+        area, tris = self._areas  # a_world . e = a_body . R^T e
+        return facing_areas(
+            area, tris, indices, np.asarray(directions) @ self.body.rotation, len(self.local)
+        )

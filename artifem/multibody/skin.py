@@ -94,8 +94,15 @@ _LEVI_CIVITA = np.zeros((3, 3, 3))
 _LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
 _LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
 
-__all__ = ["RigidMaster", "FemMaster", "ReducedMaster", "SkinMesh", "SkinPressure",
-           "skin_weights", "embedding_weights"]
+__all__ = [
+    "RigidMaster",
+    "FemMaster",
+    "ReducedMaster",
+    "SkinMesh",
+    "SkinPressure",
+    "skin_weights",
+    "embedding_weights",
+]
 
 WEIGHTINGS = ("inverse_square", "gaussian")
 BLENDINGS = ("linear", "dual_quaternion")
@@ -103,18 +110,33 @@ BLENDINGS = ("linear", "dual_quaternion")
 
 # ---- quaternions (w, x, y, z) ------------------------------------------------------------
 
+
 def _quat_left(p: np.ndarray) -> np.ndarray:
     """L(p) (..., 4, 4) with p q = L(p) q."""
     w, x, y, z = np.moveaxis(p, -1, 0)
-    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1),
-                     np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], -2)
+    return np.stack(
+        [
+            np.stack([w, -x, -y, -z], -1),
+            np.stack([x, w, -z, y], -1),
+            np.stack([y, z, w, -x], -1),
+            np.stack([z, -y, x, w], -1),
+        ],
+        -2,
+    )
 
 
 def _quat_right(q: np.ndarray) -> np.ndarray:
     """R(q) (..., 4, 4) with p q = R(q) p."""
     w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, z, -y], -1),
-                     np.stack([y, -z, w, x], -1), np.stack([z, y, -x, w], -1)], -2)
+    return np.stack(
+        [
+            np.stack([w, -x, -y, -z], -1),
+            np.stack([x, w, z, -y], -1),
+            np.stack([y, -z, w, x], -1),
+            np.stack([z, y, -x, w], -1),
+        ],
+        -2,
+    )
 
 
 def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -122,7 +144,7 @@ def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 _CONJ = np.diag([1.0, -1.0, -1.0, -1.0])
-_E = np.vstack([np.zeros((1, 3)), np.eye(3)])         # R^3 -> pure quaternions
+_E = np.vstack([np.zeros((1, 3)), np.eye(3)])  # R^3 -> pure quaternions
 
 
 def _pure(x: np.ndarray) -> np.ndarray:
@@ -137,6 +159,7 @@ def _quat_of_rotation(R: np.ndarray) -> np.ndarray:
 
 
 # ---- masters -------------------------------------------------------------------------------
+
 
 class RigidMaster:
     """A rigid master: a RigidBody, or a Frame on one (see the module docstring).
@@ -157,8 +180,10 @@ class RigidMaster:
     def __init__(self, master: RigidBody | Frame, reference=None):
         if isinstance(master, Frame):
             if master.body is None:
-                raise InputError("a skin master frame must be attached to a rigid body (a "
-                                 "world frame does not move: leave it out)")
+                raise InputError(
+                    "a skin master frame must be attached to a rigid body (a "
+                    "world frame does not move: leave it out)"
+                )
             body, default = master.body, master.position.reshape(1, 3)
         elif isinstance(master, RigidBody):
             body, default = master, np.zeros((1, 3))
@@ -190,8 +215,9 @@ class RigidMaster:
         return self.body.twist
 
 
-def embedding_weights(body: FemBody, points: np.ndarray, tol: float = 1e-10
-                      ) -> list[FemPointWeights]:
+def embedding_weights(
+    body: FemBody, points: np.ndarray, tol: float = 1e-10
+) -> list[FemPointWeights]:
     """Shape-function weights of many points on a FEM body, located at once by
     :func:`~artifem.embedding.embedded_mesh.locate_points` with ``snap=True``: the containing
     element inside; outside, the closest point of the nearest element (weights in [0, 1],
@@ -199,8 +225,10 @@ def embedding_weights(body: FemBody, points: np.ndarray, tol: float = 1e-10
     loc = locate_points(body, points, snap=True, tol=tol)
     dofs = body.V.dofmap.list[loc.cells].astype(np.int64)
     x_nodes = body.V.tabulate_dof_coordinates()
-    return [FemPointWeights(d, w, w @ x_nodes[d], float(loc.distance[i]), int(c))
-            for i, c, d, w in zip(loc.indices, loc.cells, dofs, loc.weights)]
+    return [
+        FemPointWeights(d, w, w @ x_nodes[d], float(loc.distance[i]), int(c))
+        for i, c, d, w in zip(loc.indices, loc.cells, dofs, loc.weights)
+    ]
 
 
 class FemMaster:
@@ -234,14 +262,14 @@ class FemMaster:
         return self.distance
 
     def nodal_displacement(self) -> np.ndarray:
-        return self.body.u.x.array[:self.ndofs].reshape(-1, 3)
+        return self.body.u.x.array[: self.ndofs].reshape(-1, 3)
 
     def displacement(self) -> np.ndarray:
         """sum_j N_j u_j at every vertex (n, 3)."""
         return self.N @ self.nodal_displacement()
 
     def velocity(self) -> np.ndarray:
-        return self.body.v.x.array[:self.ndofs].copy()
+        return self.body.v.x.array[: self.ndofs].copy()
 
     def node_jacobian(self) -> sparse.csr_matrix:
         """d(vertex displacement)/d(nodal dofs), (3n, ndofs): N kron I3."""
@@ -271,8 +299,7 @@ class ReducedMaster(FemMaster):
             super().embed(X)
         finally:
             self.ndofs = ndofs
-        self.NU = (sparse.kron(self.N, sparse.identity(3), format="csr")
-                   @ self.reduced.U)                                  # (3n, r)
+        self.NU = sparse.kron(self.N, sparse.identity(3), format="csr") @ self.reduced.U  # (3n, r)
         self.N_bar = self.N @ self.reduced.u_bar.reshape(-1, 3)
 
     def nodal_displacement(self) -> np.ndarray:
@@ -297,13 +324,20 @@ def _as_master(m):
         return ReducedMaster(m)
     if isinstance(m, FemBody):
         return FemMaster(m)
-    raise TypeError(f"a skin master must be a RigidBody, Frame, FemBody or ReducedFemBody "
-                    f"(or a RigidMaster / FemMaster / ReducedMaster), got {type(m)}")
+    raise TypeError(
+        f"a skin master must be a RigidBody, Frame, FemBody or ReducedFemBody "
+        f"(or a RigidMaster / FemMaster / ReducedMaster), got {type(m)}"
+    )
 
 
-def skin_weights(distances: np.ndarray, *, weighting: str = "inverse_square",
-                 sigma: float | None = None, max_masters: int | None = None,
-                 zero_distance: float = 1e-12) -> np.ndarray:
+def skin_weights(
+    distances: np.ndarray,
+    *,
+    weighting: str = "inverse_square",
+    sigma: float | None = None,
+    max_masters: int | None = None,
+    zero_distance: float = 1e-12,
+) -> np.ndarray:
     """Normalized weights (n, M) from vertex-to-master distances (n, M) (module docstring)."""
     d = np.asarray(distances, dtype=float)
     if d.ndim != 2 or d.shape[1] == 0 or np.any(d < 0) or not np.all(np.isfinite(d)):
@@ -340,6 +374,7 @@ def skin_weights(distances: np.ndarray, *, weighting: str = "inverse_square",
 
 # ---- the skin ----------------------------------------------------------------------------
 
+
 class SkinMesh:
     """A skin over several masters (see the module docstring).
 
@@ -355,10 +390,20 @@ class SkinMesh:
         blending: ``"linear"`` or ``"dual_quaternion"`` for the rigid masters.
     """
 
-    def __init__(self, vertices, faces=None, masters=(), *, weighting: str = "inverse_square",
-                 sigma: float | None = None, max_masters: int | None = None,
-                 weights=None, blending: str = "linear", zero_distance: float = 1e-12,
-                 name: str = "skin"):
+    def __init__(
+        self,
+        vertices,
+        faces=None,
+        masters=(),
+        *,
+        weighting: str = "inverse_square",
+        sigma: float | None = None,
+        max_masters: int | None = None,
+        weights=None,
+        blending: str = "linear",
+        zero_distance: float = 1e-12,
+        name: str = "skin",
+    ):
         self.name = name
         X = np.asarray(vertices, dtype=float)
         if X.ndim != 2 or X.shape[1] != 3 or X.shape[0] == 0 or not np.all(np.isfinite(X)):
@@ -367,15 +412,21 @@ class SkinMesh:
         self.n = X.shape[0]
         if faces is not None:
             faces = np.asarray(faces)
-            if (faces.ndim != 2 or faces.shape[1] != 3
-                    or not np.issubdtype(faces.dtype, np.integer)
-                    or faces.min() < 0 or faces.max() >= self.n):
-                raise InputError(f"skin {name!r}: faces must be (m, 3) vertex indices in "
-                                 f"[0, {self.n})")
+            if (
+                faces.ndim != 2
+                or faces.shape[1] != 3
+                or not np.issubdtype(faces.dtype, np.integer)
+                or faces.min() < 0
+                or faces.max() >= self.n
+            ):
+                raise InputError(
+                    f"skin {name!r}: faces must be (m, 3) vertex indices in [0, {self.n})"
+                )
         self.faces = faces
         if blending not in BLENDINGS:
-            raise InputError(f"skin {name!r}: blending must be one of {BLENDINGS}, "
-                             f"got {blending!r}")
+            raise InputError(
+                f"skin {name!r}: blending must be one of {BLENDINGS}, got {blending!r}"
+            )
         self.blending = blending
         self.masters = [_as_master(m) for m in masters]
         if not self.masters:
@@ -388,15 +439,26 @@ class SkinMesh:
         self.ndofs = int(offsets[-1])
         if weights is None:
             D = np.stack([m.distances(X) for m in self.masters], axis=1)
-            self.weights = skin_weights(D, weighting=weighting, sigma=sigma,
-                                        max_masters=max_masters, zero_distance=zero_distance)
+            self.weights = skin_weights(
+                D,
+                weighting=weighting,
+                sigma=sigma,
+                max_masters=max_masters,
+                zero_distance=zero_distance,
+            )
         else:
             W = np.asarray(weights, dtype=float)
-            if W.shape != (self.n, len(self.masters)) or np.any(W < 0) \
-                    or not np.all(np.isfinite(W)) or np.any(W.sum(axis=1) <= 0):
-                raise InputError(f"skin {name!r}: weights must be finite, >= 0, of shape "
-                                 f"({self.n}, {len(self.masters)}), each row with a "
-                                 f"positive sum")
+            if (
+                W.shape != (self.n, len(self.masters))
+                or np.any(W < 0)
+                or not np.all(np.isfinite(W))
+                or np.any(W.sum(axis=1) <= 0)
+            ):
+                raise InputError(
+                    f"skin {name!r}: weights must be finite, >= 0, of shape "
+                    f"({self.n}, {len(self.masters)}), each row with a "
+                    f"positive sum"
+                )
             self.weights = W / W.sum(axis=1, keepdims=True)
         self.rigid = [i for i, m in enumerate(self.masters) if m.kind == "rigid"]
         self.deformable = [i for i, m in enumerate(self.masters) if m.kind != "rigid"]
@@ -411,7 +473,7 @@ class SkinMesh:
         blocks = []
         if not self.rigid:
             return disp, blocks
-        W = self.weights[:, self.rigid]                                   # (n, K)
+        W = self.weights[:, self.rigid]  # (n, K)
         maps = [self.masters[i].transform() for i in self.rigid]
         if self.blending == "linear":
             for k, (Rd, t) in enumerate(maps):
@@ -421,21 +483,21 @@ class SkinMesh:
                     r = Y - self.masters[self.rigid[k]].body.position
                     B = np.zeros((self.n, 3, 6))
                     B[:, :, :3] = np.eye(3)
-                    B[:, :, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, r)    # -[r]x
+                    B[:, :, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, r)  # -[r]x
                     blocks.append(W[:, k, None, None] * B)
             return disp, blocks
         # dual quaternions
-        WR = W.sum(axis=1)                                                # (n,)
+        WR = W.sum(axis=1)  # (n,)
         on = WR > 0
         A = np.zeros_like(W)
         A[on] = W[on] / WR[on, None]
-        Q = np.array([_quat_of_rotation(Rd) for Rd, _ in maps])           # (K, 4)
-        T = np.array([_pure(t) for _, t in maps])                         # (K, 4)
-        Dq = 0.5 * _qmul(T, Q)                                            # (K, 4)
+        Q = np.array([_quat_of_rotation(Rd) for Rd, _ in maps])  # (K, 4)
+        T = np.array([_pure(t) for _, t in maps])  # (K, 4)
+        Dq = 0.5 * _qmul(T, Q)  # (K, 4)
         pivot = np.argmax(A, axis=1)
-        S = np.where(Q[pivot] @ Q.T >= 0.0, 1.0, -1.0)                    # (n, K)
+        S = np.where(Q[pivot] @ Q.T >= 0.0, 1.0, -1.0)  # (n, K)
         AS = A * S
-        b0, be = AS @ Q, AS @ Dq                                          # (n, 4)
+        b0, be = AS @ Q, AS @ Dq  # (n, 4)
         Xq = _pure(X)
         b0c = b0 @ _CONJ
         N = _qmul(_qmul(b0, Xq), b0c) + 2.0 * _qmul(be, b0c)
@@ -446,18 +508,22 @@ class SkinMesh:
         if not jacobian:
             return disp, blocks
         # dN = M0 db0 + Me dbe (n, 4, 4 each)
-        M0 = (_quat_left(_qmul(b0, Xq)) @ _CONJ + _quat_right(_qmul(Xq, b0c))
-              + 2.0 * _quat_left(be) @ _CONJ)
+        M0 = (
+            _quat_left(_qmul(b0, Xq)) @ _CONJ
+            + _quat_right(_qmul(Xq, b0c))
+            + 2.0 * _quat_left(be) @ _CONJ
+        )
         Me = 2.0 * _quat_right(b0c)
         # dx = P dN / s - vec(N) 2 b0^T db0 / s^2 = (P M0 / s - 2 Y b0^T / s) db0 + P Me / s dbe
         P = _E.T
-        J0 = (P @ M0) / s_safe[:, None, None] - 2.0 * np.einsum("ni,nj->nij", Y, b0) \
-            / s_safe[:, None, None]
-        Je = (P @ Me) / s_safe[:, None, None]                             # (n, 3, 4)
+        J0 = (P @ M0) / s_safe[:, None, None] - 2.0 * np.einsum("ni,nj->nij", Y, b0) / s_safe[
+            :, None, None
+        ]
+        Je = (P @ Me) / s_safe[:, None, None]  # (n, 3, 4)
         for k, i in enumerate(self.rigid):
             body = self.masters[i].body
             t = maps[k][1]
-            RqE = _quat_right(Q[k]) @ _E                                  # (4, 3)
+            RqE = _quat_right(Q[k]) @ _E  # (4, 3)
             db0_dw = 0.5 * RqE
             dbe_dv = 0.5 * RqE
             dbe_dw = 0.5 * RqE @ (-skew(t - body.position)) + 0.25 * _quat_left(T[k]) @ RqE
@@ -482,17 +548,25 @@ class SkinMesh:
             B = blocks[k]
             rows = np.repeat(np.arange(3 * self.n), 6)
             cols = self.slices[i].start + np.tile(np.arange(6), 3 * self.n)
-            parts.append(sparse.csr_matrix((B.reshape(-1), (rows, cols)),
-                                           shape=(3 * self.n, self.ndofs)))
+            parts.append(
+                sparse.csr_matrix((B.reshape(-1), (rows, cols)), shape=(3 * self.n, self.ndofs))
+            )
         for i in self.deformable:
             m = self.masters[i]
             Gi = sparse.diags(np.repeat(self.weights[:, i], 3)) @ sparse.csr_matrix(
-                m.node_jacobian())
+                m.node_jacobian()
+            )
             Gi = sparse.csr_matrix(Gi)
-            parts.append(sparse.hstack([
-                sparse.csr_matrix((3 * self.n, self.slices[i].start)), Gi,
-                sparse.csr_matrix((3 * self.n, self.ndofs - self.slices[i].stop))],
-                format="csr"))
+            parts.append(
+                sparse.hstack(
+                    [
+                        sparse.csr_matrix((3 * self.n, self.slices[i].start)),
+                        Gi,
+                        sparse.csr_matrix((3 * self.n, self.ndofs - self.slices[i].stop)),
+                    ],
+                    format="csr",
+                )
+            )
         G = parts[0]
         for p in parts[1:]:
             G = G + p
@@ -540,12 +614,13 @@ class SkinMesh:
                 out.append((m.reduced, f))
             else:
                 full = np.zeros(m.body.v.x.array.size)
-                full[:f.size] = f
+                full[: f.size] = f
                 out.append((m.body, full))
         return out
 
-    def load_jacobians(self, K_v: sparse.spmatrix
-                       ) -> list[tuple[object, object, sparse.csr_matrix]]:
+    def load_jacobians(
+        self, K_v: sparse.spmatrix
+    ) -> list[tuple[object, object, sparse.csr_matrix]]:
         """The derivative df_v/dx_v (3n x 3n) of vertex forces as a load element's
         ``master_load_jacobians``: [(body_i, body_j, block of G^T (df_v/dx_v) G)]. The change
         of G itself as rigid masters turn (their levers, at fixed f_v) is left out: exact for
@@ -553,8 +628,11 @@ class SkinMesh:
         G = self.jacobian()
         K = (G.T @ K_v @ G).tocsr()
         bodies = [m.reduced if m.kind == "reduced" else m.body for m in self.masters]
-        return [(bi, bj, K[si, sj]) for bi, si in zip(bodies, self.slices)
-                for bj, sj in zip(bodies, self.slices)]
+        return [
+            (bi, bj, K[si, sj])
+            for bi, si in zip(bodies, self.slices)
+            for bj, sj in zip(bodies, self.slices)
+        ]
 
     def face_area_vectors(self, x: np.ndarray | None = None) -> np.ndarray:
         """area * n per face, (x_1 - x_0) x (x_2 - x_0) / 2, at the current positions."""
@@ -573,20 +651,23 @@ class SkinMesh:
         e1 = x[self.faces[:, 1]] - x[self.faces[:, 0]]
         e2 = x[self.faces[:, 2]] - x[self.faces[:, 0]]
         d1, d2 = -0.5 * skews(e2), 0.5 * skews(e1)
-        per_vertex = [-(d1 + d2), d1, d2]           # da/dx_k, (faces, 3, 3)
+        per_vertex = [-(d1 + d2), d1, d2]  # da/dx_k, (faces, 3, 3)
         rows, cols, vals = [], [], []
         r3 = np.arange(3)
-        for v in range(3):                          # the vertex that receives the force
-            for k in range(3):                      # the vertex that moves
+        for v in range(3):  # the vertex that receives the force
+            for k in range(3):  # the vertex that moves
                 block = float(pressure) / 3.0 * per_vertex[k]
-                rows.append((3 * self.faces[:, v, None, None] + r3[None, :, None])
-                            .repeat(3, axis=2).ravel())
-                cols.append((3 * self.faces[:, k, None, None] + r3[None, None, :])
-                            .repeat(3, axis=1).ravel())
+                rows.append(
+                    (3 * self.faces[:, v, None, None] + r3[None, :, None]).repeat(3, axis=2).ravel()
+                )
+                cols.append(
+                    (3 * self.faces[:, k, None, None] + r3[None, None, :]).repeat(3, axis=1).ravel()
+                )
                 vals.append(block.ravel())
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
-                                                         np.concatenate(cols))),
-                                 shape=(3 * self.n, 3 * self.n))
+        return sparse.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(3 * self.n, 3 * self.n),
+        )
 
     def pressure_forces(self, pressure: float) -> np.ndarray:
         """Vertex forces (n, 3) of a uniform pressure: p * area * n per face, a third per vertex."""
@@ -623,8 +704,9 @@ class SkinPressure:
         if not callable(pressure):
             value = float(pressure)
             if not np.isfinite(value):
-                raise InputError(f"SkinPressure {name!r}: pressure must be finite, "
-                                 f"got {pressure!r}")
+                raise InputError(
+                    f"SkinPressure {name!r}: pressure must be finite, got {pressure!r}"
+                )
         self.skin = skin
         self.pressure = pressure
         self.name = name

@@ -8,10 +8,21 @@ from artifem import lazy_exports
 
 #: public name -> the module that defines it
 _PUBLIC = {
-    **dict.fromkeys(["ReducibleScene", "Training", "Basis", "Points", "ReducedModel",
-                     "reduce"], "artifem.reduction.reductor"),
-    **dict.fromkeys(["linear_modes", "extended_modes", "modal_derivative_basis", "pod_basis",
-                     "body_mass", "mass_matrix"], "artifem.reduction.bases"),
+    **dict.fromkeys(
+        ["ReducibleScene", "Training", "Basis", "Points", "ReducedModel", "reduce"],
+        "artifem.reduction.reductor",
+    ),
+    **dict.fromkeys(
+        [
+            "linear_modes",
+            "extended_modes",
+            "modal_derivative_basis",
+            "pod_basis",
+            "body_mass",
+            "mass_matrix",
+        ],
+        "artifem.reduction.bases",
+    ),
     **dict.fromkeys(["ReducedFemBody", "all_points"], "artifem.reduction.reduced_body"),
     **dict.fromkeys(["each_alone", "random_schedules"], "artifem.reduction.schedules"),
 }

@@ -36,11 +36,20 @@ from petsc4py import PETSc
 from artifem.errors import InputError, SolverError
 from artifem.linear_solver import factor_mumps
 
-__all__ = ["linear_modes", "linear_mode_residuals", "extended_modes", "pod_basis",
-           "modal_derivatives", "modal_derivative_basis", "mass_orthonormality_error",
-           "mass_matrix", "body_mass"]
+__all__ = [
+    "linear_modes",
+    "linear_mode_residuals",
+    "extended_modes",
+    "pod_basis",
+    "modal_derivatives",
+    "modal_derivative_basis",
+    "mass_orthonormality_error",
+    "mass_matrix",
+    "body_mass",
+]
 
 # ---- mass helpers ---------------------------------------------------------------------------
+
 
 def _mass_apply(mass, X: np.ndarray) -> np.ndarray:
     """M X for a diagonal mass (1-D array of the owned entries) or a callable x -> M x."""
@@ -48,12 +57,17 @@ def _mass_apply(mass, X: np.ndarray) -> np.ndarray:
     if callable(mass):
         if X.ndim == 1:
             return np.asarray(mass(X), dtype=float)
-        return np.column_stack([np.asarray(mass(X[:, k]), dtype=float)
-                                for k in range(X.shape[1])]) if X.shape[1] else np.zeros_like(X)
+        return (
+            np.column_stack([np.asarray(mass(X[:, k]), dtype=float) for k in range(X.shape[1])])
+            if X.shape[1]
+            else np.zeros_like(X)
+        )
     m = np.asarray(mass, dtype=float)
     if m.ndim != 1 or m.shape[0] != X.shape[0]:
-        raise InputError(f"mass must be a 1-D diagonal of length {X.shape[0]} (the rows of U) "
-                         f"or a callable x -> M x; got an array of shape {m.shape}")
+        raise InputError(
+            f"mass must be a 1-D diagonal of length {X.shape[0]} (the rows of U) "
+            f"or a callable x -> M x; got an array of shape {m.shape}"
+        )
     return m * X if X.ndim == 1 else m[:, None] * X
 
 
@@ -61,6 +75,7 @@ def _allreduce(value, comm):
     if comm is None or comm.size == 1:
         return value
     from mpi4py import MPI
+
     return comm.allreduce(value, op=MPI.SUM)
 
 
@@ -99,7 +114,7 @@ def mass_matrix(body) -> PETSc.Mat:
     M.setUp()
     rstart, rend = M.getOwnershipRange()
     dv = PETSc.Vec().createMPI((rend - rstart, PETSc.DECIDE), comm=K.getComm())
-    dv.array[:] = d.array_r[:rend - rstart]
+    dv.array[:] = d.array_r[: rend - rstart]
     M.setDiagonal(dv)
     M.assemble()
     dv.destroy()
@@ -142,10 +157,12 @@ def body_mass(body):
         x.array[:] = v
         M.mult(x, y)
         return y.array_r.copy()
+
     return apply
 
 
 # ---- linear modes ---------------------------------------------------------------------------
+
 
 def _rest_stiffness(body) -> PETSc.Mat:
     """A copy of K at u = 0 with fixed rows/columns eliminated (1 on their diagonal).
@@ -161,8 +178,9 @@ def _rest_stiffness(body) -> PETSc.Mat:
         body.u.x.array[:] = u_saved
 
 
-def linear_modes(body, r: int, *, shift: float | None = None,
-                 tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+def linear_modes(
+    body, r: int, *, shift: float | None = None, tol: float = 1e-12
+) -> tuple[np.ndarray, np.ndarray]:
     """Lowest r vibration modes of ``body`` at rest: K phi = lambda M phi, phi^T M phi = 1.
 
     K is the tangent at u = 0 (the body's displacement is restored afterwards;
@@ -191,8 +209,9 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     M = mass_matrix(body)
     n_free = K.getSize()[0] - body.mesh.comm.allreduce(len(_owned_fixed_rows(body)))
     if r > n_free:
-        raise InputError(f"linear_modes: r = {r} exceeds the {n_free} free dofs of body "
-                         f"{body.name!r}")
+        raise InputError(
+            f"linear_modes: r = {r} exceeds the {n_free} free dofs of body {body.name!r}"
+        )
     sigma = 0.0 if shift is None else float(shift)
 
     eps = SLEPc.EPS().create(comm=K.getComm())
@@ -212,15 +231,19 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     pc.setType(PETSc.PC.Type.LU)
     pc.setFactorSolverType("mumps")
     eps.setUp()
-    info = factor_mumps(ksp)        # a workspace too small retried (linear_solver)
+    info = factor_mumps(ksp)  # a workspace too small retried (linear_solver)
     if info < 0:
-        raise SolverError(f"linear_modes: the LU factorization of K - {sigma:g} M failed "
-                          f"(MUMPS INFOG(1) = {info}; body {body.name!r}); try a shift")
+        raise SolverError(
+            f"linear_modes: the LU factorization of K - {sigma:g} M failed "
+            f"(MUMPS INFOG(1) = {info}; body {body.name!r}); try a shift"
+        )
     eps.solve()
     nconv = eps.getConverged()
     if nconv < r:
-        raise SolverError(f"linear_modes: SLEPc converged {nconv} of {r} eigenpairs "
-                          f"(body {body.name!r}); try a smaller r or a shift")
+        raise SolverError(
+            f"linear_modes: SLEPc converged {nconv} of {r} eigenpairs "
+            f"(body {body.name!r}); try a smaller r or a shift"
+        )
     vr, _ = K.createVecs()
     pairs = []
     for k in range(nconv):
@@ -240,6 +263,7 @@ def linear_modes(body, r: int, *, shift: float | None = None,
     Mr = _allreduce(U.T @ MU, comm)
     Kr, Mr = 0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T)
     import scipy.linalg
+
     lam, Y = scipy.linalg.eigh(Kr, Mr)
     U = U @ Y
     # One more M-orthonormalization pass (Cholesky of the Gram), cheap and stabilizing.
@@ -278,7 +302,7 @@ def linear_mode_residuals(body, U: np.ndarray, lam: np.ndarray) -> np.ndarray:
     KU, MU = _mat_apply(K, U), _mat_apply(M, U)
     comm = body.mesh.comm
     num = np.sqrt(_allreduce(np.sum((KU - MU * lam[None, :]) ** 2, axis=0), comm))
-    den = np.sqrt(_allreduce(np.sum(KU ** 2, axis=0), comm))
+    den = np.sqrt(_allreduce(np.sum(KU**2, axis=0), comm))
     K.destroy()
     M.destroy()
     return num / den
@@ -286,8 +310,10 @@ def linear_mode_residuals(body, U: np.ndarray, lam: np.ndarray) -> np.ndarray:
 
 # ---- extended modes -------------------------------------------------------------------------
 
-def extended_modes(U: np.ndarray, M_diag_or_mult, *, fixed_dofs=None, tol: float = 1e-8,
-                   comm=None) -> np.ndarray:
+
+def extended_modes(
+    U: np.ndarray, M_diag_or_mult, *, fixed_dofs=None, tol: float = 1e-8, comm=None
+) -> np.ndarray:
     """Modes extended by linear transformations (von Tycowicz et al. 2013), M-orthonormalized.
 
     Each column phi of U (node values phi_a in R^3, blocked order) gives nine
@@ -311,8 +337,9 @@ def extended_modes(U: np.ndarray, M_diag_or_mult, *, fixed_dofs=None, tol: float
     """
     U = np.asarray(U, dtype=float)
     if U.ndim != 2 or U.shape[0] % 3:
-        raise InputError(f"extended_modes: U must be (3n, r) with node-major blocks of 3, "
-                         f"got shape {U.shape}")
+        raise InputError(
+            f"extended_modes: U must be (3n, r) with node-major blocks of 3, got shape {U.shape}"
+        )
     if not (tol > 0):
         raise InputError(f"extended_modes: tol must be > 0, got {tol}")
     n3, r = U.shape
@@ -364,8 +391,10 @@ def _m_orthonormalize(X: np.ndarray, mass, tol: float, comm=None, ref=None) -> n
 
 # ---- POD ------------------------------------------------------------------------------------
 
-def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
-              energy_tol: float | None = None, comm=None) -> tuple[np.ndarray, np.ndarray]:
+
+def pod_basis(
+    snapshots: np.ndarray, mass, *, r: int | None = None, energy_tol: float | None = None, comm=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Mass-weighted POD of displacement snapshots, one per row: shape (n_s, 3n).
 
     (Rows, as everywhere in artifem.reduction: ``Snapshots.displacements``,
@@ -385,16 +414,20 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     Returns (U (3n, r), singular values of W S, all of them, descending).
     """
     if (r is None) == (energy_tol is None):
-        raise InputError("pod_basis: give exactly one of r (number of vectors) or energy_tol "
-                         f"(discarded energy fraction); got r={r!r}, energy_tol={energy_tol!r}")
+        raise InputError(
+            "pod_basis: give exactly one of r (number of vectors) or energy_tol "
+            f"(discarded energy fraction); got r={r!r}, energy_tol={energy_tol!r}"
+        )
     if r is not None:
         r = _check_count(r, "r")
     elif not (0.0 <= energy_tol < 1.0):
         raise InputError(f"pod_basis: energy_tol must be in [0, 1), got {energy_tol!r}")
     S = np.asarray(snapshots, dtype=float)
     if S.ndim != 2 or S.shape[0] == 0:
-        raise InputError(f"pod_basis: snapshots must be a 2-D array of rows (n_snapshots, dofs) "
-                         f"with at least one row, got shape {S.shape}")
+        raise InputError(
+            f"pod_basis: snapshots must be a 2-D array of rows (n_snapshots, dofs) "
+            f"with at least one row, got shape {S.shape}"
+        )
     S = S.T
     if not np.all(np.isfinite(S)):
         raise InputError("pod_basis: snapshots contain non-finite values")
@@ -403,9 +436,11 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
     if not callable(mass) and not parallel:
         m = np.asarray(mass, dtype=float)
         if m.shape != (S.shape[0],):
-            raise InputError(f"pod_basis: snapshots of {S.shape[0]} dofs (rows of shape "
-                             f"(n_snapshots, dofs) = {S.T.shape}) against a mass diagonal of "
-                             f"shape {m.shape}; snapshots are rows, one per snapshot")
+            raise InputError(
+                f"pod_basis: snapshots of {S.shape[0]} dofs (rows of shape "
+                f"(n_snapshots, dofs) = {S.T.shape}) against a mass diagonal of "
+                f"shape {m.shape}; snapshots are rows, one per snapshot"
+            )
         if np.any(m < 0) or not np.all(np.isfinite(m)):
             raise InputError("pod_basis: mass diagonal must be finite and >= 0")
         zero = m == 0
@@ -414,7 +449,7 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
         w = np.sqrt(m)
         Phi, s, _ = np.linalg.svd(w[:, None] * S, full_matrices=False)
         winv = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, w))
-        basis = lambda k: winv[:, None] * Phi[:, :k]   # noqa: E731
+        basis = lambda k: winv[:, None] * Phi[:, :k]  # noqa: E731
     else:
         G = _gram(S, _mass_apply(mass, S), comm)
         ev, V = np.linalg.eigh(0.5 * (G + G.T))
@@ -424,12 +459,14 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
 
         def basis(k):
             if k and s[k - 1] <= s[0] * 1e-7:
-                raise InputError(f"pod_basis: r = {k} exceeds the numerical rank of the "
-                                 f"snapshots (method of snapshots, sigma_r/sigma_1 = "
-                                 f"{s[k - 1] / s[0]:.2e})")
+                raise InputError(
+                    f"pod_basis: r = {k} exceeds the numerical rank of the "
+                    f"snapshots (method of snapshots, sigma_r/sigma_1 = "
+                    f"{s[k - 1] / s[0]:.2e})"
+                )
             return S @ (V[:, :k] / s[:k])
 
-    energy = s ** 2
+    energy = s**2
     total = float(energy.sum())
     if total == 0.0:
         raise InputError("pod_basis: all snapshots are zero")
@@ -438,8 +475,9 @@ def pod_basis(snapshots: np.ndarray, mass, *, r: int | None = None,
         r = int(np.searchsorted(captured, 1.0 - energy_tol, side="left")) + 1
         r = min(r, s.size)
     if r > s.size:
-        raise InputError(f"pod_basis: r = {r} exceeds the number of snapshots / rank bound "
-                         f"{s.size}")
+        raise InputError(
+            f"pod_basis: r = {r} exceeds the number of snapshots / rank bound {s.size}"
+        )
     return basis(r), s
 
 
@@ -452,6 +490,7 @@ def _check_count(r, name: str) -> int:
 
 
 # ---- modal derivatives ----------------------------------------------------------------------
+
 
 def modal_derivatives(body, U: np.ndarray) -> np.ndarray:
     """Modal derivatives (Barbic & James 2005, "Real-time subspace integration for St.
@@ -495,8 +534,10 @@ def modal_derivatives(body, U: np.ndarray) -> np.ndarray:
         pc.setType(PETSc.PC.Type.LU)
         pc.setFactorSolverType("mumps")
         if factor_mumps(ksp) < 0:
-            raise SolverError(f"modal derivatives: the LU factorization of the rest "
-                              f"stiffness failed (body {body.name!r})")
+            raise SolverError(
+                f"modal derivatives: the LU factorization of the rest "
+                f"stiffness failed (body {body.name!r})"
+            )
         x, _ = K.createVecs()
         rhs, _ = K.createVecs()
         fixed = _owned_fixed_rows(body)

@@ -70,7 +70,8 @@ class IntegrationPoints:
             raise InputError("indices and weights must be 1-D arrays")
         if idx.shape != w.shape:
             raise InputError(
-                f"indices ({idx.shape[0]}) and weights ({w.shape[0]}) differ in length")
+                f"indices ({idx.shape[0]}) and weights ({w.shape[0]}) differ in length"
+            )
         if idx.size and not np.issubdtype(idx.dtype, np.integer):
             raise InputError("indices must be integers")
         idx = idx.astype(np.int64)
@@ -131,9 +132,9 @@ def random_points(volumes, m, rng=None, groups=None) -> IntegrationPoints:
     counts = np.floor(share).astype(np.int64)
     if m >= names.size:
         counts = np.maximum(counts, 1)
-    while counts.sum() > m:                                    # the minimum of one overshot
+    while counts.sum() > m:  # the minimum of one overshot
         counts[np.argmax(counts)] -= 1
-    for g in np.argsort(counts - share)[: m - counts.sum()]:     # largest remainders
+    for g in np.argsort(counts - share)[: m - counts.sum()]:  # largest remainders
         counts[g] += 1
     idx, w = [], []
     for name, count in zip(names, counts):
@@ -162,7 +163,9 @@ def _check_training(G, b, tol, max_points):
     else:
         b = np.asarray(b, dtype=float)
         if b.ndim != 1 or b.size != T:
-            raise InputError(f"b must be a 1-D array of length {T} (rows of G), got shape {b.shape}")
+            raise InputError(
+                f"b must be a 1-D array of length {T} (rows of G), got shape {b.shape}"
+            )
         if not np.all(np.isfinite(b)):
             raise InputError("b contains NaN or inf")
     if not np.linalg.norm(b) > 0.0:
@@ -179,8 +182,9 @@ def _check_training(G, b, tol, max_points):
     return G, b, tol, min(int(max_points), n)
 
 
-def trained_points(G, b=None, *, tol=1e-2, max_points=None, strict=False,
-                   growth: float = 0.0) -> IntegrationPoints:
+def trained_points(
+    G, b=None, *, tol=1e-2, max_points=None, strict=False, growth: float = 0.0
+) -> IntegrationPoints:
     """Greedy ECSW / optimized cubature: non-negative weights fitted to training data.
 
     Parameters
@@ -225,8 +229,9 @@ def trained_points(G, b=None, *, tol=1e-2, max_points=None, strict=False,
     return _points(S, w, rnorm, bnorm, tol, max_points, strict)
 
 
-def trained_points_path(G, b=None, *, sizes, tol=1e-2, growth: float = 0.0,
-                        progress: bool = False) -> dict[int, IntegrationPoints]:
+def trained_points_path(
+    G, b=None, *, sizes, tol=1e-2, growth: float = 0.0, progress: bool = False
+) -> dict[int, IntegrationPoints]:
     """:func:`trained_points` for several ``max_points`` at once, from one greedy path.
 
     Returns {m: the points ``trained_points(G, b, tol=tol, max_points=m)`` gives}
@@ -245,7 +250,7 @@ def trained_points_path(G, b=None, *, sizes, tol=1e-2, growth: float = 0.0,
         for m in sizes:
             if m not in found and S.size >= m:
                 Sm, wm, rm = S, w, rnorm
-                if S.size > m:                          # a batch stepped over m
+                if S.size > m:  # a batch stepped over m
                     Sm = S[np.argsort(w)[::-1][:m]]
                     wm, _ = nnls(G[:, Sm], b, maxiter=50 * m + 100)
                     Sm, wm = Sm[wm > 0], wm[wm > 0]
@@ -309,14 +314,16 @@ def _greedy(G: np.ndarray, b: np.ndarray, tol: float, max_points: int, growth: f
 
 def _points(S, w, rnorm, bnorm, tol, max_points, strict) -> IntegrationPoints:
     if S.size == 0:
-        raise InputError("trained_points: no element correlates positively with b; "
-                         "b is not in the cone of the columns of G")
+        raise InputError(
+            "trained_points: no element correlates positively with b; "
+            "b is not in the cone of the columns of G"
+        )
     if strict and rnorm > tol * bnorm:
         raise InputError(
             f"trained_points: tol={tol:g} not reached with max_points={max_points} "
-            f"(relative residual {rnorm / bnorm:.3e} with {S.size} points)")
+            f"(relative residual {rnorm / bnorm:.3e} with {S.size} points)"
+        )
     order = np.argsort(S)
-    return IntegrationPoints(indices=S[order], weights=w[order], method="trained",
-                             residual=rnorm / bnorm)
-
-
+    return IntegrationPoints(
+        indices=S[order], weights=w[order], method="trained", residual=rnorm / bnorm
+    )

@@ -55,8 +55,9 @@ def share(count: int, comm: MPI.Comm) -> range:
     return range(comm.rank, count, comm.size)
 
 
-def compute_shared(jobs: Sequence[tuple[str, str, Callable[[], object]]], cache,
-                   comm: MPI.Comm) -> dict:
+def compute_shared(
+    jobs: Sequence[tuple[str, str, Callable[[], object]]], cache, comm: MPI.Comm
+) -> dict:
     """Compute the jobs ``(name, cache key, compute)`` whose key is not in ``cache``,
     shared over ``comm`` (module docstring); ``compute`` stores its result under its key.
 
@@ -66,35 +67,47 @@ def compute_shared(jobs: Sequence[tuple[str, str, Callable[[], object]]], cache,
     """
     comm.barrier()
     tic = time.perf_counter()
-    missing = comm.bcast([i for i, (_, key, _) in enumerate(jobs)
-                          if not cache.path(key).exists()] if comm.rank == 0 else None, root=0)
+    missing = comm.bcast(
+        [i for i, (_, key, _) in enumerate(jobs) if not cache.path(key).exists()]
+        if comm.rank == 0
+        else None,
+        root=0,
+    )
     mine, failure = [], None
     for i in share(len(missing), comm):
         name, key, compute = jobs[missing[i]]
         try:
             compute()
-        except Exception as exc:            # reported on every rank below
+        except Exception as exc:  # reported on every rank below
             failure = (name, exc)
             break
         mine.append(name)
     by_rank = comm.allgather(mine)
-    failures = comm.allgather(None if failure is None else
-                              (failure[0], f"{type(failure[1]).__name__}: {failure[1]}"))
+    failures = comm.allgather(
+        None if failure is None else (failure[0], f"{type(failure[1]).__name__}: {failure[1]}")
+    )
     wall = comm.allreduce(time.perf_counter() - tic, op=MPI.MAX)
     if failure is not None:
         raise failure[1]
     for rank, found in enumerate(failures):
         if found is not None:
-            raise SolverError(f"rank {rank} of {comm.size} failed on job {found[0]!r}: "
-                              f"{found[1]}") from None
+            raise SolverError(
+                f"rank {rank} of {comm.size} failed on job {found[0]!r}: {found[1]}"
+            ) from None
     for i in missing:
         if not cache.path(jobs[i][1]).exists():
-            raise ArtifemError(f"job {jobs[i][0]!r} left no result in the cache "
-                               f"{cache.root}: do all ranks see the "
-                               "same directory?")
-    return {"ranks": comm.size, "jobs": len(jobs), "missing": len(missing), "by_rank": by_rank,
-            "wall_seconds": wall}
-
+            raise ArtifemError(
+                f"job {jobs[i][0]!r} left no result in the cache "
+                f"{cache.root}: do all ranks see the "
+                "same directory?"
+            )
+    return {
+        "ranks": comm.size,
+        "jobs": len(jobs),
+        "missing": len(missing),
+        "by_rank": by_rank,
+        "wall_seconds": wall,
+    }
 
 
 def continue_alone(argv: Sequence[str], comm: MPI.Comm, *, poll: float = 0.1) -> int:
@@ -104,8 +117,7 @@ def continue_alone(argv: Sequence[str], comm: MPI.Comm, *, poll: float = 0.1) ->
     status = 0
     if comm.rank == 0:
         env = {k: v for k, v in os.environ.items() if not k.startswith(_LAUNCHER_PREFIXES)}
-        status = subprocess.run([sys.executable, "-m", "artifem.cli", *argv],
-                                env=env).returncode
+        status = subprocess.run([sys.executable, "-m", "artifem.cli", *argv], env=env).returncode
     request = comm.Ibarrier()
     while not request.Test():
         time.sleep(poll)

@@ -48,13 +48,25 @@ from tqdm import tqdm
 from artifem.errors import InputError, SolverError
 from artifem.excitation import ExcitationSchedule
 from artifem.reduction.evaluation import node_mean_mm, reduced_run
-from artifem.reduction.reductor import (Basis, Points, ReducedModel, ReducibleScene, Reductor,
-                                        Training)
+from artifem.reduction.reductor import (
+    Basis,
+    Points,
+    ReducedModel,
+    ReducibleScene,
+    Reductor,
+    Training,
+)
 from artifem.reduction.training import force_training_matrix
 from artifem.scene import simulate
 
-__all__ = ["GreedyTraining", "greedy_training", "GreedyPoints", "greedy_points",
-           "visited_states", "cubature_residual"]
+__all__ = [
+    "GreedyTraining",
+    "greedy_training",
+    "GreedyPoints",
+    "greedy_points",
+    "visited_states",
+    "cubature_residual",
+]
 
 
 def _finite(value):
@@ -79,20 +91,30 @@ class GreedyTraining:
 
     def summary(self) -> dict:
         """JSON-able: an estimate whose reduced run failed (inf) is None."""
-        history = [{**entry, "max_estimate_mm": _finite(entry["max_estimate_mm"]),
-                    "estimates_mm": {k: _finite(v) for k, v in entry["estimates_mm"].items()}}
-                   for entry in self.history]
-        return {"stopped": self.stopped, "runs": len(self.training.schedules),
-                "history": history}
+        history = [
+            {
+                **entry,
+                "max_estimate_mm": _finite(entry["max_estimate_mm"]),
+                "estimates_mm": {k: _finite(v) for k, v in entry["estimates_mm"].items()},
+            }
+            for entry in self.history
+        ]
+        return {"stopped": self.stopped, "runs": len(self.training.schedules), "history": history}
 
 
-def _estimates(reduced: ReducedModel, reference: ReducedModel,
-               schedules: Mapping[str, ExcitationSchedule], duration: float, dt: float,
-               progress: bool) -> dict[str, float]:
+def _estimates(
+    reduced: ReducedModel,
+    reference: ReducedModel,
+    schedules: Mapping[str, ExcitationSchedule],
+    duration: float,
+    dt: float,
+    progress: bool,
+) -> dict[str, float]:
     """max_t e~(t) of each schedule (inf when the reduced run fails: the worst)."""
     out = {}
-    for name, schedule in tqdm(schedules.items(), desc="estimates", unit="run",
-                               disable=not progress, leave=False):
+    for name, schedule in tqdm(
+        schedules.items(), desc="estimates", unit="run", disable=not progress, leave=False
+    ):
         u, _, failure = reduced_run(reduced, schedule, duration, dt)
         u_ref, _, _ = reduced_run(reference, schedule, duration, dt)
         estimate = node_mean_mm(u, u_ref)
@@ -100,11 +122,20 @@ def _estimates(reduced: ReducedModel, reference: ReducedModel,
     return out
 
 
-def greedy_training(model: ReducibleScene, training: Training,
-                    candidates: Mapping[str, ExcitationSchedule], *, cache: str | Path,
-                    basis: Basis = Basis(), points: Points = Points(), tol: float = 0.0,
-                    max_runs: int | None = None, duration: float | None = None,
-                    pressure_modes: int = 4, progress: bool = True) -> GreedyTraining:
+def greedy_training(
+    model: ReducibleScene,
+    training: Training,
+    candidates: Mapping[str, ExcitationSchedule],
+    *,
+    cache: str | Path,
+    basis: Basis = Basis(),
+    points: Points = Points(),
+    tol: float = 0.0,
+    max_runs: int | None = None,
+    duration: float | None = None,
+    pressure_modes: int = 4,
+    progress: bool = True,
+) -> GreedyTraining:
     """Greedy training of ``model`` from ``training`` over the pool ``candidates`` (module
     docstring): stop when the largest estimate is at most ``tol`` (mm), the training holds
     ``max_runs`` runs, or no candidate is left. ``duration``: of the candidates' reduced
@@ -113,27 +144,33 @@ def greedy_training(model: ReducibleScene, training: Training,
         raise InputError("greedy_training: give at least one candidate schedule")
     clash = sorted(set(candidates) & set(training.schedules))
     if clash:
-        raise InputError(f"greedy_training: candidates {clash} are already training "
-                         "schedules")
+        raise InputError(f"greedy_training: candidates {clash} are already training schedules")
     if not (np.isfinite(tol) and tol >= 0):
         raise InputError(f"greedy_training: tol must be >= 0 (mm), got {tol}")
     if max_runs is not None and max_runs < len(training.schedules):
-        raise InputError(f"greedy_training: max_runs ({max_runs}) is below the first "
-                         f"training's {len(training.schedules)} runs")
+        raise InputError(
+            f"greedy_training: max_runs ({max_runs}) is below the first "
+            f"training's {len(training.schedules)} runs"
+        )
     duration = duration or training.duration
     richer_basis = replace(basis, size=2 * basis.size)
     richer_points = replace(points, count=2 * points.count)
     pool, history = dict(candidates), []
-    reductor = Reductor(model, training, cache, pressure_modes=pressure_modes,
-                        progress=progress)
+    reductor = Reductor(model, training, cache, pressure_modes=pressure_modes, progress=progress)
     while True:
         reduced = reductor.reduce(basis, points)
-        entry = {"runs": len(training.schedules), "estimates_mm": {}, "max_estimate_mm": None,
-                 "added": None, "rejected": {}}
+        entry = {
+            "runs": len(training.schedules),
+            "estimates_mm": {},
+            "max_estimate_mm": None,
+            "added": None,
+            "rejected": {},
+        }
         if not pool or (max_runs is not None and len(training.schedules) >= max_runs):
             history.append(entry)
-            return GreedyTraining(training, reduced, "pool" if not pool else "size", history,
-                                  reductor)
+            return GreedyTraining(
+                training, reduced, "pool" if not pool else "size", history, reductor
+            )
         reference = reductor.reduce(richer_basis, richer_points)
         estimates = _estimates(reduced, reference, pool, duration, training.dt, progress)
         entry.update(estimates_mm=estimates, max_estimate_mm=max(estimates.values()))
@@ -144,18 +181,20 @@ def greedy_training(model: ReducibleScene, training: Training,
             if estimates[name] <= tol:
                 break
             enriched = replace(training, schedules={**training.schedules, name: pool.pop(name)})
-            candidate = Reductor(model, enriched, cache, pressure_modes=pressure_modes,
-                                 progress=progress)
+            candidate = Reductor(
+                model, enriched, cache, pressure_modes=pressure_modes, progress=progress
+            )
             try:
-                candidate.train()                  # the candidate's full run, cached
+                candidate.train()  # the candidate's full run, cached
             except SolverError as exc:
                 entry["rejected"][name] = str(exc)
                 continue
             entry["added"], training, reductor = name, enriched, candidate
             break
         if entry["added"] is None:
-            return GreedyTraining(training, reduced, "tolerance" if pool else "pool", history,
-                                  reductor)
+            return GreedyTraining(
+                training, reduced, "tolerance" if pool else "pool", history, reductor
+            )
 
 
 @dataclass
@@ -174,51 +213,79 @@ class GreedyPoints:
 
     def summary(self) -> dict:
         """JSON-able."""
-        history = [{**entry, "max_indicator": _finite(entry["max_indicator"]),
-                    "indicators": {k: _finite(v) for k, v in entry["indicators"].items()}}
-                   for entry in self.history]
-        return {"stopped": self.stopped, "rounds": len(self.history) - 1,
-                "extra_states": 0 if self.states is None else int(self.states[0].shape[0]),
-                "history": history}
+        history = [
+            {
+                **entry,
+                "max_indicator": _finite(entry["max_indicator"]),
+                "indicators": {k: _finite(v) for k, v in entry["indicators"].items()},
+            }
+            for entry in self.history
+        ]
+        return {
+            "stopped": self.stopped,
+            "rounds": len(self.history) - 1,
+            "extra_states": 0 if self.states is None else int(self.states[0].shape[0]),
+            "history": history,
+        }
 
 
-def visited_states(reduced: ReducedModel, schedule: ExcitationSchedule, duration: float,
-                   dt: float, count: int) -> tuple[np.ndarray, np.ndarray, str | None]:
+def visited_states(
+    reduced: ReducedModel, schedule: ExcitationSchedule, duration: float, dt: float, count: int
+) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(q (k, r), the body's muscle excitations there (k, muscles), the failure or None):
     ``count`` states evenly spaced over the reduced run of ``schedule`` (up to a failure)."""
     scene = reduced.scene()
     body = next(b for b in scene.reduced_bodies if b.name == reduced.model.body)
     muscles = list(body.full.muscles.values())
     reduced.model.drive(scene, schedule)
-    run = simulate(scene, duration, dt, on_failure="stop", progress=False, record={
-        "q": lambda s: body.q.copy(),
-        "a": lambda s: np.array([float(m.excitation.value) for m in muscles])})
+    run = simulate(
+        scene,
+        duration,
+        dt,
+        on_failure="stop",
+        progress=False,
+        record={
+            "q": lambda s: body.q.copy(),
+            "a": lambda s: np.array([float(m.excitation.value) for m in muscles]),
+        },
+    )
     q, a = np.asarray(run.records["q"]), np.asarray(run.records["a"]).reshape(-1, len(muscles))
-    rows = np.unique(np.linspace(1, len(q) - 1, min(count, len(q) - 1)).round().astype(int)) \
-        if len(q) > 1 else np.zeros(0, dtype=int)           # none past the initial state
+    rows = (
+        np.unique(np.linspace(1, len(q) - 1, min(count, len(q) - 1)).round().astype(int))
+        if len(q) > 1
+        else np.zeros(0, dtype=int)
+    )  # none past the initial state
     return q[rows], a[rows], None if run.failure is None else str(run.failure)
 
 
-def cubature_residual(reductor: Reductor, reduced: ReducedModel, q: np.ndarray,
-                      a: np.ndarray) -> float:
+def cubature_residual(
+    reductor: Reductor, reduced: ReducedModel, q: np.ndarray, a: np.ndarray
+) -> float:
     """rho = ||b - G_S w|| / ||b|| of the reduced model's points at the states (q, a)
     (module docstring); inf when there is no state or none has a finite force."""
     if len(q) == 0:
         return float("inf")
     try:
         G, b = force_training_matrix(reductor.body, reduced.basis, q, a, progress=False)
-    except InputError:                          # every state inverts an element
+    except InputError:  # every state inverts an element
         return float("inf")
     pts = reduced.points
     norm = float(np.linalg.norm(b))
-    return float(np.linalg.norm(b - G[:, pts.indices] @ pts.weights)) / norm if norm > 0 \
-        else 0.0
+    return float(np.linalg.norm(b - G[:, pts.indices] @ pts.weights)) / norm if norm > 0 else 0.0
 
 
-def greedy_points(reductor: Reductor, candidates: Mapping[str, ExcitationSchedule], *,
-                  basis: Basis = Basis(), points: Points = Points(), tol: float = 0.0,
-                  max_rounds: int = 3, duration: float | None = None,
-                  states_per_run: int = 10, progress: bool = True) -> GreedyPoints:
+def greedy_points(
+    reductor: Reductor,
+    candidates: Mapping[str, ExcitationSchedule],
+    *,
+    basis: Basis = Basis(),
+    points: Points = Points(),
+    tol: float = 0.0,
+    max_rounds: int = 3,
+    duration: float | None = None,
+    states_per_run: int = 10,
+    progress: bool = True,
+) -> GreedyPoints:
     """Greedy enrichment of trained points over the pool ``candidates`` (module docstring):
     the basis stays; each round the points are retrained (``points``: their largest count
     and tolerance) on the training states plus the states visited by the worst candidate
@@ -228,13 +295,13 @@ def greedy_points(reductor: Reductor, candidates: Mapping[str, ExcitationSchedul
     if not candidates:
         raise InputError("greedy_points: give at least one candidate schedule")
     if points.sampling != "trained":
-        raise InputError(f"greedy_points: only trained points are enriched, got "
-                         f"{points.sampling!r} ones")
+        raise InputError(
+            f"greedy_points: only trained points are enriched, got {points.sampling!r} ones"
+        )
     if not (np.isfinite(tol) and tol >= 0):
         raise InputError(f"greedy_points: tol must be >= 0, got {tol}")
     if int(max_rounds) != max_rounds or max_rounds < 0:
-        raise InputError(f"greedy_points: max_rounds must be an integer >= 0, got "
-                         f"{max_rounds!r}")
+        raise InputError(f"greedy_points: max_rounds must be an integer >= 0, got {max_rounds!r}")
     for name, schedule in candidates.items():
         reductor.model.check_schedule(reductor.body, schedule, f"candidate {name!r}")
     duration = duration or reductor.training.duration
@@ -242,11 +309,21 @@ def greedy_points(reductor: Reductor, candidates: Mapping[str, ExcitationSchedul
     extra, history, best = None, [], None
     while True:
         reduced = reductor.reduce(basis, points, extra_states=extra)
-        entry = {"points": int(reduced.points.m), "residual": reduced.points.residual,
-                 "indicators": {}, "max_indicator": None, "added": None}
+        entry = {
+            "points": int(reduced.points.m),
+            "residual": reduced.points.residual,
+            "indicators": {},
+            "max_indicator": None,
+            "added": None,
+        }
         visited = {}
-        for name, schedule in tqdm(candidates.items(), desc="points' indicators",
-                                   unit="run", disable=not progress, leave=False):
+        for name, schedule in tqdm(
+            candidates.items(),
+            desc="points' indicators",
+            unit="run",
+            disable=not progress,
+            leave=False,
+        ):
             q, a, _ = visited_states(reduced, schedule, duration, dt, states_per_run)
             visited[name] = (q, a)
             entry["indicators"][name] = cubature_residual(reductor, reduced, q, a)

@@ -120,14 +120,14 @@ class _FullBody:
         self.forms = {part: fem.form(f) for part, f in forms.items()}
 
     def set(self, u: np.ndarray) -> None:
-        self.body.u.x.array[:self.n] = u
+        self.body.u.x.array[: self.n] = u
         self.body.u.x.scatter_forward()
 
     def residual(self, u: np.ndarray, tangent: bool = False) -> np.ndarray:
         """R(u) on the free dofs (zero at fixed ones); K in ``body.K`` if ``tangent``."""
         self.set(u)
         self.body.assemble(tangent=tangent, diag=1.0)
-        R = self.body.R.array[:self.n].copy()
+        R = self.body.R.array[: self.n].copy()
         R[self.fixed] = 0.0
         return R
 
@@ -172,7 +172,7 @@ class _FullBody:
         for part, form in self.forms.items():
             vec = fem_petsc.assemble_vector(form)
             vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            out[part] = vec.array[:self.n].copy()
+            out[part] = vec.array[: self.n].copy()
             out[part][self.fixed] = 0.0
             vec.destroy()
         out["other"] = total - sum(out.values())
@@ -193,8 +193,13 @@ def _static_reduced(body: ReducedFemBody, *starts: np.ndarray) -> np.ndarray | N
     return None
 
 
-def _petrov_galerkin(full: _FullBody, U: np.ndarray, test: Callable[[], np.ndarray],
-                     q: np.ndarray, max_iterations: int = 40) -> np.ndarray | None:
+def _petrov_galerkin(
+    full: _FullBody,
+    U: np.ndarray,
+    test: Callable[[], np.ndarray],
+    q: np.ndarray,
+    max_iterations: int = 40,
+) -> np.ndarray | None:
     """Newton on W^T R(U q) = 0, W = ``test()`` evaluated after the tangent at U q was
     assembled and held through the iteration's backtracking (on |W^T R|), until |W^T R| is
     1e-9 of the state's stiffness force |W^T K U q| or of its start, or a step is at
@@ -231,17 +236,20 @@ def _oracle(full: _FullBody, U: np.ndarray, W: np.ndarray, q: np.ndarray) -> np.
     return _petrov_galerkin(full, U, lambda: W, q)
 
 
-def _learned(full: _FullBody, U: np.ndarray, V: np.ndarray, MU: np.ndarray,
-             q: np.ndarray) -> np.ndarray | None:
+def _learned(
+    full: _FullBody, U: np.ndarray, V: np.ndarray, MU: np.ndarray, q: np.ndarray
+) -> np.ndarray | None:
     """The equilibrium g(q) = W(q)^T R(U q) = 0 of the learned test basis W(q) = V Z(q),
     Z = (V^T K(U q) V)^-1 V^T M U (module docstring). Newton with Z held per iteration
     cycles (dZ/dq is missing), so MINPACK's hybrid method (scipy.optimize.root, "hybr":
     a finite-difference Jacobian, then Broyden updates) solves it; None if it fails."""
+
     def g(q):
         R = full.residual(U @ q, tangent=True)
         if not np.all(np.isfinite(R)):
             return np.full(q.size, 1e30)
         return np.linalg.solve(V.T @ full.times(V), V.T @ MU).T @ (V.T @ R)
+
     scale = np.linalg.norm(g(q))
     if not np.isfinite(scale) or scale >= 1e30:
         return None
@@ -249,23 +257,38 @@ def _learned(full: _FullBody, U: np.ndarray, V: np.ndarray, MU: np.ndarray,
     return found.x if found.success else None
 
 
-def galerkin_gap(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule],
-                 duration: float, dt: float, cache: ArtifactCache, *, hold: float = 0.1,
-                 training: Snapshots | None = None, learned_sizes: Sequence[int] = (20, 40, 80),
-                 training_stride: int = 2, progress: bool = True) -> list[dict]:
+def galerkin_gap(
+    reduced: ReducedModel,
+    schedules: dict[str, ExcitationSchedule],
+    duration: float,
+    dt: float,
+    cache: ArtifactCache,
+    *,
+    hold: float = 0.1,
+    training: Snapshots | None = None,
+    learned_sizes: Sequence[int] = (20, 40, 80),
+    training_stride: int = 2,
+    progress: bool = True,
+) -> list[dict]:
     """The module docstring's figures for each schedule (full runs from ``cache``, computed
     there if missing); one dict per schedule. ``training``: the training snapshots of the
     learned test spaces (every ``training_stride``-th; their excitations in the order of the
     body's muscles), of ``learned_sizes`` POD vectors each."""
     if reduced.carriers:
-        raise InputError(f"galerkin_gap: the reduced body of model {reduced.model.name!r} is "
-                         "carried by rigid bodies; the diagnosis solves the body alone")
+        raise InputError(
+            f"galerkin_gap: the reduced body of model {reduced.model.name!r} is "
+            "carried by rigid bodies; the diagnosis solves the body alone"
+        )
     times = np.arange(int(round(duration / dt)) + 1) * dt
-    spaces = {} if training is None else learned_test_spaces(
-        reduced, training, learned_sizes, training_stride, progress)
+    spaces = (
+        {}
+        if training is None
+        else learned_test_spaces(reduced, training, learned_sizes, training_stride, progress)
+    )
     rows = []
-    for name, schedule in tqdm(schedules.items(), desc="Galerkin gap", unit="run",
-                               disable=not progress, leave=False):
+    for name, schedule in tqdm(
+        schedules.items(), desc="Galerkin gap", unit="run", disable=not progress, leave=False
+    ):
         u_full = full_run(reduced.model, schedule, duration, dt, cache, progress=False)["u"]
         error = node_mean_mm(reduced_run(reduced, schedule, duration, dt)[0], u_full)
         held = held_instant(schedule, times, hold) & np.isfinite(error)
@@ -273,14 +296,25 @@ def galerkin_gap(reduced: ReducedModel, schedules: dict[str, ExcitationSchedule]
             rows.append({"run": name, "held": False})
             continue
         k = int(np.flatnonzero(held)[np.argmax(error[held])])
-        rows.append({"run": name, "held": True, "time": float(times[k]),
-                     "reduced_mm": float(error[k]),
-                     **_gap_at(reduced, schedule, float(times[k]), u_full[k], spaces)})
+        rows.append(
+            {
+                "run": name,
+                "held": True,
+                "time": float(times[k]),
+                "reduced_mm": float(error[k]),
+                **_gap_at(reduced, schedule, float(times[k]), u_full[k], spaces),
+            }
+        )
     return rows
 
 
-def learned_test_spaces(reduced: ReducedModel, training: Snapshots, sizes: Sequence[int],
-                        stride: int = 2, progress: bool = True) -> dict[int, np.ndarray]:
+def learned_test_spaces(
+    reduced: ReducedModel,
+    training: Snapshots,
+    sizes: Sequence[int],
+    stride: int = 2,
+    progress: bool = True,
+) -> dict[int, np.ndarray]:
     """{p: V = span [U, p M-weighted POD vectors of K(u_k)^-1 M U over the training
     states]} (module docstring; orthonormal columns)."""
     model, U = reduced.model, reduced.basis
@@ -290,11 +324,18 @@ def learned_test_spaces(reduced: ReducedModel, training: Snapshots, sizes: Seque
     MU = full.times(U, mass=True)
     muscles = list(body.muscles.values())
     if training.excitations.shape[1] != len(muscles):
-        raise InputError(f"galerkin_gap: the training states have {training.excitations.shape[1]}"
-                         f" excitations, {body.name!r} has {len(muscles)} muscles")
+        raise InputError(
+            f"galerkin_gap: the training states have {training.excitations.shape[1]}"
+            f" excitations, {body.name!r} has {len(muscles)} muscles"
+        )
     columns = []
-    for k in tqdm(range(0, training.displacements.shape[0], stride), desc="learned test space",
-                  unit="state", disable=not progress, leave=False):
+    for k in tqdm(
+        range(0, training.displacements.shape[0], stride),
+        desc="learned test space",
+        unit="state",
+        disable=not progress,
+        leave=False,
+    ):
         for muscle, a in zip(muscles, training.excitations[k]):
             muscle.excitation.value = float(a)
         full.residual(training.displacements[k], tangent=True)
@@ -303,8 +344,10 @@ def learned_test_spaces(reduced: ReducedModel, training: Snapshots, sizes: Seque
             columns.append(W)
     # M-weighted POD (the row sums of M as the weights); W(q) depends on span V only
     weights = np.sqrt(np.maximum(full.times(np.ones((U.shape[0], 1)), mass=True)[:, 0], 0.0))
-    modes = np.linalg.svd(weights[:, None] * np.concatenate(columns, axis=1),
-                          full_matrices=False)[0] / np.where(weights > 0, weights, 1.0)[:, None]
+    modes = (
+        np.linalg.svd(weights[:, None] * np.concatenate(columns, axis=1), full_matrices=False)[0]
+        / np.where(weights > 0, weights, 1.0)[:, None]
+    )
     spaces = {}
     for p in sizes:
         V = np.linalg.qr(np.concatenate([U, modes[:, :p]], axis=1))[0]
@@ -313,8 +356,13 @@ def learned_test_spaces(reduced: ReducedModel, training: Snapshots, sizes: Seque
     return spaces
 
 
-def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
-            u_star: np.ndarray, spaces: dict[int, np.ndarray]) -> dict:
+def _gap_at(
+    reduced: ReducedModel,
+    schedule: ExcitationSchedule,
+    t: float,
+    u_star: np.ndarray,
+    spaces: dict[int, np.ndarray],
+) -> dict:
     """The figures at one held instant t of the full state u* (a freshly built scene with
     the schedule's inputs at t)."""
     model, U = reduced.model, reduced.basis
@@ -329,11 +377,17 @@ def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
     terms = body.energy_terms(merged=True)
     volumetric = [term.name for term in terms if _part(term.name) == "volumetric"]
     table = quadrature_points(body)
-    kept = np.unique(np.concatenate([table.of_term(term) for term in terms
-                                     if term.name not in volumetric]))
-    without = ReducedFemBody(body, U, IntegrationPoints(kept, np.ones(kept.size), "all"),
-                             leave_out=volumetric, hold_volume=False,
-                             name=f"{body.name}_without_volumetric")
+    kept = np.unique(
+        np.concatenate([table.of_term(term) for term in terms if term.name not in volumetric])
+    )
+    without = ReducedFemBody(
+        body,
+        U,
+        IntegrationPoints(kept, np.ones(kept.size), "all"),
+        leave_out=volumetric,
+        hold_volume=False,
+        name=f"{body.name}_without_volumetric",
+    )
 
     def mm(q, target):
         if q is None:
@@ -352,27 +406,30 @@ def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
     diffs = {p: U.T @ (at_best[p] - at_full[p]) for p in PARTS if p in at_best}
     total = np.linalg.norm(sum(diffs.values()))
     row["residual_share"] = {p: float(np.linalg.norm(d) / total) for p, d in diffs.items()}
-    row["correction_mm"] = {p: mm(np.linalg.solve(KUU, d), np.zeros(n))
-                            for p, d in diffs.items()}
+    row["correction_mm"] = {p: mm(np.linalg.solve(KUU, d), np.zeros(n)) for p, d in diffs.items()}
     row["without_volumetric_mm"] = mm(_static_reduced(without, q_star), u_star)
     # the full model's own equilibrium at the held inputs, from u*
     full.set(u_star)
     try:
-        solve_static(body, LinearSolver(MPI.COMM_SELF, "mumps", symmetric=body.conservative),
-                     rtol=1e-10)
+        solve_static(
+            body, LinearSolver(MPI.COMM_SELF, "mumps", symmetric=body.conservative), rtol=1e-10
+        )
     except StepFailed as exc:
         return {**row, "full_static": str(exc)}
     u_s = body.u.x.array[:n].copy()
     q_s = np.linalg.solve(gram, MU.T @ u_s)
     galerkin = _static_reduced(every, q_s, *([] if static is None else [static]))
-    row.update(full_lag_mm=float(node_mean_mm(u_s[None], u_star[None])[0]),
-               best_static_mm=mm(q_s, u_s), galerkin_static_mm=mm(galerkin, u_s))
+    row.update(
+        full_lag_mm=float(node_mean_mm(u_s[None], u_star[None])[0]),
+        best_static_mm=mm(q_s, u_s),
+        galerkin_static_mm=mm(galerkin, u_s),
+    )
     full.residual(u_s, tangent=True)
     KU = full.times(U)
     row["energy_static_mm"] = mm(np.linalg.solve(U.T @ KU, KU.T @ u_s), u_s)
     W = full.solve(MU)
     oracle = _oracle(full, U, W, q_s)
-    if oracle is None and galerkin is not None:     # q_s inverts an element
+    if oracle is None and galerkin is not None:  # q_s inverts an element
         oracle = _oracle(full, U, W, galerkin)
     row["oracle_pg_mm"] = mm(oracle, u_s)
     if spaces:
@@ -387,23 +444,38 @@ def _gap_at(reduced: ReducedModel, schedule: ExcitationSchedule, t: float,
 
 def write_markdown(rows: list[dict]) -> str:
     """The table of :func:`galerkin_gap`'s rows (mean node distances in mm)."""
-    lines = ["| run | t (s) | reduced | best in the basis | static, every point | "
-             "energy projection | without the volumetric term | full run to its equilibrium "
-             "| best (equilibrium) | Galerkin (equilibrium) | energy (equilibrium) | oracle "
-             "Petrov-Galerkin (equilibrium) | residual share passive / active / volumetric "
-             "/ other |", "|" + "---|" * 13]
+    lines = [
+        "| run | t (s) | reduced | best in the basis | static, every point | "
+        "energy projection | without the volumetric term | full run to its equilibrium "
+        "| best (equilibrium) | Galerkin (equilibrium) | energy (equilibrium) | oracle "
+        "Petrov-Galerkin (equilibrium) | residual share passive / active / volumetric "
+        "/ other |",
+        "|" + "---|" * 13,
+    ]
     for r in rows:
         if not r.get("held"):
             lines.append(f"| {r['run']} | no held instant |" + " |" * 11)
             continue
         share = " / ".join(f"{r['residual_share'].get(p, 0.0):.2f}" for p in PARTS)
-        cells = [r["reduced_mm"], r["best_mm"], r["static_mm"], r["energy_mm"],
-                 r["without_volumetric_mm"], r.get("full_lag_mm"), r.get("best_static_mm"),
-                 r.get("galerkin_static_mm"), r.get("energy_static_mm"), r.get("oracle_pg_mm")]
+        cells = [
+            r["reduced_mm"],
+            r["best_mm"],
+            r["static_mm"],
+            r["energy_mm"],
+            r["without_volumetric_mm"],
+            r.get("full_lag_mm"),
+            r.get("best_static_mm"),
+            r.get("galerkin_static_mm"),
+            r.get("energy_static_mm"),
+            r.get("oracle_pg_mm"),
+        ]
         learned = r.get("learned_pg_mm", {})
-        lines.append(f"| {r['run']} | {r['time']:.2f} | " + " | ".join(
-            "-" if c is None else f"{c:.2f}" for c in cells) + f" | {share} |"
-            + "".join(f" {v:.2f} |" for v in learned.values()))
+        lines.append(
+            f"| {r['run']} | {r['time']:.2f} | "
+            + " | ".join("-" if c is None else f"{c:.2f}" for c in cells)
+            + f" | {share} |"
+            + "".join(f" {v:.2f} |" for v in learned.values())
+        )
     sizes = [list(r["learned_pg_mm"]) for r in rows if r.get("learned_pg_mm")]
     if sizes:
         lines[0] += "".join(f" learned test space, p = {p} (equilibrium) |" for p in sizes[0])

@@ -94,7 +94,7 @@ def strain_displacement(table: QuadraturePoints, points: np.ndarray, V: np.ndarr
     Row 3 i + J of D_p is d u_i / d X_J.
     """
     cols = V.shape[1]
-    Ve = V.reshape(-1, 3, cols)[table.dofs[points]]                  # (m, k, 3, cols)
+    Ve = V.reshape(-1, 3, cols)[table.dofs[points]]  # (m, k, 3, cols)
     D = np.einsum("pkJ,pkic->piJc", table.grad_N[points], Ve)
     return np.ascontiguousarray(D.reshape(points.size, 9, cols))
 
@@ -125,10 +125,18 @@ class ReducedFemBody:
     #: the list of :class:`~artifem.scene.Scene` that holds it (``Scene.add``)
     scene_group = "reduced_bodies"
 
-    def __init__(self, full: FemBody, U: np.ndarray, points: IntegrationPoints, *,
-                 pressure_basis: np.ndarray | None = None,
-                 pressure_weights: np.ndarray | None = None, hold_volume: bool = True,
-                 leave_out: Sequence[str] = (), name: str | None = None):
+    def __init__(
+        self,
+        full: FemBody,
+        U: np.ndarray,
+        points: IntegrationPoints,
+        *,
+        pressure_basis: np.ndarray | None = None,
+        pressure_weights: np.ndarray | None = None,
+        hold_volume: bool = True,
+        leave_out: Sequence[str] = (),
+        name: str | None = None,
+    ):
         if full.mesh.comm.size != 1:
             raise NotImplementedError("ReducedFemBody runs in serial only for now")
         self.full, self.points = full, points
@@ -138,10 +146,13 @@ class ReducedFemBody:
             raise InputError(
                 f"ReducedFemBody {self.name!r}: {full.name!r} has the hard incompressibility "
                 "(Incompressible); give its reduced pressure space, pressure_basis (n_p x s, "
-                "e.g. reduced_volume_constraint.pressure_basis of training pressures)")
+                "e.g. reduced_volume_constraint.pressure_basis of training pressures)"
+            )
         if pressure_basis is not None and not hard:
-            raise InputError(f"ReducedFemBody {self.name!r}: a pressure_basis needs a full "
-                             "body with the hard incompressibility (Incompressible)")
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: a pressure_basis needs a full "
+                "body with the hard incompressibility (Incompressible)"
+            )
         self.alpha, self.beta = full.alpha, full.beta
         full.compile()
         bs = 3
@@ -149,25 +160,30 @@ class ReducedFemBody:
         ndofs = bs * n_owned
         U = np.asarray(U, dtype=float)
         if U.ndim != 2 or U.shape[0] != ndofs:
-            raise InputError(f"ReducedFemBody {self.name!r}: U must have shape ({ndofs}, r), "
-                             f"got {U.shape}")
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: U must have shape ({ndofs}, r), got {U.shape}"
+            )
         if U.shape[1] == 0 or not np.all(np.isfinite(U)):
             raise InputError(f"ReducedFemBody {self.name!r}: U must have r >= 1 finite columns")
         # Rows at fixed dofs must vanish; round-off (<= 1e-10 max|U|, e.g. from a QR
         # or an eigensolver) is set to exactly zero.
-        fixed_rows = full.fixed_components         # every fixed component
+        fixed_rows = full.fixed_components  # every fixed component
         tol = 1e-10 * np.abs(U).max()
         if fixed_rows.size and np.any(np.abs(U[fixed_rows]) > tol):
             bad = np.unique(fixed_rows[np.any(np.abs(U[fixed_rows]) > tol, axis=1)] // bs)
-            raise InputError(f"ReducedFemBody {self.name!r}: rows of U at fixed dofs must be "
-                             f"zero; nonzero at {bad.size} fixed node(s), local dofs "
-                             f"{bad[:10].tolist()}")
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: rows of U at fixed dofs must be "
+                f"zero; nonzero at {bad.size} fixed node(s), local dofs "
+                f"{bad[:10].tolist()}"
+            )
         self.table = quadrature_points(full)
         idx = np.asarray(points.indices, dtype=np.int64)
         if idx.size == 0 or idx.max() >= self.table.size:
-            raise InputError(f"ReducedFemBody {self.name!r}: integration point indices must be "
-                             f"a non-empty subset of the {self.table.size} quadrature points "
-                             f"of {full.name!r}")
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: integration point indices must be "
+                f"a non-empty subset of the {self.table.size} quadrature points "
+                f"of {full.name!r}"
+            )
         if fixed_rows.size:
             U = U.copy()
             U[fixed_rows] = 0.0
@@ -203,9 +219,10 @@ class ReducedFemBody:
                 K0U[:, j] = y.array
             self.damping = self.damping + self.beta * 0.5 * (U.T @ K0U + K0U.T @ U)
         v = ufl.TestFunction(full.V)
-        dx = ufl.Measure("dx", domain=full.mesh,
-                         metadata={"quadrature_degree": full.quadrature_degree})
-        self.G = np.zeros((self.r, 3))          # U^T int rho e_k . phi dX
+        dx = ufl.Measure(
+            "dx", domain=full.mesh, metadata={"quadrature_degree": full.quadrature_degree}
+        )
+        self.G = np.zeros((self.r, 3))  # U^T int rho e_k . phi dX
         for k in range(3):
             e = np.zeros(3)
             e[k] = 1.0
@@ -213,7 +230,7 @@ class ReducedFemBody:
             vec = fem_petsc.assemble_vector(fem.form(full.density * ufl.dot(ek, v) * dx))
             self.G[:, k] = U.T @ vec.array[:ndofs]
             vec.destroy()
-        self._loads: dict = {}              # U^T (b, f_nodal), refreshed when they change
+        self._loads: dict = {}  # U^T (b, f_nodal), refreshed when they change
         self._project_surface_loads()
 
         # ---- online: the m points, their D_p and one stress kernel per energy term ----
@@ -223,17 +240,19 @@ class ReducedFemBody:
         self.D = strain_displacement(self.table, idx, U)
         self.H_bar = strain_displacement(self.table, idx, self.u_bar[:, None])[:, :, 0]
         m = idx.size
-        self._blocks = np.zeros((m, 9, 9))          # w_p A_p
-        self._AD = np.zeros((m, 9, self.r))         # w_p A_p D_p
+        self._blocks = np.zeros((m, 9, 9))  # w_p A_p
+        self._AD = np.zeros((m, 9, self.r))  # w_p A_p D_p
         self._Dt = np.ascontiguousarray(self.D.reshape(-1, self.r).T)
         # Each energy term's density at the points where it is integrated.
         terms = []
         energy_terms = full.energy_terms(merged=True)
         unknown = sorted(set(leave_out) - {t.name for t in energy_terms})
         if unknown:
-            raise InputError(f"ReducedFemBody {self.name!r}: leave_out names {unknown}, not "
-                             f"energy terms of {full.name!r}: "
-                             f"{[t.name for t in energy_terms]}")
+            raise InputError(
+                f"ReducedFemBody {self.name!r}: leave_out names {unknown}, not "
+                f"energy terms of {full.name!r}: "
+                f"{[t.name for t in energy_terms]}"
+            )
         for term in energy_terms:
             if term.name in leave_out:
                 continue
@@ -247,9 +266,9 @@ class ReducedFemBody:
                     raise NotImplementedError(
                         f"reduced body of {full.name!r}: energy term {term.name!r} has fiber "
                         "directions per quadrature point; reduced bodies take one per cell "
-                        "(DG0) for now")
-                directions = term.direction.x.array.reshape(-1, 3)[
-                    W.dofmap.list[self.cells[at], 0]]
+                        "(DG0) for now"
+                    )
+                directions = term.direction.x.array.reshape(-1, 3)[W.dofmap.list[self.cells[at], 0]]
             fields = None if term.fields_at is None else term.fields_at(self.cells[at])
             terms.append((term.density, at, directions, fields))
         self._stresses = PointStresses(terms, m)
@@ -257,8 +276,9 @@ class ReducedFemBody:
         self._excitations = [mus.excitation.value for mus in full.muscles.values()]
         self.set_q(self.q)
         #: the hard incompressibility in a reduced pressure space, or None
-        self.volume_constraint = ReducedVolumeConstraint(
-            self, pressure_basis, pressure_weights) if hard else None
+        self.volume_constraint = (
+            ReducedVolumeConstraint(self, pressure_basis, pressure_weights) if hard else None
+        )
 
     # ---- evaluation --------------------------------------------------------
 
@@ -297,14 +317,15 @@ class ReducedFemBody:
         was built act on it as on the full body."""
         full, loads = self.full, self._loads
         b = full.body_force
-        if loads.get("version") != full.loads_version:       # a new body force or load
+        if loads.get("version") != full.loads_version:  # a new body force or load
             loads.clear()
             loads["version"] = full.loads_version
             loads["constants"] = [] if b is None else extract_constants(b)
             if b is not None:
                 v = ufl.TestFunction(full.V)
-                dx = ufl.Measure("dx", domain=full.mesh,
-                                 metadata={"quadrature_degree": full.quadrature_degree})
+                dx = ufl.Measure(
+                    "dx", domain=full.mesh, metadata={"quadrature_degree": full.quadrature_degree}
+                )
                 loads["form"] = fem.form(ufl.dot(b, v) * dx)
         values = tuple(np.asarray(c.value).tobytes() for c in loads["constants"])
         if loads.get("values") != values:
@@ -331,10 +352,15 @@ class ReducedFemBody:
             if load.follower:
                 pressures.append(load)
                 continue
-            tags = dmesh.meshtags(full.mesh, full.mesh.topology.dim - 1, load.facets,
-                                  np.ones_like(load.facets))
-            ds = ufl.Measure("ds", domain=full.mesh, subdomain_data=tags,
-                             metadata={"quadrature_degree": load.degree})(1)
+            tags = dmesh.meshtags(
+                full.mesh, full.mesh.topology.dim - 1, load.facets, np.ones_like(load.facets)
+            )
+            ds = ufl.Measure(
+                "ds",
+                domain=full.mesh,
+                subdomain_data=tags,
+                metadata={"quadrature_degree": load.degree},
+            )(1)
             T = np.zeros((self.r, 3))
             for k in range(3):
                 vec = fem_petsc.assemble_vector(fem.form(v[k] * ds))
@@ -358,8 +384,7 @@ class ReducedFemBody:
     def external_force(self) -> np.ndarray:
         """f~_ext = lambda (G g + U^T (b, f_nodal) + sum_t T_t t) (constant in q)."""
         lf = float(self.full.load_factor.value)
-        f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + \
-            self._body_and_nodal_loads()
+        f = self.G @ np.asarray(self.full.gravity.value, dtype=float) + self._body_and_nodal_loads()
         for load, T in self._surface_loads()[0]:
             f = f + T @ np.asarray(load.value.value, dtype=float)
         return lf * f
@@ -368,8 +393,11 @@ class ReducedFemBody:
         """The follower pressures' f~_p ("force") or K~_p ("tangent") at the current q
         (module docstring); cached until q, a pressure or the load factor changes."""
         patch = self._patch
-        key = (self.q.tobytes(), float(self.full.load_factor.value),
-               tuple(float(load.value.value) for load in patch.loads))
+        key = (
+            self.q.tobytes(),
+            float(self.full.load_factor.value),
+            tuple(float(load.value.value) for load in patch.loads),
+        )
         if self._pressure_cache.get("key") != key:
             self._pressure_cache = {"key": key}
         cache = self._pressure_cache
@@ -440,9 +468,11 @@ class ReducedFemBody:
     def det_F(self) -> np.ndarray:
         """det F at the m integration points."""
         F = np.eye(3) + self._H
-        return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
-                - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
-                + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+        return (
+            F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0])
+        )
 
     def full_mesh_inversion(self) -> tuple[np.ndarray, float]:
         """The full body's inverted_elements() at u = u_bar + U q (O(n r), for output).
@@ -466,10 +496,10 @@ class ReducedFemBody:
     def inverted_elements(self) -> tuple[np.ndarray, float]:
         """(input indices of cells with an integration point at det F <= 0 or NaN, min det F)."""
         detF = self.det_F()
-        low = float(detF.min())                             # NaN if any is NaN
+        low = float(detF.min())  # NaN if any is NaN
         if low > 0:
             return np.zeros(0, dtype=np.int64), low
-        detF = np.where(np.isnan(detF), -np.inf, detF)      # NaN counts as inverted
+        detF = np.where(np.isnan(detF), -np.inf, detF)  # NaN counts as inverted
         bad = np.unique(self.cells[detF <= 0])
         return np.sort(self.full.input_cell_index(bad)).astype(np.int64), float(detF.min())
 

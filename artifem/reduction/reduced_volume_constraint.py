@@ -50,8 +50,9 @@ _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 _D2J = np.einsum("ikm,JLn->iJkLmn", _EPS, _EPS).reshape(81, 9)
 
 
-def pressure_basis(pressures: np.ndarray, volumes: np.ndarray, modes: int, *,
-                   total_volume: bool = True) -> np.ndarray:
+def pressure_basis(
+    pressures: np.ndarray, volumes: np.ndarray, modes: int, *, total_volume: bool = True
+) -> np.ndarray:
     """The reduced pressure space of training pressures, Pi (n_p x modes), its columns
     orthonormal in the pressure mass N = diag(V):
 
@@ -67,20 +68,26 @@ def pressure_basis(pressures: np.ndarray, volumes: np.ndarray, modes: int, *,
     P = np.asarray(pressures, dtype=float)
     V = np.asarray(volumes, dtype=float)
     if P.ndim != 2 or P.shape[1] != V.size:
-        raise InputError(f"pressure_basis: pressures must be rows (n_snapshots, {V.size} "
-                         f"pressure dofs), got shape {P.shape}")
+        raise InputError(
+            f"pressure_basis: pressures must be rows (n_snapshots, {V.size} "
+            f"pressure dofs), got shape {P.shape}"
+        )
     fitted = modes - 1 if total_volume else modes
     if not 0 <= fitted <= min(P.shape) or modes < 1:
-        raise InputError(f"pressure_basis: modes must be in [1, {min(P.shape) + total_volume}] "
-                         f"for {P.shape[0]} snapshots, got {modes}")
+        raise InputError(
+            f"pressure_basis: modes must be in [1, {min(P.shape) + total_volume}] "
+            f"for {P.shape[0]} snapshots, got {modes}"
+        )
     constant = np.ones(V.size) / np.sqrt(V.sum())
-    if total_volume:                        # the snapshots without their constant part
+    if total_volume:  # the snapshots without their constant part
         P = P - np.outer(P @ (V * constant), constant)
     W, sigma, _ = np.linalg.svd(np.sqrt(V)[:, None] * P.T, full_matrices=False)
     if fitted and not sigma[fitted - 1] > 1e-12 * max(sigma[0], np.finfo(float).tiny):
-        raise InputError(f"pressure_basis: the snapshots span only "
-                         f"{int(np.sum(sigma > 1e-12 * sigma[0]))} pressure modes"
-                         f"{' besides the constant' if total_volume else ''}, {fitted} asked")
+        raise InputError(
+            f"pressure_basis: the snapshots span only "
+            f"{int(np.sum(sigma > 1e-12 * sigma[0]))} pressure modes"
+            f"{' besides the constant' if total_volume else ''}, {fitted} asked"
+        )
     Pi = W[:, :fitted] / np.sqrt(V)[:, None]
     return np.column_stack([constant, Pi]) if total_volume else Pi
 
@@ -97,42 +104,56 @@ class ReducedVolumeConstraint:
         full = body.full.volume_constraint
         self.body, self.spec, self.kappa = body, full.spec, full.kappa
         Pi = np.asarray(basis, dtype=float)
-        if Pi.ndim != 2 or Pi.shape[0] != full.n_owned or Pi.shape[1] < 1 \
-                or not np.all(np.isfinite(Pi)):
-            raise InputError(f"ReducedFemBody {body.name!r}: pressure_basis must be finite, "
-                             f"of shape ({full.n_owned} pressure dofs of {body.full.name!r}, s "
-                             f">= 1), got {Pi.shape}")
+        if (
+            Pi.ndim != 2
+            or Pi.shape[0] != full.n_owned
+            or Pi.shape[1] < 1
+            or not np.all(np.isfinite(Pi))
+        ):
+            raise InputError(
+                f"ReducedFemBody {body.name!r}: pressure_basis must be finite, "
+                f"of shape ({full.n_owned} pressure dofs of {body.full.name!r}, s "
+                f">= 1), got {Pi.shape}"
+            )
         if Pi.shape[1] >= body.r:
-            raise InputError(f"ReducedFemBody {body.name!r}: {Pi.shape[1]} pressure modes for "
-                             f"{body.r} displacement modes would lock the body; take fewer "
-                             "pressure modes than displacement modes")
+            raise InputError(
+                f"ReducedFemBody {body.name!r}: {Pi.shape[1]} pressure modes for "
+                f"{body.r} displacement modes would lock the body; take fewer "
+                "pressure modes than displacement modes"
+            )
         self.basis, self.s = Pi, Pi.shape[1]
         # The points of the constraint's rule (the material's degree) and pi_p there.
-        self.at = np.flatnonzero(body.table.degree[body.point_index]
-                                 == body.full.quadrature_degree)
+        self.at = np.flatnonzero(body.table.degree[body.point_index] == body.full.quadrature_degree)
         if self.at.size == 0:
-            raise InputError(f"ReducedFemBody {body.name!r}: none of its integration points "
-                             "is a point of the material's rule, where the volume is measured")
-        dofs = full.Q.dofmap.list[body.cells[self.at]]                 # (ma, kq)
-        shape = np.ones(dofs.shape) if dofs.shape[1] == 1 else \
-            body.table.N[body.point_index[self.at]]
+            raise InputError(
+                f"ReducedFemBody {body.name!r}: none of its integration points "
+                "is a point of the material's rule, where the volume is measured"
+            )
+        dofs = full.Q.dofmap.list[body.cells[self.at]]  # (ma, kq)
+        shape = (
+            np.ones(dofs.shape) if dofs.shape[1] == 1 else body.table.N[body.point_index[self.at]]
+        )
         #: pi_p V_p: the pressure modes at the points times the quadrature volumes
-        self.point_values = np.einsum("pa,pas->ps", shape, Pi[dofs]) \
+        self.point_values = (
+            np.einsum("pa,pas->ps", shape, Pi[dofs])
             * body.table.volume[body.point_index[self.at], None]
+        )
         if weights is None:
             weights = body.points.weights
         weights = np.asarray(weights, dtype=float)
         if weights.shape != (body.m,) or not np.all(np.isfinite(weights)) or weights.min() < 0:
-            raise InputError(f"ReducedFemBody {body.name!r}: pressure_weights must be {body.m} "
-                             f"finite weights >= 0 (one per integration point)")
-        self.point_basis = self.point_values * weights[self.at, None]   # w_p V_p pi_p
+            raise InputError(
+                f"ReducedFemBody {body.name!r}: pressure_weights must be {body.m} "
+                f"finite weights >= 0 (one per integration point)"
+            )
+        self.point_basis = self.point_values * weights[self.at, None]  # w_p V_p pi_p
         self.N = Pi.T @ (full.volume[:, None] * Pi)
         self.N_inv = np.linalg.inv(0.5 * (self.N + self.N.T))
-        self.scale = np.abs(Pi).T @ full.volume                         # n_k
+        self.scale = np.abs(Pi).T @ full.volume  # n_k
         #: 1 / diag(N^-1): with kappa, the preconditioner kappa / volume of the island's
         #: pressure iteration (:func:`~artifem.incompressibility.hold_linearized`)
         self.volume = 1.0 / np.diag(self.N_inv)
-        self.lam = np.zeros(self.s)                                     # multipliers
+        self.lam = np.zeros(self.s)  # multipliers
         self.updates = 0
         self._cache: dict = {}
 
@@ -145,11 +166,20 @@ class ReducedVolumeConstraint:
             F = (np.eye(3) + self.body._H[self.at]).reshape(-1, 9)
             f = [F[:, k] for k in range(9)]
             # cofactor rows: F_1 x F_2, F_2 x F_0, F_0 x F_1 (rows of F), elementwise
-            cof = np.stack([f[4] * f[8] - f[5] * f[7], f[5] * f[6] - f[3] * f[8],
-                            f[3] * f[7] - f[4] * f[6], f[7] * f[2] - f[8] * f[1],
-                            f[8] * f[0] - f[6] * f[2], f[6] * f[1] - f[7] * f[0],
-                            f[1] * f[5] - f[2] * f[4], f[2] * f[3] - f[0] * f[5],
-                            f[0] * f[4] - f[1] * f[3]], axis=1)          # dJ/dF_iJ
+            cof = np.stack(
+                [
+                    f[4] * f[8] - f[5] * f[7],
+                    f[5] * f[6] - f[3] * f[8],
+                    f[3] * f[7] - f[4] * f[6],
+                    f[7] * f[2] - f[8] * f[1],
+                    f[8] * f[0] - f[6] * f[2],
+                    f[6] * f[1] - f[7] * f[0],
+                    f[1] * f[5] - f[2] * f[4],
+                    f[2] * f[3] - f[0] * f[5],
+                    f[0] * f[4] - f[1] * f[3],
+                ],
+                axis=1,
+            )  # dJ/dF_iJ
             J = f[0] * cof[:, 0] + f[1] * cof[:, 1] + f[2] * cof[:, 2]
             self._cache = {"key": key, "F": F, "J": J, "dJ": cof}
         return self._cache
@@ -170,7 +200,7 @@ class ReducedVolumeConstraint:
         k = self._kinematics()
         if "C" not in k:
             D = self.body.D[self.at]
-            weighted = self.point_basis[:, :, None] * k["dJ"][:, None, :]      # (ma, s, 9)
+            weighted = self.point_basis[:, :, None] * k["dJ"][:, None, :]  # (ma, s, 9)
             k["C"] = weighted.transpose(1, 0, 2).reshape(self.s, -1) @ D.reshape(-1, D.shape[2])
         return k["C"]
 
@@ -213,8 +243,14 @@ class ReducedVolumeConstraint:
 
     # ---- the multipliers ---------------------------------------------------
 
-    def hold_linearized(self, A: np.ndarray, x: np.ndarray, h: float,
-                        base: np.ndarray | None = None, exact: bool = True) -> np.ndarray:
+    def hold_linearized(
+        self,
+        A: np.ndarray,
+        x: np.ndarray,
+        h: float,
+        base: np.ndarray | None = None,
+        exact: bool = True,
+    ) -> np.ndarray:
         """x corrected, and lambda updated, so that c + h C (base + x) = 0 for a linear
         system A x = b (the force change h C^T dlambda: x += A^-1 h C^T dlambda, the s x s
         Schur complement solved by least squares). Raises StepFailed when the result still
@@ -225,8 +261,9 @@ class ReducedVolumeConstraint:
         try:
             Y = np.linalg.solve(A, h * C.T)
         except np.linalg.LinAlgError as exc:
-            raise StepFailed(f"ReducedFemBody {self.body.name!r}: singular step matrix "
-                             f"({exc})") from exc
+            raise StepFailed(
+                f"ReducedFemBody {self.body.name!r}: singular step matrix ({exc})"
+            ) from exc
         S = h * (C @ Y)
         dlam = np.linalg.lstsq(S, -c0, rcond=1e-12)[0]
         x = x + Y @ dlam
@@ -266,8 +303,9 @@ class ReducedVolumeConstraint:
         (the full body's :meth:`~artifem.incompressibility.VolumeConstraint.step_failure`)."""
         if self.violation() <= self.spec.step_tol:
             return None
-        return self.describe().replace(f"more than {self.spec.tol:g}",
-                                       f"more than the step's {self.spec.step_tol:g}")
+        return self.describe().replace(
+            f"more than {self.spec.tol:g}", f"more than the step's {self.spec.step_tol:g}"
+        )
 
     def describe(self, c: np.ndarray | None = None) -> str:
         """Which pressure modes miss the tolerance, by how much."""
@@ -275,8 +313,10 @@ class ReducedVolumeConstraint:
         ratio = np.abs(c / self.scale)
         worst = np.argsort(-ratio)[:3]
         shown = ", ".join(f"{k} ({ratio[k]:.1e})" for k in worst)
-        return (f"ReducedFemBody {self.body.name!r}: volumes off by more than "
-                f"{self.spec.tol:g} in pressure mode(s) (index, relative volume change) {shown}")
+        return (
+            f"ReducedFemBody {self.body.name!r}: volumes off by more than "
+            f"{self.spec.tol:g} in pressure mode(s) (index, relative volume change) {shown}"
+        )
 
     def pressures(self) -> np.ndarray:
         """The pressure field p = Pi lambda on the full body's pressure dofs (O(n s))."""

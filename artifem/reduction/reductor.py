@@ -61,21 +61,40 @@ from mpi4py import MPI
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
-from artifem.reduction.bases import (body_mass, extended_modes, linear_modes,
-                                     modal_derivative_basis, pod_basis)
+from artifem.reduction.bases import (
+    body_mass,
+    extended_modes,
+    linear_modes,
+    modal_derivative_basis,
+    pod_basis,
+)
 from artifem.reduction.cubature import IntegrationPoints, random_points, trained_points_path
 from artifem.reduction.distributed import compute_shared
 from artifem.reduction.quadrature_points import quadrature_points
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.reduction.reduced_volume_constraint import pressure_basis
 from artifem.reduction.rigid_lift import RigidLift, rigid_lift
-from artifem.reduction.training import (ArtifactCache, Snapshots, force_training_matrix,
-                                        pressure_weights, project, record_snapshots)
+from artifem.reduction.training import (
+    ArtifactCache,
+    Snapshots,
+    force_training_matrix,
+    pressure_weights,
+    project,
+    record_snapshots,
+)
 from artifem.scene import Scene
 from artifem.scene import inputs as scene_inputs
 
-__all__ = ["ReducibleScene", "Training", "Basis", "Points", "Reductor", "ReducedModel",
-           "reduce", "BASES"]
+__all__ = [
+    "ReducibleScene",
+    "Training",
+    "Basis",
+    "Points",
+    "Reductor",
+    "ReducedModel",
+    "reduce",
+    "BASES",
+]
 
 #: The bases a reductor builds.
 BASES = ("pod", "linear", "extended", "modal-derivatives")
@@ -117,8 +136,10 @@ class ReducibleScene:
         for body in scene.fem_bodies:
             if body.name == self.body:
                 return body
-        raise UnknownNameError(f"model {self.name!r}: its scene has no FEM body named "
-                               f"{self.body!r}; it has {[b.name for b in scene.fem_bodies]}")
+        raise UnknownNameError(
+            f"model {self.name!r}: its scene has no FEM body named "
+            f"{self.body!r}; it has {[b.name for b in scene.fem_bodies]}"
+        )
 
     def inputs(self, body: FemBody) -> dict[str, list[str]]:
         """Exciter name -> the muscles of ``body`` it drives."""
@@ -139,18 +160,25 @@ class ReducibleScene:
         names = self.input_names(body)
         unknown = sorted(set(schedule.values) - set(names))
         if unknown:
-            raise UnknownNameError(f"{what} of model {self.name!r} names unknown inputs "
-                                   f"{unknown}; the inputs are {names}")
+            raise UnknownNameError(
+                f"{what} of model {self.name!r} names unknown inputs "
+                f"{unknown}; the inputs are {names}"
+            )
 
-    def muscle_schedule(self, body: FemBody, schedule: ExcitationSchedule
-                        ) -> ExcitationSchedule:
+    def muscle_schedule(self, body: FemBody, schedule: ExcitationSchedule) -> ExcitationSchedule:
         """The exciters of a schedule over the model's inputs expanded to the muscles they
         drive (its loads left out)."""
         self.check_schedule(body, schedule, "a schedule")
         inputs = self.inputs(body)
-        return ExcitationSchedule(schedule.times, {
-            muscle: values for e, values in schedule.values.items() if e in inputs
-            for muscle in inputs[e]})
+        return ExcitationSchedule(
+            schedule.times,
+            {
+                muscle: values
+                for e, values in schedule.values.items()
+                if e in inputs
+                for muscle in inputs[e]
+            },
+        )
 
     def drive(self, scene: Scene, schedule: ExcitationSchedule) -> Callable:
         """Add a controller applying ``schedule`` to the body's muscles and the scene's
@@ -158,12 +186,18 @@ class ReducibleScene:
         excitations and loads."""
         body = self.fem_body_or_full(scene)
         muscles = self.muscle_schedule(body, schedule).controller(body)
-        loads = scene_inputs.controller(ExcitationSchedule(schedule.times, {
-            name: v for name, v in schedule.values.items() if name in self.loads}), self.loads)
+        loads = scene_inputs.controller(
+            ExcitationSchedule(
+                schedule.times,
+                {name: v for name, v in schedule.values.items() if name in self.loads},
+            ),
+            self.loads,
+        )
 
         def control(system, t0: float, t1: float) -> None:
             muscles(system, t0, t1)
             loads(system, t0, t1)
+
         scene.add_controller(control)
         return control
 
@@ -189,11 +223,13 @@ class Training:
         if not self.schedules:
             raise InputError("Training: give at least one schedule")
         if not (np.isfinite(self.dt) and 0 < self.dt <= self.duration):
-            raise InputError(f"Training: need 0 < dt <= duration, got dt={self.dt}, "
-                             f"duration={self.duration}")
+            raise InputError(
+                f"Training: need 0 < dt <= duration, got dt={self.dt}, duration={self.duration}"
+            )
         if int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 1:
-            raise InputError(f"Training: snapshot_every must be a positive integer, got "
-                             f"{self.snapshot_every!r}")
+            raise InputError(
+                f"Training: snapshot_every must be a positive integer, got {self.snapshot_every!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -228,8 +264,9 @@ class Points:
 
     def __post_init__(self):
         if self.sampling not in ("trained", "random", "all"):
-            raise InputError(f"Points: sampling must be 'trained', 'random' or 'all', got "
-                             f"{self.sampling!r}")
+            raise InputError(
+                f"Points: sampling must be 'trained', 'random' or 'all', got {self.sampling!r}"
+            )
         for name in ("count", "training_states"):
             value = getattr(self, name)
             if int(value) != value or value < 1:
@@ -273,8 +310,14 @@ class ReducedModel:
 
     def body(self, full: FemBody) -> ReducedFemBody:
         """The reduced body of ``full`` (named as ``full``, which it replaces)."""
-        return ReducedFemBody(full, self.basis, self.points, pressure_basis=self.pressure_basis,
-                              pressure_weights=self.pressure_weights, name=full.name)
+        return ReducedFemBody(
+            full,
+            self.basis,
+            self.points,
+            pressure_basis=self.pressure_basis,
+            pressure_weights=self.pressure_weights,
+            name=full.name,
+        )
 
     def put_in(self, scene: Scene) -> tuple[ReducedFemBody, dict]:
         """Replace the model's full body in ``scene`` (built by the model, at rest) by its
@@ -289,9 +332,11 @@ class ReducedModel:
             nodes, carrier = _carried(coupling, full)
             lift = None if carrier is None else lifts.get((carrier.name, tuple(np.sort(nodes))))
             if carrier is not None and lift is None:
-                raise InputError(f"model {self.model.name!r}: coupling {coupling.name!r} "
-                                 f"carries nodes of {full.name!r} on {carrier.name!r} that "
-                                 "the reduced basis was not trained with")
+                raise InputError(
+                    f"model {self.model.name!r}: coupling {coupling.name!r} "
+                    f"carries nodes of {full.name!r} on {carrier.name!r} that "
+                    "the reduced basis was not trained with"
+                )
             replaced[coupling.name] = coupling.onto_reduced(reduced, lift)
         scene.remove(full, *couplings)
         scene.add(reduced, *replaced.values())
@@ -315,7 +360,8 @@ def _couplings_of(scene: Scene, body, model: str) -> list:
                 f"couples {body.name!r}, and the reductor cannot carry it onto a reduced "
                 "body (those that can: NodeAttachment, PointPath, FrameAttachment, "
                 "EmbeddedFemAttachment with the body as its master, PlaneContact, "
-                "MeshContact)")
+                "MeshContact)"
+            )
         refusal = getattr(item, "refusal", None)
         reason = refusal(body) if callable(refusal) else None
         if reason is not None:
@@ -339,16 +385,26 @@ class Reductor:
     other stages are computed where they are called).
     """
 
-    def __init__(self, model: ReducibleScene, training: Training, cache: str | Path, *,
-                 pressure_modes: int = 4, progress: bool = True, comm: MPI.Comm = MPI.COMM_SELF):
+    def __init__(
+        self,
+        model: ReducibleScene,
+        training: Training,
+        cache: str | Path,
+        *,
+        pressure_modes: int = 4,
+        progress: bool = True,
+        comm: MPI.Comm = MPI.COMM_SELF,
+    ):
         self.model, self.training, self.progress, self.comm = model, training, progress, comm
         self.cache = ArtifactCache(cache)
         self.scene = model.build()
         self.body = model.fem_body(self.scene)
         if self.body.mesh.comm.size != 1:
-            raise InputError(f"model {model.name!r}: its body {self.body.name!r} is distributed "
-                             f"over {self.body.mesh.comm.size} ranks; a reductor needs a serial "
-                             "model on each rank (build its mesh on MPI.COMM_SELF)")
+            raise InputError(
+                f"model {model.name!r}: its body {self.body.name!r} is distributed "
+                f"over {self.body.mesh.comm.size} ranks; a reductor needs a serial "
+                "model on each rank (build its mesh on MPI.COMM_SELF)"
+            )
         inputs = model.inputs(self.body)
         for name, schedule in training.schedules.items():
             model.check_schedule(self.body, schedule, f"training schedule {name!r}")
@@ -356,38 +412,48 @@ class Reductor:
             load.check(self.scene)
         missing = sorted({m for ms in inputs.values() for m in ms} - set(self.body.muscles))
         if missing:
-            raise UnknownNameError(f"model {model.name!r}: its inputs drive muscles {missing} "
-                                   f"that {self.body.name!r} does not define")
+            raise UnknownNameError(
+                f"model {model.name!r}: its inputs drive muscles {missing} "
+                f"that {self.body.name!r} does not define"
+            )
         couplings = _couplings_of(self.scene, self.body, model.name)
         self.body.compile()
         self.mass = body_mass(self.body)
         self.table = quadrature_points(self.body)
-        carried = [(nodes, carrier) for nodes, carrier in
-                   (_carried(coupling, self.body) for coupling in couplings)
-                   if carrier is not None]
+        carried = [
+            (nodes, carrier)
+            for nodes, carrier in (_carried(coupling, self.body) for coupling in couplings)
+            if carrier is not None
+        ]
         self.carriers = []
         for i, (nodes, carrier) in enumerate(carried):
             # the lift holds the other carriers' nodes at rest (rigid_lift)
             others = [np.asarray(n) for k, (n, _) in enumerate(carried) if k != i]
             held = np.concatenate(others) if others else np.zeros(0, dtype=np.int64)
-            self.carriers.append(Carrier(carrier.name, rigid_lift(
-                self.body, nodes, carrier.position, carrier.rotation, held=held)))
+            self.carriers.append(
+                Carrier(
+                    carrier.name,
+                    rigid_lift(self.body, nodes, carrier.position, carrier.rotation, held=held),
+                )
+            )
         hard = self.body.volume_constraint is not None
         if hard and pressure_modes < 1:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
         self.pressure_modes = pressure_modes if hard else 0
         self.seconds: dict[str, float] = {}
-        self._runs = None               # (each training run's Snapshots, seconds), loaded once
+        self._runs = None  # (each training run's Snapshots, seconds), loaded once
         self._snapshots = None
 
     # ---- stage 1: snapshots -------------------------------------------------------------
 
     def _timed(self, key: str, compute: Callable[[], dict]) -> tuple[dict, float]:
         """``cache.get``, the artifact holding the seconds it took to compute: (it, them)."""
+
         def timed():
             tic = time.perf_counter()
             arrays = compute()
             return {**arrays, "seconds": np.array(time.perf_counter() - tic)}
+
         data = self.cache.get(key, timed)
         return data, float(data.get("seconds", 0.0))
 
@@ -405,27 +471,40 @@ class Reductor:
         self.model.drive(scene, schedule)
         bones = [next(b for b in scene.rigid_bodies if b.name == c.body) for c in self.carriers]
         on = f" (rank {self.comm.rank + 1}/{self.comm.size})" if self.comm.size > 1 else ""
-        return record_snapshots(scene, body, duration=t.duration, dt=t.dt,
-                                every=t.snapshot_every, label=f"training {name}{on}",
-                                progress=self.progress,
-                                carriers=[(c.lift, bone) for c, bone in zip(self.carriers, bones)]
-                                ).as_arrays()
+        return record_snapshots(
+            scene,
+            body,
+            duration=t.duration,
+            dt=t.dt,
+            every=t.snapshot_every,
+            label=f"training {name}{on}",
+            progress=self.progress,
+            carriers=[(c.lift, bone) for c, bone in zip(self.carriers, bones)],
+        ).as_arrays()
 
     def snapshot_keys(self) -> list[str]:
         t = self.training
-        return [self.cache.key("reductor-snapshots", **self.model.identity(),
-                               times=s.times, values=s.values, duration=t.duration, dt=t.dt,
-                               every=t.snapshot_every)
-                for s in t.schedules.values()]
+        return [
+            self.cache.key(
+                "reductor-snapshots",
+                **self.model.identity(),
+                times=s.times,
+                values=s.values,
+                duration=t.duration,
+                dt=t.dt,
+                every=t.snapshot_every,
+            )
+            for s in t.schedules.values()
+        ]
 
     def train(self) -> dict:
         """Compute the training runs not in the cache, shared over the ranks of ``comm``
         (collective: every rank calls it; :func:`compute_shared`). Returns what it did:
         ranks, runs computed, the names each rank computed, wall seconds."""
-        jobs = [(name, key, lambda n=name, s=schedule, k=key: self._timed(
-                    k, lambda: self._run(n, s)))
-                for key, (name, schedule) in zip(self.snapshot_keys(),
-                                                 self.training.schedules.items())]
+        jobs = [
+            (name, key, lambda n=name, s=schedule, k=key: self._timed(k, lambda: self._run(n, s)))
+            for key, (name, schedule) in zip(self.snapshot_keys(), self.training.schedules.items())
+        ]
         return compute_shared(jobs, self.cache, self.comm)
 
     def snapshots(self) -> tuple[Snapshots, np.ndarray, list[str]]:
@@ -440,8 +519,7 @@ class Reductor:
         from the cache, once."""
         if self._runs is None:
             runs, seconds = [], 0.0
-            for key, (name, schedule) in zip(self.snapshot_keys(),
-                                             self.training.schedules.items()):
+            for key, (name, schedule) in zip(self.snapshot_keys(), self.training.schedules.items()):
                 data, spent = self._timed(key, lambda n=name, s=schedule: self._run(n, s))
                 seconds += spent
                 runs.append(Snapshots.from_arrays(data))
@@ -467,16 +545,21 @@ class Reductor:
             rows = self._carried_rows()
             off = float(np.abs(u[:, rows]).max(initial=0.0))
             if off > 1e-9 * max(float(np.abs(u).max()), float(np.abs(g @ L.T).max())):
-                raise InputError(f"model {self.model.name!r}: the carried nodes of "
-                                 f"{self.body.name!r} left their rigid bodies by up to "
-                                 f"{off:.3g} in training; the lift cannot carry them")
-            u[:, rows] = 0.0                    # round-off of u - Phi g
+                raise InputError(
+                    f"model {self.model.name!r}: the carried nodes of "
+                    f"{self.body.name!r} left their rigid bodies by up to "
+                    f"{off:.3g} in training; the lift cannot carry them"
+                )
+            u[:, rows] = 0.0  # round-off of u - Phi g
         return Snapshots(u, found.excitations, found.pressures), g, self.snapshot_keys()
 
     def lift_columns(self) -> np.ndarray:
         n = 3 * self.body.V.dofmap.index_map.size_local
-        return np.hstack([c.lift.columns[:n] for c in self.carriers]) if self.carriers else \
-            np.zeros((n, 0))
+        return (
+            np.hstack([c.lift.columns[:n] for c in self.carriers])
+            if self.carriers
+            else np.zeros((n, 0))
+        )
 
     # ---- stage 2: the basis -------------------------------------------------------------
 
@@ -485,16 +568,26 @@ class Reductor:
         if spec.kind == "pod":
             snapshots, _, keys = self.snapshots()
             key = self.cache.key("reductor-basis-pod", snapshots=keys, r=spec.size)
-            U = self._cached("basis", key, lambda: {
-                "U": pod_basis(snapshots.displacements, self._uncarried_mass(),
-                               r=spec.size)[0]})["U"]
+            U = self._cached(
+                "basis",
+                key,
+                lambda: {
+                    "U": pod_basis(snapshots.displacements, self._uncarried_mass(), r=spec.size)[0]
+                },
+            )["U"]
         else:
             if self.carriers:
-                raise InputError(f"model {self.model.name!r}: a {spec.kind!r} basis does not "
-                                 f"vanish on the nodes {[c.body for c in self.carriers]} "
-                                 "carry; use the 'pod' basis")
-            key = self.cache.key(f"reductor-basis-{spec.kind}", model=self.model.key,
-                                 body=self.model.body, modes=spec.size)
+                raise InputError(
+                    f"model {self.model.name!r}: a {spec.kind!r} basis does not "
+                    f"vanish on the nodes {[c.body for c in self.carriers]} "
+                    "carry; use the 'pod' basis"
+                )
+            key = self.cache.key(
+                f"reductor-basis-{spec.kind}",
+                model=self.model.key,
+                body=self.model.body,
+                modes=spec.size,
+            )
 
             def compute():
                 if spec.kind == "modal-derivatives":
@@ -503,13 +596,18 @@ class Reductor:
                 if spec.kind == "linear":
                     return {"U": modes}
                 return {"U": extended_modes(modes, self.mass, fixed_dofs=self.body.fixed_dofs)}
+
             U = self._cached("basis", key, compute)["U"]
         return np.hstack([U, self.lift_columns()]), key
 
     def _carried_rows(self) -> np.ndarray:
-        return np.concatenate([(3 * c.lift.dofs[:, None] + np.arange(3)).ravel()
-                               for c in self.carriers]) if self.carriers else \
-            np.zeros(0, dtype=np.int64)
+        return (
+            np.concatenate(
+                [(3 * c.lift.dofs[:, None] + np.arange(3)).ravel() for c in self.carriers]
+            )
+            if self.carriers
+            else np.zeros(0, dtype=np.int64)
+        )
 
     def _uncarried_mass(self):
         """The mass with the carried rows zeroed: POD vectors then vanish there exactly,
@@ -522,9 +620,9 @@ class Reductor:
             return lambda x: keep * self.mass(keep * x)
         return keep * self.mass
 
-    def training_states(self, W: np.ndarray, count: int,
-                        extra: tuple[np.ndarray, np.ndarray] | None = None
-                        ) -> tuple[np.ndarray, np.ndarray]:
+    def training_states(
+        self, W: np.ndarray, count: int, extra: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(q, excitations) of ``count`` snapshots evenly spaced over the training: the
         reduced coordinates [U^T M (u - L g); g] of the basis W = [U, L]; then the states
         ``extra`` (q, excitations) of W, e.g. states reduced runs visited
@@ -532,24 +630,30 @@ class Reductor:
         snapshots, g, _ = self.snapshots()
         S = snapshots.displacements.shape[0]
         rows = np.unique(np.linspace(0, S - 1, min(S, count)).round().astype(int))
-        U = W[:, :W.shape[1] - g.shape[1]]
+        U = W[:, : W.shape[1] - g.shape[1]]
         q = np.hstack([project(U, self.mass, snapshots.displacements[rows]), g[rows]])
         a = snapshots.excitations[rows]
         if extra is None:
             return q, a
         q_x, a_x = (np.atleast_2d(np.asarray(x, dtype=float)) for x in extra)
         if q_x.shape[1] != W.shape[1] or a_x.shape != (q_x.shape[0], a.shape[1]):
-            raise InputError(f"model {self.model.name!r}: extra training states must be "
-                             f"(k, {W.shape[1]}) coordinates and (k, {a.shape[1]}) "
-                             f"excitations, got {q_x.shape} and {a_x.shape}")
+            raise InputError(
+                f"model {self.model.name!r}: extra training states must be "
+                f"(k, {W.shape[1]}) coordinates and (k, {a.shape[1]}) "
+                f"excitations, got {q_x.shape} and {a_x.shape}"
+            )
         return np.vstack([q, q_x]), np.vstack([a, a_x])
 
     # ---- stage 3: the integration points ------------------------------------------------
 
-    def points(self, W: np.ndarray, basis_key: str, spec: Points,
-               counts: Sequence[int] | None = None,
-               extra: tuple[np.ndarray, np.ndarray] | None = None
-               ) -> dict[int, IntegrationPoints]:
+    def points(
+        self,
+        W: np.ndarray,
+        basis_key: str,
+        spec: Points,
+        counts: Sequence[int] | None = None,
+        extra: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> dict[int, IntegrationPoints]:
         """{m: points} for m in ``counts`` (default ``spec.count``): trained ones from one
         greedy path (each m cached), on the training states and ``extra`` ones
         (:meth:`training_states`), or random ones."""
@@ -557,30 +661,48 @@ class Reductor:
         if spec.sampling == "all":
             return {m: all_points(self.body) for m in counts}
         if spec.sampling == "random":
-            return {m: random_points(self.table.volume, m, rng=spec.seed,
-                                     groups=self.table.degree) for m in counts}
-        keys = {m: self.cache.key("reductor-points", basis=basis_key, m=m, tol=spec.tol,
-                                  growth=spec.growth, states=spec.training_states,
-                                  snapshots=self.snapshot_keys(),
-                                  **({} if extra is None else {"extra": list(extra)}))
-                for m in counts}
+            return {
+                m: random_points(self.table.volume, m, rng=spec.seed, groups=self.table.degree)
+                for m in counts
+            }
+        keys = {
+            m: self.cache.key(
+                "reductor-points",
+                basis=basis_key,
+                m=m,
+                tol=spec.tol,
+                growth=spec.growth,
+                states=spec.training_states,
+                snapshots=self.snapshot_keys(),
+                **({} if extra is None else {"extra": list(extra)}),
+            )
+            for m in counts
+        }
         cached = {m: self.cache.load(k) for m, k in keys.items()}
         if any(v is None for v in cached.values()):
             tic = time.perf_counter()
             q, a = self.training_states(W, spec.training_states, extra)
             G, b = force_training_matrix(self.body, W, q, a, progress=self.progress)
-            path = trained_points_path(G, b, sizes=counts, tol=spec.tol, growth=spec.growth,
-                                       progress=self.progress)
+            path = trained_points_path(
+                G, b, sizes=counts, tol=spec.tol, growth=spec.growth, progress=self.progress
+            )
             del G
             seconds = (time.perf_counter() - tic) / len(counts)
             for m, pts in path.items():
-                cached[m] = {"indices": pts.indices, "weights": pts.weights,
-                             "residual": np.array(pts.residual), "seconds": np.array(seconds)}
+                cached[m] = {
+                    "indices": pts.indices,
+                    "weights": pts.weights,
+                    "residual": np.array(pts.residual),
+                    "seconds": np.array(seconds),
+                }
                 self.cache.save(keys[m], cached[m])
         self.seconds["points"] = self.seconds.get("points", 0.0) + sum(
-            float(d.get("seconds", 0.0)) for d in cached.values())
-        return {m: IntegrationPoints(d["indices"], d["weights"], "trained",
-                                     float(d["residual"])) for m, d in cached.items()}
+            float(d.get("seconds", 0.0)) for d in cached.values()
+        )
+        return {
+            m: IntegrationPoints(d["indices"], d["weights"], "trained", float(d["residual"]))
+            for m, d in cached.items()
+        }
 
     # ---- stage 4: the pressure space of a hard body -------------------------------------
 
@@ -590,51 +712,90 @@ class Reductor:
         if self.pressure_modes == 0:
             return None
         snapshots, _, _ = self.snapshots()
-        return pressure_basis(snapshots.pressures, self.body.volume_constraint.volume,
-                              self.pressure_modes)
+        return pressure_basis(
+            snapshots.pressures, self.body.volume_constraint.volume, self.pressure_modes
+        )
 
-    def constraint_weights(self, W: np.ndarray, basis_key: str, pts: IntegrationPoints,
-                           Pi: np.ndarray, states: int) -> np.ndarray:
+    def constraint_weights(
+        self, W: np.ndarray, basis_key: str, pts: IntegrationPoints, Pi: np.ndarray, states: int
+    ) -> np.ndarray:
         """The volume constraint's cubature weights at ``pts`` (training.pressure_weights on
         ``states`` training states), cached."""
-        key = self.cache.key("reductor-pressure-weights", basis=basis_key, indices=pts.indices,
-                             weights=pts.weights, modes=self.pressure_modes, states=states,
-                             snapshots=self.snapshot_keys())
+        key = self.cache.key(
+            "reductor-pressure-weights",
+            basis=basis_key,
+            indices=pts.indices,
+            weights=pts.weights,
+            modes=self.pressure_modes,
+            states=states,
+            snapshots=self.snapshot_keys(),
+        )
 
         def fit():
             q, _ = self.training_states(W, states)
             weights, residual = pressure_weights(self.body, W, pts, Pi, q)
             return {"weights": weights, "residual": np.array(residual)}
+
         return self._cached("pressure weights", key, fit)["weights"]
 
     # ---- all of them --------------------------------------------------------------------
 
-    def reduce(self, basis: Basis = Basis(), points: Points = Points(),
-               extra_states: tuple[np.ndarray, np.ndarray] | None = None) -> ReducedModel:
+    def reduce(
+        self,
+        basis: Basis = Basis(),
+        points: Points = Points(),
+        extra_states: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> ReducedModel:
         """The reduced model of ``basis`` and ``points`` (trained points also on
         ``extra_states``, :meth:`training_states`)."""
         self.seconds = {}
         W, key = self.basis(basis)
         pts = self.points(W, key, points, extra=extra_states)[points.count]
         Pi = self.pressure_space()
-        weights = None if Pi is None else \
-            self.constraint_weights(W, key, pts, Pi, points.training_states)
-        trained = "snapshots" in self.seconds          # this model used the training
-        return ReducedModel(self.model, W, list(self.carriers), pts, Pi, weights, training={
-            "runs": len(self.training.schedules) if trained else 0,
-            "snapshots": int(self._snapshots[0].displacements.shape[0]) if trained else 0,
-            "basis": {"kind": basis.kind, "size": basis.size,
-                      "lift_columns": 12 * len(self.carriers), "r": int(W.shape[1])},
-            "points": {"count": int(pts.m), "sampling": points.sampling,
-                       "residual": pts.residual,
-                       "extra_states": 0 if extra_states is None else
-                       int(np.atleast_2d(extra_states[0]).shape[0])},
-            "seconds": dict(self.seconds)})
+        weights = (
+            None if Pi is None else self.constraint_weights(W, key, pts, Pi, points.training_states)
+        )
+        trained = "snapshots" in self.seconds  # this model used the training
+        return ReducedModel(
+            self.model,
+            W,
+            list(self.carriers),
+            pts,
+            Pi,
+            weights,
+            training={
+                "runs": len(self.training.schedules) if trained else 0,
+                "snapshots": int(self._snapshots[0].displacements.shape[0]) if trained else 0,
+                "basis": {
+                    "kind": basis.kind,
+                    "size": basis.size,
+                    "lift_columns": 12 * len(self.carriers),
+                    "r": int(W.shape[1]),
+                },
+                "points": {
+                    "count": int(pts.m),
+                    "sampling": points.sampling,
+                    "residual": pts.residual,
+                    "extra_states": 0
+                    if extra_states is None
+                    else int(np.atleast_2d(extra_states[0]).shape[0]),
+                },
+                "seconds": dict(self.seconds),
+            },
+        )
 
 
-def reduce(model: ReducibleScene, training: Training, *, basis: Basis = Basis(),
-           points: Points = Points(), cache: str | Path, pressure_modes: int = 4,
-           progress: bool = True) -> ReducedModel:
+def reduce(
+    model: ReducibleScene,
+    training: Training,
+    *,
+    basis: Basis = Basis(),
+    points: Points = Points(),
+    cache: str | Path,
+    pressure_modes: int = 4,
+    progress: bool = True,
+) -> ReducedModel:
     """The reduced model of ``model`` trained by ``training`` (module docstring)."""
-    return Reductor(model, training, cache, pressure_modes=pressure_modes,
-                    progress=progress).reduce(basis, points)
+    return Reductor(
+        model, training, cache, pressure_modes=pressure_modes, progress=progress
+    ).reduce(basis, points)

@@ -66,8 +66,7 @@ class RigidLift:
     def coordinates(self, position, rotation) -> np.ndarray:
         """g = [p - p_0; vec(R - R_0)] (column-major vec) for the pose (p, R)."""
         dR = np.asarray(rotation, dtype=float) - self.rotation
-        return np.concatenate([np.asarray(position, dtype=float) - self.position,
-                               dR.T.ravel()])
+        return np.concatenate([np.asarray(position, dtype=float) - self.position, dR.T.ravel()])
 
     @staticmethod
     def jacobian(rotation) -> np.ndarray:
@@ -76,9 +75,9 @@ class RigidLift:
         G[:3, :3] = np.eye(3)
         for k in range(3):
             c = rotation[:, k]
-            G[3 + 3 * k:6 + 3 * k, 3:] = -np.array([[0.0, -c[2], c[1]],
-                                                    [c[2], 0.0, -c[0]],
-                                                    [-c[1], c[0], 0.0]])
+            G[3 + 3 * k : 6 + 3 * k, 3:] = -np.array(
+                [[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]]
+            )
         return G
 
     def node_map(self) -> np.ndarray:
@@ -87,7 +86,7 @@ class RigidLift:
         Phi = np.zeros((k, 3, 12))
         Phi[:, :, :3] = np.eye(3)
         for c in range(3):
-            Phi[:, :, 3 + 3 * c:6 + 3 * c] = self.offsets[:, c, None, None] * np.eye(3)
+            Phi[:, :, 3 + 3 * c : 6 + 3 * c] = self.offsets[:, c, None, None] * np.eye(3)
         return Phi.reshape(3 * k, 12)
 
 
@@ -109,14 +108,23 @@ def rigid_lift(body: FemBody, nodes, position, rotation, held=()) -> RigidLift:
     dofs = body.local_dofs(nodes).astype(np.int64)
     fixed = np.intersect1d(dofs, body.fixed_dofs)
     if fixed.size:
-        raise InputError(f"rigid_lift: {fixed.size} of the carried nodes are fixed in "
-                         f"{body.name!r}; a node is either fixed or carried")
-    held = body.local_dofs(body._check_nodes(np.asarray(held, dtype=np.int64), "rigid_lift")
-                           ).astype(np.int64) if len(held) else np.zeros(0, dtype=np.int64)
+        raise InputError(
+            f"rigid_lift: {fixed.size} of the carried nodes are fixed in "
+            f"{body.name!r}; a node is either fixed or carried"
+        )
+    held = (
+        body.local_dofs(body._check_nodes(np.asarray(held, dtype=np.int64), "rigid_lift")).astype(
+            np.int64
+        )
+        if len(held)
+        else np.zeros(0, dtype=np.int64)
+    )
     both = np.intersect1d(dofs, held)
     if both.size:
-        raise InputError(f"rigid_lift: {both.size} of the carried nodes of {body.name!r} are "
-                         "also held by another rigid body; a node rides on one body")
+        raise InputError(
+            f"rigid_lift: {both.size} of the carried nodes of {body.name!r} are "
+            "also held by another rigid body; a node rides on one body"
+        )
     n = body.V.dofmap.index_map.size_local + body.V.dofmap.index_map.num_ghosts
     X = body.V.tabulate_dof_coordinates()[dofs]
     offsets = (X - p0) @ R0

@@ -30,8 +30,9 @@ from artifem.excitation import ExcitationSchedule
 __all__ = ["each_alone", "random_schedules"]
 
 
-def each_alone(exciters: Sequence[str], level: float, ramp_time: float
-               ) -> dict[str, ExcitationSchedule]:
+def each_alone(
+    exciters: Sequence[str], level: float, ramp_time: float
+) -> dict[str, ExcitationSchedule]:
     """{exciter: that exciter alone ramped to ``level`` over ``ramp_time``, then held}."""
     return {e: ExcitationSchedule.ramp_and_hold({e: level}, ramp_time) for e in exciters}
 
@@ -39,17 +40,26 @@ def each_alone(exciters: Sequence[str], level: float, ramp_time: float
 def _range(value, name: str, low: float = 0.0) -> tuple[float, float]:
     a, b = (float(v) for v in value)
     if not (np.isfinite(a) and np.isfinite(b) and low <= a <= b):
-        raise InputError(f"random_schedules: {name} must be a range (low, high) with "
-                         f"{low} <= low <= high, got {value!r}")
+        raise InputError(
+            f"random_schedules: {name} must be a range (low, high) with "
+            f"{low} <= low <= high, got {value!r}"
+        )
     return a, b
 
 
-def random_schedules(exciters: Sequence[str], count: int, *, seed: int, duration: float,
-                     excitation: tuple[float, float] = (0.1, 1.0),
-                     active: tuple[int, int] = (2, 5),
-                     ramp: tuple[float, float] = (0.1, 0.5), onset: float = 0.2,
-                     release: tuple[float, float] = (0.1, 0.4),
-                     prefix: str = "random") -> dict[str, ExcitationSchedule]:
+def random_schedules(
+    exciters: Sequence[str],
+    count: int,
+    *,
+    seed: int,
+    duration: float,
+    excitation: tuple[float, float] = (0.1, 1.0),
+    active: tuple[int, int] = (2, 5),
+    ramp: tuple[float, float] = (0.1, 0.5),
+    onset: float = 0.2,
+    release: tuple[float, float] = (0.1, 0.4),
+    prefix: str = "random",
+) -> dict[str, ExcitationSchedule]:
     """``count`` schedules over ``exciters`` (module docstring), named
     ``{prefix}-{seed}-{i}``; the same arguments give the same schedules."""
     exciters = list(exciters)
@@ -64,8 +74,9 @@ def random_schedules(exciters: Sequence[str], count: int, *, seed: int, duration
         raise InputError(f"random_schedules: excitations are in [0, 1], got {excitation!r}")
     k_lo, k_hi = (int(k) for k in active)
     if not 1 <= k_lo <= k_hi:
-        raise InputError(f"random_schedules: active must be (low, high) with 1 <= low <= "
-                         f"high, got {active!r}")
+        raise InputError(
+            f"random_schedules: active must be (low, high) with 1 <= low <= high, got {active!r}"
+        )
     k_hi = min(k_hi, len(exciters))
     k_lo = min(k_lo, k_hi)
     ramp, release = _range(ramp, "ramp", 1e-6), _range(release, "release", 1e-6)
@@ -79,7 +90,7 @@ def random_schedules(exciters: Sequence[str], count: int, *, seed: int, duration
         chosen = sorted(rng.choice(n, size=k, replace=False))
         knots, curves = [np.array([0.0, duration])], {}
         for e in chosen:
-            level, t_on, T_ramp, hold, T_release = row[1 + 5 * e:6 + 5 * e]
+            level, t_on, T_ramp, hold, T_release = row[1 + 5 * e : 6 + 5 * e]
             a = lo + (hi - lo) * level
             t_on = onset * duration * t_on
             t_full = t_on + ramp[0] + (ramp[1] - ramp[0]) * T_ramp
@@ -90,5 +101,6 @@ def random_schedules(exciters: Sequence[str], count: int, *, seed: int, duration
             knots.append(t[t < duration])
         times = np.unique(np.round(np.concatenate(knots), 12))
         schedules[f"{prefix}-{seed}-{i}"] = ExcitationSchedule(
-            times, {name: np.interp(times, t, a) for name, (t, a) in curves.items()})
+            times, {name: np.interp(times, t, a) for name, (t, a) in curves.items()}
+        )
     return schedules

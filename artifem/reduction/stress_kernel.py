@@ -93,8 +93,9 @@ class StressKernel:
         self._mesh = _tetrahedra(self.n)
         V = fem.functionspace(self._mesh, ("Lagrange", 1, (3,)))
         u = fem.Function(V)
-        a0 = [fem.Function(fem.functionspace(self._mesh, ("DG", 0, (3,))))
-              for _ in range(directions)]
+        a0 = [
+            fem.Function(fem.functionspace(self._mesh, ("DG", 0, (3,)))) for _ in range(directions)
+        ]
         # A Variable with a fixed Label: ufl.variable's global label counter would
         # enter FFCx's signature and defeat the JIT cache across kernels and runs.
         F = ufl.classes.Variable(ufl.Identity(3) + ufl.grad(u), ufl.classes.Label(0))
@@ -102,24 +103,31 @@ class StressKernel:
         # The density's constants (excitations) and cell-wise fields belong to the full
         # body's mesh; an Expression lives on one mesh, so each gets a local twin.
         originals = extract_constants(psi)
-        twins = [fem.Constant(self._mesh, np.asarray(c.value, dtype=float).copy())
-                 for c in originals]
-        self.fields = [c for c in extract_coefficients(psi)
-                       if c.function_space.mesh is not self._mesh]
+        twins = [
+            fem.Constant(self._mesh, np.asarray(c.value, dtype=float).copy()) for c in originals
+        ]
+        self.fields = [
+            c for c in extract_coefficients(psi) if c.function_space.mesh is not self._mesh
+        ]
         field_twins = []
         for field in self.fields:
             if field.function_space.dofmap.list.shape[1] != 1:
-                raise InputError(f"a reduced body's densities read cell-wise fields only; "
-                                 f"{field.name!r} is not one (DG0)")
-            field_twins.append(fem.Function(fem.functionspace(
-                self._mesh, ("DG", 0, field.ufl_shape))))
-        psi = ufl.replace(psi, {**dict(zip(originals, twins)),
-                                **dict(zip(self.fields, field_twins))})
+                raise InputError(
+                    f"a reduced body's densities read cell-wise fields only; "
+                    f"{field.name!r} is not one (DG0)"
+                )
+            field_twins.append(
+                fem.Function(fem.functionspace(self._mesh, ("DG", 0, field.ufl_shape)))
+            )
+        psi = ufl.replace(
+            psi, {**dict(zip(originals, twins)), **dict(zip(self.fields, field_twins))}
+        )
         P = ufl.diff(psi, F)
         A = ufl.diff(P, F)
         index = [(i, J) for i in range(3) for J in range(3)]
-        packed = ufl.as_vector([psi] + [P[i, J] for i, J in index]
-                               + [A[index[a] + index[b]] for a, b in zip(*UPPER)])
+        packed = ufl.as_vector(
+            [psi] + [P[i, J] for i, J in index] + [A[index[a] + index[b]] for a, b in zip(*UPPER)]
+        )
         #: (UFL expression, reference point) the kernel is compiled from
         self.ufl_expression = (packed, np.array([[0.25, 0.25, 0.25]]))
         self._expression = fem.Expression(*self.ufl_expression, comm=MPI.COMM_SELF)
@@ -143,7 +151,7 @@ class StressKernel:
         self.u_columns = np.flatnonzero(is_u)
         dof_x = V.tabulate_dof_coordinates()
         self.u_component = tags[:, is_u] % 3
-        self.u_position = dof_x[tags[:, is_u] // 3]                 # (n, 12, 3)
+        self.u_position = dof_x[tags[:, is_u] // 3]  # (n, 12, 3)
         self.slots = []
         for twin, first in zip(a0 + field_twins, starts):
             columns = np.flatnonzero((tags[0] >= first) & (tags[0] < first + twin.x.array.size))
@@ -157,23 +165,33 @@ class StressKernel:
         columns, component = self.slots[j]
         values = np.asarray(values, dtype=float).reshape(self.n, -1)
         if values.shape[1] <= component.max(initial=0):
-            raise InputError(f"field {j}: values of shape {values.shape} for a field of "
-                             f"{component.max() + 1} components")
+            raise InputError(
+                f"field {j}: values of shape {values.shape} for a field of "
+                f"{component.max() + 1} components"
+            )
         self.coefficients[:, columns] = values[np.arange(self.n)[:, None], component]
 
     def set_grad_u(self, grad_u: np.ndarray) -> None:
         """Pack u(X) = grad_u[p] X for every point p, grad_u of shape (n, 3, 3)."""
         rows = np.arange(self.n)[:, None]
-        H = grad_u[rows, self.u_component]                          # (n, 12, 3)
+        H = grad_u[rows, self.u_component]  # (n, 12, 3)
         self.coefficients[:, self.u_columns] = np.einsum("pkj,pkj->pk", H, self.u_position)
 
     def tabulate(self) -> None:
         """Run the compiled kernel on the packed coefficients into ``values``."""
-        constants = np.concatenate([np.ravel(v) for v in self._constant_values]) \
-            if self._constant_values else np.zeros(0)
-        cpp.fem.tabulate_expression(self.values, self._expression._cpp_object,
-                                    constants[self._constant_order], self.coefficients,
-                                    self._mesh._cpp_object, self._cells)
+        constants = (
+            np.concatenate([np.ravel(v) for v in self._constant_values])
+            if self._constant_values
+            else np.zeros(0)
+        )
+        cpp.fem.tabulate_expression(
+            self.values,
+            self._expression._cpp_object,
+            constants[self._constant_order],
+            self.coefficients,
+            self._mesh._cpp_object,
+            self._cells,
+        )
 
 
 class PointStresses:
@@ -199,31 +217,42 @@ class PointStresses:
         group_of = group_of.ravel()
         self.kernels, self.points = [], []
         rows, comps, positions, targets = [], [], [], []
-        slot_values = []                    # (kernel, slot, values at its points) fixed
-        live = []                           # (kernel index, slot, term, field, rows in at_t)
+        slot_values = []  # (kernel, slot, values at its points) fixed
+        live = []  # (kernel index, slot, term, field, rows in at_t)
         offset, offsets = 0, []
         for g, signature in enumerate(signatures):
             points = np.flatnonzero(group_of == g)
             members = np.flatnonzero(signature)
             if members.size == 0:
-                raise InputError(f"{points.size} point(s) are integration points of no "
-                                 "energy term")
+                raise InputError(f"{points.size} point(s) are integration points of no energy term")
             directed = [t for t in members if terms[t][2] is not None]
-            kernel = StressKernel(_fused([terms[t][0] for t in members],
-                                         [directed.index(t) if t in directed else None
-                                          for t in members]),
-                                  points.size, directions=len(directed))
+            kernel = StressKernel(
+                _fused(
+                    [terms[t][0] for t in members],
+                    [directed.index(t) if t in directed else None for t in members],
+                ),
+                points.size,
+                directions=len(directed),
+            )
             # row of each of the group's points in each member's at_t
             where = {t: np.searchsorted(at[t], points) for t in members}
             for j, t in enumerate(directed):
                 slot_values.append((kernel, j, terms[t][2][where[t]]))
             for j, field in enumerate(kernel.fields, start=len(directed)):
-                owner = next((t for t in members if terms[t][3] is not None
-                              and (field in terms[t][3][0] or field in terms[t][3][1]())),
-                             None)
+                owner = next(
+                    (
+                        t
+                        for t in members
+                        if terms[t][3] is not None
+                        and (field in terms[t][3][0] or field in terms[t][3][1]())
+                    ),
+                    None,
+                )
                 if owner is None:
-                    raise InputError(f"a density reads the cell-wise field {field.name!r} "
-                                     "but its energy term gives no values for it (fields_at)")
+                    raise InputError(
+                        f"a density reads the cell-wise field {field.name!r} "
+                        "but its energy term gives no values for it (fields_at)"
+                    )
                 static, current = terms[owner][3]
                 if field in static:
                     slot_values.append((kernel, j, static[field][where[owner]]))
@@ -235,15 +264,18 @@ class PointStresses:
             rows.append(np.repeat(points, kernel.u_columns.size))
             comps.append(kernel.u_component.ravel())
             positions.append(kernel.u_position.reshape(-1, 3))
-            targets.append(offset + (np.arange(points.size)[:, None] * cols
-                                     + kernel.u_columns[None, :]).ravel())
+            targets.append(
+                offset
+                + (np.arange(points.size)[:, None] * cols + kernel.u_columns[None, :]).ravel()
+            )
             offsets.append(offset)
             offset += points.size * cols
         # One flat buffer holds every kernel's coefficients (each a contiguous block).
         flat = np.zeros(offset)
         for kernel, start in zip(self.kernels, offsets):
-            kernel.coefficients = flat[start:start + kernel.coefficients.size].reshape(
-                kernel.coefficients.shape)
+            kernel.coefficients = flat[start : start + kernel.coefficients.size].reshape(
+                kernel.coefficients.shape
+            )
         for kernel, j, values in slot_values:
             kernel.set_slot(j, values)
         # flat = Q vec(grad_u) + the fixed fields, Q sparse: u_i(X) = sum_J grad_u[p, i, J] X_J.
@@ -252,8 +284,9 @@ class PointStresses:
         columns = 9 * rows[:, None] + 3 * comps[:, None] + np.arange(3)[None, :]
         self._pack = sparse.csr_matrix(
             (positions.ravel(), (np.repeat(targets, 3), columns.ravel())),
-            shape=(flat.size, 9 * self.m))
-        self._fixed = flat.copy()                   # the fixed fields (u entries are zero)
+            shape=(flat.size, 9 * self.m),
+        )
+        self._fixed = flat.copy()  # the fixed fields (u entries are zero)
         self._flat = flat
         # Live fields (excitations): flat[target] = current values of (term, field)[source].
         self._live = {}
@@ -261,20 +294,23 @@ class PointStresses:
             kernel = self.kernels[k]
             columns, component = kernel.slots[j]
             target = offsets[k] + (
-                np.arange(kernel.n)[:, None] * kernel.coefficients.shape[1] + columns[None, :])
+                np.arange(kernel.n)[:, None] * kernel.coefficients.shape[1] + columns[None, :]
+            )
             bs = max(1, int(np.prod(field.ufl_shape)))
             source = where[:, None] * bs + component
             key = (owner, field)
             t0, s0 = self._live.get(key, (np.zeros(0, np.int64), np.zeros(0, np.int64)))
-            self._live[key] = (np.concatenate([t0, target.ravel()]),
-                               np.concatenate([s0, source.ravel()]))
+            self._live[key] = (
+                np.concatenate([t0, target.ravel()]),
+                np.concatenate([s0, source.ravel()]),
+            )
         self._current = {t: terms[t][3][1] for t, _ in self._live}
         # Every kernel writes into its rows of one buffer, in the order of the points.
         self._order = np.concatenate(self.points)
         self._values = np.zeros((self.m, 1, VALUES))
         start = 0
         for kernel in self.kernels:
-            kernel.values = self._values[start:start + kernel.n]
+            kernel.values = self._values[start : start + kernel.n]
             start += kernel.n
         # psi, P and A of point p gathered from its kernel's row in one take each
         row = np.empty(self.m, dtype=np.int64)
@@ -297,6 +333,8 @@ class PointStresses:
 
 def _fused(densities: list[Callable], slots: list[int | None]) -> Callable:
     """density(F, directions) = sum_t densities[t](F, directions[slots[t]] or None)."""
+
     def density(F, directions):
         return sum(d(F, None if s is None else directions[s]) for d, s in zip(densities, slots))
+
     return density

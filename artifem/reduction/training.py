@@ -41,8 +41,14 @@ from artifem.fem_body import FemBody
 from artifem.reduction.reduced_body import ReducedFemBody, all_points
 from artifem.scene import Scene, simulate
 
-__all__ = ["ArtifactCache", "Snapshots", "record_snapshots", "project",
-           "force_training_matrix", "pressure_weights"]
+__all__ = [
+    "ArtifactCache",
+    "Snapshots",
+    "record_snapshots",
+    "project",
+    "force_training_matrix",
+    "pressure_weights",
+]
 
 #: Bump when a change in the code changes what a cached artifact would hold.
 CACHE_VERSION = 2
@@ -119,14 +125,19 @@ class Snapshots:
     def __post_init__(self):
         u, a = np.asarray(self.displacements), np.asarray(self.excitations)
         if u.ndim != 2 or a.ndim != 2 or u.shape[0] != a.shape[0]:
-            raise InputError(f"Snapshots: displacements (n_snapshots, dofs) and excitations "
-                             f"(n_snapshots, muscles) need one row per snapshot, got shapes "
-                             f"{u.shape} and {a.shape}")
-        if self.pressures is not None and (np.ndim(self.pressures) != 2
-                                           or np.shape(self.pressures)[0] != u.shape[0]):
-            raise InputError(f"Snapshots: pressures (n_snapshots, pressure dofs) need one row "
-                             f"per snapshot, got shape {np.shape(self.pressures)} for "
-                             f"{u.shape[0]} snapshots")
+            raise InputError(
+                f"Snapshots: displacements (n_snapshots, dofs) and excitations "
+                f"(n_snapshots, muscles) need one row per snapshot, got shapes "
+                f"{u.shape} and {a.shape}"
+            )
+        if self.pressures is not None and (
+            np.ndim(self.pressures) != 2 or np.shape(self.pressures)[0] != u.shape[0]
+        ):
+            raise InputError(
+                f"Snapshots: pressures (n_snapshots, pressure dofs) need one row "
+                f"per snapshot, got shape {np.shape(self.pressures)} for "
+                f"{u.shape[0]} snapshots"
+            )
 
     @staticmethod
     def concatenate(parts: list[Snapshots]) -> Snapshots:
@@ -134,8 +145,10 @@ class Snapshots:
             if any(getattr(p, name) is None for p in parts):
                 return None
             return np.concatenate([getattr(p, name) for p in parts])
-        return Snapshots(joined("displacements"), joined("excitations"), joined("pressures"),
-                         joined("poses"))
+
+        return Snapshots(
+            joined("displacements"), joined("excitations"), joined("pressures"), joined("poses")
+        )
 
     def as_arrays(self) -> dict[str, np.ndarray]:
         arrays = {"displacements": self.displacements, "excitations": self.excitations}
@@ -147,35 +160,54 @@ class Snapshots:
     @staticmethod
     def from_arrays(arrays: dict[str, np.ndarray]) -> Snapshots:
         """The inverse of :meth:`as_arrays` (a cached artifact)."""
-        return Snapshots(arrays["displacements"], arrays["excitations"], arrays.get("pressures"),
-                         arrays.get("poses"))
+        return Snapshots(
+            arrays["displacements"],
+            arrays["excitations"],
+            arrays.get("pressures"),
+            arrays.get("poses"),
+        )
 
 
-def record_snapshots(scene: Scene, body: FemBody, *, duration: float, dt: float,
-                     every: int, label: str = "training", progress: bool = True,
-                     carriers=()) -> Snapshots:
+def record_snapshots(
+    scene: Scene,
+    body: FemBody,
+    *,
+    duration: float,
+    dt: float,
+    every: int,
+    label: str = "training",
+    progress: bool = True,
+    carriers=(),
+) -> Snapshots:
     """Step ``scene`` for ``duration`` and keep (u, excitations) of ``body`` every ``every``
     steps, its pressures p when it has the hard incompressibility, and the pose coordinates
     g of each (RigidLift, rigid body) of ``carriers``."""
     steps = int(round(duration / dt))
     if steps < 1 or every < 1:
-        raise InputError(f"record_snapshots: need duration >= dt and every >= 1, got "
-                         f"duration={duration}, dt={dt}, every={every}")
+        raise InputError(
+            f"record_snapshots: need duration >= dt and every >= 1, got "
+            f"duration={duration}, dt={dt}, every={every}"
+        )
     n = 3 * body.V.dofmap.index_map.size_local
-    record = {"u": lambda s: body.u.x.array[:n].copy(),
-              "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()]}
+    record = {
+        "u": lambda s: body.u.x.array[:n].copy(),
+        "a": lambda s: [float(m.excitation.value) for m in body.muscles.values()],
+    }
     vc = body.volume_constraint
     if vc is not None:
-        record["p"] = lambda s: vc.p.x.array[:vc.n_owned].copy()
+        record["p"] = lambda s: vc.p.x.array[: vc.n_owned].copy()
     for k, (lift, bone) in enumerate(carriers):
-        record[f"g{k}"] = lambda s, lift=lift, bone=bone: lift.coordinates(bone.position,
-                                                                            bone.rotation)
-    run = simulate(scene, duration, dt, progress=progress, label=label, record=record,
-                   leave=False)
+        record[f"g{k}"] = lambda s, lift=lift, bone=bone: lift.coordinates(
+            bone.position, bone.rotation
+        )
+    run = simulate(scene, duration, dt, progress=progress, label=label, record=record, leave=False)
     u, a = run.records["u"][every::every], run.records["a"][every::every]
     p = None if vc is None else run.records["p"][every::every]
-    g = np.hstack([run.records[f"g{k}"][every::every] for k in range(len(carriers))]) \
-        if carriers else None
+    g = (
+        np.hstack([run.records[f"g{k}"][every::every] for k in range(len(carriers))])
+        if carriers
+        else None
+    )
     return Snapshots(u, a.reshape(len(u), len(body.muscles)), p, g)
 
 
@@ -187,16 +219,19 @@ def project(U: np.ndarray, mass, displacements: np.ndarray) -> np.ndarray:
     """
     displacements = np.asarray(displacements)
     if displacements.ndim != 2 or displacements.shape[1] != U.shape[0]:
-        raise InputError(f"project: displacements must be rows (n_snapshots, dofs = "
-                         f"{U.shape[0]}) for a basis of shape {U.shape}, got shape "
-                         f"{displacements.shape}")
+        raise InputError(
+            f"project: displacements must be rows (n_snapshots, dofs = "
+            f"{U.shape[0]}) for a basis of shape {U.shape}, got shape "
+            f"{displacements.shape}"
+        )
     if callable(mass):
         return np.array([U.T @ mass(u) for u in displacements])
     return displacements @ (np.asarray(mass)[:, None] * U)
 
 
-def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitations: np.ndarray,
-                          *, progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def force_training_matrix(
+    full: FemBody, U: np.ndarray, q: np.ndarray, excitations: np.ndarray, *, progress: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """(G, b) of ECSW: each quadrature point's reduced internal force at each training state.
 
     Rows are (snapshot, reduced coordinate), columns the points of
@@ -210,40 +245,50 @@ def force_training_matrix(full: FemBody, U: np.ndarray, q: np.ndarray, excitatio
     excitations = np.atleast_2d(np.asarray(excitations, dtype=float))
     muscles = list(full.muscles.values())
     if excitations.shape != (q.shape[0], len(muscles)):
-        raise InputError(f"force_training_matrix: excitations must have shape "
-                         f"({q.shape[0]}, {len(muscles)}), got {excitations.shape}")
+        raise InputError(
+            f"force_training_matrix: excitations must have shape "
+            f"({q.shape[0]}, {len(muscles)}), got {excitations.shape}"
+        )
     # the material's forces only: a hard body's pressures are multipliers, not a cubature's
-    everything = ReducedFemBody(full, U, all_points(full), hold_volume=False,
-                                name=f"{full.name}_training")
+    everything = ReducedFemBody(
+        full, U, all_points(full), hold_volume=False, name=f"{full.name}_training"
+    )
     r = everything.r
     saved = [float(m.excitation.value) for m in muscles]
     G = np.empty((q.shape[0] * r, everything.m))
     kept = np.zeros(q.shape[0], dtype=bool)
     try:
-        for s in tqdm(range(q.shape[0]), desc="training forces", unit="snapshot",
-                      disable=not progress):
+        for s in tqdm(
+            range(q.shape[0]), desc="training forces", unit="snapshot", disable=not progress
+        ):
             for m, value in zip(muscles, excitations[s]):
                 m.excitation.value = value
             everything.set_q(q[s])
             if np.min(everything.det_F()) > 0:
-                G[s * r:(s + 1) * r] = everything.point_forces().T
-                kept[s] = np.all(np.isfinite(G[s * r:(s + 1) * r]))
+                G[s * r : (s + 1) * r] = everything.point_forces().T
+                kept[s] = np.all(np.isfinite(G[s * r : (s + 1) * r]))
     finally:
         for m, value in zip(muscles, saved):
             m.excitation.value = value
     if not kept.any():
-        raise InputError("force_training_matrix: every training state inverts an element "
-                         "once projected on the basis")
+        raise InputError(
+            "force_training_matrix: every training state inverts an element "
+            "once projected on the basis"
+        )
     if not kept.all():
-        warnings.warn(f"force_training_matrix: {np.count_nonzero(~kept)} of {kept.size} "
-                      f"training states invert an element once projected on the basis; "
-                      f"left out", stacklevel=2)
+        warnings.warn(
+            f"force_training_matrix: {np.count_nonzero(~kept)} of {kept.size} "
+            f"training states invert an element once projected on the basis; "
+            f"left out",
+            stacklevel=2,
+        )
     G = G[np.repeat(kept, r)]
     return G, G.sum(axis=1)
 
 
-def pressure_weights(full: FemBody, U: np.ndarray, points, pressure_basis: np.ndarray,
-                     q: np.ndarray) -> tuple[np.ndarray, float]:
+def pressure_weights(
+    full: FemBody, U: np.ndarray, points, pressure_basis: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, float]:
     """Cubature weights of a reduced body's volume constraint at its points, fitted to the
     constraint's Jacobian on training states (the constraint's own ECSW):
 
@@ -256,10 +301,16 @@ def pressure_weights(full: FemBody, U: np.ndarray, points, pressure_basis: np.nd
     states, one per row.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    exact = ReducedFemBody(full, U, all_points(full), pressure_basis=pressure_basis,
-                           name=f"{full.name}_pressure_training")
-    some = ReducedFemBody(full, U, points, pressure_basis=pressure_basis,
-                          name=f"{full.name}_pressure_points")
+    exact = ReducedFemBody(
+        full,
+        U,
+        all_points(full),
+        pressure_basis=pressure_basis,
+        name=f"{full.name}_pressure_training",
+    )
+    some = ReducedFemBody(
+        full, U, points, pressure_basis=pressure_basis, name=f"{full.name}_pressure_points"
+    )
     rows, target = [], []
     for state in q:
         exact.set_q(state)
@@ -270,8 +321,9 @@ def pressure_weights(full: FemBody, U: np.ndarray, points, pressure_basis: np.nd
         per_point = some.volume_constraint.point_jacobians()
         rows.append(per_point.reshape(per_point.shape[0], -1).T)
     if not rows:
-        raise InputError("pressure_weights: every training state inverts an element once "
-                         "projected on the basis")
+        raise InputError(
+            "pressure_weights: every training state inverts an element once projected on the basis"
+        )
     A, b = np.vstack(rows), np.concatenate(target)
     w_at, residual = nnls(A, b, maxiter=50 * A.shape[1])
     weights = np.zeros(some.m)

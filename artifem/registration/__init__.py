@@ -8,5 +8,13 @@ from artifem.registration.forces import RegistrationForces
 from artifem.registration.register import RegistrationResult, register
 from artifem.registration.rigid import RigidFit, TriangleSurface, affine_fit, icp, kabsch
 
-__all__ = ["RegistrationForces", "RegistrationResult", "RigidFit", "TriangleSurface",
-           "affine_fit", "icp", "kabsch", "register"]
+__all__ = [
+    "RegistrationForces",
+    "RegistrationResult",
+    "RigidFit",
+    "TriangleSurface",
+    "affine_fit",
+    "icp",
+    "kabsch",
+    "register",
+]

@@ -44,23 +44,25 @@ __all__ = ["RegistrationForces"]
 ON_FEATURE = 1e-10
 
 
-def _projectors(surface: TriangleSurface, triangles: np.ndarray,
-                barycentric: np.ndarray) -> np.ndarray:
+def _projectors(
+    surface: TriangleSurface, triangles: np.ndarray, barycentric: np.ndarray
+) -> np.ndarray:
     """(k, 3, 3) projectors off the feature each point (``barycentric`` coordinates in its
     ``triangles``) lies on: n n^T inside, I - e e^T on an edge, I at a vertex."""
     corners = surface.vertices[surface.triangles[triangles]]
     zero = barycentric <= ON_FEATURE
     count = zero.sum(axis=1)
-    P = np.broadcast_to(np.eye(3), (len(triangles), 3, 3)).copy()   # vertices
+    P = np.broadcast_to(np.eye(3), (len(triangles), 3, 3)).copy()  # vertices
     inside = count == 0
     if inside.any():
-        n = np.cross(corners[inside, 1] - corners[inside, 0],
-                     corners[inside, 2] - corners[inside, 0])
+        n = np.cross(
+            corners[inside, 1] - corners[inside, 0], corners[inside, 2] - corners[inside, 0]
+        )
         n /= np.linalg.norm(n, axis=1)[:, None]
         P[inside] = n[:, :, None] * n[:, None, :]
     edge = np.flatnonzero(count == 1)
     if edge.size:
-        ends = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]   # the two nonzero
+        ends = np.argsort(zero[edge], axis=1, kind="stable")[:, :2]  # the two nonzero
         e = corners[edge, ends[:, 1]] - corners[edge, ends[:, 0]]
         e /= np.linalg.norm(e, axis=1)[:, None]
         P[edge] = np.eye(3) - e[:, :, None] * e[:, None, :]
@@ -79,12 +81,13 @@ def _value_hessian(xs: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
     H = b[:, :, None, None, None] * b[:, None, :, None, None] * np.eye(3)
     if m == 1:
         return H
-    J = xs[:, 1:] - xs[:, :1]                                   # (q, m - 1, 3): columns
+    J = xs[:, 1:] - xs[:, :1]  # (q, m - 1, 3): columns
     C = np.zeros((m - 1, m))
     C[np.arange(m - 1), np.arange(1, m)] = 1.0
     C[:, 0] = -1.0
-    Lsx = -C[None, :, :, None] * r[:, None, None, :] + \
-        b[:, None, :, None] * J[:, :, None, :]                 # (q, m - 1, m, 3)
+    Lsx = (
+        -C[None, :, :, None] * r[:, None, None, :] + b[:, None, :, None] * J[:, :, None, :]
+    )  # (q, m - 1, m, 3)
     M = np.linalg.inv(np.einsum("qca,qda->qcd", J, J))
     return H - np.einsum("qcix,qcd,qdjy->qijxy", Lsx, M, Lsx)
 
@@ -103,8 +106,9 @@ class _Features:
     pieces: tuple = ()
 
 
-def _features(x: np.ndarray, faces: np.ndarray, target: TriangleSurface,
-              both_ways: bool = True) -> _Features:
+def _features(
+    x: np.ndarray, faces: np.ndarray, target: TriangleSurface, both_ways: bool = True
+) -> _Features:
     """The :class:`_Features` of the model surface (vertices ``x``, triangles ``faces``)
     toward ``target``, pairs on a border dropped (module docstring)."""
     _, c, tri = target.closest_triangles(x)
@@ -132,13 +136,13 @@ def _on_hull(y: np.ndarray, xs: np.ndarray) -> np.ndarray:
     if xs.shape[1] == 1:
         return np.ones((len(y), 1))
     J = xs[:, 1:] - xs[:, :1]
-    s = np.linalg.solve(np.einsum("qca,qda->qcd", J, J),
-                        np.einsum("qca,qa->qc", J, y - xs[:, 0])[:, :, None])[:, :, 0]
+    s = np.linalg.solve(
+        np.einsum("qca,qda->qcd", J, J), np.einsum("qca,qa->qc", J, y - xs[:, 0])[:, :, None]
+    )[:, :, 0]
     return np.column_stack([1.0 - s.sum(axis=1), s])
 
 
-def _evaluate(x: np.ndarray, features: _Features) -> tuple[float, np.ndarray,
-                                                            sparse.csr_matrix]:
+def _evaluate(x: np.ndarray, features: _Features) -> tuple[float, np.ndarray, sparse.csr_matrix]:
     """(E / w, f / w (n, 3), df/dx / w (3n x 3n)) of the module docstring at ``x`` on the
     given features: model-to-target 1/2 (x_i - c_i)^T P_i (x_i - c_i) (the distance to
     the plane, line or point of c_i's feature: equal to 1/2 |x_i - c_i|^2 where the
@@ -160,13 +164,17 @@ def _evaluate(x: np.ndarray, features: _Features) -> tuple[float, np.ndarray,
         energy += 0.5 * float(np.sum(r * r))
         np.add.at(f, verts.ravel(), (b[:, :, None] * r[:, None, :]).reshape(-1, 3))
         H = _value_hessian(xs, b, r)
-        dofs = 3 * verts[:, :, None] + np.arange(3)                         # (q, m, 3)
+        dofs = 3 * verts[:, :, None] + np.arange(3)  # (q, m, 3)
         rows.append(np.broadcast_to(dofs[:, :, None, :, None], H.shape).ravel())
         cols.append(np.broadcast_to(dofs[:, None, :, None, :], H.shape).ravel())
         vals.append(-H.ravel())
-    K = sparse.csr_matrix((np.concatenate([v.ravel() for v in vals]),
-                           (np.concatenate([r.ravel() for r in rows]),
-                            np.concatenate([q.ravel() for q in cols]))), shape=(3 * n, 3 * n))
+    K = sparse.csr_matrix(
+        (
+            np.concatenate([v.ravel() for v in vals]),
+            (np.concatenate([r.ravel() for r in rows]), np.concatenate([q.ravel() for q in cols])),
+        ),
+        shape=(3 * n, 3 * n),
+    )
     return energy, f, K
 
 
@@ -182,8 +190,10 @@ class _Weight:
 
     def __set__(self, obj, value) -> None:
         if not (np.isfinite(value) and value >= 0):
-            raise InputError(f"RegistrationForces {obj.name!r}: {self.name} must be finite "
-                             f"and >= 0, got {value!r}")
+            raise InputError(
+                f"RegistrationForces {obj.name!r}: {self.name} must be finite "
+                f"and >= 0, got {value!r}"
+            )
         obj.__dict__[self.name] = float(value)
 
 
@@ -205,15 +215,26 @@ class RegistrationForces:
     weight = _Weight()
     landmark_weight = _Weight()
 
-    def __init__(self, skin: SkinMesh, target: TriangleSurface, weight: float, *,
-                 both_ways: bool = True, landmarks=None, landmark_weight: float | None = None,
-                 name: str = "registration"):
+    def __init__(
+        self,
+        skin: SkinMesh,
+        target: TriangleSurface,
+        weight: float,
+        *,
+        both_ways: bool = True,
+        landmarks=None,
+        landmark_weight: float | None = None,
+        name: str = "registration",
+    ):
         if not isinstance(skin, SkinMesh) or skin.faces is None:
-            raise InputError(f"RegistrationForces {name!r}: the model surface must be a "
-                             "SkinMesh with faces")
+            raise InputError(
+                f"RegistrationForces {name!r}: the model surface must be a SkinMesh with faces"
+            )
         if not isinstance(target, TriangleSurface):
-            raise InputError(f"RegistrationForces {name!r}: the target must be a "
-                             f"TriangleSurface, got {type(target).__name__}")
+            raise InputError(
+                f"RegistrationForces {name!r}: the target must be a "
+                f"TriangleSurface, got {type(target).__name__}"
+            )
         self.skin, self.target, self.name = skin, target, name
         self.weight = weight
         self.both_ways = both_ways
@@ -223,11 +244,18 @@ class RegistrationForces:
             vertices, points = landmarks
             vertices = np.asarray(vertices, dtype=np.int64).ravel()
             points = np.asarray(points, dtype=float).reshape(-1, 3)
-            if len(vertices) != len(points) or not len(vertices) or vertices.min() < 0 \
-                    or vertices.max() >= skin.n or not np.all(np.isfinite(points)):
-                raise InputError(f"RegistrationForces {name!r}: landmarks must pair model "
-                                 f"vertex indices in [0, {skin.n}) with as many finite "
-                                 f"target points")
+            if (
+                len(vertices) != len(points)
+                or not len(vertices)
+                or vertices.min() < 0
+                or vertices.max() >= skin.n
+                or not np.all(np.isfinite(points))
+            ):
+                raise InputError(
+                    f"RegistrationForces {name!r}: landmarks must pair model "
+                    f"vertex indices in [0, {skin.n}) with as many finite "
+                    f"target points"
+                )
             self.landmarks = (vertices, points)
         self.landmark_weight = weight if landmark_weight is None else landmark_weight
 
@@ -246,8 +274,7 @@ class RegistrationForces:
             return self._held
         x = self.skin.positions()
         if self._found is None or not np.array_equal(self._found[0], x):
-            self._found = (x.copy(), _features(x, self.skin.faces, self.target,
-                                               self.both_ways))
+            self._found = (x.copy(), _features(x, self.skin.faces, self.target, self.both_ways))
         return self._found[1]
 
     def hold(self, hold: bool) -> None:
@@ -263,8 +290,11 @@ class RegistrationForces:
         :meth:`features` (:func:`_evaluate`; kept while the positions stay)."""
         x = self.skin.positions()
         features = self.features()
-        if self._memo is None or self._memo[1] is not features \
-                or not np.array_equal(self._memo[0], x):
+        if (
+            self._memo is None
+            or self._memo[1] is not features
+            or not np.array_equal(self._memo[0], x)
+        ):
             self._memo = (x.copy(), features, _evaluate(x, features))
         return self._memo[2]
 
@@ -283,7 +313,7 @@ class RegistrationForces:
 
     def potential_energy(self, t: float) -> float:
         gaps = self._landmark_gaps()
-        extra = 0.0 if gaps is None else 0.5 * self.landmark_weight * float(np.sum(gaps ** 2))
+        extra = 0.0 if gaps is None else 0.5 * self.landmark_weight * float(np.sum(gaps**2))
         return self.weight * self.terms()[0] + extra
 
     def vertex_forces(self) -> np.ndarray:
@@ -301,7 +331,8 @@ class RegistrationForces:
             dofs = (3 * self.landmarks[0][:, None] + np.arange(3)).ravel()
             n = 3 * self.skin.n
             K = K - self.landmark_weight * sparse.csr_matrix(
-                (np.ones(dofs.size), (dofs, dofs)), shape=(n, n))
+                (np.ones(dofs.size), (dofs, dofs)), shape=(n, n)
+            )
         return K
 
     def master_loads(self, t: float) -> list[tuple[object, np.ndarray]]:

@@ -52,8 +52,9 @@ def _distances(forces: Sequence[RegistrationForces]) -> np.ndarray:
     return np.concatenate([f.distances() for f in forces])
 
 
-def _stage(scene, forces, w: float, tol: float, rtol: float, max_iterations: int,
-           max_sweeps: int) -> tuple[float, float, int, int]:
+def _stage(
+    scene, forces, w: float, tol: float, rtol: float, max_iterations: int, max_sweeps: int
+) -> tuple[float, float, int, int]:
     """One stage at weight w (:func:`register`): (mean distance, largest distance, Newton
     iterations, sweeps)."""
     for f in forces:
@@ -63,8 +64,9 @@ def _stage(scene, forces, w: float, tol: float, rtol: float, max_iterations: int
         for f in forces:
             f.hold(True)
         try:
-            iterations += int(sum(scene.solve_static(load_steps=1, rtol=rtol,
-                                                     max_iterations=max_iterations)))
+            iterations += int(
+                sum(scene.solve_static(load_steps=1, rtol=rtol, max_iterations=max_iterations))
+            )
         finally:
             for f in forces:
                 f.hold(False)
@@ -75,10 +77,18 @@ def _stage(scene, forces, w: float, tol: float, rtol: float, max_iterations: int
     return mean, float(d.max()), iterations, sweep
 
 
-def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[float], *,
-             tol: float = 1e-5, checkpoint: Path | None = None, progress=None,
-             max_iterations: int = 30, max_sweeps: int = 20,
-             rtol: float = 1e-6) -> RegistrationResult:
+def register(
+    scene,
+    forces: Sequence[RegistrationForces],
+    weights: Sequence[float],
+    *,
+    tol: float = 1e-5,
+    checkpoint: Path | None = None,
+    progress=None,
+    max_iterations: int = 30,
+    max_sweeps: int = 20,
+    rtol: float = 1e-6,
+) -> RegistrationResult:
     """Register the scene's model surfaces to their targets (module docstring): for each
     weight of ``weights`` (increasing), every element of ``forces`` (already in the
     scene) takes it, and sweeps of ICP's alternation run from the last state: the
@@ -98,8 +108,11 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
     missing = [f.name for f in forces if f not in scene.loads]
     if missing:
         raise InputError(f"register: the registration forces {missing} are not in the scene")
-    if not weights or any(not (np.isfinite(w) and w > 0) for w in weights) \
-            or any(b < a for a, b in zip(weights, weights[1:])):
+    if (
+        not weights
+        or any(not (np.isfinite(w) and w > 0) for w in weights)
+        or any(b < a for a, b in zip(weights, weights[1:]))
+    ):
         raise InputError(f"register: weights must be positive and increasing, got {weights}")
     if not (np.isfinite(tol) and tol > 0):
         raise InputError(f"register: tol must be > 0, got {tol}")
@@ -107,9 +120,11 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
     if checkpoint is not None and Path(checkpoint).exists():
         with open(checkpoint, "rb") as fh:
             saved = pickle.load(fh)
-        if saved["schedule"] != weights[:len(saved["schedule"])]:
-            raise InputError(f"register: the checkpoint {checkpoint} was written for the "
-                             f"weights {saved['schedule']}, not a start of {weights}")
+        if saved["schedule"] != weights[: len(saved["schedule"])]:
+            raise InputError(
+                f"register: the checkpoint {checkpoint} was written for the "
+                f"weights {saved['schedule']}, not a start of {weights}"
+            )
         scene.restore_state(saved["state"])
         result = saved["result"]
     pending = [w for w in weights if not result.weights or w > result.weights[-1]]
@@ -123,21 +138,25 @@ def register(scene, forces: Sequence[RegistrationForces], weights: Sequence[floa
             scene.restore_state(state)
             last = result.weights[-1] if result.weights else w / 10.0
             if w / last < MIN_WEIGHT_RATIO:
-                raise StepFailed(f"registration: the static solve at weight {w:g} failed "
-                                 f"after the weight {last:g} ({error})") from error
+                raise StepFailed(
+                    f"registration: the static solve at weight {w:g} failed "
+                    f"after the weight {last:g} ({error})"
+                ) from error
             pending.insert(0, float(np.sqrt(last * w)))
             continue
         pending.pop(0)
         result.weights.append(w)
-        for name, value in zip(("mean_distance", "max_distance", "iterations", "sweeps"),
-                               stage):
+        for name, value in zip(("mean_distance", "max_distance", "iterations", "sweeps"), stage):
             getattr(result, name).append(value)
-        result.converged = len(result.mean_distance) > 1 and \
-            abs(result.mean_distance[-1] - result.mean_distance[-2]) < tol
+        result.converged = (
+            len(result.mean_distance) > 1
+            and abs(result.mean_distance[-1] - result.mean_distance[-2]) < tol
+        )
         if checkpoint is not None:
             with open(checkpoint, "wb") as fh:
-                pickle.dump({"schedule": weights, "state": scene.save_state(),
-                             "result": result}, fh)
+                pickle.dump(
+                    {"schedule": weights, "state": scene.save_state(), "result": result}, fh
+                )
         if progress is not None:
             progress.update(1)
     return result

@@ -33,8 +33,9 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     docstring)."""
     src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise InputError(f"kabsch: two (n, 3) point sets with n >= 3 expected, got "
-                         f"{src.shape} and {dst.shape}")
+        raise InputError(
+            f"kabsch: two (n, 3) point sets with n >= 3 expected, got {src.shape} and {dst.shape}"
+        )
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
@@ -47,13 +48,14 @@ def affine_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray
     not all lie in a plane."""
     src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 4:
-        raise InputError(f"affine_fit: two (n, 3) point sets with n >= 4 expected, got "
-                         f"{src.shape} and {dst.shape}")
+        raise InputError(
+            f"affine_fit: two (n, 3) point sets with n >= 4 expected, got "
+            f"{src.shape} and {dst.shape}"
+        )
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     P = src - cs
     if np.linalg.matrix_rank(P, tol=1e-12 * max(np.abs(P).max(), 1e-300)) < 3:
-        raise InputError("affine_fit: the points lie in a plane or on a line: no unique "
-                         "affine map")
+        raise InputError("affine_fit: the points lie in a plane or on a line: no unique affine map")
     A = np.linalg.lstsq(P, dst - cd, rcond=None)[0].T
     return A, cd - A @ cs
 
@@ -64,25 +66,34 @@ class TriangleSurface:
     def __init__(self, vertices, triangles):
         self.vertices = np.ascontiguousarray(vertices, dtype=float)
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
-        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or \
-                self.triangles.ndim != 2 or self.triangles.shape[1] != 3 or \
-                not len(self.triangles):
-            raise InputError(f"TriangleSurface: vertices (n, 3) and triangles (m >= 1, 3) "
-                             f"expected, got {self.vertices.shape} and {self.triangles.shape}")
+        if (
+            self.vertices.ndim != 2
+            or self.vertices.shape[1] != 3
+            or self.triangles.ndim != 2
+            or self.triangles.shape[1] != 3
+            or not len(self.triangles)
+        ):
+            raise InputError(
+                f"TriangleSurface: vertices (n, 3) and triangles (m >= 1, 3) "
+                f"expected, got {self.vertices.shape} and {self.triangles.shape}"
+            )
         if self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices):
-            raise InputError(f"TriangleSurface: triangle indices outside 0..."
-                             f"{len(self.vertices) - 1}")
+            raise InputError(
+                f"TriangleSurface: triangle indices outside 0...{len(self.vertices) - 1}"
+            )
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.triangles)
         edges = np.sort(self.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-        keys, counts = np.unique(edges[:, 0] * len(self.vertices) + edges[:, 1],
-                                 return_counts=True)
+        keys, counts = np.unique(edges[:, 0] * len(self.vertices) + edges[:, 1], return_counts=True)
         #: the border edges (edges of one triangle) as keys a n + b (a < b, n vertices)
         self.border_edges = keys[counts == 1]
         #: (n,) True at the vertices on a border edge
         self.border_vertices = np.zeros(len(self.vertices), dtype=bool)
-        self.border_vertices[np.concatenate([self.border_edges // len(self.vertices),
-                                             self.border_edges % len(self.vertices)])] = True
+        self.border_vertices[
+            np.concatenate(
+                [self.border_edges // len(self.vertices), self.border_edges % len(self.vertices)]
+            )
+        ] = True
 
     @classmethod
     def from_polydata(cls, polydata) -> TriangleSurface:
@@ -98,8 +109,7 @@ class TriangleSurface:
     def closest_triangles(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(distances (k,), closest points (k, 3), their triangles (k,))."""
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
-        sq, triangle, closest = self.tree.squared_distance(self.vertices, self.triangles,
-                                                           points)
+        sq, triangle, closest = self.tree.squared_distance(self.vertices, self.triangles, points)
         return np.sqrt(np.maximum(sq, 0.0)), closest, np.asarray(triangle, dtype=np.int64)
 
     def closest_kept(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,8 +122,10 @@ class TriangleSurface:
         """(k, 3) barycentric coordinates of ``points`` (on the surface) in their
         ``triangles``, clipped to [0, 1]."""
         corners = self.vertices[self.triangles[triangles]]
-        b = igl.barycentric_coordinates(np.ascontiguousarray(points, dtype=float),
-                                        *(np.ascontiguousarray(corners[:, k]) for k in range(3)))
+        b = igl.barycentric_coordinates(
+            np.ascontiguousarray(points, dtype=float),
+            *(np.ascontiguousarray(corners[:, k]) for k in range(3)),
+        )
         return np.clip(b, 0.0, 1.0)
 
     def on_border(self, triangles, barycentric, zero: float = 1e-10) -> np.ndarray:
@@ -147,10 +159,19 @@ class RigidFit:
     iterations: int
 
 
-def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
-        iterations: int = 60, rotation_tol: float = 1e-10,
-        translation_tol: float = 1e-12, affine: bool = False,
-        drop_border: bool = True) -> RigidFit:
+def icp(
+    points,
+    surface: TriangleSurface,
+    R=None,
+    t=None,
+    *,
+    trim: float = 1.0,
+    iterations: int = 60,
+    rotation_tol: float = 1e-10,
+    translation_tol: float = 1e-12,
+    affine: bool = False,
+    drop_border: bool = True,
+) -> RigidFit:
     """Trimmed point-to-surface ICP of ``points`` onto ``surface`` from (R, t) (default
     identity): at most ``iterations`` of closest points and :func:`kabsch` (``affine``:
     :func:`affine_fit`, R then any matrix) on the fraction ``trim`` of the pairs with the
@@ -174,8 +195,9 @@ def icp(points, surface: TriangleSurface, R=None, t=None, *, trim: float = 1.0,
         r, closest, off_border = surface.closest_kept(moved)
         keep = kept(r) & off_border if drop_border else kept(r)
         R_new, t_new = (affine_fit if affine else kabsch)(points[keep], closest[keep])
-        converged = np.abs(R_new - R).max() < rotation_tol and \
-            np.abs(t_new - t).max() < translation_tol
+        converged = (
+            np.abs(R_new - R).max() < rotation_tol and np.abs(t_new - t).max() < translation_tol
+        )
         R, t = R_new, t_new
         if converged:
             break

@@ -40,9 +40,16 @@ from artifem.errors import InputError
 from artifem.registration.forces import RegistrationForces
 from artifem.registration.register import register
 from artifem.registration.rigid import TriangleSurface, icp, kabsch
-from artifem.registration.skeleton import (UNITS, Skeleton, jointed_scene, read_surface,
-                                           single_structure_scene, write_surface, _read_json,
-                                           _units)
+from artifem.registration.skeleton import (
+    UNITS,
+    Skeleton,
+    jointed_scene,
+    read_surface,
+    single_structure_scene,
+    write_surface,
+    _read_json,
+    _units,
+)
 
 __all__ = ["Target", "prealign", "register_skeleton", "summary_table", "surface_distances"]
 
@@ -64,23 +71,30 @@ class Target:
         missing = [b for b in skeleton.bones if b not in files]
         if missing:
             raise InputError(f"{directory / 'target.json'}: no target for bone(s) {missing}")
-        self.surfaces = {b: TriangleSurface(*read_surface(directory / files[b], scale))
-                         for b in skeleton.bones}
+        self.surfaces = {
+            b: TriangleSurface(*read_surface(directory / files[b], scale)) for b in skeleton.bones
+        }
         for bone, surface in self.surfaces.items():
             ref = np.ptp(skeleton.bones[bone][0], axis=0).max()
             size = np.ptp(surface.vertices, axis=0).max()
             if not 0.5 < size / ref < 2.0:
-                raise InputError(f"bone {bone!r}: the target spans {size:.4g} m, the "
-                                 f"reference {ref:.4g} m: units off? (target.json says "
-                                 f"{spec.get('units')!r}; one of {sorted(UNITS)})")
+                raise InputError(
+                    f"bone {bone!r}: the target spans {size:.4g} m, the "
+                    f"reference {ref:.4g} m: units off? (target.json says "
+                    f"{spec.get('units')!r}; one of {sorted(UNITS)})"
+                )
         truth = spec.get("truth") or {}
-        self.truth = {b: read_surface(directory / f, scale)[0]
-                      for b, f in dict(truth.get("bones", {})).items()}
+        self.truth = {
+            b: read_surface(directory / f, scale)[0]
+            for b, f in dict(truth.get("bones", {})).items()
+        }
         for bone, x in self.truth.items():
             if x.shape != skeleton.bones[bone][0].shape:
-                raise InputError(f"{directory / 'target.json'}: the truth of bone {bone!r} "
-                                 f"has {len(x)} vertices, the reference "
-                                 f"{len(skeleton.bones[bone][0])}")
+                raise InputError(
+                    f"{directory / 'target.json'}: the truth of bone {bone!r} "
+                    f"has {len(x)} vertices, the reference "
+                    f"{len(skeleton.bones[bone][0])}"
+                )
         self.angles = {j: float(np.radians(a)) for j, a in dict(truth.get("angles", {})).items()}
 
 
@@ -89,8 +103,11 @@ def surface_distances(x: np.ndarray, triangles: np.ndarray, target: TriangleSurf
     docstring)."""
     d, _, kept = target.closest_kept(x)
     back = TriangleSurface(x, triangles).closest(target.vertices)[0]
-    return {"mean": float(d[kept].mean()), "rms": float(np.sqrt(np.mean(d[kept] ** 2))),
-            "hausdorff": float(max(d[kept].max(), back.max()))}
+    return {
+        "mean": float(d[kept].mean()),
+        "rms": float(np.sqrt(np.mean(d[kept] ** 2))),
+        "hausdorff": float(max(d[kept].max(), back.max())),
+    }
 
 
 def _fit(skeleton: Skeleton, target: Target, names) -> tuple[float, np.ndarray, np.ndarray]:
@@ -106,13 +123,18 @@ def _fit(skeleton: Skeleton, target: Target, names) -> tuple[float, np.ndarray, 
 
     A, B = axes(src), axes(dst)
     best = None
-    for R in [np.eye(3)] + [B @ np.diag(s) @ A.T for s in
-                            ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1])]:
+    for R in [np.eye(3)] + [
+        B @ np.diag(s) @ A.T for s in ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1])
+    ]:
         t = dst.mean(0) - R @ src.mean(0)
         for _ in range(100):
-            pairs = [(skeleton.bones[b][0],
-                      *target.surfaces[b].closest_kept(skeleton.bones[b][0] @ R.T + t)[1:])
-                     for b in names]
+            pairs = [
+                (
+                    skeleton.bones[b][0],
+                    *target.surfaces[b].closest_kept(skeleton.bones[b][0] @ R.T + t)[1:],
+                )
+                for b in names
+            ]
             P = np.vstack([p[k] for p, c, k in pairs])
             C = np.vstack([c[k] for p, c, k in pairs])
             R_new, t_new = kabsch(P, C)
@@ -154,14 +176,17 @@ def _check_near(skeleton: Skeleton, target: Target) -> None:
     """Every bone has target points near it after the pre-alignment, else an error."""
     far = _far_bones(skeleton, target)
     if far:
-        raise InputError("no target point within a fifth of the bone's size after the rigid "
-                         "pre-alignment: " + "; ".join(f"bone {b!r} (nearest {d:.3g} m)"
-                                                        for _, b, d in far)
-                         + ": a target of another bone, or misplaced?")
+        raise InputError(
+            "no target point within a fifth of the bone's size after the rigid "
+            "pre-alignment: "
+            + "; ".join(f"bone {b!r} (nearest {d:.3g} m)" for _, b, d in far)
+            + ": a target of another bone, or misplaced?"
+        )
 
 
-def _measure(skeleton: Skeleton, target: Target, positions: dict, seconds: float,
-             extra: dict) -> dict:
+def _measure(
+    skeleton: Skeleton, target: Target, positions: dict, seconds: float, extra: dict
+) -> dict:
     out = {"seconds": seconds, "bones": {}, **extra}
     for bone, x in positions.items():
         row = surface_distances(x, skeleton.bones[bone][1], target.surfaces[bone])
@@ -172,27 +197,42 @@ def _measure(skeleton: Skeleton, target: Target, positions: dict, seconds: float
     return out
 
 
-def _deformable(builder, skeleton, target, material, cell_size, weights, progress,
-                checkpoint):
+def _deformable(builder, skeleton, target, material, cell_size, weights, progress, checkpoint):
     model = builder(skeleton, material, cell_size)
-    forces = [RegistrationForces(model.skins[b], target.surfaces[b], weights[0], name=b)
-              for b in skeleton.bones]
+    forces = [
+        RegistrationForces(model.skins[b], target.surfaces[b], weights[0], name=b)
+        for b in skeleton.bones
+    ]
     model.scene.add(*forces)
-    result = register(model.scene, forces, weights, tol=1e-3 * cell_size, progress=progress,
-                      checkpoint=checkpoint)
-    extra = {"weights": result.weights, "stage_mean_distance": result.mean_distance,
-             "newton_iterations": result.iterations, "sweeps": result.sweeps,
-             "min_det_F": model.min_det_F(),
-             "cells": int(sum(b.mesh.topology.index_map(3).size_local for b in model.bodies))}
+    result = register(
+        model.scene, forces, weights, tol=1e-3 * cell_size, progress=progress, checkpoint=checkpoint
+    )
+    extra = {
+        "weights": result.weights,
+        "stage_mean_distance": result.mean_distance,
+        "newton_iterations": result.iterations,
+        "sweeps": result.sweeps,
+        "min_det_F": model.min_det_F(),
+        "cells": int(sum(b.mesh.topology.index_map(3).size_local for b in model.bodies)),
+    }
     if model.joints:
         extra["joint_angles_deg"] = {j: float(np.degrees(a)) for j, a in model.angles().items()}
         extra["joint_constraint_error"] = float(max(model.scene.constraint_errors().values()))
     return {b: s.positions() for b, s in model.skins.items()}, extra
 
 
-def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
-                      cell_size: float, weights=WEIGHTS, methods=METHODS,
-                      progress=print, resume: bool = False) -> dict:
+def register_skeleton(
+    reference: Path,
+    target_dir: Path,
+    out: Path,
+    *,
+    material,
+    cell_size: float,
+    weights=WEIGHTS,
+    methods=METHODS,
+    progress=print,
+    resume: bool = False,
+) -> dict:
     """Steps 1-3 of the module docstring; returns and writes the report. The deformable
     methods write their state after each weight stage to ``out/METHOD.checkpoint``
     (removed when the method ends); with ``resume`` an interrupted run of the same
@@ -208,15 +248,25 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
     _check_near(aligned, target)
     out = Path(out)
     (out / "meshes").mkdir(parents=True, exist_ok=True)
-    report = {"reference": str(reference), "target": str(target_dir), "cell_size": cell_size,
-              "bones": {b: {"vertices": len(V), "triangles": len(T),
-                            "target_vertices": len(target.surfaces[b].vertices)}
-                        for b, (V, T) in skeleton.bones.items()},
-              "prealignment": {"R": R.tolist(), "t": t.tolist()},
-              "truth_angles_deg": {j: float(np.degrees(a)) for j, a in target.angles.items()},
-              "before": _measure(skeleton, target, {b: V for b, (V, _) in aligned.bones.items()},
-                                 0.0, {}),
-              "methods": {}}
+    report = {
+        "reference": str(reference),
+        "target": str(target_dir),
+        "cell_size": cell_size,
+        "bones": {
+            b: {
+                "vertices": len(V),
+                "triangles": len(T),
+                "target_vertices": len(target.surfaces[b].vertices),
+            }
+            for b, (V, T) in skeleton.bones.items()
+        },
+        "prealignment": {"R": R.tolist(), "t": t.tolist()},
+        "truth_angles_deg": {j: float(np.degrees(a)) for j, a in target.angles.items()},
+        "before": _measure(
+            skeleton, target, {b: V for b, (V, _) in aligned.bones.items()}, 0.0, {}
+        ),
+        "methods": {},
+    }
     results = {}
     for method in methods:
         progress(f"register: {method} ...")
@@ -231,22 +281,26 @@ def register_skeleton(reference: Path, target_dir: Path, out: Path, *, material,
                 extra["iterations"][bone] = fit.iterations
         else:
             builder = jointed_scene if method == "jointed" else single_structure_scene
-            with tqdm(total=len(weights), desc=f"{method}: weight stages", unit="stage",
-                      leave=False) as bar:
+            with tqdm(
+                total=len(weights), desc=f"{method}: weight stages", unit="stage", leave=False
+            ) as bar:
                 checkpoint = out / f"{method}.checkpoint"
                 if not resume:
                     checkpoint.unlink(missing_ok=True)
-                positions, extra = _deformable(builder, aligned, target, material,
-                                               cell_size, list(weights), bar, checkpoint)
+                positions, extra = _deformable(
+                    builder, aligned, target, material, cell_size, list(weights), bar, checkpoint
+                )
                 checkpoint.unlink(missing_ok=True)
         row = _measure(skeleton, target, positions, time.perf_counter() - start, extra)
         report["methods"][method] = row
         results[method] = positions
         for bone, x in positions.items():
             write_surface(out / "meshes" / f"{method}_{bone}.stl", x, skeleton.bones[bone][1])
-        progress(f"register: {method}: mean distance "
-                 + ", ".join(f"{b} {1e3 * r['mean']:.3f} mm" for b, r in row["bones"].items())
-                 + f" ({row['seconds']:.1f} s)")
+        progress(
+            f"register: {method}: mean distance "
+            + ", ".join(f"{b} {1e3 * r['mean']:.3f} mm" for b, r in row["bones"].items())
+            + f" ({row['seconds']:.1f} s)"
+        )
     (out / "registration.json").write_text(json.dumps(report, indent=1))
     render(out / "registration.png", aligned, target, results)
     return report
@@ -257,18 +311,20 @@ def summary_table(report: dict) -> str:
     (and to the truth, where known) in mm, the largest Hausdorff distance, the seconds."""
     bones = list(report["bones"])
     truth = all("truth_mean" in r for r in report["before"]["bones"].values())
-    head = "| method | " + " | ".join(f"{b} (mm)" for b in bones) + \
-        " | Hausdorff (mm) | time (s) |"
+    head = "| method | " + " | ".join(f"{b} (mm)" for b in bones) + " | Hausdorff (mm) | time (s) |"
     lines = [head, "|" + "---|" * (len(bones) + 3)]
     for method, row in {"before": report["before"], **report["methods"]}.items():
         cells = []
         for b in bones:
             r = row["bones"][b]
-            cells.append(f"{1e3 * r['mean']:.3f}" + (f" ({1e3 * r['truth_mean']:.2f})"
-                                                     if truth else ""))
+            cells.append(
+                f"{1e3 * r['mean']:.3f}" + (f" ({1e3 * r['truth_mean']:.2f})" if truth else "")
+            )
         hausdorff = max(r["hausdorff"] for r in row["bones"].values())
-        lines.append(f"| {method} | " + " | ".join(cells) + f" | {1e3 * hausdorff:.2f} | "
-                     f"{row['seconds']:.1f} |")
+        lines.append(
+            f"| {method} | " + " | ".join(cells) + f" | {1e3 * hausdorff:.2f} | "
+            f"{row['seconds']:.1f} |"
+        )
     return "\n".join(lines)
 
 
@@ -278,10 +334,13 @@ def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Pat
     import pyvista as pv
 
     pv.OFF_SCREEN = True
-    panels = [("reference", {b: V for b, (V, _) in reference.bones.items()}, False),
-              ("target", None, False)] + [(m, x, True) for m, x in results.items()]
-    plotter = pv.Plotter(off_screen=True, shape=(1, len(panels)),
-                         window_size=[360 * len(panels), 720])
+    panels = [
+        ("reference", {b: V for b, (V, _) in reference.bones.items()}, False),
+        ("target", None, False),
+    ] + [(m, x, True) for m, x in results.items()]
+    plotter = pv.Plotter(
+        off_screen=True, shape=(1, len(panels)), window_size=[360 * len(panels), 720]
+    )
     clim = [0.0, 1.0]
     for i, (title, positions, coloured) in enumerate(panels):
         plotter.subplot(0, i)
@@ -294,14 +353,21 @@ def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Pat
             else:
                 V, F = positions[bone], T
             mesh = pv.PolyData(V, np.c_[np.full(len(F), 3), F].ravel())
-            if coloured:      # grey where the target does not cover the bone
+            if coloured:  # grey where the target does not cover the bone
                 d, _, kept = target.surfaces[bone].closest_kept(V)
                 mesh["distance (mm)"] = np.where(kept, 1e3 * d, np.nan)
-                plotter.add_mesh(mesh, scalars="distance (mm)", clim=clim, cmap="viridis",
-                                 nan_color="lightgray", show_scalar_bar=i == len(panels) - 1)
+                plotter.add_mesh(
+                    mesh,
+                    scalars="distance (mm)",
+                    clim=clim,
+                    cmap="viridis",
+                    nan_color="lightgray",
+                    show_scalar_bar=i == len(panels) - 1,
+                )
             else:
-                plotter.add_mesh(mesh, color="lightsteelblue" if positions is not None
-                                 else "salmon")
+                plotter.add_mesh(
+                    mesh, color="lightsteelblue" if positions is not None else "salmon"
+                )
         plotter.view_xy()
     plotter.link_views()
     plotter.screenshot(str(png))
@@ -310,27 +376,51 @@ def render(png: Path, reference: Skeleton, target: Target, results: dict) -> Pat
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--reference", required=True, type=Path,
-                        help="skeleton directory (skeleton.json and the bone meshes)")
-    parser.add_argument("--target", required=True, type=Path,
-                        help="target directory (target.json and one surface per bone)")
+    parser.add_argument(
+        "--reference",
+        required=True,
+        type=Path,
+        help="skeleton directory (skeleton.json and the bone meshes)",
+    )
+    parser.add_argument(
+        "--target",
+        required=True,
+        type=Path,
+        help="target directory (target.json and one surface per bone)",
+    )
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--cell-size", type=float, default=0.008,
-                        help="voxel grid cell size, m (default 0.008)")
-    parser.add_argument("--youngs", type=float, default=1e6,
-                        help="the grids' Young's modulus, Pa (neo-Hookean, nu = 0.3)")
-    parser.add_argument("--methods", default=",".join(METHODS),
-                        help=f"comma-separated subset of {','.join(METHODS)}")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue an interrupted run from OUT/METHOD.checkpoint")
+    parser.add_argument(
+        "--cell-size", type=float, default=0.008, help="voxel grid cell size, m (default 0.008)"
+    )
+    parser.add_argument(
+        "--youngs",
+        type=float,
+        default=1e6,
+        help="the grids' Young's modulus, Pa (neo-Hookean, nu = 0.3)",
+    )
+    parser.add_argument(
+        "--methods",
+        default=",".join(METHODS),
+        help=f"comma-separated subset of {','.join(METHODS)}",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted run from OUT/METHOD.checkpoint",
+    )
 
 
 def run(args) -> int:
     from artifem.forms import NeoHookean
 
-    register_skeleton(args.reference, args.target, args.out,
-                      material=NeoHookean.from_young_poisson(args.youngs, 0.3),
-                      cell_size=args.cell_size, methods=tuple(args.methods.split(",")),
-                      resume=args.resume)
+    register_skeleton(
+        args.reference,
+        args.target,
+        args.out,
+        material=NeoHookean.from_young_poisson(args.youngs, 0.3),
+        cell_size=args.cell_size,
+        methods=tuple(args.methods.split(",")),
+        resume=args.resume,
+    )
     print(f"register: wrote {args.out / 'registration.json'} and registration.png")
     return 0

@@ -37,8 +37,15 @@ from artifem.multibody.skin import SkinMesh
 from artifem.registration.rigid import TriangleSurface
 from artifem.scene import Scene
 
-__all__ = ["Hinge", "Skeleton", "SkeletonScene", "jointed_scene", "read_surface",
-           "single_structure_scene", "UNITS"]
+__all__ = [
+    "Hinge",
+    "Skeleton",
+    "SkeletonScene",
+    "jointed_scene",
+    "read_surface",
+    "single_structure_scene",
+    "UNITS",
+]
 
 #: metres per unit of the names a skeleton.json or target.json may give
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -58,8 +65,9 @@ def read_surface(path: Path, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray
     mesh = mesh.triangulate().clean(tolerance=0.0)
     if not mesh.n_cells:
         raise MeshError(f"surface file {path} has no triangles")
-    return scale * np.asarray(mesh.points, dtype=float), \
-        np.asarray(mesh.faces).reshape(-1, 4)[:, 1:].astype(np.int64)
+    return scale * np.asarray(mesh.points, dtype=float), np.asarray(mesh.faces).reshape(-1, 4)[
+        :, 1:
+    ].astype(np.int64)
 
 
 def write_surface(path: Path, vertices, triangles) -> None:
@@ -114,16 +122,18 @@ class Skeleton:
         for h in self.hinges:
             for bone in (h.parent, h.child):
                 if bone not in names:
-                    raise InputError(f"joint {h.name!r}: no bone {bone!r} (bones: "
-                                     f"{sorted(names)})")
+                    raise InputError(f"joint {h.name!r}: no bone {bone!r} (bones: {sorted(names)})")
             if not np.linalg.norm(h.axis) > 0 or np.asarray(h.centre).shape != (3,):
-                raise InputError(f"joint {h.name!r}: its centre must be 3 numbers and its "
-                                 f"axis a nonzero 3-vector")
+                raise InputError(
+                    f"joint {h.name!r}: its centre must be 3 numbers and its "
+                    f"axis a nonzero 3-vector"
+                )
         if len(set(children)) != len(children):
             raise InputError(f"a bone is the child of two joints: {children}")
         if len(self.roots()) != 1 and self.hinges:
-            raise InputError(f"the joints do not join the bones into one tree: roots "
-                             f"{self.roots()}")
+            raise InputError(
+                f"the joints do not join the bones into one tree: roots {self.roots()}"
+            )
 
     def roots(self) -> list[str]:
         """The bones that are no joint's child."""
@@ -139,18 +149,23 @@ class Skeleton:
         for name, (V, T) in self.bones.items():
             boundary, nonmanifold = edge_defects(T)
             if boundary or nonmanifold:
-                raise MeshError(f"bone {name!r} is not a closed surface: {boundary} boundary "
-                                f"edge(s), {nonmanifold} non-manifold edge(s)")
+                raise MeshError(
+                    f"bone {name!r} is not a closed surface: {boundary} boundary "
+                    f"edge(s), {nonmanifold} non-manifold edge(s)"
+                )
             if not enclosed_volume(V, T) > 0:
-                raise MeshError(f"bone {name!r} is inward oriented (enclosed volume <= 0): "
-                                f"flip its triangles")
+                raise MeshError(
+                    f"bone {name!r} is inward oriented (enclosed volume <= 0): flip its triangles"
+                )
         for h in self.hinges:
             for bone in (h.parent, h.child):
                 d = float(TriangleSurface(*self.bones[bone]).closest(h.centre)[0][0])
                 if d > reach:
-                    raise InputError(f"joint {h.name!r}: its centre {np.round(h.centre, 4)} "
-                                     f"is {d:.4g} m from bone {bone!r}, farther than the "
-                                     f"frames' reach {reach:.4g} m")
+                    raise InputError(
+                        f"joint {h.name!r}: its centre {np.round(h.centre, 4)} "
+                        f"is {d:.4g} m from bone {bone!r}, farther than the "
+                        f"frames' reach {reach:.4g} m"
+                    )
 
     def transforms(self, angles: dict[str, float]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """bone -> (R, t): each bone turned by the given joint angles (others 0) about its
@@ -172,9 +187,10 @@ class Skeleton:
     def moved(self, R, t) -> Skeleton:
         """The skeleton moved rigidly by x -> R x + t (bones, centres and axes)."""
         R, t = np.asarray(R, float), np.asarray(t, float)
-        return Skeleton({b: (V @ R.T + t, T) for b, (V, T) in self.bones.items()},
-                        [replace(h, centre=R @ h.centre + t, axis=R @ h.axis)
-                         for h in self.hinges])
+        return Skeleton(
+            {b: (V @ R.T + t, T) for b, (V, T) in self.bones.items()},
+            [replace(h, centre=R @ h.centre + t, axis=R @ h.axis) for h in self.hinges],
+        )
 
     @classmethod
     def read(cls, directory: Path) -> Skeleton:
@@ -184,21 +200,35 @@ class Skeleton:
         directory = Path(directory)
         spec = _read_json(directory / "skeleton.json")
         scale = _units(spec, directory / "skeleton.json")
-        bones = {name: read_surface(directory / file, scale)
-                 for name, file in dict(spec.get("bones", {})).items()}
+        bones = {
+            name: read_surface(directory / file, scale)
+            for name, file in dict(spec.get("bones", {})).items()
+        }
         if not bones:
             raise InputError(f"{directory / 'skeleton.json'}: no bones")
         hinges = []
         for j in spec.get("joints", []):
             try:
-                limits = None if j.get("limits") is None else \
-                    tuple(np.radians(np.asarray(j["limits"], float)).tolist())
-                hinges.append(Hinge(str(j["name"]), str(j["parent"]), str(j["child"]),
-                                    scale * np.asarray(j["centre"], float),
-                                    np.asarray(j["axis"], float), limits))
+                limits = (
+                    None
+                    if j.get("limits") is None
+                    else tuple(np.radians(np.asarray(j["limits"], float)).tolist())
+                )
+                hinges.append(
+                    Hinge(
+                        str(j["name"]),
+                        str(j["parent"]),
+                        str(j["child"]),
+                        scale * np.asarray(j["centre"], float),
+                        np.asarray(j["axis"], float),
+                        limits,
+                    )
+                )
             except (KeyError, TypeError, ValueError) as e:
-                raise InputError(f"{directory / 'skeleton.json'}: joint {j!r} needs name, "
-                                 f"parent, child, centre and axis ({e})") from None
+                raise InputError(
+                    f"{directory / 'skeleton.json'}: joint {j!r} needs name, "
+                    f"parent, child, centre and axis ({e})"
+                ) from None
         return cls(bones, hinges)
 
     def write(self, directory: Path) -> None:
@@ -207,12 +237,21 @@ class Skeleton:
         directory.mkdir(parents=True, exist_ok=True)
         for name, (V, T) in self.bones.items():
             write_surface(directory / f"{name}.vtp", V, T)
-        spec = {"units": "m", "bones": {name: f"{name}.vtp" for name in self.bones},
-                "joints": [{"name": h.name, "parent": h.parent, "child": h.child,
-                            "centre": np.asarray(h.centre).tolist(),
-                            "axis": np.asarray(h.axis).tolist(),
-                            "limits": None if h.limits is None else
-                            np.degrees(h.limits).tolist()} for h in self.hinges]}
+        spec = {
+            "units": "m",
+            "bones": {name: f"{name}.vtp" for name in self.bones},
+            "joints": [
+                {
+                    "name": h.name,
+                    "parent": h.parent,
+                    "child": h.child,
+                    "centre": np.asarray(h.centre).tolist(),
+                    "axis": np.asarray(h.axis).tolist(),
+                    "limits": None if h.limits is None else np.degrees(h.limits).tolist(),
+                }
+                for h in self.hinges
+            ],
+        }
         (directory / "skeleton.json").write_text(json.dumps(spec, indent=1))
 
 
@@ -253,12 +292,12 @@ class SkeletonScene:
 
 
 def _grid(vertices, triangles, material, cell_size: float, name: str) -> VoxelFemBody:
-    return VoxelFemBody(vertices, triangles, material, 1000.0, cell_size=cell_size,
-                        name=name)
+    return VoxelFemBody(vertices, triangles, material, 1000.0, cell_size=cell_size, name=name)
 
 
-def jointed_scene(skeleton: Skeleton, material, cell_size: float, *,
-                  reach: float | None = None) -> SkeletonScene:
+def jointed_scene(
+    skeleton: Skeleton, material, cell_size: float, *, reach: float | None = None
+) -> SkeletonScene:
     """Each bone in its own voxel grid, the grids joined by the hinges (module docstring);
     ``reach`` (default 4 cells) bounds the distance from a joint centre to the grid nodes
     that carry its frames. No gravity."""
@@ -274,18 +313,20 @@ def jointed_scene(skeleton: Skeleton, material, cell_size: float, *,
         markers = []
         for bone in (h.child, h.parent):
             body = bodies[bone]
-            nodes = body.find_nodes(
-                lambda x, c=h.centre: np.linalg.norm(x.T - c, axis=1) <= reach)
+            nodes = body.find_nodes(lambda x, c=h.centre: np.linalg.norm(x.T - c, axis=1) <= reach)
             if len(nodes) < 4:
-                raise InputError(f"joint {h.name!r}: {len(nodes)} node(s) of bone {bone!r}'s "
-                                 f"grid within {reach:.4g} m of its centre, 4 needed: the "
-                                 f"centre is outside the bone, or reach too small")
+                raise InputError(
+                    f"joint {h.name!r}: {len(nodes)} node(s) of bone {bone!r}'s "
+                    f"grid within {reach:.4g} m of its centre, 4 needed: the "
+                    f"centre is outside the bone, or reach too small"
+                )
             frame = FemFrame(body, method="procrustes", support=nodes)
             marker = RigidBody.marker(f"{h.name} on {bone}", position=frame.position())
             scene.add(marker, FrameAttachment(marker, frame))
             markers.append(marker)
-        joints[h.name] = RevoluteJoint.at_world(*markers, h.centre, h.frame_rotation(),
-                                                name=h.name, limits=h.limits)
+        joints[h.name] = RevoluteJoint.at_world(
+            *markers, h.centre, h.frame_rotation(), name=h.name, limits=h.limits
+        )
         scene.add(joints[h.name])
     return SkeletonScene(scene, list(bodies.values()), skins, joints)
 

@@ -37,8 +37,12 @@ class ConstraintMap:
 
     def blocks(self) -> list:
         """The non-empty row blocks of every constraint at the current state."""
-        return [block for constraint in self.layout.scene.constraints
-                for block in constraint.row_blocks() if len(block)]
+        return [
+            block
+            for constraint in self.layout.scene.constraints
+            for block in constraint.row_blocks()
+            if len(block)
+        ]
 
     def _placed(self, block):
         """(all-space offset, G_k) of the block's bodies (the world left out)."""
@@ -48,9 +52,11 @@ class ConstraintMap:
                 continue
             span = self.layout.span(body)
             if span is None or span[1] != G.shape[1]:
-                raise InputError(f"constraint {getattr(block.owner, 'name', block.owner)!r}: "
-                                 f"rows on {getattr(body, 'name', body)!r}, which is not a "
-                                 "body of this island or has another number of coordinates")
+                raise InputError(
+                    f"constraint {getattr(block.owner, 'name', block.owner)!r}: "
+                    f"rows on {getattr(body, 'name', body)!r}, which is not a "
+                    "body of this island or has another number of coordinates"
+                )
             out.append((span[0], G))
         return out
 
@@ -67,7 +73,7 @@ class ConstraintMap:
         parts, start = [], 0
         for block in blocks:
             for o, G_body in self._placed(block):
-                G_body = sparse.coo_matrix(G_body)      # dense or sparse rows
+                G_body = sparse.coo_matrix(G_body)  # dense or sparse rows
                 parts.append((G_body.data, start + G_body.row, o + G_body.col))
             start += len(block)
         G = L.triplets(parts, (start, L.n_all))
@@ -76,7 +82,7 @@ class ConstraintMap:
         for block in blocks:
             s1 = start + len(block)
             # compliant rows: C / h^2 on the multiplier block (constraint_rows docstring)
-            C = None if block.compliance is None else np.asarray(block.compliance) / h ** 2
+            C = None if block.compliance is None else np.asarray(block.compliance) / h**2
             out.append(StepRows(block, GP[start:s1], block.rhs(h, beta) - Gz[start:s1], C))
             start = s1
         self.seconds["mapping"] = time.perf_counter() - toc
@@ -87,7 +93,7 @@ class ConstraintMap:
         out = np.zeros(self.layout.n_all)
         for block, lam in impulses:
             for o, G in self._placed(block):
-                out[o:o + G.shape[1]] += np.asarray(G.T @ lam).ravel()
+                out[o : o + G.shape[1]] += np.asarray(G.T @ lam).ravel()
         return out
 
     def stiffness(self, rows: list, lam: np.ndarray):
@@ -98,7 +104,7 @@ class ConstraintMap:
         parts, start = [], 0
         for g in rows:
             block = g.block
-            part = lam[start:start + len(block)]
+            part = lam[start : start + len(block)]
             start += len(block)
             if not np.any(part):
                 continue
@@ -109,6 +115,6 @@ class ConstraintMap:
                 for j, sj in enumerate(spans):
                     if si is None or sj is None:
                         continue
-                    sub = sparse.coo_matrix(K[cols[i]:cols[i + 1], cols[j]:cols[j + 1]])
+                    sub = sparse.coo_matrix(K[cols[i] : cols[i + 1], cols[j] : cols[j + 1]])
                     parts.append((sub.data, si[0] + sub.row, sj[0] + sub.col))
         return L.triplets(parts, (L.n_all, L.n_all))

@@ -71,8 +71,14 @@ from scipy import sparse
 from artifem.errors import StepFailed
 from artifem.multibody.constraint_rows import RowBlock
 
-__all__ = ["ActiveSetMemory", "StepRows", "impulses_by_constraint", "solve_constrained",
-           "solve_saddle", "use_kkt"]
+__all__ = [
+    "ActiveSetMemory",
+    "StepRows",
+    "impulses_by_constraint",
+    "solve_constrained",
+    "solve_saddle",
+    "use_kkt",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,8 +95,11 @@ class StepRows:
 
 
 def _vstack(blocks: list):
-    return sparse.vstack(blocks).tocsr() if any(sparse.issparse(x) for x in blocks) else \
-        np.vstack(blocks)
+    return (
+        sparse.vstack(blocks).tocsr()
+        if any(sparse.issparse(x) for x in blocks)
+        else np.vstack(blocks)
+    )
 
 
 #: passes of the active set with bounds that depend on the impulses (friction), at most
@@ -99,8 +108,18 @@ BOUND_PASSES = 50
 RELAX_PASSES = 8
 
 
-def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-                friction=None, warm=None, batch: bool = False, precision=None, proximal=None):
+def _active_set(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    tol: float,
+    trial,
+    what: str,
+    friction=None,
+    warm=None,
+    batch: bool = False,
+    precision=None,
+    proximal=None,
+):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring; :func:`_pivots`,
     whose ``trial`` it takes). ``friction`` = (normal, mu) over the rows: the friction
@@ -130,8 +149,18 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             return precision(True)
 
     if friction is None:
-        return _pivots(lo, hi, tol, trial, what, None, None if warm is None else warm[:3],
-                       batch, confirm, proximal)
+        return _pivots(
+            lo,
+            hi,
+            tol,
+            trial,
+            what,
+            None,
+            None if warm is None else warm[:3],
+            batch,
+            confirm,
+            proximal,
+        )
     fric = friction[0] >= 0
     of = np.maximum(friction[0], 0)
 
@@ -141,29 +170,39 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
 
     own = (lo, hi)
     if warm is not None:
-        lo, hi = bounds(warm[3])            # the bounds of the last solve's impulses
+        lo, hi = bounds(warm[3])  # the bounds of the last solve's impulses
     start = None if warm is None else (warm[0], warm[1], warm[2] & (lo != hi))
     # the impulses the current bounds are of (None: the rows' own bounds)
     basis = None if warm is None else warm[3]
-    normals = np.unique(of[fric])           # the normal rows the bounds depend on
-    history = []                            # (g(x), x) of the last passes on those rows
+    normals = np.unique(of[fric])  # the normal rows the bounds depend on
+    history = []  # (g(x), x) of the last passes on those rows
     for k in range(BOUND_PASSES):
-        lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, start, batch,
-                                              None, proximal)
+        lam, active, at_high, extra = _pivots(
+            lo, hi, tol, trial, what, None, start, batch, None, proximal
+        )
         use = lo != hi
         start = (active, at_high, use)
         if warm is not None:
             take = ~use & warm[2]
-            start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high),
-                     use | take)
+            start = (np.where(take, warm[0], active), np.where(take, warm[1], at_high), use | take)
         lo_new, hi_new = bounds(lam)
         change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
         if change <= 1e-10 * float(np.abs(lam).max(initial=0.0)) and confirm is not None:
             # the pass settled on searched trials: its set again, refined, and where that
             # moved the bounds at all, a refined pass with the bounds of its impulses
             for _ in range(2):
-                lam, active, at_high, extra = _pivots(lo, hi, tol, trial, what, None, (
-                    active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm, proximal)
+                lam, active, at_high, extra = _pivots(
+                    lo,
+                    hi,
+                    tol,
+                    trial,
+                    what,
+                    None,
+                    (active, at_high, np.ones(lo.size, dtype=bool)),
+                    batch,
+                    confirm,
+                    proximal,
+                )
                 lo_new, hi_new = bounds(lam)
                 change = max(_bound_change(lo, lo_new), _bound_change(hi, hi_new))
                 if change == 0.0:
@@ -190,9 +229,18 @@ def _active_set(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             basis = 0.5 * (basis + lam)
         lo, hi = bounds(basis)
     try:
-        return _pivots(lo, hi, tol, trial, what, friction,
-                       (active, at_high, np.ones(lo.size, dtype=bool)), batch, confirm,
-                       proximal)
+        return _pivots(
+            lo,
+            hi,
+            tol,
+            trial,
+            what,
+            friction,
+            (active, at_high, np.ones(lo.size, dtype=bool)),
+            batch,
+            confirm,
+            proximal,
+        )
     except StepFailed:
         if warm is None:
             raise
@@ -232,8 +280,18 @@ BATCH_TRIALS = 12
 BLAND_VISITS = 2
 
 
-def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
-            friction=None, start=None, batch: bool = False, confirm=None, proximal=None):
+def _pivots(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    tol: float,
+    trial,
+    what: str,
+    friction=None,
+    start=None,
+    batch: bool = False,
+    confirm=None,
+    proximal=None,
+):
     """(lambda, active mask, held at hi, what ``trial`` gave last) of the primal-dual
     active set on rows with bounds lo <= lambda <= hi (module docstring).
 
@@ -261,7 +319,7 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
     m = lo.size
     normal, mu = (np.full(m, -1), np.zeros(m)) if friction is None else friction
     fric = normal >= 0
-    of = np.maximum(normal, 0)                      # each row's normal (itself elsewhere)
+    of = np.maximum(normal, 0)  # each row's normal (itself elsewhere)
     bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi) | fric)
     active = np.ones(m, dtype=bool)
     active[bounded] = (lo[bounded] < 0) & (hi[bounded] > 0) & ~fric[bounded]
@@ -272,16 +330,15 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
         active[kept] = was_active[kept]
         at_high[kept] = was_high[kept]
     held = np.zeros(m)
-    held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded],
-                             hi[bounded])
-    side = np.where(at_high, mu, -mu)               # a held friction row: side lambda_n
+    held[bounded] = np.where(np.isfinite(lo[bounded]) & ~at_high[bounded], lo[bounded], hi[bounded])
+    side = np.where(at_high, mu, -mu)  # a held friction row: side lambda_n
     batches = BATCH_TRIALS if batch else 0
     seen, bland, cycled = set(), False, {}
     for _ in range(2 * bounded.size + 10 + batches):
         sliding = fric & ~active
         couple = sliding & active[of]
         held[couple] = 0.0
-        loose = sliding & ~active[of]                # its normal held (at 0: no friction)
+        loose = sliding & ~active[of]  # its normal held (at 0: no friction)
         held[loose] = side[loose] * np.maximum(held[of[loose]], 0.0)
         rows = np.flatnonzero(couple)
         lam, slack, extra = trial(active, held, (rows, normal[rows], side[rows]))
@@ -294,12 +351,14 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             at_low = np.where(f, side[bounded] < 0, held[bounded] == low)
             # a held row whose relation fails (G z < c at lo, G z > c at hi), unless lo = hi
             violated = np.where(on | (low == high), -np.inf, np.where(at_low, -slack, slack))
-        if not bounded.size or max(outside.max(), violated.max()) <= tol:   # the set holds
+        if not bounded.size or max(outside.max(), violated.max()) <= tol:  # the set holds
             if confirm is not None and confirm():
                 continue
             break
-        state = np.packbits(active).tobytes() + np.packbits(
-            np.where(fric, side > 0, held == hi)).tobytes()
+        state = (
+            np.packbits(active).tobytes()
+            + np.packbits(np.where(fric, side > 0, held == hi)).tobytes()
+        )
         if batches > 0:
             out, bad = outside > tol, violated > tol
             rel = bounded[out]
@@ -320,19 +379,20 @@ def _pivots(lo: np.ndarray, hi: np.ndarray, tol: float, trial, what: str,
             if proximal is not None:
                 proximal()
         seen.add(state)
-        if bland:           # Bland's pivots are deterministic: a set seen twice is a cycle
+        if bland:  # Bland's pivots are deterministic: a set seen twice is a cycle
             cycled[state] = cycled.get(state, 0) + 1
             if cycled[state] > BLAND_VISITS:
-                raise StepFailed(f"{what}: the constraints' active set did not settle (its "
-                                 "pivots circle)")
-        if bland:           # the first row out, released or activated (Murty's least index)
+                raise StepFailed(
+                    f"{what}: the constraints' active set did not settle (its pivots circle)"
+                )
+        if bland:  # the first row out, released or activated (Murty's least index)
             k = int(np.flatnonzero(np.maximum(outside, violated) > tol)[0])
             release = outside[k] > tol
-        else:               # release the furthest out, else activate the most violated
+        else:  # release the furthest out, else activate the most violated
             release = outside.max() > tol
             k = int(np.argmax(outside if release else violated))
         j = bounded[k]
-        if release:                                 # hold at the crossed bound
+        if release:  # hold at the crossed bound
             active[j] = False
             held[j] = low[k] if l[k] < low[k] else high[k]
             side[j] = -mu[j] if l[k] < low[k] else mu[j]
@@ -348,8 +408,12 @@ def _compliance(rows: list) -> np.ndarray | None:
     """The stacked ``StepRows.compliance`` (C / h^2), or None when every row is hard."""
     if all(g.compliance is None or not np.any(g.compliance) for g in rows):
         return None
-    return np.concatenate([np.zeros(len(g.c)) if g.compliance is None else
-                           np.asarray(g.compliance, dtype=float) for g in rows])
+    return np.concatenate(
+        [
+            np.zeros(len(g.c)) if g.compliance is None else np.asarray(g.compliance, dtype=float)
+            for g in rows
+        ]
+    )
 
 
 def _stacked(rows: list):
@@ -366,8 +430,9 @@ def _stacked(rows: list):
     for g in rows:
         m = len(g.c)
         f = g.block.friction
-        normal.append(np.full(m, -1) if f is None else
-                      np.where(f.normal >= 0, f.normal + start, -1))
+        normal.append(
+            np.full(m, -1) if f is None else np.where(f.normal >= 0, f.normal + start, -1)
+        )
         mu.append(np.zeros(m) if f is None else f.mu)
         start += m
     return G, c, lo, hi, (np.concatenate(normal), np.concatenate(mu))
@@ -408,6 +473,7 @@ def use_kkt(A, rows: int) -> bool:
     KKT's is a factorization of n + rows unknowns per change of the active set. Small
     dense A (rigid and reduced bodies) keep the Schur complement at any number of rows."""
     from artifem.scene.direct_solver import DENSE_MAX
+
     return rows >= KKT_ROWS and sparse.issparse(A) and A.shape[0] > DENSE_MAX
 
 
@@ -461,14 +527,19 @@ class ActiveSetMemory:
                 continue
             found, known = find_keys(mem[0], keys)
             any_known |= bool(known.any())
-            parts.append((known & mem[1][found], known & mem[2][found], known,
-                          np.where(known, mem[3][found], 0.0)))
+            parts.append(
+                (
+                    known & mem[1][found],
+                    known & mem[2][found],
+                    known,
+                    np.where(known, mem[3][found], 0.0),
+                )
+            )
         if not any_known:
             return None
         return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
-    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray,
-             lam: np.ndarray) -> None:
+    def keep(self, rows: list, active: np.ndarray, at_high: np.ndarray, lam: np.ndarray) -> None:
         """Remember the solve's active set, rows held at hi and impulses under their keys."""
         self._sets = {}
         start = 0
@@ -479,16 +550,25 @@ class ActiveSetMemory:
             if keys is not None:
                 sl = slice(start, start + m)
                 by_owner.setdefault(id(g.block.owner), []).append(
-                    (keys, active[sl], at_high[sl], lam[sl]))
+                    (keys, active[sl], at_high[sl], lam[sl])
+                )
             start += m
         for owner, parts in by_owner.items():
             self._sets[owner] = tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 
-def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
-                      resolver: bool = False, force_rows: list | None = None,
-                      memory: ActiveSetMemory | None = None, path: str | None = None,
-                      info: dict | None = None):
+def solve_constrained(
+    solver,
+    A,
+    b: np.ndarray,
+    rows: list,
+    what: str,
+    resolver: bool = False,
+    force_rows: list | None = None,
+    memory: ActiveSetMemory | None = None,
+    path: str | None = None,
+    info: dict | None = None,
+):
     """(z, lambda, number of active rows) of the system above, by the Schur complement
     or, for many rows on a large sparse A (:func:`use_kkt`), the sparse KKT matrix.
 
@@ -529,23 +609,37 @@ def solve_constrained(solver, A, b: np.ndarray, rows: list, what: str,
     if path == "kkt":
         system = _KKT(solver, A, b, G, F, c, lo, hi, what, C)
         try:
-            lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
-                                                  warm, batch=True, precision=system.precision,
-                                                  proximal=system.proximal)
-        except _Inconsistent:       # redundant active rows that disagree: least squares
+            lam, active, at_high, z = _active_set(
+                lo,
+                hi,
+                tol,
+                system.trial,
+                what,
+                friction,
+                warm,
+                batch=True,
+                precision=system.precision,
+                proximal=system.proximal,
+            )
+        except _Inconsistent:  # redundant active rows that disagree: least squares
             path, system = "schur", None
     if system is None:
         system = _Schur(solver, A, b, G, F, c, lo, hi, what, C)
-        lam, active, at_high, z = _active_set(lo, hi, tol, system.trial, what, friction,
-                                              warm, proximal=system.proximal)
+        lam, active, at_high, z = _active_set(
+            lo, hi, tol, system.trial, what, friction, warm, proximal=system.proximal
+        )
     if not np.all(np.isfinite(z)):
         raise StepFailed(f"{what}: non-finite velocities")
     assert z.shape == (n,)
     if memory is not None:
         memory.keep(rows, active, at_high, lam)
     if info is not None:
-        info.update(path=path, trials=system.trials, factorizations=system.factorizations,
-                    updates=getattr(system, "updates", 0))
+        info.update(
+            path=path,
+            trials=system.trials,
+            factorizations=system.factorizations,
+            updates=getattr(system, "updates", 0),
+        )
     if not resolver:
         return z, lam, int(active.sum())
     return z, lam, int(active.sum()), system.resolver(active)
@@ -556,8 +650,7 @@ def _least_squares(M: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     of the largest dropped: LAPACK's complete orthogonal factorization (gelsy: QR with
     column pivoting), 3-4x faster than the SVD (gelsd) on the active blocks of a reduced
     body's contacts (60-150 rows, rank at most its coordinates), with the same answer."""
-    return scipy.linalg.lstsq(M, rhs, cond=1e-12, lapack_driver="gelsy",
-                              check_finite=False)[0]
+    return scipy.linalg.lstsq(M, rhs, cond=1e-12, lapack_driver="gelsy", check_finite=False)[0]
 
 
 class _Schur:
@@ -578,7 +671,7 @@ class _Schur:
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.C = C
         self.trials, self.factorizations = 0, 1
-        self._regularization = None             # :meth:`proximal`
+        self._regularization = None  # :meth:`proximal`
 
     def proximal(self) -> None:
         """The active blocks from now on regularized, S + eps I with eps
@@ -586,10 +679,12 @@ class _Schur:
         positive definite, so that the pivots are a P-matrix's (:func:`_pivots`); redundant
         rows that disagree then part by their bounds instead of a least-squares
         compromise."""
-        diag = np.abs(np.asarray(self.G.multiply(self.W.T).sum(axis=1)).ravel()
-                      if sparse.issparse(self.G) else np.einsum("ij,ji->i", self.G, self.W))
-        eps = PROXIMAL_REGULARIZATION * np.where(diag > 0, diag,
-                                                  max(diag.max(initial=0.0), 1e-300))
+        diag = np.abs(
+            np.asarray(self.G.multiply(self.W.T).sum(axis=1)).ravel()
+            if sparse.issparse(self.G)
+            else np.einsum("ij,ji->i", self.G, self.W)
+        )
+        eps = PROXIMAL_REGULARIZATION * np.where(diag > 0, diag, max(diag.max(initial=0.0), 1e-300))
         self._regularization = eps if self.C is None else np.maximum(eps - self.C, 0.0)
 
     def _block(self, on, cols):
@@ -625,10 +720,13 @@ class _Schur:
         lam = np.where(active, 0.0, held)
         if on.size:
             rhs = r[on]
-            if np.any(lam):                         # rows held at a non-zero bound
+            if np.any(lam):  # rows held at a non-zero bound
                 off = np.flatnonzero(~active)
-                rhs = rhs - (self._block(on, off) @ lam[off] if self.S is not None else
-                             np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel())
+                rhs = rhs - (
+                    self._block(on, off) @ lam[off]
+                    if self.S is not None
+                    else np.asarray(self.G[on] @ (self.W[:, off] @ lam[off])).ravel()
+                )
             lam[on] = _least_squares(self._coupled_block(on, coupled), rhs)
             lam[coupled[0]] = coupled[2] * lam[coupled[1]]
         self._coupled = coupled
@@ -687,8 +785,7 @@ class _KKT:
     def __init__(self, solver, A, b, G, F, c, lo, hi, what, C=None):
         n, m = A.shape[0], len(c)
         Gs, Fs = sparse.csr_matrix(G), sparse.csr_matrix(F)
-        K = sparse.bmat([[sparse.csr_matrix(A), -Fs.T], [Gs, sparse.identity(m)]],
-                        format="csr")
+        K = sparse.bmat([[sparse.csr_matrix(A), -Fs.T], [Gs, sparse.identity(m)]], format="csr")
         K.sort_indices()
         self.K, self.n, self.m = K, n, m
         start = K.indptr[n]
@@ -705,7 +802,7 @@ class _KKT:
         self.bounded = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
         self.trials, self.factorizations, self.updates = 0, 0, 0
         self._factored = self._base = None
-        self._Z = {}                # the update's columns K_f^-1 e_row (:meth:`_columns`)
+        self._Z = {}  # the update's columns K_f^-1 e_row (:meth:`_columns`)
         #: trials stop refining at KKT_TRIAL_RESIDUAL (:meth:`precision`)
         self.searching = False
         self._last, self._reused = None, False  # (key, rhs, x) of the last solve
@@ -734,8 +831,9 @@ class _KKT:
         on = active[row]
         K, K0 = self.K.copy(), self.K.copy()
         K.data[start:] = np.where(diag, np.where(on, -self.eps[row], 1.0), data * on)
-        K0.data[start:] = np.where(diag, np.where(on, -self.eps[row] if self._proximal
-                                                  else self.C[row], 1.0), data * on)
+        K0.data[start:] = np.where(
+            diag, np.where(on, -self.eps[row] if self._proximal else self.C[row], 1.0), data * on
+        )
         rows, normals, s = coupled
         if rows.size:
             n = self.n
@@ -750,13 +848,16 @@ class _KKT:
         if self._factored is None or self._factored[0] != key:
             self._prepare(key, active, coupled, s)
         K0, apply = self._factored[1], self._factored[2]
-        last = self._last               # the same system solved last (a search's trial)
+        last = self._last  # the same system solved last (a search's trial)
         self._reused = last is not None and last[0] == key and np.array_equal(last[1], rhs)
         x = last[2] if self._reused else apply(rhs)
         # the residual against the rhs and |A| |z| (not the multipliers' columns: those of
         # disagreeing redundant rows grow as 1 / eps)
-        scale = max(np.abs(rhs).max(initial=0.0),
-                    float((self._abs_A @ np.abs(x[:self.n])).max(initial=0.0)), 1e-300)
+        scale = max(
+            np.abs(rhs).max(initial=0.0),
+            float((self._abs_A @ np.abs(x[: self.n])).max(initial=0.0)),
+            1e-300,
+        )
         enough = (KKT_TRIAL_RESIDUAL if self.searching else 1e-15) * scale
         for k in range(KKT_REFINEMENT + 1):
             res = rhs - K0 @ x
@@ -764,7 +865,7 @@ class _KKT:
                 break
             if k == KKT_REFINEMENT:
                 if np.abs(res).max() > 1e-9 * scale:
-                    if self._factored[3]:       # an update: the exact factorization first
+                    if self._factored[3]:  # an update: the exact factorization first
                         self._prepare(key, active, coupled, s, update=False)
                         self._last = None
                         return self._solve(active, coupled, rhs)
@@ -784,7 +885,7 @@ class _KKT:
         base = self._base
         if update and base is not None:
             changed = np.flatnonzero((active != base[1]) | (s != base[2]))
-            if not changed.size:                # back to the factored set
+            if not changed.size:  # back to the factored set
                 self._factored = (key, K0, self.solver.apply, False)
                 return
             if changed.size <= KKT_UPDATE_ROWS:
@@ -795,7 +896,8 @@ class _KKT:
                 lu = scipy.linalg.lu_factor(cap, check_finite=False)
                 pivots = np.abs(np.diag(lu[0]))
                 if np.all(np.isfinite(lu[0])) and pivots.min(initial=1.0) > 1e-10 * max(
-                        pivots.max(initial=1.0), 1.0):
+                    pivots.max(initial=1.0), 1.0
+                ):
                     solver = self.solver
 
                     def apply(b):
@@ -839,15 +941,17 @@ class _KKT:
 
     def trial(self, active, held, coupled):
         n = self.n
-        x = self._solve(active, coupled,
-                        np.concatenate([self.b, np.where(active, self.c, held)]))
+        x = self._solve(active, coupled, np.concatenate([self.b, np.where(active, self.c, held)]))
         self.trials += not self._reused
         z, lam = x[:n], x[n:]
         lam = np.where(active, lam, held)
         lam[coupled[0]] = coupled[2] * lam[coupled[1]]
         self._coupled = coupled
-        slack = np.asarray(self.G[self.bounded] @ z).ravel() - self.c[self.bounded] \
+        slack = (
+            np.asarray(self.G[self.bounded] @ z).ravel()
+            - self.c[self.bounded]
             + self.C[self.bounded] * lam[self.bounded]
+        )
         return lam, slack, z
 
     def resolver(self, active):
@@ -863,8 +967,9 @@ class _KKT:
         return resolve
 
 
-def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
-                 memory: ActiveSetMemory | None = None):
+def solve_saddle(
+    solver, kkt, K, b: np.ndarray, rows: list, what: str, memory: ActiveSetMemory | None = None
+):
     """(z, lambda, active mask) of K z - G^T lambda = b under ``rows`` (:class:`StepRows`)
     as in :func:`solve_constrained` (statics: K may be singular where the rows fix it).
     A sparse K's trials solve the sparse KKT matrix of all rows (:class:`_KKT`: one
@@ -893,11 +998,33 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
         system = _KKT(solver, K, b, G, G, c, lo, hi, what, C)
         try:
             return _saddle_trials(
-                lambda warm: _active_set(lo, hi, tol, system.trial, what, friction, warm=warm,
-                                         precision=system.precision, proximal=system.proximal),
-                system.forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
-                memory, rows)
-        except _Inconsistent:       # redundant rows that disagree: each trial factored
+                lambda warm: _active_set(
+                    lo,
+                    hi,
+                    tol,
+                    system.trial,
+                    what,
+                    friction,
+                    warm=warm,
+                    precision=system.precision,
+                    proximal=system.proximal,
+                ),
+                system.forget,
+                solver,
+                K,
+                b,
+                G,
+                c,
+                lo,
+                hi,
+                C,
+                bounded,
+                friction,
+                what,
+                memory,
+                rows,
+            )
+        except _Inconsistent:  # redundant rows that disagree: each trial factored
             pass
 
     def trial(active, held, coupled):
@@ -906,16 +1033,18 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
         force = b if not np.any(lam) else b + np.asarray(G.T @ lam).ravel()
         G_on = G if on.size == len(c) else G[on]
         M = kkt(K, G_on)
-        if C is not None and on.size:        # G dq + C lambda = c, lambda = -mu
+        if C is not None and on.size:  # G dq + C lambda = c, lambda = -mu
             M = _minus_diagonal(M, n, C[on])
         rows_h, normals, s = coupled
-        if rows_h.size:                      # sliding rows: G_h^T s lambda_n with the G_a^T
-            P = sparse.csr_matrix((s, (np.arange(rows_h.size), np.searchsorted(on, normals))),
-                                  shape=(rows_h.size, on.size))
+        if rows_h.size:  # sliding rows: G_h^T s lambda_n with the G_a^T
+            P = sparse.csr_matrix(
+                (s, (np.arange(rows_h.size), np.searchsorted(on, normals))),
+                shape=(rows_h.size, on.size),
+            )
             M = _plus_upper_right(M, n, (P.T @ G[rows_h]).T)
         x = solver.solve(M, np.concatenate([force, c[on]]), what)
         z = x[:n]
-        lam[on] = -x[n:]                            # K z + G_a^T mu = b: lambda = -mu
+        lam[on] = -x[n:]  # K z + G_a^T mu = b: lambda = -mu
         lam[rows_h] = s * lam[normals]
         slack = np.asarray(G[bounded] @ z).ravel() - c[bounded]
         if C is not None:
@@ -924,11 +1053,26 @@ def solve_saddle(solver, kkt, K, b: np.ndarray, rows: list, what: str,
 
     return _saddle_trials(
         lambda warm: _active_set(lo, hi, tol, trial, what, friction, warm=warm),
-        lambda: None, solver, K, b, G, c, lo, hi, C, bounded, friction, what, memory, rows)
+        lambda: None,
+        solver,
+        K,
+        b,
+        G,
+        c,
+        lo,
+        hi,
+        C,
+        bounded,
+        friction,
+        what,
+        memory,
+        rows,
+    )
 
 
-def _saddle_trials(find, forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what,
-                   memory, rows):
+def _saddle_trials(
+    find, forget, solver, K, b, G, c, lo, hi, C, bounded, friction, what, memory, rows
+):
     """:func:`solve_saddle`'s active set by ``find(warm)`` (:func:`_active_set` on its
     trials), from the last solve's set, else from the Schur complement's (``forget()``:
     the trials' factorization in ``solver`` is gone), else from the compliant rows that
@@ -944,15 +1088,16 @@ def _saddle_trials(find, forget, solver, K, b, G, c, lo, hi, C, bounded, frictio
     if warm is not None:
         try:
             return solved(*find(warm))
-        except StepFailed:          # the last solve's set may start inside a cycle
+        except StepFailed:  # the last solve's set may start inside a cycle
             pass
-    start = _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C) \
-        if bounded.size else None
+    start = (
+        _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C) if bounded.size else None
+    )
     forget()
     if start is not None:
         try:
             return solved(*find(start))
-        except StepFailed:          # a nearly singular K's start: the trials from none
+        except StepFailed:  # a nearly singular K's start: the trials from none
             pass
     if C is not None:
         # compliant rows touching or crossed (c >= 0) start active: their springs hold a
@@ -990,8 +1135,9 @@ def _schur_start(solver, K, b, G, c, lo, hi, tol, what, friction, C=None):
     trials), or None when K is singular or the active set there does not settle."""
     try:
         schur = _Schur(solver, K, b, G, G, c, lo, hi, what, C)
-        lam, active, at_high, _ = _active_set(lo, hi, tol, schur.trial, what, friction,
-                                              proximal=schur.proximal)
+        lam, active, at_high, _ = _active_set(
+            lo, hi, tol, schur.trial, what, friction, proximal=schur.proximal
+        )
     except (StepFailed, np.linalg.LinAlgError):
         return None
     return active, at_high, np.ones(lo.size, dtype=bool), lam
@@ -1003,6 +1149,6 @@ def impulses_by_constraint(rows: list, lam: np.ndarray) -> dict:
     out: dict = {}
     start = 0
     for g in rows:
-        out.setdefault(g.block.owner, []).append((g.block, lam[start:start + len(g.c)]))
+        out.setdefault(g.block.owner, []).append((g.block, lam[start : start + len(g.c)]))
         start += len(g.c)
     return out

@@ -56,13 +56,17 @@ class DirectSolver:
         self._what = what
         if K.shape[0] <= DENSE_MAX:
             dense = K.toarray() if sparse.issparse(K) else np.asarray(K, dtype=float)
-            with np.errstate(all="ignore"), warnings.catch_warnings(), \
-                    _BLAS.limit(limits=1, user_api="blas"):
+            with (
+                np.errstate(all="ignore"),
+                warnings.catch_warnings(),
+                _BLAS.limit(limits=1, user_api="blas"),
+            ):
                 warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # checked below
                 lu, piv = scipy.linalg.lu_factor(dense, check_finite=False)
             pivots = np.abs(np.diag(lu))
-            if not np.all(np.isfinite(lu)) or (pivots.size and pivots.min()
-                                                <= 1e-14 * max(pivots.max(), 1e-300)):
+            if not np.all(np.isfinite(lu)) or (
+                pivots.size and pivots.min() <= 1e-14 * max(pivots.max(), 1e-300)
+            ):
                 raise StepFailed(f"{what}: the dense LU found a zero pivot; {SINGULAR}")
             self._dense = (lu, piv)
             return self
@@ -74,25 +78,28 @@ class DirectSolver:
         indices = K.indices.astype(PETSc.IntType)
         pattern = (n, indptr.tobytes(), indices.tobytes())
         if self._mat is not None and pattern == self._pattern:
-            self._mat.setValuesCSR(indptr, indices, K.data)    # same pattern: keep the analysis
+            self._mat.setValuesCSR(indptr, indices, K.data)  # same pattern: keep the analysis
             self._mat.assemble()
             self.ksp.setOperators(self._mat)
         else:
             if self._mat is not None:
-                self.ksp.reset()                # a new pattern (or size): a new analysis
+                self.ksp.reset()  # a new pattern (or size): a new analysis
                 self._mat.destroy()
-            self._mat = PETSc.Mat().createAIJ(size=(n, n), csr=(indptr, indices, K.data),
-                                              comm=PETSc.COMM_SELF)
+            self._mat = PETSc.Mat().createAIJ(
+                size=(n, n), csr=(indptr, indices, K.data), comm=PETSc.COMM_SELF
+            )
             self._mat.assemble()
             self._pattern = pattern
             self.ksp.setOperators(self._mat)
             configure_mumps(self.ksp.getPC(), MUMPS_ICNTL)
         info = factor_mumps(self.ksp, MUMPS_ICNTL)
         if info < 0:
-            self.ksp.reset()            # the next factorization starts afresh
+            self.ksp.reset()  # the next factorization starts afresh
             self._pattern = None
-            raise StepFailed(f"{what}: the LU factorization failed (MUMPS INFOG(1) = {info}"
-                             f"{', a zero pivot' if info == -10 else ''}); {SINGULAR}")
+            raise StepFailed(
+                f"{what}: the LU factorization failed (MUMPS INFOG(1) = {info}"
+                f"{', a zero pivot' if info == -10 else ''}); {SINGULAR}"
+            )
         return self
 
     def apply(self, B: np.ndarray) -> np.ndarray:
@@ -112,12 +119,14 @@ class DirectSolver:
                 self.ksp.matSolve(rhs, x)
                 reason = self.ksp.getConvergedReason()
                 if reason < 0:
-                    raise StepFailed(f"{self._what}: the direct solve failed (KSP reason "
-                                     f"{reason}); {SINGULAR}")
+                    raise StepFailed(
+                        f"{self._what}: the direct solve failed (KSP reason {reason}); {SINGULAR}"
+                    )
                 out = x.getDenseArray().copy().reshape(B.shape)
             except PETSc.Error as exc:
-                raise StepFailed(f"{self._what}: the direct solve failed ({exc}); "
-                                 f"{SINGULAR}") from exc
+                raise StepFailed(
+                    f"{self._what}: the direct solve failed ({exc}); {SINGULAR}"
+                ) from exc
             finally:
                 rhs.destroy()
                 x.destroy()

@@ -110,10 +110,12 @@ class NewtonSystem:
         PT = L.fmt(L.prolongation() @ L.rotation_jacobian(z_m, h))
         # r = P^T [M0 (P z_m + z_k) - M0 z0 - h f(q_0 + h P_t T z_m, P z_m + z_k)]:
         # the velocity part of A on P, its position part on P_t T, M0 for A's M(q_t)
-        J = P.T @ (A - L.mass_matrix() + self.M0) @ P \
-            + P.T @ self._A_pos @ (PT - P) \
+        J = (
+            P.T @ (A - L.mass_matrix() + self.M0) @ P
+            + P.T @ self._A_pos @ (PT - P)
             - h * h * (P.T @ L.gyroscopic_stiffness() @ PT)
-        if len(lam) and np.any(lam):                # the rows turn with the bodies
+        )
+        if len(lam) and np.any(lam):  # the rows turn with the bodies
             J = J - h * (P.T @ L.constraint_map.stiffness(rows, lam) @ PT)
         return L.fmt(J), [g.G for g in L.constraint_map.rows(PT, np.zeros(L.n_all), h, 1.0)]
 
@@ -129,8 +131,7 @@ def _guess(scene, rows, h):
         k = seen.get(owner, 0)
         seen[owner] = k + 1
         parts = last.get(owner, [])
-        lam = parts[k][1] if k < len(parts) and len(parts[k][1]) == len(g.c) else \
-            np.zeros(len(g.c))
+        lam = parts[k][1] if k < len(parts) and len(parts[k][1]) == len(g.c) else np.zeros(len(g.c))
         out.append(ratio * np.asarray(lam, dtype=float))
     return np.concatenate(out) if out else np.zeros(0)
 
@@ -150,7 +151,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     diag = (M0.diagonal() if sparse.issparse(M0) else np.diag(M0))[L.master_rows]
     mass = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
 
-    if L.n_masters == 0:                    # everything fixed, prescribed or attached
+    if L.n_masters == 0:  # everything fixed, prescribed or attached
         L.advance(z_k, h, targets)
         return {}, []
 
@@ -161,16 +162,16 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
         start_row = 0
         for g in rows:
             m = len(g.c)
-            force -= np.asarray(g.G.T @ lam[start_row:start_row + m]).ravel()
+            force -= np.asarray(g.G.T @ lam[start_row : start_row + m]).ravel()
             start_row += m
         # phi / h on every free row, the crossed part of a bounded one
         gap = np.concatenate([g.block.gap() for g in rows]) / h if rows else np.zeros(0)
         return float(np.linalg.norm(force) + mass * np.linalg.norm(gap))
 
-    z_m = z0[L.master_rows].copy()          # first guess: the velocities at the start
+    z_m = z0[L.master_rows].copy()  # first guess: the velocities at the start
     place(z_m)
     if L.inverted():
-        z_m[:] = 0.0                        # ... unless that inverts: then the start
+        z_m[:] = 0.0  # ... unless that inverts: then the start
         place(z_m)
     r, A, f_all, rows = residual(z_m)
     lam = np.zeros(sum(len(g.c) for g in rows))
@@ -188,11 +189,19 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 converged = True
                 break
             J, G_x = system.jacobian(z_m, A, rows, lam_jacobian)
-            shifted = [StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel(), g.compliance)
-                       for g, G in zip(rows, G_x)]
-            z_new, lam_new, _ = solve_constrained(scene._solver, J, J @ z_m - r, shifted,
-                                                  where, force_rows=[g.G for g in rows],
-                                                  memory=scene._active_sets)
+            shifted = [
+                StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel(), g.compliance)
+                for g, G in zip(rows, G_x)
+            ]
+            z_new, lam_new, _ = solve_constrained(
+                scene._solver,
+                J,
+                J @ z_m - r,
+                shifted,
+                where,
+                force_rows=[g.G for g in rows],
+                memory=scene._active_sets,
+            )
             dz = z_new - z_m
             step, z_start = 1.0, z_m
             while step >= 1e-4:
@@ -201,15 +210,18 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 if not L.inverted():
                     trial = residual(z_m)
                     if _structure(trial[3]) != _structure(rows):
-                        raise StepFailed(f"{where}: the constraint rows changed within the "
-                                         "step (a contact point crossed its margin)")
+                        raise StepFailed(
+                            f"{where}: the constraint rows changed within the "
+                            "step (a contact point crossed its margin)"
+                        )
                     norm_trial = merit(trial[0], trial[3], lam_new)
                     if np.isfinite(norm_trial) and norm_trial <= (1.0 - 1e-4 * step) * norm:
                         break
                 step *= 0.5
             else:
-                raise StepFailed(f"{where}: line search failed at Newton iteration {it} "
-                                 f"(|r| = {norm:.3e})")
+                raise StepFailed(
+                    f"{where}: line search failed at Newton iteration {it} (|r| = {norm:.3e})"
+                )
             r, A, f_all, rows = trial
             lam, norm = lam_new, norm_trial
             lam_jacobian = lam
@@ -218,8 +230,10 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 converged = True
                 break
         if not (converged or norm <= rtol * norm0 or norm <= atol):
-            raise StepFailed(f"{where}: Newton did not converge in {max_iterations} "
-                             f"iterations (merit {norm:.3e}, first {norm0:.3e})")
+            raise StepFailed(
+                f"{where}: Newton did not converge in {max_iterations} "
+                f"iterations (merit {norm:.3e}, first {norm0:.3e})"
+            )
         # Uzawa around Newton for hard-incompressible bodies: p <- pi until g(u) holds
         # (their g was assembled at this configuration by the last residual)
         violations = [vc.update() for vc in constrained]
@@ -229,8 +243,9 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
             return impulses_by_constraint(rows, lam), history
         updates += 1
         if updates > min(vc.spec.max_updates for vc in constrained):
-            off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
-                            if v > vc.spec.tol)
+            off = "; ".join(
+                vc.describe() for v, vc in zip(violations, constrained) if v > vc.spec.tol
+            )
             raise StepFailed(f"{where}: {off} after {updates - 1} pressure updates")
         r, A, f_all, rows = residual(z_m)
         norm = merit(r, rows, lam)

@@ -38,7 +38,7 @@ class IncrementSlip:
     none."""
 
     def __init__(self, slips: dict | None = None):
-        self._slips = {} if slips is None else slips     # id(owner) -> (keys, s)
+        self._slips = {} if slips is None else slips  # id(owner) -> (keys, s)
 
     def of(self, rows: list) -> np.ndarray:
         """s over the stacked rows (0 on rows that are not friction rows or not known)."""
@@ -60,7 +60,7 @@ class IncrementSlip:
         s = self.of(rows)
         for g in rows:
             m = len(g.c)
-            part = s[start:start + m]
+            part = s[start : start + m]
             out.append(replace(g, c=g.c - part) if np.any(part) else g)
             start += m
         return out
@@ -75,11 +75,14 @@ class IncrementSlip:
             keys = row_keys(g.block)
             if keys is not None and g.block.friction is not None:
                 on = g.block.friction.rows
-                moved = s[start:start + m]
+                moved = s[start : start + m]
                 prev = slips.get(id(g.block.owner))
                 part = (keys[on], moved[on])
-                slips[id(g.block.owner)] = part if prev is None else \
-                    (np.concatenate([prev[0], part[0]]), np.concatenate([prev[1], part[1]]))
+                slips[id(g.block.owner)] = (
+                    part
+                    if prev is None
+                    else (np.concatenate([prev[0], part[0]]), np.concatenate([prev[1], part[1]]))
+                )
             start += m
         return IncrementSlip(slips)
 

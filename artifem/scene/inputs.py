@@ -34,8 +34,16 @@ from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
 from artifem.multibody.rigid_body import BodyState, exp_so3
 
-__all__ = ["SceneInput", "Gravity", "SurfaceLoadLevel", "PathExcitation", "LoadLevel",
-           "PrescribedMotion", "controller", "describe"]
+__all__ = [
+    "SceneInput",
+    "Gravity",
+    "SurfaceLoadLevel",
+    "PathExcitation",
+    "LoadLevel",
+    "PrescribedMotion",
+    "controller",
+    "describe",
+]
 
 
 class SceneInput(Protocol):
@@ -57,8 +65,7 @@ class Gravity:
     def __post_init__(self):
         g = np.asarray(self.reference, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise InputError(f"Gravity: reference must be 3 finite numbers, got "
-                             f"{self.reference!r}")
+            raise InputError(f"Gravity: reference must be 3 finite numbers, got {self.reference!r}")
         object.__setattr__(self, "reference", tuple(float(x) for x in g))
 
     def check(self, scene) -> None:
@@ -80,25 +87,34 @@ class SurfaceLoadLevel:
     def __post_init__(self):
         ref = np.asarray(self.reference, dtype=float)
         if ref.shape not in ((), (3,)) or not np.all(np.isfinite(ref)):
-            raise InputError(f"SurfaceLoadLevel {self.body!r}/{self.load!r}: reference must "
-                             f"be a finite number or 3 of them, got {self.reference!r}")
-        object.__setattr__(self, "reference", float(ref) if ref.shape == () else
-                           tuple(float(x) for x in ref))
+            raise InputError(
+                f"SurfaceLoadLevel {self.body!r}/{self.load!r}: reference must "
+                f"be a finite number or 3 of them, got {self.reference!r}"
+            )
+        object.__setattr__(
+            self, "reference", float(ref) if ref.shape == () else tuple(float(x) for x in ref)
+        )
 
     def _load(self, scene):
         bodies = scene.fem_bodies + [b.full for b in scene.reduced_bodies]
         body = next((b for b in bodies if b.name == self.body), None)
         if body is None:
-            raise UnknownNameError(f"SurfaceLoadLevel: the scene has no FEM body "
-                                   f"{self.body!r}; it has {[b.name for b in bodies]}")
+            raise UnknownNameError(
+                f"SurfaceLoadLevel: the scene has no FEM body "
+                f"{self.body!r}; it has {[b.name for b in bodies]}"
+            )
         load = body.surface_loads.get(self.load)
         if load is None:
-            raise UnknownNameError(f"SurfaceLoadLevel: FEM body {self.body!r} has no surface "
-                                   f"load {self.load!r}; it has {sorted(body.surface_loads)}")
+            raise UnknownNameError(
+                f"SurfaceLoadLevel: FEM body {self.body!r} has no surface "
+                f"load {self.load!r}; it has {sorted(body.surface_loads)}"
+            )
         if (load.kind == "pressure") != (np.ndim(self.reference) == 0):
             size = "1 number" if load.kind == "pressure" else "3 numbers"
-            raise InputError(f"SurfaceLoadLevel {self.body!r}/{self.load!r}: a {load.kind} "
-                             f"needs a reference of {size}, got {self.reference!r}")
+            raise InputError(
+                f"SurfaceLoadLevel {self.body!r}/{self.load!r}: a {load.kind} "
+                f"needs a reference of {size}, got {self.reference!r}"
+            )
         return load
 
     def check(self, scene) -> None:
@@ -115,13 +131,16 @@ class PathExcitation:
     path: str
 
     def _path(self, scene):
-        excitable = [p for p in [*scene.paths, *scene.forces]
-                     if callable(getattr(p, "set_excitation", None))]
+        excitable = [
+            p for p in [*scene.paths, *scene.forces] if callable(getattr(p, "set_excitation", None))
+        ]
         paths = [p for p in excitable if getattr(p, "name", None) == self.path]
         if len(paths) != 1:
             names = [getattr(p, "name", "") for p in excitable]
-            raise UnknownNameError(f"PathExcitation: the scene has {len(paths)} paths named "
-                                   f"{self.path!r} (need one); its paths are {names}")
+            raise UnknownNameError(
+                f"PathExcitation: the scene has {len(paths)} paths named "
+                f"{self.path!r} (need one); its paths are {names}"
+            )
         return paths[0]
 
     def check(self, scene) -> None:
@@ -138,13 +157,16 @@ class LoadLevel:
     load: str
 
     def _load(self, scene):
-        found = [e for e in scene.loads if getattr(e, "name", None) == self.load
-                 and hasattr(e, "level")]
+        found = [
+            e for e in scene.loads if getattr(e, "name", None) == self.load and hasattr(e, "level")
+        ]
         if len(found) != 1:
             names = [getattr(e, "name", "") for e in scene.loads if hasattr(e, "level")]
-            raise UnknownNameError(f"LoadLevel: the scene has {len(found)} load elements "
-                                   f"with a level named {self.load!r} (need one); those "
-                                   f"it has are {names}")
+            raise UnknownNameError(
+                f"LoadLevel: the scene has {len(found)} load elements "
+                f"with a level named {self.load!r} (need one); those "
+                f"it has are {names}"
+            )
         return found[0]
 
     def check(self, scene) -> None:
@@ -177,20 +199,26 @@ class PrescribedMotion:
         for name in ("translation", "rotation", "pivot"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise InputError(f"PrescribedMotion {self.body!r}: {name} must be 3 finite "
-                                 f"numbers, got {getattr(self, name)!r}")
+                raise InputError(
+                    f"PrescribedMotion {self.body!r}: {name} must be 3 finite "
+                    f"numbers, got {getattr(self, name)!r}"
+                )
             object.__setattr__(self, name, tuple(float(x) for x in value))
 
     def _body(self, scene):
         body = next((b for b in scene.rigid_bodies if b.name == self.body), None)
         if body is None:
-            raise UnknownNameError(f"PrescribedMotion: the scene has no rigid body "
-                                   f"{self.body!r}; it has "
-                                   f"{[b.name for b in scene.rigid_bodies]}")
+            raise UnknownNameError(
+                f"PrescribedMotion: the scene has no rigid body "
+                f"{self.body!r}; it has "
+                f"{[b.name for b in scene.rigid_bodies]}"
+            )
         if body.motion != "prescribed":
-            raise InputError(f"PrescribedMotion: rigid body {self.body!r} is {body.motion}; "
-                             "an input can only move a prescribed body (motion='prescribed' "
-                             "with its own trajectory, e.g. at rest)")
+            raise InputError(
+                f"PrescribedMotion: rigid body {self.body!r} is {body.motion}; "
+                "an input can only move a prescribed body (motion='prescribed' "
+                "with its own trajectory, e.g. at rest)"
+            )
         return body
 
     def check(self, scene) -> None:
@@ -199,15 +227,15 @@ class PrescribedMotion:
     def apply(self, scene, value: float) -> None:
         body = self._body(scene)
         base = getattr(body.trajectory, "base", body.trajectory)
-        body.trajectory = _Displaced(base, self, float(value), float(scene.t),
-                                     body.position.copy(), body.rotation.copy())
+        body.trajectory = _Displaced(
+            base, self, float(value), float(scene.t), body.position.copy(), body.rotation.copy()
+        )
 
     def pose(self, base: BodyState, value: float) -> tuple[np.ndarray, np.ndarray]:
         """(p, R) at level ``value`` of the base pose (class docstring)."""
         Q = exp_so3(value * np.asarray(self.rotation))
         c = np.asarray(self.pivot)
-        return c + Q @ (base.position - c) + value * np.asarray(self.translation), \
-            Q @ base.rotation
+        return c + Q @ (base.position - c) + value * np.asarray(self.translation), Q @ base.rotation
 
 
 @dataclass(frozen=True)
@@ -237,16 +265,17 @@ def describe(inputs: Mapping[str, SceneInput]) -> dict:
     return {name: {"type": type(i).__name__, **asdict(i)} for name, i in inputs.items()}
 
 
-def controller(schedule: ExcitationSchedule, inputs: Mapping[str, SceneInput]
-               ) -> Callable:
+def controller(schedule: ExcitationSchedule, inputs: Mapping[str, SceneInput]) -> Callable:
     """A scene controller setting each input of ``schedule`` to its value at the step's end
     time; every name of the schedule must be one of ``inputs``."""
     unknown = sorted(set(schedule.values) - set(inputs))
     if unknown:
-        raise UnknownNameError(f"the schedule names unknown scene inputs {unknown}; the "
-                               f"inputs are {sorted(inputs)}")
+        raise UnknownNameError(
+            f"the schedule names unknown scene inputs {unknown}; the inputs are {sorted(inputs)}"
+        )
 
     def apply(scene, t0: float, t1: float) -> None:
         for name, value in schedule.at(t1).items():
             inputs[name].apply(scene, value)
+
     return apply

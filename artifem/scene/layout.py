@@ -25,8 +25,15 @@ from artifem.incompressibility import hold_linearized
 from artifem.integrators import reduced_step_system, step_system
 from artifem.multibody.attachments import FemPoint, NodeAttachment, dof_positions, pose_gap
 from artifem.multibody.point_paths import PointPath
-from artifem.multibody.rigid_body import (Frame, RigidBody, dexp_so3, exp_so3, orthonormalize,
-                                          skew, skews)
+from artifem.multibody.rigid_body import (
+    Frame,
+    RigidBody,
+    dexp_so3,
+    exp_so3,
+    orthonormalize,
+    skew,
+    skews,
+)
 from artifem.reduction.rigid_lift import RigidLift
 from artifem.scene.constraint_map import ConstraintMap
 from artifem.scene.direct_solver import DENSE_MAX
@@ -37,7 +44,7 @@ class _Slaves:
     """The nodes of one NodeAttachment, as the scene indexes them."""
 
     attachment: NodeAttachment
-    rows: np.ndarray            # all-space rows (3 per node, node-major)
+    rows: np.ndarray  # all-space rows (3 per node, node-major)
 
 
 class Layout:
@@ -53,15 +60,16 @@ class Layout:
     def __init__(self, scene, fem_bodies: list, reduced_bodies: list):
         self.scene = scene
         self.fem_bodies, self.reduced_bodies = list(fem_bodies), list(reduced_bodies)
-        self.collapsed_frames = []      # the frame attachments place_slaves could not place
+        self.collapsed_frames = []  # the frame attachments place_slaves could not place
         rigid = scene.rigid_bodies
         for body in self.fem_bodies:
             if body.mesh.comm.size != 1:
                 raise NotImplementedError(
                     f"FEM body {body.name!r} runs on {body.mesh.comm.size} MPI ranks and is "
                     "coupled to other bodies (attachments, paths or loads): coupled islands "
-                    "run in serial only for now; a body that nothing couples runs in parallel")
-        self.fixed = [b.fixed_components.copy() for b in fem_bodies]   # 3 node + component
+                    "run in serial only for now; a body that nothing couples runs in parallel"
+                )
+        self.fixed = [b.fixed_components.copy() for b in fem_bodies]  # 3 node + component
         offset = 0
         self.fem_offset: dict[int, int] = {}
         self.fem_size: dict[int, int] = {}
@@ -84,14 +92,18 @@ class Layout:
         self._check_references()
 
         # Roots of the rigid attachment chains, in dependency order (masters first).
-        chains = {id(b): _chain(b, scene.rigid_attachments, "attachment cycle")
-                  for b in rigid}
+        chains = {id(b): _chain(b, scene.rigid_attachments, "attachment cycle") for b in rigid}
         self.root: dict[int, RigidBody] = {key: c[-1] for key, c in chains.items()}
-        self.rigid_attachments = sorted(scene.rigid_attachments,
-                                        key=lambda a: len(chains[id(a.slave)]))
+        self.rigid_attachments = sorted(
+            scene.rigid_attachments, key=lambda a: len(chains[id(a.slave)])
+        )
         # Embedded bodies, slaves before their masters (deepest first).
-        self.embedded = sorted(scene.embedded_attachments, key=lambda a: -len(_chain(
-            a.slave, scene.embedded_attachments, "embedded attachment cycle")))
+        self.embedded = sorted(
+            scene.embedded_attachments,
+            key=lambda a: (
+                -len(_chain(a.slave, scene.embedded_attachments, "embedded attachment cycle"))
+            ),
+        )
 
         # Masters: free FEM dofs, free reduced coordinates, then the dynamic roots.
         is_slave_row = np.zeros(self.n_all, dtype=bool)
@@ -103,7 +115,7 @@ class Layout:
             self.slaves.append(_Slaves(att, rows))
         for att in self.embedded:
             o = self.fem_offset[id(att.slave)]
-            is_slave_row[o:o + self.fem_size[id(att.slave)]] = True
+            is_slave_row[o : o + self.fem_size[id(att.slave)]] = True
         for att in scene.lift_attachments:
             is_slave_row[self.reduced_offset[id(att.reduced)] + att.columns] = True
         framed = {id(att.slave) for att in scene.frame_attachments}
@@ -117,24 +129,29 @@ class Layout:
         for body in self.reduced_bodies:
             rows = self.reduced_offset[id(body)] + np.arange(body.r)
             master_rows.append(rows[~is_slave_row[rows]])
-        self.roots = [b for b in rigid if b.dynamic and self.root[id(b)] is b
-                      and id(b) not in framed]
+        self.roots = [
+            b for b in rigid if b.dynamic and self.root[id(b)] is b and id(b) not in framed
+        ]
         for body in self.roots:
             master_rows.append(self.rigid_offset[id(body)] + np.arange(6))
         self.master_rows = np.concatenate(master_rows) if master_rows else np.zeros(0, int)
         self.n_masters = self.master_rows.size
-        self.master_col = {id(b): int(np.searchsorted(self.master_rows,
-                                                      self.rigid_offset[id(b)]))
-                           for b in self.roots}
+        self.master_col = {
+            id(b): int(np.searchsorted(self.master_rows, self.rigid_offset[id(b)]))
+            for b in self.roots
+        }
         # (rows sorted: FEM, reduced, then rigid bodies in order, so searchsorted finds them)
         assert np.all(np.diff(self.master_rows) > 0)
-        self.free_fem = [(body, rows - self.fem_offset[id(body)])
-                         for body, rows in zip(fem_bodies, master_rows)]
-        self.free_reduced = [(body, rows - self.reduced_offset[id(body)]) for body, rows in
-                             zip(self.reduced_bodies, master_rows[len(fem_bodies):])]
+        self.free_fem = [
+            (body, rows - self.fem_offset[id(body)]) for body, rows in zip(fem_bodies, master_rows)
+        ]
+        self.free_reduced = [
+            (body, rows - self.reduced_offset[id(body)])
+            for body, rows in zip(self.reduced_bodies, master_rows[len(fem_bodies) :])
+        ]
         self._embedding_map = self._embedding_matrix()
-        self._rest_x: dict = {}         # id(FEM body) -> its node coordinates X
-        self._place_lifts()             # lift coordinates from the bodies' poses
+        self._rest_x: dict = {}  # id(FEM body) -> its node coordinates X
+        self._place_lifts()  # lift coordinates from the bodies' poses
         #: the constraints' rows on these coordinates (joints and limits, one kind of rows)
         self.constraint_map = ConstraintMap(self)
 
@@ -144,8 +161,7 @@ class Layout:
         """The matrix of (value, row, column) triplets, repeated entries summed."""
         if self.dense:
             out = np.zeros(shape)
-            np.add.at(out, (np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)),
-                      vals)
+            np.add.at(out, (np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)), vals)
             return out
         return sparse.csr_matrix((vals, (rows, cols)), shape=shape)
 
@@ -166,8 +182,11 @@ class Layout:
         return sparse.csr_matrix(X)
 
     def vstack(self, blocks: list):
-        return np.vstack([self.fmt(b) for b in blocks]) if self.dense else \
-            sparse.vstack(blocks).tocsr()
+        return (
+            np.vstack([self.fmt(b) for b in blocks])
+            if self.dense
+            else sparse.vstack(blocks).tocsr()
+        )
 
     def kkt(self, K, G):
         """[[K, G^T], [G, 0]] (statics)."""
@@ -239,14 +258,18 @@ class Layout:
             fixed = np.intersect1d(att.dofs, att.fem.fixed_components // 3)
             if fixed.size:
                 inverse = {d: n for n, d in att.fem._node_to_dof.items()}
-                raise InputError(f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
-                                 f"{att.fem.name!r} are fixed; a node is either fixed or "
-                                 "attached")
+                raise InputError(
+                    f"{what}: nodes {[inverse[int(d)] for d in fixed[:10]]} of "
+                    f"{att.fem.name!r} are fixed; a node is either fixed or "
+                    "attached"
+                )
             for node in att.nodes.tolist():
                 key = (id(att.fem), node)
                 if key in attached:
-                    raise InputError(f"node {node} of FEM body {att.fem.name!r} is attached "
-                                     f"twice: by {attached[key]!r} and by {att.name!r}")
+                    raise InputError(
+                        f"node {node} of FEM body {att.fem.name!r} is attached "
+                        f"twice: by {attached[key]!r} and by {att.name!r}"
+                    )
                 attached[key] = att.name
         slaves: dict[int, str] = {}
         for att in scene.rigid_attachments:
@@ -257,8 +280,10 @@ class Layout:
             if att.slave.motion != "dynamic":
                 raise InputError(f"{what}: the slave {att.slave.name!r} is {att.slave.motion}")
             if id(att.slave) in slaves:
-                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
-                                 f"{slaves[id(att.slave)]!r} and by {att.name!r}")
+                raise InputError(
+                    f"rigid body {att.slave.name!r} is attached twice: by "
+                    f"{slaves[id(att.slave)]!r} and by {att.name!r}"
+                )
             slaves[id(att.slave)] = att.name
         # The offsets were taken when the attachment was made: if a body moved since (a
         # prescribed body is placed on its trajectory only when it is added to the scene),
@@ -271,13 +296,15 @@ class Layout:
                     f"node attachment {att.name!r}: the nodes are up to {gap:.3g} from where the "
                     f"attachment puts them; {att.body.name!r} or {att.fem.name!r} moved after the "
                     "attachment was made (a prescribed body takes its trajectory's pose when "
-                    "added to the scene: add it before making the attachment)")
+                    "added to the scene: add it before making the attachment)"
+                )
         for att in scene.rigid_attachments:
             gap = pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
                 raise InputError(
                     f"rigid attachment {att.name!r}: {att.slave.name!r} is {gap:.3g} off the pose "
-                    f"the attachment gives it; a body moved after the attachment was made")
+                    f"the attachment gives it; a body moved after the attachment was made"
+                )
         reduced_ids = {id(b) for b in scene.reduced_bodies}
         embedded: dict[int, str] = {}
         for att in scene.embedded_attachments:
@@ -286,14 +313,19 @@ class Layout:
                 if id(b) not in ids:
                     raise InputError(f"{what}: FEM body {b.name!r} is not in the scene")
             if att.slave.fixed_components.size:
-                raise InputError(f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
-                                 "its nodes are either fixed or embedded")
+                raise InputError(
+                    f"{what}: the embedded body {att.slave.name!r} has fixed nodes; "
+                    "its nodes are either fixed or embedded"
+                )
             if any(a.fem is att.slave for a in scene.node_attachments):
-                raise InputError(f"{what}: nodes of {att.slave.name!r} are also attached to a "
-                                 "rigid body")
+                raise InputError(
+                    f"{what}: nodes of {att.slave.name!r} are also attached to a rigid body"
+                )
             if id(att.slave) in embedded:
-                raise InputError(f"FEM body {att.slave.name!r} is embedded twice: by "
-                                 f"{embedded[id(att.slave)]!r} and by {att.name!r}")
+                raise InputError(
+                    f"FEM body {att.slave.name!r} is embedded twice: by "
+                    f"{embedded[id(att.slave)]!r} and by {att.name!r}"
+                )
             embedded[id(att.slave)] = att.name
         lifted: dict[int, list] = {}
         for att in scene.lift_attachments:
@@ -304,8 +336,10 @@ class Layout:
                 raise InputError(f"{what}: rigid body {att.body.name!r} is not in the scene")
             for other in lifted.get(id(att.reduced), []):
                 if np.intersect1d(other.columns, att.columns).size:
-                    raise InputError(f"{what}: the coordinates of {att.reduced.name!r} it drives "
-                                     f"are already driven by {other.name!r}")
+                    raise InputError(
+                        f"{what}: the coordinates of {att.reduced.name!r} it drives "
+                        f"are already driven by {other.name!r}"
+                    )
             lifted.setdefault(id(att.reduced), []).append(att)
         framed: dict[int, str] = {}
         for att in scene.frame_attachments:
@@ -315,37 +349,50 @@ class Layout:
             if id(att.frame.body) not in fem_ids | reduced_ids:
                 raise InputError(f"{what}: FEM body {att.frame.body.name!r} is not in the scene")
             if id(att.slave) in framed or id(att.slave) in slaves:
-                raise InputError(f"rigid body {att.slave.name!r} is attached twice: by "
-                                 f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
-                                 f"and by {att.name!r}")
+                raise InputError(
+                    f"rigid body {att.slave.name!r} is attached twice: by "
+                    f"{framed.get(id(att.slave), slaves.get(id(att.slave)))!r} "
+                    f"and by {att.name!r}"
+                )
             framed[id(att.slave)] = att.name
             gap = pose_gap(att)
             if gap > 1e-9 * (1.0 + float(np.abs(att.offset).max())):
-                raise InputError(f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
-                                 "frame gives it; a body moved after the attachment was made")
-        carried = [(a.name, a.body) for a in scene.node_attachments + scene.lift_attachments] \
-            + [(a.name, a.master) for a in scene.rigid_attachments]
+                raise InputError(
+                    f"{what}: {att.slave.name!r} is {gap:.3g} off the pose the "
+                    "frame gives it; a body moved after the attachment was made"
+                )
+        carried = [(a.name, a.body) for a in scene.node_attachments + scene.lift_attachments] + [
+            (a.name, a.master) for a in scene.rigid_attachments
+        ]
         for name, body in carried:
             if id(body) in framed:
-                raise InputError(f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
-                                 f"body ({framed[id(body)]!r}); attach to that FEM body instead")
+                raise InputError(
+                    f"attachment {name!r}: {body.name!r} follows a frame on an FEM "
+                    f"body ({framed[id(body)]!r}); attach to that FEM body instead"
+                )
         for body in scene.rigid_bodies:
             if body.massless and body.dynamic and id(body) not in framed.keys() | slaves.keys():
-                raise InputError(f"rigid body {body.name!r} is massless (a marker) but attached "
-                                 "to nothing: its step would be singular")
+                raise InputError(
+                    f"rigid body {body.name!r} is massless (a marker) but attached "
+                    "to nothing: its step would be singular"
+                )
         for path in scene.paths:
             for pt in path.points:
                 if isinstance(pt, FemPoint) and id(pt.fem) not in fem_ids | reduced_ids:
-                    raise InputError(f"path {path.name!r}: FEM body {pt.fem.name!r} is not in "
-                                     "the scene")
+                    raise InputError(
+                        f"path {path.name!r}: FEM body {pt.fem.name!r} is not in the scene"
+                    )
                 if isinstance(pt, Frame) and pt.body is not None and id(pt.body) not in rigid_ids:
-                    raise InputError(f"path {path.name!r}: rigid body {pt.body.name!r} is not in "
-                                     "the scene")
+                    raise InputError(
+                        f"path {path.name!r}: rigid body {pt.body.name!r} is not in the scene"
+                    )
         for joint in scene.joints:
             for body in joint.bodies:
                 if body is not None and id(body) not in rigid_ids:
-                    raise InputError(f"joint {joint.name!r} connects rigid body {body.name!r}, "
-                                     "which is not in the scene")
+                    raise InputError(
+                        f"joint {joint.name!r} connects rigid body {body.name!r}, "
+                        "which is not in the scene"
+                    )
 
     # ---- per-step pieces ---------------------------------------------------------------
 
@@ -355,8 +402,11 @@ class Layout:
         for body in self.scene.rigid_bodies:
             if body.motion == "prescribed":
                 s = body.prescribed_state(t1)
-                out[body] = (s.position, s.rotation, np.concatenate([s.velocity,
-                                                                      s.angular_velocity]))
+                out[body] = (
+                    s.position,
+                    s.rotation,
+                    np.concatenate([s.velocity, s.angular_velocity]),
+                )
         return out
 
     def prolongation(self):
@@ -389,8 +439,12 @@ class Layout:
                 rows.append(o + 3 + np.arange(3))
                 cols.append(c0 + 3 + np.arange(3))
                 vals.append(np.ones(3))
-        P0 = self.matrix(np.concatenate(vals), np.concatenate(rows), np.concatenate(cols),
-                         (self.n_all, self.n_masters))
+        P0 = self.matrix(
+            np.concatenate(vals),
+            np.concatenate(rows),
+            np.concatenate(cols),
+            (self.n_all, self.n_masters),
+        )
         # rows derived from others: embedded FEM bodies (W), lift coordinates (G_g) and
         # frame-attached bodies (J)
         if self.embedded or self.scene.lift_attachments or self.scene.frame_attachments:
@@ -403,15 +457,15 @@ class Layout:
         z = np.zeros(self.n_all)
         for body, (_, _, twist) in targets.items():
             o = self.rigid_offset[id(body)]
-            z[o:o + 6] = twist
+            z[o : o + 6] = twist
         for att in self.rigid_attachments:
             root = self.root[id(att.slave)]
             if root in targets:
                 p1, R1, twist = targets[root]
                 d1 = R1 @ root.rotation.T @ (att.slave.position - root.position)
                 o = self.rigid_offset[id(att.slave)]
-                z[o:o + 3] = twist[:3] + np.cross(twist[3:], d1)
-                z[o + 3:o + 6] = twist[3:]
+                z[o : o + 3] = twist[:3] + np.cross(twist[3:], d1)
+                z[o + 3 : o + 6] = twist[3:]
         for s in self.slaves:
             root = self.root[id(s.attachment.body)]
             if root in targets:
@@ -419,15 +473,15 @@ class Layout:
                 x0 = s.attachment.positions()
                 x1 = p1 + (x0 - root.position) @ (R1 @ root.rotation.T).T
                 z[s.rows] = ((x1 - x0) / h).ravel()
-        for att in self.scene.lift_attachments:        # g is linear in (p, R): the secant
+        for att in self.scene.lift_attachments:  # g is linear in (p, R): the secant
             root = self.root[id(att.body)]
             if root in targets:
                 p1, R1, _ = targets[root]
                 turn = R1 @ root.rotation.T
-                g1 = att.lift.coordinates(p1 + turn @ (att.body.position - root.position),
-                                          turn @ att.body.rotation)
-                z[self.reduced_offset[id(att.reduced)] + att.columns] = \
-                    (g1 - att.coordinates()) / h
+                g1 = att.lift.coordinates(
+                    p1 + turn @ (att.body.position - root.position), turn @ att.body.rotation
+                )
+                z[self.reduced_offset[id(att.reduced)] + att.columns] = (g1 - att.coordinates()) / h
         if self.embedded or self.scene.frame_attachments:
             z = self._chain(self.fmt(self._embedding_map + self._frame_matrix()), z)
         return z
@@ -444,17 +498,19 @@ class Layout:
             for body, wrench in element.wrenches(t1):
                 wrench = _checked(element, known, body, wrench, (6,))
                 o = self.rigid_offset[id(body)]
-                b[o:o + 6] += scale * wrench
+                b[o : o + 6] += scale * wrench
                 forces[id(body)] = forces.get(id(body), np.zeros(6)) + wrench
             for bi, bj, K, D in getattr(element, "jacobians", lambda t: ())(t1):
-                K, D = (_checked(element, known, bi, np.zeros((6, 6)) if X is None else X,
-                                 (6, 6), bj) for X in (K, D))
+                K, D = (
+                    _checked(element, known, bi, np.zeros((6, 6)) if X is None else X, (6, 6), bj)
+                    for X in (K, D)
+                )
                 i, j = self.rigid_offset[id(bi)], self.rigid_offset[id(bj)]
                 if h is None:
                     A.append((i, j, -K))
                 else:
                     A.append((i, j, -h * D - h * h * K))
-                    b[i:i + 6] -= h * D @ bj.twist
+                    b[i : i + 6] -= h * D @ bj.twist
                     if A_pos is not None:
                         A_pos.append((i, j, -h * h * K))
         return forces
@@ -468,19 +524,19 @@ class Layout:
         scene = self.scene
         blocks, b, f_all = [], np.zeros(self.n_all), np.zeros(self.n_all)
         pos_blocks: list = []
-        for body in self.fem_bodies:            # integrators.step_system: A, b, f - D v
+        for body in self.fem_bodies:  # integrators.step_system: A, b, f - D v
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             A_body, b_body, applied = step_system(body, h, linearized)
-            b[o:o + n] = b_body.array[:n]
-            f_all[o:o + n] = applied.array[:n]
+            b[o : o + n] = b_body.array[:n]
+            f_all[o : o + n] = applied.array[:n]
             blocks.append(_csr(A_body))
-            if positional:      # A = M + h D + h^2 K: its h^2 K
+            if positional:  # A = M + h D + h^2 K: its h^2 K
                 pos_blocks.append(blocks[-1] - _mass(body) - h * _damping(body))
             b_body.destroy()
             applied.destroy()
-        for body in self.reduced_bodies:       # the same, dense r x r
+        for body in self.reduced_bodies:  # the same, dense r x r
             o, r = self.reduced_offset[id(body)], body.r
-            A_body, b[o:o + r], f_all[o:o + r] = reduced_step_system(body, h, linearized)
+            A_body, b[o : o + r], f_all[o : o + r] = reduced_step_system(body, h, linearized)
             blocks.append(A_body)
             if positional:
                 pos_blocks.append(A_body - body.M - h * body.damping)
@@ -494,14 +550,14 @@ class Layout:
             f = body.gyroscopic_wrench()
             f[:3] += body.mass * scene.gravity
             rigid_blocks.append(M - h * D)
-            b[o:o + 6] += M @ u + h * (f - D @ u)
-            f_all[o:o + 6] += f
+            b[o : o + 6] += M @ u + h * (f - D @ u)
+            f_all[o : o + 6] += f
         extra: list = []
         extra_pos: list | None = [] if positional else None
         element_wrenches = self._rigid_wrenches(t1, h, extra, b, extra_pos)
         for key, wrench in element_wrenches.items():
             o = self.rigid_offset[key]
-            f_all[o:o + 6] += wrench
+            f_all[o : o + 6] += wrench
         A = self._stack(blocks, rigid_blocks, extra)
         if positional:
             A_pos = self._stack(pos_blocks, [np.zeros((6, 6))] * len(rigid_blocks), extra_pos)
@@ -513,7 +569,7 @@ class Layout:
             if positional:
                 A_pos = self.fmt(A_pos - h * h * K)
             f_all += F
-        if scene.loads:                     # explicit in the step: b += h F
+        if scene.loads:  # explicit in the step: b += h F
             F = self.load_vector(t1)
             b += h * F
             f_all += F
@@ -537,22 +593,31 @@ class Layout:
         """T (n_masters x n_masters): the master displacements of :meth:`advance` per unit
         h z_m change, identity but on each dynamic root's rotation, whose update
         R = exp(h [w]x) R_0 turns by dexp(h w) h dw (the left Jacobian)."""
-        T = np.eye(self.n_masters) if self.dense else sparse.identity(self.n_masters,
-                                                                       format="lil")
+        T = np.eye(self.n_masters) if self.dense else sparse.identity(self.n_masters, format="lil")
         for body in self.roots:
             c = self.master_col[id(body)] + 3
-            T[c:c + 3, c:c + 3] = dexp_so3(h * z_m[c:c + 3])
+            T[c : c + 3, c : c + 3] = dexp_so3(h * z_m[c : c + 3])
         return self.fmt(T)
 
     @property
     def volume_constraints(self) -> list:
         """(body, its volume constraint) of the full and reduced bodies with hard
         incompressibility."""
-        return [(b, b.volume_constraint) for b in self.fem_bodies + self.reduced_bodies
-                if b.volume_constraint is not None]
+        return [
+            (b, b.volume_constraint)
+            for b in self.fem_bodies + self.reduced_bodies
+            if b.volume_constraint is not None
+        ]
 
-    def hold_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float,
-                     stop_when_indefinite: bool = False) -> int | None:
+    def hold_volumes(
+        self,
+        z: np.ndarray,
+        lam: np.ndarray,
+        P,
+        resolve,
+        h: float,
+        stop_when_indefinite: bool = False,
+    ) -> int | None:
         """The linearized volume constraints of the step (:func:`~artifem.incompressibility.
         hold_linearized`) for every hard-incompressible body of the island together: a
         pressure change dp acts as the force h G^T dp on its body's coordinates (``force_rows``
@@ -568,21 +633,28 @@ class Layout:
         def respond(d):
             rhs = np.zeros(self.n_all)
             for (o, n, vc), dk in zip(views, d):
-                rhs[o:o + n] = vc.force_rows(dk, h)
+                rhs[o : o + n] = vc.force_rows(dk, h)
             y_m, mu = resolve(np.asarray(P.T @ rhs).ravel())
             last["y"], last["mu"] = np.asarray(P @ y_m).ravel(), mu
-            return [vc.rate_rows(last["y"][o:o + n], h) for o, n, vc in views]
+            return [vc.rate_rows(last["y"][o : o + n], h) for o, n, vc in views]
 
         def accept(alpha):
             z[:] += alpha * last["y"]
             lam[:] += alpha * last["mu"]
 
-        c0 = [vc.linearized_rows(z[o:o + n], h) for o, n, vc in views]
-        return hold_linearized([vc for *_, vc in views], c0, respond, accept, MPI.COMM_SELF,
-                               stop_when_indefinite=stop_when_indefinite)
+        c0 = [vc.linearized_rows(z[o : o + n], h) for o, n, vc in views]
+        return hold_linearized(
+            [vc for *_, vc in views],
+            c0,
+            respond,
+            accept,
+            MPI.COMM_SELF,
+            stop_when_indefinite=stop_when_indefinite,
+        )
 
-    def project_volumes(self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float,
-                        targets: dict, start) -> None:
+    def project_volumes(
+        self, z: np.ndarray, lam: np.ndarray, P, resolve, h: float, targets: dict, start
+    ) -> None:
         """Post-stabilization of the island's step (``integrators._project_volumes`` for a
         body alone): while a hard-incompressible body's volumes at the step's end are off
         by more than its ``step_tol``, at most ``Incompressible.projections`` times, the
@@ -610,8 +682,10 @@ class Layout:
         not move by dynamics)."""
         blocks = [_mass(body) for body in self.fem_bodies]
         blocks += [body.M for body in self.reduced_bodies]
-        rigid = [body.mass_matrix() if body.dynamic else np.zeros((6, 6))
-                 for body in self.scene.rigid_bodies]
+        rigid = [
+            body.mass_matrix() if body.dynamic else np.zeros((6, 6))
+            for body in self.scene.rigid_bodies
+        ]
         return self._stack(blocks, rigid, [])
 
     def span(self, body) -> tuple[int, int] | None:
@@ -629,9 +703,11 @@ class Layout:
     def _load_span(self, element, body) -> tuple[int, int]:
         span = self.span(body)
         if span is None:
-            raise InputError(f"load element {type(element).__name__} loads "
-                             f"{getattr(body, 'name', body)!r}, which is not a body of this "
-                             "scene or not among the element's ``bodies``")
+            raise InputError(
+                f"load element {type(element).__name__} loads "
+                f"{getattr(body, 'name', body)!r}, which is not a body of this "
+                "scene or not among the element's ``bodies``"
+            )
         return span
 
     def load_vector(self, t: float) -> np.ndarray:
@@ -642,9 +718,11 @@ class Layout:
                 o, n = self._load_span(element, body)
                 f = np.asarray(f, dtype=float).ravel()
                 if f.shape != (n,) or not np.all(np.isfinite(f)):
-                    raise InputError(f"load element {type(element).__name__}: expected {n} "
-                                     f"finite values for {body.name!r}, got shape {f.shape}")
-                F[o:o + n] += f
+                    raise InputError(
+                        f"load element {type(element).__name__}: expected {n} "
+                        f"finite values for {body.name!r}, got shape {f.shape}"
+                    )
+                F[o : o + n] += f
         return F
 
     def load_jacobian(self, t: float):
@@ -656,9 +734,11 @@ class Layout:
                 (oi, ni), (oj, nj) = self._load_span(element, bi), self._load_span(element, bj)
                 K = sparse.coo_matrix(K)
                 if K.shape[0] > ni or K.shape[1] > nj:
-                    raise InputError(f"load element {type(element).__name__}: a "
-                                     f"{K.shape} Jacobian block for {bi.name!r}, {bj.name!r} "
-                                     f"({ni} x {nj} coordinates)")
+                    raise InputError(
+                        f"load element {type(element).__name__}: a "
+                        f"{K.shape} Jacobian block for {bi.name!r}, {bj.name!r} "
+                        f"({ni} x {nj} coordinates)"
+                    )
                 parts.append((K.data, oi + K.row, oj + K.col))
         return self.triplets(parts, (self.n_all, self.n_all))
 
@@ -667,13 +747,13 @@ class Layout:
         z = np.zeros(self.n_all)
         for body in self.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
-            z[o:o + n] = body.v.x.array[:n]
+            z[o : o + n] = body.v.x.array[:n]
         for body in self.reduced_bodies:
             o = self.reduced_offset[id(body)]
-            z[o:o + body.r] = body.qdot
+            z[o : o + body.r] = body.qdot
         for body in self.scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
-            z[o:o + 6] = body.twist
+            z[o : o + 6] = body.twist
         return z
 
     def path_map(self, path: "PointPath") -> tuple[np.ndarray, np.ndarray]:
@@ -716,8 +796,9 @@ class Layout:
         K_parts, D_parts = [], []
 
         def add(parts, M, rows, cols):
-            parts.append((np.asarray(M).ravel(), np.repeat(rows, len(cols)),
-                          np.tile(cols, len(rows))))
+            parts.append(
+                (np.asarray(M).ravel(), np.repeat(rows, len(cols)), np.tile(cols, len(rows)))
+            )
 
         for path in self.scene.paths:
             result = path.evaluate(t)
@@ -732,9 +813,13 @@ class Layout:
                 own = self.rigid_offset[id(pt.body)] + np.arange(6)
                 add(K_parts, pt.wrench_stiffness(result.forces[i]), own, own)
                 # K_bc[:, 3:] -= sum_{a on b} G_a^T D_a,i [w]x [r]x for column body c = i's
-                Dcol = G.T @ result.damping[:, 3 * i:3 * i + 3]
-                add(K_parts, -Dcol @ (skew(pt.body.angular_velocity) @ skew(pt.lever())),
-                    idx, own[3:])
+                Dcol = G.T @ result.damping[:, 3 * i : 3 * i + 3]
+                add(
+                    K_parts,
+                    -Dcol @ (skew(pt.body.angular_velocity) @ skew(pt.lever())),
+                    idx,
+                    own[3:],
+                )
         return F, self.triplets(K_parts, shape), self.triplets(D_parts, shape)
 
     def static_forces(self, t: float, tangent: bool):
@@ -744,26 +829,26 @@ class Layout:
         for body in self.fem_bodies:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
             body.assemble(tangent=tangent)
-            f_all[o:o + n] = -body.R.array[:n]
+            f_all[o : o + n] = -body.R.array[:n]
             if tangent:
                 blocks.append(_csr(body.K))
         for body in self.reduced_bodies:
             o = self.reduced_offset[id(body)]
-            f_all[o:o + body.r] = body.force()
+            f_all[o : o + body.r] = body.force()
             if tangent:
                 blocks.append(body.tangent())
         for body in scene.rigid_bodies:
             if body.dynamic:
                 o = self.rigid_offset[id(body)]
-                f_all[o:o + 3] += body.mass * scene.gravity
+                f_all[o : o + 3] += body.mass * scene.gravity
         extra: list = []
         self._rigid_wrenches(t, None, extra, f_all)
         K_path = None
         if scene.paths:
             F, K_path, _ = self.path_terms(t, None)
-            f_all += F                           # statics: whole wrenches on rigid rows
+            f_all += F  # statics: whole wrenches on rigid rows
         if scene.loads:
-            f_all += scene.load_factor * self.load_vector(t)    # ramped with the other loads
+            f_all += scene.load_factor * self.load_vector(t)  # ramped with the other loads
         if not tangent:
             return f_all, None
         zeros = [np.zeros((6, 6)) for _ in scene.rigid_bodies]
@@ -778,7 +863,7 @@ class Layout:
         """The block-diagonal A_all of the bodies' blocks (in all-space order) plus the
         force elements' 6 x 6 blocks ``extra`` (i, j, X), built as one COO matrix."""
         rows, cols, vals, o = [], [], [], 0
-        for block in fem_blocks:            # FEM (sparse) and reduced (dense) bodies
+        for block in fem_blocks:  # FEM (sparse) and reduced (dense) bodies
             coo = sparse.coo_matrix(block)
             rows.append(o + coo.row), cols.append(o + coo.col), vals.append(coo.data)
             o += block.shape[0]
@@ -801,7 +886,7 @@ class Layout:
         if self.scene.frame_attachments:
             f_all = f_all.copy()
             rows, cols, vals = [], [], []
-            for att in self.scene.frame_attachments:    # leaves: before the embedded bodies
+            for att in self.scene.frame_attachments:  # leaves: before the embedded bodies
                 wrench = f_all[self.rigid_offset[id(att.slave)] + np.arange(6)]
                 o = self._body_offset(att.frame.body)
                 for c, J in att.jacobian():
@@ -813,31 +898,32 @@ class Layout:
             K_frames = self.fmt(P.T @ K_frames @ P)
         if self.embedded:
             f_all = f_all.copy()
-            for att in self.embedded:                   # slaves before their masters
+            for att in self.embedded:  # slaves before their masters
                 o_s, o_m = self.fem_offset[id(att.slave)], self._body_offset(att.master)
-                G = att.jacobian()                      # f_m += G^T f_s (W, or W U)
-                f_all[o_m:o_m + G.shape[1]] += G.T @ f_all[o_s:o_s + G.shape[0]]
+                G = att.jacobian()  # f_m += G^T f_s (W, or W U)
+                f_all[o_m : o_m + G.shape[1]] += G.T @ f_all[o_s : o_s + G.shape[0]]
         K = {}
         for att in self.scene.lift_attachments:
             root = self.root[id(att.body)]
             if root.dynamic:
                 f = f_all[self.reduced_offset[id(att.reduced)] + att.columns].reshape(4, 3)
                 levers = np.vstack([att.body.position - root.position, att.body.rotation.T])
-                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", skews(f),
-                                                               skews(levers))
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum(
+                    "nij,njk->ik", skews(f), skews(levers)
+                )
         for s in self.slaves:
             root = self.root[id(s.attachment.body)]
             if root.dynamic:
                 f = f_all[s.rows].reshape(-1, 3)
                 d = s.attachment.positions() - root.position
-                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", skews(f),
-                                                               skews(d))
+                K[id(root)] = K.get(id(root), 0.0) + np.einsum("nij,njk->ik", skews(f), skews(d))
         for att in self.rigid_attachments:
             root = self.root[id(att.slave)]
             if root.dynamic:
                 o = self.rigid_offset[id(att.slave)]
-                K[id(root)] = K.get(id(root), 0.0) + skew(f_all[o:o + 3]) @ skew(
-                    att.slave.position - root.position)
+                K[id(root)] = K.get(id(root), 0.0) + skew(f_all[o : o + 3]) @ skew(
+                    att.slave.position - root.position
+                )
         rows, cols, vals = [], [], []
         for key, block in K.items():
             c0 = self.master_col[key] + 3
@@ -853,14 +939,14 @@ class Layout:
         by h z; prescribed bodies go to their targets; slaves are set from their masters."""
         for body, free in self.free_fem:
             o, n = self.fem_offset[id(body)], self.fem_size[id(body)]
-            body.v.x.array[:n] = z[o:o + n]
+            body.v.x.array[:n] = z[o : o + n]
             body.u.x.array[free] += h * z[o + free]
         for att in self.embedded:
             o, n = self.fem_offset[id(att.slave)], self.fem_size[id(att.slave)]
-            att.slave.v.x.array[:n] = z[o:o + n]
+            att.slave.v.x.array[:n] = z[o : o + n]
         for body, free in self.free_reduced:
             o = self.reduced_offset[id(body)]
-            body.qdot = z[o:o + body.r].copy()
+            body.qdot = z[o : o + body.r].copy()
             body.q[free] += h * z[o + free]
         for body in self.scene.rigid_bodies:
             o = self.rigid_offset[id(body)]
@@ -869,7 +955,7 @@ class Layout:
                 body.position, body.rotation = p1, R1
                 body.set_twist(twist)
             elif body.dynamic:
-                body.set_twist(z[o:o + 6])
+                body.set_twist(z[o : o + 6])
                 if any(body is r for r in self.roots):
                     body.advance_pose(h)
         self.place_slaves()
@@ -881,19 +967,20 @@ class Layout:
         return self._rest_x[id(body)]
 
     def place_slaves(self) -> None:
-        for att in self.rigid_attachments:              # dependency order
+        for att in self.rigid_attachments:  # dependency order
             att.slave.position, att.slave.rotation = att.pose()
         for s in self.slaves:
             att = s.attachment
             u = att.fem.u.x.array.reshape(-1, 3)
             u[att.dofs] = att.positions() - self._rest_positions(att.fem)[att.dofs]
-        self._place_lifts()                             # a reduced master's lift columns
-        for att in reversed(self.embedded):             # masters before their slaves
-            att.slave.u.x.array[:att.W.shape[0]] = att.displacement()
+        self._place_lifts()  # a reduced master's lift columns
+        for att in reversed(self.embedded):  # masters before their slaves
+            att.slave.u.x.array[: att.W.shape[0]] = att.displacement()
         # leaves: after every FEM body; a frame whose support collapsed (a Newton trial
         # too long, a step too large) has no pose: its slave stays, inverted() says so
-        self.collapsed_frames = [att for att in self.scene.frame_attachments
-                                 if att.frame.collapsed()]
+        self.collapsed_frames = [
+            att for att in self.scene.frame_attachments if att.frame.collapsed()
+        ]
         for att in self.scene.frame_attachments:
             if not any(att is c for c in self.collapsed_frames):
                 att.slave.position, att.slave.rotation = att.pose()
@@ -920,14 +1007,16 @@ class Layout:
             body.q[free] += dq[np.searchsorted(self.master_rows, o + free)]
         for body in self.roots:
             c = self.master_col[id(body)]
-            body.position = body.position + dq[c:c + 3]
-            body.rotation = orthonormalize(exp_so3(dq[c + 3:c + 6]) @ body.rotation)
+            body.position = body.position + dq[c : c + 3]
+            body.rotation = orthonormalize(exp_so3(dq[c + 3 : c + 6]) @ body.rotation)
         self.place_slaves()
 
     def save(self):
-        return ([b.u.x.array.copy() for b in self.fem_bodies],
-                [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies],
-                [b.q.copy() for b in self.reduced_bodies])
+        return (
+            [b.u.x.array.copy() for b in self.fem_bodies],
+            [(b.position.copy(), b.rotation.copy()) for b in self.scene.rigid_bodies],
+            [b.q.copy() for b in self.reduced_bodies],
+        )
 
     def restore(self, saved) -> None:
         for body, u in zip(self.fem_bodies, saved[0]):
@@ -979,8 +1068,10 @@ def _checked(element, known, body, array, shape, other=None) -> np.ndarray:
             raise InputError(f"{what} acts on {b!r}, which is not a rigid body of this scene")
     array = np.asarray(array, dtype=float)
     if array.shape != shape or not np.all(np.isfinite(array)):
-        raise InputError(f"{what}: expected a finite array of shape {shape} for body "
-                         f"{body.name!r}, got shape {array.shape}")
+        raise InputError(
+            f"{what}: expected a finite array of shape {shape} for body "
+            f"{body.name!r}, got shape {array.shape}"
+        )
     return array
 
 

@@ -61,10 +61,20 @@ class Run:
         return float(np.median(self.step_ms)) if self.step_ms.size else float("nan")
 
 
-def simulate(scene, duration: float, dt: float, *,
-             record: dict[str, Callable] | None = None, vtx: str | Path | None = None,
-             write_every: int = 1, keep=(), on_failure: str = "raise", progress: bool = True,
-             label: str = "simulate", leave: bool = True) -> Run:
+def simulate(
+    scene,
+    duration: float,
+    dt: float,
+    *,
+    record: dict[str, Callable] | None = None,
+    vtx: str | Path | None = None,
+    write_every: int = 1,
+    keep=(),
+    on_failure: str = "raise",
+    progress: bool = True,
+    label: str = "simulate",
+    leave: bool = True,
+) -> Run:
     """Step ``scene`` from its current time for ``duration`` seconds in steps of ``dt``.
 
     Args:
@@ -88,8 +98,7 @@ def simulate(scene, duration: float, dt: float, *,
         leave: keep the progress bar on screen when done.
     """
     if not (np.isfinite(duration) and duration > 0 and np.isfinite(dt) and dt > 0):
-        raise InputError(f"simulate: duration and dt must be finite and > 0, got {duration}, "
-                         f"{dt}")
+        raise InputError(f"simulate: duration and dt must be finite and > 0, got {duration}, {dt}")
     if on_failure not in ("raise", "stop"):
         raise InputError(f"simulate: on_failure must be 'raise' or 'stop', got {on_failure!r}")
     if int(write_every) != write_every or write_every < 1:
@@ -104,14 +113,14 @@ def simulate(scene, duration: float, dt: float, *,
     if vtx is not None:
         for body in scene.fem_bodies:
             for suffix, functions in body.output_fields().items():
-                writers.append((None, ResultWriter(Path(vtx) / f"{body.name}{suffix}.bp",
-                                                   functions)))
+                writers.append(
+                    (None, ResultWriter(Path(vtx) / f"{body.name}{suffix}.bp", functions))
+                )
         for body in scene.reduced_bodies:
             writers.append((body, ResultWriter(Path(vtx) / f"{body.name}.bp", [body.full.u])))
     pressures = _contact_pressure_fields(scene) if vtx is not None else {}
     for name, (field, _) in pressures.items():
-        writers.append((None, ResultWriter(Path(vtx) / f"{name}_contact_pressure.bp",
-                                           [field])))
+        writers.append((None, ResultWriter(Path(vtx) / f"{name}_contact_pressure.bp", [field])))
 
     def write():
         for name, (field, contacts) in pressures.items():
@@ -139,8 +148,7 @@ def simulate(scene, duration: float, dt: float, *,
         write()
         keep_snapshots()
         show = progress and comm.rank == 0
-        for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not show,
-                      leave=leave):
+        for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not show, leave=leave):
             comm.Barrier()
             tic = time.perf_counter()
             try:
@@ -152,7 +160,7 @@ def simulate(scene, duration: float, dt: float, *,
                 break
             comm.Barrier()
             step_ms.append(1e3 * (time.perf_counter() - tic))
-            scene.t = t0 + k * dt                   # no drift from repeated addition
+            scene.t = t0 + k * dt  # no drift from repeated addition
             times.append(scene.t)
             for name, f in record.items():
                 values[name].append(np.asarray(f(scene), dtype=float))
@@ -163,9 +171,16 @@ def simulate(scene, duration: float, dt: float, *,
         blas.restore_original_limits()
         for _, writer in writers:
             writer.close()
-    return Run(np.array(times), {name: _stacked(v) for name, v in values.items()},
-               np.array(step_ms), int(scene.halvings), float(scene.min_det_F), snapshots,
-               failure, int(scene.fallbacks))
+    return Run(
+        np.array(times),
+        {name: _stacked(v) for name, v in values.items()},
+        np.array(step_ms),
+        int(scene.halvings),
+        float(scene.min_det_F),
+        snapshots,
+        failure,
+        int(scene.fallbacks),
+    )
 
 
 def _stacked(values: list) -> np.ndarray:
@@ -189,8 +204,12 @@ def _contact_pressure_fields(scene) -> dict:
             if body is None:
                 continue
             if body.name not in fields:
-                fields[body.name] = (fem.Function(fem.functionspace(body.mesh, ("Lagrange", 1)),
-                                                  name="contact_pressure"), [])
+                fields[body.name] = (
+                    fem.Function(
+                        fem.functionspace(body.mesh, ("Lagrange", 1)), name="contact_pressure"
+                    ),
+                    [],
+                )
             fields[body.name][1].append(contact)
     return fields
 

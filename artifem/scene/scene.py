@@ -238,15 +238,32 @@ import numpy as np
 from mpi4py import MPI
 from scipy import sparse
 
-from artifem.errors import (ElementInversionError, InputError, LinearSolveError, StepFailed,
-                            UnknownNameError)
+from artifem.errors import (
+    ElementInversionError,
+    InputError,
+    LinearSolveError,
+    StepFailed,
+    UnknownNameError,
+)
 from artifem.fem_body import FemBody
-from artifem.integrators import (ImplicitEuler, SemiImplicitEuler, StaticCounts, ramp_load,
-                                 solve_static, solve_static_reduced)
+from artifem.integrators import (
+    ImplicitEuler,
+    SemiImplicitEuler,
+    StaticCounts,
+    ramp_load,
+    solve_static,
+    solve_static_reduced,
+)
 from artifem.linear_solver import DEFAULT_METHOD, METHODS, LinearSolver
-from artifem.multibody.attachments import (EmbeddedFemAttachment, FrameAttachment,
-                                           LiftAttachment, NodeAttachment, RigidAttachment,
-                                           dof_positions, pose_gap)
+from artifem.multibody.attachments import (
+    EmbeddedFemAttachment,
+    FrameAttachment,
+    LiftAttachment,
+    NodeAttachment,
+    RigidAttachment,
+    dof_positions,
+    pose_gap,
+)
 from artifem.multibody.contact import ContactForces, PlaneContact
 from artifem.multibody.contact_pressure import boundary_areas, contact_pressure
 from artifem.multibody.joints import Joint
@@ -255,8 +272,12 @@ from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.force_elements import ForceElement
 from artifem.reduction.reduced_body import ReducedFemBody
-from artifem.scene.constraints import (ActiveSetMemory, impulses_by_constraint,
-                                      solve_constrained, solve_saddle)
+from artifem.scene.constraints import (
+    ActiveSetMemory,
+    impulses_by_constraint,
+    solve_constrained,
+    solve_saddle,
+)
 from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
 from artifem.scene.increment_slip import IncrementSlip
@@ -276,10 +297,18 @@ INTEGRATORS = {"semi-implicit": SemiImplicitEuler, "implicit": ImplicitEuler}
 HOLD_AFTER_RISES = 2
 #: The scene's lists of bodies, and of every component (``scene_group`` of each class).
 BODY_GROUPS = ("fem_bodies", "reduced_bodies", "rigid_bodies")
-COMPONENT_GROUPS = BODY_GROUPS + ("node_attachments", "rigid_attachments",
-                                  "embedded_attachments", "lift_attachments",
-                                  "frame_attachments", "joints", "contacts", "paths", "forces",
-                                  "loads")
+COMPONENT_GROUPS = BODY_GROUPS + (
+    "node_attachments",
+    "rigid_attachments",
+    "embedded_attachments",
+    "lift_attachments",
+    "frame_attachments",
+    "joints",
+    "contacts",
+    "paths",
+    "forces",
+    "loads",
+)
 
 
 def _merge_counts(a: list, b: list) -> StaticCounts:
@@ -288,10 +317,11 @@ def _merge_counts(a: list, b: list) -> StaticCounts:
     iterations both spent on failed increments; their residuals, one island's increments
     after the other's."""
     n = max(len(a), len(b))
-    return StaticCounts([max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0)
-                         for k in range(n)],
-                        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0),
-                        residuals=getattr(a, "residuals", []) + getattr(b, "residuals", []))
+    return StaticCounts(
+        [max(a[k] if k < len(a) else 0, b[k] if k < len(b) else 0) for k in range(n)],
+        failed=getattr(a, "failed", 0) + getattr(b, "failed", 0),
+        residuals=getattr(a, "residuals", []) + getattr(b, "residuals", []),
+    )
 
 
 @dataclass(frozen=True)
@@ -299,15 +329,15 @@ class SceneState:
     """A scene's complete state (:meth:`Scene.save_state`): restore it to go back."""
 
     t: float
-    bodies: list            # body.state() of every body, in Scene.bodies order
-    elements: list          # save_state() of the force and path elements that have one
-    joints: tuple           # the joints' last impulses, step and reactions
+    bodies: list  # body.state() of every body, in Scene.bodies order
+    elements: list  # save_state() of the force and path elements that have one
+    joints: tuple  # the joints' last impulses, step and reactions
 
 
 @dataclass(frozen=True)
 class _Failure:
     message: str
-    inverted: list          # (body name, input element indices, min det F)
+    inverted: list  # (body name, input element indices, min det F)
 
 
 class Scene:
@@ -340,10 +370,18 @@ class Scene:
             when the FEM bodies run on several MPI ranks, else ``"direct"``.
     """
 
-    def __init__(self, gravity=(0.0, 0.0, -9.81), *, stabilization: float = 1.0,
-                 geometric_stiffness: bool = True, max_halvings: int = 4,
-                 integrator="semi-implicit", linear_solver: str = DEFAULT_METHOD,
-                 island_solver: str | None = None, fallback: str | None = "implicit"):
+    def __init__(
+        self,
+        gravity=(0.0, 0.0, -9.81),
+        *,
+        stabilization: float = 1.0,
+        geometric_stiffness: bool = True,
+        max_halvings: int = 4,
+        integrator="semi-implicit",
+        linear_solver: str = DEFAULT_METHOD,
+        island_solver: str | None = None,
+        fallback: str | None = "implicit",
+    ):
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise InputError(f"gravity must be 3 finite numbers, got {gravity!r}")
@@ -353,8 +391,9 @@ class Scene:
             raise InputError(f"max_halvings must be an integer >= 0, got {max_halvings!r}")
         if isinstance(integrator, str):
             if integrator not in INTEGRATORS:
-                raise InputError(f"unknown integrator {integrator!r}; choose one of "
-                                 f"{sorted(INTEGRATORS)}")
+                raise InputError(
+                    f"unknown integrator {integrator!r}; choose one of {sorted(INTEGRATORS)}"
+                )
             integrator = INTEGRATORS[integrator]()
         for method in ("advance", "advance_reduced"):
             if not callable(getattr(integrator, method, None)):
@@ -367,22 +406,25 @@ class Scene:
             raise InputError(f"island_solver must be 'direct' or 'schur', got {island_solver!r}")
         self.integrator = integrator
         #: the integrator that retries a failed semi-implicit step before it is halved
-        self.fallback = ImplicitEuler() if fallback is not None and getattr(
-            integrator, "name", None) == "semi-implicit" else None
-        self.fallbacks = 0              # steps completed by the fallback integrator
+        self.fallback = (
+            ImplicitEuler()
+            if fallback is not None and getattr(integrator, "name", None) == "semi-implicit"
+            else None
+        )
+        self.fallbacks = 0  # steps completed by the fallback integrator
         self.linear_solver = linear_solver
         self.island_solver = island_solver
-        self._schur = None              # the SchurIsland stepping the coupled island, if any
+        self._schur = None  # the SchurIsland stepping the coupled island, if any
         self._linear_solvers: dict[tuple, LinearSolver] = {}
-        self._comm = MPI.COMM_SELF      # the FEM bodies' communicator (one for the scene)
-        self._islands = None            # (free FEM, free reduced, coupled FEM, coupled reduced)
+        self._comm = MPI.COMM_SELF  # the FEM bodies' communicator (one for the scene)
+        self._islands = None  # (free FEM, free reduced, coupled FEM, coupled reduced)
         self._gravity = g
         self.max_halvings = int(max_halvings)
         self.controllers: list[Controller] = []
-        self.halvings = 0               # step halvings so far
-        self.min_det_F = np.inf         # smallest det F after any accepted step
+        self.halvings = 0  # step halvings so far
+        self.min_det_F = np.inf  # smallest det F after any accepted step
         self.stabilization = float(stabilization)
-        self.load_factor = 1.0          # scales the load elements (ramped by solve_static)
+        self.load_factor = 1.0  # scales the load elements (ramped by solve_static)
         self.geometric_stiffness = bool(geometric_stiffness)
         self.t = 0.0
         self.fem_bodies: list[FemBody] = []
@@ -400,11 +442,11 @@ class Scene:
         self.loads: list = []
         self._layout = None
         self._solver = DirectSolver()
-        self._active_sets = ActiveSetMemory()   # the last solve's active rows (warm start)
+        self._active_sets = ActiveSetMemory()  # the last solve's active rows (warm start)
         self._impulses: dict = {}
-        self._reference_areas: dict = {}   # (FEM body, degree) -> its boundary areas
+        self._reference_areas: dict = {}  # (FEM body, degree) -> its boundary areas
         self._last_h = 1.0
-        self._reactions = None          # the joints' last forces, all-space (for K_geo)
+        self._reactions = None  # the joints' last forces, all-space (for K_geo)
         self.last_solve: dict = {}
 
     @property
@@ -449,51 +491,66 @@ class Scene:
             elif group is None and LoadElement.is_load(item):
                 group = "loads"
             if group not in COMPONENT_GROUPS:
-                raise TypeError(f"cannot add {type(item).__name__} to a Scene: expected "
-                                "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
-                                "a PlaneContact, a path, a force element with wrenches(t) or a "
-                                "load element with master_loads(t)")
+                raise TypeError(
+                    f"cannot add {type(item).__name__} to a Scene: expected "
+                    "a FemBody, ReducedFemBody, RigidBody, an attachment, a Joint, "
+                    "a PlaneContact, a path, a force element with wrenches(t) or a "
+                    "load element with master_loads(t)"
+                )
             members = getattr(self, group)
             name = getattr(item, "name", "")
             if group in BODY_GROUPS and any(name == b.name for b in self.bodies):
-                raise InputError(f"a body named {name!r} is already in the scene (bodies "
-                                 "are named in errors, records and output files: give each "
-                                 "its own name)")
+                raise InputError(
+                    f"a body named {name!r} is already in the scene (bodies "
+                    "are named in errors, records and output files: give each "
+                    "its own name)"
+                )
             if any(item is other for other in members):
                 raise InputError(f"{type(item).__name__} {name!r} is already in the scene")
             if group == "fem_bodies":
                 comm = item.mesh.comm
                 if self.fem_bodies and comm.size != self._comm.size:
-                    raise InputError(f"FEM body {name!r} runs on {comm.size} MPI ranks, "
-                                     f"the scene's other FEM bodies on {self._comm.size}")
+                    raise InputError(
+                        f"FEM body {name!r} runs on {comm.size} MPI ranks, "
+                        f"the scene's other FEM bodies on {self._comm.size}"
+                    )
                 self._comm = comm
             if group in ("fem_bodies", "reduced_bodies"):
                 item.gravity.value[:] = self.gravity
             if group == "rigid_bodies" and item.motion == "prescribed":
                 item.follow_trajectory(self.t)
             if group == "loads" and not isinstance(getattr(item, "bodies", None), (tuple, list)):
-                raise InputError(f"load element {item!r} has no ``bodies`` (the tuple of "
-                                 "bodies it loads; LoadElement)")
+                raise InputError(
+                    f"load element {item!r} has no ``bodies`` (the tuple of "
+                    "bodies it loads; LoadElement)"
+                )
             members.append(item)
             self._layout = None
 
     def couplings_of(self, body) -> list:
         """The components other than bodies (attachments, joints, paths, force and load
         elements) whose ``bodies`` include ``body``."""
-        return [item for group in COMPONENT_GROUPS if group not in BODY_GROUPS
-                for item in getattr(self, group)
-                if any(b is body for b in getattr(item, "bodies", ()))]
+        return [
+            item
+            for group in COMPONENT_GROUPS
+            if group not in BODY_GROUPS
+            for item in getattr(self, group)
+            if any(b is body for b in getattr(item, "bodies", ()))
+        ]
 
     def remove(self, *items) -> None:
         """Take components out of the scene (the inverse of :meth:`add`): e.g. a full body
         and its couplings, for the reduced body that replaces them. Whatever stays must
         not name a removed body (checked at the next step or static solve)."""
         for item in items:
-            group = next((g for g in COMPONENT_GROUPS
-                          if any(item is other for other in getattr(self, g))), None)
+            group = next(
+                (g for g in COMPONENT_GROUPS if any(item is other for other in getattr(self, g))),
+                None,
+            )
             if group is None:
-                raise InputError(f"{type(item).__name__} {getattr(item, 'name', '')!r} is "
-                                 "not in the scene")
+                raise InputError(
+                    f"{type(item).__name__} {getattr(item, 'name', '')!r} is not in the scene"
+                )
             members = getattr(self, group)
             members.pop(next(k for k, other in enumerate(members) if other is item))
             self._layout = None
@@ -516,39 +573,57 @@ class Scene:
 
     def _ready(self) -> "Layout":
         if self._layout is None:
-            coupled = {id(b) for item in [*self.node_attachments, *self.rigid_attachments,
-                                          *self.embedded_attachments, *self.lift_attachments,
-                                          *self.frame_attachments, *self.paths, *self.loads,
-                                          *self.constraints]
-                       for b in item.bodies}
+            coupled = {
+                id(b)
+                for item in [
+                    *self.node_attachments,
+                    *self.rigid_attachments,
+                    *self.embedded_attachments,
+                    *self.lift_attachments,
+                    *self.frame_attachments,
+                    *self.paths,
+                    *self.loads,
+                    *self.constraints,
+                ]
+                for b in item.bodies
+            }
             known = {id(b) for b in self.bodies}
             for item in [*self.paths, *self.loads]:
                 for body in item.bodies:
                     if id(body) not in known:
-                        raise InputError(f"{item!r} acts on {getattr(body, 'name', body)!r}, "
-                                         "which is not a body of this scene")
-            self._islands = ([b for b in self.fem_bodies if id(b) not in coupled],
-                             [b for b in self.reduced_bodies if id(b) not in coupled],
-                             [b for b in self.fem_bodies if id(b) in coupled],
-                             [b for b in self.reduced_bodies if id(b) in coupled])
-            schur = self.island_solver == "schur" or (self.island_solver is None
-                                                      and self._comm.size > 1)
+                        raise InputError(
+                            f"{item!r} acts on {getattr(body, 'name', body)!r}, "
+                            "which is not a body of this scene"
+                        )
+            self._islands = (
+                [b for b in self.fem_bodies if id(b) not in coupled],
+                [b for b in self.reduced_bodies if id(b) not in coupled],
+                [b for b in self.fem_bodies if id(b) in coupled],
+                [b for b in self.reduced_bodies if id(b) in coupled],
+            )
+            schur = self.island_solver == "schur" or (
+                self.island_solver is None and self._comm.size > 1
+            )
             if schur and self._islands[2]:
                 self._schur = SchurIsland(self, self._islands[2])
                 self._layout = self._schur.rigid
                 if self.integrator.name != "semi-implicit":
-                    raise InputError("the distributed (Schur) island steps semi-implicitly "
-                                     "only for now: Scene(integrator='semi-implicit'), or the "
-                                     "implicit integrator in serial with island_solver='direct'")
+                    raise InputError(
+                        "the distributed (Schur) island steps semi-implicitly "
+                        "only for now: Scene(integrator='semi-implicit'), or the "
+                        "implicit integrator in serial with island_solver='direct'"
+                    )
             else:
                 self._schur = None
                 self._layout = Layout(self, self._islands[2], self._islands[3])
-            for constraint in self.constraints:     # the joints' bodies: checked by Layout
+            for constraint in self.constraints:  # the joints' bodies: checked by Layout
                 for body in constraint.bodies:
                     if body is not None and id(body) not in known:
-                        raise InputError(f"constraint {constraint.name!r} acts on "
-                                         f"{getattr(body, 'name', body)!r}, which is not a "
-                                         "body of this scene")
+                        raise InputError(
+                            f"constraint {constraint.name!r} acts on "
+                            f"{getattr(body, 'name', body)!r}, which is not a "
+                            "body of this scene"
+                        )
                 failure = constraint.constraint_failure()
                 if failure is not None:
                     raise InputError(f"at the start (t = {self.t:g}): {failure}")
@@ -556,10 +631,13 @@ class Scene:
                 raise InputError(
                     f"integrator {type(self.integrator).__name__}: the coupled island "
                     f"(attachments, paths, loads, joints, rigid bodies) is stepped by one of "
-                    f"{sorted(INTEGRATORS)}; a custom integrator steps bodies on their own only")
+                    f"{sorted(INTEGRATORS)}; a custom integrator steps bodies on their own only"
+                )
         # Fixing nodes after adding is allowed: re-check when a body's fixed set changed.
-        elif any(not np.array_equal(b.fixed_components, f)
-                 for b, f in zip(self._layout.fem_bodies, self._layout.fixed)):
+        elif any(
+            not np.array_equal(b.fixed_components, f)
+            for b, f in zip(self._layout.fem_bodies, self._layout.fixed)
+        ):
             self._layout = None
             return self._ready()
         return self._layout
@@ -568,8 +646,10 @@ class Scene:
         """The coupled island's layout for an operation of the direct island solver."""
         L = self._ready()
         if self._schur is not None:
-            raise InputError(f"{what}: not available with the distributed (Schur) island yet "
-                             "(island_solver='direct', serial)")
+            raise InputError(
+                f"{what}: not available with the distributed (Schur) island yet "
+                "(island_solver='direct', serial)"
+            )
         return L
 
     def linear_solver_for(self, body: FemBody) -> LinearSolver:
@@ -577,8 +657,9 @@ class Scene:
         # A follower pressure on faces with a free border makes the tangent unsymmetric.
         key = (id(body), body.conservative)
         if key not in self._linear_solvers:
-            self._linear_solvers[key] = LinearSolver(body.mesh.comm, self.linear_solver,
-                                                     V=body.V, symmetric=body.conservative)
+            self._linear_solvers[key] = LinearSolver(
+                body.mesh.comm, self.linear_solver, V=body.V, symmetric=body.conservative
+            )
         return self._linear_solvers[key]
 
     # ---- observation ---------------------------------------------------------------------
@@ -588,20 +669,22 @@ class Scene:
 
     def kinetic_energy(self) -> float:
         """1/2 v^T M v of the FEM bodies plus the rigid kinetic energy of the moving bodies."""
-        return (sum(b.kinetic_energy() for b in self.fem_bodies + self.reduced_bodies)
-                + sum(b.kinetic_energy() for b in self._moving_bodies()))
+        return sum(b.kinetic_energy() for b in self.fem_bodies + self.reduced_bodies) + sum(
+            b.kinetic_energy() for b in self._moving_bodies()
+        )
 
     def potential_energy(self) -> float:
         """FEM Pi(u) (strain minus the work of gravity and loads), -m g . p of the moving
         rigid bodies, the force elements' and paths' potential_energy(), and the load
         elements' potential_energy(t) (times the load factor) where they have one."""
-        return (sum(b.potential_energy() for b in self.fem_bodies + self.reduced_bodies)
-                + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
-                + sum(e.potential_energy() for e in self.forces
-                      if hasattr(e, "potential_energy"))
-                + sum(p.potential_energy() for p in self.paths)
-                + self.load_factor * sum(e.potential_energy(self.t) for e in self.loads
-                                         if hasattr(e, "potential_energy")))
+        return (
+            sum(b.potential_energy() for b in self.fem_bodies + self.reduced_bodies)
+            + sum(b.potential_energy(self.gravity) for b in self._moving_bodies())
+            + sum(e.potential_energy() for e in self.forces if hasattr(e, "potential_energy"))
+            + sum(p.potential_energy() for p in self.paths)
+            + self.load_factor
+            * sum(e.potential_energy(self.t) for e in self.loads if hasattr(e, "potential_energy"))
+        )
 
     def energy(self) -> float:
         return self.kinetic_energy() + self.potential_energy()
@@ -615,7 +698,7 @@ class Scene:
             body.mass_mult(body.v.x.petsc_vec, Mv)
             total += Mv.array.reshape(-1, 3).sum(axis=0)
             Mv.destroy()
-        for body in self.reduced_bodies:    # 1_k^T M U q' = (U^T int rho e_k . phi dX) . q'
+        for body in self.reduced_bodies:  # 1_k^T M U q' = (U^T int rho e_k . phi dX) . q'
             total += body.G.T @ body.qdot
         return total + sum((b.mass * b.velocity for b in self._moving_bodies()), np.zeros(3))
 
@@ -625,13 +708,13 @@ class Scene:
         + I_w w of the moving rigid bodies."""
         about = np.asarray(about, dtype=float)
         total = sum((b.angular_momentum(about) for b in self._moving_bodies()), np.zeros(3))
-        for full, u, v in ([(b, b.u.x.array, b.v.x.array) for b in self.fem_bodies]
-                           + [(b.full, b.nodal_displacement(), b.nodal_velocity())
-                              for b in self.reduced_bodies]):
+        for full, u, v in [(b, b.u.x.array, b.v.x.array) for b in self.fem_bodies] + [
+            (b.full, b.nodal_displacement(), b.nodal_velocity()) for b in self.reduced_bodies
+        ]:
             full.compile()
             x = full.V.tabulate_dof_coordinates() + u.reshape(-1, 3)
             V, Mv = full.v.x.petsc_vec.duplicate(), full.v.x.petsc_vec.duplicate()
-            V.array[:] = v[:V.array.size]
+            V.array[:] = v[: V.array.size]
             full.mass_mult(V, Mv)
             n = Mv.array.size // 3
             total += np.cross(x[:n] - about, Mv.array.reshape(-1, 3)).sum(axis=0)
@@ -643,12 +726,22 @@ class Scene:
         """max |x_i - (p + R r_i)| of each node and lift attachment, max |x_s - (W x_m + c)|
         of each embedded attachment, and the pose error (m and rad) of each frame
         attachment (round-off after a step)."""
-        out = {a.name: float(np.abs(dof_positions(a.fem)[a.dofs] - a.positions()).max())
-               for a in self.node_attachments}
-        out.update({a.name: float(np.abs(dof_positions(a.slave) - a.positions()).max())
-                    for a in self.embedded_attachments})
-        out.update({a.name: float(np.abs(a.node_positions() - a.positions()).max())
-                    for a in self.lift_attachments})
+        out = {
+            a.name: float(np.abs(dof_positions(a.fem)[a.dofs] - a.positions()).max())
+            for a in self.node_attachments
+        }
+        out.update(
+            {
+                a.name: float(np.abs(dof_positions(a.slave) - a.positions()).max())
+                for a in self.embedded_attachments
+            }
+        )
+        out.update(
+            {
+                a.name: float(np.abs(a.node_positions() - a.positions()).max())
+                for a in self.lift_attachments
+            }
+        )
         for a in self.frame_attachments:
             out[a.name] = pose_gap(a)
         return out
@@ -702,8 +795,10 @@ class Scene:
         if not any(joint is c for c in self.joints):
             raise UnknownNameError(f"joint {joint.name!r} is not in the scene")
         parts = self._impulses.get(joint, [])
-        return tuple(sum((block.jacobians[k][1].T @ lam for block, lam in parts),
-                         np.zeros(6)) / self._last_h for k in range(len(joint.bodies)))
+        return tuple(
+            sum((block.jacobians[k][1].T @ lam for block, lam in parts), np.zeros(6)) / self._last_h
+            for k in range(len(joint.bodies))
+        )
 
     # ---- the step ------------------------------------------------------------------------
 
@@ -727,18 +822,23 @@ class Scene:
     def save_state(self) -> SceneState:
         """The complete state: time, every body's coordinates and velocities, the muscles'
         activation and tendon state, and the joints' last impulses."""
-        return SceneState(self.t, [b.state() for b in self.bodies],
-                          [e.save_state() for e in self._stateful()],
-                          (self._impulses, self._last_h, self._reactions))
+        return SceneState(
+            self.t,
+            [b.state() for b in self.bodies],
+            [e.save_state() for e in self._stateful()],
+            (self._impulses, self._last_h, self._reactions),
+        )
 
     def restore_state(self, state: SceneState) -> None:
         """Back to a state saved from this scene (the same components)."""
         bodies, stateful = self.bodies, self._stateful()
         if len(state.bodies) != len(bodies) or len(state.elements) != len(stateful):
-            raise InputError("restore_state: the state was saved from a scene with other "
-                             f"components ({len(state.bodies)} bodies, {len(state.elements)} "
-                             f"stateful elements; this scene has {len(bodies)} and "
-                             f"{len(stateful)})")
+            raise InputError(
+                "restore_state: the state was saved from a scene with other "
+                f"components ({len(state.bodies)} bodies, {len(state.elements)} "
+                f"stateful elements; this scene has {len(bodies)} and "
+                f"{len(stateful)})"
+            )
         self.t = state.t
         for body, saved in zip(bodies, state.bodies):
             body.set_state(saved)
@@ -775,8 +875,10 @@ class Scene:
             if retried is None:
                 self.fallbacks += 1
                 return
-            failure = _Failure(f"{failure.message}; the {self.fallback.name} retry: "
-                               f"{retried.message}", retried.inverted or failure.inverted)
+            failure = _Failure(
+                f"{failure.message}; the {self.fallback.name} retry: {retried.message}",
+                retried.inverted or failure.inverted,
+            )
         if failure is None:
             return
         self.restore_state(saved)
@@ -789,8 +891,11 @@ class Scene:
     def _retries_with_fallback(self) -> bool:
         """A failed step is retried by the fallback: the scene has one, steps semi-
         implicitly, and its coupled island is not the distributed Schur island."""
-        return (self.fallback is not None and self._schur is None
-                and getattr(self.integrator, "name", None) == "semi-implicit")
+        return (
+            self.fallback is not None
+            and self._schur is None
+            and getattr(self.integrator, "name", None) == "semi-implicit"
+        )
 
     def _attempt(self, h: float, integrator) -> _Failure | None:
         """One step by ``integrator`` and the health check: None, or what went wrong."""
@@ -812,7 +917,7 @@ class Scene:
     def _health(self) -> _Failure | None:
         """None after a sound step; otherwise what went wrong, body by body."""
         inverted, step_min = [], np.inf
-        for body in self.bodies:            # the same order on every rank (collective)
+        for body in self.bodies:  # the same order on every rank (collective)
             finite = all(bool(np.all(np.isfinite(a))) for a in body.state())
             if not self._comm.allreduce(finite, op=MPI.LAND):
                 return _Failure(f"non-finite coordinates or velocities in {body.name!r}", [])
@@ -821,12 +926,17 @@ class Scene:
                 inverted.append((body.name, bad, min_det))
             step_min = min(step_min, min_det)
         if inverted:
-            return _Failure("inverted elements in " + ", ".join(repr(n) for n, *_ in inverted),
-                            inverted)
+            return _Failure(
+                "inverted elements in " + ", ".join(repr(n) for n, *_ in inverted), inverted
+            )
         collapsed = [att.name for att in self.frame_attachments if att.frame.collapsed()]
         if collapsed:
-            return _Failure("the support of frame attachment(s) " + ", ".join(map(repr, collapsed))
-                            + " collapsed or inverted (no rotation)", [])
+            return _Failure(
+                "the support of frame attachment(s) "
+                + ", ".join(map(repr, collapsed))
+                + " collapsed or inverted (no rotation)",
+                [],
+            )
         for item in [*self.bodies, *self.constraints]:
             off = item.constraint_failure()
             if off is not None:
@@ -835,11 +945,16 @@ class Scene:
         return None
 
     def _raise(self, failure: _Failure, h: float) -> None:
-        retried = "semi-implicit, then implicit" if self._retries_with_fallback() else \
-            getattr(self.integrator, "name", "the integrator")
-        detail = (f"{failure.message}; step {h:.3g} s after {self.max_halvings} halvings "
-                  f"({retried} at each size); what to try: a smaller dt, more max_halvings, "
-                  "or the excitation or load ramped over a few steps")
+        retried = (
+            "semi-implicit, then implicit"
+            if self._retries_with_fallback()
+            else getattr(self.integrator, "name", "the integrator")
+        )
+        detail = (
+            f"{failure.message}; step {h:.3g} s after {self.max_halvings} halvings "
+            f"({retried} at each size); what to try: a smaller dt, more max_halvings, "
+            "or the excitation or load ramped over a few steps"
+        )
         if failure.inverted:
             name, bad, min_det = min(failure.inverted, key=lambda x: x[2])
             raise ElementInversionError(self.t + h, bad, min_det, detail, body=name)
@@ -858,11 +973,15 @@ class Scene:
         if self._schur is not None:
             self._record_impulses(L, self._schur.step(h), h)
         elif L.n_all and integrator.name == "implicit":
-            impulses, merits = implicit_step(self, L, h, integrator.rtol, integrator.atol,
-                                             integrator.max_iterations)
+            impulses, merits = implicit_step(
+                self, L, h, integrator.rtol, integrator.atol, integrator.max_iterations
+            )
             self._record_impulses(L, impulses, h)
-            self.last_solve = {"masters": L.n_masters, "newton_iterations": len(merits) - 1,
-                               "merits": merits}
+            self.last_solve = {
+                "masters": L.n_masters,
+                "newton_iterations": len(merits) - 1,
+                "merits": merits,
+            }
         elif L.n_all:
             self._step_island(h)
         self.t += h
@@ -877,7 +996,7 @@ class Scene:
             L.advance(z, h, targets)
         else:
             L.hold_volumes(z, lam, P, resolve, h)
-            start = L.save()                # the projection redoes the step from here
+            start = L.save()  # the projection redoes the step from here
             L.advance(z, h, targets)
             L.project_volumes(z, lam, P, resolve, h, targets, start)
         self._record_impulses(L, impulses_by_constraint(rows, lam), h)
@@ -886,9 +1005,9 @@ class Scene:
         """Keep the constraints' impulses of the step (reactions, and K_geo's lagged
         loads); statics keeps its forces as the impulses of a step h = 1."""
         self._impulses, self._last_h = impulses, h
-        self._reactions = L.constraint_map.forces((block, lam / h)
-                                                  for parts in impulses.values()
-                                                  for block, lam in parts)
+        self._reactions = L.constraint_map.forces(
+            (block, lam / h) for parts in impulses.values() for block, lam in parts
+        )
 
     def step_matrix(self, h: float) -> sparse.csr_matrix:
         """The masters' block P^T A_all P - h^2 K_geo of the coupled island's next KKT
@@ -902,7 +1021,7 @@ class Scene:
             raise InputError(f"time step must be positive and finite, got {h!r}")
         L = self._direct_layout("step_matrix")
         t1 = self.t + h
-        targets = L.kinematic_targets(t1)               # prescribed poses and twists at t1
+        targets = L.kinematic_targets(t1)  # prescribed poses and twists at t1
         for body, (_, _, twist) in targets.items():
             body.set_twist(twist)
         P = L.prolongation()
@@ -922,21 +1041,32 @@ class Scene:
         last solve's). ``last_solve`` gives the path, the trials of the active set, the
         factorizations and the seconds of detection, mapping and solve."""
         n = A_m.shape[0]
-        if n == 0:                                  # everything fixed, prescribed or attached
+        if n == 0:  # everything fixed, prescribed or attached
             self.last_solve = {"masters": 0, "constraint_rows": 0, "factorizations": 0}
             return np.zeros(0), np.zeros(0), lambda rhs: (np.zeros(0), np.zeros(0))
         info: dict = {}
         tic = time.perf_counter()
-        z_m, lam, active, resolve = solve_constrained(self._solver, A_m, b_m, rows,
-                                                      f"t = {self.t:g}", resolver=True,
-                                                      memory=self._active_sets, info=info)
-        seconds = dict(self._layout.constraint_map.seconds) if self._layout is not None \
-            else {}
+        z_m, lam, active, resolve = solve_constrained(
+            self._solver,
+            A_m,
+            b_m,
+            rows,
+            f"t = {self.t:g}",
+            resolver=True,
+            memory=self._active_sets,
+            info=info,
+        )
+        seconds = dict(self._layout.constraint_map.seconds) if self._layout is not None else {}
         seconds["solve"] = time.perf_counter() - tic
-        self.last_solve = {"masters": n, "constraint_rows": active,
-                           "factorizations": info["factorizations"], "path": info["path"],
-                           "updates": info.get("updates", 0),
-                           "trials": info["trials"], "seconds": seconds}
+        self.last_solve = {
+            "masters": n,
+            "constraint_rows": active,
+            "factorizations": info["factorizations"],
+            "path": info["path"],
+            "updates": info.get("updates", 0),
+            "trials": info["trials"],
+            "seconds": seconds,
+        }
         return z_m, lam, resolve
 
     # ---- statics -------------------------------------------------------------------------
@@ -972,9 +1102,15 @@ class Scene:
     def master_count(self) -> int:
         return self._direct_layout("master_count").n_masters
 
-    def solve_static(self, *, load_steps: int | str = 1, rtol: float = 1e-10,
-                     atol: float = 1e-12, max_iterations: int = 30,
-                     progress=None) -> list[int]:
+    def solve_static(
+        self,
+        *,
+        load_steps: int | str = 1,
+        rtol: float = 1e-10,
+        atol: float = 1e-12,
+        max_iterations: int = 30,
+        progress=None,
+    ) -> list[int]:
         """Static equilibrium by Newton, the gravity and the loads ramped over ``load_steps``
         increments: each body on its own (``integrators.solve_static``, its PETSc solver;
         ``solve_static_reduced``), then the coupled island, F_m + G^T lambda = 0 with
@@ -987,19 +1123,27 @@ class Scene:
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]
         counts = []
-        options = dict(load_steps=load_steps, rtol=rtol, atol=atol,
-                       max_iterations=max_iterations, progress=progress)
+        options = dict(
+            load_steps=load_steps,
+            rtol=rtol,
+            atol=atol,
+            max_iterations=max_iterations,
+            progress=progress,
+        )
         for body in free_fem:
             body.v.x.array[:] = 0.0
-            counts = _merge_counts(counts, solve_static(body, self.linear_solver_for(body),
-                                                        **options))
+            counts = _merge_counts(
+                counts, solve_static(body, self.linear_solver_for(body), **options)
+            )
         for body in free_reduced:
             body.qdot[:] = 0.0
             counts = _merge_counts(counts, solve_static_reduced(body, **options))
         if L.n_all:
             L = self._direct_layout("solve_static")
-            counts = _merge_counts(counts, self._solve_island_static(
-                L, load_steps, rtol, atol, max_iterations, progress))
+            counts = _merge_counts(
+                counts,
+                self._solve_island_static(L, load_steps, rtol, atol, max_iterations, progress),
+            )
         if not counts and not isinstance(load_steps, str):
             counts = StaticCounts([0] * int(load_steps))
         return counts
@@ -1015,11 +1159,10 @@ class Scene:
                 body.set_twist(np.zeros(6))
         g = self.gravity.copy()
         self._reactions = None
-        memory = ActiveSetMemory()          # the statics' own: forces, not impulses
-        residuals = []                      # the merit at each iterate of each increment
+        memory = ActiveSetMemory()  # the statics' own: forces, not impulses
+        residuals = []  # the merit at each iterate of each increment
         # prescribed displacements written since the bodies last moved: ramped with the load
-        ramps = [r for r in (body.take_prescribed_ramp() for body in L.fem_bodies)
-                 if r is not None]
+        ramps = [r for r in (body.take_prescribed_ramp() for body in L.fem_bodies) if r is not None]
         for ramp in ramps:
             ramp.apply(0.0)
 
@@ -1029,20 +1172,26 @@ class Scene:
                 ramp.apply(factor)
             residuals.append([])
             kept = memory.save()
-            contacts = (memory, IncrementSlip())   # friction sticks to the increment's start
+            contacts = (memory, IncrementSlip())  # friction sticks to the increment's start
             try:
-                return self._newton(L, rtol, atol, limit, factor, contacts, residuals[-1]) + \
-                    self._hold_volumes_static(L, rtol, atol, limit, factor, contacts,
-                                              residuals[-1])
+                return self._newton(
+                    L, rtol, atol, limit, factor, contacts, residuals[-1]
+                ) + self._hold_volumes_static(L, rtol, atol, limit, factor, contacts, residuals[-1])
             except StepFailed:
                 residuals.pop()
-                memory.restore(kept)            # the next try starts from the last solution
+                memory.restore(kept)  # the next try starts from the last solution
                 raise
 
         try:
-            counts = ramp_load(solve_increment, self.save_state, self.restore_state,
-                               load_steps, max_iterations, "static solve (coupled island)",
-                               progress)
+            counts = ramp_load(
+                solve_increment,
+                self.save_state,
+                self.restore_state,
+                load_steps,
+                max_iterations,
+                "static solve (coupled island)",
+                progress,
+            )
         except StepFailed:
             for ramp in ramps:
                 ramp.give_back()
@@ -1052,24 +1201,23 @@ class Scene:
         counts.residuals = residuals
         return counts
 
-    def _hold_volumes_static(self, L, rtol, atol, max_iterations, factor, contacts,
-                             residuals) -> int:
+    def _hold_volumes_static(
+        self, L, rtol, atol, max_iterations, factor, contacts, residuals
+    ) -> int:
         """Uzawa around the island's static Newton for hard-incompressible bodies: while
         some element volume is off by more than its tolerance, p <- pi and Newton again
         (the last residual assembled g at the solution). The Newton iterations it took."""
         constrained = [vc for _, vc in L.volume_constraints]
         iterations = 0
-        for updates in range(1, min((vc.spec.max_updates for vc in constrained),
-                                    default=0) + 2):
+        for updates in range(1, min((vc.spec.max_updates for vc in constrained), default=0) + 2):
             violations = [vc.update() for vc in constrained]
             if all(v <= vc.spec.tol for v, vc in zip(violations, constrained)):
                 return iterations
-            iterations += self._newton(L, rtol, atol, max_iterations, factor, contacts,
-                                       residuals)
-        off = "; ".join(vc.describe() for v, vc in zip(violations, constrained)
-                        if v > vc.spec.tol)
-        raise StepFailed(f"static solve: {off} after {updates - 1} pressure updates at load "
-                         f"factor {factor:g}")
+            iterations += self._newton(L, rtol, atol, max_iterations, factor, contacts, residuals)
+        off = "; ".join(vc.describe() for v, vc in zip(violations, constrained) if v > vc.spec.tol)
+        raise StepFailed(
+            f"static solve: {off} after {updates - 1} pressure updates at load factor {factor:g}"
+        )
 
     def _set_load_factor(self, factor: float, g: np.ndarray) -> None:
         """Ramp the loads: the rigid bodies' gravity, the load elements, and the FEM load
@@ -1102,13 +1250,14 @@ class Scene:
         offset = 0
         for g in rows:
             m = len(g.c)
-            part = None if held is None else held[offset:offset + m]
+            part = None if held is None else held[offset : offset + m]
             if g.compliance is not None:
                 on = g.block.compliant
-                law = np.where(on, np.maximum(-g.block.phi, 0.0), 0.0) / \
-                    np.where(on, g.compliance, 1.0)
+                law = np.where(on, np.maximum(-g.block.phi, 0.0), 0.0) / np.where(
+                    on, g.compliance, 1.0
+                )
                 part = law if part is None else part + law
-                hard[offset:offset + m] &= ~on
+                hard[offset : offset + m] &= ~on
             if part is not None and np.any(part):
                 F = F + np.asarray(g.G.T @ part).ravel()
             offset += m
@@ -1126,14 +1275,14 @@ class Scene:
         ``residuals``. The contacts' pairs, held once :data:`HOLD_AFTER_RISES` steps
         raised the merit, are released at the end."""
         try:
-            return self._newton_iterations(L, rtol, atol, max_iterations, factor, contacts,
-                                           residuals)
+            return self._newton_iterations(
+                L, rtol, atol, max_iterations, factor, contacts, residuals
+            )
         finally:
             for constraint in self.constraints:
                 constraint.hold_pairs(False)
 
-    def _newton_iterations(self, L, rtol, atol, max_iterations, factor, contacts,
-                           residuals) -> int:
+    def _newton_iterations(self, L, rtol, atol, max_iterations, factor, contacts, residuals) -> int:
         """:meth:`_newton`'s iterations."""
         memory, slip = contacts
         F, rows = self._residual(L)
@@ -1145,8 +1294,8 @@ class Scene:
         # the size of the loads: the forces the constraints carry at the start (the merit
         # of a converged state under a small increment is no measure of them)
         scale = max(norm, float(np.linalg.norm(F)), atol)
-        near = False    # Newton's region: the last step was full and lowered the merit
-        rises = 0       # steps that raised the merit or hardly lowered it
+        near = False  # Newton's region: the last step was full and lowered the merit
+        rises = 0  # steps that raised the merit or hardly lowered it
         for it in range(1, max_iterations + 1):
             residuals.append(norm)
             if norm <= max(rtol * scale, atol):
@@ -1156,13 +1305,13 @@ class Scene:
             last = memory.start(rows) if rows else None
             if near and last is not None and np.any(last[3]):  # rows turn under their forces
                 P = L.prolongation()
-                tangents.insert(0, L.fmt(
-                    K - P.T @ L.constraint_map.stiffness(rows, last[3]) @ P))
+                tangents.insert(0, L.fmt(K - P.T @ L.constraint_map.stiffness(rows, last[3]) @ P))
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
             for k, K in enumerate(tangents):
                 try:
-                    dq, lam, active = solve_saddle(self._solver, L.kkt, K, F, rows,
-                                                   "static solve", memory)
+                    dq, lam, active = solve_saddle(
+                        self._solver, L.kkt, K, F, rows, "static solve", memory
+                    )
                     break
                 except StepFailed as error:
                     if k + 1 == len(tangents):
@@ -1170,26 +1319,34 @@ class Scene:
                         raise
             # the rows held at a bound (sliding friction) push with their last forces
             held = np.where(active, 0.0, lam) if rows else None
-            if rows:                    # the constraints apply G^T lambda (forces: h = 1)
+            if rows:  # the constraints apply G^T lambda (forces: h = 1)
                 self._record_impulses(L, impulses_by_constraint(rows, lam), 1.0)
             gap = _gap(rows, active)
             # the rows' motion along the step, G dq, and the held forces' work along it
             # (they are constant within it)
-            motion = np.concatenate([np.asarray(g.G @ dq).ravel() for g in rows]) \
-                if rows else np.zeros(0)
+            motion = (
+                np.concatenate([np.asarray(g.G @ dq).ravel() for g in rows])
+                if rows
+                else np.zeros(0)
+            )
             pushed = float(held @ motion) if rows else 0.0
             saved = L.save()
             # The energy is a merit when it is the whole potential; with constraints, the
             # exact penalty E - lambda_h s_h + rho |gap|_1, rho > max |lambda| (the held
             # rows' forces constant), whose slope along the step is
             # -(F + G_h^T lambda_h) . dq - rho |gap|_1 = -dq^T K dq - lambda . phi - ... < 0.
-            use_energy = all(hasattr(e, "potential_energy") for e in self.forces) \
-                and all(hasattr(e, "potential_energy") for e in self.loads) \
-                and all(p.conservative for p in self.paths) \
+            use_energy = (
+                all(hasattr(e, "potential_energy") for e in self.forces)
+                and all(hasattr(e, "potential_energy") for e in self.loads)
+                and all(p.conservative for p in self.paths)
                 and all(b.conservative for b in L.fem_bodies)
+            )
             rho = 2.0 * float(np.abs(lam).max()) if lam.size else 0.0
-            energy0 = self.potential_energy() + _compliant_energy(rows) + \
-                rho * float(np.abs(gap).sum()) if use_energy else 0.0
+            energy0 = (
+                self.potential_energy() + _compliant_energy(rows) + rho * float(np.abs(gap).sum())
+                if use_energy
+                else 0.0
+            )
             slope = -float(F @ dq) - pushed - rho * float(np.abs(gap).sum())
             step = 1.0
             while step >= 1e-4:
@@ -1207,24 +1364,33 @@ class Scene:
                     same = [len(g.c) for g in rows_new] == [len(g.c) for g in rows]
                     on, pushing = (active, held) if same else _carried(rows_new, memory)
                     gap_new = _gap(rows_new, on)
-                    energy = self.potential_energy() + _compliant_energy(rows_new) - \
-                        step * pushed + rho * float(np.abs(gap_new).sum()) \
-                        if use_energy else np.inf
+                    energy = (
+                        self.potential_energy()
+                        + _compliant_energy(rows_new)
+                        - step * pushed
+                        + rho * float(np.abs(gap_new).sum())
+                        if use_energy
+                        else np.inf
+                    )
                     trial = self._merit(F_new, rows_new, on, pushing)
                     if np.isfinite(trial) and (
-                            energy <= energy0 + 1e-4 * step * slope
-                            or trial <= (1.0 - 1e-4 * step) * norm):
+                        energy <= energy0 + 1e-4 * step * slope
+                        or trial <= (1.0 - 1e-4 * step) * norm
+                    ):
                         break
                 L.restore(saved)
                 step *= 0.5
             else:
-                raise StepFailed(f"static solve: line search failed at load factor "
-                                 f"{factor:g}, Newton iteration {it}", iterations=it)
+                raise StepFailed(
+                    f"static solve: line search failed at load factor "
+                    f"{factor:g}, Newton iteration {it}",
+                    iterations=it,
+                )
             near = step == 1.0 and trial < norm
-            rises += trial > 0.9 * norm          # raised, or hardly lowered
+            rises += trial > 0.9 * norm  # raised, or hardly lowered
             slip.take(moved)
             F, rows, norm = F_new, rows_new, trial
-            if rises == HOLD_AFTER_RISES:      # Newton circles between contact features
+            if rises == HOLD_AFTER_RISES:  # Newton circles between contact features
                 for constraint in self.constraints:
                     constraint.hold_pairs(True)
             if step == 1.0 and np.abs(dq).max() <= 1e-14 * max(L.master_scale(), 1e-300):
@@ -1233,9 +1399,11 @@ class Scene:
         residuals.append(norm)
         if norm <= max(rtol * scale, atol):
             return max_iterations
-        raise StepFailed(f"static solve: Newton did not converge in {max_iterations} "
-                         f"iterations at load factor {factor:g} (|r| = {norm:.3e})",
-                         iterations=max_iterations)
+        raise StepFailed(
+            f"static solve: Newton did not converge in {max_iterations} "
+            f"iterations at load factor {factor:g} (|r| = {norm:.3e})",
+            iterations=max_iterations,
+        )
 
 
 def _carried(rows: list, memory: ActiveSetMemory) -> tuple:
@@ -1253,16 +1421,25 @@ def _carried(rows: list, memory: ActiveSetMemory) -> tuple:
 def _crossed(rows: list) -> np.ndarray:
     """The rows a merit holds before a solve: the free rows and the crossed bounded ones
     (not compliant ones: their crossing is the law's)."""
-    return np.concatenate([~g.block.bounded | ((g.block.phi < 0) & ~g.block.compliant)
-                           for g in rows]) if rows \
+    return (
+        np.concatenate([~g.block.bounded | ((g.block.phi < 0) & ~g.block.compliant) for g in rows])
+        if rows
         else np.zeros(0, dtype=bool)
+    )
 
 
 def _compliant_energy(rows: list) -> float:
     """The compliant rows' springs, sum max(-phi, 0)^2 / (2 C) (statics: h = 1)."""
-    return sum(float(np.sum(np.where(g.block.compliant, np.minimum(g.block.phi, 0.0) ** 2, 0.0)
-                            / (2.0 * np.where(g.block.compliant, g.compliance, 1.0))))
-               for g in rows if g.compliance is not None)
+    return sum(
+        float(
+            np.sum(
+                np.where(g.block.compliant, np.minimum(g.block.phi, 0.0) ** 2, 0.0)
+                / (2.0 * np.where(g.block.compliant, g.compliance, 1.0))
+            )
+        )
+        for g in rows
+        if g.compliance is not None
+    )
 
 
 def _gap(rows: list, active: np.ndarray) -> np.ndarray:
@@ -1272,7 +1449,10 @@ def _gap(rows: list, active: np.ndarray) -> np.ndarray:
     if not rows:
         return np.zeros(0)
     gap = np.concatenate([g.block.gap() for g in rows])
-    sticking = active & np.concatenate([
-        g.block.friction.rows if g.block.friction is not None else np.zeros(len(g.c), bool)
-        for g in rows])
+    sticking = active & np.concatenate(
+        [
+            g.block.friction.rows if g.block.friction is not None else np.zeros(len(g.c), bool)
+            for g in rows
+        ]
+    )
     return np.where(sticking, -np.concatenate([g.c for g in rows]), gap)

@@ -69,37 +69,49 @@ class SchurIsland:
     """The coupled island of FEM bodies and rigid bodies (module docstring)."""
 
     def __init__(self, scene, fem_bodies: list):
-        unsupported = {"reduced bodies": [b for b in scene.reduced_bodies],
-                       "embedded attachments": scene.embedded_attachments,
-                       "lift attachments": scene.lift_attachments,
-                       "frame attachments": scene.frame_attachments,
-                       "point paths": scene.paths, "load elements": scene.loads}
+        unsupported = {
+            "reduced bodies": [b for b in scene.reduced_bodies],
+            "embedded attachments": scene.embedded_attachments,
+            "lift attachments": scene.lift_attachments,
+            "frame attachments": scene.frame_attachments,
+            "point paths": scene.paths,
+            "load elements": scene.loads,
+        }
         unsupported["bodies with the hard incompressibility"] = [
-            b for b in fem_bodies if b.volume_constraint is not None]
+            b for b in fem_bodies if b.volume_constraint is not None
+        ]
         # the FEM bodies' rows stay on their ranks here: constraints act on rigid bodies only
         unsupported["constraints on FEM bodies (contact)"] = [
-            c for c in scene.constraints if any(b is f for b in c.bodies for f in fem_bodies)]
+            c for c in scene.constraints if any(b is f for b in c.bodies for f in fem_bodies)
+        ]
         found = [what for what, items in unsupported.items() if items]
         if found:
-            raise InputError(f"the distributed (Schur) island takes FEM bodies, rigid bodies, "
-                             f"node attachments, joints and force elements; this scene also "
-                             f"has {', '.join(found)} (run it in serial with "
-                             f"island_solver='direct')")
+            raise InputError(
+                f"the distributed (Schur) island takes FEM bodies, rigid bodies, "
+                f"node attachments, joints and force elements; this scene also "
+                f"has {', '.join(found)} (run it in serial with "
+                f"island_solver='direct')"
+            )
         self.scene, self.fem_bodies = scene, list(fem_bodies)
         self.rigid = Layout(_RigidPart(scene), [], [])
         known = {id(b) for b in self.fem_bodies}
         for att in scene.node_attachments:
             if id(att.fem) not in known:
-                raise InputError(f"node attachment {att.name!r}: FEM body {att.fem.name!r} is "
-                                 "not in the scene")
+                raise InputError(
+                    f"node attachment {att.name!r}: FEM body {att.fem.name!r} is not in the scene"
+                )
             if not any(att.body is b for b in scene.rigid_bodies):
-                raise InputError(f"node attachment {att.name!r}: rigid body {att.body.name!r} "
-                                 "is not in the scene")
+                raise InputError(
+                    f"node attachment {att.name!r}: rigid body {att.body.name!r} "
+                    "is not in the scene"
+                )
             root = self.rigid.root[id(att.body)]
             if root.motion == "prescribed":
-                raise InputError(f"node attachment {att.name!r}: nodes on the prescribed body "
-                                 f"{root.name!r} are not supported by the distributed island "
-                                 "yet (fix them, or run in serial with island_solver='direct')")
+                raise InputError(
+                    f"node attachment {att.name!r}: nodes on the prescribed body "
+                    f"{root.name!r} are not supported by the distributed island "
+                    "yet (fix them, or run in serial with island_solver='direct')"
+                )
         self._Aff: dict[int, PETSc.Mat] = {}
 
     # ---- one step ----------------------------------------------------------------------
@@ -128,10 +140,14 @@ class SchurIsland:
             if scene.geometric_stiffness:
                 S = S - h * h * part["K_geo"]
         rows = R.constraint_map.rows(P, z_k, h, scene.stabilization)
-        u_m, lam, active = solve_constrained(scene._solver, S, rhs, rows, f"t = {scene.t:g}",
-                                             memory=scene._active_sets)
-        scene.last_solve = {"masters": u_m.size, "constraint_rows": active,
-                            "fem_solves": sum(p["solves"] for p in parts)}
+        u_m, lam, active = solve_constrained(
+            scene._solver, S, rhs, rows, f"t = {scene.t:g}", memory=scene._active_sets
+        )
+        scene.last_solve = {
+            "masters": u_m.size,
+            "constraint_rows": active,
+            "fem_solves": sum(p["solves"] for p in parts),
+        }
         R.advance(P @ u_m + z_k, h, targets)
         for part in parts:
             self._advance_fem(part, u_m, h)
@@ -143,9 +159,9 @@ class SchurIsland:
         scene, R = self.scene, self.rigid
         n_m = P.shape[1]
         n_owned = body.V.dofmap.index_map.size_local
-        A, b, applied = step_system(body, h)       # A: body.K, until the next assembly
+        A, b, applied = step_system(body, h)  # A: body.K, until the next assembly
         v = body.v.x.petsc_vec
-        f_applied = applied.array.copy()            # f - D v, for K_geo
+        f_applied = applied.array.copy()  # f - D v, for K_geo
         # W: the nodal velocities of unit master twists, on the owned attached dofs
         W_local = np.zeros((3 * n_owned, n_m))
         non_free = np.zeros(3 * n_owned, dtype=bool)
@@ -162,17 +178,17 @@ class SchurIsland:
             non_free[rows] = True
             root = R.root[id(att.body)]
             if id(root) not in R.master_col:
-                continue                            # a fixed root: the nodes stay put
+                continue  # a fixed root: the nodes stay put
             o = R.rigid_offset[id(att.body)]
             G = att.jacobian().reshape(-1, 3, 6)[owned].reshape(-1, 6)
-            W_local[rows] = G @ P[o:o + 6]
+            W_local[rows] = G @ P[o : o + 6]
             # K_geo: sum_s [f_s]x [d_s]x on the root's rotation block (levers from the root)
             f = f_applied.reshape(-1, 3)[att.dofs[owned]]
             d = dof_positions(body)[att.dofs[owned]] - root.position
             block = np.einsum("nij,njk->ik", skews(f), skews(d)) if len(f) else np.zeros((3, 3))
             block = body.mesh.comm.allreduce(block, op=MPI.SUM)
             c0 = R.master_col[id(root)]
-            K_geo[c0 + 3:c0 + 6, c0 + 3:c0 + 6] += block
+            K_geo[c0 + 3 : c0 + 6, c0 + 3 : c0 + 6] += block
         A_ff = self._free_matrix(body, A, non_free)
         solver = scene.linear_solver_for(body)
         # y = v_0 + A_ff^{-1} (b - A v_0)_f: the increment form
@@ -203,14 +219,23 @@ class SchurIsland:
             Ws.append(w), Ys.append(Y), Zs.append(Z)
             Yf.destroy()
         # Y_i . Z_j: Z_j vanishes off the free rows, so this is (A W)_f^T Z
-        S = np.array([[Ws[i].dot(Ys[j]) - Ys[i].dot(Zs[j]) for j in range(n_m)]
-                      for i in range(n_m)])
+        S = np.array(
+            [[Ws[i].dot(Ys[j]) - Ys[i].dot(Zs[j]) for j in range(n_m)] for i in range(n_m)]
+        )
         rhs = np.array([Ws[i].dot(b) - Ys[i].dot(y) for i in range(n_m)])
         for vec in (applied, ones, r, v0, *Ys):
             vec.destroy()
         b.destroy()
-        return {"body": body, "S": S, "rhs": rhs, "K_geo": K_geo, "y": y, "W": Ws, "Z": Zs,
-                "solves": 1 + sum(1 for Z in Zs if Z.norm() > 0.0)}
+        return {
+            "body": body,
+            "S": S,
+            "rhs": rhs,
+            "K_geo": K_geo,
+            "y": y,
+            "W": Ws,
+            "Z": Zs,
+            "solves": 1 + sum(1 for Z in Zs if Z.norm() > 0.0),
+        }
 
     def _free_matrix(self, body, A: PETSc.Mat, non_free: np.ndarray) -> PETSc.Mat:
         """A with the attached and fixed rows and columns replaced by the identity, in one

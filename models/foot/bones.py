@@ -70,8 +70,11 @@ GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 #: body -> (joint placing it in its parent, parent body); tibia_r is the root.
-CHAIN = {"talus_r": ("ankle_r", "tibia_r"), "calcn_r": ("subtalar_r", "talus_r"),
-         "toes_r": ("mtp_r", "calcn_r")}
+CHAIN = {
+    "talus_r": ("ankle_r", "tibia_r"),
+    "calcn_r": ("subtalar_r", "talus_r"),
+    "toes_r": ("mtp_r", "calcn_r"),
+}
 
 #: the lumped meshes the osim attaches to the bodies, for :func:`check_bodies`.
 LUMPED = {"calcn_r": "foot.vtp", "toes_r": "bofoot.vtp"}
@@ -128,8 +131,11 @@ def _rotation(axis, angle: float) -> np.ndarray:
 def _frame(translation, orientation) -> np.ndarray:
     """4x4 of an OpenSim offset frame: body-fixed X-Y-Z rotation, then translation."""
     m = np.eye(4)
-    m[:3, :3] = (_rotation([1, 0, 0], orientation[0]) @ _rotation([0, 1, 0], orientation[1])
-                 @ _rotation([0, 0, 1], orientation[2]))
+    m[:3, :3] = (
+        _rotation([1, 0, 0], orientation[0])
+        @ _rotation([0, 1, 0], orientation[1])
+        @ _rotation([0, 0, 1], orientation[2])
+    )
     m[:3, 3] = translation
     return m
 
@@ -148,8 +154,10 @@ def _function_value(axis_node, coords: dict[str, float], joint: str) -> float:
             a, b = _vec(child, "coefficients")
             return a * q + b
         if child.tag not in ("coordinates", "axis"):
-            raise InputError(f"joint {joint}: transform axis {axis_node.get('name')} has a "
-                             f"{child.tag}, only Constant and LinearFunction are read")
+            raise InputError(
+                f"joint {joint}: transform axis {axis_node.get('name')} has a "
+                f"{child.tag}, only Constant and LinearFunction are read"
+            )
     raise InputError(f"joint {joint}: transform axis {axis_node.get('name')} has no function")
 
 
@@ -160,27 +168,35 @@ def joint_frames(osim: Path = OSIM) -> dict[str, dict]:
     root = ET.parse(osim).getroot()
     out = {}
     for joint_name, _ in CHAIN.values():
-        joint = next((j for j in root.iter() if j.get("name") == joint_name
-                      and j.tag.endswith("Joint")), None)
+        joint = next(
+            (j for j in root.iter() if j.get("name") == joint_name and j.tag.endswith("Joint")),
+            None,
+        )
         if joint is None:
             raise InputError(f"{osim}: no joint {joint_name!r}")
         frames = {f.get("name"): f for f in joint.find("frames")}
         info = {"type": joint.tag}
         for role in ("parent", "child"):
             f = frames[joint.findtext(f"socket_{role}_frame")]
-            info[role] = {"body": f.findtext("socket_parent").rsplit("/", 1)[-1],
-                          "translation": _vec(f, "translation"),
-                          "orientation": _vec(f, "orientation")}
-        coords = {c.get("name"): float(c.findtext("default_value"))
-                  for c in joint.find("coordinates")}
+            info[role] = {
+                "body": f.findtext("socket_parent").rsplit("/", 1)[-1],
+                "translation": _vec(f, "translation"),
+                "orientation": _vec(f, "orientation"),
+            }
+        coords = {
+            c.get("name"): float(c.findtext("default_value")) for c in joint.find("coordinates")
+        }
         m = np.eye(4)
         spatial = joint.find("SpatialTransform")
         if spatial is not None:
             for axis in spatial:
                 value = _function_value(axis, coords, joint_name)
-                if axis.get("name").startswith("rotation") and "axis" not in info \
-                        and (axis.findtext("coordinates") or "").strip():
-                    info["axis"] = _vec(axis, "axis")     # the coordinate's hinge axis
+                if (
+                    axis.get("name").startswith("rotation")
+                    and "axis" not in info
+                    and (axis.findtext("coordinates") or "").strip()
+                ):
+                    info["axis"] = _vec(axis, "axis")  # the coordinate's hinge axis
                 if axis.get("name").startswith("rotation"):
                     m[:3, :3] = m[:3, :3] @ _rotation(_vec(axis, "axis"), value)
                 else:
@@ -198,8 +214,10 @@ def body_transforms(osim: Path = OSIM) -> dict[str, np.ndarray]:
     for body, (joint_name, parent) in CHAIN.items():
         j = joints[joint_name]
         if j["parent"]["body"] != parent or j["child"]["body"] != body:
-            raise InputError(f"{osim}: joint {joint_name} connects {j['parent']['body']} -> "
-                             f"{j['child']['body']}, expected {parent} -> {body}")
+            raise InputError(
+                f"{osim}: joint {joint_name} connects {j['parent']['body']} -> "
+                f"{j['child']['body']}, expected {parent} -> {body}"
+            )
         p = _frame(j["parent"]["translation"], j["parent"]["orientation"])
         c = _frame(j["child"]["translation"], j["child"]["orientation"])
         out[body] = out[parent] @ p @ j["spatial"] @ np.linalg.inv(c)
@@ -209,8 +227,7 @@ def body_transforms(osim: Path = OSIM) -> dict[str, np.ndarray]:
 def body_meshes(osim: Path = OSIM) -> dict[str, list[str]]:
     """body -> the mesh files the osim attaches to it."""
     root = ET.parse(osim).getroot()
-    return {b.get("name"): [m.text.strip() for m in b.iter("mesh_file")]
-            for b in root.iter("Body")}
+    return {b.get("name"): [m.text.strip() for m in b.iter("mesh_file")] for b in root.iter("Body")}
 
 
 def check_bodies(osim: Path = OSIM, data: Path = DATA) -> None:
@@ -226,8 +243,10 @@ def check_bodies(osim: Path = OSIM, data: Path = DATA) -> None:
             v = read_vtp(data / file)[0]
             centre = 0.5 * (v.min(0) + v.max(0))
             if (centre < lumped.min(0)).any() or (centre > lumped.max(0)).any():
-                raise InputError(f"bone {name} ({file}) is not inside {LUMPED[body]}'s box: "
-                                 f"it is not in the frame of body {body}")
+                raise InputError(
+                    f"bone {name} ({file}) is not inside {LUMPED[body]}'s box: "
+                    f"it is not in the frame of body {body}"
+                )
         elif file not in meshes.get(body, []):
             raise InputError(f"{osim}: body {body} does not carry {file} (bone {name})")
 
@@ -236,8 +255,9 @@ def check_closed(name: str, vertices: np.ndarray, triangles: np.ndarray) -> None
     """A surface must be closed, manifold and outward; else :class:`MeshError` naming it."""
     boundary, nonmanifold = edge_defects(triangles)
     if boundary or nonmanifold:
-        raise MeshError(f"{name} is not closed: {boundary} boundary edge(s), "
-                        f"{nonmanifold} non-manifold edge(s)")
+        raise MeshError(
+            f"{name} is not closed: {boundary} boundary edge(s), {nonmanifold} non-manifold edge(s)"
+        )
     if signed_volume(vertices, triangles) <= 0:
         raise MeshError(f"{name} is inward oriented (signed volume <= 0)")
 
@@ -250,12 +270,16 @@ def check_units(bones: list[Bone]) -> None:
     extents = [float(np.max(b.vertices.max(0) - b.vertices.min(0))) for b in bones]
     if size > 1.0:
         worst = bones[int(np.argmax(extents))]
-        raise InputError(f"the foot's bones span {size:.4g} m (> 1 m): units off, mm instead "
-                         f"of m? (largest: bone {worst.name}, {worst.file}, {max(extents):.4g})")
+        raise InputError(
+            f"the foot's bones span {size:.4g} m (> 1 m): units off, mm instead "
+            f"of m? (largest: bone {worst.name}, {worst.file}, {max(extents):.4g})"
+        )
     if size < 0.01:
         worst = bones[int(np.argmin(extents))]
-        raise InputError(f"the foot's bones span {size:.4g} m (< 1 cm): units off? "
-                         f"(smallest: bone {worst.name}, {worst.file}, {min(extents):.4g})")
+        raise InputError(
+            f"the foot's bones span {size:.4g} m (< 1 cm): units off? "
+            f"(smallest: bone {worst.name}, {worst.file}, {min(extents):.4g})"
+        )
 
 
 def load_bones(data: Path = DATA, osim: Path = OSIM) -> list[Bone]:
@@ -280,7 +304,7 @@ def penetrations(bones: list[Bone]) -> list[tuple[str, str, float]]:
 
     out = []
     for i, a in enumerate(bones):
-        for b in bones[i + 1:]:
+        for b in bones[i + 1 :]:
             if a.group == b.group or not _boxes_overlap(a.vertices, b.vertices):
                 continue
             depth = 0.0
@@ -304,8 +328,10 @@ def surface_gap(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarra
     both ways (an upper bound of the true surface gap)."""
     import igl
 
-    return min(float(np.sqrt(igl.point_mesh_squared_distance(p[0], q[0], q[1])[0].min()))
-               for p, q in ((a, b), (b, a)))
+    return min(
+        float(np.sqrt(igl.point_mesh_squared_distance(p[0], q[0], q[1])[0].min()))
+        for p, q in ((a, b), (b, a))
+    )
 
 
 def min_gaps(bones: list[Bone]) -> dict[tuple[str, str], float]:
@@ -313,7 +339,7 @@ def min_gaps(bones: list[Bone]) -> dict[tuple[str, str], float]:
     closer than 1 cm."""
     out: dict[tuple[str, str], float] = {}
     for i, a in enumerate(bones):
-        for b in bones[i + 1:]:
+        for b in bones[i + 1 :]:
             if a.group == b.group:
                 continue
             d = surface_gap((a.vertices, a.triangles), (b.vertices, b.triangles))

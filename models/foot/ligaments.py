@@ -43,7 +43,7 @@ from . import bones as fb
 
 #: truss constants of Cheung et al. (2005): (E Pa, A m^2).
 LIGAMENT = (260e6, 18.4e-6)
-PLANTAR_FASCIA = (350e6, 58.6e-6 / 5)      # per band, five bands
+PLANTAR_FASCIA = (350e6, 58.6e-6 / 5)  # per band, five bands
 
 
 @dataclass(frozen=True)
@@ -83,28 +83,57 @@ MEDIAL_PROCESS = Landmark("calcaneus", (-1.0, -1.0, -0.3))
 
 #: name -> (landmark, landmark, (E, A)): the named ligaments (module docstring).
 NAMED: dict[str, tuple[Landmark, Landmark, tuple[float, float]]] = {
-    "tibionavicular": (_distal("tibia", (1.0, -1.0, -1.0)),
-                       Landmark("navicular", (0.0, -0.3, -1.0)), LIGAMENT),
+    "tibionavicular": (
+        _distal("tibia", (1.0, -1.0, -1.0)),
+        Landmark("navicular", (0.0, -0.3, -1.0)),
+        LIGAMENT,
+    ),
     "tibiocalcaneal": (MEDIAL_MALLEOLUS, SUSTENTACULUM, LIGAMENT),
-    "anterior tibiotalar": (_distal("tibia", (1.0, -1.0, -1.0)),
-                            Landmark("talus", (1.0, 0.0, -1.0)), LIGAMENT),
-    "posterior tibiotalar": (_distal("tibia", (-1.0, -1.0, -1.0)),
-                             Landmark("talus", (-1.0, 0.0, -1.0)), LIGAMENT),
-    "anterior talofibular": (_distal("fibula", (1.0, -0.5, 0.0)),
-                             Landmark("talus", (1.0, 0.0, 1.0)), LIGAMENT),
-    "posterior talofibular": (_distal("fibula", (-1.0, 0.0, 0.0)),
-                              Landmark("talus", (-1.0, 0.0, 1.0)), LIGAMENT),
+    "anterior tibiotalar": (
+        _distal("tibia", (1.0, -1.0, -1.0)),
+        Landmark("talus", (1.0, 0.0, -1.0)),
+        LIGAMENT,
+    ),
+    "posterior tibiotalar": (
+        _distal("tibia", (-1.0, -1.0, -1.0)),
+        Landmark("talus", (-1.0, 0.0, -1.0)),
+        LIGAMENT,
+    ),
+    "anterior talofibular": (
+        _distal("fibula", (1.0, -0.5, 0.0)),
+        Landmark("talus", (1.0, 0.0, 1.0)),
+        LIGAMENT,
+    ),
+    "posterior talofibular": (
+        _distal("fibula", (-1.0, 0.0, 0.0)),
+        Landmark("talus", (-1.0, 0.0, 1.0)),
+        LIGAMENT,
+    ),
     "calcaneofibular": (LATERAL_MALLEOLUS, Landmark("calcaneus", (0.0, -0.3, 1.0)), LIGAMENT),
     "spring": (SUSTENTACULUM, Landmark("navicular", (0.0, -1.0, -1.0)), LIGAMENT),
-    "long plantar 3": (Landmark("calcaneus", (0.5, -1.0, 0.0)),
-                       _base("metatarsal3", (0.0, -1.0, 0.0)), LIGAMENT),
-    "long plantar 4": (Landmark("calcaneus", (0.5, -1.0, 0.0)),
-                       _base("metatarsal4", (0.0, -1.0, 0.0)), LIGAMENT),
-    "short plantar": (Landmark("calcaneus", (1.0, -1.0, 0.0)),
-                      Landmark("cuboid", (0.0, -1.0, 0.0)), LIGAMENT),
-    **{f"plantar fascia {i}": (MEDIAL_PROCESS, _base(f"prox_phalanx{i}", (0.0, -1.0, 0.0),
-                                                     0.008), PLANTAR_FASCIA)
-       for i in range(1, 6)},
+    "long plantar 3": (
+        Landmark("calcaneus", (0.5, -1.0, 0.0)),
+        _base("metatarsal3", (0.0, -1.0, 0.0)),
+        LIGAMENT,
+    ),
+    "long plantar 4": (
+        Landmark("calcaneus", (0.5, -1.0, 0.0)),
+        _base("metatarsal4", (0.0, -1.0, 0.0)),
+        LIGAMENT,
+    ),
+    "short plantar": (
+        Landmark("calcaneus", (1.0, -1.0, 0.0)),
+        Landmark("cuboid", (0.0, -1.0, 0.0)),
+        LIGAMENT,
+    ),
+    **{
+        f"plantar fascia {i}": (
+            MEDIAL_PROCESS,
+            _base(f"prox_phalanx{i}", (0.0, -1.0, 0.0), 0.008),
+            PLANTAR_FASCIA,
+        )
+        for i in range(1, 6)
+    },
 }
 
 
@@ -125,12 +154,14 @@ class LigamentSpec:
 def _spec(name: str, bones: dict[str, fb.Bone], a: Landmark, b: Landmark, ea) -> LigamentSpec:
     pa, pb = a.point(bones), b.point(bones)
     length = float(np.linalg.norm(pb - pa))
-    return LigamentSpec(name, (bones[a.bone].group, bones[b.bone].group), (pa, pb),
-                        ea[0] * ea[1] / length)
+    return LigamentSpec(
+        name, (bones[a.bone].group, bones[b.bone].group), (pa, pb), ea[0] * ea[1] / length
+    )
 
 
-def capsules(bones: list[fb.Bone], joints, skip=(("tibia", "talus"),),
-             reach: float = 0.005) -> list[LigamentSpec]:
+def capsules(
+    bones: list[fb.Bone], joints, skip=(("tibia", "talus"),), reach: float = 0.005
+) -> list[LigamentSpec]:
     """Four springs across the rim of each joint (group pair) of ``joints`` not in ``skip``:
     with n the direction from one side's joint region to the other's (the vertices of each
     within its gap + ``reach`` of the other group), t1 the up direction made normal to n
@@ -141,8 +172,10 @@ def capsules(bones: list[fb.Bone], joints, skip=(("tibia", "talus"),),
     def merged(group):
         parts = [b for b in bones if b.group == group]
         offsets = np.cumsum([0] + [len(b.vertices) for b in parts[:-1]])
-        return (np.vstack([b.vertices for b in parts]),
-                np.vstack([b.triangles + o for b, o in zip(parts, offsets)]))
+        return (
+            np.vstack([b.vertices for b in parts]),
+            np.vstack([b.triangles + o for b, o in zip(parts, offsets)]),
+        )
 
     out = []
     for a, b in joints:
@@ -161,8 +194,11 @@ def capsules(bones: list[fb.Bone], joints, skip=(("tibia", "talus"),),
         for label, t in (("dorsal", t1), ("plantar", -t1), ("side +", t2), ("side -", -t2)):
             pa, pb = near_a[np.argmax(near_a @ t)], near_b[np.argmax(near_b @ t)]
             length = float(np.linalg.norm(pb - pa))
-            out.append(LigamentSpec(f"{a}-{b} capsule {label}", (a, b), (pa, pb),
-                                    LIGAMENT[0] * LIGAMENT[1] / length))
+            out.append(
+                LigamentSpec(
+                    f"{a}-{b} capsule {label}", (a, b), (pa, pb), LIGAMENT[0] * LIGAMENT[1] / length
+                )
+            )
     return out
 
 
@@ -170,5 +206,6 @@ def ligaments(bones: list[fb.Bone], joints) -> list[LigamentSpec]:
     """Every ligament of the module docstring: :data:`NAMED`, then the joint
     :func:`capsules`."""
     by_name = {b.name: b for b in bones}
-    return [_spec(name, by_name, a, b, ea) for name, (a, b, ea) in NAMED.items()] + \
-        capsules(bones, joints)
+    return [_spec(name, by_name, a, b, ea) for name, (a, b, ea) in NAMED.items()] + capsules(
+        bones, joints
+    )

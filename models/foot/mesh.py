@@ -48,8 +48,10 @@ class MeshParams:
     skin: fs.SkinParams = field(default_factory=fs.SkinParams)
 
 
-LEVELS = {0: MeshParams(0.0012, 0.0003, 0.008, 0.014, fs.SkinParams(triangles=1200)),
-          1: MeshParams(0.0008, 0.0003, 0.0028, 0.006, fs.SkinParams(triangles=4000))}
+LEVELS = {
+    0: MeshParams(0.0012, 0.0003, 0.008, 0.014, fs.SkinParams(triangles=1200)),
+    1: MeshParams(0.0008, 0.0003, 0.0028, 0.006, fs.SkinParams(triangles=4000)),
+}
 
 
 @dataclass
@@ -74,8 +76,11 @@ class FootMesh:
         return BONE + self.groups.index(name)
 
 
-def check_input(bones: list[fb.Bone], skin: tuple[np.ndarray, np.ndarray] | None = None,
-                cap_y: float | None = None) -> None:
+def check_input(
+    bones: list[fb.Bone],
+    skin: tuple[np.ndarray, np.ndarray] | None = None,
+    cap_y: float | None = None,
+) -> None:
     """Refuse, before meshing: units off (:func:`~.bones.check_units`), bones of different
     groups intersecting (:func:`~.bones.penetrations`), a skin that does not contain every
     bone vertex below the cap."""
@@ -84,16 +89,20 @@ def check_input(bones: list[fb.Bone], skin: tuple[np.ndarray, np.ndarray] | None
     bad = fb.penetrations(bones)
     if bad:
         a, b, depth = max(bad, key=lambda x: x[2])
-        raise MeshError(f"bones of different rigid groups intersect: {a} ({files[a]}) and "
-                        f"{b} ({files[b]}), {depth * 1e3:.3g} mm deep"
-                        + (f"; and {len(bad) - 1} more pair(s)" if len(bad) > 1 else ""))
+        raise MeshError(
+            f"bones of different rigid groups intersect: {a} ({files[a]}) and "
+            f"{b} ({files[b]}), {depth * 1e3:.3g} mm deep"
+            + (f"; and {len(bad) - 1} more pair(s)" if len(bad) > 1 else "")
+        )
     if skin is not None:
         for b in bones:
             v = b.vertices[b.vertices[:, 1] < cap_y]
             if len(v) and (fs.signed_distance(v, *skin) > 0).any():
-                raise MeshError(f"the skin does not contain bone {b.name} ({b.file}): "
-                                f"{int((fs.signed_distance(v, *skin) > 0).sum())} vertex(es) "
-                                f"outside")
+                raise MeshError(
+                    f"the skin does not contain bone {b.name} ({b.file}): "
+                    f"{int((fs.signed_distance(v, *skin) > 0).sum())} vertex(es) "
+                    f"outside"
+                )
 
 
 def surfaces(bones: list[fb.Bone], params: MeshParams):
@@ -107,14 +116,17 @@ def surfaces(bones: list[fb.Bone], params: MeshParams):
         gb = [b for b in bones if b.name in members]
         y_max = params.skin.cap_y + 4 * params.spacing if name == "tibia" else None
         area = sum(_area(b.vertices, b.triangles, y_max) for b in gb)
-        triangles = max(60, int(area / (0.433 * params.h_bone ** 2)))
+        triangles = max(60, int(area / (0.433 * params.h_bone**2)))
         groups[name] = fs.group_surface(gb, params.spacing, params.shrink, triangles, y_max)
     tv, tf = groups["tibia"]
     v, f = fs.cap([skin_open, (tv, tf[:, ::-1])], params.skin.cap_y)
     fb.check_closed("skin + cap + tibia surface", v, f)
     centre = v[f].mean(1)
-    tags = np.where(np.abs(fs.signed_distance(centre, tv, tf))
-                    < np.abs(fs.signed_distance(centre, *skin_open)), BONE, SKIN)
+    tags = np.where(
+        np.abs(fs.signed_distance(centre, tv, tf)) < np.abs(fs.signed_distance(centre, *skin_open)),
+        BONE,
+        SKIN,
+    )
     tags[np.all(v[f][:, :, 1] == params.skin.cap_y, axis=1)] = CAP
     groups["tibia"] = fs.cap([(tv, tf)], params.skin.cap_y)
     return (v, f, tags), groups, skin
@@ -124,8 +136,10 @@ def _area(v, f, y_max: float | None = None) -> float:
     """Area of the triangles (those whose centre is below ``y_max``)."""
     if y_max is not None:
         f = f[v[f][:, :, 1].mean(1) < y_max]
-    return float(0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]],
-                                               v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+    return float(
+        0.5
+        * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+    )
 
 
 def _gmsh(outer, holes: list[tuple[np.ndarray, np.ndarray, int]], h_max: float):
@@ -144,8 +158,7 @@ def _gmsh(outer, holes: list[tuple[np.ndarray, np.ndarray, int]], h_max: float):
             for t in np.unique(tags):
                 s = gmsh.model.addDiscreteEntity(2)
                 if first:
-                    gmsh.model.mesh.addNodes(2, s, np.arange(offset, offset + len(v)),
-                                             v.ravel())
+                    gmsh.model.mesh.addNodes(2, s, np.arange(offset, offset + len(v)), v.ravel())
                     first = False
                 gmsh.model.mesh.addElementsByType(s, 2, [], (f[tags == t] + offset).ravel())
                 entities.append((s, int(t)))
@@ -175,14 +188,17 @@ def _gmsh(outer, holes: list[tuple[np.ndarray, np.ndarray, int]], h_max: float):
     facets = renumber[np.vstack(facets)]
     if (facets < 0).any():
         missing = np.unique(np.concatenate(ftags)[np.any(facets < 0, axis=1)])
-        raise MeshError(f"gmsh: {int(np.any(facets < 0, axis=1).sum())} boundary triangles "
-                        f"(tags {missing.tolist()}) are not on the tetrahedra "
-                        f"({len(cells)} tetrahedra)")
+        raise MeshError(
+            f"gmsh: {int(np.any(facets < 0, axis=1).sum())} boundary triangles "
+            f"(tags {missing.tolist()}) are not on the tetrahedra "
+            f"({len(cells)} tetrahedra)"
+        )
     return pts[used], inverse.reshape(-1, 4), facets, np.concatenate(ftags)
 
 
-def build(level: int = 1, bones: list[fb.Bone] | None = None,
-          params: MeshParams | None = None) -> FootMesh:
+def build(
+    level: int = 1, bones: list[fb.Bone] | None = None, params: MeshParams | None = None
+) -> FootMesh:
     """Mesh the foot (module docstring) at ``level`` (or with ``params``), not cached."""
     if params is None:
         if level not in LEVELS:
@@ -195,22 +211,34 @@ def build(level: int = 1, bones: list[fb.Bone] | None = None,
     t1 = time.perf_counter()
     names = list(fb.GROUPS)
     holes = [(*groups[g], BONE + i) for i, g in enumerate(names) if g != "tibia"]
-    outer = (outer[0], outer[1], np.where(outer[2] == BONE, BONE + names.index("tibia"),
-                                          outer[2]))
+    outer = (outer[0], outer[1], np.where(outer[2] == BONE, BONE + names.index("tibia"), outer[2]))
     points, cells, facets, ftags = _gmsh(outer, holes, params.h_max)
     t2 = time.perf_counter()
     a, b, c, d = (points[cells[:, i]] for i in range(4))
     volumes = np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6.0
     cells[volumes < 0] = cells[volumes < 0][:, [0, 2, 1, 3]]
-    stats = {"nodes": len(points), "tetrahedra": len(cells), "surfaces_s": t1 - t0,
-             "gmsh_s": t2 - t1, "min_volume": float(np.abs(volumes).min())}
-    return FootMesh(points, cells, facets, ftags, names, groups, skin,
-                    params.skin.cap_y, stats)
+    stats = {
+        "nodes": len(points),
+        "tetrahedra": len(cells),
+        "surfaces_s": t1 - t0,
+        "gmsh_s": t2 - t1,
+        "min_volume": float(np.abs(volumes).min()),
+    }
+    return FootMesh(points, cells, facets, ftags, names, groups, skin, params.skin.cap_y, stats)
 
 
 def _key(level: int, params: MeshParams) -> str:
-    text = json.dumps({"level": level, "params": asdict(params), "bones": fb.BONES,
-                       "groups": fb.GROUPS, "version": 1}, sort_keys=True, default=str)
+    text = json.dumps(
+        {
+            "level": level,
+            "params": asdict(params),
+            "bones": fb.BONES,
+            "groups": fb.GROUPS,
+            "version": 1,
+        },
+        sort_keys=True,
+        default=str,
+    )
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -231,8 +259,14 @@ def foot_mesh(level: int = 1, cache: Path | None = DEFAULT_CACHE) -> FootMesh:
 
 
 def _save(mesh: FootMesh, path: Path) -> None:
-    arrays = {"points": mesh.points, "cells": mesh.cells, "facets": mesh.facets,
-              "facet_tags": mesh.facet_tags, "skin_v": mesh.skin[0], "skin_f": mesh.skin[1]}
+    arrays = {
+        "points": mesh.points,
+        "cells": mesh.cells,
+        "facets": mesh.facets,
+        "facet_tags": mesh.facet_tags,
+        "skin_v": mesh.skin[0],
+        "skin_f": mesh.skin[1],
+    }
     for i, g in enumerate(mesh.groups):
         arrays[f"g{i}_v"], arrays[f"g{i}_f"] = mesh.group_surfaces[g]
     meta = json.dumps({"groups": mesh.groups, "cap_y": mesh.cap_y, "stats": mesh.stats})
@@ -245,9 +279,17 @@ def _load(path: Path) -> FootMesh:
     with np.load(path) as z:
         meta = json.loads(str(z["meta"]))
         groups = meta["groups"]
-        return FootMesh(z["points"], z["cells"], z["facets"], z["facet_tags"], groups,
-                        {g: (z[f"g{i}_v"], z[f"g{i}_f"]) for i, g in enumerate(groups)},
-                        (z["skin_v"], z["skin_f"]), meta["cap_y"], meta["stats"])
+        return FootMesh(
+            z["points"],
+            z["cells"],
+            z["facets"],
+            z["facet_tags"],
+            groups,
+            {g: (z[f"g{i}_v"], z[f"g{i}_f"]) for i, g in enumerate(groups)},
+            (z["skin_v"], z["skin_f"]),
+            meta["cap_y"],
+            meta["stats"],
+        )
 
 
 def to_dolfinx(mesh: FootMesh, comm=None):
@@ -261,8 +303,15 @@ def to_dolfinx(mesh: FootMesh, comm=None):
 
     comm = MPI.COMM_SELF if comm is None else comm
     n = len(mesh.cells)
-    data = MeshData(mesh.points, "tetrahedron", mesh.cells, np.arange(len(mesh.points)),
-                    np.arange(n), np.zeros(n, np.int32), source="foot")
+    data = MeshData(
+        mesh.points,
+        "tetrahedron",
+        mesh.cells,
+        np.arange(len(mesh.points)),
+        np.arange(n),
+        np.zeros(n, np.int32),
+        source="foot",
+    )
     msh, _ = convert(data, comm)
     msh.topology.create_connectivity(3, 0)
     c2v = msh.topology.connectivity(3, 0).array.reshape(-1, 4)
@@ -276,6 +325,9 @@ def to_dolfinx(mesh: FootMesh, comm=None):
     entities = vertex_of_node[local[keep]]
     msh.topology.create_entities(2)
     tags = dolfinx.mesh.meshtags_from_entities(
-        msh, 2, dolfinx.graph.adjacencylist(entities.astype(np.int32)),
-        mesh.facet_tags[keep].astype(np.int32))
+        msh,
+        2,
+        dolfinx.graph.adjacencylist(entities.astype(np.int32)),
+        mesh.facet_tags[keep].astype(np.int32),
+    )
     return msh, tags

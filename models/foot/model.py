@@ -61,13 +61,22 @@ BONE_DENSITY = 1500.0
 #: the joints: pairs of rigid groups whose surfaces meet through contact (the talocrural,
 #: subtalar, talonavicular, calcaneocuboid, naviculocuneiform, intercuneiform,
 #: cuneocuboid, tarsometatarsal, intermetatarsal and metatarsophalangeal joints).
-JOINTS = (("tibia", "talus"), ("talus", "calcaneus"), ("talus", "navicular"),
-          ("calcaneus", "cuboid"), ("navicular", "medial_cuneiform"),
-          ("navicular", "lateral_cuneiforms"), ("medial_cuneiform", "lateral_cuneiforms"),
-          ("cuboid", "lateral_cuneiforms"), ("medial_cuneiform", "metatarsal1"),
-          ("lateral_cuneiforms", "metatarsals2_5"), ("cuboid", "metatarsals2_5"),
-          ("metatarsal1", "metatarsals2_5"), ("metatarsal1", "hallux"),
-          ("metatarsals2_5", "toes2_5"))
+JOINTS = (
+    ("tibia", "talus"),
+    ("talus", "calcaneus"),
+    ("talus", "navicular"),
+    ("calcaneus", "cuboid"),
+    ("navicular", "medial_cuneiform"),
+    ("navicular", "lateral_cuneiforms"),
+    ("medial_cuneiform", "lateral_cuneiforms"),
+    ("cuboid", "lateral_cuneiforms"),
+    ("medial_cuneiform", "metatarsal1"),
+    ("lateral_cuneiforms", "metatarsals2_5"),
+    ("cuboid", "metatarsals2_5"),
+    ("metatarsal1", "metatarsals2_5"),
+    ("metatarsal1", "hallux"),
+    ("metatarsals2_5", "toes2_5"),
+)
 #: a joint's contact rows start this far (m) beyond its offset.
 JOINT_MARGIN = 2e-3
 #: the cartilage layer of the joint contacts.
@@ -133,9 +142,11 @@ class Foot:
 
 
 #: the load cases (module docstring): keyword arguments of :func:`build_foot`.
-CASES = {"standing": dict(),
-         "lift": dict(load=0.0, floor=False, tibia="fixed", excitation=Ramp(0.3, 0.1)),
-         "heavy": dict(load=0.5 * 90.0 * 9.81)}
+CASES = {
+    "standing": dict(),
+    "lift": dict(load=0.0, floor=False, tibia="fixed", excitation=Ramp(0.3, 0.1)),
+    "heavy": dict(load=0.5 * 90.0 * 9.81),
+}
 
 
 def foot_case(case: str, level: int = 1, **kwargs) -> Foot:
@@ -146,9 +157,19 @@ def foot_case(case: str, level: int = 1, **kwargs) -> Foot:
     return build_foot(level, **{**CASES[case], **kwargs})
 
 
-def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
-               tibia: str = "guided", excitation=None, mu: float = 0.6, ramp: float = 0.1,
-               bones: bool = True, joints: bool = True, cache=fm.DEFAULT_CACHE) -> Foot:
+def build_foot(
+    level: int = 1,
+    *,
+    load: float = HALF_WEIGHT,
+    floor: bool = True,
+    tibia: str = "guided",
+    excitation=None,
+    mu: float = 0.6,
+    ramp: float = 0.1,
+    bones: bool = True,
+    joints: bool = True,
+    cache=fm.DEFAULT_CACHE,
+) -> Foot:
     """The foot (module docstring) at mesh ``level`` (0 coarse for tests, 1 the default: at
     least 10,000 nodes): ``load`` newtons down the tibia, the tibia ``"guided"`` (a vertical
     slider) or ``"fixed"``, on the floor if ``floor``, the tibialis anterior's
@@ -159,9 +180,13 @@ def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
         raise af.InputError(f"foot: tibia must be 'guided' or 'fixed', got {tibia!r}")
     mesh = fm.foot_mesh(level, cache=cache)
     msh, _ = fm.to_dolfinx(mesh)
-    tissue = af.FemBody(msh, af.NeoHookean.from_young_poisson(TISSUE["young"],
-                                                               TISSUE["poisson"]),
-                        TISSUE["density"], rayleigh=RAYLEIGH, name="tissue")
+    tissue = af.FemBody(
+        msh,
+        af.NeoHookean.from_young_poisson(TISSUE["young"], TISSUE["poisson"]),
+        TISSUE["density"],
+        rayleigh=RAYLEIGH,
+        name="tissue",
+    )
     scene = af.Scene(gravity=(0.0, -9.81, 0.0))
     scene.add(tissue)
     foot = Foot(scene, mesh, tissue, {})
@@ -172,8 +197,16 @@ def build_foot(level: int = 1, *, load: float = HALF_WEIGHT, floor: bool = True,
     if floor:
         skin = np.unique(mesh.facets[mesh.facet_tags == fm.SKIN])
         y0 = float(mesh.points[skin, 1].min()) - 1e-4
-        foot.floor = af.PlaneContact(tissue, (0.0, y0, 0.0), (0.0, 1.0, 0.0), mu=mu,
-                                     points=skin, tolerance=1e-4, margin=5e-3, name="floor")
+        foot.floor = af.PlaneContact(
+            tissue,
+            (0.0, y0, 0.0),
+            (0.0, 1.0, 0.0),
+            mu=mu,
+            points=skin,
+            tolerance=1e-4,
+            margin=5e-3,
+            name="floor",
+        )
         scene.add(foot.floor)
     if load and bones:
         foot.load = TibiaLoad(foot.bones["tibia"], load, ramp)
@@ -191,32 +224,54 @@ def _add_bones(foot: Foot, tibia: str, excitation, joints: bool) -> None:
         motion = "fixed" if group == "tibia" and tibia == "fixed" else "dynamic"
         bones[group] = af.RigidBody.from_surface(group, v, f, BONE_DENSITY, motion=motion)
         nodes = np.unique(mesh.facets[mesh.facet_tags == fm.BONE + i])
-        scene.add(bones[group], af.NodeAttachment(foot.tissue, nodes, bones[group],
-                                                  name=f"tissue on {group}"))
+        scene.add(
+            bones[group],
+            af.NodeAttachment(foot.tissue, nodes, bones[group], name=f"tissue on {group}"),
+        )
     if tibia == "guided":
         body = bones["tibia"]
         up = af.axis_rotation((0.0, 1.0, 0.0))
-        scene.add(af.SliderJoint(af.Frame.at_world(body, body.position, up),
-                                 af.Frame(None, body.position, up), name="tibia guide"))
+        scene.add(
+            af.SliderJoint(
+                af.Frame.at_world(body, body.position, up),
+                af.Frame(None, body.position, up),
+                name="tibia guide",
+            )
+        )
     for spec in fl.ligaments(bone_meshes, JOINTS):
         k = spec.stiffness
-        spring = af.AxialSpring(k, rest_length=spec.length, damping=RAYLEIGH[1] * k,
-                                tension_only=True, toe=TOE_STRAIN * spec.length)
+        spring = af.AxialSpring(
+            k,
+            rest_length=spec.length,
+            damping=RAYLEIGH[1] * k,
+            tension_only=True,
+            toe=TOE_STRAIN * spec.length,
+        )
         frames = [af.Frame.at_world(bones[g], p) for g, p in zip(spec.groups, spec.points)]
         foot.ligaments.append(af.PointPath(spring, frames, name=spec.name))
     scene.add(*foot.ligaments)
     for muscle in fmu.MUSCLES:
         drive = excitation if muscle == "tibialis anterior" else None
         for branch in fmu.muscle_branches(bone_meshes, muscle):
-            frames = [af.Frame.at_world(bones[g], p)
-                      for g, p in zip(branch.groups, branch.points)]
-            path = af.PointPath(af.ThelenMuscle(branch.params, name=branch.name), frames,
-                                excitation=drive, name=branch.name)
+            frames = [af.Frame.at_world(bones[g], p) for g, p in zip(branch.groups, branch.points)]
+            path = af.PointPath(
+                af.ThelenMuscle(branch.params, name=branch.name),
+                frames,
+                excitation=drive,
+                name=branch.name,
+            )
             foot.muscles.setdefault(muscle, []).append(path)
             scene.add(path)
     for a, b in JOINTS if joints else ():
         gap = fb.surface_gap(mesh.group_surfaces[a], mesh.group_surfaces[b])
-        contact = af.MeshContact(bones[a], bones[b], tolerance=1e-4, margin=JOINT_MARGIN,
-                                 offset=gap, foundation=CARTILAGE, name=f"{a}-{b} joint")
+        contact = af.MeshContact(
+            bones[a],
+            bones[b],
+            tolerance=1e-4,
+            margin=JOINT_MARGIN,
+            offset=gap,
+            foundation=CARTILAGE,
+            name=f"{a}-{b} joint",
+        )
         foot.joints.append(contact)
         scene.add(contact)

@@ -27,20 +27,26 @@ from artifem.errors import InputError
 from . import bones as fb
 
 #: muscle -> (its name in the osim, the bones its tendon inserts on).
-MUSCLES = {"tibialis anterior": ("tib_ant_r", ("medial_cuneiform", "metatarsal1")),
-           "soleus": ("soleus_r", ("calcaneus",))}
+MUSCLES = {
+    "tibialis anterior": ("tib_ant_r", ("medial_cuneiform", "metatarsal1")),
+    "soleus": ("soleus_r", ("calcaneus",)),
+}
 #: osim Thelen2003Muscle tag -> ThelenParameters field
-PARAMETERS = {"max_isometric_force": "max_isometric_force",
-              "optimal_fiber_length": "optimal_fiber_length",
-              "tendon_slack_length": "tendon_slack_length",
-              "pennation_angle_at_optimal": "pennation_angle",
-              "max_contraction_velocity": "max_contraction_velocity",
-              "FmaxTendonStrain": "fmax_tendon_strain",
-              "FmaxMuscleStrain": "fmax_muscle_strain",
-              "KshapeActive": "active_width", "KshapePassive": "passive_shape",
-              "Af": "af", "Flen": "flen",
-              "activation_time_constant": "activation_time_constant",
-              "deactivation_time_constant": "deactivation_time_constant"}
+PARAMETERS = {
+    "max_isometric_force": "max_isometric_force",
+    "optimal_fiber_length": "optimal_fiber_length",
+    "tendon_slack_length": "tendon_slack_length",
+    "pennation_angle_at_optimal": "pennation_angle",
+    "max_contraction_velocity": "max_contraction_velocity",
+    "FmaxTendonStrain": "fmax_tendon_strain",
+    "FmaxMuscleStrain": "fmax_muscle_strain",
+    "KshapeActive": "active_width",
+    "KshapePassive": "passive_shape",
+    "Af": "af",
+    "Flen": "flen",
+    "activation_time_constant": "activation_time_constant",
+    "deactivation_time_constant": "deactivation_time_constant",
+}
 
 
 @dataclass(frozen=True)
@@ -65,13 +71,18 @@ def read_muscle(name: str, osim: Path = fb.OSIM) -> MuscleSpec:
     for p in node.iter("PathPoint"):
         body = p.findtext("socket_parent_frame").rsplit("/", 1)[-1]
         if body not in transforms:
-            raise InputError(f"{osim}: muscle {name} has a path point on {body}, "
-                             f"not a body of the foot ({sorted(transforms)})")
+            raise InputError(
+                f"{osim}: muscle {name} has a path point on {body}, "
+                f"not a body of the foot ({sorted(transforms)})"
+            )
         m = transforms[body]
         points.append(m[:3, :3] @ np.array(p.findtext("location").split(), dtype=float) + m[:3, 3])
         bodies.append(body)
-    values = {field: float(node.findtext(tag)) for tag, field in PARAMETERS.items()
-              if node.find(tag) is not None}
+    values = {
+        field: float(node.findtext(tag))
+        for tag, field in PARAMETERS.items()
+        if node.find(tag) is not None
+    }
     return MuscleSpec(name, np.array(points), tuple(bodies), af.ThelenParameters(**values))
 
 
@@ -95,17 +106,24 @@ def muscle_branches(bones: list[fb.Bone], muscle: str, osim: Path = fb.OSIM) -> 
     osim_name, insertions = MUSCLES[muscle]
     spec = read_muscle(osim_name, osim)
     if spec.bodies[:-1] != ("tibia_r",) * (len(spec.bodies) - 1):
-        raise InputError(f"{osim}: {osim_name} should run from tibia_r to the foot, "
-                         f"its path is on {spec.bodies}")
+        raise InputError(
+            f"{osim}: {osim_name} should run from tibia_r to the foot, its path is on {spec.bodies}"
+        )
     by_name = {b.name: b for b in bones}
-    params = replace(spec.params,
-                     max_isometric_force=spec.params.max_isometric_force / len(insertions))
+    params = replace(
+        spec.params, max_isometric_force=spec.params.max_isometric_force / len(insertions)
+    )
     out = []
     for bone in insertions:
         b = by_name[bone]
-        _, _, closest = igl.point_mesh_squared_distance(spec.points[-1:], b.vertices,
-                                                        b.triangles)
+        _, _, closest = igl.point_mesh_squared_distance(spec.points[-1:], b.vertices, b.triangles)
         name = muscle if len(insertions) == 1 else f"{muscle} to {bone}"
-        out.append(Branch(name, np.vstack([spec.points[:-1], closest]),
-                          ("tibia",) * (len(spec.points) - 1) + (b.group,), params))
+        out.append(
+            Branch(
+                name,
+                np.vstack([spec.points[:-1], closest]),
+                ("tibia",) * (len(spec.points) - 1) + (b.group,),
+                params,
+            )
+        )
     return out

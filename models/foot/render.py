@@ -19,8 +19,7 @@ def _bone_meshes(foot) -> list[pv.PolyData]:
     out = []
     for body in foot.bones.values():
         v, f = body.surface
-        out.append(pv.PolyData(body.to_world(v), np.column_stack([np.full(len(f), 3), f])
-                               .ravel()))
+        out.append(pv.PolyData(body.to_world(v), np.column_stack([np.full(len(f), 3), f]).ravel()))
     return out
 
 
@@ -44,8 +43,11 @@ def render_foot(png: Path, foot, title: str) -> Path:
     vm = von_mises(foot.tissue).x.array
     grid.cell_data["von Mises (kPa)"] = 1e-3 * vm[: grid.n_cells]
     bones = _bone_meshes(foot)
-    z_cut = float(np.mean(foot.bones["metatarsals2_5"].position[2])) if foot.bones else \
-        float(np.mean(grid.bounds[4:]))
+    z_cut = (
+        float(np.mean(foot.bones["metatarsals2_5"].position[2]))
+        if foot.bones
+        else float(np.mean(grid.bounds[4:]))
+    )
     cut = grid.clip(normal=(0.0, 0.0, 1.0), origin=(0.0, 0.0, z_cut), invert=True)
     plotter = pv.Plotter(off_screen=True, shape=(1, 2), window_size=[1800, 700])
     try:
@@ -65,14 +67,21 @@ def render_foot(png: Path, foot, title: str) -> Path:
         # the colour range ends at the 98th percentile: a few cells under the heel's bone
         # would otherwise leave the rest of the tissue black
         top = float(np.percentile(grid.cell_data["von Mises (kPa)"], 98)) or 1.0
-        plotter.add_mesh(cut, scalars="von Mises (kPa)", cmap="inferno", show_edges=False,
-                         clim=(0.0, top),
-                         scalar_bar_args={"title": "von Mises (kPa), to the 98th percentile",
-                                          "color": "black", "fmt": "%.3g"})
+        plotter.add_mesh(
+            cut,
+            scalars="von Mises (kPa)",
+            cmap="inferno",
+            show_edges=False,
+            clim=(0.0, top),
+            scalar_bar_args={
+                "title": "von Mises (kPa), to the 98th percentile",
+                "color": "black",
+                "fmt": "%.3g",
+            },
+        )
         for mesh in bones:
             plotter.add_mesh(mesh, color="ivory", opacity=0.6)
-        plotter.add_text(f"{title}: tissue von Mises stress, cut", font_size=11,
-                         color="black")
+        plotter.add_text(f"{title}: tissue von Mises stress, cut", font_size=11, color="black")
         plotter.view_vector((0.0, 0.0, 1.0), viewup=(0.0, 1.0, 0.0))
         plotter.screenshot(str(png))
     finally:
@@ -117,8 +126,14 @@ def plot_reduced_comparison(png: Path, reduced: dict, dt: float, title: str) -> 
     return png
 
 
-def plot_plantar_pressure(png: Path, points: np.ndarray, pressure: np.ndarray,
-                          centre: np.ndarray, title: str, reference: str) -> Path:
+def plot_plantar_pressure(
+    png: Path,
+    points: np.ndarray,
+    pressure: np.ndarray,
+    centre: np.ndarray,
+    title: str,
+    reference: str,
+) -> Path:
     """The floor's pressure at the sole's nodes (kPa) seen from below (x forward, z
     lateral), the centre of pressure marked, a published figure quoted beside it."""
     import matplotlib
@@ -133,8 +148,9 @@ def plot_plantar_pressure(png: Path, points: np.ndarray, pressure: np.ndarray,
         tri = Triangulation(z, x)
         shade = ax.tripcolor(tri, p, shading="gouraud", cmap="jet", vmin=0.0)
         fig.colorbar(shade, ax=ax, label="plantar pressure (kPa)")
-    ax.plot(1e3 * centre[2], 1e3 * centre[0], "k+", markersize=14, mew=2,
-            label="centre of pressure")
+    ax.plot(
+        1e3 * centre[2], 1e3 * centre[0], "k+", markersize=14, mew=2, label="centre of pressure"
+    )
     ax.set_xlabel("z: lateral (mm)")
     ax.set_ylabel("x: forward (mm)")
     ax.set_aspect("equal")

@@ -38,15 +38,16 @@ from artifem.models.cache import user_cache
 from artifem.models.foot import mesh as fm
 from artifem.models.foot.model import CASES, Foot, foot_case
 from artifem.models.foot.reduced import CONFIGS, HELD_OUT, compare, schedule, train
-from artifem.models.foot.render import (plot_plantar_pressure, plot_reduced_comparison,
-                                        render_foot)
+from artifem.models.foot.render import plot_plantar_pressure, plot_reduced_comparison, render_foot
 
 #: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
 DT, DURATION = 0.005, 0.3
 #: the published standing figures the plantar pressure is shown beside.
-REFERENCE = ("Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Foot & Ankle "
-             "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
-             "forefoot; the heel carries about 60% of the load.")
+REFERENCE = (
+    "Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Foot & Ankle "
+    "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
+    "forefoot; the heel carries about 60% of the load."
+)
 PUBLISHED_KPA = {"rearfoot": 139.0, "forefoot": 88.0}
 #: the reduced foot's training cache
 REDUCED_CACHE = user_cache("foot-reduced")
@@ -55,16 +56,32 @@ REDUCED_CACHE = user_cache("foot-reduced")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--case", default="standing", choices=sorted(CASES))
-    parser.add_argument("--level", type=int, default=1, choices=sorted(fm.LEVELS),
-                        help="mesh level: 0 coarse (1,923 nodes), 1 the default (13,453)")
+    parser.add_argument(
+        "--level",
+        type=int,
+        default=1,
+        choices=sorted(fm.LEVELS),
+        help="mesh level: 0 coarse (1,923 nodes), 1 the default (13,453)",
+    )
     parser.add_argument("--dt", type=positive_float, default=DT)
     parser.add_argument("--duration", type=positive_float, default=DURATION)
-    parser.add_argument("--timing-steps", type=positive_int, default=5,
-                        help="steps timed for the FEM alone and with the bones")
-    parser.add_argument("--reduced", action="store_true",
-                        help="also the reduced foot against the full one, held-out input")
-    parser.add_argument("--cache", type=Path, default=REDUCED_CACHE,
-                        help="the reduced foot's training cache (resumed when interrupted)")
+    parser.add_argument(
+        "--timing-steps",
+        type=positive_int,
+        default=5,
+        help="steps timed for the FEM alone and with the bones",
+    )
+    parser.add_argument(
+        "--reduced",
+        action="store_true",
+        help="also the reduced foot against the full one, held-out input",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=REDUCED_CACHE,
+        help="the reduced foot's training cache (resumed when interrupted)",
+    )
     parser.add_argument("--no-vtx", action="store_true", help="write no VTX series")
     parser.add_argument("--no-progress", action="store_true")
 
@@ -74,42 +91,71 @@ def run(args: argparse.Namespace) -> int:
 
     out = args.out / args.case
     out.mkdir(parents=True, exist_ok=True)
-    timing = {"fem_alone": _time_steps(args, bones=False, floor=False),
-              "with_bones": _time_steps(args, joints=False, floor=False)}
+    timing = {
+        "fem_alone": _time_steps(args, bones=False, floor=False),
+        "with_bones": _time_steps(args, joints=False, floor=False),
+    }
     foot = foot_case(args.case, args.level)
     rest = {name: body.position.copy() for name, body in foot.bones.items()}
-    traj = simulate(foot.scene, args.duration, args.dt, vtx=None if args.no_vtx else out,
-                    progress=not args.no_progress, label=f"foot {args.case}")
+    traj = simulate(
+        foot.scene,
+        args.duration,
+        args.dt,
+        vtx=None if args.no_vtx else out,
+        progress=not args.no_progress,
+        label=f"foot {args.case}",
+    )
     timing["with_bones_and_contact"] = traj.ms_per_step
     sole = _sole(foot) if foot.floor is not None else None
     figures = _figures(foot, traj, args, timing, rest, sole)
     render_foot(out / "foot.png", foot, args.case)
     if sole is not None:
-        plot_plantar_pressure(out / "plantar_pressure.png", sole["points"], sole["pressure"],
-                              sole["centre"], f"foot {args.case}: plantar pressure, level "
-                              f"{args.level}", REFERENCE)
-    (out / "foot.json").write_text(json.dumps(figures, indent=2))   # kept if reducing fails
+        plot_plantar_pressure(
+            out / "plantar_pressure.png",
+            sole["points"],
+            sole["pressure"],
+            sole["centre"],
+            f"foot {args.case}: plantar pressure, level {args.level}",
+            REFERENCE,
+        )
+    (out / "foot.json").write_text(json.dumps(figures, indent=2))  # kept if reducing fails
     if args.reduced:
-        configs = {name: replace(config, level=args.level, dt=args.dt,
-                                 duration=args.duration) for name, config in CONFIGS.items()}
-        figures["reduced"] = compare("lift" if args.case == "lift" else "standing", configs,
-                                     args.cache, progress=not args.no_progress)
+        configs = {
+            name: replace(config, level=args.level, dt=args.dt, duration=args.duration)
+            for name, config in CONFIGS.items()
+        }
+        figures["reduced"] = compare(
+            "lift" if args.case == "lift" else "standing",
+            configs,
+            args.cache,
+            progress=not args.no_progress,
+        )
         (out / "foot.json").write_text(json.dumps(figures, indent=2))
-        plot_reduced_comparison(out / "reduced.png", figures["reduced"], args.dt,
-                                f"foot {args.case}, level {args.level}: reduced against "
-                                f"full on the held-out input")
-    print(f"foot {args.case} (level {args.level}, {figures['nodes']} nodes): "
-          f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
-          f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
-          f"results in {out}/")
+        plot_reduced_comparison(
+            out / "reduced.png",
+            figures["reduced"],
+            args.dt,
+            f"foot {args.case}, level {args.level}: reduced against full on the held-out input",
+        )
+    print(
+        f"foot {args.case} (level {args.level}, {figures['nodes']} nodes): "
+        f"{timing['fem_alone']:.0f} ms/step FEM alone, {timing['with_bones']:.0f} with "
+        f"bones, {timing['with_bones_and_contact']:.0f} with bones and contact; "
+        f"results in {out}/"
+    )
     for r in figures.get("reduced", {}).values():
-        what = (f"reduced foot ({r['pod_vectors']} POD vectors + {r['lift_columns']} lift "
-                f"columns, {r['points']} {r['config']['sampling']} points)")
-        print(f"{what}: stopped: {r['failure']}" if "failure" in r else
-              f"{what}: {r['reduced_ms_per_step']:.1f} ms/step (median; mean "
-              f"{r['reduced_ms_mean']:.1f}) against {r['full_ms_per_step']:.0f} (mean "
-              f"{r['full_ms_mean']:.0f}), max mean node error "
-              f"{r['max_mean_node_error_mm']:.2f} mm on the held-out input")
+        what = (
+            f"reduced foot ({r['pod_vectors']} POD vectors + {r['lift_columns']} lift "
+            f"columns, {r['points']} {r['config']['sampling']} points)"
+        )
+        print(
+            f"{what}: stopped: {r['failure']}"
+            if "failure" in r
+            else f"{what}: {r['reduced_ms_per_step']:.1f} ms/step (median; mean "
+            f"{r['reduced_ms_mean']:.1f}) against {r['full_ms_per_step']:.0f} (mean "
+            f"{r['full_ms_mean']:.0f}), max mean node error "
+            f"{r['max_mean_node_error_mm']:.2f} mm on the held-out input"
+        )
     return 0
 
 
@@ -124,8 +170,7 @@ def _median_ms(scene, steps: int, dt: float) -> float:
 
 def _time_steps(args, **parts) -> float:
     """Median ms of ``--timing-steps`` steps of the case built with ``parts``."""
-    return _median_ms(foot_case(args.case, args.level, **parts).scene, args.timing_steps,
-                      args.dt)
+    return _median_ms(foot_case(args.case, args.level, **parts).scene, args.timing_steps, args.dt)
 
 
 #: the seed paper's foot (13,087 nodes, a quad-core i7-7700), ms per step
@@ -139,12 +184,16 @@ def benchmark(steps: int = 5, quick: bool = False, cache: Path | None = None) ->
     from ``cache``, on the held-out weight: cases ``reduced`` and ``reduced_trained``); at
     level 1 (``quick``: level 0, 0.1 s training)."""
     level = 0 if quick else 1
-    configs = {name: replace(config, level=level, duration=0.1 if quick else config.duration)
-               for name, config in CONFIGS.items()}
+    configs = {
+        name: replace(config, level=level, duration=0.1 if quick else config.duration)
+        for name, config in CONFIGS.items()
+    }
     dt = configs["paper"].dt
-    cases = {"fem_alone": dict(bones=False, floor=False), "with_bones": dict(joints=False,
-                                                                               floor=False),
-             "with_bones_and_contact": {}}
+    cases = {
+        "fem_alone": dict(bones=False, floor=False),
+        "with_bones": dict(joints=False, floor=False),
+        "with_bones_and_contact": {},
+    }
     feet = {name: foot_case("standing", level, **parts) for name, parts in cases.items()}
     ms = {name: _median_ms(foot.scene, steps, dt) for name, foot in feet.items()}
     reduced = {}
@@ -155,14 +204,24 @@ def benchmark(steps: int = 5, quick: bool = False, cache: Path | None = None) ->
         case = "reduced" if name == "paper" else f"reduced_{name}"
         with threadpool_limits(limits=1, user_api="blas"):
             ms[case] = _median_ms(scene, steps, dt)
-        reduced[case] = {"pod_vectors": config.r, "lift_columns": model.r - config.r,
-                         "points": int(model.points.m), "sampling": config.sampling}
+        reduced[case] = {
+            "pod_vectors": config.r,
+            "lift_columns": model.r - config.r,
+            "points": int(model.points.m),
+            "sampling": config.sampling,
+        }
     foot = feet["with_bones_and_contact"]
-    return {"benchmark": "foot", "level": level, "steps": steps, "dt": dt,
-            "nodes": foot.tissue.mesh.geometry.index_map().size_global,
-            "elements": foot.tissue.mesh.topology.index_map(3).size_global,
-            "cases": {name: {"ms_per_step": value} for name, value in ms.items()},
-            "reduced": reduced, "paper_ms_per_step": PAPER_MS}
+    return {
+        "benchmark": "foot",
+        "level": level,
+        "steps": steps,
+        "dt": dt,
+        "nodes": foot.tissue.mesh.geometry.index_map().size_global,
+        "elements": foot.tissue.mesh.topology.index_map(3).size_global,
+        "cases": {name: {"ms_per_step": value} for name, value in ms.items()},
+        "reduced": reduced,
+        "paper_ms_per_step": PAPER_MS,
+    }
 
 
 def _sole(foot: Foot) -> dict:
@@ -177,19 +236,30 @@ def _sole(foot: Foot) -> dict:
     pressure, area, points = p.pressure[sole], p.area[sole], x[dofs][sole]
     force = pressure * area
     centre = force @ points / force.sum() if force.sum() > 0 else np.full(3, np.nan)
-    return {"points": points, "pressure": pressure, "force": force, "centre": centre,
-            "area": float(area[pressure > 0].sum())}
+    return {
+        "points": points,
+        "pressure": pressure,
+        "force": force,
+        "centre": centre,
+        "area": float(area[pressure > 0].sum()),
+    }
 
 
 def _figures(foot: Foot, traj, args, timing: dict, rest: dict, sole: dict | None) -> dict:
     tissue = foot.tissue
     figures = {
-        "model": "foot", "case": args.case, "level": args.level,
+        "model": "foot",
+        "case": args.case,
+        "level": args.level,
         "nodes": tissue.mesh.geometry.index_map().size_global,
         "elements": tissue.mesh.topology.index_map(3).size_global,
-        "rigid_bodies": len(foot.bones), "ligaments": len(foot.ligaments),
-        "joint_contacts": len(foot.joints), "dt": args.dt, "duration": args.duration,
-        "steps": int(traj.step_ms.size), "halvings": traj.halvings,
+        "rigid_bodies": len(foot.bones),
+        "ligaments": len(foot.ligaments),
+        "joint_contacts": len(foot.joints),
+        "dt": args.dt,
+        "duration": args.duration,
+        "steps": int(traj.step_ms.size),
+        "halvings": traj.halvings,
         "min_det_F": traj.min_det_F,
         "ms_per_step": {key: round(value, 1) for key, value in timing.items()},
         "timing_steps": args.timing_steps,
@@ -203,33 +273,40 @@ def _figures(foot: Foot, traj, args, timing: dict, rest: dict, sole: dict | None
         third = (x.max() - x.min()) / 3
         regions = {"rearfoot": x < x.min() + third, "forefoot": x > x.max() - third}
         figures["standing"] = {
-            "floor_normal_N": normal, "load_plus_weight_N": expected,
+            "floor_normal_N": normal,
+            "load_plus_weight_N": expected,
             "relative_error": abs(normal / expected - 1.0),
             "contact_area_cm2": 1e4 * sole["area"],
             "peak_pressure_kPa": 1e-3 * float(sole["pressure"].max()),
-            "peak_pressure_by_region_kPa": {k: 1e-3 * float(sole["pressure"][m].max())
-                                            for k, m in regions.items()},
+            "peak_pressure_by_region_kPa": {
+                k: 1e-3 * float(sole["pressure"][m].max()) for k, m in regions.items()
+            },
             "published_peak_kPa": PUBLISHED_KPA,
-            "rearfoot_load_share": float(sole["force"][regions["rearfoot"]].sum()
-                                         / sole["force"].sum()),
+            "rearfoot_load_share": float(
+                sole["force"][regions["rearfoot"]].sum() / sole["force"].sum()
+            ),
             "centre_of_pressure_mm": (1e3 * sole["centre"]).round(2).tolist(),
-            "centre_of_pressure_from_heel": float((sole["centre"][0] - x.min())
-                                                  / (x.max() - x.min())),
-            "lowest_skin_above_floor_mm": 1e3 * float(sole["points"][:, 1].min()
-                                                      - foot.floor.offset),
+            "centre_of_pressure_from_heel": float(
+                (sole["centre"][0] - x.min()) / (x.max() - x.min())
+            ),
+            "lowest_skin_above_floor_mm": 1e3
+            * float(sole["points"][:, 1].min() - foot.floor.offset),
         }
     if foot.muscles.get("tibialis anterior") and foot.floor is None:
         talus = Rotation.from_matrix(foot.bones["talus"].rotation).as_rotvec()
         figures["lift"] = {
-            "first_metatarsal_rise_mm": 1e3 * float(foot.bones["metatarsal1"].position[1]
-                                                    - rest["metatarsal1"][1]),
+            "first_metatarsal_rise_mm": 1e3
+            * float(foot.bones["metatarsal1"].position[1] - rest["metatarsal1"][1]),
             "talus_dorsiflexion_deg": float(np.degrees(talus[2])),
-            "tibialis_anterior_N": sum(p.evaluate(foot.scene.t).tension
-                                       for p in foot.muscles["tibialis anterior"]),
+            "tibialis_anterior_N": sum(
+                p.evaluate(foot.scene.t).tension for p in foot.muscles["tibialis anterior"]
+            ),
             "soleus_N": sum(p.evaluate(foot.scene.t).tension for p in foot.muscles["soleus"]),
         }
-    figures["units"] = {"ms_per_step": "median wall ms per step (fem_alone, with_bones: "
-                                       "timing_steps steps of a separate build)",
-                        "centre_of_pressure_mm": "tibia frame (x forward, z lateral)",
-                        "centre_of_pressure_from_heel": "fraction of the sole's length"}
+    figures["units"] = {
+        "ms_per_step": "median wall ms per step (fem_alone, with_bones: "
+        "timing_steps steps of a separate build)",
+        "centre_of_pressure_mm": "tibia frame (x forward, z lateral)",
+        "centre_of_pressure_from_heel": "fraction of the sole's length",
+    }
     return figures

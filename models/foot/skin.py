@@ -74,8 +74,12 @@ def signed_distance(points, vertices, triangles) -> np.ndarray:
     """Signed distance of points to a closed surface, negative inside (winding number)."""
     import igl
 
-    return igl.signed_distance(np.ascontiguousarray(points, float), vertices, triangles,
-                               igl.SIGNED_DISTANCE_TYPE_FAST_WINDING_NUMBER)[0]
+    return igl.signed_distance(
+        np.ascontiguousarray(points, float),
+        vertices,
+        triangles,
+        igl.SIGNED_DISTANCE_TYPE_FAST_WINDING_NUMBER,
+    )[0]
 
 
 def _level_set(lo, hi, spacing, field, level, smooth=0.0, largest=False):
@@ -91,7 +95,7 @@ def _level_set(lo, hi, spacing, field, level, smooth=0.0, largest=False):
     values = values.reshape(n[::-1])
     if smooth > 0:
         values = gaussian_filter(values, smooth / spacing)
-    for axis in range(3):                       # outside on the grid's faces: closed
+    for axis in range(3):  # outside on the grid's faces: closed
         values[(slice(None),) * axis + (0,)] = values[(slice(None),) * axis + (-1,)] = 1.0
     image.point_data["phi"] = values.ravel()
     surface = image.contour([level], scalars="phi", method="flying_edges")
@@ -103,13 +107,11 @@ def _level_set(lo, hi, spacing, field, level, smooth=0.0, largest=False):
     labels = _components(len(v), f)
     parts = [f[labels == i] for i in np.unique(labels)]
     volumes = np.array([signed_volume(v, p) for p in parts])
-    sign = np.sign(volumes[np.argmax(np.abs(volumes))])     # voids: the other orientation
-    f = np.vstack([p if sign > 0 else p[:, ::-1] for p, vol in zip(parts, volumes)
-                   if vol * sign > 0])
+    sign = np.sign(volumes[np.argmax(np.abs(volumes))])  # voids: the other orientation
+    f = np.vstack(
+        [p if sign > 0 else p[:, ::-1] for p, vol in zip(parts, volumes) if vol * sign > 0]
+    )
     return _polydata(v, f).clean()
-
-
-
 
 
 def _components(n: int, triangles: np.ndarray) -> np.ndarray:
@@ -118,9 +120,11 @@ def _components(n: int, triangles: np.ndarray) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     rows = np.repeat(np.arange(len(triangles)), 3)
-    graph = coo_matrix((np.ones(rows.size), (rows, len(triangles) + triangles.ravel())),
-                       shape=(len(triangles) + n,) * 2)
-    return connected_components(graph, directed=False)[1][:len(triangles)]
+    graph = coo_matrix(
+        (np.ones(rows.size), (rows, len(triangles) + triangles.ravel())),
+        shape=(len(triangles) + n,) * 2,
+    )
+    return connected_components(graph, directed=False)[1][: len(triangles)]
 
 
 def _decimate(surface, triangles: int):
@@ -131,8 +135,9 @@ def _decimate(surface, triangles: int):
     v, f = _arrays(surface)
     if len(f) <= triangles:
         return v, f
-    v, f = igl.decimate(np.asfortranarray(v), np.asfortranarray(f, dtype=np.int32),
-                        int(triangles), True)[:2]
+    v, f = igl.decimate(
+        np.asfortranarray(v), np.asfortranarray(f, dtype=np.int32), int(triangles), True
+    )[:2]
     used, f = np.unique(f, return_inverse=True)
     return np.ascontiguousarray(v[used]), f.reshape(-1, 3).astype(np.int64)
 
@@ -173,8 +178,9 @@ def envelope(bones, params: SkinParams = SkinParams(), capped: bool = True):
     def phi(points):
         s = np.clip((points[:, 1] - bottom - a) / (b - a), 0.0, 1.0)
         s = 1.0 - s * s * (3 - 2 * s)
-        return signed_distance(points, v, f) - (params.dorsal + (params.plantar
-                                                                 - params.dorsal) * s)
+        return signed_distance(points, v, f) - (
+            params.dorsal + (params.plantar - params.dorsal) * s
+        )
 
     surface = _level_set(lo, hi, params.spacing, phi, 0.0, params.smooth, largest=True)
     surface = surface.smooth_taubin(n_iter=30, pass_band=0.1)
@@ -186,8 +192,7 @@ def envelope(bones, params: SkinParams = SkinParams(), capped: bool = True):
     return sv, sf
 
 
-def group_surface(bones, spacing: float, shrink: float, triangles: int,
-                  y_max: float | None = None):
+def group_surface(bones, spacing: float, shrink: float, triangles: int, y_max: float | None = None):
     """One closed surface for a rigid group: the -``shrink`` level set of the signed
     distance to the union of its bones (grid ``spacing``), Taubin-smoothed and decimated to
     about ``triangles`` triangles; the grid stops at ``y_max`` (an open end is closed by

@@ -42,10 +42,42 @@ from artifem.errors import InputError, InputFileNotFoundError
 #: Commands that change the element selection (or control flow) and that this
 #: reader cannot follow; meeting one is an error, not a silent misreading.
 _UNSUPPORTED_SELECTING = {
-    "ESLN", "ESLV", "ESLA", "ESLL", "ESLS", "ESOL", "EDELE", "ECLEAR", "ENSYM", "EGEN",
-    "E", "EN", "EMODIF", "NUMMRG", "NUMCMP", "CMDELE", "CMMOD", "CMEDIT", "CPLGEN",
-    "*DO", "*ENDDO", "*IF", "*ELSEIF", "*ELSE", "*ENDIF", "*GO", "*REPEAT", "*USE",
-    "*CYCLE", "*EXIT", "/INPUT", "/EOF", "*VGET", "*GET", "ESEL,INVE"}
+    "ESLN",
+    "ESLV",
+    "ESLA",
+    "ESLL",
+    "ESLS",
+    "ESOL",
+    "EDELE",
+    "ECLEAR",
+    "ENSYM",
+    "EGEN",
+    "E",
+    "EN",
+    "EMODIF",
+    "NUMMRG",
+    "NUMCMP",
+    "CMDELE",
+    "CMMOD",
+    "CMEDIT",
+    "CPLGEN",
+    "*DO",
+    "*ENDDO",
+    "*IF",
+    "*ELSEIF",
+    "*ELSE",
+    "*ENDIF",
+    "*GO",
+    "*REPEAT",
+    "*USE",
+    "*CYCLE",
+    "*EXIT",
+    "/INPUT",
+    "/EOF",
+    "*VGET",
+    "*GET",
+    "ESEL,INVE",
+}
 
 
 def _require(path: str | Path, what: str) -> Path:
@@ -83,8 +115,10 @@ def _int(text: str, path: Path, lineno: int, what: str) -> int:
             value = None
         if value is not None and value == int(value):
             return int(value)
-        raise InputError(f"{path}:{lineno}: {what} must be an integer literal "
-                         f"(parameters and expressions are not evaluated), got {text!r}") from None
+        raise InputError(
+            f"{path}:{lineno}: {what} must be an integer literal "
+            f"(parameters and expressions are not evaluated), got {text!r}"
+        ) from None
 
 
 _ASSIGN = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*(\(([^)]*)\))?\s*=\s*(.*)$")
@@ -111,21 +145,25 @@ def _esel_ids(fields: list[str], path: Path, lineno: int) -> set[int]:
     """Element ids of ``ESEL,Type,ELEM,,VMIN[,VMAX[,VINC]]``."""
     item = fields[2].upper() if len(fields) > 2 and fields[2] else "ELEM"
     if item != "ELEM":
-        raise InputError(f"{path}:{lineno}: ESEL by {item!r} is not supported "
-                         f"(only ELEM ranges): {','.join(fields)}")
+        raise InputError(
+            f"{path}:{lineno}: ESEL by {item!r} is not supported "
+            f"(only ELEM ranges): {','.join(fields)}"
+        )
     if len(fields) > 3 and fields[3]:
         raise InputError(f"{path}:{lineno}: ESEL component field {fields[3]!r} is not supported")
     if len(fields) < 5 or not fields[4]:
         raise InputError(f"{path}:{lineno}: ESEL without an element id: {','.join(fields)}")
     if len(fields) > 7 and any(fields[7:]):
-        raise InputError(f"{path}:{lineno}: ESEL KABS/extra fields are not supported: "
-                         f"{','.join(fields)}")
+        raise InputError(
+            f"{path}:{lineno}: ESEL KABS/extra fields are not supported: {','.join(fields)}"
+        )
     first = _int(fields[4], path, lineno, "ESEL VMIN")
     last = _int(fields[5], path, lineno, "ESEL VMAX") if len(fields) > 5 and fields[5] else first
     inc = _int(fields[6], path, lineno, "ESEL VINC") if len(fields) > 6 and fields[6] else 1
     if inc <= 0 or last < first:
-        raise InputError(f"{path}:{lineno}: ESEL range {first}..{last} step {inc} is empty "
-                         f"or reversed")
+        raise InputError(
+            f"{path}:{lineno}: ESEL range {first}..{last} step {inc} is empty or reversed"
+        )
     return set(range(first, last + 1, inc))
 
 
@@ -139,8 +177,9 @@ def _parse_components(path: str | Path, all_elements=None):
 
     def need_universe(what: str, lineno: int) -> set[int]:
         if universe is None:
-            raise InputError(f"{path}:{lineno}: {what} needs the mesh's element ids; "
-                             f"pass all_elements=")
+            raise InputError(
+                f"{path}:{lineno}: {what} needs the mesh's element ids; pass all_elements="
+            )
         return universe
 
     for lineno, stmt in _statements(path):
@@ -167,8 +206,10 @@ def _parse_components(path: str | Path, all_elements=None):
                 else:
                     selection -= ids
             else:
-                raise InputError(f"{path}:{lineno}: ESEL type {kind!r} is not supported "
-                                 f"(S, A, R, U, NONE, ALL, INVE): {stmt}")
+                raise InputError(
+                    f"{path}:{lineno}: ESEL type {kind!r} is not supported "
+                    f"(S, A, R, U, NONE, ALL, INVE): {stmt}"
+                )
         elif cmd == "ALLSEL":
             selection = set(need_universe("ALLSEL", lineno))
         elif cmd == "CM":
@@ -192,8 +233,9 @@ def _parse_components(path: str | Path, all_elements=None):
                 continue
             name = fields[2] if len(fields) > 2 else ""
             if name not in components:
-                raise InputError(f"{path}:{lineno}: CMSEL of unknown element component "
-                                 f"{name!r}: {stmt}")
+                raise InputError(
+                    f"{path}:{lineno}: CMSEL of unknown element component {name!r}: {stmt}"
+                )
             ids = components[name]
             if kind == "S":
                 selection = set(ids)
@@ -210,8 +252,10 @@ def _parse_components(path: str | Path, all_elements=None):
                 raise InputError(f"{path}:{lineno}: CMGRP without members: {stmt}")
             groups[fields[1]] = [f for f in fields[2:] if f]
         elif cmd in _UNSUPPORTED_SELECTING:
-            raise InputError(f"{path}:{lineno}: command {fields[0]} changes elements or the "
-                             f"flow of the macro and is not supported by this reader: {stmt}")
+            raise InputError(
+                f"{path}:{lineno}: command {fields[0]} changes elements or the "
+                f"flow of the macro and is not supported by this reader: {stmt}"
+            )
         # everything else (/NOPR, *DIM, parameter assignments, ...) does not select elements
     return components, groups
 
@@ -257,8 +301,9 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
         if not m:
             cmd = _fields(stmt)[0].upper()
             if cmd in _UNSUPPORTED_SELECTING:
-                raise InputError(f"{path}:{lineno}: command {cmd} is not supported by this "
-                                 f"reader: {stmt}")
+                raise InputError(
+                    f"{path}:{lineno}: command {cmd} is not supported by this reader: {stmt}"
+                )
             continue  # /NOPR, *DIM, ...
         name, index, value = m.group(1).upper(), m.group(3), m.group(4).strip()
         if name == "NB_MUSCLES" and index is None:
@@ -272,8 +317,11 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
             continue
         if name == "FIBERS_LOCATION":
             continue
-        target, size = {"FIBER": (fiber, 3), "NB_NODES_FIBER": (nb_nodes, 2),
-                        "NB_FIBERS": (nb_fibers, 1)}.get(name, (None, 0))
+        target, size = {
+            "FIBER": (fiber, 3),
+            "NB_NODES_FIBER": (nb_nodes, 2),
+            "NB_FIBERS": (nb_fibers, 1),
+        }.get(name, (None, 0))
         if target is None:
             continue
         if len(idx) != size:
@@ -297,8 +345,10 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
         if names is not None and list(names) != labels:
             raise InputError(f"{path}: its muscleName array {labels} differs from names={names}")
     elif names is None:
-        raise InputError(f"{path} has no muscleName array: pass names= (e.g. the muscleName "
-                         f"array of CreateMuscles.mac, which ArtiSynth pairs with it by index)")
+        raise InputError(
+            f"{path} has no muscleName array: pass names= (e.g. the muscleName "
+            f"array of CreateMuscles.mac, which ArtiSynth pairs with it by index)"
+        )
     else:
         labels = list(names)
         if len(labels) != len(muscles):
@@ -315,11 +365,12 @@ def read_fibers(path: str | Path, names: list[str] | None = None) -> dict[str, l
             count = nb_nodes[(j, i)]
             missing = [k for k in range(1, count + 1) if (k, j, i) not in fiber]
             if missing:
-                raise InputError(f"{path}: FIBER({missing[0]},{j},{i}) missing (muscle {label}, "
-                                 f"fiber {j} has NB_NODES_FIBER = {count})")
+                raise InputError(
+                    f"{path}: FIBER({missing[0]},{j},{i}) missing (muscle {label}, "
+                    f"fiber {j} has NB_NODES_FIBER = {count})"
+                )
             if count < 2:
                 raise InputError(f"{path}: fiber {j} of muscle {label} has {count} node(s)")
-            fibers.append(np.array([fiber[(k, j, i)] for k in range(1, count + 1)],
-                                   dtype=np.int64))
+            fibers.append(np.array([fiber[(k, j, i)] for k in range(1, count + 1)], dtype=np.int64))
         result[label] = fibers
     return result

@@ -27,15 +27,23 @@ import numpy as np
 
 from artifem.errors import SolverError
 from artifem.models.tongue.hard_cases import run_built
-from artifem.models.tongue.model import (DT, DURATION, MOTIONS, PENALTY, RAMP_TIME, Tongue,
-                                         TongueConfig)
+from artifem.models.tongue.model import (
+    DT,
+    DURATION,
+    MOTIONS,
+    PENALTY,
+    RAMP_TIME,
+    Tongue,
+    TongueConfig,
+)
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 LANDMARK_NAMES = ("tip", "top", "base")
 
 
-def run_motions(level: int, motions=tuple(MOTIONS), integrator: str = "semi-implicit",
-                progress: bool = False) -> dict[str, dict]:
+def run_motions(
+    level: int, motions=tuple(MOTIONS), integrator: str = "semi-implicit", progress: bool = False
+) -> dict[str, dict]:
     """motion -> run_built result (landmarks in mm at t = 0.5 s and 1.0 s) on one level,
     with the element penalty."""
     tongue = Tongue(TongueConfig(level=level, integrator=integrator, incompressibility=PENALTY))
@@ -43,11 +51,18 @@ def run_motions(level: int, motions=tuple(MOTIONS), integrator: str = "semi-impl
     for motion in motions:
         tongue.reset()
         tongue.drive(Tongue.motion(motion))
-        result = run_built(tongue, DT, DURATION, record_times=(RAMP_TIME,),
-                           progress=f"level {level} {motion}" if progress else None)
+        result = run_built(
+            tongue,
+            DT,
+            DURATION,
+            record_times=(RAMP_TIME,),
+            progress=f"level {level} {motion}" if progress else None,
+        )
         if result["outcome"] != "finished":
-            raise SolverError(f"tongue {motion} at level {level} did not finish: "
-                              f"{result.get('error') or result.get('inversion')}")
+            raise SolverError(
+                f"tongue {motion} at level {level} did not finish: "
+                f"{result.get('error') or result.get('inversion')}"
+            )
         result["nodes"] = int(tongue.data.mesh.points.shape[0])
         out[motion] = result
     return out
@@ -67,13 +82,19 @@ def compare(level0: dict, level1: dict) -> list[dict]:
             for name in LANDMARK_NAMES:
                 d0, d1 = landmark_mm(level0[motion], name, t), landmark_mm(level1[motion], name, t)
                 diff = float(np.linalg.norm(d0 - d1))
-                rows.append({"motion": motion, "t": t, "landmark": name,
-                             "level0_mm": np.round(d0, 3).tolist(),
-                             "level1_mm": np.round(d1, 3).tolist(),
-                             "level0_norm_mm": round(float(np.linalg.norm(d0)), 3),
-                             "level1_norm_mm": round(float(np.linalg.norm(d1)), 3),
-                             "difference_mm": round(diff, 3),
-                             "relative": round(diff / max(float(np.linalg.norm(d1)), 1e-12), 4)})
+                rows.append(
+                    {
+                        "motion": motion,
+                        "t": t,
+                        "landmark": name,
+                        "level0_mm": np.round(d0, 3).tolist(),
+                        "level1_mm": np.round(d1, 3).tolist(),
+                        "level0_norm_mm": round(float(np.linalg.norm(d0)), 3),
+                        "level1_norm_mm": round(float(np.linalg.norm(d1)), 3),
+                        "difference_mm": round(diff, 3),
+                        "relative": round(diff / max(float(np.linalg.norm(d1)), 1e-12), 4),
+                    }
+                )
     return rows
 
 
@@ -83,14 +104,27 @@ def _vec(v) -> str:
 
 def write_docs(rows: list[dict], level0: dict, level1: dict, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tongue_convergence.json").write_text(json.dumps({
-        "units": {"level0_mm": "mm, displacement from rest (x, y, z)",
-                  "difference_mm": "|d0 - d1| (mm)", "relative": "|d0 - d1| / |d1|"},
-        "integrator": "semi-implicit", "dt": DT, "duration": DURATION,
-        "nodes": {"level0": next(iter(level0.values()))["nodes"],
-                  "level1": next(iter(level1.values()))["nodes"]},
-        "runs": {"level0": level0, "level1": level1},
-        "rows": rows}, indent=2))
+    (out / "tongue_convergence.json").write_text(
+        json.dumps(
+            {
+                "units": {
+                    "level0_mm": "mm, displacement from rest (x, y, z)",
+                    "difference_mm": "|d0 - d1| (mm)",
+                    "relative": "|d0 - d1| / |d1|",
+                },
+                "integrator": "semi-implicit",
+                "dt": DT,
+                "duration": DURATION,
+                "nodes": {
+                    "level0": next(iter(level0.values()))["nodes"],
+                    "level1": next(iter(level1.values()))["nodes"],
+                },
+                "runs": {"level0": level0, "level1": level1},
+                "rows": rows,
+            },
+            indent=2,
+        )
+    )
     final = [r for r in rows if r["t"] == DURATION]
     worst = max(final, key=lambda r: r["difference_mm"])
     worst_rel = max(final, key=lambda r: r["relative"])
@@ -113,15 +147,21 @@ def write_docs(rows: list[dict], level0: dict, level1: dict, out: Path) -> None:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        lines.append(f"| {r['motion']} | {r['t']:g} | {r['landmark']} | {_vec(r['level0_mm'])} | "
-                     f"{_vec(r['level1_mm'])} | {r['level0_norm_mm']:.2f} | "
-                     f"{r['level1_norm_mm']:.2f} | {r['difference_mm']:.2f} | "
-                     f"{100 * r['relative']:.0f} % |")
+        lines.append(
+            f"| {r['motion']} | {r['t']:g} | {r['landmark']} | {_vec(r['level0_mm'])} | "
+            f"{_vec(r['level1_mm'])} | {r['level0_norm_mm']:.2f} | "
+            f"{r['level1_norm_mm']:.2f} | {r['difference_mm']:.2f} | "
+            f"{100 * r['relative']:.0f} % |"
+        )
     lines += [
         "",
-        "Run cost (median ms per step, semi-implicit, serial): " + ", ".join(
+        "Run cost (median ms per step, semi-implicit, serial): "
+        + ", ".join(
             f"{m} {level0[m]['ms_per_step']:.0f} (level 0) / {level1[m]['ms_per_step']:.0f} "
-            f"(level 1)" for m in level0) + ".",
+            f"(level 1)"
+            for m in level0
+        )
+        + ".",
         "",
         "## What the difference says",
         "",
@@ -136,9 +176,12 @@ def write_docs(rows: list[dict], level0: dict, level1: dict, out: Path) -> None:
         f"({worst['motion']}, {worst['landmark']}, {100 * worst['relative']:.0f} % of "
         f"|d1| = {worst['level1_norm_mm']:.2f} mm); the largest relative difference is "
         f"{100 * worst_rel['relative']:.0f} % ({worst_rel['motion']}, {worst_rel['landmark']}). "
-        "The tip differs by " + ", ".join(
+        "The tip differs by "
+        + ", ".join(
             f"{r['difference_mm']:.2f} mm ({100 * r['relative']:.0f} %) in {m}"
-            for m, r in tip.items()) + ".",
+            for m, r in tip.items()
+        )
+        + ".",
         "",
         f"What it implies: the level 0 - level 1 differences at t = 1.0 s lie between "
         f"{min(r['difference_mm'] for r in final):.2f} and {worst['difference_mm']:.2f} mm, "
@@ -165,8 +208,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--motions", nargs="+", default=list(MOTIONS), choices=list(MOTIONS))
     parser.add_argument("--out", type=Path, default=DOCS)
-    parser.add_argument("--rewrite", action="store_true",
-                        help="only rewrite the .md from the existing .json (no runs)")
+    parser.add_argument(
+        "--rewrite",
+        action="store_true",
+        help="only rewrite the .md from the existing .json (no runs)",
+    )
     args = parser.parse_args(argv)
     if args.rewrite:
         data = json.loads((args.out / "tongue_convergence.json").read_text())
@@ -179,15 +225,20 @@ def main(argv=None) -> int:
         print(f"level {level}: {', '.join(args.motions)} ...", flush=True)
         runs[level] = run_motions(level, args.motions, progress=True)
         for motion, r in runs[level].items():
-            print(f"  {motion}: tip {r['landmarks_mm']['tip']} mm, "
-                  f"{r['ms_per_step']:.0f} ms/step, "
-                  f"{r['wall_s']:.0f} s, min det F {r['min_det_F']:.3f}", flush=True)
+            print(
+                f"  {motion}: tip {r['landmarks_mm']['tip']} mm, "
+                f"{r['ms_per_step']:.0f} ms/step, "
+                f"{r['wall_s']:.0f} s, min det F {r['min_det_F']:.3f}",
+                flush=True,
+            )
     rows = compare(runs[0], runs[1])
     write_docs(rows, runs[0], runs[1], args.out)
     for r in rows:
-        print(f"{r['motion']:13s} t={r['t']:g} {r['landmark']:5s} d0 {r['level0_mm']} "
-              f"d1 {r['level1_mm']} |d0-d1| {r['difference_mm']:.2f} mm "
-              f"({100 * r['relative']:.0f} %)")
+        print(
+            f"{r['motion']:13s} t={r['t']:g} {r['landmark']:5s} d0 {r['level0_mm']} "
+            f"d1 {r['level1_mm']} |d0-d1| {r['difference_mm']:.2f} mm "
+            f"({100 * r['relative']:.0f} %)"
+        )
     print(f"wrote {args.out / 'tongue_convergence.md'} and .json")
     return 0
 

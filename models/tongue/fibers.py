@@ -40,9 +40,11 @@ EXTRA_NODES: dict[int, tuple[float, float, float]] = {
 }
 
 
-def fiber_points(md: MeshData, fibers: dict[str, list[np.ndarray]],
-                 extra_points: dict[int, tuple[float, float, float]] | None = None
-                 ) -> dict[str, list[np.ndarray]]:
+def fiber_points(
+    md: MeshData,
+    fibers: dict[str, list[np.ndarray]],
+    extra_points: dict[int, tuple[float, float, float]] | None = None,
+) -> dict[str, list[np.ndarray]]:
     """Coordinates of the fibers: name -> list of (n, 3) arrays.
 
     Node ids are looked up in ``md.node_ids``; ids that are not mesh nodes are
@@ -62,8 +64,10 @@ def fiber_points(md: MeshData, fibers: dict[str, list[np.ndarray]],
                 pts[inside] = md.points[md.node_rows(ids[inside])]
             for k in np.flatnonzero(~inside):
                 if int(ids[k]) not in extra:
-                    raise UnknownNameError(f"fiber node {int(ids[k])} of {name} is neither a mesh node "
-                                           f"nor in extra_points")
+                    raise UnknownNameError(
+                        f"fiber node {int(ids[k])} of {name} is neither a mesh node "
+                        f"nor in extra_points"
+                    )
                 pts[k] = extra[int(ids[k])]
             xyz.append(pts)
         out[name] = xyz
@@ -94,8 +98,9 @@ def point_segment_distances(x: np.ndarray, starts: np.ndarray, vecs: np.ndarray)
     return np.linalg.norm(rel - t[..., None] * vecs[None], axis=2)
 
 
-def element_directions(points: np.ndarray, cells: np.ndarray, element_rows,
-                       fibers_xyz) -> tuple[np.ndarray, np.ndarray]:
+def element_directions(
+    points: np.ndarray, cells: np.ndarray, element_rows, fibers_xyz
+) -> tuple[np.ndarray, np.ndarray]:
     """Fiber direction of each element of a bundle: (directions (E, 3), distances (E,)).
 
     ``element_rows`` are rows of ``cells``; ``fibers_xyz`` is the bundle's list of
@@ -118,10 +123,12 @@ def polyline_length(pts: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(np.asarray(pts, dtype=float), axis=0), axis=1).sum())
 
 
-def bundle_geometry(md: MeshData, muscle_elements: dict[str, np.ndarray],
-                    fibers: dict[str, list[np.ndarray]],
-                    extra_points: dict[int, tuple[float, float, float]] | None = None
-                    ) -> dict[str, dict[str, float]]:
+def bundle_geometry(
+    md: MeshData,
+    muscle_elements: dict[str, np.ndarray],
+    fibers: dict[str, list[np.ndarray]],
+    extra_points: dict[int, tuple[float, float, float]] | None = None,
+) -> dict[str, dict[str, float]]:
     """Size of each bundle, for turning a muscle's maximum force into a fiber stress.
 
     For every bundle present in both ``muscle_elements`` (ANSYS element ids) and
@@ -151,9 +158,13 @@ def bundle_geometry(md: MeshData, muscle_elements: dict[str, np.ndarray],
             inside.append(seg[in_mesh[:-1] & in_mesh[1:]].sum())
         mean_len = float(np.mean(lengths))
         mean_in = float(np.mean(inside))
-        out[name] = {"elements": int(len(ids)), "fibers": int(len(fibers[name])),
-                     "volume_m3": volume, "mean_fiber_length_m": mean_len,
-                     "cross_section_m2": volume / mean_len,
-                     "mean_fiber_length_inside_m": mean_in,
-                     "cross_section_inside_m2": volume / mean_in}
+        out[name] = {
+            "elements": int(len(ids)),
+            "fibers": int(len(fibers[name])),
+            "volume_m3": volume,
+            "mean_fiber_length_m": mean_len,
+            "cross_section_m2": volume / mean_len,
+            "mean_fiber_length_inside_m": mean_in,
+            "cross_section_inside_m2": volume / mean_in,
+        }
     return out

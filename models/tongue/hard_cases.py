@@ -49,8 +49,17 @@ import numpy as np
 from artifem.errors import ElementInversionError, UnknownNameError
 from artifem.scene import simulate
 from artifem.excitation import ExcitationSchedule
-from artifem.models.tongue.model import (DT, DURATION, HARD, MOTIONS, PENALTY, RAMP_TIME,
-                                         Tongue, TongueConfig, load_tongue_data)
+from artifem.models.tongue.model import (
+    DT,
+    DURATION,
+    HARD,
+    MOTIONS,
+    PENALTY,
+    RAMP_TIME,
+    Tongue,
+    TongueConfig,
+    load_tongue_data,
+)
 
 INTEGRATOR_NAMES = ("semi-implicit", "implicit")
 C10 = TongueConfig().C10
@@ -61,8 +70,8 @@ DOCS = Path(__file__).resolve().parents[2] / "docs"
 @dataclass(frozen=True)
 class Case:
     description: str
-    config: dict = field(default_factory=dict)      # TongueConfig overrides of PENALTY_CONFIG
-    excitations: dict | None = None                 # exciter -> target; None: protrusion
+    config: dict = field(default_factory=dict)  # TongueConfig overrides of PENALTY_CONFIG
+    excitations: dict | None = None  # exciter -> target; None: protrusion
     ramp: bool = True
     dt: float = DT
     #: s: the exciters in two groups (alternate names) switched in antiphase between 0 and
@@ -82,41 +91,69 @@ CASES: dict[str, Case] = {
     "all_exciters": Case("all 11 exciters at 1.0, ramped over 0.5 s", excitations={}),
     "step": Case("protrusion targets stepped to full value at t = 0 (no ramp)", ramp=False),
     "dt_0.05": Case("protrusion, dt = 0.05 s", dt=0.05),
-    "kappa_100C10": Case("protrusion, kappa = 100 C10 = 103,700 Pa "
-                         "(incompressibility penalty kept at 100 C10)",
-                         config={"kappa": 100 * C10}),
-    "kappa_1000C10": Case("protrusion, kappa = 1000 C10 = 1,037,000 Pa "
-                          "(incompressibility penalty kept at 100 C10)",
-                          config={"kappa": 1000 * C10}),
+    "kappa_100C10": Case(
+        "protrusion, kappa = 100 C10 = 103,700 Pa (incompressibility penalty kept at 100 C10)",
+        config={"kappa": 100 * C10},
+    ),
+    "kappa_1000C10": Case(
+        "protrusion, kappa = 1000 C10 = 1,037,000 Pa (incompressibility penalty kept at 100 C10)",
+        config={"kappa": 1000 * C10},
+    ),
     "level_1": Case("protrusion on level 1 (2x2x2 split, 6,699 nodes)", config={"level": 1}),
 }
-_INCOMPRESSIBLE = {"incompressibility": HARD}            # with its own solver, HARD_SOLVER
-CASES.update({
-    f"incompressible_{name}": Case(CASES[name].description + ", hard incompressibility",
-                                   {**CASES[name].config, **_INCOMPRESSIBLE},
-                                   CASES[name].excitations, CASES[name].ramp, CASES[name].dt)
-    for name in ("all_exciters", "step", "dt_0.05", "level_1")})
+_INCOMPRESSIBLE = {"incompressibility": HARD}  # with its own solver, HARD_SOLVER
+CASES.update(
+    {
+        f"incompressible_{name}": Case(
+            CASES[name].description + ", hard incompressibility",
+            {**CASES[name].config, **_INCOMPRESSIBLE},
+            CASES[name].excitations,
+            CASES[name].ramp,
+            CASES[name].dt,
+        )
+        for name in ("all_exciters", "step", "dt_0.05", "level_1")
+    }
+)
 #: The issue's hard schedules (the tongue's default, hard incompressibility): antagonists
 #: together, everything at once, fast pulses; each switched on at t = 0.
-CASES.update({
-    "incompressible_coactivation": Case(
-        "antagonists together at 1.0 from t = 0 (GGP against HG and STY), hard "
-        "incompressibility", _INCOMPRESSIBLE, {"GGP": 1.0, "HG": 1.0, "STY": 1.0}, ramp=False),
-    "incompressible_all_step": Case(
-        "all 11 exciters at 1.0 from t = 0, hard incompressibility", _INCOMPRESSIBLE, {},
-        ramp=False),
-    "incompressible_pulses": Case(
-        "all 11 exciters in two groups pulsed in antiphase at 0.8, switched every 0.05 s, "
-        "hard incompressibility", _INCOMPRESSIBLE, {}, ramp=False, pulses=0.05),
-})
+CASES.update(
+    {
+        "incompressible_coactivation": Case(
+            "antagonists together at 1.0 from t = 0 (GGP against HG and STY), hard "
+            "incompressibility",
+            _INCOMPRESSIBLE,
+            {"GGP": 1.0, "HG": 1.0, "STY": 1.0},
+            ramp=False,
+        ),
+        "incompressible_all_step": Case(
+            "all 11 exciters at 1.0 from t = 0, hard incompressibility",
+            _INCOMPRESSIBLE,
+            {},
+            ramp=False,
+        ),
+        "incompressible_pulses": Case(
+            "all 11 exciters in two groups pulsed in antiphase at 0.8, switched every 0.05 s, "
+            "hard incompressibility",
+            _INCOMPRESSIBLE,
+            {},
+            ramp=False,
+            pulses=0.05,
+        ),
+    }
+)
 #: The same three at level 1 (6,699 nodes).
-CASES.update({
-    f"incompressible_level_1_{name}": Case(
-        CASES[f"incompressible_{name}"].description + ", level 1",
-        {**CASES[f"incompressible_{name}"].config, "level": 1},
-        CASES[f"incompressible_{name}"].excitations, False,
-        pulses=CASES[f"incompressible_{name}"].pulses)
-    for name in ("coactivation", "all_step", "pulses")})
+CASES.update(
+    {
+        f"incompressible_level_1_{name}": Case(
+            CASES[f"incompressible_{name}"].description + ", level 1",
+            {**CASES[f"incompressible_{name}"].config, "level": 1},
+            CASES[f"incompressible_{name}"].excitations,
+            False,
+            pulses=CASES[f"incompressible_{name}"].pulses,
+        )
+        for name in ("coactivation", "all_step", "pulses")
+    }
+)
 #: The level of the pulsed case's exciters.
 PULSE_LEVEL = 0.8
 
@@ -125,23 +162,26 @@ def case_schedule(case: Case, duration: float = DURATION) -> ExcitationSchedule:
     targets = case.excitations if case.excitations is not None else PROTRUSION
     if case.excitations == {}:
         targets = _all_exciters()
-    if case.pulses is not None:             # interval i: group (i + k) % 2 == 0 on
+    if case.pulses is not None:  # interval i: group (i + k) % 2 == 0 on
         n = int(np.ceil(duration / case.pulses - 1e-9))
         switches = case.pulses * np.arange(1, n)
-        times = np.concatenate([[0.0], np.ravel(np.column_stack([switches, switches + 1e-3])),
-                                [duration]])
+        times = np.concatenate(
+            [[0.0], np.ravel(np.column_stack([switches, switches + 1e-3])), [duration]]
+        )
         values = {}
         for k, name in enumerate(sorted(targets)):
             on = PULSE_LEVEL * (((np.arange(n) + k) % 2) == 0)
-            values[name] = np.concatenate([[on[0]], np.ravel(np.column_stack([on[:-1], on[1:]])),
-                                           [on[-1]]])
+            values[name] = np.concatenate(
+                [[on[0]], np.ravel(np.column_stack([on[:-1], on[1:]])), [on[-1]]]
+            )
         return ExcitationSchedule(times, values)
     if case.ramp:
         return ExcitationSchedule.ramp_and_hold(targets, RAMP_TIME)
     # Constant from t = 0: the controller applies the value at each step's end time,
     # so the first step already runs at full excitation.
-    return ExcitationSchedule(np.array([0.0, 1.0]),
-                              {name: np.array([value, value]) for name, value in targets.items()})
+    return ExcitationSchedule(
+        np.array([0.0, 1.0]), {name: np.array([value, value]) for name, value in targets.items()}
+    )
 
 
 def build_case(name: str, integrator: str = "semi-implicit"):
@@ -156,8 +196,13 @@ def build_case(name: str, integrator: str = "semi-implicit"):
     return tongue, schedule, case.dt
 
 
-def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
-              record_times=(RAMP_TIME,), progress: str | None = None) -> dict:
+def run_built(
+    tongue: Tongue,
+    dt: float,
+    duration: float = DURATION,
+    record_times=(RAMP_TIME,),
+    progress: str | None = None,
+) -> dict:
     """Step a driven tongue for ``duration``; never raises for a failed step.
 
     Returns the outcome ("finished", "inversion error" or the name of another
@@ -173,15 +218,30 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
     steps = int(round(duration / dt))
     rest_volume = body.volume()
     wall = time.perf_counter()
-    run = simulate(scene, duration, dt, on_failure="stop", progress=progress is not None,
-                   label=progress or "",
-                   record={"landmarks": lambda s: body.displacement_at(nodes)})
+    run = simulate(
+        scene,
+        duration,
+        dt,
+        on_failure="stop",
+        progress=progress is not None,
+        label=progress or "",
+        record={"landmarks": lambda s: body.displacement_at(nodes)},
+    )
     wall = time.perf_counter() - wall
     error, step_ms = run.failure, run.step_ms
-    outcome = ("finished" if error is None else "inversion error"
-               if isinstance(error, ElementInversionError) else type(error).__name__)
-    recorded = {float(t): run.records["landmarks"][k] for t in record_times
-                for k in np.flatnonzero(np.abs(run.times - t) < 0.5 * dt)[:1] if k > 0}
+    outcome = (
+        "finished"
+        if error is None
+        else "inversion error"
+        if isinstance(error, ElementInversionError)
+        else type(error).__name__
+    )
+    recorded = {
+        float(t): run.records["landmarks"][k]
+        for t in record_times
+        for k in np.flatnonzero(np.abs(run.times - t) < 0.5 * dt)[:1]
+        if k > 0
+    }
     final = body.displacement_at(nodes)
     finite = bool(np.all(np.isfinite(body.u.x.array)) and np.all(np.isfinite(body.v.x.array)))
     bad, det_now = body.inverted_elements()
@@ -211,22 +271,34 @@ def run_built(tongue: Tongue, dt: float, duration: float = DURATION,
         "direct_solves": int(getattr(scene.linear_solver_for(body), "direct_solves", 0)),
     }
     if isinstance(error, ElementInversionError):
-        result["inversion"] = {"time": float(error.time), "elements": int(len(error.elements)),
-                               "min_det_F": float(error.min_det), "message": str(error)}
+        result["inversion"] = {
+            "time": float(error.time),
+            "elements": int(len(error.elements)),
+            "min_det_F": float(error.min_det),
+            "message": str(error),
+        }
     elif error is not None:
         result["error"] = f"{type(error).__name__}: {error}"
     return result
 
 
-def run_case(name: str, integrator: str = "semi-implicit", duration: float = DURATION,
-             progress: bool = False) -> dict:
+def run_case(
+    name: str, integrator: str = "semi-implicit", duration: float = DURATION, progress: bool = False
+) -> dict:
     """Build and run one hard case with one integrator (see :func:`run_built`)."""
     tongue, _, dt = build_case(name, integrator)
     result = run_built(tongue, dt, duration, progress=f"{name}/{integrator}" if progress else None)
-    return {"case": name, "description": CASES[name].description, "integrator": integrator,
-            "level": tongue.config.level, "kappa": tongue.config.kappa,
-            "incompressibility": _incompressibility(tongue.config.incompressibility),
-            "nodes": int(tongue.data.mesh.points.shape[0]), "duration": duration, **result}
+    return {
+        "case": name,
+        "description": CASES[name].description,
+        "integrator": integrator,
+        "level": tongue.config.level,
+        "kappa": tongue.config.kappa,
+        "incompressibility": _incompressibility(tongue.config.incompressibility),
+        "nodes": int(tongue.data.mesh.points.shape[0]),
+        "duration": duration,
+        **result,
+    }
 
 
 def _incompressibility(value):
@@ -249,10 +321,13 @@ def _passes(r: dict) -> bool:
     """Finished sound, or stopped with the clear error: an inversion, or (hard
     incompressibility) the volume constraint naming its elements."""
     named = r["outcome"] == "StepFailed" and "element volumes off by more than" in r.get(
-        "error", "")
+        "error", ""
+    )
     return r["state_finite"] and (
         (r["outcome"] == "finished" and r["inverted_now"] == 0 and 0 < r["min_det_F"])
-        or r["outcome"] == "inversion error" or named)
+        or r["outcome"] == "inversion error"
+        or named
+    )
 
 
 #: Observations added to the generated page (kept in sync with the measured table by hand).
@@ -303,10 +378,19 @@ NOTES: list[str] = [
 
 def write_docs(results: list[dict], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tongue_hard_cases.json").write_text(json.dumps(
-        {"units": {"landmarks_mm": "mm, displacement from rest (x, y, z)",
-                   "ms_per_step": "median wall ms per step", "wall_s": "s"},
-         "results": results}, indent=2))
+    (out / "tongue_hard_cases.json").write_text(
+        json.dumps(
+            {
+                "units": {
+                    "landmarks_mm": "mm, displacement from rest (x, y, z)",
+                    "ms_per_step": "median wall ms per step",
+                    "wall_s": "s",
+                },
+                "results": results,
+            },
+            indent=2,
+        )
+    )
     lines = [
         "# Tongue: numerical stability on hard cases",
         "",
@@ -338,8 +422,10 @@ def write_docs(results: list[dict], out: Path) -> None:
         outcome = r["outcome"]
         if "inversion" in r:
             inv = r["inversion"]
-            outcome += (f" at t = {inv['time']:.4g} s, {inv['elements']} element(s), "
-                        f"det F = {inv['min_det_F']:.3g}")
+            outcome += (
+                f" at t = {inv['time']:.4g} s, {inv['elements']} element(s), "
+                f"det F = {inv['min_det_F']:.3g}"
+            )
         elif "error" in r:
             outcome = r["error"][:200].replace("|", "/")
         lines.append(
@@ -349,25 +435,33 @@ def write_docs(results: list[dict], out: Path) -> None:
             f"{_norm(r['landmarks_mm']['base']):.2f} | {_volume(r)} | "
             f"{r.get('direct_solves', '-')} | "
             f"{r['ms_per_step']:.0f} | "
-            f"{r['wall_s']:.0f} | {'yes' if passes else '**no**'} |")
+            f"{r['wall_s']:.0f} | {'yes' if passes else '**no**'} |"
+        )
     lines += ["", "Cases:", ""]
     lines += [f"- `{name}`: {case.description}" for name, case in CASES.items()]
-    lines += ["", "Columns: landmark displacements are at the end of the run (t = 1.0 s, or the "
-              "start of the failed step); min det F is the smallest det F at any quadrature "
-              "point after any completed step; halvings counts retried half steps; fallbacks "
-              "counts the semi-implicit steps that failed and were completed by the scene's "
-              "implicit fallback (`Scene(fallback=...)`; '-': run before it existed); ms/step is "
-              "the median wall time of a (possibly halved) step on this machine (serial); "
-              "wall s is the whole run and includes any JIT compilation of the forms "
-              "(cached on disk afterwards).", ""]
+    lines += [
+        "",
+        "Columns: landmark displacements are at the end of the run (t = 1.0 s, or the "
+        "start of the failed step); min det F is the smallest det F at any quadrature "
+        "point after any completed step; halvings counts retried half steps; fallbacks "
+        "counts the semi-implicit steps that failed and were completed by the scene's "
+        "implicit fallback (`Scene(fallback=...)`; '-': run before it existed); ms/step is "
+        "the median wall time of a (possibly halved) step on this machine (serial); "
+        "wall s is the whole run and includes any JIT compilation of the forms "
+        "(cached on disk afterwards).",
+        "",
+    ]
     lines += ["## Which cases pass", ""]
     for integrator in INTEGRATOR_NAMES:
         mine = [r for r in results if r["integrator"] == integrator]
         if mine:
             ok = [r["case"] for r in mine if _passes(r)]
             ko = [r["case"] for r in mine if not _passes(r)]
-            lines.append(f"- {integrator}: passes {', '.join(ok) or 'none'}"
-                         + (f"; fails {', '.join(ko)}" if ko else "") + ".")
+            lines.append(
+                f"- {integrator}: passes {', '.join(ok) or 'none'}"
+                + (f"; fails {', '.join(ko)}" if ko else "")
+                + "."
+            )
     lines += [""] + NOTES
     (out / "tongue_hard_cases.md").write_text("\n".join(lines))
 
@@ -375,12 +469,16 @@ def write_docs(results: list[dict], out: Path) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    parser.add_argument("--integrators", nargs="+", default=list(INTEGRATOR_NAMES),
-                        choices=list(INTEGRATOR_NAMES))
+    parser.add_argument(
+        "--integrators", nargs="+", default=list(INTEGRATOR_NAMES), choices=list(INTEGRATOR_NAMES)
+    )
     parser.add_argument("--duration", type=float, default=DURATION)
     parser.add_argument("--out", type=Path, default=DOCS)
-    parser.add_argument("--rewrite", action="store_true",
-                        help="only rewrite the .md from the existing .json (no runs)")
+    parser.add_argument(
+        "--rewrite",
+        action="store_true",
+        help="only rewrite the .md from the existing .json (no runs)",
+    )
     args = parser.parse_args(argv)
     if args.rewrite:
         data = json.loads((args.out / "tongue_hard_cases.json").read_text())
@@ -397,16 +495,26 @@ def main(argv=None) -> int:
             print(f"{name} / {integrator}: {CASES[name].description} ...", flush=True)
             r = run_case(name, integrator, args.duration, progress=True)
             results.append(r)
-            order = {(n, i): k for k, (n, i) in enumerate(
-                (n, i) for n in CASES for i in INTEGRATOR_NAMES)}
+            order = {
+                (n, i): k
+                for k, (n, i) in enumerate((n, i) for n in CASES for i in INTEGRATOR_NAMES)
+            }
             results.sort(key=lambda x: order.get((x["case"], x["integrator"]), len(order)))
             tip = r["landmarks_mm"]["tip"]
-            print(f"  -> {r['outcome']} at t = {r['t_reached']:.3g} s, halvings {r['halvings']}, "
-                  f"min det F {r['min_det_F']:.3f}, tip {tip} mm, {r['ms_per_step']:.0f} ms/step, "
-                  f"{r['wall_s']:.0f} s" + (f"; {r['inversion']['message']}" if "inversion" in r
-                                            else f"; {r['error']}" if "error" in r else ""),
-                  flush=True)
-            write_docs(results, args.out)        # partial results survive an interruption
+            print(
+                f"  -> {r['outcome']} at t = {r['t_reached']:.3g} s, halvings {r['halvings']}, "
+                f"min det F {r['min_det_F']:.3f}, tip {tip} mm, {r['ms_per_step']:.0f} ms/step, "
+                f"{r['wall_s']:.0f} s"
+                + (
+                    f"; {r['inversion']['message']}"
+                    if "inversion" in r
+                    else f"; {r['error']}"
+                    if "error" in r
+                    else ""
+                ),
+                flush=True,
+            )
+            write_docs(results, args.out)  # partial results survive an interruption
     print(f"wrote {args.out / 'tongue_hard_cases.md'} and .json")
     return 0
 

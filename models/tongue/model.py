@@ -100,8 +100,9 @@ class TongueConfig:
 
     def __post_init__(self):
         if self.level not in (0, 1):
-            raise InputError(f"tongue level must be 0 (as shipped) or 1 (2x2x2 split), "
-                             f"got {self.level}")
+            raise InputError(
+                f"tongue level must be 0 (as shipped) or 1 (2x2x2 split), got {self.level}"
+            )
         if self.linear_solver is None:
             hard = isinstance(self.incompressibility, Incompressible)
             object.__setattr__(self, "linear_solver", HARD_SOLVER if hard else DEFAULT_METHOD)
@@ -112,12 +113,12 @@ class TongueData:
     """Everything the model takes from the data files, at one fidelity level."""
 
     mesh: MeshData
-    bundles: dict[str, np.ndarray]          # bundle -> element rows
-    directions: dict[str, np.ndarray]       # bundle -> (elements, 3) unit fiber directions
-    max_stress: dict[str, float]            # bundle -> Pa
-    exciters: dict[str, list[str]]          # exciter -> bundles
-    fixed_nodes: np.ndarray                 # rows of jaw and hyoid attachment nodes
-    landmarks: dict[str, int]               # name -> node row
+    bundles: dict[str, np.ndarray]  # bundle -> element rows
+    directions: dict[str, np.ndarray]  # bundle -> (elements, 3) unit fiber directions
+    max_stress: dict[str, float]  # bundle -> Pa
+    exciters: dict[str, list[str]]  # exciter -> bundles
+    fixed_nodes: np.ndarray  # rows of jaw and hyoid attachment nodes
+    landmarks: dict[str, int]  # name -> node row
     geometry: dict[str, dict] = field(default_factory=dict)
 
 
@@ -144,7 +145,7 @@ def load_tongue_data(level: int = 0, data_dir: Path = DATA) -> TongueData:
     forces = read_max_forces(data_dir / "MuscleMaxForce.txt")
     geometry = bundle_geometry(coarse, elements, fiber_ids)
     exciters = dict(groups)
-    for bundle in elements:                      # unpaired bundles (SL) excite themselves
+    for bundle in elements:  # unpaired bundles (SL) excite themselves
         if not any(bundle in members for members in exciters.values()):
             exciters[bundle] = [bundle]
     max_stress = {}
@@ -155,8 +156,14 @@ def load_tongue_data(level: int = 0, data_dir: Path = DATA) -> TongueData:
             area = geometry[bundle]["cross_section_inside_m2"]
             max_stress[bundle] = forces[exciter] / len(members) / area
     # The attachment files hold ArtiSynth's 0-based node numbers, i.e. rows.
-    fixed = np.unique(np.concatenate([np.loadtxt(data_dir / f, dtype=np.int64).ravel()
-                                      for f in ("jawAttachments.txt", "hyoidAttachments.txt")]))
+    fixed = np.unique(
+        np.concatenate(
+            [
+                np.loadtxt(data_dir / f, dtype=np.int64).ravel()
+                for f in ("jawAttachments.txt", "hyoidAttachments.txt")
+            ]
+        )
+    )
     bundles = {name: coarse.cell_rows(ids) for name, ids in elements.items()}
     mesh = coarse
     if level == 1:
@@ -164,8 +171,10 @@ def load_tongue_data(level: int = 0, data_dir: Path = DATA) -> TongueData:
         mesh = refined.mesh
         fixed = carry_node_set(refined, fixed)
         bundles = {name: carry_cell_set(refined, rows) for name, rows in bundles.items()}
-    directions = {name: element_directions(mesh.points, mesh.cells, rows, fibers[name])[0]
-                  for name, rows in bundles.items()}
+    directions = {
+        name: element_directions(mesh.points, mesh.cells, rows, fibers[name])[0]
+        for name, rows in bundles.items()
+    }
     landmarks = {name: int(mesh.node_rows([node_id])[0]) for name, node_id in LANDMARKS.items()}
     return TongueData(mesh, bundles, directions, max_stress, exciters, fixed, landmarks, geometry)
 
@@ -178,21 +187,38 @@ class Tongue:
     >>> tongue.set_excitations({"GGP": 0.4, "TRANS": 0.4})
     """
 
-    def __init__(self, config: TongueConfig = TongueConfig(), comm=MPI.COMM_WORLD,
-                 data: TongueData | None = None):
+    def __init__(
+        self,
+        config: TongueConfig = TongueConfig(),
+        comm=MPI.COMM_WORLD,
+        data: TongueData | None = None,
+    ):
         self.config = config
         self.data = data or load_tongue_data(config.level)
         domain, _ = to_dolfinx(self.data.mesh, comm)
         material = MooneyRivlin(config.C10, C20=config.C20, kappa=config.kappa)
-        self.body = FemBody(domain, material, config.density, rayleigh=config.rayleigh,
-                            gravity=(0.0, 0.0, 0.0), incompressibility=config.incompressibility,
-                            name="tongue")
+        self.body = FemBody(
+            domain,
+            material,
+            config.density,
+            rayleigh=config.rayleigh,
+            gravity=(0.0, 0.0, 0.0),
+            incompressibility=config.incompressibility,
+            name="tongue",
+        )
         self.body.fix_nodes(self.data.fixed_nodes)
         for name, rows in self.data.bundles.items():
-            self.body.add_muscle(name, rows, self.data.directions[name],
-                                 BlemkerFiber(max_stress=self.data.max_stress[name]))
-        self.scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=config.integrator,
-                           linear_solver=config.linear_solver)
+            self.body.add_muscle(
+                name,
+                rows,
+                self.data.directions[name],
+                BlemkerFiber(max_stress=self.data.max_stress[name]),
+            )
+        self.scene = Scene(
+            gravity=(0.0, 0.0, 0.0),
+            integrator=config.integrator,
+            linear_solver=config.linear_solver,
+        )
         self.scene.add(self.body)
 
     @property
@@ -201,15 +227,18 @@ class Tongue:
 
     def _bundles_of(self, exciter: str) -> list[str]:
         if exciter not in self.data.exciters:
-            raise UnknownNameError(f"unknown muscle {exciter!r}; the tongue's exciters are "
-                                   f"{', '.join(self.exciters)}")
+            raise UnknownNameError(
+                f"unknown muscle {exciter!r}; the tongue's exciters are {', '.join(self.exciters)}"
+            )
         return self.data.exciters[exciter]
 
     def landmark_records(self) -> dict:
         """name -> f(scene): the landmark's displacement (m), for ``simulate(record=...)``."""
         body = self.body
-        return {name: (lambda scene, n=node: body.displacement_at([n])[0])
-                for name, node in self.data.landmarks.items()}
+        return {
+            name: (lambda scene, n=node: body.displacement_at([n])[0])
+            for name, node in self.data.landmarks.items()
+        }
 
     def set_excitations(self, excitations: dict[str, float]) -> None:
         """Set exciters (both bundles of a bilateral muscle) to the given levels."""
