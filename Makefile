@@ -18,7 +18,7 @@ XDIST  ?= -n 2 --dist loadfile --no-loadscope-reorder
 # 8 % longer on the reduced-model tests). `make test XDIST= THREADS=2` for one process.
 THREADS ?= 1
 
-.PHONY: demo test test-durations test-wheel bench lock venv clean
+.PHONY: demo test lint test-durations test-wheel bench lock venv clean
 
 venv: $(STAMP)
 
@@ -43,6 +43,12 @@ demo: $(STAMP)
 #   make test PYTEST_ARGS='--randomly-seed=N'   or keep the file order: '-p no:randomly'.
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=$(THREADS) OMP_NUM_THREADS=$(THREADS) $(PY) -m pytest $(XDIST) $(PYTEST_ARGS)
+
+# The linter and the formatter (ruff, configured in pyproject.toml), as CI runs them:
+# `$(VENV)/bin/ruff format .` lays a change out, `ruff check --fix .` fixes what it can.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 # Refresh tests/durations.json, the seconds of each test file that order the files for
 # the workers: the suite run with an empty JIT cache, as on a fresh machine; the file is

@@ -157,8 +157,9 @@ def _add_arguments(parser, kind: str) -> None:
         parser.add_argument(
             "--sizes",
             default="1k,3k,13k",
-            help=f"comma-separated cases: {', '.join(f'{k}={'x'.join(map(str, v))}' for k, v in SIZES.items())}"
-            " or NXxNYxNZ cells (default: %(default)s)",
+            help="comma-separated cases: "
+            + ", ".join(f"{k}={'x'.join(map(str, v))}" for k, v in SIZES.items())
+            + " or NXxNYxNZ cells (default: %(default)s)",
         )
         steps, warmup = 10, 2
         solver_default, solver_help = DEFAULT_SOLVER, DEFAULT_SOLVER
@@ -509,7 +510,8 @@ def run(args) -> int:
         print(format_table(cases))
         for t in report["targets"]:
             print(
-                f"target {t['size']} on {t['ranks']} ranks ({t['solver']}): {t['ms_per_step']:.1f} ms "
+                f"target {t['size']} on {t['ranks']} ranks ({t['solver']}): "
+                f"{t['ms_per_step']:.1f} ms "
                 f"<= {t['target_ms_per_step']:.0f} ms: {'met' if t['met'] else 'NOT met'}"
             )
     print(f"wrote {out}")

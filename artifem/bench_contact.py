@@ -268,7 +268,7 @@ def time_cases(scenes: list, steps: int, warmup: int) -> list[dict]:
             rec["factorizations"].append(info.get("factorizations", 0))
             rec["active"].append(info.get("constraint_rows", 0))
     out = []
-    for (scene, path), rec in zip(scenes, recs):
+    for (scene, _), rec in zip(scenes, recs):
         case = {
             f"{k}_ms": 1e3 * float(np.median(rec[k]))
             for k in ("step", "detection", "mapping", "solve")

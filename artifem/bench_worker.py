@@ -1,6 +1,7 @@
 """One benchmark case, run in its own process (``artifem bench fom|tongue``).
 
-    mpiexec -n RANKS python -m artifem.bench_worker --scene box --cells NX NY NZ --solver S --steps N
+    mpiexec -n RANKS python -m artifem.bench_worker --scene box --cells NX NY NZ \
+        --solver S --steps N
     mpiexec -n RANKS python -m artifem.bench_worker --scene tongue --level L --motion M --solver S
 
 Scenes (one function each, :data:`SCENES`, returning a :class:`Case`: the

@@ -2,7 +2,8 @@
 
 Notation: M mass, D = alpha M + beta K_0 Rayleigh damping (K_0 the stiffness at rest,
 ``FemBody.rest_stiffness``: always dissipative), K = d^2 Pi/du^2 the tangent, R = dPi/du
-(so f = -R is the internal-plus-external force), h the step. Fixed dofs are eliminated (rows and columns dropped, velocity kept 0).
+(so f = -R is the internal-plus-external force), h the step. Fixed dofs are eliminated (rows and
+columns dropped, velocity kept 0).
 
 - :class:`SemiImplicitEuler` (ArtiSynth's ConstrainedBackwardEuler): backward
   Euler linearized at the start of the step, one linear solve per step,
@@ -98,7 +99,8 @@ def step_system(
 
     and the applied force f - D v (Rayleigh damping D = alpha M + beta K_0, K_0 the
     stiffness at rest: ``FemBody.rest_stiffness``; the slaves' loads in K_geo). A is
-    ``body.K`` scaled in place: valid until the body is assembled again. The caller destroys the two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
+    ``body.K`` scaled in place: valid until the body is assembled again. The caller destroys the
+    two vectors. Fixed rows of A hold (1 + h alpha) M_ii.
     ``linearized=False`` (Newton's Jacobian at a trial state) takes the exact tangent of
     a hard-incompressible body (``FemBody.assemble``).
     """
@@ -450,7 +452,8 @@ def _hold_volumes_newton(body, newton) -> int:
     max |g| / V > tol, p <- pi and Newton again from there. The Newton iterations it took."""
     vc = body.volume_constraint
     iterations = 0
-    for vc.updates in range(1, vc.spec.max_updates + 1):
+    for updates in range(1, vc.spec.max_updates + 1):
+        vc.updates = updates
         violation = vc.update()
         if violation <= vc.spec.tol:
             return iterations

@@ -49,8 +49,8 @@ def _solve_lateral(response, stretch, free, guess):
         s = s - step
     if np.linalg.cond(jacobian) > 1e12 or not np.linalg.norm(step) < 1e-10:
         raise SolverError(
-            f"no traction-free lateral stretch found at stretch {stretch}: the lateral stiffness is "
-            "singular or the solve diverged; a material without lateral stiffness (e.g. a fiber "
+            f"no traction-free lateral stretch found at stretch {stretch}: the lateral stiffness "
+            "is singular or the solve diverged; a material without lateral stiffness (e.g. a fiber "
             "alone) needs a matrix: use CombinedMaterial(matrix, fiber)"
         )
     return np.exp(s)
@@ -61,7 +61,8 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
 
     - "uniaxial": F = diag(l, t2, t3) with t2, t3 solved so P22 = P33 = 0
       (traction-free sides); keys stretch, P11, P22, P33, lateral_stretch_2, lateral_stretch_3.
-    - "equibiaxial": F = diag(l, l, t3) with P33 = 0; keys stretch, P11, P22, P33, lateral_stretch_3.
+    - "equibiaxial": F = diag(l, l, t3) with P33 = 0; keys stretch, P11, P22, P33,
+    lateral_stretch_3.
     - "simple_shear": F = I + g e1 (x) e2 for g in ``shears`` (default stretches - 1);
       keys shear, P12, P11, P22.
 
@@ -114,7 +115,8 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
 
 
 def plot_stress_stretch(curves, png_path, title=None):
-    """Write a three-panel PNG (uniaxial P11, equibiaxial P11, simple-shear P12/P11/P22) of ``curves``."""
+    """Write a three-panel PNG (uniaxial P11, equibiaxial P11, simple-shear P12/P11/P22) of
+    ``curves``."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

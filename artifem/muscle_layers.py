@@ -87,7 +87,8 @@ class MuscleLayers:
             layer.refresh()
 
     def terms(self) -> list[tuple]:
-        """(density(F, a0), cells, direction, fields_at) of each layer (:meth:`_Layer.fields_at`)."""
+        """(density(F, a0), cells, direction, fields_at) of each layer
+        (:meth:`_Layer.fields_at`)."""
         return [
             (layer.density, layer.cells, layer.direction, layer.fields_at) for layer in self.layers
         ]

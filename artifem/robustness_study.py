@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from artifem.arguments import positive_float, positive_int
-from artifem.errors import InputError, SolverError
+from artifem.errors import InputError
 from artifem.excitation import ExcitationSchedule
 from artifem.reduction.reductor import ReducibleScene
 from artifem.scene import simulate
@@ -291,7 +291,8 @@ def write_report(result: dict, out: Path) -> None:
         + ", ".join(f"{k} {v}" for k, v in s["by_kind"].items())
         + ")",
         f"- cost per step against the semi-implicit step "
-        f"({_fmt(s['semi_implicit_step_ms'], '.1f')} ms): median {_fmt(s['median_cost'], '.2f')}x, worst "
+        f"({_fmt(s['semi_implicit_step_ms'], '.1f')} ms): "
+        f"median {_fmt(s['median_cost'], '.2f')}x, worst "
         f"{_fmt(s['worst_cost'], '.2f')}x",
         f"- steps completed by the implicit fallback: {s['fallbacks']}; halvings: {s['halvings']}",
         f"- finished runs: min det F {_fmt(s['min_det_F'], '.3f')}, largest volume "

@@ -94,7 +94,8 @@ def _passive_integral(l, select, exp, P1, P2, l_star):
 def force_length(l):
     """Active force-length curve f_L(l) of Blemker et al. 2005 (numpy, l = lambda/optimal_stretch).
 
-    f_L = 9 (l - 0.4)^2 on [0.4, 0.6], 1 - 4 (1 - l)^2 on [0.6, 1.4], 9 (l - 1.6)^2 on [1.4, 1.6], 0 otherwise.
+    f_L = 9 (l - 0.4)^2 on [0.4, 0.6], 1 - 4 (1 - l)^2 on [0.6, 1.4], 9 (l - 1.6)^2 on [1.4, 1.6],
+    0 otherwise.
     """
     return _force_length(np.asarray(l, dtype=float), _numpy_select)
 
@@ -103,7 +104,8 @@ def passive_force_length(l, P1=0.05, P2=6.6, stretch_star=1.4):
     """Passive curve f_P(l) of Blemker et al. 2005 (numpy).
 
     f_P = 0 for l <= 1, P1 (exp(P2 (l - 1)) - 1) for 1 < l < stretch_star, P3 l + P4 above,
-    with P3 = P1 P2 exp(P2 (l* - 1)) and P4 = P1 (exp(P2 (l* - 1)) - 1) - P3 l* (C1 at l* = stretch_star).
+    with P3 = P1 P2 exp(P2 (l* - 1)) and P4 = P1 (exp(P2 (l* - 1)) - 1) - P3 l* (C1 at l* =
+    stretch_star).
     """
     with np.errstate(over="ignore", invalid="ignore"):
         return _passive(np.asarray(l, dtype=float), _numpy_select, np.exp, P1, P2, stretch_star)
@@ -160,7 +162,8 @@ class BlemkerFiber:
         return self.passive and self.P1 > 0.0 and self.P2 > 0.0
 
     def fiber_stress(self, stretch, excitation):
-        """Nominal fiber stress dW/dlambda = max_stress (a f_L(lambda/c) + f_P(lambda/c)) (numpy)."""
+        """Nominal fiber stress dW/dlambda = max_stress (a f_L(lambda/c) + f_P(lambda/c))
+        (numpy)."""
         l = np.asarray(stretch, dtype=float) / self.optimal_stretch
         stress = excitation * force_length(l)
         if self._has_passive:

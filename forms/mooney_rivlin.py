@@ -14,7 +14,8 @@ BULK_POTENTIALS = ("quadratic", "log")
 
 @dataclass(frozen=True)
 class MooneyRivlin:
-    """Five-parameter Mooney-Rivlin energy with a volumetric penalty (ArtiSynth's MooneyRivlinMaterial).
+    """Five-parameter Mooney-Rivlin energy with a volumetric penalty (ArtiSynth's
+    MooneyRivlinMaterial).
 
     W = C10 (I1bar - 3) + C01 (I2bar - 3) + C11 (I1bar - 3)(I2bar - 3)
         + C20 (I1bar - 3)^2 + C02 (I2bar - 3)^2 + U(J)
@@ -50,7 +51,8 @@ class MooneyRivlin:
 
     @classmethod
     def tongue(cls, bulk="quadratic"):
-        """Tongue tissue as in ArtiSynth's tongue models (Buchaillard et al. 2009): C10=1037, C20=486, kappa=10370 Pa."""
+        """Tongue tissue as in ArtiSynth's tongue models (Buchaillard et al. 2009): C10=1037,
+        C20=486, kappa=10370 Pa."""
         return cls(1037.0, C20=486.0, kappa=10370.0, bulk=bulk)
 
     def volumetric_energy(self, J):

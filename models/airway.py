@@ -73,7 +73,8 @@ by up to 40 % when no muscle resists, and opens the jaw by 0.1-0.2 degrees; its 
 (1.9 N on the tongue, 0.06 N on the jaw, 1.9 N on the palate at rest) sum to zero. Steps
 cost 78 ms without the airway's load and 84 ms with the skin and its pressure (G: 5.4 ms,
 skin positions 0.09 ms); with the reduced tongue (20 + 12 columns, 300 points) 5.0 and
-6.0 ms, the pressure's loads formed without assembling G (docs/benchmarks/scenes.json). The reduced airway follows the full one within 0.1-1.0 mm mean skin
+6.0 ms, the pressure's loads formed without assembling G (docs/benchmarks/scenes.json). The reduced
+airway follows the full one within 0.1-1.0 mm mean skin
 error without the air and 0.9-1.3 mm with it (a basis trained without air), jaw angles
 within 0.33 degrees.
 
@@ -793,7 +794,7 @@ def report(args: argparse.Namespace) -> dict:
     inner = rest.sections.interior
     curves = {"rest": (length0[inner], rest.sections.areas(x0)[inner], "k-")}
     styles = {"none": "C7", "protrusion": "C0", "retroflexion": "C1", "retraction": "C2"}
-    for key, (a, rec) in runs.items():
+    for key, (_, rec) in runs.items():
         motion, p = key.split("/")
         (_, u, pj, Rj), xs = rec["frames"][-1], rec["skin_frames"][-1]
         if p == "pressure" and motion != "none":
@@ -954,7 +955,8 @@ def benchmark(
     protrusion, with the full and with the reduced tongue (``reduced`` training, default
     the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
     ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when unset):
-    without the airway's load, then with its skin and pressure; and the cost of one skin update (positions), of G
+    without the airway's load, then with its skin and pressure; and the cost of one skin update
+    (positions), of G
     (jacobian) and of the pressure's master loads."""
     if steps < 1:
         raise InputError(f"benchmark: steps must be >= 1, got {steps}")

@@ -5,7 +5,8 @@ tests/test_distributed_training.py):
 
 The free muscle beam (tests/reduced_beam.py), built on MPI.COMM_SELF on every rank
 (``--distributed``: on MPI.COMM_WORLD), trained on four schedules; with ``--fail`` the
-third one fails (a model error raised by its drive). Rank 0 prints ``RESULT {json}``: what :meth:`Reductor.train` did.
+third one fails (a model error raised by its drive). Rank 0 prints ``RESULT {json}``: what
+:meth:`Reductor.train` did.
 """
 
 import json

@@ -21,7 +21,7 @@ def test_every_public_name_resolves_and_unknown_names_are_attribute_errors(packa
         assert getattr(module, name) is not None, name
         assert name in dir(module)
     with pytest.raises(AttributeError, match="no attribute 'Scen'"):
-        module.Scen
+        _ = module.Scen
     assert af.Scene.__module__ == "artifem.scene.scene"
 
 

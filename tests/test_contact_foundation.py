@@ -338,7 +338,8 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_b
     velocities and forces to the passes of the friction bounds' tolerance (they stop when
     the bounds change by 1e-10 of the largest impulse, each path from its own iterates: the
     KKT's searched on trials with the regularization's 1e-10 left in, then refined;
-    measured 1.8e-14 m/s against 3.7e-5 m/s, and 2e-11 N against 0.15 N); each node's normal force is K A_k d_k / t with d_k its depth after the step
+    measured 1.8e-14 m/s against 3.7e-5 m/s, and 2e-11 N against 0.15 N); each node's normal force
+    is K A_k d_k / t with d_k its depth after the step
     and A_k its facing area at the start of the step (measured to 7e-13 of the largest
     force, the round-off of depths of 1e-5 m read off coordinates of 0.05 m; with the
     areas after the step, 6e-6: the block deforms); the deepest node (1.2e-5 m) is

@@ -36,7 +36,8 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes 
 def test_boundary_areas_are_the_lumped_facet_integrals_of_the_shape_functions():
     """A unit cube of 2 x 2 x 2 hexahedra (h = 0.5): a node gets h^2 / 4 from each boundary
     quadrilateral around it: a corner 3 h^2 / 4, an edge midpoint and a face centre h^2
-    (4 quadrilaterals), the interior node 0; the areas sum to 6. The current configuration after a uniform stretch
+    (4 quadrilaterals), the interior node 0; the areas sum to 6. The current configuration after a
+    uniform stretch
     by 2 in x: the x faces keep their area, the others double."""
     msh = dmesh.create_box(
         MPI.COMM_SELF, [np.zeros(3), np.ones(3)], [2, 2, 2], dmesh.CellType.hexahedron

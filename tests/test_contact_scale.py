@@ -17,7 +17,7 @@ from mpi4py import MPI
 from artifem.multibody.constraint_rows import Friction, RowBlock
 from artifem.scene import constraints
 from artifem.scene.constraints import ActiveSetMemory, StepRows, solve_constrained, use_kkt
-from artifem.scene.direct_solver import DENSE_MAX, DirectSolver
+from artifem.scene.direct_solver import DirectSolver
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial solves")
 

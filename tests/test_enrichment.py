@@ -134,7 +134,7 @@ def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(t
     result = greedy_points(
         reductor, POINTS_POOL, basis=W4, points=spec, max_rounds=4, progress=False
     )
-    first, last = result.history[0], result.history[-1]
+    first = result.history[0]
     for entry in result.history:
         assert set(entry["indicators"]) == set(POINTS_POOL)
         assert entry["max_indicator"] == max(entry["indicators"].values())

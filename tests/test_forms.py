@@ -154,7 +154,8 @@ CASES = [
 ]
 CASE_IDS = [case[0] for case in CASES]
 
-# A general, well-conditioned deformation (det > 0); |F a0| / 1.1 = 1.06 stays away from Blemker's kinks.
+# A general, well-conditioned deformation (det > 0); |F a0| / 1.1 = 1.06 stays away from Blemker's
+# kinks.
 F_GENERAL = np.array([[1.17, 0.08, -0.05], [0.03, 0.92, 0.06], [-0.04, 0.02, 1.05]])
 SHEAR = I3 + 0.3 * np.outer(E1, [0.0, 1.0, 0.0])
 DEFORMATIONS = {

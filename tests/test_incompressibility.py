@@ -1,4 +1,5 @@
-"""The element-wise incompressibility penalty: exact on affine fields, conserves volume, no locking."""
+"""The element-wise incompressibility penalty: exact on affine fields, conserves volume, no
+locking."""
 
 import numpy as np
 import pytest
@@ -487,7 +488,8 @@ def test_the_tongue_simulates_with_its_volumes_held(tmp_path):
 
 
 def test_the_coupled_island_statics_hold_volumes_as_the_body_alone():
-    """The same twin construction in statics: the hard beam bent by a weak gravity (0.1 m/s^2: the tip sags by a quarter of the length) in the coupled
+    """The same twin construction in statics: the hard beam bent by a weak gravity (0.1 m/s^2: the
+    tip sags by a quarter of the length) in the coupled
     island (Newton with pressure updates around it) equals the beam solved on its own."""
     tol = 1e-10
     alone = _soft_beam("alone", Incompressible(kappa=100 * MU, tol=tol))
@@ -508,7 +510,8 @@ def test_the_coupled_island_statics_hold_volumes_as_the_body_alone():
 @pytest.mark.parametrize("integrator", ["semi-implicit", "implicit"])
 def test_a_constraint_that_cannot_be_met_names_its_elements(integrator):
     """When the pressure iterations cannot reach the tolerance (here: 1e-17, below round-off,
-    one iteration allowed), the step halves and then stops with an error naming the worst elements by
+    one iteration allowed), the step halves and then stops with an error naming the worst elements
+    by
     input index and their volume change, the body left at the start of the failed step."""
     body = _soft_beam("beam", Incompressible(kappa=1.0 * MU, tol=1e-17, max_updates=1))
     scene = Scene(

@@ -369,7 +369,7 @@ def _gmsh_box(path, hexes):
         gmsh.model.addPhysicalGroup(3, [box], tag=7)
         gmsh.model.addPhysicalGroup(2, [t for _, t in gmsh.model.getEntities(2)], tag=1)
         if hexes:
-            for dim, tag in gmsh.model.getEntities(1):
+            for _, tag in gmsh.model.getEntities(1):
                 gmsh.model.mesh.setTransfiniteCurve(tag, 4)
             for dim, tag in gmsh.model.getEntities(2):
                 gmsh.model.mesh.setTransfiniteSurface(tag)

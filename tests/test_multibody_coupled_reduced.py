@@ -102,7 +102,8 @@ def prescribed_bone():
 
 def test_full_basis_reduced_body_on_a_prescribed_bone_matches_the_full_body():
     """Measured: max |u_reduced - u_full| = 1.5e-16 m on |u| = 0.08 m after 15 steps of a
-    translating, turning bone (the secant of g is exact, the KKT systems are a change of variables)."""
+    translating, turning bone (the secant of g is exact, the KKT systems are a change of
+    variables)."""
     full, lifted = make_body(), make_body()
     b_full, b_red = prescribed_bone(), prescribed_bone()
     lift = rigid_lift(lifted, end_nodes(lifted), b_red.position, b_red.rotation)

@@ -542,7 +542,7 @@ def test_free_body_conserves_momentum_and_stays_orthonormal():
     p0, E0 = body.position.copy(), system.energy()
     h, E_prev, worst = 1e-3, system.energy(), 0.0
     flipped = False
-    for k in range(10000):
+    for _ in range(10000):
         system.step(h)
         E = system.energy()
         assert E <= E_prev * (1 + 1e-13)

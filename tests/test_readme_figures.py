@@ -763,7 +763,5 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
     assert f"{five['40']:.2f}" == f"{five['20']:.2f}" and not np.isfinite(five["80"])
     assert not any(np.isfinite(v) for v in learned["held-out-1000-4"].values())
     readme = README.replace("\n", " ")
-    assert (
-        f"closes most of the gap on {['no', 'one', 'two', 'three', 'four', 'five', 'six'][len(helped)]} of six held-out runs at level 0"
-        in readme
-    )
+    count = ["no", "one", "two", "three", "four", "five", "six"][len(helped)]
+    assert f"closes most of the gap on {count} of six held-out runs at level 0" in readme

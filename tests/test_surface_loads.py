@@ -557,7 +557,7 @@ def test_component_wise_fixes():
     assert np.all(arr[dofs, 0] == 0.0) and np.all(arr[dofs, 1:] == 1.0)
     assert arr.sum() == arr.size - dofs.size
     with pytest.raises(af.InputError, match="fixed in some components only"):
-        body.fixed_dofs
+        _ = body.fixed_dofs
     # coupled (the layout takes fixed components): hung from a fixed base under gravity,
     # the plane nodes keep x and move in z
     scene = af.Scene(gravity=(0.0, 0.0, -9.81))

@@ -52,7 +52,7 @@ REORIENT = {"hexahedron": np.array([4, 5, 6, 7, 0, 1, 2, 3]), "tetrahedron": np.
 def _hex_corner_edges():
     """For each VTK corner, the VTK (from, to) node pairs of its three reference-axis edges."""
     pairs = []
-    for corner, vtk in sorted(_HEX_VTK_AT.items(), key=lambda kv: kv[1]):
+    for corner, _ in sorted(_HEX_VTK_AT.items(), key=lambda kv: kv[1]):
         axes = []
         for axis in range(3):
             lo, hi = list(corner), list(corner)

@@ -13,7 +13,8 @@ from artifem.multibody.rigid_body import Frame
 class PointPath(PathElement):
     """A spring or muscle (``AxialSpring``, ``ThelenMuscle``: ``evaluate(x, v, dt)``) through
     ``points``: :class:`FemPoint` objects, rigid-body or world ``Frame`` objects, or fixed
-    world points (3 numbers). Add it to a :class:`Scene` (artifem.scene.scene docstring: path elements).
+    world points (3 numbers). Add it to a :class:`Scene` (artifem.scene.scene docstring: path
+    elements).
 
     ``excitation(t)``, if given, sets the muscle's excitation at the step's end time; the
     activation advances once per new time (as ``FramePath``).

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from collections import deque
+
 import numpy as np
 from scipy.optimize import nnls
 from tqdm import tqdm
@@ -223,9 +225,8 @@ def trained_points(
     """
     G, b, tol, max_points = _check_training(G, b, tol, max_points)
     bnorm = float(np.linalg.norm(b))
-    S, w, rnorm = np.zeros(0, dtype=np.int64), np.zeros(0), bnorm
-    for S, w, rnorm in _greedy(G, b, tol, max_points, growth):
-        pass
+    last = deque(_greedy(G, b, tol, max_points, growth), maxlen=1)  # its last state
+    S, w, rnorm = last[0] if last else (np.zeros(0, dtype=np.int64), np.zeros(0), bnorm)
     return _points(S, w, rnorm, bnorm, tol, max_points, strict)
 
 

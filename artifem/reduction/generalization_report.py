@@ -16,7 +16,8 @@ def write_markdown(figures: dict) -> str:
         f"# {figures['model']}: the reduced model on inputs it was not built from",
         "",
         f"Reduced model: {m['basis']['kind']} basis, r = {m['basis']['r']}"
-        f"{' (' + str(m['basis']['lift_columns']) + ' lift columns)' if m['basis']['lift_columns'] else ''}, "
+        + (f" ({m['basis']['lift_columns']} lift columns)" if m["basis"]["lift_columns"] else "")
+        + ", "
         f"{m['points']['count']} {m['points']['sampling']} points; trained on "
         f"{m['runs']} runs ({m['snapshots']} snapshots), "
         f"{sum(m['seconds'].values()):.0f} s of training computation "

@@ -60,7 +60,7 @@ def _stage(
     for f in forces:
         f.weight = w
     iterations, mean = 0, np.inf
-    for sweep in range(1, max_sweeps + 1):
+    for sweep in range(1, max_sweeps + 1):  # noqa: B007 (returned: the sweeps taken)
         for f in forces:
             f.hold(True)
         try:

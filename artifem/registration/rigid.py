@@ -190,7 +190,7 @@ def icp(
         return r <= np.quantile(r, trim) if trim < 1.0 else np.ones(r.size, dtype=bool)
 
     done = 0
-    for done in range(1, iterations + 1):
+    for done in range(1, iterations + 1):  # noqa: B007 (returned: the iterations taken)
         moved = points @ R.T + t
         r, closest, off_border = surface.closest_kept(moved)
         keep = kept(r) & off_border if drop_border else kept(r)

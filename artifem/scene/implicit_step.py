@@ -47,7 +47,8 @@ attachments' K_geo of the semi-implicit step is not a derivative of this residua
 (its P is the one at the start of the step) and is left out (it took Newton from 3
 to 5-6 iterations); ``Scene.geometric_stiffness`` does not change this step. Left
 out: the derivative of a path's damping D(q) by the configuration (the bodies' Rayleigh
-damping D = alpha M + beta K_0 is constant). Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5 -> 2e-11
+damping D = alpha M + beta K_0 is constant). Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5
+-> 2e-11
 (before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
 
 As in the semi-implicit step, M and the velocity map P are taken at the start of
@@ -147,7 +148,7 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
     first value included). Raises StepFailed when the line search or Newton fails (the
     scene then halves the step)."""
     system = NewtonSystem(scene, L, h)
-    P, z_k, targets, M0, z0 = system.P, system.z_k, system.targets, system.M0, system.z0
+    z_k, targets, M0, z0 = system.z_k, system.targets, system.M0, system.z0
     diag = (M0.diagonal() if sparse.issparse(M0) else np.diag(M0))[L.master_rows]
     mass = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
 

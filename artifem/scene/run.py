@@ -119,14 +119,14 @@ def simulate(
         for body in scene.reduced_bodies:
             writers.append((body, ResultWriter(Path(vtx) / f"{body.name}.bp", [body.full.u])))
     pressures = _contact_pressure_fields(scene) if vtx is not None else {}
-    for name, (field, _) in pressures.items():
-        writers.append((None, ResultWriter(Path(vtx) / f"{name}_contact_pressure.bp", [field])))
+    for name, (nodal, _) in pressures.items():
+        writers.append((None, ResultWriter(Path(vtx) / f"{name}_contact_pressure.bp", [nodal])))
 
     def write():
-        for name, (field, contacts) in pressures.items():
-            field.x.array[:] = 0.0
+        for name, (nodal, contacts) in pressures.items():
+            nodal.x.array[:] = 0.0
             for contact in contacts:
-                field.x.array[:] += scene.contact_pressure(contact)[name].nodal
+                nodal.x.array[:] += scene.contact_pressure(contact)[name].nodal
         for reduced, writer in writers:
             if reduced is not None:
                 reduced.to_full()

@@ -5,7 +5,8 @@
 Runs each speech motion (semi-implicit, dt = 0.01 s, 1.0 s) on both fidelity
 levels, with the element penalty (:data:`~artifem.models.tongue.model.PENALTY`; the
 same table with the hard incompressibility, the tongue's default, is in
-docs/incompressibility.md, ``artifem study incompressibility``), and compares the displacements of the tip, top and base landmarks at
+docs/incompressibility.md, ``artifem study incompressibility``), and compares the displacements of
+the tip, top and base landmarks at
 the end of the ramp (t = 0.5 s) and at the end (t = 1.0 s). The landmarks are
 nodes of the shipped mesh, which level 1 keeps, so the same material point is
 compared. Writes docs/tongue_convergence.md and docs/tongue_convergence.json.

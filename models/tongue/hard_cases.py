@@ -430,7 +430,8 @@ def write_docs(results: list[dict], out: Path) -> None:
             outcome = r["error"][:200].replace("|", "/")
         lines.append(
             f"| {r['case']} | {r['integrator']} | {outcome} | {r['t_reached']:.3g} | "
-            f"{r['halvings']} | {r.get('fallbacks', '-')} | {r['min_det_F']:.3f} | ({tip[0]:.2f}, {tip[2]:.2f}) | "
+            f"{r['halvings']} | {r.get('fallbacks', '-')} | {r['min_det_F']:.3f} | "
+            f"({tip[0]:.2f}, {tip[2]:.2f}) | "
             f"{_norm(tip):.2f} | {_norm(r['landmarks_mm']['top']):.2f} | "
             f"{_norm(r['landmarks_mm']['base']):.2f} | {_volume(r)} | "
             f"{r.get('direct_solves', '-')} | "

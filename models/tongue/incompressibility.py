@@ -217,7 +217,8 @@ def format_report(report: dict) -> str:
                 lm = r["landmarks_mm"]
                 pr = r["pressure_range_Pa"]
                 lines.append(
-                    f"| {level.split()[-1]} | {motion} | {kind} | {100 * r['volume_change']:+.3f} %,"
+                    f"| {level.split()[-1]} | {motion} | {kind} | "
+                    f"{100 * r['volume_change']:+.3f} %,"
                     f" {100 * r['max_volume_change']:.3f} % | "
                     + " | ".join(
                         ", ".join(f"{x:+.2f}" for x in lm[n]) for n in ("tip", "top", "base")
