@@ -18,7 +18,7 @@ XDIST  ?= -n 2 --dist loadfile --no-loadscope-reorder
 # 8 % longer on the reduced-model tests). `make test XDIST= THREADS=2` for one process.
 THREADS ?= 1
 
-.PHONY: demo test lint test-durations test-wheel bench lock venv clean
+.PHONY: demo test lint docs test-durations test-wheel bench lock venv clean
 
 venv: $(STAMP)
 
@@ -49,6 +49,12 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+
+# The documentation site (Sphinx, MyST, autodoc, sphinx-gallery: docs/conf.py) into
+# docs/_build/html; warnings are errors, so a broken reference or a failing demo fails it.
+docs: $(STAMP)
+	$(PY) -m pip install --quiet -c constraints.txt -e ".[docs]"
+	cd docs && OPENBLAS_NUM_THREADS=$(THREADS) ../$(PY) -m sphinx -W --keep-going -b html . _build/html
 
 # Refresh tests/durations.json, the seconds of each test file that order the files for
 # the workers: the suite run with an empty JIT cache, as on a fresh machine; the file is

@@ -62,7 +62,7 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
     - "uniaxial": F = diag(l, t2, t3) with t2, t3 solved so P22 = P33 = 0
       (traction-free sides); keys stretch, P11, P22, P33, lateral_stretch_2, lateral_stretch_3.
     - "equibiaxial": F = diag(l, l, t3) with P33 = 0; keys stretch, P11, P22, P33,
-    lateral_stretch_3.
+      lateral_stretch_3.
     - "simple_shear": F = I + g e1 (x) e2 for g in ``shears`` (default stretches - 1);
       keys shear, P12, P11, P22.
 

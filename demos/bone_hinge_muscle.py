@@ -1,4 +1,6 @@
-"""A bone carrying soft tissue, hinged to the skull and lifted by a muscle.
+"""
+A bone carrying soft tissue, hinged to the skull and lifted by a muscle
+=======================================================================
 
 The scene of the paper's section 3 in a dozen lines: a rigid bone turns about a
 hinge; the FEM block's nodes on the bone ride on it (x_i = p + R r_i, forces back

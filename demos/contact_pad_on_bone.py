@@ -1,4 +1,6 @@
-"""Soft tissue meets bone: a pad of soft tissue dropped on a bony condyle.
+"""
+Soft tissue meets bone: a pad of soft tissue dropped on a bony condyle
+======================================================================
 
 Contact is one more constraint of the Scene: at every step the closed surfaces of the
 pad (the FEM body's exterior facets) and of the condyle (a rigid body's triangle

@@ -1,6 +1,8 @@
-"""A thick rubber sphere inflated by an internal pressure, against its closed-form curve.
+"""
+A thick rubber sphere inflated by an internal pressure, against its closed-form curve
+=====================================================================================
 
-One octant of the shell A <= |X| <= B (hexahedra mapped from the three faces of a
+One octant of the shell ``A <= |X| <= B`` (hexahedra mapped from the three faces of a
 cube corner onto the sphere) with symmetry planes: u_k = 0 on X_k = 0, one
 component only. The internal pressure p is a follower load: it acts on the
 deformed inner face, t da = -p J F^-T N dA (Nanson), with its tangent from UFL.

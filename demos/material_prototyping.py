@@ -1,4 +1,6 @@
-"""Prototype a material at the form level: write its energy in UFL, check it, use it.
+"""
+Prototype a material at the form level: write its energy in UFL, check it, use it
+=================================================================================
 
 A Yeoh material, W = sum_i c_i (I1bar - 3)^i + kappa/2 (J - 1)^2, written here in
 a few lines, is checked the way one checks any new energy before a full

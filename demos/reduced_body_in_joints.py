@@ -1,4 +1,6 @@
-"""A reduced FEM body in a jointed scene: a cantilever of 12 modes swings a pendulum.
+"""
+A reduced FEM body in a jointed scene: a cantilever of 12 modes swings a pendulum
+=================================================================================
 
 The beam's deformation is x = X + U q with U its 12 lowest vibration modes (SLEPc)
 and every quadrature point kept; a rigid pendulum hinged to the world hangs from the

@@ -1,4 +1,6 @@
-"""A skin over two masters, inflated by a pressure that acts back on them.
+"""
+A skin over two masters, inflated by a pressure that acts back on them
+======================================================================
 
 A soft block hangs from a fixed bone by its end nodes. A closed triangulated skin
 wraps the block; each vertex follows the block (shape functions of the element

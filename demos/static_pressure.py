@@ -1,4 +1,6 @@
-"""A pressure-loaded FEM body solved statically: follower against dead load.
+"""
+A pressure-loaded FEM body solved statically: follower against dead load
+========================================================================
 
 A soft cantilever carries a skin on its top face with a uniform pressure. The
 pressure follows the skin as the beam bends (a follower load: it turns with the

@@ -1,4 +1,6 @@
-"""The ArtiSynth tongue hanging from its jaw and hyoid attachments under gravity.
+"""
+The ArtiSynth tongue hanging from its jaw and hyoid attachments under gravity
+=============================================================================
 
 Reads the ANSYS mesh shipped in models/data, fixes the jaw and hyoid
 attachment nodes (as ArtiSynth's stand-alone HexTongueDemo does), and lets the
@@ -10,13 +12,14 @@ for 0.3 s with the semi-implicit integrator. Writes a VTX series and a PNG.
 
 import os
 import sys
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 
 import artifem as af  # first: orders MPI ahead of dolfinx
 
-DATA = Path(__file__).resolve().parents[1] / "models" / "data" / "artisynth-tongue"
+DATA = Path(str(files("artifem.models.data") / "artisynth-tongue"))  # shipped in the wheel
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "results/tongue_gravity")
 duration = 0.05 if os.environ.get("ARTIFEM_QUICK") else 0.3
 

@@ -142,3 +142,23 @@ def test_the_readme_fem_scene_example_runs(tmp_path, monkeypatch):
     assert scene.islands() == ([namespace["body"]], [])
     assert run.records["tip"].shape == (3, 3) and np.abs(run.records["tip"][-1]).max() > 0
     assert (tmp_path / "tongue.bp").is_dir()
+
+
+def test_the_api_reference_lists_exactly_the_public_surface():
+    """docs/api.md documents every name of af, and of artifem.forms, artifem.io and
+    artifem.reduction what they add to af; nothing else, nothing twice."""
+    import importlib
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
+    listed = [line.strip() for line in text.splitlines() if line.startswith("   artifem.")]
+    assert len(listed) == len(set(listed))
+    expected = {f"artifem.{n}" for n in af.__all__}
+    for package in ("artifem.forms", "artifem.io", "artifem.reduction"):
+        module = importlib.import_module(package)
+        expected |= {
+            f"{package}.{n}"
+            for n in module.__all__
+            if getattr(af, n, None) is not getattr(module, n)
+        }
+    assert set(listed) == expected

@@ -13,7 +13,6 @@ _PUBLIC = {
     **dict.fromkeys(
         ["check_orientation", "degenerate_elements", "element_volumes"], "artifem.io.mesh_checks"
     ),
-    "to_dolfinx": "artifem.io.to_dolfinx",
     "spherical_shell_octant": "artifem.io.shell_mesh",
 }
 

@@ -32,19 +32,19 @@ def require_file(path: str | Path, what: str = "mesh file") -> Path:
 class MeshData:
     """A single-cell-type volume mesh with the ids and tags of its source file.
 
-    points:     (N, 3) float64 node coordinates.
-    cell_type:  "hexahedron" or "tetrahedron" (the type of ``cells``).
-    cells:      (M, k) int64 row indices into ``points``, VTK node ordering.
-    node_ids:   (N,) int64 node ids of the file (ANSYS ids, or 0..N-1).
-    cell_ids:   (M,) int64 element ids of the file (ANSYS ids, or 0..M-1).
-    cell_tags:  (M,) int32 region tags (ANSYS material, gmsh physical group, or 0).
-    source:     file the mesh came from.
-    cells_by_type: every volume cell block kept from the file, by type; it has
-                more than one entry only for mixed meshes, which can be
-                inspected but not converted to DOLFINx.
-    skipped_cells: number of cells of each type the reader did not keep
-                (surface/line/point cells, or volume types other than
-                linear hex/tet).
+    Attributes:
+        points: (N, 3) float64 node coordinates.
+        cell_type: "hexahedron" or "tetrahedron" (the type of ``cells``).
+        cells: (M, k) int64 row indices into ``points``, VTK node ordering.
+        node_ids: (N,) int64 node ids of the file (ANSYS ids, or 0..N-1).
+        cell_ids: (M,) int64 element ids of the file (ANSYS ids, or 0..M-1).
+        cell_tags: (M,) int32 region tags (ANSYS material, gmsh physical group, or 0).
+        source: file the mesh came from.
+        cells_by_type: every volume cell block kept from the file, by type; it has more
+            than one entry only for mixed meshes, which can be inspected but not converted
+            to DOLFINx.
+        skipped_cells: number of cells of each type the reader did not keep
+            (surface/line/point cells, or volume types other than linear hex/tet).
     """
 
     points: np.ndarray

@@ -471,25 +471,28 @@ class ThelenParameters:
     """Thelen 2003 muscle parameters (SI units, angles in radians); names follow OpenSim's
     Thelen2003Muscle. Defaults: the paper's young-adult values, eps0T = 0.04 as in ArtiSynth.
 
-    max_isometric_force      F0 [N]
-    optimal_fiber_length     l0 [m]
-    tendon_slack_length      lTS [m] (> 0 for an elastic tendon)
-    pennation_angle          alpha0 at l0, in [0, pi/2); fixed-width model
-                             l_M sin(alpha) = h = l0 sin(alpha0)
-    max_contraction_velocity v_max in optimal lengths per second (10)
-    activation_time_constant, deactivation_time_constant   [s] (0.015, 0.050)
-    active_width             gamma of f_L (KshapeActive, 0.45)
-    passive_shape            k_PE (KshapePassive, 5)
-    fmax_muscle_strain       eps0M, passive strain at F0 (0.6)
-    af                       A_f, force-velocity shape (0.25)
-    flen                     F_len, lengthening plateau (1.4; OpenSim default 1.8)
-    fmax_tendon_strain       eps0T, tendon strain at F0 (0.04)
-    tendon_k_toe, tendon_f_toe   k_toe = 3, F_toe = 0.33
-    min_activation           lower bound on activation (0; OpenSim uses 0.01)
-    max_pennation_angle      elastic tendon: the fiber length is kept above
-                             h / sin(this) (OpenSim/ArtiSynth acos(0.1))
-    force_velocity           False ignores f_V (f_V = 1, no damping)
-    fv_c1_at_zero            ArtiSynth's continuous-slope f_V at v = 0
+    Attributes:
+        max_isometric_force: F0 [N]
+        optimal_fiber_length: l0 [m]
+        tendon_slack_length: lTS [m] (> 0 for an elastic tendon)
+        pennation_angle: alpha0 at l0, in [0, pi/2); fixed-width model
+            l_M sin(alpha) = h = l0 sin(alpha0)
+        max_contraction_velocity: v_max in optimal lengths per second (10)
+        activation_time_constant: [s] (0.015)
+        deactivation_time_constant: [s] (0.050)
+        active_width: gamma of f_L (KshapeActive, 0.45)
+        passive_shape: k_PE (KshapePassive, 5)
+        fmax_muscle_strain: eps0M, passive strain at F0 (0.6)
+        af: A_f, force-velocity shape (0.25)
+        flen: F_len, lengthening plateau (1.4; OpenSim default 1.8)
+        fmax_tendon_strain: eps0T, tendon strain at F0 (0.04)
+        tendon_k_toe: k_toe (3)
+        tendon_f_toe: F_toe (0.33)
+        min_activation: lower bound on activation (0; OpenSim uses 0.01)
+        max_pennation_angle: elastic tendon: the fiber length is kept above
+            h / sin(this) (OpenSim/ArtiSynth acos(0.1))
+        force_velocity: False ignores f_V (f_V = 1, no damping)
+        fv_c1_at_zero: ArtiSynth's continuous-slope f_V at v = 0
     """
 
     max_isometric_force: float
