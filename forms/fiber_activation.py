@@ -104,8 +104,8 @@ def passive_force_length(l, P1=0.05, P2=6.6, stretch_star=1.4):
     """Passive curve f_P(l) of Blemker et al. 2005 (numpy).
 
     f_P = 0 for l <= 1, P1 (exp(P2 (l - 1)) - 1) for 1 < l < stretch_star, P3 l + P4 above,
-    with P3 = P1 P2 exp(P2 (l* - 1)) and P4 = P1 (exp(P2 (l* - 1)) - 1) - P3 l* (C1 at l* =
-    stretch_star).
+    with P3 = P1 P2 exp(P2 (l* - 1)) and P4 = P1 (exp(P2 (l* - 1)) - 1) - P3 l*
+    (C1 at l* = stretch_star).
     """
     with np.errstate(over="ignore", invalid="ignore"):
         return _passive(np.asarray(l, dtype=float), _numpy_select, np.exp, P1, P2, stretch_star)

@@ -511,8 +511,7 @@ def test_the_coupled_island_statics_hold_volumes_as_the_body_alone():
 def test_a_constraint_that_cannot_be_met_names_its_elements(integrator):
     """When the pressure iterations cannot reach the tolerance (here: 1e-17, below round-off,
     one iteration allowed), the step halves and then stops with an error naming the worst elements
-    by
-    input index and their volume change, the body left at the start of the failed step."""
+    by input index and their volume change, the body left at the start of the failed step."""
     body = _soft_beam("beam", Incompressible(kappa=1.0 * MU, tol=1e-17, max_updates=1))
     scene = Scene(
         gravity=(0.0, 0.0, -9.81), linear_solver="mumps", integrator=integrator, max_halvings=1

@@ -593,8 +593,8 @@ class FiberState:
 class ThelenMuscle:
     """Thelen 2003 Hill-type muscle (OpenSim Thelen2003Muscle) along a point path.
 
-    Fiber force F_M = F0 (a f_L(l_M/l0) f_V(v) + f_PE(l_M/l0)), v = v_M / ((0.25 + 0.75 a) v_max
-    l0);
+    Fiber force F_M = F0 (a f_L(l_M/l0) f_V(v) + f_PE(l_M/l0)),
+    v = v_M / ((0.25 + 0.75 a) v_max l0);
     path tension T = F_M cos(alpha) with the fixed-width pennation l_M sin(alpha) = l0 sin(alpha0).
 
     ``tendon="rigid"`` (default; ArtiSynth's Thelen2003AxialMuscle): the tendon

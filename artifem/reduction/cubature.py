@@ -26,9 +26,8 @@ the FEM model is done elsewhere.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import nnls

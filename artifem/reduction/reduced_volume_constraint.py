@@ -27,9 +27,9 @@ The multipliers are exact: a step's linear system A x = b with the linearized co
 c + h C (base + x) = 0 is solved through the s x s Schur complement S = h^2 C A^-1 C^T
 (dense, by least squares: dependent rows, e.g. the full nodal pressures of tetrahedra next
 to fixed nodes, get the minimum-norm multipliers; a combination of modes the basis cannot
-move gets none, and the step fails naming the modes if it is then violated). The constraint holds
-when max_k |c_k| / n_k <= tol, with
-n_k = sum_i |Pi_ik| V_i (for Pi = I the full body's max_i |g_i| / V_i).
+move gets none, and the step fails naming the modes if it is then violated). The constraint
+holds when max_k |c_k| / n_k <= tol, with n_k = sum_i |Pi_ik| V_i (for Pi = I the full body's
+max_i |g_i| / V_i).
 
 J, its cofactor and its second derivative are written out here (det F and
 d^2 det F / dF dF = eps_ikm eps_JLN F_mN are identities of the kinematics, not a

@@ -47,9 +47,8 @@ attachments' K_geo of the semi-implicit step is not a derivative of this residua
 (its P is the one at the start of the step) and is left out (it took Newton from 3
 to 5-6 iterations); ``Scene.geometric_stiffness`` does not change this step. Left
 out: the derivative of a path's damping D(q) by the configuration (the bodies' Rayleigh
-damping D = alpha M + beta K_0 is constant). Measured at h = 10 ms: a hinged rod, merit 0.1 -> 4e-5
--> 2e-11
-(before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
+damping D = alpha M + beta K_0 is constant). Measured at h = 10 ms: a hinged rod,
+merit 0.1 -> 4e-5 -> 2e-11 (before: linear, 0.1 -> 4e-5 -> 4e-8 -> 5e-11).
 
 As in the semi-implicit step, M and the velocity map P are taken at the start of
 the step (a rigid body's world inertia turns with it).

@@ -879,9 +879,8 @@ class Layout:
 
     def geometric_stiffness(self, f_all: np.ndarray, P):
         """K_geo on the masters (artifem.scene.scene docstring): sum_s [f_s]x [d_s]x on each
-        dynamic root's
-        rotation block, for the applied forces f_all on the slaves (an embedded body's
-        forces first moved to its master's coordinates, G^T f_s with G = W or W U; a lift
+        dynamic root's rotation block, for the applied forces f_all on the slaves (an embedded
+        body's forces first moved to its master's coordinates, G^T f_s with G = W or W U; a lift
         as levers R_k)."""
         K_frames = None
         if self.scene.frame_attachments:

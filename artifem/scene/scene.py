@@ -115,9 +115,8 @@ bounded ones (joint limits), with the same tangent without the inertia,
 G_a the free rows and the bounded rows an active set holds as equalities (the others
 at lambda = 0 while phi + G dq >= 0; :func:`~artifem.scene.constraints.solve_saddle`,
 one KKT factorization per trial, the trials starting from the active set of the Schur
-complement of the tangent when it factors alone), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e on
-the
-rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
+complement of the tangent when it factors alone), K_all = d^2 Pi/du^2 on the FEM dofs and -K_e
+on the rigid ones, master displacements dq = free FEM du and [dp; dtheta] of each dynamic root
 (p += dp, R = exp([dtheta]x) R), slaves set from the poses; a backtracking
 line search on |[F_m; phi]| refuses inverted elements. Inside Newton's region (the
 last step was full and lowered the merit) the tangent also takes the rows' own turning,
@@ -857,11 +856,11 @@ class Scene:
         equations: it holds where the linearization at the start of the step does not,
         e.g. a full excitation switched on at once; ``fallbacks`` counts the steps it
         completed), so the cost is the semi-implicit step's wherever that succeeds. A step that
-        fails both ways is
-        retried as two steps of half the size, recursively up to ``max_halvings`` times;
-        beyond that it raises :class:`~artifem.errors.ElementInversionError` (body, time,
-        elements, smallest det F) or :class:`~artifem.errors.StepFailed`, the scene left
-        at the start of the failed step."""
+        fails both ways is retried as two steps of half the size, recursively up to
+        ``max_halvings`` times; beyond that it raises
+        :class:`~artifem.errors.ElementInversionError` (body, time, elements, smallest det F)
+        or :class:`~artifem.errors.StepFailed`, the scene left at the start of the failed
+        step."""
         if not (np.isfinite(h) and h > 0):
             raise InputError(f"time step must be positive and finite, got {h!r}")
         self._advance(h, depth=0)
@@ -1120,8 +1119,8 @@ class Scene:
         docstring). Velocities are set to zero. Returns the largest Newton iteration count
         of each increment over the islands (a :class:`~artifem.integrators.StaticCounts`,
         whose ``failed`` adds the iterations of the increments that failed and were cut).
-        ``load_steps="auto"`` (or a count whose
-        increments are cut when they fail): :func:`~artifem.integrators.ramp_load`.
+        ``load_steps="auto"`` (or a count whose increments are cut when they fail):
+        :func:`~artifem.integrators.ramp_load`.
         ``progress`` (e.g. tqdm) is updated once per increment of each island."""
         L = self._ready()
         free_fem, free_reduced = self._islands[:2]

@@ -24,13 +24,10 @@ def demo_arguments(gallery_conf, script_vars):
 
 
 def demo_pictures(block, block_vars, gallery_conf):
-    """The PNGs the demo wrote since the last call, copied where the gallery wants them."""
-    out = _output(block_vars["src_file"])
-    shown = block_vars.setdefault("artifem_shown", set())
-    pictures = sorted(p for p in out.rglob("*.png") if p not in shown)
-    targets = []
-    for picture, target in zip(pictures, block_vars["image_path_iterator"]):
+    """The PNGs the demo wrote, copied where the gallery wants them (a demo is one block:
+    this runs once, after the whole script)."""
+    pictures = sorted(_output(block_vars["src_file"]).rglob("*.png"))
+    targets = [str(target) for _, target in zip(pictures, block_vars["image_path_iterator"])]
+    for picture, target in zip(pictures, targets):
         shutil.copyfile(picture, target)
-        shown.add(picture)
-        targets.append(target)
     return figure_rst(targets, gallery_conf["src_dir"])
