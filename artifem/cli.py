@@ -2,9 +2,8 @@
 
     artifem mesh info PATH... [--json]       what a mesh holds, and whether it is sound
     artifem material curves NAME --out PNG   stress-stretch curves of a material
-    artifem simulate beam --out DIR          the muscle-driven beam (VTX, PNG, JSON)
-    artifem simulate tongue --motion M --out DIR   a speech motion of the tongue
-    artifem simulate foot --case C --out DIR       the foot standing, or lifting its forefoot
+    artifem simulate MODEL --out DIR [--case C] [--level L]   a model's scene, run (VTX,
+                                             PNG, JSON; artifem.models.runner)
     artifem bench fom --out FILE.json        full-order step timings
     artifem bench tongue --out FILE.json     tongue step timings, levels 0 and 1, 1 and 2 ranks
     artifem bench reduced --out FILE.json    reduced tongue step: parts, FLOPs, GFLOP/s
@@ -82,7 +81,7 @@ COMMANDS = {
         DISTRIBUTED,
     ),
     ("simulate", "tongue"): (
-        "artifem.models.tongue.simulate",
+        "artifem.models.tongue.model",
         "ArtiSynth hex tongue: protrusion, retroflexion, retraction",
         DISTRIBUTED,
     ),

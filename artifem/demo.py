@@ -6,7 +6,7 @@
    report (about 5 minutes on 2 cores the first time; training is cached in the output
    directory, so a second run skips it);
 2. the muscle-driven cantilever (``artifem simulate beam``) and the tongue's
-   protrusion, retroflexion and retraction (``artifem simulate tongue --motion all``).
+   protrusion, retroflexion and retraction (``artifem simulate tongue --case all``).
 
 ``--quick``: the same job, small (a minute on 2 cores): ``study tongue --quick``,
 the beam on 8 x 2 x 2 cells for 0.2 s and each tongue motion for 0.1 s; results
@@ -19,12 +19,12 @@ import argparse
 from pathlib import Path
 
 from artifem.models import muscle_beam
-from artifem.models.tongue import simulate as tongue, study
+from artifem.models.tongue import model as tongue, study
 
 
 #: ``--quick``: extra arguments of each part.
 QUICK_STUDY = ["--quick"]
-QUICK_BEAM = ["--cells", "8", "2", "2", "--duration", "0.2", "--dt", "0.02"]
+QUICK_BEAM = ["--level", "0", "--duration", "0.2", "--dt", "0.02"]
 QUICK_TONGUE = ["--duration", "0.1"]
 
 
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--quick",
         action="store_true",
         help="a small run of the same job (study tongue --quick, the beam on "
-        f"{' x '.join(QUICK_BEAM[1:4])} cells for {QUICK_BEAM[5]} s, each "
+        f"its level {QUICK_BEAM[1]} for {QUICK_BEAM[3]} s, each "
         f"tongue motion for {QUICK_TONGUE[1]} s)",
     )
 
@@ -58,14 +58,13 @@ def run(args: argparse.Namespace) -> int:
     status = status or tongue.run(
         _parse(
             tongue,
-            ["--motion", "all", "--out", str(args.out / "tongue")]
-            + (QUICK_TONGUE if quick else []),
+            ["--case", "all", "--out", str(args.out / "tongue")] + (QUICK_TONGUE if quick else []),
         )
     )
     print(
         f"demo: reduced-model study report {args.out}/study/report.md (speed versus error, "
         f"Table 2 analog, plots and renders beside it); beam pictures "
-        f"{args.out}/muscle_beam/beam.png; tongue motions {args.out}/tongue/motions.png; "
+        f"{args.out}/muscle_beam/curl/beam.png; tongue motions {args.out}/tongue/cases.png; "
         f"ParaView series in */*.bp"
     )
     return status

@@ -52,26 +52,23 @@ With the opener ramped to 0.5 over 0.2 s during protrusion the jaw opens to
 8.3 degrees (0.6 s run, dt = 0.01 s, about 80-125 ms per step on a loaded
 machine, 2499 masters, one MUMPS LU per step).
 
-Run ``python -m artifem.models.jaw_tongue --out DIR [--motion M] [--duration T]``.
+Run ``artifem simulate jaw-tongue --out DIR [--case M] [--duration T]``
+(:mod:`artifem.models.runner`).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from artifem.arguments import positive_float
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
+from artifem.models.runner import Built, Model, command
 from artifem.models.tongue.model import (
     DATA,
-    MOTIONS,
     PENALTY,
     Tongue,
     TongueConfig,
@@ -305,7 +302,7 @@ def build_scene(
     alignment["holes_capped"], alignment["triangles_flipped"] = holes, flipped
     vertices = closed_mm @ alignment["linear"].T + alignment["translation"]
     jaw = RigidBody.from_surface("jaw", vertices, closed_tri, config.bone_density)
-    scene = Scene(gravity=config.gravity)
+    scene = Scene(gravity=config.gravity, integrator=config.tongue.integrator)
     attachment = NodeAttachment(tongue.body, jaw_rows, jaw, name="tongue->jaw")
     scene.add(tongue.body, jaw, attachment)
     condyles = _condyle_centres(vertices)
@@ -362,6 +359,32 @@ def build_scene(
     )
 
 
+def records(s: JawTongueScene) -> dict:
+    """name -> f(scene), to record while the scene runs: the opening ``angle``, the
+    ``tip`` landmark's displacement, the largest ``attachment_error`` and ``joint_error``,
+    the jaw nodes' mean vertical motion ``jaw_nodes_dz``, the ``opener_tension``, the tongue
+    displacement ``u`` and the jaw pose ``jaw_position``, ``jaw_rotation``."""
+    body = s.tongue.body
+    dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
+    tip = FemPoint(
+        s.reduced or body,
+        FemPointWeights(np.array([dof]), np.ones(1), body.V.tabulate_dof_coordinates()[dof]),
+    )
+    tip0 = tip.weights.rest_position
+    z0 = s.attachment.positions()[:, 2].copy()
+    return {
+        "angle": lambda scene: s.opening_angle(),
+        "tip": lambda scene: tip.position() - tip0,
+        "attachment_error": lambda scene: max(scene.attachment_errors().values()),
+        "joint_error": lambda scene: max(scene.constraint_errors().values()),
+        "jaw_nodes_dz": lambda scene: float((s.attachment.positions()[:, 2] - z0).mean()),
+        "opener_tension": lambda scene: s.opener.tension() if s.opener else 0.0,
+        "u": lambda scene: s.tongue_displacement(),
+        "jaw_position": lambda scene: s.jaw.position.copy(),
+        "jaw_rotation": lambda scene: s.jaw.rotation.copy(),
+    }
+
+
 def simulate(
     s: JawTongueScene,
     motion: str | ExcitationSchedule | None,
@@ -393,25 +416,7 @@ def simulate(
     if isinstance(motion, str):
         motion = Tongue.motion(motion)
     control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
-    dof = int(body.local_dofs([s.tongue.data.landmarks["tip"]])[0])
-    tip = FemPoint(
-        s.reduced or body,
-        FemPointWeights(np.array([dof]), np.ones(1), body.V.tabulate_dof_coordinates()[dof]),
-    )
-    tip0 = tip.weights.rest_position
-    z0 = s.attachment.positions()[:, 2].copy()
-    quantities = {
-        "angle": lambda scene: s.opening_angle(),
-        "tip": lambda scene: tip.position() - tip0,
-        "attachment_error": lambda scene: max(scene.attachment_errors().values()),
-        "joint_error": lambda scene: max(scene.constraint_errors().values()),
-        "jaw_nodes_dz": lambda scene: float((s.attachment.positions()[:, 2] - z0).mean()),
-        "opener_tension": lambda scene: s.opener.tension() if s.opener else 0.0,
-        "u": lambda scene: s.tongue_displacement(),
-        "jaw_position": lambda scene: s.jaw.position.copy(),
-        "jaw_rotation": lambda scene: s.jaw.rotation.copy(),
-        **(record or {}),
-    }
+    quantities = {**records(s), **(record or {})}
     if control is not None:
         s.scene.add_controller(control)  # for this run only (removed at its end)
     try:  # controllers, halving, det F: the Scene's
@@ -471,67 +476,33 @@ def render(png: Path, s: JawTongueScene, frames) -> Path:
     return png
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, type=Path, help="output directory")
-    source = parser.add_mutually_exclusive_group()
-    source.add_argument("--motion", default="protrusion", choices=sorted(MOTIONS) + ["none"])
-    source.add_argument(
-        "--schedule",
-        type=Path,
-        help='exciter schedule JSON: {"times": [...], "excitations": '
-        '{"GGP": [...], ...}} (as simulate tongue)',
-    )
-    parser.add_argument("--duration", type=positive_float, default=0.6)
-    parser.add_argument("--dt", type=positive_float, default=0.01)
+# ---- the runner's jaw-tongue (``artifem simulate jaw-tongue``) ------------------------------
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.schedule is not None:
-        motion = ExcitationSchedule.from_file(args.schedule)
-        label = args.schedule.stem
-        exciters = load_tongue_data(JawTongueConfig().tongue.level).exciters
+def build(
+    case: str, level: int = 0, integrator: str = "semi-implicit", schedule: Path | None = None
+) -> Built:
+    """The jaw-tongue scene driven by the tongue motion ``case`` ("none": the muscles off,
+    the jaw opener only) or the exciter ``schedule`` file, for
+    :mod:`artifem.models.runner`; records :func:`records` and draws the tongue with the jaw."""
+    config = JawTongueConfig(tongue=replace(JawTongueConfig.tongue, integrator=integrator))
+    if schedule is not None:
+        motion = ExcitationSchedule.from_file(schedule)
+        exciters = load_tongue_data(level).exciters
         unknown = sorted(set(motion.values) - set(exciters))
         if unknown:  # before any work
             raise UnknownNameError(
-                f"{args.schedule}: unknown muscles {unknown}; the tongue's "
-                f"exciters are {', '.join(sorted(exciters))}"
+                f"{schedule}: unknown muscles {unknown}; the tongue's exciters are "
+                f"{', '.join(sorted(exciters))}"
             )
     else:
-        motion = None if args.motion == "none" else args.motion
-        label = args.motion
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    config = JawTongueConfig()
-    t0 = time.perf_counter()
+        motion = None if case == "none" else Tongue.motion(case)
     s = build_scene(config)
-    build_s = time.perf_counter() - t0
-    rec = simulate(
-        s,
-        motion,
-        args.duration,
-        args.dt,
-        snapshots=(1 / 3, 2 / 3, 1.0),
-        progress=True,
-        label=f"jaw-tongue {label}",
-    )
-    frames = [
-        (f"t = {t:.2f} s, jaw {np.degrees(a):.1f} deg", u, p, R)
-        for (t, u, p, R), a in zip(
-            rec["frames"], [rec["angle"][int(round(t / args.dt))] for t, *_ in rec["frames"]]
-        )
-    ]
-    png = render(out / "jaw_tongue.png", s, frames)
+    if motion is not None:
+        s.scene.add_controller(s.tongue.bundle_schedule(motion).controller(s.tongue.body))
     a = s.alignment
-    figures = {
-        "model": "jaw_tongue",
-        "motion": label,
-        "dt": args.dt,
-        "duration": args.duration,
-        "steps": int(len(rec["ms"])),
-        "ms_per_step_median": float(np.median(rec["ms"])),
-        "min_det_F": float(s.scene.min_det_F),
-        "halvings": int(s.scene.halvings),
-        "build_seconds": build_s,
+    facts = {
+        "motion": case if schedule is None else schedule.stem,
         "tongue": {
             "nodes": int(s.tongue.data.mesh.points.shape[0]),
             "jaw_attachment_nodes": int(s.jaw_rows.size),
@@ -552,26 +523,57 @@ def run(args: argparse.Namespace) -> int:
                 "triangles_flipped": a["triangles_flipped"],
             },
         },
-        "t": rec["t"].tolist(),
-        "opening_angle_deg": np.degrees(rec["angle"]).tolist(),
-        "max_opening_angle_deg": float(np.degrees(rec["angle"]).max()),
-        "tip_displacement_mm": (1e3 * rec["tip"]).tolist(),
-        "final_tip_displacement_mm": (1e3 * rec["tip"][-1]).tolist(),
-        "jaw_nodes_mean_dz_mm": (1e3 * rec["jaw_nodes_dz"]).tolist(),
-        "opener_tension_N": rec["opener_tension"].tolist(),
-        "max_attachment_error_m": float(rec["attachment_error"].max()),
-        "max_joint_error": float(rec["joint_error"].max()),
-        "png": str(png),
     }
-    (out / "jaw_tongue.json").write_text(json.dumps(figures, indent=2))
-    short = {k: v for k, v in figures.items() if not isinstance(v, list) or len(v) < 4}
-    print(json.dumps(short, indent=2))
-    return 0
+
+    def figures(run) -> dict:
+        r = run.records
+        angle = np.degrees(r["angle"])
+        return {
+            "t": run.times.tolist(),
+            "opening_angle_deg": angle.tolist(),
+            "max_opening_angle_deg": float(angle.max()),
+            "tip_displacement_mm": (1e3 * r["tip"]).tolist(),
+            "final_tip_displacement_mm": (1e3 * r["tip"][-1]).tolist(),
+            "jaw_nodes_mean_dz_mm": (1e3 * r["jaw_nodes_dz"]).tolist(),
+            "opener_tension_N": r["opener_tension"].tolist(),
+            "max_attachment_error_m": float(r["attachment_error"].max()),
+            "max_joint_error": float(r["joint_error"].max()),
+        }
+
+    def draw(png, run, shown) -> None:
+        r, frames = run.records, []
+        for t in shown:
+            k = int(np.argmin(abs(run.times - t)))
+            title = f"t = {run.times[k]:.2f} s, jaw {np.degrees(r['angle'][k]):.1f} deg"
+            frames.append((title, r["u"][k], r["jaw_position"][k], r["jaw_rotation"][k]))
+        render(png, s, frames)
+
+    name = None if schedule is None else schedule.stem
+    return Built(s.scene, record=records(s), figures=figures, render=draw, facts=facts, name=name)
 
 
-if __name__ == "__main__":
-    import sys
+def _options(group) -> None:
+    group.add_argument(
+        "--schedule",
+        type=Path,
+        help='drive this exciter schedule JSON instead of the case\'s motion: {"times": '
+        '[...], "excitations": {"GGP": [...], ...}} (as simulate tongue)',
+    )
 
-    cli = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_arguments(cli)
-    sys.exit(run(cli.parse_args()))
+
+MODEL = Model(
+    name="jaw-tongue",
+    summary="tongue on a hinged rigid jaw opened by a Hill muscle",
+    build=build,
+    cases={
+        "protrusion": "the tongue protrudes while the opener opens the jaw",
+        "retraction": "the tongue retracts while the opener opens the jaw",
+        "retroflexion": "the tongue tip curls up while the opener opens the jaw",
+        "none": "the tongue's muscles off: the jaw opener only",
+    },
+    levels={0: "the level-0 tongue (946 nodes; the attachment files index it)"},
+    dt=0.01,
+    duration=0.6,
+    options=_options,
+)
+add_arguments, run = command(MODEL)

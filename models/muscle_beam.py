@@ -7,15 +7,13 @@ fibers along x (Blemker fiber energy); ramping its excitation from 0 to the
 target over 0.5 s and holding it until 1 s shortens the top and curls the free
 end upward, the way a tongue's longitudinal muscles curl its tip.
 
-``artifem simulate beam --out DIR`` writes DIR/beam.bp (VTX),
-DIR/beam.png (rest, t = 0.5 s, t = 1.0 s), DIR/tip.png and DIR/simulate.json.
+``artifem simulate beam --out DIR`` (:mod:`artifem.models.runner`) writes DIR/curl/beam.bp
+(VTX), DIR/curl/beam.png (rest, t = 0.5 s, t = 1.0 s), DIR/curl/tip.png and
+DIR/curl/simulate.json (with the tip's displacement in mm).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,12 +22,14 @@ from mpi4py import MPI
 
 from dolfinx import mesh as dmesh
 
-from artifem.arguments import fraction, positive_float, positive_int
+from artifem.arguments import fraction
 from artifem.excitation import ExcitationSchedule
 from artifem.fem_body import FemBody
 from artifem.linear_solver import DEFAULT_METHOD
 from artifem.forms import BlemkerFiber, MooneyRivlin
-from artifem.scene import INTEGRATORS, Scene
+from artifem.models.runner import Built, Model, command
+from artifem.render import render_bodies
+from artifem.scene import Scene
 
 LENGTH, WIDTH, HEIGHT = 0.060, 0.015, 0.015
 
@@ -71,84 +71,73 @@ def build_beam(config: BeamConfig, comm=MPI.COMM_WORLD) -> tuple[Scene, FemBody]
     return scene, body
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--integrator", default="semi-implicit", choices=sorted(INTEGRATORS))
-    parser.add_argument(
-        "--cells", type=positive_int, nargs=3, default=[24, 6, 6], metavar=("NX", "NY", "NZ")
-    )
-    parser.add_argument("--excitation", type=fraction, default=1.0)
-    parser.add_argument("--dt", type=positive_float, default=0.01)
-    parser.add_argument("--duration", type=positive_float, default=1.0)
-    parser.add_argument("--no-progress", action="store_true")
-
-
-def run(args: argparse.Namespace) -> int:
-    from artifem.render import render_bodies
-    from artifem.scene import simulate
-
-    config = BeamConfig(
-        cells=tuple(args.cells),
-        excitation=args.excitation,
-        dt=args.dt,
-        duration=args.duration,
-        integrator=args.integrator,
-    )
+def build(
+    case: str, level: int, integrator: str = "semi-implicit", excitation: float = 1.0
+) -> Built:
+    """The runner's beam (:mod:`artifem.models.runner`): ``LEVELS[level]`` cells, the top
+    muscle ramped to ``excitation``; records the free end's centre."""
+    config = BeamConfig(cells=LEVELS[level], excitation=excitation, integrator=integrator)
     scene, body = build_beam(config)
-    out = Path(args.out)
-    comm = body.mesh.comm
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
     tip = body.nearest_node((LENGTH, 0.5 * WIDTH, 0.5 * HEIGHT))
-    shown = (0.0, 0.5 * config.duration, config.duration)
-    traj = simulate(
-        scene,
-        config.duration,
-        config.dt,
-        record={"tip": lambda s: body.displacement_at([tip])[0]},
-        keep=shown,
-        vtx=out,
-        progress=not args.no_progress,
-        label="muscle beam",
-    )
-    render_bodies(
-        out / "beam.png",
-        [(body.mesh, traj.snapshots[t][body.name]) for t in shown],
-        scalars="displacement",
-        titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
-        scalar_name="displacement (m)",
-        camera="xz",
-        show_rest=True,
-        window_size=(1500, 500),
-    )
-    tip_mm = 1e3 * traj.records["tip"]
-    n_cells = body.mesh.topology.index_map(3).size_global
-    figures = {
-        "model": "muscle_beam",
-        "nodes": body.mesh.geometry.index_map().size_global,
-        "elements": n_cells,
-        "ranks": comm.size,
-        "integrator": config.integrator,
-        "linear_solver": config.linear_solver,
-        "dt": config.dt,
-        "steps": int(traj.step_ms.size),
-        "ms_per_step": traj.ms_per_step,
-        "min_det_F": traj.min_det_F,
-        "halvings": traj.halvings,
-        "tip_displacement_mm": {
-            f"t={t:g}": tip_mm[np.argmin(abs(traj.times - t))].tolist() for t in shown[1:]
-        },
-        "machine": platform.processor() or platform.machine(),
-    }
-    if comm.rank == 0:
-        _plot_tip(out / "tip.png", traj.times, tip_mm, config.ramp_time)
-        (out / "simulate.json").write_text(json.dumps(figures, indent=2))
-        print(
-            f"muscle beam: {figures['nodes']} nodes, {figures['ms_per_step']:.1f} ms/step, "
-            f"tip at {config.duration:g} s {np.round(tip_mm[-1], 2).tolist()} mm, min det F "
-            f"{figures['min_det_F']:.3f}; results in {out}/"
+
+    def figures(run) -> dict:
+        tip_mm = 1e3 * run.records["tip"]
+        return {
+            "linear_solver": config.linear_solver,
+            "excitation": excitation,
+            "tip_displacement_mm": {
+                f"t={t:g}": tip_mm[np.argmin(abs(run.times - t))].tolist()
+                for t in run.snapshots
+                if t > 0
+            },
+        }
+
+    def render(png, run, shown) -> None:
+        render_bodies(
+            png,
+            [(body.mesh, run.snapshots[t][body.name]) for t in shown],
+            scalars="displacement",
+            titles=["rest"] + [f"t = {t:g} s" for t in shown[1:]],
+            scalar_name="displacement (m)",
+            camera="xz",
+            show_rest=True,
+            window_size=(1500, 500),
         )
-    return 0
+        if body.mesh.comm.rank == 0:
+            _plot_tip(
+                png.with_name("tip.png"), run.times, 1e3 * run.records["tip"], config.ramp_time
+            )
+
+    return Built(
+        scene,
+        record={"tip": lambda s: body.displacement_at([tip])[0]},
+        figures=figures,
+        render=render,
+    )
+
+
+def _options(group) -> None:
+    group.add_argument(
+        "--excitation", type=fraction, default=1.0, help="of the top muscle (%(default)s)"
+    )
+
+
+#: level -> cells (x, y, z)
+LEVELS = {0: (8, 2, 2), 1: (24, 6, 6), 2: (48, 12, 12)}
+
+MODEL = Model(
+    name="beam",
+    summary="muscle-driven cantilever beam",
+    build=build,
+    cases={"curl": "the top muscle ramped over 0.5 s and held: the free end curls up"},
+    levels={k: " x ".join(map(str, v)) + " hexahedra" for k, v in LEVELS.items()},
+    dt=0.01,
+    duration=1.0,
+    default_level=1,
+    camera="xz",
+    options=_options,
+)
+add_arguments, run = command(MODEL)
 
 
 def _plot_tip(png: Path, times: np.ndarray, tip_mm: np.ndarray, ramp_time: float) -> None:

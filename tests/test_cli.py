@@ -41,10 +41,8 @@ def test_simulate_beam_writes_results(tmp_path):
             "beam",
             "--out",
             str(out),
-            "--cells",
-            "8",
-            "2",
-            "2",
+            "--level",
+            "0",
             "--duration",
             "0.2",
             "--dt",
@@ -53,8 +51,9 @@ def test_simulate_beam_writes_results(tmp_path):
         ]
     )
     assert status == 0
+    out = out / "curl"  # the beam's one case
     figures = json.loads((out / "simulate.json").read_text())
-    assert figures["nodes"] == 9 * 3 * 3 and figures["elements"] == 32
+    assert figures["nodes"] == 9 * 3 * 3 and figures["elements"] == 32  # level 0: 8 x 2 x 2
     assert figures["steps"] == 10
     assert 0 < figures["min_det_F"] < 1.5
     tip = figures["tip_displacement_mm"]["t=0.2"]

@@ -30,8 +30,8 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
         "argument --excitation: must be in [0, 1]",
     ),
     (
-        ["simulate", "beam", "--out", "{tmp}/o", "--cells", "8", "0", "2"],
-        "argument --cells: must be a positive integer",
+        ["simulate", "beam", "--out", "{tmp}/o", "--level", "3"],
+        "argument --level: invalid choice: 3",
     ),
     (
         ["simulate", "tongue", "--out", "{tmp}/o", "--duration", "0"],
@@ -67,7 +67,7 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
         ["simulate", "tongue", "--out", "{tmp}/o", "--schedule", "schedule:{\"GGP\": 1}"],
         "not an excitation schedule",
     ),
-    (["simulate", "tongue", "--out", "{tmp}/o", "--motion", "yawn"], "invalid choice: 'yawn'"),
+    (["simulate", "tongue", "--out", "{tmp}/o", "--case", "yawn"], "invalid choice: 'yawn'"),
     (["simulate", "beam-ellipsoid", "--out", "{tmp}/o", "--dt", "0"], "argument --dt: must be > 0"),
     (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--dt", "-0.01"], "argument --dt: must be > 0"),
     (
@@ -124,7 +124,7 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
         ],
         "unknown muscles ['XX']",
     ),
-    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--motion", "yawn"], "invalid choice: 'yawn'"),
+    (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--case", "yawn"], "invalid choice: 'yawn'"),
     (
         ["simulate", "styloglossus", "--out", "{tmp}/o", "--r", "0"],
         "argument --r: must be a positive integer",

@@ -29,15 +29,18 @@ TIMEOUT = 300
 #: model -> (the shortest options that take a few steps, files it must write in --out).
 MODELS = {
     "beam": (
-        ["--duration", "0.03", "--cells", "8", "2", "2", "--no-progress"],
-        ["simulate.json", "beam.png", "beam.bp"],
+        ["--duration", "0.03", "--level", "0", "--no-progress"],
+        ["curl/simulate.json", "curl/beam.png", "curl/beam.bp"],
     ),
     "tongue": (
         ["--duration", "0.03", "--no-progress"],
         ["protrusion/simulate.json", "protrusion/tongue.png"],
     ),
     "beam-ellipsoid": (["--duration", "0.03"], ["beam_ellipsoid.json", "beam_ellipsoid.png"]),
-    "jaw-tongue": (["--duration", "0.03"], ["jaw_tongue.json", "jaw_tongue.png"]),
+    "jaw-tongue": (
+        ["--duration", "0.03", "--no-progress"],
+        ["protrusion/simulate.json", "protrusion/jaw-tongue.png"],
+    ),
     "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
     "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
     "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),

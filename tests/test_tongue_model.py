@@ -103,7 +103,7 @@ def test_simulate_tongue_command_writes_results(tmp_path):
         [
             "simulate",
             "tongue",
-            "--motion",
+            "--case",
             "retraction",
             "--duration",
             "0.1",
