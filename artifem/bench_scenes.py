@@ -13,7 +13,7 @@ variants and times them in this process (medians over the timed steps):
   update costs;
 - ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
   conforming masseter, with and without aponeuroses;
-- ``foot`` (:mod:`artifem.models.foot.simulate`): the standing foot, the FEM alone, with
+- ``foot`` (:mod:`artifem.models.foot.study`): the standing foot, the FEM alone, with
   the bones, with bones and contact, and reduced (the paper's configuration; its training
   cached, by default in $XDG_CACHE_HOME/artifem/foot-reduced, ~/.cache when unset),
   beside the paper's figures.
@@ -40,7 +40,7 @@ SCENES = {
     "jaw-tongue": "artifem.models.jaw_tongue_reduced",
     "airway": "artifem.models.airway",
     "masseter": "artifem.models.masseter",
-    "foot": "artifem.models.foot.simulate",
+    "foot": "artifem.models.foot.study",
 }
 #: Scenes whose benchmark trains a reduced body (they take ``cache``).
 TRAINED = ("jaw-tongue", "airway", "foot")

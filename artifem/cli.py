@@ -107,7 +107,7 @@ COMMANDS = {
         ONE_RANK,
     ),
     ("simulate", "foot"): (
-        "artifem.models.foot.simulate",
+        "artifem.models.foot.model",
         "the foot standing on the floor, or lifted by the tibialis anterior",
         ONE_RANK,
     ),
@@ -141,6 +141,12 @@ COMMANDS = {
         "artifem.models.tongue.study",
         "reduced tongue models against the full one: speed versus error",
         DISTRIBUTED,
+    ),
+    ("study", "foot"): (
+        "artifem.models.foot.study",
+        "a load case of the foot timed against its parts (FEM alone, with bones, with "
+        "contact) and, with --reduced, against its reduced model",
+        ONE_RANK,
     ),
     ("study", "jaw-tongue"): (
         "artifem.models.jaw_tongue_reduced",

@@ -7,7 +7,7 @@ points random or trained; a configuration whose run stops is recorded with the r
 
 writes docs/foot/reduced_configs_level<L>.json (the full foot runs once). The training
 runs are cached in $XDG_CACHE_HOME/artifem/foot-reduced (~/.cache when unset; shared
-with ``artifem simulate foot --reduced``).
+with ``artifem study foot --reduced``).
 """
 
 import argparse
@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models.foot import reduced as fr
-from artifem.models.foot.simulate import REDUCED_CACHE
+from artifem.models.foot.study import REDUCED_CACHE
 
 DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs" / "foot"
 #: (POD vectors, points, sampling)

@@ -133,3 +133,33 @@ def test_the_tibialis_anterior_lifts_the_hanging_forefoot(foot_cache):
     assert foot.muscles["soleus"][0].evaluate(foot.scene.t).tension > 0
     assert all(c.constraint_failure() is None for c in foot.joints)
     assert np.isfinite(foot.tissue.u.x.array).all()
+
+
+def test_simulate_foot_and_study_foot_agree_on_the_standing_figures(tmp_path):
+    """``artifem simulate foot`` (the runner) and ``artifem study foot`` (timed against the
+    foot's parts) run the same standing case: the same steps give the same figures, and the
+    floor carries the load ramped so far plus the weight, less the momentum still
+    changing."""
+    import json
+
+    from artifem.cli import main
+
+    common = ["--level", "0", "--duration", "0.02", "--no-progress", "--no-vtx"]
+    assert main(["simulate", "foot", "--out", str(tmp_path / "run"), *common]) == 0
+    assert (
+        main(["study", "foot", "--out", str(tmp_path / "study"), "--timing-steps", "1", *common])
+        == 0
+    )
+    run = json.loads((tmp_path / "run" / "standing" / "simulate.json").read_text())
+    study = json.loads((tmp_path / "study" / "standing" / "foot.json").read_text())
+    assert (run["nodes"], run["steps"], run["rigid_bodies"]) == (study["nodes"], 4, 11)
+    for key, value in study["standing"].items():
+        if isinstance(value, dict):
+            assert run["standing"][key] == pytest.approx(value, rel=1e-9), key
+        else:
+            assert np.allclose(run["standing"][key], value, rtol=1e-9), key
+    assert run["min_det_F"] == pytest.approx(study["min_det_F"], rel=1e-12)
+    load = run["standing"]["load_plus_weight_N"]
+    assert load > 0.2 * HALF_WEIGHT  # t = 0.02 s of the 0.1 s ramp, plus the weight
+    for png in ("foot.png", "plantar_pressure.png"):
+        assert (tmp_path / "run" / "standing" / png).read_bytes()[:4] == b"\x89PNG"

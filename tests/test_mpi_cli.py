@@ -45,8 +45,8 @@ MODELS = {
     "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
     "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),
     "foot": (
-        ["--level", "0", "--duration", "0.01", "--timing-steps", "1", "--no-progress"],
-        ["standing/foot.json", "standing/foot.png", "standing/plantar_pressure.png"],
+        ["--level", "0", "--duration", "0.01", "--no-progress"],
+        ["standing/simulate.json", "standing/foot.png", "standing/plantar_pressure.png"],
     ),
 }
 

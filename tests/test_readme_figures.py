@@ -527,7 +527,7 @@ def test_the_contact_scale_figure_in_the_readme_matches_the_bench_json():
 
 def test_the_foot_figures_match_its_json():
     """docs/foot.md's table and sentences and the README's foot sentence: the figures of
-    ``artifem simulate foot --level 1 --reduced --no-vtx --out docs/foot``
+    ``artifem study foot --level 1 --reduced --no-vtx --out docs/foot``
     (docs/foot/standing/foot.json)."""
     figures = json.loads((ROOT / "docs" / "foot" / "standing" / "foot.json").read_text())
     ms, standing = figures["ms_per_step"], figures["standing"]
@@ -605,7 +605,7 @@ def test_the_foot_figures_match_its_json():
 
 
 def test_the_foot_lift_figures_match_its_json():
-    """docs/foot.md's lift: ``artifem simulate foot --case lift --level 1 --reduced --no-vtx
+    """docs/foot.md's lift: ``artifem study foot --case lift --level 1 --reduced --no-vtx
     --out docs/foot`` (docs/foot/lift/foot.json)."""
     figures = json.loads((ROOT / "docs" / "foot" / "lift" / "foot.json").read_text())
     lift, reduced = figures["lift"], figures["reduced"]

@@ -41,14 +41,18 @@ Frame: OpenSim's tibia_r frame (metres, y up, x forward, z to the right).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 import artifem as af
+from artifem.models.runner import Built, Model, command
 
 from . import bones as fb
 from . import ligaments as fl
 from . import mesh as fm
 from . import muscle as fmu
+from .render import plot_plantar_pressure, render_foot
 
 #: neo-Hookean soft tissue (module docstring): Young's modulus (Pa), Poisson, density.
 TISSUE = dict(young=60e3, poisson=0.45, density=1050.0)
@@ -168,6 +172,7 @@ def build_foot(
     ramp: float = 0.1,
     bones: bool = True,
     joints: bool = True,
+    integrator: str = "semi-implicit",
     cache=fm.DEFAULT_CACHE,
 ) -> Foot:
     """The foot (module docstring) at mesh ``level`` (0 coarse for tests, 1 the default: at
@@ -187,7 +192,7 @@ def build_foot(
         rayleigh=RAYLEIGH,
         name="tissue",
     )
-    scene = af.Scene(gravity=(0.0, -9.81, 0.0))
+    scene = af.Scene(gravity=(0.0, -9.81, 0.0), integrator=integrator)
     scene.add(tissue)
     foot = Foot(scene, mesh, tissue, {})
     if bones:
@@ -275,3 +280,132 @@ def _add_bones(foot: Foot, tibia: str, excitation, joints: bool) -> None:
         )
         foot.joints.append(contact)
         scene.add(contact)
+
+
+# ---- the runner's foot (``artifem simulate foot``) -----------------------------------------
+
+#: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
+DT, DURATION = 0.005, 0.3
+#: the published standing figures the plantar pressure is shown beside.
+REFERENCE = (
+    "Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Foot & Ankle "
+    "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
+    "forefoot; the heel carries about 60% of the load."
+)
+PUBLISHED_KPA = {"rearfoot": 139.0, "forefoot": 88.0}
+
+
+def sole(foot: Foot) -> dict:
+    """The floor's pressure at the sole's nodes (those within 1 cm of the floor at rest),
+    their current positions, the contact area and the centre of pressure."""
+    tissue, floor = foot.tissue, foot.floor
+    p = foot.scene.contact_pressure(floor)[tissue.name]
+    x = tissue.V.tabulate_dof_coordinates() + tissue.u.x.array.reshape(-1, 3)
+    dofs = tissue.local_dofs(p.points)
+    rest = tissue.V.tabulate_dof_coordinates()[dofs]
+    sole = rest[:, 1] < floor.offset + 0.01
+    pressure, area, points = p.pressure[sole], p.area[sole], x[dofs][sole]
+    force = pressure * area
+    centre = force @ points / force.sum() if force.sum() > 0 else np.full(3, np.nan)
+    return {
+        "points": points,
+        "pressure": pressure,
+        "force": force,
+        "centre": centre,
+        "area": float(area[pressure > 0].sum()),
+    }
+
+
+def case_figures(foot: Foot, rest: dict, pressure: dict | None) -> dict:
+    """The case's own figures: standing (``pressure``: :func:`sole`), the floor's force against
+    load + weight, the contact area, the peak plantar pressure (rear and fore thirds) and the
+    centre of pressure; lift, the first metatarsal's rise from ``rest`` (bone name -> rest
+    position) and the talus's dorsiflexion."""
+    tissue, figures = foot.tissue, {}
+    if pressure is not None:
+        weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
+        expected = (foot.load.level * foot.load.force if foot.load else 0.0) + weight
+        normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
+        x = pressure["points"][:, 0]
+        third = (x.max() - x.min()) / 3
+        regions = {"rearfoot": x < x.min() + third, "forefoot": x > x.max() - third}
+        figures["standing"] = {
+            "floor_normal_N": normal,
+            "load_plus_weight_N": expected,
+            "relative_error": abs(normal / expected - 1.0),
+            "contact_area_cm2": 1e4 * pressure["area"],
+            "peak_pressure_kPa": 1e-3 * float(pressure["pressure"].max()),
+            "peak_pressure_by_region_kPa": {
+                k: 1e-3 * float(pressure["pressure"][m].max()) for k, m in regions.items()
+            },
+            "published_peak_kPa": PUBLISHED_KPA,
+            "rearfoot_load_share": float(
+                pressure["force"][regions["rearfoot"]].sum() / pressure["force"].sum()
+            ),
+            "centre_of_pressure_mm": (1e3 * pressure["centre"]).round(2).tolist(),
+            "centre_of_pressure_from_heel": float(
+                (pressure["centre"][0] - x.min()) / (x.max() - x.min())
+            ),
+            "lowest_skin_above_floor_mm": 1e3
+            * float(pressure["points"][:, 1].min() - foot.floor.offset),
+        }
+    if foot.muscles.get("tibialis anterior") and foot.floor is None:
+        talus = Rotation.from_matrix(foot.bones["talus"].rotation).as_rotvec()
+        figures["lift"] = {
+            "first_metatarsal_rise_mm": 1e3
+            * float(foot.bones["metatarsal1"].position[1] - rest["metatarsal1"][1]),
+            "talus_dorsiflexion_deg": float(np.degrees(talus[2])),
+            "tibialis_anterior_N": sum(
+                p.evaluate(foot.scene.t).tension for p in foot.muscles["tibialis anterior"]
+            ),
+            "soleus_N": sum(p.evaluate(foot.scene.t).tension for p in foot.muscles["soleus"]),
+        }
+    return figures
+
+
+def build(case: str, level: int = 1, integrator: str = "semi-implicit") -> Built:
+    """The foot of load case ``case`` at mesh ``level``, for :mod:`artifem.models.runner`:
+    its picture (bones, ligaments, muscles, the tissue cut and coloured by von Mises
+    stress; standing, also the plantar pressure) and :func:`case_figures`."""
+    foot = foot_case(case, level, integrator=integrator)
+    rest = {name: body.position.copy() for name, body in foot.bones.items()}
+
+    def figures(run) -> dict:
+        return {
+            "ligaments": len(foot.ligaments),
+            "joint_contacts": len(foot.joints),
+            "joint_failures": [f for f in (c.constraint_failure() for c in foot.joints) if f],
+            **case_figures(foot, rest, sole(foot) if foot.floor is not None else None),
+        }
+
+    def draw(png, run, shown) -> None:
+        render_foot(png, foot, case)
+        if foot.floor is not None:
+            s = sole(foot)
+            plot_plantar_pressure(
+                png.with_name("plantar_pressure.png"),
+                s["points"],
+                s["pressure"],
+                s["centre"],
+                f"foot {case}: plantar pressure, level {level}",
+                REFERENCE,
+            )
+
+    return Built(foot.scene, figures=figures, render=draw)
+
+
+MODEL = Model(
+    name="foot",
+    summary="the foot standing on the floor, or lifted by the tibialis anterior",
+    build=build,
+    cases={
+        "standing": "half of 70 kg down the tibia, on the floor with friction",
+        "lift": "the tibia fixed, the tibialis anterior lifts the hanging forefoot",
+        "heavy": "standing with half of 90 kg (held out from the reduced foot's training)",
+    },
+    levels={0: "coarse (1,923 nodes)", 1: "the default (13,453 nodes)"},
+    dt=DT,
+    duration=DURATION,
+    default_level=1,
+)
+add_arguments, run = command(MODEL)

@@ -61,7 +61,7 @@ class ReducedFootConfig:
 PAPER = ReducedFootConfig()
 #: the same basis on 100 trained (ECSW) integration points: the accurate one
 TRAINED = ReducedFootConfig(sampling="trained")
-#: the configurations ``artifem simulate foot --reduced`` compares, by name
+#: the configurations ``artifem study foot --reduced`` compares, by name
 CONFIGS = {"paper": PAPER, "trained": TRAINED}
 
 

@@ -1,6 +1,7 @@
-"""``artifem simulate foot``: a load case of the foot, rendered, timed and measured.
+"""``artifem study foot``: a load case of the foot, timed against its parts (the seed
+paper's figures), measured, and (``--reduced``) against its reduced model.
 
-    artifem simulate foot --out DIR [--case standing|lift|heavy] [--level 0|1]
+    artifem study foot --out DIR [--case standing|lift|heavy] [--level 0|1]
                           [--dt 0.005] [--duration 0.3] [--timing-steps 5]
                           [--reduced [--cache DIR]] [--no-vtx]
 
@@ -30,25 +31,24 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from artifem.arguments import positive_float, positive_int
 from artifem.models.cache import user_cache
 from artifem.models.foot import mesh as fm
-from artifem.models.foot.model import CASES, Foot, foot_case
+from artifem.models.foot.model import (
+    CASES,
+    DT,
+    DURATION,
+    REFERENCE,
+    Foot,
+    case_figures,
+    foot_case,
+    sole,
+)
 from artifem.models.foot.reduced import CONFIGS, HELD_OUT, compare, schedule, train
 from artifem.models.foot.render import plot_plantar_pressure, plot_reduced_comparison, render_foot
 
-#: step (s) and duration (s) of a run: the load's ramp (0.1 s) and the settling.
-DT, DURATION = 0.005, 0.3
-#: the published standing figures the plantar pressure is shown beside.
-REFERENCE = (
-    "Published, barefoot standing (Cavanagh, Rodgers & Iiboshi 1987, Foot & Ankle "
-    "7:262, 107 feet): mean peak pressure 139 kPa under the heel, 88 kPa under the "
-    "forefoot; the heel carries about 60% of the load."
-)
-PUBLISHED_KPA = {"rearfoot": 139.0, "forefoot": 88.0}
 #: the reduced foot's training cache
 REDUCED_CACHE = user_cache("foot-reduced")
 
@@ -106,15 +106,15 @@ def run(args: argparse.Namespace) -> int:
         label=f"foot {args.case}",
     )
     timing["with_bones_and_contact"] = traj.ms_per_step
-    sole = _sole(foot) if foot.floor is not None else None
-    figures = _figures(foot, traj, args, timing, rest, sole)
+    pressure = sole(foot) if foot.floor is not None else None
+    figures = _figures(foot, traj, args, timing, rest, pressure)
     render_foot(out / "foot.png", foot, args.case)
-    if sole is not None:
+    if pressure is not None:
         plot_plantar_pressure(
             out / "plantar_pressure.png",
-            sole["points"],
-            sole["pressure"],
-            sole["centre"],
+            pressure["points"],
+            pressure["pressure"],
+            pressure["centre"],
             f"foot {args.case}: plantar pressure, level {args.level}",
             REFERENCE,
         )
@@ -224,28 +224,7 @@ def benchmark(steps: int = 5, quick: bool = False, cache: Path | None = None) ->
     }
 
 
-def _sole(foot: Foot) -> dict:
-    """The floor's pressure at the sole's nodes (those within 1 cm of the floor at rest),
-    their current positions, the contact area and the centre of pressure."""
-    tissue, floor = foot.tissue, foot.floor
-    p = foot.scene.contact_pressure(floor)[tissue.name]
-    x = tissue.V.tabulate_dof_coordinates() + tissue.u.x.array.reshape(-1, 3)
-    dofs = tissue.local_dofs(p.points)
-    rest = tissue.V.tabulate_dof_coordinates()[dofs]
-    sole = rest[:, 1] < floor.offset + 0.01
-    pressure, area, points = p.pressure[sole], p.area[sole], x[dofs][sole]
-    force = pressure * area
-    centre = force @ points / force.sum() if force.sum() > 0 else np.full(3, np.nan)
-    return {
-        "points": points,
-        "pressure": pressure,
-        "force": force,
-        "centre": centre,
-        "area": float(area[pressure > 0].sum()),
-    }
-
-
-def _figures(foot: Foot, traj, args, timing: dict, rest: dict, sole: dict | None) -> dict:
+def _figures(foot: Foot, traj, args, timing: dict, rest: dict, pressure: dict | None) -> dict:
     tissue = foot.tissue
     figures = {
         "model": "foot",
@@ -265,44 +244,7 @@ def _figures(foot: Foot, traj, args, timing: dict, rest: dict, sole: dict | None
         "timing_steps": args.timing_steps,
         "joint_failures": [f for f in (c.constraint_failure() for c in foot.joints) if f],
     }
-    if sole is not None:
-        weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
-        expected = (foot.load.level * foot.load.force if foot.load else 0.0) + weight
-        normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
-        x = sole["points"][:, 0]
-        third = (x.max() - x.min()) / 3
-        regions = {"rearfoot": x < x.min() + third, "forefoot": x > x.max() - third}
-        figures["standing"] = {
-            "floor_normal_N": normal,
-            "load_plus_weight_N": expected,
-            "relative_error": abs(normal / expected - 1.0),
-            "contact_area_cm2": 1e4 * sole["area"],
-            "peak_pressure_kPa": 1e-3 * float(sole["pressure"].max()),
-            "peak_pressure_by_region_kPa": {
-                k: 1e-3 * float(sole["pressure"][m].max()) for k, m in regions.items()
-            },
-            "published_peak_kPa": PUBLISHED_KPA,
-            "rearfoot_load_share": float(
-                sole["force"][regions["rearfoot"]].sum() / sole["force"].sum()
-            ),
-            "centre_of_pressure_mm": (1e3 * sole["centre"]).round(2).tolist(),
-            "centre_of_pressure_from_heel": float(
-                (sole["centre"][0] - x.min()) / (x.max() - x.min())
-            ),
-            "lowest_skin_above_floor_mm": 1e3
-            * float(sole["points"][:, 1].min() - foot.floor.offset),
-        }
-    if foot.muscles.get("tibialis anterior") and foot.floor is None:
-        talus = Rotation.from_matrix(foot.bones["talus"].rotation).as_rotvec()
-        figures["lift"] = {
-            "first_metatarsal_rise_mm": 1e3
-            * float(foot.bones["metatarsal1"].position[1] - rest["metatarsal1"][1]),
-            "talus_dorsiflexion_deg": float(np.degrees(talus[2])),
-            "tibialis_anterior_N": sum(
-                p.evaluate(foot.scene.t).tension for p in foot.muscles["tibialis anterior"]
-            ),
-            "soleus_N": sum(p.evaluate(foot.scene.t).tension for p in foot.muscles["soleus"]),
-        }
+    figures.update(case_figures(foot, rest, pressure))
     figures["units"] = {
         "ms_per_step": "median wall ms per step (fem_alone, with_bones: "
         "timing_steps steps of a separate build)",
