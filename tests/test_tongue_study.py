@@ -192,7 +192,7 @@ def test_greedy_training_adds_the_worst_estimated_runs_of_its_pool(quick_study, 
 
 
 def test_the_report_lists_the_greedy_iterations():
-    from artifem.reduction.study_report import greedy_lines
+    from artifem.models.tongue.report import greedy_lines
 
     text = "\n".join(
         greedy_lines(

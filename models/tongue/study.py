@@ -48,7 +48,7 @@ On one tongue (each rank builds its own, on MPI.COMM_SELF):
 
 Results: DIR/study.json, DIR/series.npz, DIR/frames/*.npz (full and reduced
 displacements at the time of largest error), DIR/generalization.json (.md, .png, series),
-then the report stage (:mod:`artifem.reduction.study_report`): report.md and PNGs.
+then the report stage (:mod:`artifem.models.tongue.report`): report.md and PNGs.
 """
 
 from __future__ import annotations
@@ -543,7 +543,7 @@ class TongueStudy:
             )
         (self.out / "study.json").write_text(json.dumps(study, indent=1))
         np.savez(self.out / "series.npz", **series)
-        from artifem.reduction.study_report import write_report
+        from artifem.models.tongue.report import write_report
 
         return write_report(self.out)
 

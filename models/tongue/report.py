@@ -9,7 +9,7 @@ reduced displacements at the time of largest error) -- and writes
     render_<id>.png      full and reduced deformed meshes side by side, one colour scale
     report.md            model, training, Table 2 analog, all runs, target checks, figures
 
-``python -m artifem.reduction.study_report DIR`` regenerates them from existing files.
+``python -m artifem.models.tongue.report DIR`` regenerates them from existing files.
 """
 
 from __future__ import annotations
@@ -630,7 +630,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m artifem.reduction.study_report",
+        prog="python -m artifem.models.tongue.report",
         description="Regenerate the study report from existing files.",
     )
     add_report_arguments(parser)

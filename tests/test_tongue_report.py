@@ -1,4 +1,4 @@
-"""The report stage of the speed-vs-error study (artifem.reduction.study_report) on a
+"""The report stage of the speed-vs-error study (artifem.models.tongue.report) on a
 small synthetic study directory: figures, renders, tables and target checks."""
 
 import json
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from artifem.reduction.study_report import main, write_report
+from artifem.models.tongue.report import main, write_report
 
 TIMES = np.linspace(0.0, 1.0, 11)
 FAILURE = "Newton diverged at t = 0.42 s"
