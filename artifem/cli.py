@@ -86,7 +86,7 @@ COMMANDS = {
         DISTRIBUTED,
     ),
     ("simulate", "beam-ellipsoid"): (
-        "artifem.models.beam_ellipsoid",
+        "artifem.models.beam_ellipsoid.model",
         "FEM beam with a rigid ellipsoid at its end (Fig. 11)",
         ONE_RANK,
     ),
@@ -141,6 +141,12 @@ COMMANDS = {
         "artifem.models.tongue.study",
         "reduced tongue models against the full one: speed versus error",
         DISTRIBUTED,
+    ),
+    ("study", "beam-ellipsoid"): (
+        "artifem.models.beam_ellipsoid.study",
+        "Fig. 11's static tip against the stiff-block reference and Euler-Bernoulli, "
+        "and an undamped swing",
+        ONE_RANK,
     ),
     ("study", "foot"): (
         "artifem.models.foot.study",

@@ -1,4 +1,5 @@
-"""models/beam_ellipsoid.py end to end: static solve, reference, a short swing, PNG and JSON.
+"""``artifem study beam-ellipsoid`` (models/beam_ellipsoid/study.py) end to end: static
+solve, reference, a short swing, PNG and JSON.
 
 The physics checks of the scene (static deflection against the stiff-block
 reference, the swing's energy) are in tests/test_multibody_coupled.py; this
@@ -22,7 +23,8 @@ import pytest
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from mpi4py import MPI
 
-from artifem.models.beam_ellipsoid import BeamEllipsoidConfig, build_reference, run
+from artifem.models.beam_ellipsoid.model import BeamEllipsoidConfig, build_reference
+from artifem.models.beam_ellipsoid.study import run
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
@@ -92,3 +94,25 @@ def test_run_writes_the_picture_and_the_figures(tmp_path):
 def test_reference_block_must_be_whole_cells():
     with pytest.raises(ValueError, match="whole number of beam cells"):
         build_reference(BeamEllipsoidConfig(semi_axes=(0.047, 0.035, 0.035)))
+
+
+def test_simulate_beam_ellipsoid_is_the_studys_swing(tmp_path):
+    """``artifem simulate beam-ellipsoid`` (the runner, its frame case at the default level)
+    releases the same scene as the study's swing: the same tip deflection at every step,
+    and the released tip first falls freely (the study's test above)."""
+    from artifem.cli import main
+    from artifem.models.beam_ellipsoid.study import swing
+
+    dt, duration = 2e-3, 0.02
+    common = ["--dt", str(dt), "--duration", str(duration), "--no-progress", "--no-vtx"]
+    assert main(["simulate", "beam-ellipsoid", "--out", str(tmp_path), *common]) == 0
+    figures = json.loads((tmp_path / "frame" / "simulate.json").read_text())
+    *_, rec, _ = swing(BeamEllipsoidConfig(), duration, dt, attach="frame")
+    assert figures["steps"] == 10 and figures["max_tip_mm"] == pytest.approx(
+        1e3 * rec["tip"].max(), rel=1e-10
+    )
+    assert figures["energy_J"]["max"] == pytest.approx(rec["energy"].max(), rel=1e-10)
+    free_fall_mm = 1e3 * 0.5 * G * duration**2
+    assert 0.9 < figures["max_tip_mm"] / free_fall_mm < 1.25
+    png = tmp_path / "frame" / "beam-ellipsoid.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -36,7 +36,10 @@ MODELS = {
         ["--duration", "0.03", "--no-progress"],
         ["protrusion/simulate.json", "protrusion/tongue.png"],
     ),
-    "beam-ellipsoid": (["--duration", "0.03"], ["beam_ellipsoid.json", "beam_ellipsoid.png"]),
+    "beam-ellipsoid": (
+        ["--duration", "0.03", "--level", "0", "--no-progress"],
+        ["frame/simulate.json", "frame/beam-ellipsoid.png"],
+    ),
     "jaw-tongue": (
         ["--duration", "0.03", "--no-progress"],
         ["protrusion/simulate.json", "protrusion/jaw-tongue.png"],

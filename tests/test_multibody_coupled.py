@@ -304,7 +304,7 @@ def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
     20.408 mm: shear, Poisson and the Q1 elements) cancels and only the block's
     compliance remains.
     """
-    from artifem.models.beam_ellipsoid import (
+    from artifem.models.beam_ellipsoid.model import (
         BeamEllipsoidConfig,
         build_reference,
         build_scene,
@@ -356,12 +356,8 @@ def test_beam_ellipsoid_swing_is_stable_and_overshoots_like_a_released_load():
     excites and the Rayleigh estimate of omega (10 % on omega moves the prediction 0.7 %).
     Without the step's dissipation it would be 2; a lost or doubled ellipsoid weight in the
     dynamics moves it by tens of percent."""
-    from artifem.models.beam_ellipsoid import (
-        BeamEllipsoidConfig,
-        build_scene,
-        swing,
-        tip_deflection,
-    )
+    from artifem.models.beam_ellipsoid.model import BeamEllipsoidConfig, build_scene, tip_deflection
+    from artifem.models.beam_ellipsoid.study import swing
 
     config = BeamEllipsoidConfig()
     h = 2e-3
@@ -558,7 +554,7 @@ def test_static_solve_with_a_joint_welding_the_ellipsoid_to_the_world():
     and the coupled static solve (KKT with the joint rows) gives the FEM beam with both end
     faces fixed (measured: 3 Newton iterations, 7e-15 relative over all nodes for a midspan
     sag of 0.246 mm, |phi| = 1e-18)."""
-    from artifem.models.beam_ellipsoid import BeamEllipsoidConfig, build_scene
+    from artifem.models.beam_ellipsoid.model import BeamEllipsoidConfig, build_scene
 
     config = BeamEllipsoidConfig()
     scene, beam, ellipsoid, _ = build_scene(config)

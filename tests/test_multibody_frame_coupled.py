@@ -131,7 +131,7 @@ def test_ellipsoid_on_an_end_frame_deflects_the_beam_like_the_rigid_face():
     """Measured tip deflections: frame 19.7344 mm, rigid face 19.7355 mm (5e-5 apart: the
     face's own deformation under the load the frame spreads over it), stiff-block
     reference 19.7355 mm; Euler-Bernoulli 20.41 mm (3.3%, the mesh and shear)."""
-    from artifem.models.beam_ellipsoid import (
+    from artifem.models.beam_ellipsoid.model import (
         BeamEllipsoidConfig,
         build_scene,
         euler_bernoulli_tip,
@@ -159,12 +159,8 @@ def test_ellipsoid_on_an_end_frame_swings_without_gaining_energy():
     omega^2 = g / static (the step damps the amplitude by (1 + (omega h)^2)^(-1/2) per step,
     over pi / (omega h) steps; test_multibody_coupled.released_load_overshoot): 1.932
     predicted, 1.922 measured, asserted within 2 % (the higher modes, Rayleigh's omega)."""
-    from artifem.models.beam_ellipsoid import (
-        BeamEllipsoidConfig,
-        build_scene,
-        swing,
-        tip_deflection,
-    )
+    from artifem.models.beam_ellipsoid.model import BeamEllipsoidConfig, build_scene, tip_deflection
+    from artifem.models.beam_ellipsoid.study import swing
 
     config = BeamEllipsoidConfig()
     h = 2e-3

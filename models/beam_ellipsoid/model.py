@@ -31,32 +31,29 @@ the block's compliance, O(1 / stiffness_ratio), for the rigid face (measured
 19.7355 mm both, 1.2e-7 apart at 1000x); the end frame leaves the face deformable
 and deflects 19.7344 mm, 5e-5 less.
 
-``python -m artifem.models.beam_ellipsoid --out DIR`` solves the static
-deflection with both couplings, compares it with the reference and with
-Euler-Bernoulli theory, runs an undamped swing on the end frame and writes
-DIR/beam_ellipsoid.png and DIR/beam_ellipsoid.json.
+``artifem simulate beam-ellipsoid --case frame|face`` releases the straight beam under
+gravity with either coupling (:mod:`artifem.models.runner`); ``artifem study
+beam-ellipsoid`` (:mod:`artifem.models.beam_ellipsoid.study`) compares the static tip with
+the reference and with Euler-Bernoulli theory.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 import ufl
 from mpi4py import MPI
 
-from dolfinx import fem, mesh as dmesh
+from dolfinx import mesh as dmesh
 
-from artifem.arguments import positive_float
 from artifem.errors import InputError
 from artifem.fem_body import FemBody
 from artifem.forms import NeoHookean
 from artifem.multibody.attachments import FrameAttachment, NodeAttachment
-from artifem.scene import Scene, simulate
+from artifem.models.beam_ellipsoid.render import render
+from artifem.models.runner import Built, Model, command
+from artifem.scene import Scene
 from artifem.multibody.frame_attachments import FemFrame
 from artifem.multibody.rigid_body import RigidBody
 
@@ -66,7 +63,8 @@ __all__ = [
     "build_reference",
     "ellipsoid_mass_properties",
     "euler_bernoulli_tip",
-    "run",
+    "tip_deflection",
+    "MODEL",
 ]
 
 
@@ -97,6 +95,10 @@ def ellipsoid_mass_properties(config: BeamEllipsoidConfig) -> tuple[float, np.nd
     return m, m / 5.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
 
 
+#: mesh levels: cells (x, y, z); 2a is a whole number of cells (build_reference)
+LEVELS = {0: (12, 2, 2), 1: (24, 4, 4), 2: (48, 8, 8)}
+
+
 def _beam_mesh(config: BeamEllipsoidConfig, extra_cells: int = 0, extra_length: float = 0.0):
     nx, ny, nz = config.cells
     return dmesh.create_box(
@@ -108,7 +110,10 @@ def _beam_mesh(config: BeamEllipsoidConfig, extra_cells: int = 0, extra_length: 
 
 
 def build_scene(
-    config: BeamEllipsoidConfig = BeamEllipsoidConfig(), *, attach: str = "face"
+    config: BeamEllipsoidConfig = BeamEllipsoidConfig(),
+    *,
+    attach: str = "face",
+    integrator: str = "semi-implicit",
 ) -> tuple[Scene, FemBody, RigidBody, NodeAttachment | FrameAttachment]:
     """The clamped beam, the ellipsoid and its attachment (module docstring), in one scene."""
     if attach not in ("face", "frame"):
@@ -123,7 +128,7 @@ def build_scene(
     beam.fix_nodes(beam.find_nodes(lambda x: np.isclose(x[0], 0.0)))
     mass, inertia = ellipsoid_mass_properties(config)
     ellipsoid = RigidBody("ellipsoid", mass, inertia, position=config.center)
-    scene = Scene(gravity=config.gravity)
+    scene = Scene(gravity=config.gravity, integrator=integrator)
     scene.add(beam, ellipsoid)
     face = beam.find_nodes(lambda x: np.isclose(x[0], config.length))
     if attach == "face":
@@ -207,160 +212,59 @@ def tip_deflection(body: FemBody, config: BeamEllipsoidConfig) -> float:
     return -float(body.displacement_at([node])[0, 2])
 
 
-def swing(
-    config: BeamEllipsoidConfig,
-    duration: float,
-    h: float,
-    *,
-    samples: int = 0,
-    attach: str = "face",
-):
-    """Release the straight beam under gravity (undamped unless config.rayleigh) and record,
-    through :func:`artifem.scene.simulate`, time ``t``, ``tip`` deflection and ``energy``
-    (and ``ms``: the wall time of each step); ``samples`` snapshots (t, u, p, R) evenly
-    spaced to the end. Returns (scene, beam, ellipsoid, record, snapshots)."""
-    scene, beam, ellipsoid, _ = build_scene(config, attach=attach)
-    n = int(round(duration / h))
-    keep = (
-        sorted(
-            k
-            for k in set(np.linspace(0, n, samples + 1)[1:].round().astype(int).tolist())
-            if 1 <= k <= n
-        )
-        if samples
-        else []
-    )
-    run = simulate(
-        scene,
-        duration,
-        h,
-        keep=[k * h for k in keep],
-        progress=False,
-        record={
-            "tip": lambda s: tip_deflection(beam, config),
-            "energy": lambda s: s.energy(),
-            "position": lambda s: ellipsoid.position.copy(),
-            "rotation": lambda s: ellipsoid.rotation.copy(),
-        },
-    )
-    pose = run.records
-    snapshots = [
-        (
-            float(run.times[k]),
-            run.snapshots[k * h][beam.name].x.array.copy(),
-            pose["position"][k],
-            pose["rotation"][k],
-        )
-        for k in keep
-    ]
-    record = {"t": run.times, "tip": pose["tip"], "energy": pose["energy"], "ms": run.step_ms}
-    return scene, beam, ellipsoid, record, snapshots
-
-
-def render(png: Path, config: BeamEllipsoidConfig, beam: FemBody, frames) -> Path:
-    """The beam (colored by |u|) and the ellipsoid at the given (title, u, p, R) frames."""
-    import pyvista as pv
-
-    from artifem.render import add_displacement
-
-    pv.OFF_SCREEN = True
-    plotter = pv.Plotter(
-        off_screen=True, shape=(1, len(frames)), window_size=[520 * len(frames), 420]
-    )
-    u_fun = fem.Function(beam.V)
-    clim = (0.0, 1e3 * max(np.abs(u).max() for _, u, _, _ in frames))
-    try:
-        plotter.set_background("white")
-        for i, (title, u, p, R) in enumerate(frames):
-            plotter.subplot(0, i)
-            u_fun.x.array[:] = u
-            add_displacement(plotter, u_fun, clim, scalar_bar=i == 0, fmt="%.0f")
-            shell = pv.ParametricEllipsoid(*config.semi_axes)
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = R, p
-            plotter.add_mesh(shell.transform(T, inplace=False), color="salmon", opacity=0.9)
-            plotter.add_text(title, font_size=11, color="black")
-            plotter.camera_position = "xz"
-            plotter.reset_camera()
-        png.parent.mkdir(parents=True, exist_ok=True)
-        plotter.screenshot(str(png))
-    finally:
-        plotter.close()
-    return png
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--dt", type=positive_float, default=2e-3)
-    parser.add_argument("--duration", type=positive_float, default=0.5)
-
-
-def run(args: argparse.Namespace) -> int:
-    config = BeamEllipsoidConfig()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    static = {}
-    for attach in ("face", "frame"):
-        scene, beam, ellipsoid, _ = build_scene(config, attach=attach)
-        t0 = time.perf_counter()
-        newton = scene.solve_static()
-        static[attach] = {
-            "tip_deflection_mm": 1e3 * tip_deflection(beam, config),
-            "newton_iterations": newton,
-            "seconds": time.perf_counter() - t0,
-        }
-    coupled = static["frame"]["tip_deflection_mm"] * 1e-3
-    static_frame = (
-        "static (end frame)",
-        beam.u.x.array.copy(),
-        ellipsoid.position.copy(),
-        ellipsoid.rotation.copy(),
-    )
-    reference = build_reference(config)
-    from artifem.integrators import solve_static
-    from artifem.linear_solver import LinearSolver
-
-    solve_static(
-        reference, LinearSolver(reference.mesh.comm, "mumps"), load_steps=5, max_iterations=50
-    )
-    ref = tip_deflection(reference, config)
-    _, beam2, _, rec, snaps = swing(config, args.duration, args.dt, samples=2, attach="frame")
-    frames = [static_frame] + [(f"swing, t = {t:.2f} s", u, p, R) for t, u, p, R in snaps]
-    png = render(out / "beam_ellipsoid.png", config, beam2, frames)
+def build(case: str, level: int = 1, integrator: str = "semi-implicit") -> Built:
+    """The straight beam released under gravity with the ellipsoid on its end ``case``
+    ("frame" or "face", :func:`build_scene`), for :mod:`artifem.models.runner`: the tip
+    deflection, the energy and the ellipsoid's pose recorded; the picture shows the
+    ellipsoid with the beam."""
+    config = BeamEllipsoidConfig(cells=LEVELS[level])
+    scene, beam, ellipsoid, _ = build_scene(config, attach=case, integrator=integrator)
     mass, _ = ellipsoid_mass_properties(config)
-    figures = {
-        "model": "beam_ellipsoid",
-        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(config).items()},
-        "ellipsoid_mass_kg": mass,
-        "static": {
-            "end_frame": static["frame"],
-            "rigid_end_face": static["face"],
-            "reference_mm": 1e3 * ref,
-            "frame_vs_reference": abs(coupled - ref) / ref,
-            "euler_bernoulli_mm": 1e3 * euler_bernoulli_tip(config),
-        },
-        "swing": {
-            "attachment": "end frame",
-            "dt": args.dt,
-            "duration": args.duration,
-            "ms_per_step": float(np.median(rec["ms"])),
-            "max_tip_mm": 1e3 * float(rec["tip"].max()),
-            "energy_J": {
-                "initial": float(rec["energy"][0]),
-                "max": float(rec["energy"].max()),
-                "final": float(rec["energy"][-1]),
-            },
-        },
-        "png": str(png),
+    record = {
+        "tip": lambda s: tip_deflection(beam, config),
+        "energy": lambda s: s.energy(),
+        "position": lambda s: ellipsoid.position.copy(),
+        "rotation": lambda s: ellipsoid.rotation.copy(),
     }
-    (out / "beam_ellipsoid.json").write_text(json.dumps(figures, indent=2))
-    print(json.dumps(figures, indent=2))
-    return 0
+
+    def figures(run) -> dict:
+        r = run.records
+        return {
+            "ellipsoid_mass_kg": mass,
+            "max_tip_mm": 1e3 * float(r["tip"].max()),
+            "final_tip_mm": 1e3 * float(r["tip"][-1]),
+            "euler_bernoulli_static_tip_mm": 1e3 * euler_bernoulli_tip(config),
+            "energy_J": {
+                "initial": float(r["energy"][0]),
+                "max": float(r["energy"].max()),
+                "final": float(r["energy"][-1]),
+            },
+        }
+
+    def draw(png, run, shown) -> None:
+        frames = []
+        for t in shown:
+            k = int(np.argmin(abs(run.times - t)))
+            u = run.snapshots[t][beam.name].x.array
+            pose = run.records["position"][k], run.records["rotation"][k]
+            frames.append((f"t = {run.times[k]:.2f} s", u, *pose))
+        render(png, config, beam, frames)
+
+    return Built(scene, record=record, figures=figures, render=draw)
 
 
-if __name__ == "__main__":
-    import sys
-
-    cli = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_arguments(cli)
-    sys.exit(run(cli.parse_args()))
+MODEL = Model(
+    name="beam-ellipsoid",
+    summary="FEM beam with a rigid ellipsoid at its end (Fig. 11)",
+    build=build,
+    cases={
+        "frame": "the ellipsoid on a Procrustes frame over the end face (the paper's)",
+        "face": "the end face's nodes carried by the ellipsoid (a rigid face)",
+    },
+    levels={k: " x ".join(map(str, v)) + " hexahedra" for k, v in LEVELS.items()},
+    dt=2e-3,
+    duration=0.5,
+    default_level=1,
+    camera="xz",
+)
+add_arguments, run = command(MODEL)
