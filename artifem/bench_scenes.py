@@ -11,7 +11,7 @@ variants and times them in this process (medians over the timed steps):
   and with the reduced tongue (the jaw-tongue training, same cache), each
   without and with the airway skin and its pressure, and the skin's own
   update costs;
-- ``masseter`` (:mod:`artifem.models.masseter`): the embedding and the
+- ``masseter`` (:mod:`artifem.models.masseter.study`): the embedding and the
   conforming masseter, with and without aponeuroses;
 - ``foot`` (:mod:`artifem.models.foot.study`): the standing foot, the FEM alone, with
   the bones, with bones and contact, and reduced (the paper's configuration; its training
@@ -39,7 +39,7 @@ from artifem.errors import UnknownNameError
 SCENES = {
     "jaw-tongue": "artifem.models.jaw_tongue_reduced",
     "airway": "artifem.models.airway",
-    "masseter": "artifem.models.masseter",
+    "masseter": "artifem.models.masseter.study",
     "foot": "artifem.models.foot.study",
 }
 #: Scenes whose benchmark trains a reduced body (they take ``cache``).

@@ -112,7 +112,7 @@ COMMANDS = {
         ONE_RANK,
     ),
     ("simulate", "masseter"): (
-        "artifem.models.masseter",
+        "artifem.models.masseter.model",
         "synthetic masseter: embedding vs conforming, aponeuroses",
         ONE_RANK,
     ),
@@ -146,6 +146,12 @@ COMMANDS = {
         "artifem.models.beam_ellipsoid.study",
         "Fig. 11's static tip against the stiff-block reference and Euler-Bernoulli, "
         "and an undamped swing",
+        ONE_RANK,
+    ),
+    ("study", "masseter"): (
+        "artifem.models.masseter.study",
+        "the five masseter models (embedding vs conforming, aponeuroses): jaw force at "
+        "equilibrium, masters, ms per step",
         ONE_RANK,
     ),
     ("study", "foot"): (

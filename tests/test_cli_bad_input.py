@@ -155,7 +155,7 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
     ),
     (["simulate", "airway", "--out", "{tmp}/o", "--dt", "0"], "argument --dt: must be > 0"),
     (
-        ["simulate", "masseter", "--out", "{tmp}/o", "--coarse", "--steps", "0"],
+        ["study", "masseter", "--out", "{tmp}/o", "--coarse", "--steps", "0"],
         "argument --steps: must be a positive integer",
     ),
     (

@@ -152,10 +152,10 @@ def test_study_jaw_tongue_quick_agrees_with_simulate_jaw_tongue(
 # ---- simulate masseter, airway, styloglossus --------------------------------------------
 
 
-def test_simulate_masseter_coarse(tmp_path):
-    from artifem.models.masseter import MODELS
+def test_study_masseter_coarse(tmp_path):
+    from artifem.models.masseter.model import MODELS
 
-    assert main(["simulate", "masseter", "--coarse", "--steps", "1", "--out", str(tmp_path)]) == 0
+    assert main(["study", "masseter", "--coarse", "--steps", "1", "--out", str(tmp_path)]) == 0
     s = json.loads((tmp_path / "masseter.json").read_text())
     c = s["config"]
     assert c["steps"] == 1 and c["voxel_size"] == 0.005  # --steps, --coarse
@@ -420,7 +420,7 @@ def test_bench_tongue_on_two_ranks(tmp_path):
 
 def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
     from artifem import bench_scenes
-    from artifem.models.masseter import MODELS
+    from artifem.models.masseter.model import MODELS
 
     out = tmp_path / "scenes.json"
     assert (

@@ -46,7 +46,10 @@ MODELS = {
     ),
     "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
     "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
-    "masseter": (["--coarse", "--steps", "2"], ["masseter.json"]),
+    "masseter": (
+        ["--level", "0", "--duration", "0.02", "--no-progress"],
+        ["embedding-aponeuroses/simulate.json", "embedding-aponeuroses/masseter.png"],
+    ),
     "foot": (
         ["--level", "0", "--duration", "0.01", "--no-progress"],
         ["standing/simulate.json", "standing/foot.png", "standing/plantar_pressure.png"],

@@ -20,7 +20,7 @@ no fixed nodes) lying inside it, attached node by node ("membrane").
     forces through (W U)^T on the lift columns.
 (4) Bad input: the sheet, the attachment's slave, as the body to reduce is refused before
     any training run, naming the attachment; a reduced body of another body is refused.
-(5) The masseter as built (models/masseter.py, coarse: its primary FEM carried by two bones,
+(5) The masseter as built (models/masseter/model.py, coarse: its primary FEM carried by two bones,
     the jaw and the arch, three aponeurosis membranes embedded in it) reduces: each bone's
     lift columns hold the other bone's nodes at rest, and with every snapshot and point the
     reduced scene reproduces the full one (measured 3e-15 m on 0.7 mm).
@@ -258,7 +258,7 @@ def test_the_slave_of_an_embedded_attachment_is_refused_before_any_training(tmp_
 
 
 def test_the_masseter_with_two_bones_and_embedded_aponeuroses_reduces(tmp_path):
-    from artifem.models.masseter import COARSE, MasseterConfig, build_model
+    from artifem.models.masseter.model import COARSE, MasseterConfig, build_model
     from artifem.scene import simulate
 
     config = MasseterConfig(**COARSE)

@@ -60,30 +60,16 @@ Fiber directions: at every quadrature point of the primary mesh (8 per hex, 2 x 
 point-to-segment distance), stored in a quadrature-space Function
 (:meth:`FemBody.quadrature_space`).
 
-Measurement (:func:`simulate`): ``steps`` semi-implicit coupled steps (dt) with the
-excitation ramped linearly from 0 to a (ms per step: the median), then the static
-equilibrium at a (Newton, :meth:`Scene.solve_static`), then one step at equilibrium
-whose weld reaction gives the force the muscle transmits to the jaw,
-F_jaw = -(the weld's force on the jaw) (and the same for the arch: F_jaw + F_arch = 0).
-
-Measured (2.5 mm cells, excitation 0.1, serial; docs/masseter.md): jaw force 2.35 N
-(embedding) and 2.41 N (conforming) without aponeuroses, 1.94 / 2.02 N with the embedded
-membranes and 1.97 N with conforming slabs (aponeuroses: -16 to -18 % in every
-representation); 4,221 / 3,057 masters, and 28,644 with the slabs (about 2.2 s per step
-against 0.05-0.26 s).
-
-Run ``artifem simulate masseter --out DIR`` (or ``python -m artifem.models.masseter --out
-DIR``); the measured table is in docs/masseter.md.
+``artifem simulate masseter --case C --level L`` runs one model through the runner
+(:mod:`artifem.models.runner`): the excitation ramped over :data:`RAMP` seconds, then
+held; ``artifem study masseter`` (:mod:`artifem.models.masseter.study`) compares the five
+models and measures the jaw force at equilibrium (docs/masseter.md).
 """
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import json
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 import basix.ufl
@@ -93,7 +79,7 @@ from dolfinx import mesh as dmesh
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
-from artifem.arguments import fraction, positive_int
+from artifem.arguments import fraction
 from artifem.errors import InputError, SolverError
 from artifem.excitation import ExcitationSchedule
 from artifem.embedding.embedded_mesh import EmbeddedMesh
@@ -101,7 +87,9 @@ from artifem.embedding.voxel_fem import VoxelFemBody
 from artifem.fem_body import FemBody
 from artifem.forms import BlemkerFiber, MooneyRivlin, NeoHookean
 from artifem.multibody.attachments import EmbeddedFemAttachment, NodeAttachment
-from artifem.scene import Run, Scene, simulate as simulate_scene
+from artifem.models.masseter.render import render
+from artifem.models.runner import Built, Model, command
+from artifem.scene import Scene
 from artifem.multibody.joints import FixedJoint
 from artifem.multibody.rigid_body import RigidBody
 
@@ -115,16 +103,9 @@ __all__ = [
     "block_mesh",
     "build_model",
     "dof_counts",
-    "jaw_forces",
-    "ramp",
-    "simulate",
-    "benchmark",
-    "render",
-    "add_arguments",
-    "run",
-    "report",
     "MODELS",
     "COARSE",
+    "MODEL",
 ]
 
 #: (primary, aponeuroses) of the compared models.
@@ -588,7 +569,10 @@ def _voxel_bounds(config: MasseterConfig, surface_points: np.ndarray):
 
 
 def build_model(
-    config: MasseterConfig, primary: str = "embedding", aponeuroses: str = "embedded"
+    config: MasseterConfig,
+    primary: str = "embedding",
+    aponeuroses: str = "embedded",
+    integrator: str = "semi-implicit",
 ) -> MasseterModel:
     """The scene of one model (module docstring).
 
@@ -596,6 +580,7 @@ def build_model(
         primary: "embedding" (voxel hex grid) or "conforming" (gmsh tets).
         aponeuroses: "none", "embedded" (wedge membranes on EmbeddedFemAttachment) or
             "slabs" (conforming tendon slabs; conforming primary only).
+        integrator: the scene's (:data:`artifem.scene.INTEGRATORS`).
     """
     if (primary, aponeuroses) not in MODELS:
         raise InputError(
@@ -642,7 +627,7 @@ def build_model(
         info["slab_cells"] = int(slab_cells.size)
     info["build_s"] = time.perf_counter() - t0
 
-    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0), integrator=integrator)
     scene.add(body)
     membranes, attachments = [], []
     if aponeuroses == "embedded":
@@ -739,213 +724,76 @@ def dof_counts(model: MasseterModel) -> dict:
     }
 
 
-def jaw_forces(model: MasseterModel, h: float) -> dict:
-    """One step h at the current state; the forces the muscle transmits to the jaw and the
-    arch, F = -(the weld's force on the body), and their sum (0 at equilibrium)."""
-    model.scene.step(h)
-    f_jaw = -model.scene.reaction(model.jaw_joint)[0][:3]
-    f_arch = -model.scene.reaction(model.arch_joint)[0][:3]
-    return {
-        "jaw_force_N": f_jaw.tolist(),
-        "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw)),
-        "arch_force_N": f_arch.tolist(),
-        "force_balance_N": float(np.linalg.norm(f_jaw + f_arch)),
-    }
+# ---- the runner's masseter (``artifem simulate masseter``) ---------------------------------
+
+#: seconds over which the runner ramps the excitation (then held)
+RAMP = 0.1
+#: case name -> (primary, aponeuroses) of :data:`MODELS`
+CASES = {
+    "embedding": ("embedding", "none"),
+    "embedding-aponeuroses": ("embedding", "embedded"),
+    "conforming": ("conforming", "none"),
+    "conforming-aponeuroses": ("conforming", "embedded"),
+    "conforming-slabs": ("conforming", "slabs"),
+}
 
 
-def ramp(model: MasseterModel, excitation: float, steps: int) -> Run:
-    """``steps`` coupled steps of ``config.dt`` from the scene's time, the excitation ramped
-    linearly from 0 to ``excitation`` over them (a controller: ``excitation * k / steps``
-    at the end of step k, then held), timed by :func:`artifem.scene.simulate`."""
-    dt, t = model.config.dt, model.scene.t
-    schedule = ExcitationSchedule(
-        np.array([t, t + steps * dt]), {"masseter": np.array([0.0, excitation])}
-    )
-    control = schedule.controller(model.primary)
-    model.scene.add_controller(control)  # for this ramp only
-    try:
-        run = simulate_scene(model.scene, steps * dt, dt, progress=False)
-    finally:
-        model.scene.controllers.remove(control)
-    model.primary.set_excitation("masseter", excitation)  # held (no round-off in t)
-    return run
+def build(
+    case: str, level: int = 1, integrator: str = "semi-implicit", excitation: float = 0.1
+) -> Built:
+    """One masseter model (``case``: :data:`CASES`) at ``level`` (0: :data:`COARSE`, 1: the
+    default sizes), its excitation ramped to ``excitation`` over :data:`RAMP` s, for
+    :mod:`artifem.models.runner`; the figures: the masters, the force the muscle transmits
+    to the jaw over the last step (the weld's reaction), the displacement and the mass."""
+    coarse = {k: v for k, v in COARSE.items() if k != "steps"} if level == 0 else {}
+    config = MasseterConfig(excitation=excitation, **coarse)
+    model = build_model(config, *CASES[case], integrator=integrator)
+    schedule = ExcitationSchedule(np.array([0.0, RAMP]), {"masseter": np.array([0.0, excitation])})
+    model.scene.add_controller(schedule.controller(model.primary))
 
-
-def simulate(
-    model: MasseterModel, *, excitation: float | None = None, steps: int | None = None
-) -> dict:
-    """Ramp the excitation over ``steps`` coupled steps (timed), solve the statics at the
-    final excitation, and measure the jaw force (module docstring)."""
-    c = model.config
-    a = c.excitation if excitation is None else excitation
-    n = c.steps if steps is None else steps
-    if not 0.0 <= a <= 1.0:
-        raise InputError(f"masseter: excitation must be in [0, 1], got {a!r}")
-    run = ramp(model, a, n)
-    t0 = time.perf_counter()
-    iterations = model.scene.solve_static()
-    static_s = time.perf_counter() - t0
-    out = {
-        "model": model.label,
-        "excitation": a,
-        "steps": n,
-        "dt": c.dt,
-        "ms_per_step": run.ms_per_step,
-        "ms_per_step_all": run.step_ms.tolist(),
-        "static_newton_iterations": iterations,
-        "static_s": static_s,
-        **dof_counts(model),
-        **jaw_forces(model, c.dt),
-    }
-    u = model.primary.u.x.array.reshape(-1, 3)
-    out["max_displacement_mm"] = 1e3 * float(np.linalg.norm(u, axis=1).max())
-    out["min_det_F"] = float(np.nanmin(model.primary.det_F()))
-    out["mass_kg"] = float(model.primary.total_mass())
-    out.update(model.info)
-    return out
-
-
-def benchmark(steps: int = 5, config: MasseterConfig | None = None, quick: bool = False) -> dict:
-    """Milliseconds per coupled step (median of ``steps``, excitation ramp) of the embedding
-    and conforming masseter models, with and without aponeuroses, and their masters.
-    ``quick``: on the coarse setting (:data:`COARSE`) unless ``config`` is given."""
-    config = config or MasseterConfig(**(COARSE if quick else {}))
-    cases = {}
-    for primary, apo in MODELS:
-        model = build_model(config, primary, apo)
-        cases[f"{primary}/{apo}"] = {
-            "ms_per_step": ramp(model, config.excitation, steps).ms_per_step,
+    def figures(run) -> dict:
+        f_jaw = -model.scene.reaction(model.jaw_joint)[0][:3]
+        u = model.primary.u.x.array.reshape(-1, 3)
+        return {
+            "geometry": "synthetic (no public masseter data; see models/masseter/model.py)",
+            "excitation": excitation,
+            "ramp_s": RAMP,
             **dof_counts(model),
+            "jaw_force_N": f_jaw.tolist(),
+            "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw)),
+            "max_displacement_mm": 1e3 * float(np.linalg.norm(u, axis=1).max()),
+            "mass_kg": float(model.primary.total_mass()),
+            **model.info,
         }
-    return {
-        "benchmark": "masseter",
-        "steps": steps,
-        "dt": config.dt,
-        "cases": cases,
-        "geometry": "synthetic",
-    }
+
+    return Built(model.scene, figures=figures, render=lambda png, run, shown: render([model], png))
 
 
-# ---- output ------------------------------------------------------------------------------
-
-
-def render(models: list[MasseterModel], png: Path, titles=None) -> Path:
-    """One column per model, front (xz) and side (yz) views: the primary deformed (faint,
-    |u| in mm; the embedding model also shows its embedded muscle surface), the fascicles
-    (dark red), the aponeuroses (orange: membranes or slab cells), the jaw and the arch
-    (gray); off-screen with pyvista."""
-    import pyvista as pv
-    from artifem.render import _set_camera, body_grid
-
-    pv.OFF_SCREEN = True
-    plotter = pv.Plotter(
-        off_screen=True, shape=(2, len(models)), window_size=[380 * len(models), 1100]
-    )
-    plotter.set_background("white")
-    umax = max(1e3 * np.abs(m.primary.u.x.array).max() for m in models) or 1.0
-    for i, m in enumerate(models):
-        grid, _ = body_grid(m.primary.mesh, m.primary.u)
-        grid.point_data["|u| (mm)"] = 1e3 * np.linalg.norm(grid.point_data["displacement"], axis=1)
-        for row, view in enumerate(("xz", "yz")):
-            plotter.subplot(row, i)
-            plotter.add_mesh(
-                grid.copy(),
-                scalars="|u| (mm)",
-                cmap="viridis",
-                clim=(0.0, umax),
-                opacity=0.3,
-                show_edges=True,
-                edge_color="gray",
-                show_scalar_bar=(i == 0 and row == 0),
-                scalar_bar_args={"title": "|u| (mm)", "color": "black", "fmt": "%.2f"},
-            )
-            if getattr(m.primary, "surface", None) is not None:
-                plotter.add_mesh(m.primary.surface.to_pyvista(), color="white", opacity=0.25)
-            if m.aponeuroses == "slabs":
-                plotter.add_mesh(
-                    grid.extract_cells(m.primary.muscles["aponeuroses"].cells), color="orange"
-                )
-            for membrane in m.membranes:
-                plotter.add_mesh(_wedge_grid(membrane), color="orange")
-            plotter.add_mesh(m.fascicles.to_pyvista(), color="darkred", line_width=2)
-            for body in (m.jaw, m.arch):
-                V, T = body.surface
-                poly = pv.PolyData(
-                    V @ body.rotation.T + body.position, np.c_[np.full(len(T), 3), T].ravel()
-                )
-                plotter.add_mesh(poly, color="lightgray", opacity=0.5)
-            if row == 0:
-                plotter.add_text(titles[i] if titles else m.label, font_size=10, color="black")
-            _set_camera(plotter, view, grid.bounds)
-    Path(png).parent.mkdir(parents=True, exist_ok=True)
-    plotter.screenshot(str(png))
-    plotter.close()
-    return Path(png)
-
-
-def _wedge_grid(body: FemBody):
-    """A prism FemBody at its current positions as VTK wedges (dolfinx.plot has no prisms)."""
-    import pyvista as pv
-
-    cells = body.mesh.geometry.dofmaps[0]
-    conn = np.hstack([np.full((len(cells), 1), 6), cells]).ravel()
-    return pv.UnstructuredGrid(conn, np.full(len(cells), pv.CellType.WEDGE), body.nodal_positions())
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--excitation", type=fraction, default=MasseterConfig.excitation)
-    parser.add_argument(
-        "--steps",
-        type=positive_int,
-        default=MasseterConfig.steps,
-        help="timed coupled steps (excitation ramp) before the statics",
-    )
-    parser.add_argument(
-        "--coarse", action="store_true", help="5 mm voxels and tets (the test setting): quick"
+def _options(group) -> None:
+    group.add_argument(
+        "--excitation",
+        type=fraction,
+        default=MasseterConfig.excitation,
+        help="the muscle's, reached at the end of the ramp (%(default)s)",
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    report(args)
-    return 0
-
-
-def report(args: argparse.Namespace) -> dict:
-    """All models: simulate, render (masseter.png) and write masseter.json."""
-    config = MasseterConfig(
-        excitation=args.excitation,
-        steps=args.steps,
-        **({k: v for k, v in COARSE.items() if k != "steps"} if args.coarse else {}),
-    )
-    args.out.mkdir(parents=True, exist_ok=True)
-    results, models = {}, []
-    for primary, apo in MODELS:
-        model = build_model(config, primary, apo)
-        results[model.label] = simulate(model)
-        print(
-            f"{model.label}: {results[model.label]['masters']} masters, "
-            f"{results[model.label]['ms_per_step']:.0f} ms/step, jaw force "
-            f"{results[model.label]['jaw_force_magnitude_N']:.3f} N",
-            flush=True,
-        )
-        models.append(model)
-    png = render(models, args.out / "masseter.png")
-    summary = {
-        "geometry": "synthetic (no public masseter data; see models/masseter.py)",
-        "config": dataclasses.asdict(config),
-        "models": results,
-        "png": str(png),
-    }
-    (args.out / "masseter.json").write_text(json.dumps(summary, indent=2))
-    return summary
-
-
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_arguments(parser)
-    return report(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    main()
+MODEL = Model(
+    name="masseter",
+    summary="synthetic masseter: embedding vs conforming, aponeuroses",
+    build=build,
+    cases={
+        "embedding-aponeuroses": "voxel (embedding) FEM, aponeuroses as embedded membranes",
+        "embedding": "voxel (embedding) FEM, no aponeuroses",
+        "conforming": "conforming tet FEM, no aponeuroses",
+        "conforming-aponeuroses": "conforming tet FEM, aponeuroses as embedded membranes",
+        "conforming-slabs": "conforming tet FEM, aponeuroses as conforming tendon slabs",
+    },
+    levels={0: "5 mm voxels and tets", 1: "2.5 mm voxels and tets"},
+    dt=MasseterConfig.dt,
+    duration=0.2,
+    default_level=1,
+    camera="xz",
+    options=_options,
+)
+add_arguments, run = command(MODEL)
