@@ -7,7 +7,7 @@ variants and times them in this process (medians over the timed steps):
   scene during protrusion with the full and with the reduced tongue (the
   reduced tongue's training is cached, under $XDG_CACHE_HOME/artifem by default,
   ~/.cache/artifem when that is unset);
-- ``airway`` (:mod:`artifem.models.airway`): the jaw-tongue scene with the full
+- ``airway`` (:mod:`artifem.models.airway.study`): the jaw-tongue scene with the full
   and with the reduced tongue (the jaw-tongue training, same cache), each
   without and with the airway skin and its pressure, and the skin's own
   update costs;
@@ -38,7 +38,7 @@ from artifem.errors import UnknownNameError
 
 SCENES = {
     "jaw-tongue": "artifem.models.jaw_tongue_reduced",
-    "airway": "artifem.models.airway",
+    "airway": "artifem.models.airway.study",
     "masseter": "artifem.models.masseter.study",
     "foot": "artifem.models.foot.study",
 }

@@ -96,14 +96,13 @@ COMMANDS = {
         ONE_RANK,
     ),
     ("simulate", "styloglossus"): (
-        "artifem.models.styloglossus",
-        "external styloglossus on 4 vs 24 support nodes: stress at "
-        "equal excitation and tension, w >= 0, reduced tongue",
+        "artifem.models.styloglossus.model",
+        "external styloglossus on 4 or 24 support nodes: a Thelen muscle or a prescribed tension",
         ONE_RANK,
     ),
     ("simulate", "airway"): (
-        "artifem.models.airway",
-        "airway skin over tongue (full or --reduced), jaw and palate, with air pressure",
+        "artifem.models.airway.model",
+        "airway skin over tongue, jaw and palate, with air pressure",
         ONE_RANK,
     ),
     ("simulate", "foot"): (
@@ -152,6 +151,18 @@ COMMANDS = {
         "artifem.models.masseter.study",
         "the five masseter models (embedding vs conforming, aponeuroses): jaw force at "
         "equilibrium, masters, ms per step",
+        ONE_RANK,
+    ),
+    ("study", "styloglossus"): (
+        "artifem.models.styloglossus.study",
+        "the styloglossus on 4 vs 24 support nodes: stress at equal excitation and tension, "
+        "w >= 0, full and reduced tongue",
+        ONE_RANK,
+    ),
+    ("study", "airway"): (
+        "artifem.models.airway.study",
+        "every tongue motion in the airway, with and without the air, and (--reduced) over "
+        "the reduced tongue",
         ONE_RANK,
     ),
     ("study", "foot"): (

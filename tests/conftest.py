@@ -154,8 +154,8 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     """The quick jaw-tongue reduced training (r = 12 POD + 12 lift columns, 150 trained
     points, 0.15 s training runs of every exciter), trained once per run into a tmp
     cache directory (``computed_once``; a worker that did not train loads it). Modules that train
-    through another entry point
-    (``jaw_tongue_reduced.compare``, ``airway.reduced_tongue``, ``airway.benchmark``) pass
+    through another entry point (``jaw_tongue_reduced.compare``,
+    ``airway.model.reduced_tongue``, ``airway.study.benchmark``) pass
     this ``cache`` and ``config``: the artifacts are keyed by the inputs (the airway's
     jaw-tongue config is the default one, as here), so they load instead of training again
     (so do ``artifem study jaw-tongue --quick`` and ``artifem bench scenes --quick`` given

@@ -1,11 +1,12 @@
 """The airway skin over the tongue, the jaw and the palate, with the air pressure inside it
-(models/airway.py; Lloyd et al. 2019, section 4.1), over the full and the reduced tongue."""
+(models/airway/; Lloyd et al. 2019, section 4.1), over the full and the reduced tongue."""
 
 import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from artifem.models import airway as aw
+from artifem.models.airway import model as aw
+from artifem.models.airway import study
 from artifem.models.tongue.model import DATA, load_tongue_data
 from artifem.multibody.rigid_body import exp_so3
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
@@ -154,7 +155,7 @@ def test_pressure_loads_on_the_masters_do_the_work_of_the_skin_forces(scene):
         assert abs(loads[1][1] @ twists[0]) > 0.01 * abs(work_skin)
         # closed surface: the air's resultant on all the masters together is zero
         moved(0.0)
-        net = aw.resultants(a, t)
+        net = study.resultants(a, t)
         assert np.abs(net["sum"]).max() < 1e-12 * np.abs(f_v).sum()
         assert np.linalg.norm(net["tongue"]) > 0.1  # N, at 1 kPa
     finally:
@@ -202,7 +203,7 @@ def full_runs(data):
         "off": aw.build_scene(aw.AirwayConfig(), pressure=False, data=data),
     }
     return {
-        name: aw.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
+        name: study.simulate(a, "protrusion", STEPS * DT, DT, snapshots=(1.0,))
         for name, a in scenes.items()
     }
 
@@ -311,9 +312,9 @@ def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
     pressure in it) against the full one. Measured: skin error 0.10 mm mean, 0.94 mm max,
     0.18 of the pressure's own effect (full with minus without: 0.58 mm mean); areas
     within 2.2 %; jaw angles within 0.03 degrees."""
-    rec = aw.simulate(reduced_scene, "protrusion", STEPS * DT, DT)
+    rec = study.simulate(reduced_scene, "protrusion", STEPS * DT, DT)
     on, off = full_runs["on"], full_runs["off"]
-    c = aw.compare(reduced_scene, on, rec)
+    c = study.compare(reduced_scene, on, rec)
     effect = np.linalg.norm(on["skin"][-1] - off["skin"][-1], axis=1).mean()
     error = np.linalg.norm(rec["skin"][-1] - on["skin"][-1], axis=1).mean()
     assert c["max_skin_displacement_mm"] > 3.0  # the skin really moved
@@ -328,7 +329,7 @@ def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
 
 def test_benchmark_reports_positive_times(reduced):
     _, cache, quick = reduced
-    out = aw.benchmark(steps=1, reduced=quick, cache=cache)
+    out = study.benchmark(steps=1, reduced=quick, cache=cache)
     for case in ("full", "reduced"):
         for key in (
             "ms_per_step_without_airway",
@@ -358,3 +359,22 @@ def test_bad_input_is_refused(tmp_path):
         aw.read_sections(bad)
     normals, offsets, names = aw.read_sections(DATA / "airway.obj")
     assert len(offsets) == 58 and names[0] == "larynx"
+
+
+def test_simulate_airway_is_the_studys_protrusion(tmp_path, full_runs):
+    """``artifem simulate airway`` (the runner) runs the scene the study runs: the same
+    steps of protrusion with the air give the same tongue tip, jaw angle and section
+    areas."""
+    import json
+
+    from artifem.cli import main
+
+    args = ["--duration", str(STEPS * DT), "--dt", str(DT), "--no-progress", "--no-vtx"]
+    assert main(["simulate", "airway", "--case", "protrusion", "--out", str(tmp_path), *args]) == 0
+    f = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
+    on = full_runs["on"]
+    assert f["steps"] == STEPS and f["pressure_Pa"] == aw.AirwayConfig.pressure
+    assert f["final_tip_displacement_mm"] == pytest.approx(1e3 * on["tip"][-1], rel=1e-9)
+    assert f["final_opening_angle_deg"] == pytest.approx(np.degrees(on["angle"][-1]), rel=1e-9)
+    assert f["final_areas_mm2"] == pytest.approx(1e6 * on["areas"][-1], rel=1e-9)
+    assert (tmp_path / "protrusion" / "airway.png").read_bytes()[:4] == b"\x89PNG"

@@ -122,12 +122,12 @@ def test_find_python_finds_this_interpreter():
     assert eval(version) >= (3, 12)
 
 
-def test_simulate_airway_takes_the_reduced_tongue_options(tmp_path):
+def test_study_airway_takes_the_reduced_tongue_options(tmp_path):
     from artifem.cli import build_parser
 
     args = build_parser().parse_args(
         [
-            "simulate",
+            "study",
             "airway",
             "--out",
             str(tmp_path),
@@ -137,5 +137,5 @@ def test_simulate_airway_takes_the_reduced_tongue_options(tmp_path):
         ]
     )
     assert args.reduced and args.cache == tmp_path / "cache"
-    args = build_parser().parse_args(["simulate", "airway", "--out", str(tmp_path)])
+    args = build_parser().parse_args(["study", "airway", "--out", str(tmp_path)])
     assert not args.reduced

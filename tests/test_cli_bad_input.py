@@ -71,14 +71,15 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
     (["simulate", "beam-ellipsoid", "--out", "{tmp}/o", "--dt", "0"], "argument --dt: must be > 0"),
     (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--dt", "-0.01"], "argument --dt: must be > 0"),
     (
-        ["simulate", "styloglossus", "--out", "{tmp}/o", "--tension", "-1"],
+        ["study", "styloglossus", "--out", "{tmp}/o", "--tension", "-1"],
         "argument --tension: must be >= 0",
     ),
     (
-        ["simulate", "airway", "--out", "{tmp}/o", "--pressure", "nan"],
+        ["study", "airway", "--out", "{tmp}/o", "--pressure", "nan"],
         "argument --pressure: must be finite",
     ),
-    (["simulate", "airway", "--out", "{tmp}/o", "--motions", "flap"], "invalid choice: 'flap'"),
+    (["study", "airway", "--out", "{tmp}/o", "--motions", "flap"], "invalid choice: 'flap'"),
+    (["simulate", "airway", "--out", "{tmp}/o", "--pressure", "-1"], "must be >= 0"),
     (
         ["simulate", "masseter", "--out", "{tmp}/o", "--excitation", "1.5"],
         "argument --excitation: must be in [0, 1]",
@@ -126,26 +127,26 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
     ),
     (["simulate", "jaw-tongue", "--out", "{tmp}/o", "--case", "yawn"], "invalid choice: 'yawn'"),
     (
-        ["simulate", "styloglossus", "--out", "{tmp}/o", "--r", "0"],
+        ["study", "styloglossus", "--out", "{tmp}/o", "--r", "0"],
         "argument --r: must be a positive integer",
     ),
     (
-        ["simulate", "styloglossus", "--out", "{tmp}/o", "--duration", "-0.3"],
+        ["study", "styloglossus", "--out", "{tmp}/o", "--duration", "-0.3"],
         "argument --duration: must be > 0",
     ),
     (
-        ["simulate", "styloglossus", "--out", "{tmp}/o", "--duration", "0.02", "--r", "4"],
+        ["study", "styloglossus", "--out", "{tmp}/o", "--duration", "0.02", "--r", "4"],
         "r = 4 POD vectors need as many training snapshots",
     ),
     (
-        ["study", "scene", "artifem.models.styloglossus", "--out", "{tmp}/o"],
+        ["study", "scene", "artifem.models.styloglossus.model", "--out", "{tmp}/o"],
         "give the model as MODULE:FUNCTION",
     ),
     (
         [
             "study",
             "scene",
-            "artifem.models.styloglossus:reducible",
+            "artifem.models.styloglossus.model:reducible",
             "--out",
             "{tmp}/o",
             "--each-alone",

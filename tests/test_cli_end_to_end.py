@@ -177,12 +177,12 @@ def test_study_masseter_coarse(tmp_path):
     assert is_png(s["png"], 10_000)
 
 
-def test_simulate_airway_one_motion(tmp_path):
+def test_study_airway_one_motion(tmp_path):
     duration, dt = 0.02, 0.01
     assert (
         main(
             [
-                "simulate",
+                "study",
                 "airway",
                 "--motions",
                 "protrusion",
@@ -218,12 +218,12 @@ def test_simulate_airway_one_motion(tmp_path):
     assert all(is_png(p, 10_000) for p in f["png"])
 
 
-def test_simulate_styloglossus_with_its_reduced_tongue(tmp_path):
+def test_study_styloglossus_with_its_reduced_tongue(tmp_path):
     duration, tension, r, points = 0.04, 0.15, 4, 40
     assert (
         main(
             [
-                "simulate",
+                "study",
                 "styloglossus",
                 "--duration",
                 str(duration),

@@ -44,8 +44,14 @@ MODELS = {
         ["--duration", "0.03", "--no-progress"],
         ["protrusion/simulate.json", "protrusion/jaw-tongue.png"],
     ),
-    "styloglossus": (["--duration", "0.02", "--no-reduced"], ["styloglossus.json"]),
-    "airway": (["--duration", "0.02", "--motions", "protrusion"], ["airway.json"]),
+    "styloglossus": (
+        ["--duration", "0.02", "--no-progress"],
+        ["4-nodes/simulate.json", "4-nodes/styloglossus.png"],
+    ),
+    "airway": (
+        ["--duration", "0.02", "--no-progress"],
+        ["protrusion/simulate.json", "protrusion/airway.png"],
+    ),
     "masseter": (
         ["--level", "0", "--duration", "0.02", "--no-progress"],
         ["embedding-aponeuroses/simulate.json", "embedding-aponeuroses/masseter.png"],

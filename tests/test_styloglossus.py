@@ -1,4 +1,4 @@
-"""The styloglossus as external point-to-point muscles on the level-0 tongue (models.styloglossus).
+"""The styloglossus as external point-to-point muscles on the level-0 tongue (models/styloglossus).
 
 Short runs (0.3 s of the 0.5 s ramp): the Thelen muscles at equal excitation on 4 and on 24
 support nodes, and a prescribed tension (1.5 N e(t): 0.9 N at 0.3 s) on 4 nodes, 24 nodes
@@ -25,16 +25,15 @@ from mpi4py import MPI
 
 from artifem.models.tongue.model import load_tongue_data
 from artifem.errors import InputError
-from artifem.models.styloglossus import (
+from artifem.models.styloglossus.model import (
     STYLOID,
-    ReducedConfig,
     SUPPORTS,
+    ReducedConfig,
     attachment_points,
     boundary_facet_centroids,
-    reduce_tongue,
     reducible,
-    simulate,
 )
+from artifem.models.styloglossus.study import reduce_tongue, simulate
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
@@ -134,3 +133,26 @@ def test_reduced_tongue_follows_the_full_attachment(data, results, tmp_path_fact
 def test_an_unknown_support_is_refused():
     with pytest.raises(InputError, match="unknown support '12'"):
         reducible("12")
+
+
+def test_simulate_styloglossus_is_the_studys_run(tmp_path):
+    """``artifem simulate styloglossus`` (the runner) at the prescribed tension runs the
+    study's scene: the same tension, attachment motion and peak stress near it."""
+    import json
+
+    from artifem.cli import main
+
+    args = ["--load", "tension", "--duration", "0.05", "--no-progress", "--no-vtx"]
+    assert (
+        main(["simulate", "styloglossus", "--case", "24-nodes", "--out", str(tmp_path), *args]) == 0
+    )
+    f = json.loads((tmp_path / "24-nodes" / "simulate.json").read_text())
+    r = simulate(24, load="tension", duration=0.05)
+    assert f["steps"] == r["steps"] == 5
+    for side in STYLOID:
+        assert f["tension_N"][side] == pytest.approx(r["tension_N"][side], rel=1e-9)
+        moved = 1e3 * np.array(r["attachment_displacement_m"][side])
+        assert f["attachment_displacement_mm"][side] == pytest.approx(moved, rel=1e-9)
+        near = r["peak_von_mises_near_attachment_Pa"][side]
+        assert f["peak_von_mises_near_attachment_Pa"][side] == pytest.approx(near, rel=1e-9)
+    assert f["tension_N"]["left"] == pytest.approx(1.5 * 0.05 / 0.5)  # T = 1.5 N e(t)
