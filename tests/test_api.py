@@ -110,7 +110,7 @@ def test_the_readme_scene_example_runs(tmp_path):
     from pathlib import Path
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## Python API") :]
+    section = readme[readme.index("## A first scene") :]
     code = section[section.index("```python") + len("```python") :]
     code = code[: code.index("```")]
     assert "af.simulate(scene, 0.6, 0.005" in code and 'vtx="out/"' in code
@@ -122,14 +122,13 @@ def test_the_readme_scene_example_runs(tmp_path):
     assert (tmp_path / "tissue.bp").is_dir()
 
 
-def test_the_readme_fem_scene_example_runs(tmp_path, monkeypatch):
-    """The README's one-body scene (the tongue, stepped on its own), as printed, shorter."""
+def test_the_python_api_pages_fem_scene_example_runs(tmp_path, monkeypatch):
+    """docs/python_api.md's one-body scene (the tongue, stepped on its own), as printed,
+    shorter."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    section = (root / "README.md").read_text()
-    section = section[section.index("## Python API") :]
-    section = section[section.index("```", section.index("```python") + 9) + 3 :]
+    section = (root / "docs" / "python_api.md").read_text()
     code = section[section.index("```python") + len("```python") :]
     code = code[: code.index("```")]
     assert "af.simulate(scene, 1.0, 0.01" in code and 'vtx="out/"' in code
@@ -137,7 +136,7 @@ def test_the_readme_fem_scene_example_runs(tmp_path, monkeypatch):
     code = code.replace('vtx="out/"', f"vtx={str(tmp_path)!r}, progress=False")
     monkeypatch.chdir(root)
     namespace = {}
-    exec(compile(code, "README.md", "exec"), namespace)
+    exec(compile(code, "python_api.md", "exec"), namespace)
     scene, run = namespace["scene"], namespace["run"]
     assert scene.islands() == ([namespace["body"]], [])
     assert run.records["tip"].shape == (3, 3) and np.abs(run.records["tip"][-1]).max() > 0
