@@ -7,8 +7,9 @@ jaw and arch forces, mass = density x volume), one command's figures against ano
 of the same scene, and PNG headers.
 
 Covered elsewhere: ``mesh info`` (test_io), ``material curves``, ``simulate beam``
-(test_cli), ``simulate tongue --motion`` (test_tongue_model), ``simulate beam-ellipsoid``
-(test_beam_ellipsoid), ``study tongue --quick`` (test_tongue_study), one-rank ``bench fom``
+(test_cli), ``simulate tongue --case`` (test_tongue_model), ``study beam-ellipsoid``
+(test_beam_ellipsoid), every model's ``simulate`` through the runner (test_models and the
+model's own tests), ``study tongue --quick`` (test_tongue_study), one-rank ``bench fom``
 and ``bench tongue`` (test_bench); every command's bad input: test_cli_bad_input.
 
 ``study jaw-tongue --quick`` and ``bench scenes --quick`` load the session's quick

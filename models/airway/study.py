@@ -12,9 +12,6 @@ airway follows the full one within 0.1-1.0 mm mean skin
 error without the air and 0.9-1.3 mm with it (a basis trained without air), jaw angles
 within 0.33 degrees.
 
-Run ``python -m artifem.models.airway --out DIR [--reduced]`` (``artifem simulate airway
---out DIR [--reduced]``).
-
 ``artifem study airway --out DIR [--reduced]`` writes DIR/airway.json, DIR/airway.png and
 DIR/airway_sections.png (docs/airway.md).
 """

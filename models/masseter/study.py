@@ -13,9 +13,6 @@ membranes and 1.97 N with conforming slabs (aponeuroses: -16 to -18 % in every
 representation); 4,221 / 3,057 masters, and 28,644 with the slabs (about 2.2 s per step
 against 0.05-0.26 s).
 
-Run ``artifem simulate masseter --out DIR`` (or ``python -m artifem.models.masseter --out
-DIR``); the measured table is in docs/masseter.md.
-
 ``artifem study masseter --out DIR [--excitation A] [--steps N] [--coarse]`` writes
 DIR/masseter.png and DIR/masseter.json; the measured table is in docs/masseter.md.
 """

@@ -2,7 +2,7 @@
 nodes, signed or non-negative weights, equal excitation or equal tension, full or reduced
 tongue (the model: :mod:`artifem.models.styloglossus.model`).
 
-Measured (``artifem simulate styloglossus --out DIR``: 1 s, serial, left side; the scene is
+Measured (``artifem study styloglossus --out DIR``: 1 s, serial, left side; the scene is
 symmetric to 1e-4; ms/step medians of one run; docs/img/styloglossus.json, tables in
 docs/styloglossus.md):
 
