@@ -39,12 +39,12 @@ def body_grid(
         # A Lagrange space of the geometry's degree gives linear VTK cells for
         # linear meshes (vtk_mesh(msh) gives Lagrange cells, drawn tessellated).
         nodes = fem.functionspace(msh, ("Lagrange", msh.geometry.cmaps[0].degree))
-        rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(nodes))
+        rest = pv.UnstructuredGrid(*_vtk_mesh(nodes))
         return rest.copy(), rest
     space = displacement.function_space
     if space.element.basix_element.discontinuous:
         raise InputError("render: the displacement must be a continuous Lagrange Function")
-    rest = pv.UnstructuredGrid(*dolfinx.plot.vtk_mesh(space))
+    rest = pv.UnstructuredGrid(*_vtk_mesh(space))
     values = displacement.x.array.reshape(-1, space.dofmap.index_map_bs)[: rest.n_points]
     if values.shape[1] != 3:
         raise InputError(f"render: the displacement must have 3 components, not {values.shape[1]}")
@@ -52,6 +52,18 @@ def body_grid(
     deformed.point_data["displacement"] = values
     deformed.points = rest.points + values
     return deformed, rest
+
+
+def _vtk_mesh(space: fem.FunctionSpace):
+    """dolfinx.plot.vtk_mesh, with first-order prisms (6-node wedges: the masseter's
+    aponeuroses) as VTK wedges: dolfinx has no first-order VTK type for them (the node
+    orders agree)."""
+    msh = space.mesh
+    if msh.topology.cell_type != dolfinx.mesh.CellType.prism or space.ufl_element().degree != 1:
+        return dolfinx.plot.vtk_mesh(space)
+    cells = space.dofmap.list[: msh.topology.index_map(msh.topology.dim).size_local]
+    topology = np.column_stack([np.full(len(cells), cells.shape[1]), cells]).ravel()
+    return topology, np.full(len(cells), pv.CellType.WEDGE), space.tabulate_dof_coordinates()
 
 
 def _attach_scalars(

@@ -247,5 +247,30 @@ def test_simulate_masseter_runs_one_model_through_the_runner(tmp_path):
     f = json.loads((tmp_path / "embedding" / "simulate.json").read_text())
     model = build_model(CONFIG, "embedding", "none")
     assert (f["steps"], f["rigid_bodies"], f["masters"]) == (3, 2, model.scene.master_count())
+    assert f["nodes"] == f["primary_nodes"] == model.primary.V.dofmap.index_map.size_local
+    assert (f["membrane_nodes"], f["excitation"], f["ramp_s"]) == (0, 0.1, 0.1)
+    assert f["mass_kg"] == pytest.approx(model.primary.total_mass(), rel=1e-12)
     assert f["jaw_force_N"][2] > 0 and f["max_displacement_mm"] > 0 and 0 < f["min_det_F"] <= 1.5
+    assert f["jaw_force_magnitude_N"] == pytest.approx(np.linalg.norm(f["jaw_force_N"]))
+    assert f["jaw_force_magnitude_N"] <= f["jaw_force_magnitude_max_N"]  # recorded each step
     assert (tmp_path / "embedding" / "masseter.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_wedge_membranes_are_drawn_as_vtk_wedges():
+    """The runner's pictures (``--case all``: every FEM body) draw the prism membranes: one
+    VTK wedge per prism, the points the membrane's nodes moved by its displacement."""
+    import pyvista as pv
+
+    from artifem.render import body_grid
+
+    P, prisms, _ = membrane_mesh(CONFIG, CONFIG.sheets[0])
+    msh = dmesh.create_mesh(
+        MPI.COMM_SELF, prisms, basix.ufl.element("Lagrange", "prism", 1, shape=(3,)), P
+    )
+    body = FemBody(msh, MooneyRivlin(1e3, kappa=1e4), 1100.0)
+    body.u.x.array[:] = np.tile([0.0, 0.0, 1e-3], body.u.x.array.size // 3)
+    deformed, rest = body_grid(body.mesh, body.u)
+    assert deformed.n_cells == len(prisms)
+    assert set(deformed.celltypes) == {pv.CellType.WEDGE}
+    assert np.allclose(deformed.points - rest.points, [0.0, 0.0, 1e-3])
+    assert np.allclose(np.sort(rest.points, axis=0), np.sort(P, axis=0))

@@ -743,30 +743,40 @@ def build(
 ) -> Built:
     """One masseter model (``case``: :data:`CASES`) at ``level`` (0: :data:`COARSE`, 1: the
     default sizes), its excitation ramped to ``excitation`` over :data:`RAMP` s, for
-    :mod:`artifem.models.runner`; the figures: the masters, the force the muscle transmits
-    to the jaw over the last step (the weld's reaction), the displacement and the mass."""
+    :mod:`artifem.models.runner`. Recorded: the force the muscle transmits to the jaw over
+    each step, -(the weld's reaction) (0 at the start); the figures: the masters and nodes,
+    that force at the end and its largest magnitude, the displacement and the mass."""
     coarse = {k: v for k, v in COARSE.items() if k != "steps"} if level == 0 else {}
     config = MasseterConfig(excitation=excitation, **coarse)
     model = build_model(config, *CASES[case], integrator=integrator)
     schedule = ExcitationSchedule(np.array([0.0, RAMP]), {"masseter": np.array([0.0, excitation])})
     model.scene.add_controller(schedule.controller(model.primary))
 
+    def jaw_force(scene) -> np.ndarray:
+        return -scene.reaction(model.jaw_joint)[0][:3]
+
     def figures(run) -> dict:
-        f_jaw = -model.scene.reaction(model.jaw_joint)[0][:3]
+        f_jaw = run.records["jaw_force_N"]
         u = model.primary.u.x.array.reshape(-1, 3)
         return {
             "geometry": "synthetic (no public masseter data; see models/masseter/model.py)",
             "excitation": excitation,
             "ramp_s": RAMP,
             **dof_counts(model),
-            "jaw_force_N": f_jaw.tolist(),
-            "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw)),
+            "jaw_force_N": f_jaw[-1].tolist(),
+            "jaw_force_magnitude_N": float(np.linalg.norm(f_jaw[-1])),
+            "jaw_force_magnitude_max_N": float(np.linalg.norm(f_jaw, axis=1).max()),
             "max_displacement_mm": 1e3 * float(np.linalg.norm(u, axis=1).max()),
             "mass_kg": float(model.primary.total_mass()),
             **model.info,
         }
 
-    return Built(model.scene, figures=figures, render=lambda png, run, shown: render([model], png))
+    return Built(
+        model.scene,
+        record={"jaw_force_N": jaw_force},
+        figures=figures,
+        render=lambda png, run, shown: render([model], png),
+    )
 
 
 def _options(group) -> None:
