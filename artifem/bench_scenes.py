@@ -3,7 +3,7 @@
 Each scene module has a ``benchmark(steps=...) -> dict`` that builds its
 variants and times them in this process (medians over the timed steps):
 
-- ``jaw-tongue`` (:mod:`artifem.models.jaw_tongue_reduced`): the jaw-tongue
+- ``jaw-tongue`` (:mod:`artifem.models.jaw_tongue.study`): the jaw-tongue
   scene during protrusion with the full and with the reduced tongue (the
   reduced tongue's training is cached, under $XDG_CACHE_HOME/artifem by default,
   ~/.cache/artifem when that is unset);
@@ -37,7 +37,7 @@ from artifem.arguments import positive_int
 from artifem.errors import UnknownNameError
 
 SCENES = {
-    "jaw-tongue": "artifem.models.jaw_tongue_reduced",
+    "jaw-tongue": "artifem.models.jaw_tongue.study",
     "airway": "artifem.models.airway.study",
     "masseter": "artifem.models.masseter.study",
     "foot": "artifem.models.foot.study",

@@ -91,7 +91,7 @@ COMMANDS = {
         ONE_RANK,
     ),
     ("simulate", "jaw-tongue"): (
-        "artifem.models.jaw_tongue",
+        "artifem.models.jaw_tongue.model",
         "tongue on a hinged rigid jaw opened by a Hill muscle",
         ONE_RANK,
     ),
@@ -172,7 +172,7 @@ COMMANDS = {
         ONE_RANK,
     ),
     ("study", "jaw-tongue"): (
-        "artifem.models.jaw_tongue_reduced",
+        "artifem.models.jaw_tongue.study",
         "jaw-tongue scene, full against reduced tongue: speed, error",
         ONE_RANK,
     ),

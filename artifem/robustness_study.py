@@ -63,7 +63,7 @@ MODELS = {
         "artifem.models.tongue.study:reducible_at",
         {"level": 0, "incompressibility": "penalty"},
     ),
-    "jaw-tongue": ("artifem.models.jaw_tongue_reduced:reducible", {}),
+    "jaw-tongue": ("artifem.models.jaw_tongue.reduced:reducible", {}),
 }
 #: s, how fast a stepped excitation switches (a schedule is piecewise linear)
 SWITCH = 1e-3

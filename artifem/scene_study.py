@@ -7,7 +7,7 @@
 ``FUNCTION()`` (importable from ``MODULE``) returns the model: a
 :class:`~artifem.reduction.reductor.ReducibleScene` (how to build the full scene, which FEM
 body to reduce, its exciters, load inputs and motions). E.g.
-``artifem.models.styloglossus.model:reducible``, ``artifem.models.jaw_tongue_reduced:reducible``,
+``artifem.models.styloglossus.model:reducible``, ``artifem.models.jaw_tongue.reduced:reducible``,
 or a function of the user's own module on the Python path.
 
 1. Training (cached in ``--cache``, default DIR/cache; resumable): ``--training-runs`` random

@@ -144,8 +144,8 @@ def foot_cache(tmp_path_factory) -> Path:
 
 
 class QuickJawTongue(NamedTuple):
-    config: Any  # jaw_tongue_reduced.ReducedJawTongueConfig
-    model: Any  # reduction.reductor.ReducedModel (jaw_tongue_reduced.train)
+    config: Any  # jaw_tongue.reduced.ReducedJawTongueConfig
+    model: Any  # reduction.reductor.ReducedModel (jaw_tongue.reduced.train)
     cache: Path  # its ArtifactCache directory (training runs, POD, points)
 
 
@@ -154,14 +154,14 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
     """The quick jaw-tongue reduced training (r = 12 POD + 12 lift columns, 150 trained
     points, 0.15 s training runs of every exciter), trained once per run into a tmp
     cache directory (``computed_once``; a worker that did not train loads it). Modules that train
-    through another entry point (``jaw_tongue_reduced.compare``,
+    through another entry point (``jaw_tongue.study.compare``,
     ``airway.model.reduced_tongue``, ``airway.study.benchmark``) pass
     this ``cache`` and ``config``: the artifacts are keyed by the inputs (the airway's
     jaw-tongue config is the default one, as here), so they load instead of training again
     (so do ``artifem study jaw-tongue --quick`` and ``artifem bench scenes --quick`` given
     ``--cache``)."""
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-    from artifem.models import jaw_tongue_reduced as jtr
+    from artifem.models.jaw_tongue import reduced as jtr
 
     config = jtr.quick_config()  # also ``artifem study jaw-tongue --quick``'s training
     cache = (

@@ -90,7 +90,7 @@ def test_simulate_jaw_tongue_writes_sound_results(jaw_tongue_run):
     ):
         assert len(f[key]) == steps + 1, key
         assert np.all(np.isfinite(f[key])), key
-    # the level-0 tongue (946 nodes) with its 59 jaw-attachment nodes (models/jaw_tongue_reduced)
+    # the level-0 tongue (946 nodes) with its 59 jaw-attachment nodes (models/jaw_tongue/model.py)
     assert f["tongue"]["nodes"] == 946 and f["tongue"]["jaw_attachment_nodes"] == 59
     assert finite_positive(f["ms_per_step"]) and 0 < f["min_det_F"] <= 1.5
     # the opener opens the jaw within its hinge limits; the carried nodes ride on it
@@ -108,7 +108,7 @@ def test_simulate_jaw_tongue_writes_sound_results(jaw_tongue_run):
 def test_study_jaw_tongue_quick_agrees_with_simulate_jaw_tongue(
     tmp_path, quick_jaw_tongue, jaw_tongue_run, capsys
 ):
-    from artifem.models import jaw_tongue_reduced as jtr
+    from artifem.models.jaw_tongue import reduced as jtr
 
     assert quick_jaw_tongue.config == jtr.quick_config()  # its training is in the cache
     out = tmp_path / "study"

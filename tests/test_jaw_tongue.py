@@ -1,11 +1,12 @@
-"""The jaw-tongue scene (models/jaw_tongue.py): a short run of the hinged, muscle-opened jaw
+"""The jaw-tongue scene (models/jaw_tongue/model.py): a short run of the hinged, muscle-opened jaw
 carrying the tongue's jaw-attachment nodes, and the welded jaw against the plain tongue."""
 
 import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from artifem.models import jaw_tongue as jt
+from artifem.models.jaw_tongue import model as jt
+from artifem.models.jaw_tongue.study import simulate
 from artifem.models.tongue.model import PENALTY, Tongue, TongueConfig, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 
@@ -22,7 +23,7 @@ def opened(data):
     s = jt.build_scene(jt.JawTongueConfig(), data=data)
     R0, axis0 = s.jaw.rotation.copy(), s.joint.frame_b.world_rotation()[:, 2].copy()
     z0 = s.attachment.positions()[:, 2].copy()
-    rec = jt.simulate(s, "protrusion", DURATION, DT)
+    rec = simulate(s, "protrusion", DURATION, DT)
     return s, rec, R0, axis0, z0
 
 
@@ -70,7 +71,7 @@ def test_welded_jaw_matches_the_plain_tongue(data):
     largest displacement (measured ~1e-10; the two differ by the solver path only)."""
     config = jt.JawTongueConfig(joint="welded", opener_force=0.0, closer_stiffness=0.0)
     s = jt.build_scene(config, data=data)
-    jt.simulate(s, "protrusion", 0.1, DT)
+    simulate(s, "protrusion", 0.1, DT)
     plain = Tongue(
         TongueConfig(level=0, incompressibility=PENALTY, linear_solver="mumps"), data=data
     )

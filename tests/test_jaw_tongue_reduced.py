@@ -1,4 +1,4 @@
-"""The jaw-tongue scene with a reduced tongue (models/jaw_tongue_reduced.py), trained on
+"""The jaw-tongue scene with a reduced tongue (models/jaw_tongue/reduced.py, study.py), trained on
 short full runs: the jaw-attachment nodes ride on the jaw exactly, the hinge holds, and the
 tongue and the jaw angle follow the full scene."""
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-from artifem.models import jaw_tongue_reduced as jtr
+from artifem.models.jaw_tongue import reduced as jtr
+from artifem.models.jaw_tongue import study as jts
 
 
 @pytest.fixture(scope="module")
@@ -15,7 +16,7 @@ def figures(tmp_path_factory, quick_jaw_tongue):
     tests/conftest.py, shared with test_airway): its cache holds the training, so compare
     loads it and runs the full and the reduced scene."""
     out = tmp_path_factory.mktemp("jaw_tongue_reduced")
-    return jtr.compare(
+    return jts.compare(
         quick_jaw_tongue.config,
         out,
         motions=("protrusion",),

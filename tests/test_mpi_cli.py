@@ -166,7 +166,7 @@ def test_error_on_one_rank_ends_every_rank(tmp_path):
 
 @pytest.mark.slow  # about 5 s: the jaw-tongue scene built on 2 ranks
 def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
-    """jaw_tongue.simulate records one rank's tongue (its tip, u, the render): on a tongue
+    """jaw_tongue.study.simulate records one rank's tongue (its tip, u, the render): on a tongue
     built on 2 ranks it raises on every rank, where its tip lookup used to fail on the
     rank without the tip and leave the other in the step's barrier."""
     (tmp_path / "distributed.py").write_text(
@@ -175,11 +175,12 @@ def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
         from mpi4py import MPI
 
         from artifem.errors import InputError
-        from artifem.models import jaw_tongue as jt
+        from artifem.models.jaw_tongue import model as jt
+        from artifem.models.jaw_tongue.study import simulate
 
         s = jt.build_scene(comm=MPI.COMM_WORLD)
         try:
-            jt.simulate(s, "protrusion", 0.02)
+            simulate(s, "protrusion", 0.02)
         except InputError as exc:
             print(f"rank {MPI.COMM_WORLD.rank}: {exc}")
     ''')
@@ -188,7 +189,7 @@ def test_jaw_tongue_simulate_refuses_a_distributed_tongue(tmp_path):
     assert proc.returncode == 0, proc.stderr
     for rank in (0, 1):
         assert (
-            f"rank {rank}: jaw_tongue.simulate: the tongue is distributed over 2 MPI ranks"
+            f"rank {rank}: jaw_tongue.study.simulate: the tongue is distributed over 2 MPI ranks"
         ) in proc.stdout
 
 

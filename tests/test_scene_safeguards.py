@@ -223,14 +223,15 @@ def test_jaw_tongue_with_every_exciter_stepped_to_one_runs(tmp_path):
     tongue's inverted elements; with the Rayleigh damping on the stiffness at rest
     (FemBody.rest_stiffness) and the implicit fallback it runs, every body sound."""
     from artifem.cli import main
-    from artifem.models import jaw_tongue as jt
+    from artifem.models.jaw_tongue import model as jt
+    from artifem.models.jaw_tongue.study import simulate
 
     s = jt.build_scene(jt.JawTongueConfig())
     exciters = sorted(s.tongue.data.exciters)
     schedule = ExcitationSchedule(
         np.array([0.0, 1e-3, 1.0]), {name: [0.0, 1.0, 1.0] for name in exciters}
     )
-    out = jt.simulate(s, schedule, 0.5, 0.05)
+    out = simulate(s, schedule, 0.5, 0.05)
     assert len(out["t"]) == 11 and out["t"][-1] == pytest.approx(0.5)
     assert 0 < s.scene.min_det_F < 1
     assert all(b.inverted_elements()[0].size == 0 for b in s.scene.bodies)

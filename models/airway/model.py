@@ -3,7 +3,7 @@
 
 Scene
 -----
-- The jaw-tongue scene of :mod:`artifem.models.jaw_tongue` as it is (level-0 FEM tongue,
+- The jaw-tongue scene of :mod:`artifem.models.jaw_tongue.model` as it is (level-0 FEM tongue,
   rigid jaw on a hinge, opener muscle and closing spring, gravity), built by its
   ``build_scene``.
 - The hard palate: ArtiSynth's palate1.obj as a *fixed* rigid body (``motion="fixed"``; a
@@ -47,7 +47,7 @@ subjects, not a registration.
 Reduced tongue
 --------------
 ``build_scene(..., reduced=reduced_tongue(config, cache))`` puts the reduced tongue of
-:mod:`artifem.models.jaw_tongue_reduced` in the scene (same training and cache:
+:mod:`artifem.models.jaw_tongue.study` in the scene (same training and cache:
 u = u_bar + U q + L g, U a trained POD basis, L the 12 jaw-lift columns whose coordinates g
 are slaves of the jaw). The skin's tongue master is then that ReducedFemBody
 (``ReducedMaster``): x_v = X_v + w_v N(X_v) (u_bar + [U, L] q) + the rigid terms, and the
@@ -85,10 +85,10 @@ import pyvista as pv
 
 from artifem.arguments import nonnegative_float
 from artifem.errors import InputError
-from artifem.models import jaw_tongue as jt
+from artifem.models.jaw_tongue import model as jt
 from artifem.models.cache import user_cache
-from artifem.models import jaw_tongue_reduced as jtr
-from artifem.models.jaw_tongue import JawTongueConfig, close_surface, read_obj
+from artifem.models.jaw_tongue import reduced as jtr
+from artifem.models.jaw_tongue.model import JawTongueConfig, close_surface, read_obj
 from artifem.models.tongue.model import DATA, Tongue, load_tongue_data
 from artifem.multibody.rigid_body import RigidBody
 from artifem.multibody.skin import RigidMaster, SkinMesh, SkinPressure
@@ -111,7 +111,7 @@ __all__ = [
 
 #: airway.obj axes -> tongue axes: (x, y, z)_obj -> (-x, -y, z)_tongue (det +1).
 AIRWAY_AXES = np.diag([-1.0, -1.0, 1.0])
-#: where the reduced tongue's training is cached (shared with jaw_tongue_reduced.benchmark).
+#: where the reduced tongue's training is cached (shared with jaw_tongue.study.benchmark).
 DEFAULT_CACHE = user_cache("jaw_tongue_reduced")
 
 
@@ -404,7 +404,7 @@ def reduced_tongue(
     base: jtr.ReducedJawTongueConfig = jtr.ReducedJawTongueConfig(),
 ) -> ReducedModel:
     """The jaw-tongue reduced tongue (POD + 12 jaw-lift columns, trained points) for this
-    airway's jaw-tongue scene: ``jaw_tongue_reduced.train`` with ``base``'s training settings
+    airway's jaw-tongue scene: ``jaw_tongue.reduced.train`` with ``base``'s training settings
     and the airway's jaw-tongue config, cached under ``cache``."""
     return jtr.train(replace(base, jaw=config.jaw_tongue), Path(cache))
 
@@ -418,7 +418,7 @@ def build_scene(
 ) -> AirwayScene:
     """The jaw-tongue scene, the fixed palate, the airway skin and (``pressure``) its air
     pressure load (module docstring). With ``reduced`` (from :func:`reduced_tongue`) the
-    tongue is the reduced one, u = U q + L g (jaw_tongue_reduced), and the skin's tongue
+    tongue is the reduced one, u = U q + L g (jaw_tongue.reduced), and the skin's tongue
     master is that ReducedFemBody: x_v = X_v + w_v N(X_v) (u_bar + [U, L] q) + rigid terms,
     and the air's load on it is the generalized force [U, L]^T N^T (w f_v), its lift part
     reaching the jaw as G_g^T f_g."""

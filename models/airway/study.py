@@ -28,8 +28,8 @@ from threadpoolctl import threadpool_limits
 
 from artifem.arguments import nonnegative_float, positive_float
 from artifem.errors import InputError
-from artifem.models import jaw_tongue as jt
-from artifem.models import jaw_tongue_reduced as jtr
+from artifem.models.jaw_tongue import reduced as jtr
+from artifem.models.jaw_tongue.study import simulate as simulate_jaw_tongue
 from artifem.models.airway.model import (
     DEFAULT_CACHE,
     AirwayConfig,
@@ -55,11 +55,11 @@ def simulate(
     progress: bool = False,
     label: str = "airway",
 ) -> dict:
-    """Run a tongue motion (or none) in the airway scene: jaw_tongue.simulate's record plus,
+    """Run a tongue motion (or none) in the airway scene: jaw_tongue.study.simulate's record plus,
     per step (outside the step timing), the skin's positions ``skin`` (steps + 1, n, 3), the
     section areas, the skin's distance to the tongue, the top landmark and the pressure;
     ``skin_frames``: the skin at the snapshots."""
-    out = jt.simulate(
+    out = simulate_jaw_tongue(
         a.jt,
         motion,
         duration,
@@ -166,7 +166,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--reduced",
         action="store_true",
-        help="also run every case over the reduced tongue (jaw_tongue_reduced "
+        help="also run every case over the reduced tongue (jaw_tongue.reduced "
         "training) and compare it with the full one",
     )
     parser.add_argument(
@@ -355,7 +355,7 @@ def report_reduced(
             "pod_vectors": base.r,
             "lift_columns": 12,
             "points": base.points,
-            "training": "jaw_tongue_reduced.train (each tongue exciter alone at "
+            "training": "jaw_tongue.reduced.train (each tongue exciter alone at "
             f"{base.training_excitation}, no air pressure)",
             "snapshots": model.training["snapshots"],
             "cache": str(args.cache),
@@ -376,7 +376,7 @@ def benchmark(
 ) -> dict:
     """Milliseconds per coupled step (median of ``steps``) of the jaw-tongue scene during
     protrusion, with the full and with the reduced tongue (``reduced`` training, default
-    the jaw-tongue one, ``jaw_tongue_reduced.quick_config()`` if ``quick``; cached in
+    the jaw-tongue one, ``jaw_tongue.reduced.quick_config()`` if ``quick``; cached in
     ``cache``, default $XDG_CACHE_HOME/artifem/jaw_tongue_reduced, ~/.cache when unset):
     without the airway's load, then with its skin and pressure; and the cost of one skin update
     (positions), of G

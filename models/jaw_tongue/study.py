@@ -1,6 +1,6 @@
 """Jaw and tongue with a *reduced* tongue, side by side with the full one.
 
-The scene is :mod:`artifem.models.jaw_tongue` (level-0 tongue, rigid jaw on a
+The scene is :mod:`artifem.models.jaw_tongue.model` (level-0 tongue, rigid jaw on a
 TMJ hinge with limits, opener muscle, closer spring, gravity); only the tongue
 changes. Its 59 jaw-attachment nodes ride on the jaw, which a reduced body
 cannot express with node slaves, so the basis carries the jaw
@@ -13,7 +13,8 @@ by the rest tangent), U a trained POD basis that vanishes on the attachment
 and hyoid nodes. In the Scene g is a slave of the jaw
 (:class:`LiftAttachment`); the masters are q and the jaw's twist.
 
-Training is the reductor's (:func:`artifem.reduction.reductor.reduce`, cached on disk
+Training (:mod:`artifem.models.jaw_tongue.reduced`) is the reductor's
+(:func:`artifem.reduction.reductor.reduce`, cached on disk
 by the inputs): the *full* jaw-tongue scene run with each exciter alone at
 ``training_excitation`` (ramped over the paper's 0.5 s) while the jaw opens by its own
 schedule; snapshots of u - L g (zero on the attachment and hyoid nodes) every
@@ -39,119 +40,98 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from mpi4py import MPI
 from threadpoolctl import threadpool_limits
 
 from artifem.arguments import nonnegative_int, positive_float, positive_int
 from artifem.errors import InputError
-from artifem.models import jaw_tongue as jt
+from artifem.excitation import ExcitationSchedule
+from artifem.models.jaw_tongue import model as jt
+from artifem.models.jaw_tongue.model import JawTongueScene, records
+from artifem.models.jaw_tongue.reduced import (
+    ReducedJawTongueConfig,
+    build_reduced_scene,
+    quick_config,
+    reducible,
+    specification,
+    train,
+    training,
+)
+from artifem.models.jaw_tongue.render import render
 from artifem.models.cache import user_cache
-from artifem.models.tongue.model import MOTIONS, RAMP_TIME, Tongue, load_tongue_data
+from artifem.models.tongue.model import MOTIONS, Tongue
 from artifem.reduction.reductor import (
-    Basis,
-    Points,
-    ReducedModel,
-    ReducibleScene,
     Reductor,
-    Training,
-    reduce,
 )
 from artifem.reduction.generalization import generalization_study
 from artifem.reduction.generalization_report import write_markdown
-from artifem.reduction.schedules import each_alone
-from artifem.scene.inputs import PathExcitation
+from artifem.scene import simulate as simulate_scene
 
-__all__ = [
-    "ReducedJawTongueConfig",
-    "reducible",
-    "train",
-    "build_reduced_scene",
-    "compare",
-    "quick_config",
-]
-
-
-@dataclass(frozen=True)
-class ReducedJawTongueConfig:
-    r: int = 20  # POD vectors (plus the 12 lift columns)
-    points: int = 300  # trained integration points
-    training_excitation: float = 0.6
-    training_duration: float = 0.6
-    snapshot_every: int = 2
-    force_snapshots: int = 150
-    cubature_tol: float = 1e-3
-    dt: float = 0.01
-    jaw: jt.JawTongueConfig = field(default_factory=jt.JawTongueConfig)
-
-
-def quick_config() -> ReducedJawTongueConfig:
-    """A small training for tests and smoke runs (``--quick``): 0.15 s training runs
-    (every step a snapshot), r = 12 POD vectors, 150 trained points."""
-    return ReducedJawTongueConfig(
-        r=12, points=150, training_duration=0.15, snapshot_every=1, force_snapshots=60
-    )
+__all__ = ["compare", "benchmark", "simulate"]
 
 
 #: ``--quick``: motions and duration of the comparison (unless given).
 QUICK_MOTIONS, QUICK_DURATION = ("protrusion",), 0.15
 
 
-def reducible(config: ReducedJawTongueConfig = ReducedJawTongueConfig()) -> ReducibleScene:
-    """The jaw-tongue scene as the reductor sees it: its tongue reduced, driven by the
-    tongue's exciters and by the jaw opener's excitation, a load input (``opener``: the
-    jaw's motion as a load case; a schedule that does not name it leaves the opener on its
-    own ramp); each build a serial scene (``MPI.COMM_SELF``), so that training runs may be
-    shared over ranks."""
-    exciters = load_tongue_data(config.jaw.tongue.level).exciters
-    loads = {"opener": PathExcitation("opener")} if config.jaw.opener_force > 0 else {}
-    return ReducibleScene(
-        "jaw-tongue",
-        lambda: jt.build_scene(config.jaw, comm=MPI.COMM_SELF).scene,
-        "tongue",
-        {"jaw": asdict(config.jaw), "dt": config.dt},
-        exciters=exciters,
-        motions={m: Tongue.motion(m) for m in MOTIONS},
-        loads=loads,
-    )
-
-
-def training(config: ReducedJawTongueConfig) -> Training:
-    """Each exciter alone, ramped to ``training_excitation`` over the paper's 0.5 s."""
-    exciters = sorted(load_tongue_data(config.jaw.tongue.level).exciters)
-    return Training(
-        each_alone(exciters, config.training_excitation, RAMP_TIME),
-        config.training_duration,
-        config.dt,
-        config.snapshot_every,
-    )
-
-
-def specification(config: ReducedJawTongueConfig) -> tuple[Basis, Points]:
-    """The reduced tongue's basis (POD, the jaw's lift columns added) and trained points."""
-    return Basis("pod", config.r), Points(
-        config.points, tol=config.cubature_tol, growth=0.0, training_states=config.force_snapshots
-    )
-
-
-def train(config: ReducedJawTongueConfig, cache: Path) -> ReducedModel:
-    """The reduced tongue (module docstring) from :func:`artifem.reduction.reductor.reduce`,
-    cached under ``cache``."""
-    basis, points = specification(config)
-    return reduce(reducible(config), training(config), basis=basis, points=points, cache=cache)
-
-
-def build_reduced_scene(model: ReducedModel, config: ReducedJawTongueConfig) -> jt.JawTongueScene:
-    return jt.build_scene(config.jaw, reduce=model)
+def simulate(
+    s: JawTongueScene,
+    motion: str | ExcitationSchedule | None,
+    duration: float,
+    dt: float = 0.01,
+    *,
+    snapshots=(),
+    record=None,
+    progress: bool = False,
+    label: str = "jaw-tongue",
+) -> dict:
+    """Run the tongue motion (a name of MOTIONS, with the paper's ramp, or an exciter
+    schedule, added to the scene's controllers) with the scene's jaw through
+    :func:`artifem.scene.simulate`; record, at the start and after every step: time ``t``,
+    opening ``angle``, ``tip`` displacement, ``attachment_error`` and ``joint_error``,
+    ``jaw_nodes_dz``, ``opener_tension``, the tongue displacement ``u`` (steps + 1, n) and the
+    jaw pose ``jaw_position``, ``jaw_rotation``; ``ms``: wall time of each step. ``record``:
+    more name -> f(scene) recorded the same way (outside the step timing), added to the
+    result. ``frames``: (t, u, p, R) after the steps nearest the ``snapshots`` fractions of
+    the run. A step the scene cannot complete raises its ElementInversionError or
+    StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
+    body = s.tongue.body
+    if body.mesh.comm.size > 1:  # the tip, u and the render are one rank's
+        raise InputError(
+            f"jaw_tongue.study.simulate: the tongue is distributed over "
+            f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
+            f"build_scene(comm=MPI.COMM_SELF)"
+        )
+    if isinstance(motion, str):
+        motion = Tongue.motion(motion)
+    control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
+    quantities = {**records(s), **(record or {})}
+    if control is not None:
+        s.scene.add_controller(control)  # for this run only (removed at its end)
+    try:  # controllers, halving, det F: the Scene's
+        run = simulate_scene(
+            s.scene, duration, dt, record=quantities, progress=progress, label=label, leave=False
+        )
+    finally:
+        if control is not None:
+            s.scene.controllers.remove(control)
+    out = {"t": run.times, "ms": run.step_ms, **run.records}
+    n = int(round(duration / dt))
+    out["frames"] = [
+        (float(run.times[k]), out["u"][k], out["jaw_position"][k], out["jaw_rotation"][k])
+        for k in sorted({int(round(f * n)) for f in snapshots})
+        if 1 <= k <= n
+    ]
+    return out
 
 
 def _run(s: jt.JawTongueScene, motion: str, duration: float, dt: float) -> dict:
     """simulate() with the jaw pose at every step as ``poses`` (p, R) (its tongue
     displacement ``u`` and the pose are recorded outside the timing)."""
-    rec = jt.simulate(s, motion, duration, dt)
+    rec = simulate(s, motion, duration, dt)
     rec["poses"] = list(zip(rec["jaw_position"], rec["jaw_rotation"]))
     return rec
 
@@ -198,7 +178,7 @@ def compare(
         }
         png = out / f"jaw_tongue_reduced_{motion}.png"
         t = worst * config.dt
-        jt.render(
+        render(
             png,
             full,
             [
@@ -362,7 +342,7 @@ def benchmark(
     ):
         s = build()
         with threadpool_limits(limits=1, user_api="blas"):
-            rec = jt.simulate(s, "protrusion", (warmup + steps) * config.dt, config.dt)
+            rec = simulate(s, "protrusion", (warmup + steps) * config.dt, config.dt)
         cases[name] = {
             "ms_per_step": float(np.median(rec["ms"][warmup:])),
             "masters": s.scene.master_count(),

@@ -66,6 +66,7 @@ from mpi4py import MPI
 
 from artifem.errors import InputError, UnknownNameError
 from artifem.excitation import ExcitationSchedule
+from artifem.models.jaw_tongue.render import render
 from artifem.models.runner import Built, Model, command
 from artifem.models.tongue.model import (
     DATA,
@@ -75,7 +76,7 @@ from artifem.models.tongue.model import (
     load_tongue_data,
 )
 from artifem.multibody.attachments import FemPoint, LiftAttachment, NodeAttachment
-from artifem.scene import Scene, simulate as simulate_scene
+from artifem.scene import Scene
 from artifem.multibody.frame_paths import FramePath
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
@@ -93,7 +94,8 @@ __all__ = [
     "hyoid_attachment_rows",
     "read_obj",
     "close_surface",
-    "simulate",
+    "records",
+    "MODEL",
 ]
 
 #: jaw.obj axes -> tongue axes: (x, y, z)_jaw -> (-x, z, y)_tongue (det +1).
@@ -284,7 +286,7 @@ def build_scene(
     """The tongue, the aligned jaw, the TMJ hinge, the opener and the closer (docstring).
 
     ``reduce``, a reduced model of this scene (``ReducedModel`` of
-    :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue_reduced.train``), puts the reduced
+    :mod:`artifem.reduction.reductor`, e.g. ``jaw_tongue.reduced.train``), puts the reduced
     tongue in place of the full one, riding on the jaw by a lift attachment. ``comm``: the
     tongue mesh's communicator (``MPI.COMM_SELF``: a serial scene on each rank, as a
     reductor's training runs and :func:`simulate` need; on several ranks the coupled
@@ -383,97 +385,6 @@ def records(s: JawTongueScene) -> dict:
         "jaw_position": lambda scene: s.jaw.position.copy(),
         "jaw_rotation": lambda scene: s.jaw.rotation.copy(),
     }
-
-
-def simulate(
-    s: JawTongueScene,
-    motion: str | ExcitationSchedule | None,
-    duration: float,
-    dt: float = 0.01,
-    *,
-    snapshots=(),
-    record=None,
-    progress: bool = False,
-    label: str = "jaw-tongue",
-) -> dict:
-    """Run the tongue motion (a name of MOTIONS, with the paper's ramp, or an exciter
-    schedule, added to the scene's controllers) with the scene's jaw through
-    :func:`artifem.scene.simulate`; record, at the start and after every step: time ``t``,
-    opening ``angle``, ``tip`` displacement, ``attachment_error`` and ``joint_error``,
-    ``jaw_nodes_dz``, ``opener_tension``, the tongue displacement ``u`` (steps + 1, n) and the
-    jaw pose ``jaw_position``, ``jaw_rotation``; ``ms``: wall time of each step. ``record``:
-    more name -> f(scene) recorded the same way (outside the step timing), added to the
-    result. ``frames``: (t, u, p, R) after the steps nearest the ``snapshots`` fractions of
-    the run. A step the scene cannot complete raises its ElementInversionError or
-    StepFailed (after its step halvings: ``s.scene.halvings``, ``s.scene.min_det_F``)."""
-    body = s.tongue.body
-    if body.mesh.comm.size > 1:  # the tip, u and the render are one rank's
-        raise InputError(
-            f"jaw_tongue.simulate: the tongue is distributed over "
-            f"{body.mesh.comm.size} MPI ranks; it records a serial scene: "
-            f"build_scene(comm=MPI.COMM_SELF)"
-        )
-    if isinstance(motion, str):
-        motion = Tongue.motion(motion)
-    control = s.tongue.bundle_schedule(motion).controller(body) if motion else None
-    quantities = {**records(s), **(record or {})}
-    if control is not None:
-        s.scene.add_controller(control)  # for this run only (removed at its end)
-    try:  # controllers, halving, det F: the Scene's
-        run = simulate_scene(
-            s.scene, duration, dt, record=quantities, progress=progress, label=label, leave=False
-        )
-    finally:
-        if control is not None:
-            s.scene.controllers.remove(control)
-    out = {"t": run.times, "ms": run.step_ms, **run.records}
-    n = int(round(duration / dt))
-    out["frames"] = [
-        (float(run.times[k]), out["u"][k], out["jaw_position"][k], out["jaw_rotation"][k])
-        for k in sorted({int(round(f * n)) for f in snapshots})
-        if 1 <= k <= n
-    ]
-    return out
-
-
-def render(png: Path, s: JawTongueScene, frames) -> Path:
-    """The tongue (coloured by |u|, shared scale) and the jaw surface at (title, u, p, R)."""
-    import pyvista as pv
-    from dolfinx import fem
-
-    from artifem.render import add_displacement
-
-    pv.OFF_SCREEN = True
-    body = s.tongue.body
-    plotter = pv.Plotter(
-        off_screen=True, shape=(1, len(frames)), window_size=[560 * len(frames), 520]
-    )
-    u_fun = fem.Function(body.V)
-    clim = (
-        0.0,
-        max(
-            1e-6, 1e3 * max(np.linalg.norm(u.reshape(-1, 3), axis=1).max() for _, u, _, _ in frames)
-        ),
-    )
-    verts, tris = s.jaw.surface
-    faces = np.hstack([np.full((len(tris), 1), 3), tris]).ravel()
-    try:
-        plotter.set_background("white")
-        for i, (title, u, p, R) in enumerate(frames):
-            plotter.subplot(0, i)
-            u_fun.x.array[:] = u
-            add_displacement(plotter, u_fun, clim, scalar_bar=i == 0, rest_opacity=0.15)
-            plotter.add_mesh(pv.PolyData(verts @ R.T + p, faces), color="wheat", opacity=0.55)
-            plotter.add_mesh(pv.Sphere(radius=0.002, center=s.hinge), color="red")
-            plotter.add_text(title, font_size=11, color="black")
-            plotter.camera_position = [(0.105, -0.35, 0.08), (0.105, 0.0, 0.08), (0, 0, 1)]
-            plotter.reset_camera()
-            plotter.camera.zoom(1.3)
-        png.parent.mkdir(parents=True, exist_ok=True)
-        plotter.screenshot(str(png))
-    finally:
-        plotter.close()
-    return png
 
 
 # ---- the runner's jaw-tongue (``artifem simulate jaw-tongue``) ------------------------------
