@@ -1,5 +1,4 @@
-"""The measured figures of docs/measured.md (the README's measurement notes, moved there
-when the README became a front door) and of the other pages are the ones in the JSON
+"""The measured figures of the documentation pages are the ones in the JSON
 files the commands write (docs/benchmarks/*.json: ``artifem bench fom|tongue|scenes``,
 the studies' JSON), and the verification page's mutation figures those of
 scripts/mutation-study's report. A figure edited by hand, or a JSON refreshed without the
@@ -13,8 +12,28 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the measurement narrative that was the README's (docs/measured.md)
-README = (ROOT / "docs" / "measured.md").read_text()
+
+
+def section(page: str, heading: str) -> str:
+    """The section of docs/<page> that starts with ``heading``, up to the next ``## ``."""
+    text = (ROOT / "docs" / page).read_text()
+    start = text.index(heading)
+    end = text.find("\n## ", start + 1)
+    return text[start:] if end < 0 else text[start:end]
+
+
+# The README's measurement notes, moved into the pages they belong to when the README
+# became a front door (issue 33): each section as it now stands on its page.
+#: the suite and its claims in short (the README's "Verification")
+SUITE = section("verification.md", "## The suite (`make test`)")
+#: the box's and the tongue's step times (the README's "Benchmark")
+BENCHMARK = section("benchmarks.md", "## Step times of the default solver")
+#: reduced coordinates and the tongue study (the README's section of that name)
+REDUCED = section("tongue_study.md", "## Reduced coordinates and the tongue study in short")
+#: the multibody layer and the scenes' step times (the README's "Multibody")
+MULTIBODY = section("multibody.md", "## In short, and what the scenes cost")
+#: the registration's cases (the README's "Registration")
+REGISTRATION = section("registration.md", "## In short (`artifem register`")
 
 
 def load(name):
@@ -33,8 +52,8 @@ def agrees(text: str, value: float) -> bool:
     return abs(shown - value) <= half
 
 
-def table_after(marker: str, text: str = README) -> list[list[str]]:
-    """The cells of the first Markdown table after ``marker`` in ``text`` (the README)."""
+def table_after(marker: str, text: str) -> list[list[str]]:
+    """The cells of the first Markdown table after ``marker`` in ``text`` (a page)."""
     lines = text[text.index(marker) :].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     rows = []
@@ -54,7 +73,7 @@ def table_after(marker: str, text: str = README) -> list[list[str]]:
 )
 def test_step_tables_match_the_benchmark_json(name, marker, key):
     cases = {(c[key], c["ranks"]): c for c in load(name)["cases"]}
-    rows = table_after(marker)
+    rows = table_after(marker, BENCHMARK)
     assert len(rows) == len(cases)
     for row in rows:
         first = int(printed(row[0])[0])
@@ -74,7 +93,7 @@ def test_scene_step_costs_match_scenes_json():
     scenes = load("scenes.json")["scenes"]
     jt, air, mas = scenes["jaw-tongue"]["cases"], scenes["airway"], scenes["masseter"]["cases"]
     text = re.sub(
-        r"\s+", " ", README[README.index("`artifem bench scenes --out FILE.json` times") :]
+        r"\s+", " ", MULTIBODY[MULTIBODY.index("`artifem bench scenes --out FILE.json` times") :]
     )
     m = re.search(
         r"jaw-tongue step takes ([\d.,]+) ms with the full tongue and ([\d.,]+) ms with "
@@ -126,7 +145,7 @@ def test_scene_step_costs_match_scenes_json():
 
 def test_fom_targets_sentence_matches_fom_json():
     cases = {(c["nodes"], c["ranks"]): c["ms_per_step"] for c in load("fom.json")["cases"]}
-    m = re.search(r"both are met \((\d+) and (\d+) ms\)", README)
+    m = re.search(r"both are met \((\d+) and (\d+) ms\)", BENCHMARK)
     assert m and agrees(m[1], cases[(3025, 2)]) and agrees(m[2], cases[(13284, 2)])
 
 
@@ -136,7 +155,10 @@ def test_jaw_tongue_reduced_table_matches_its_study_json():
     study = json.loads(
         (ROOT / "docs" / "jaw_tongue_reduced" / "jaw_tongue_reduced.json").read_text()
     )["motions"].values()
-    rows = {r[0].split(" (")[0]: r for r in table_after("DIR`; POD of full jaw-tongue training")}
+    rows = {
+        r[0].split(" (")[0]: r
+        for r in table_after("DIR`; POD of full jaw-tongue training", MULTIBODY)
+    }
 
     def span(text):
         lo, hi = text.split(" ")[0].split("-")
@@ -177,23 +199,23 @@ def test_mutation_figures_on_the_verification_page_match_mutation_json():
 
 
 def test_suite_figures_match_the_durations_json():
-    """The README's size and time of the suite are those of the run that wrote
+    """The size and time of the suite on docs/verification.md are those of the run that wrote
     tests/durations.json (``make test-durations``: a passing run, empty JIT cache)."""
     run = json.loads((ROOT / "tests" / "durations.json").read_text())
     m = re.search(
         r"The run that wrote `tests/durations.json` .*? ran ([\d,]+) tests in "
         r"([\d.]+) minutes of pytest",
-        re.sub(r"\s+", " ", README),
+        re.sub(r"\s+", " ", SUITE),
     )
-    assert m, "the README's Verification section must quote tests/durations.json"
+    assert m, "docs/verification.md's section on the suite must quote tests/durations.json"
     assert int(m.group(1).replace(",", "")) == run["tests"]
     assert agrees(m.group(2), run["wall_s"] / 60.0)
     slowest = max(run["seconds_per_file"], key=run["seconds_per_file"].get)
-    assert slowest in README, "the README names the longest test file of that run"
+    assert slowest in SUITE, "the section on the suite names the longest test file of that run"
 
 
 def test_held_out_figures_match_the_generalization_jsons():
-    """The train/test split table of docs/tongue_study.md and the README's sentence: ranges
+    """The train/test split table of docs/tongue_study.md and its summary's sentence: ranges
     of the max error per set and of the estimate ratio on the held-out set, from
     docs/tongue_study/level0_generalization{_each_alone,}/, level0_greedy/ and
     level1_generalization/generalization.json."""
@@ -221,8 +243,8 @@ def test_held_out_figures_match_the_generalization_jsons():
                 "and 20 greedy of a pool of 30": (),
                 "level 1, and 20 random schedules": (),
             }[label]
-            if name in quoted:  # the README's sentence
-                assert f"{min(errors):.2f}-{max(errors):.2f} mm" in README.replace("\n", " ")
+            if name in quoted:  # the summary's sentence
+                assert f"{min(errors):.2f}-{max(errors):.2f} mm" in REDUCED.replace("\n", " ")
         ratios = [r["estimate_ratio"] for r in split["sets"]["held-out"]]
         lo, hi = cells[6].split("-")
         assert agrees(lo, min(ratios)) and agrees(hi, max(ratios))
@@ -287,7 +309,7 @@ def test_reduced_step_table_matches_the_bench_json():
     assert (
         f"{penalty['ms_per_step']:.3f} ms per step with the penalty and "
         f"{hard['ms_per_step']:.3f} ms with the"
-    ) in README.replace("\n", " ")
+    ) in REDUCED.replace("\n", " ")
     assert (
         f"{penalty['max_step_over_median']:.2f}x the median (penalty) and "
         f"{hard['max_step_over_median']:.2f}x (hard)"
@@ -313,7 +335,7 @@ def test_level1_split_figures_match_their_jsons():
     ratios = [r["estimate_ratio"] for r in held]
     assert f"within {min(ratios):.2f}-{max(ratios):.2f} of the error" in page
     assert f"{training['wall_seconds']:,.0f} s on two ranks" in page
-    text = README.replace("\n", " ")
+    text = REDUCED.replace("\n", " ")
     assert (
         f"{errors[0]:.2f}-{errors[-1]:.2f} mm on the held-out schedules at "
         f"{min(ms):.2f}-{max(ms):.2f} ms" in text
@@ -347,28 +369,28 @@ def test_styloglossus_reduced_sentence_matches_its_json():
     speedups = [e["speedup"] for e in errors]
     attachment = [e["attachment_mm"] for e in errors]
     found = re.search(
-        r"runs it (\d+)-(\d+)x faster with ([\d.]+)-([\d.]+) mm attachment error", README
+        r"runs it (\d+)-(\d+)x faster with ([\d.]+)-([\d.]+) mm attachment error", MULTIBODY
     )
-    assert found, "the README's styloglossus sentence is gone"
+    assert found, "docs/multibody.md's styloglossus sentence is gone"
     assert agrees(found[1], min(speedups)) and agrees(found[2], max(speedups))
     assert agrees(found[3], min(attachment)) and agrees(found[4], max(attachment))
 
 
 def test_jaw_tongue_split_figures_match_their_jsons():
-    """The README's jaw-tongue split sentence and the table of docs/reduction.md, from
-    docs/jaw_tongue_split/{generalization,training}.json."""
+    """The jaw-tongue split sentence of docs/tongue_study.md and the table of
+    docs/reduction.md, from docs/jaw_tongue_split/{generalization,training}.json."""
     root = ROOT / "docs" / "jaw_tongue_split"
     split = json.loads((root / "generalization.json").read_text())["sets"]
     training = json.loads((root / "training.json").read_text())
     held = split["held-out"]
-    text = re.sub(r"\s+", " ", README)
+    text = re.sub(r"\s+", " ", REDUCED)
     found = re.search(
         r"\((\d+) training runs shared over two ranks in ([\d.]+) s\) the reduced "
         r"model stays within ([\d.]+)-([\d.]+) mm of the full one on six held-out "
         r"schedules, (\d+)-(\d+)x faster, its estimate within ([\d.]+)-([\d.]+)",
         text,
     )
-    assert found, "the README's jaw-tongue split sentence is gone"
+    assert found, "docs/tongue_study.md's jaw-tongue split sentence is gone"
     assert int(found[1]) == training["runs"] == training["missing"] and training["ranks"] == 2
     assert agrees(found[2], training["wall_seconds"])
     errors = [r["max_error_mm"] for r in held]
@@ -530,7 +552,7 @@ def test_the_contact_scale_figure_of_the_python_api_page_matches_the_bench_json(
 
 
 def test_the_foot_figures_match_its_json():
-    """docs/foot.md's table and sentences and the README's foot sentence: the figures of
+    """docs/foot.md's table and sentences and docs/multibody.md's foot sentence: the figures of
     ``artifem study foot --level 1 --reduced --no-vtx --out docs/foot``
     (docs/foot/standing/foot.json)."""
     figures = json.loads((ROOT / "docs" / "foot" / "standing" / "foot.json").read_text())
@@ -597,9 +619,9 @@ def test_the_foot_figures_match_its_json():
         r"contact .*?; reduced on 100 trained points ([\d.]+) ms per step "
         r"\(median; mean ([\d.]+) ms.*?\), max mean node error ([\d.]+) mm .*?the "
         r"paper's 100 random points: ([\d.]+) mm\)",
-        re.sub(r"\s+", " ", README),
+        re.sub(r"\s+", " ", MULTIBODY),
     )
-    assert m, "the README's foot sentence changed: update this test with it"
+    assert m, "docs/multibody.md's foot sentence changed: update this test with it"
     assert int(m[1].replace(",", "")) == figures["nodes"]
     assert agrees(m[2], ms["with_bones_and_contact"])
     assert agrees(m[3], red["reduced_ms_per_step"])
@@ -678,7 +700,7 @@ def test_the_foot_reduced_configurations_match_their_json():
 def test_registration_figures_match_their_jsons():
     """docs/registration.md holds each case's table as summary_table writes it from
     docs/registration/CASE/registration.json (``artifem study registration``), and the
-    README's registration sentence quotes the synthetic and femur cases."""
+    sentence of its summary quotes the synthetic and femur cases."""
     from artifem.registration.skeletal import summary_table
 
     page = (ROOT / "docs" / "registration.md").read_text()
@@ -688,7 +710,7 @@ def test_registration_figures_match_their_jsons():
     }
     for case, report in reports.items():
         assert summary_table(report) in page, case
-    text = re.sub(r"\s+", " ", README[README.index("## Registration") :])
+    text = re.sub(r"\s+", " ", REGISTRATION)
     methods = reports["synthetic"]["methods"]
     for method in ("jointed", "rigid", "affine", "single"):
         means = sorted(1e3 * r["mean"] for r in methods[method]["bones"].values())
@@ -766,6 +788,6 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
     assert f"worse than Galerkin ({five['20']:.2f} at p = 20 and 40" in page
     assert f"{five['40']:.2f}" == f"{five['20']:.2f}" and not np.isfinite(five["80"])
     assert not any(np.isfinite(v) for v in learned["held-out-1000-4"].values())
-    readme = README.replace("\n", " ")
+    summary = REDUCED.replace("\n", " ")
     count = ["no", "one", "two", "three", "four", "five", "six"][len(helped)]
-    assert f"closes most of the gap on {count} of six held-out runs at level 0" in readme
+    assert f"closes most of the gap on {count} of six held-out runs at level 0" in summary
