@@ -307,12 +307,20 @@ def test_reduced_airway_pressure_maps_to_the_masters_by_virtual_work(reduced_sce
         a.jt.tongue.body.u.x.array[:] = 0.0
 
 
-def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs):
+@pytest.fixture(scope="module")
+def reduced_protrusion(reduced, data):
+    """STEPS of protrusion with the air of the reduced airway, on a scene of its own (the
+    ``reduced_scene`` fixture stays at rest)."""
+    a = aw.build_scene(aw.AirwayConfig(), data=data, reduced=reduced[0])
+    return study.simulate(a, "protrusion", STEPS * DT, DT)
+
+
+def test_reduced_airway_follows_the_full_airway(reduced_scene, full_runs, reduced_protrusion):
     """STEPS of protrusion with the air pressure: the reduced airway (quick training, no
     pressure in it) against the full one. Measured: skin error 0.10 mm mean, 0.94 mm max,
     0.18 of the pressure's own effect (full with minus without: 0.58 mm mean); areas
     within 2.2 %; jaw angles within 0.03 degrees."""
-    rec = study.simulate(reduced_scene, "protrusion", STEPS * DT, DT)
+    rec = reduced_protrusion
     on, off = full_runs["on"], full_runs["off"]
     c = study.compare(reduced_scene, on, rec)
     effect = np.linalg.norm(on["skin"][-1] - off["skin"][-1], axis=1).mean()
@@ -374,7 +382,49 @@ def test_simulate_airway_is_the_studys_protrusion(tmp_path, full_runs):
     f = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
     on = full_runs["on"]
     assert f["steps"] == STEPS and f["pressure_Pa"] == aw.AirwayConfig.pressure
+    assert f["tongue"] == "full" and "reduced" not in f and f["reduced_coordinates"] == 0
     assert f["final_tip_displacement_mm"] == pytest.approx(1e3 * on["tip"][-1], rel=1e-9)
     assert f["final_opening_angle_deg"] == pytest.approx(np.degrees(on["angle"][-1]), rel=1e-9)
     assert f["final_areas_mm2"] == pytest.approx(1e6 * on["areas"][-1], rel=1e-9)
+    assert (tmp_path / "protrusion" / "airway.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_simulate_airway_over_the_reduced_tongue_is_the_studys(
+    tmp_path, monkeypatch, reduced, reduced_protrusion
+):
+    """``artifem simulate airway --tongue reduced --cache C`` runs the study's reduced
+    airway: the quick training (the model's own is the full one, r = 20 + 12, 300 points;
+    the test swaps in the quick one through the same entry point) loaded from ``C`` gives
+    the same tongue tip, jaw angle and section areas over the same steps."""
+    import json
+
+    from artifem.cli import main
+
+    model, cache, quick = reduced
+    train = aw.reduced_tongue
+    seen = []
+
+    def quick_tongue(config, cache):
+        seen.append(cache)
+        return train(config, cache, quick)
+
+    monkeypatch.setattr(aw, "reduced_tongue", quick_tongue)
+    args = ["--duration", str(STEPS * DT), "--dt", str(DT), "--no-progress", "--no-vtx"]
+    out = ["--out", str(tmp_path), "--tongue", "reduced", "--cache", str(cache)]
+    assert main(["simulate", "airway", "--case", "protrusion", *out, *args]) == 0
+    assert [str(c) for c in seen] == [str(cache)]
+    f = json.loads((tmp_path / "protrusion" / "simulate.json").read_text())
+    rec = reduced_protrusion
+    assert f["tongue"] == "reduced" and f["steps"] == STEPS
+    assert f["reduced"] == {
+        "pod_vectors": quick.r,
+        "lift_columns": 12,
+        "points": quick.points,
+        "mesh_nodes": 946,
+        "cache": str(cache),
+    }
+    assert f["reduced_coordinates"] == model.r == quick.r + 12
+    assert f["final_tip_displacement_mm"] == pytest.approx(1e3 * rec["tip"][-1], rel=1e-9)
+    assert f["final_opening_angle_deg"] == pytest.approx(np.degrees(rec["angle"][-1]), rel=1e-9)
+    assert f["final_areas_mm2"] == pytest.approx(1e6 * rec["areas"][-1], rel=1e-9)
     assert (tmp_path / "protrusion" / "airway.png").read_bytes()[:4] == b"\x89PNG"

@@ -80,6 +80,7 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
     ),
     (["study", "airway", "--out", "{tmp}/o", "--motions", "flap"], "invalid choice: 'flap'"),
     (["simulate", "airway", "--out", "{tmp}/o", "--pressure", "-1"], "must be >= 0"),
+    (["simulate", "airway", "--out", "{tmp}/o", "--tongue", "half"], "invalid choice: 'half'"),
     (
         ["simulate", "masseter", "--out", "{tmp}/o", "--excitation", "1.5"],
         "argument --excitation: must be in [0, 1]",

@@ -47,7 +47,7 @@ subjects, not a registration.
 Reduced tongue
 --------------
 ``build_scene(..., reduced=reduced_tongue(config, cache))`` puts the reduced tongue of
-:mod:`artifem.models.jaw_tongue.study` in the scene (same training and cache:
+:mod:`artifem.models.jaw_tongue.reduced` in the scene (same training and cache:
 u = u_bar + U q + L g, U a trained POD basis, L the 12 jaw-lift columns whose coordinates g
 are slaves of the jaw). The skin's tongue master is then that ReducedFemBody
 (``ReducedMaster``): x_v = X_v + w_v N(X_v) (u_bar + [U, L] q) + the rigid terms, and the
@@ -67,8 +67,9 @@ Measurements
 - Tip and top (ArtiSynth's landmarks) displacements, the jaw's opening angle, with and
   without the pressure, and the load's resultant on each master.
 
-``artifem simulate airway --case C`` runs one tongue motion in the airway through the
-runner (:mod:`artifem.models.runner`); ``artifem study airway [--reduced]``
+``artifem simulate airway --case C [--pressure P] [--tongue full|reduced --cache DIR]``
+runs one tongue motion in the airway through the runner (:mod:`artifem.models.runner`);
+``artifem study airway [--reduced]``
 (:mod:`artifem.models.airway.study`) runs them all, with and without the air, full and
 reduced (docs/airway.md).
 """
@@ -113,6 +114,12 @@ __all__ = [
 AIRWAY_AXES = np.diag([-1.0, -1.0, 1.0])
 #: where the reduced tongue's training is cached (shared with jaw_tongue.study.benchmark).
 DEFAULT_CACHE = user_cache("jaw_tongue_reduced")
+#: the tongues the airway runs over (``--tongue``).
+TONGUES = {
+    "full": "the FEM tongue",
+    "reduced": f"the jaw-tongue's reduced tongue (POD {jtr.ReducedJawTongueConfig.r} + 12 "
+    f"jaw-lift columns, {jtr.ReducedJawTongueConfig.points} points; trained once into --cache)",
+}
 
 
 @dataclass(frozen=True)
@@ -534,17 +541,24 @@ def build(
     level: int = 0,
     integrator: str = "semi-implicit",
     pressure: float = AirwayConfig.pressure,
+    tongue: str = "full",
+    cache: Path = DEFAULT_CACHE,
 ) -> Built:
     """The airway scene with the tongue motion ``case`` ("none": the muscles off) and the air
-    at ``pressure`` Pa, for :mod:`artifem.models.runner`: the picture of the tongue, jaw,
-    palate and skin with the airway's mid-sagittal section; :func:`run_figures`."""
+    at ``pressure`` Pa, over the full tongue or (``tongue="reduced"``) the reduced one of
+    :func:`reduced_tongue` (trained, or loaded from ``cache``), for
+    :mod:`artifem.models.runner`: the picture of the tongue, jaw, palate and skin with the
+    airway's mid-sagittal section; :func:`run_figures`."""
+    if tongue not in TONGUES:
+        raise InputError(f"airway: tongue must be one of {list(TONGUES)}, got {tongue!r}")
     config = AirwayConfig(
         jaw_tongue=replace(
             JawTongueConfig(), tongue=replace(JawTongueConfig.tongue, integrator=integrator)
         ),
         pressure=pressure,
     )
-    a = build_scene(config, pressure=pressure > 0)
+    model = reduced_tongue(config, cache) if tongue == "reduced" else None
+    a = build_scene(config, pressure=pressure > 0, reduced=model)
     if case != "none":
         motion = a.jt.tongue.bundle_schedule(Tongue.motion(case))
         a.scene.add_controller(motion.controller(a.jt.tongue.body))
@@ -571,7 +585,23 @@ def build(
             )
         render(png, a, panels)
 
-    return Built(a.scene, record={**jt.records(a.jt), **records(a)}, figures=figures, render=draw)
+    facts = {"tongue": tongue}
+    if model is not None:
+        lift = sum(c.lift.columns.shape[1] for c in model.carriers)
+        facts["reduced"] = {
+            "pod_vectors": model.r - lift,
+            "lift_columns": lift,
+            "points": int(model.points.indices.size),
+            "mesh_nodes": int(a.jt.tongue.data.mesh.points.shape[0]),
+            "cache": str(cache),
+        }
+    return Built(
+        a.scene,
+        record={**jt.records(a.jt), **records(a)},
+        figures=figures,
+        render=draw,
+        facts=facts,
+    )
 
 
 def _options(group) -> None:
@@ -580,6 +610,18 @@ def _options(group) -> None:
         type=nonnegative_float,
         default=AirwayConfig.pressure,
         help="air pressure inside the airway (Pa; 0: no air), ramped over 0.1 s (%(default)s)",
+    )
+    group.add_argument(
+        "--tongue",
+        default="full",
+        choices=list(TONGUES),
+        help="; ".join(f"{k}: {v}" for k, v in TONGUES.items()) + " (default: %(default)s)",
+    )
+    group.add_argument(
+        "--cache",
+        type=Path,
+        default=DEFAULT_CACHE,
+        help="the reduced tongue's training cache (default: %(default)s)",
     )
 
 

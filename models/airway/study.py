@@ -440,11 +440,3 @@ def _benchmark_case(a: AirwayScene, steps: int, dt: float) -> dict:
         "ms_skin_jacobian": cost(a.skin.jacobian),
         "ms_pressure_master_loads": cost(lambda: a.pressure.master_loads(t)),
     }
-
-
-if __name__ == "__main__":
-    import sys
-
-    cli = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_arguments(cli)
-    sys.exit(run(cli.parse_args()))
