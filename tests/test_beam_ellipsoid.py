@@ -97,21 +97,34 @@ def test_reference_block_must_be_whole_cells():
 
 
 def test_simulate_beam_ellipsoid_is_the_studys_swing(tmp_path):
-    """``artifem simulate beam-ellipsoid`` (the runner, its frame case at the default level)
-    releases the same scene as the study's swing: the same tip deflection at every step,
-    and the released tip first falls freely (the study's test above)."""
+    """``artifem simulate beam-ellipsoid`` (the runner, its frame case at the smallest level,
+    12 x 2 x 2 hexahedra) releases the same scene as the study's swing on that mesh: the
+    same tip deflection at every step, and the released tip first falls freely (the
+    study's test above)."""
     from artifem.cli import main
+    from artifem.models.beam_ellipsoid.model import LEVELS
     from artifem.models.beam_ellipsoid.study import swing
 
     dt, duration = 2e-3, 0.02
     common = ["--dt", str(dt), "--duration", str(duration), "--no-progress", "--no-vtx"]
-    assert main(["simulate", "beam-ellipsoid", "--out", str(tmp_path), *common]) == 0
+    argv = ["simulate", "beam-ellipsoid", "--level", "0", "--out", str(tmp_path), *common]
+    assert main(argv) == 0
     figures = json.loads((tmp_path / "frame" / "simulate.json").read_text())
-    *_, rec, _ = swing(BeamEllipsoidConfig(), duration, dt, attach="frame")
+    config = BeamEllipsoidConfig(cells=LEVELS[0])
+    *_, rec, _ = swing(config, duration, dt, attach="frame")
+    assert figures["nodes"] == 13 * 3 * 3
     assert figures["steps"] == 10 and figures["max_tip_mm"] == pytest.approx(
         1e3 * rec["tip"].max(), rel=1e-10
     )
     assert figures["energy_J"]["max"] == pytest.approx(rec["energy"].max(), rel=1e-10)
+    assert figures["energy_J"]["max"] <= figures["energy_J"]["initial"] + 1e-9 * abs(
+        figures["energy_J"]["initial"]
+    )
+    a, b, c = config.semi_axes
+    mass = config.ellipsoid_density * 4.0 / 3.0 * np.pi * a * b * c
+    assert figures["ellipsoid_mass_kg"] == pytest.approx(mass, rel=1e-12)
+    theory = euler_bernoulli_mm(config, mass)
+    assert figures["euler_bernoulli_static_tip_mm"] == pytest.approx(theory, rel=1e-12)
     free_fall_mm = 1e3 * 0.5 * G * duration**2
     assert 0.9 < figures["max_tip_mm"] / free_fall_mm < 1.25
     png = tmp_path / "frame" / "beam-ellipsoid.png"

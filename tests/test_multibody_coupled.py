@@ -9,7 +9,7 @@
     geometric stiffness of the attachment map, and the scene's static tangent
     P^T K P - K_geo (through a chain of attachments);
 (4) a free bone carrying a block: linear momentum to round-off, no energy gain;
-(5) the paper's Fig. 11 scene (models/beam_ellipsoid.py): the static tip
+(5) the paper's Fig. 11 scene (models/beam_ellipsoid/): the static tip
     deflection against a full FEM reference, and an undamped swing;
 (6) joints in the same solve: the constrained step satisfies the KKT and
     complementarity conditions (limits included); a hinged pendulum whose bob is an FEM block swings
@@ -294,7 +294,7 @@ def test_free_bone_with_a_block_keeps_momentum_and_gains_no_energy():
 
 
 def test_beam_ellipsoid_static_deflection_matches_the_stiff_block_reference():
-    """Coupled static solve against the full FEM beam + stiff block (models/beam_ellipsoid.py).
+    """Coupled static solve against the full FEM beam + stiff block (models/beam_ellipsoid/).
 
     Measured tip deflections: coupled 19.7354732 mm; reference with a block 100x
     (1000x) stiffer 19.7354965 (19.7354756) mm: relative differences 1.2e-6
