@@ -10,8 +10,8 @@ PYTEST_ARGS ?=
 # module fixtures are built once, and the files measured longest (tests/durations.json)
 # go first so that the workers end together (tests/conftest.py). `make test XDIST=` runs
 # in one process.
-# dolfinx_jit_options.json (read by DOLFINx from the working directory) lets a worker wait
-# up to 15 minutes for a form the other is compiling, instead of DOLFINx's 10 s.
+# A worker waits for a form the other is compiling (artifem.jit: up to 5 minutes instead of
+# DOLFINx's 10 s).
 XDIST  ?= -n 2 --dist loadfile --no-loadscope-reorder
 # One BLAS/OpenMP thread per worker: two workers on two cores, each with OpenBLAS's
 # default of a thread per core, fight for the cores in every dense product (measured:

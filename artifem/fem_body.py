@@ -53,6 +53,7 @@ from petsc4py import PETSc
 from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.contact_points import FemNodes
 from artifem.errors import InputError, UnknownNameError
 from artifem.incompressibility import Incompressible, VolumeConstraint

@@ -39,6 +39,7 @@ from petsc4py import PETSc
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.errors import InputError, StepFailed
 
 #: pressure space per cell type (see the module docstring)

@@ -15,6 +15,7 @@ from mpi4py import MPI
 
 import basix.ufl
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.errors import InputError
 
 _CELL = np.zeros(1, dtype=np.int32)

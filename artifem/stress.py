@@ -16,6 +16,8 @@ from collections.abc import Callable
 import ufl
 from dolfinx import fem
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
+
 __all__ = ["von_mises"]
 
 

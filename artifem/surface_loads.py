@@ -69,6 +69,7 @@ from scipy.spatial import cKDTree
 from dolfinx import fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.errors import InputError
 
 __all__ = ["SurfaceLoad", "SurfacePatch", "select_facets", "surface_measure", "FACET_DEGREE"]

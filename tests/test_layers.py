@@ -17,6 +17,7 @@ LAYERS = {
     "artifem": 0,
     "artifem.errors": 0,
     "artifem.arguments": 0,
+    "artifem.jit": 0,
     "artifem.forms.errors": 0,  # the exceptions' roots, in forms/: the lowest raiser
     "artifem.forms": 1,
     "artifem.io": 2,

@@ -33,6 +33,7 @@ import numpy as np
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from petsc4py import PETSc
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.errors import InputError, SolverError
 from artifem.linear_solver import factor_mumps
 

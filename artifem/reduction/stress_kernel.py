@@ -40,6 +40,7 @@ from mpi4py import MPI
 from scipy import sparse
 from ufl.algorithms.analysis import extract_coefficients, extract_constants
 
+import artifem.jit  # noqa: F401  (waits for another process's compile of a form)
 from artifem.errors import InputError
 
 __all__ = ["StressKernel", "PointStresses"]
