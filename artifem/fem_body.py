@@ -2,13 +2,14 @@
 
 The body's potential energy is
 
-    Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, a_m) dX
+    Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, lambda a_m) dX
             + sum_e V_e kappa_inc/2 (J(X_e) - 1)^2
             - lambda * (int rho g . u dX + int b . u dX + f_nodal . u + int t . u dA),
 
 with F = I + grad u, psi the bulk material, psi_m the fiber energy of muscle m
 (direction field a0_m, excitation a_m), t the dead tractions on boundary facets
-and lambda a load factor. A follower pressure p (:mod:`artifem.surface_loads`)
+and lambda a load factor (1, but in a static solve, which ramps the loads and the
+activation with it from 0 to 1). A follower pressure p (:mod:`artifem.surface_loads`)
 adds its virtual work to the residual, R += lambda int p cof(F) N . v dA; it has
 no potential in general, so ``potential_energy()`` leaves it out
 (``conservative`` is then False), unless it is declared closed: then its
@@ -215,6 +216,7 @@ class FemBody:
         self.u = fem.Function(self.V, name="displacement")
         self.v = fem.Function(self.V, name="velocity")
         self.gravity = fem.Constant(domain, np.asarray(gravity, dtype=PETSc.ScalarType))
+        #: lambda of the module docstring: scales the loads and the muscles' excitations
         self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
         self.body_force = None  # UFL vector expression per reference volume
         self.muscles: dict[str, Muscle] = {}
@@ -752,7 +754,9 @@ class FemBody:
             terms.append(
                 EnergyTerm(
                     f"muscle:{m.name}",
-                    lambda F, a0, m=m, f=fiber: f.strain_energy(F, a0, m.excitation),
+                    lambda F, a0, m=m, f=fiber: f.strain_energy(
+                        F, a0, self.load_factor * m.excitation
+                    ),
                     self.quadrature_degree,
                     m.cells,
                     m.direction,

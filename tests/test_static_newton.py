@@ -244,3 +244,42 @@ def test_the_coupled_island_ramps_a_prescribed_compression_as_the_body_alone():
     alone, coupled = clamped(False), clamped(True)
     assert np.abs(alone).max() > 0.45
     np.testing.assert_allclose(coupled, alone, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("island", [False, True], ids=["alone", "coupled island"])
+def test_the_load_steps_ramp_the_muscle_excitations(island):
+    """A muscle's activation is a load of the static solve: the first of two increments of a
+    beam excited to 1 ends at the equilibrium of the excitation 0.5 (it was the full one,
+    so that a cut increment retried the same problem: the level-0 tongue's protrusion
+    failed under ``load_steps="auto"`` at a load factor of 2e-4)."""
+
+    def beam():
+        body = af.FemBody(box((6, 2, 2), (1.0, 0.2, 0.2)), af.MooneyRivlin.tongue(), 1040.0)
+        body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+        top_cells = body.find_cells(lambda x: x[2] > 0.1)
+        body.add_muscle("top", top_cells, (1.0, 0.0, 0.0), af.BlemkerFiber(max_stress=1e4))
+        scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
+        scene.add(body)
+        if island:  # a plane contact far below puts the body in a coupled island
+            scene.add(af.PlaneContact(body, (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)))
+        return scene, body
+
+    scene, body = beam()
+    body.set_excitation("top", 0.5)
+    scene.solve_static()
+    half = body.u.x.array.copy()
+    assert np.abs(half).max() > 0.01  # the top fibers curl the beam
+
+    scene, body = beam()
+    body.set_excitation("top", 1.0)
+    seen = []
+
+    class Progress:
+        def update(self, n):
+            seen.append(body.u.x.array.copy())
+
+    counts = scene.solve_static(load_steps=2, progress=Progress())
+    assert len(counts) == len(seen) == 2
+    np.testing.assert_allclose(seen[0], half, rtol=0, atol=1e-9 * np.abs(half).max())
+    assert np.abs(seen[1] - half).max() > 0.1 * np.abs(half).max()
+    assert body.muscles["top"].excitation.value == 1.0 and body.load_factor.value == 1.0
