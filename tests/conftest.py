@@ -15,8 +15,6 @@ on the other worker.
 
 - ``quick_jaw_tongue``: the quick reduced jaw-tongue training (test_jaw_tongue_reduced,
   test_airway);
-- ``level1_protrusion``: the level-1 tongue's protrusion run (the ``level_1`` hard case of
-  test_tongue_hard_cases and the level-1 side of test_tongue_convergence);
 - ``quick_tongue_study``: ``artifem study tongue --quick``'s output directory
   (test_tongue_study; test_cli_end_to_end's demo starts from its training cache).
 
@@ -171,30 +169,6 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
         / "cache"
     )
     return QuickJawTongue(config, jtr.train(config, cache), cache)
-
-
-@pytest.fixture(scope="session")
-def level1_protrusion():
-    """(tongue, run_built result) of the hard case ``level_1``: the level-1 tongue,
-    semi-implicit, driven by the protrusion motion, dt = 0.01 s for 1.0 s, landmarks also
-    recorded at the end of the ramp (0.5 s). That is exactly the level-1 run of
-    ``convergence.run_motions(1, ("protrusion",))`` (same TongueConfig, schedule, dt,
-    duration and record times, checked here), so both tests read this one run (about 90 s)
-    instead of computing it twice. Read only: nothing steps or resets the tongue after."""
-    import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
-    from artifem.models.tongue.hard_cases import build_case, run_built
-    from artifem.models.tongue.model import DT, PENALTY, RAMP_TIME, Tongue, TongueConfig
-
-    tongue, schedule, dt = build_case("level_1", "semi-implicit")
-    protrusion = Tongue.motion("protrusion")
-    assert tongue.config == TongueConfig(
-        level=1, integrator="semi-implicit", incompressibility=PENALTY
-    )
-    assert dt == DT and tongue.scene.t == 0.0
-    assert np.array_equal(schedule.times, protrusion.times)
-    assert schedule.values.keys() == protrusion.values.keys()
-    assert all(np.array_equal(schedule.values[k], protrusion.values[k]) for k in protrusion.values)
-    return tongue, run_built(tongue, dt, record_times=(RAMP_TIME,))
 
 
 @pytest.fixture(scope="session")

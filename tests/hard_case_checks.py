@@ -1,5 +1,5 @@
-"""What the tongue hard-case tests check (tests/test_tongue_hard_cases*.py,
-tests/test_tongue_convergence.py): the outcome contract and the landmark agreement."""
+"""What the tongue hard-case tests check (tests/test_tongue_hard_cases*.py): the outcome
+contract and the landmark agreement."""
 
 import re
 
@@ -8,9 +8,8 @@ import pytest
 
 from artifem.models.tongue.hard_cases import CASES, build_case, run_built
 
-#: The cases with the element penalty (the tongue's default), and those on level 0.
+#: The cases with the element penalty (the tongue's default).
 PENALTY = [name for name in CASES if not name.startswith("incompressible_")]
-LEVEL0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
 #: Landmark agreement at t = 1 s (mm). With the Rayleigh damping D = 40 M + 0.03 K_0 (the
 #: stiffness at rest, FemBody.rest_stiffness) the protrusion's softest mode still creeps
 #: toward the static equilibrium at t = 1 s (about 3 s^-1: the step case's tip moves 0.02 mm
@@ -19,18 +18,15 @@ LEVEL0 = [name for name in PENALTY if CASES[name].config.get("level", 0) == 0]
 AGREE_MM, AGREE_DT_MM = 5e-3, 0.1
 
 
-def make_runs(request):
+def make_runs():
     """runs(name, integrator) -> (tongue, run_built result), each run at most once per
-    module (the level-1 semi-implicit run is the session fixture ``level1_protrusion``)."""
+    module."""
     done = {}
 
     def get(name, integrator):
         if (name, integrator) not in done:
-            if (name, integrator) == ("level_1", "semi-implicit"):  # test_tongue_convergence's
-                done[name, integrator] = request.getfixturevalue("level1_protrusion")
-            else:
-                tongue, _, dt = build_case(name, integrator)
-                done[name, integrator] = tongue, run_built(tongue, dt)
+            tongue, _, dt = build_case(name, integrator)
+            done[name, integrator] = tongue, run_built(tongue, dt)
         return done[name, integrator]
 
     return get

@@ -11,10 +11,11 @@ each. A case passes when the run either (tests/hard_case_checks.py)
 
 Any other exception (or a NaN) fails. The step and dt_0.05 protrusion variants end on the
 same landmarks (docs/tongue_hard_cases.md). The implicit integrator's runs and the
-agreement of the two integrators are in tests/test_tongue_hard_cases_implicit.py; the
-``level_1`` case is the level-1 protrusion of tests/test_tongue_convergence.py, which
-checks its outcome (the session fixture ``level1_protrusion``, made once per worker that
-needs it). Files apart so that the two pytest workers share the work.
+agreement of the two integrators are in tests/test_tongue_hard_cases_implicit.py (files
+apart so that the two pytest workers share the work). The ``level_1`` case (about 3
+minutes) is not in the suite: ``python -m artifem.models.tongue.hard_cases --cases
+level_1`` runs it; tests/test_tongue_convergence.py compares the levels' static
+equilibria.
 
 Durations on this machine (serial), see that page: the level-0 cases 2-10 s each (4-30 s
 with other jobs on the machine).
@@ -31,8 +32,8 @@ from hard_case_checks import PENALTY, check_outcome, check_protrusion_variants, 
 
 
 @pytest.fixture(scope="module")
-def runs(request):
-    return make_runs(request)
+def runs():
+    return make_runs()
 
 
 @pytest.mark.slow
