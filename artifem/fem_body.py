@@ -2,18 +2,18 @@
 
 The body's potential energy is
 
-    Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, lambda a_m) dX
+    Pi(u) = int psi(F) dX + sum_m int_{Omega_m} psi_m(F; a0_m, lambda_a a_m) dX
             + sum_e V_e kappa_inc/2 (J(X_e) - 1)^2
             - lambda * (int rho g . u dX + int b . u dX + f_nodal . u + int t . u dA),
 
 with F = I + grad u, psi the bulk material, psi_m the fiber energy of muscle m
 (direction field a0_m, excitation a_m), t the dead tractions on boundary facets
-and lambda a load factor (1, but in a static solve, which ramps the loads and the
-activation with it from 0 to 1). A follower pressure p (:mod:`artifem.surface_loads`)
-adds its virtual work to the residual, R += lambda int p cof(F) N . v dA; it has
-no potential in general, so ``potential_energy()`` leaves it out
-(``conservative`` is then False), unless it is declared closed: then its
-potential -lambda p V (V the enclosed volume) is part of Pi. The optional
+and lambda a load factor; lambda_a scales the activation. Both are 1 but in a static
+solve, which ramps them together from 0 to 1 (:meth:`FemBody.set_load_factor`).
+A follower pressure p (:mod:`artifem.surface_loads`) adds its virtual work to the
+residual, R += lambda int p cof(F) N . v dA; it has no potential in general, so
+``potential_energy()`` leaves it out (``conservative`` is then False), unless it is
+declared closed: then its potential -lambda p V (V the enclosed volume) is part of Pi. The optional
 kappa_inc term is an element-wise incompressibility penalty: J at the element
 centre (one-point rule), which for hexahedra approximates the element's mean
 dilatation, so it penalizes volume change per element without locking the
@@ -216,8 +216,10 @@ class FemBody:
         self.u = fem.Function(self.V, name="displacement")
         self.v = fem.Function(self.V, name="velocity")
         self.gravity = fem.Constant(domain, np.asarray(gravity, dtype=PETSc.ScalarType))
-        #: lambda of the module docstring: scales the loads and the muscles' excitations
+        #: lambda of the module docstring: scales the external loads
         self.load_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
+        #: lambda_a of the module docstring: scales the muscles' excitations
+        self.activation_factor = fem.Constant(domain, PETSc.ScalarType(1.0))
         self.body_force = None  # UFL vector expression per reference volume
         self.muscles: dict[str, Muscle] = {}
         self._layers = None  # the muscles' MuscleLayers, built with the forms
@@ -699,6 +701,13 @@ class FemBody:
             )
         return a0
 
+    def set_load_factor(self, factor: float) -> None:
+        """The static solve's load factor: lambda = lambda_a = ``factor`` (module docstring),
+        the external loads and the activation ramped together, so that a cut load increment
+        is a smaller activation too."""
+        self.load_factor.value = factor
+        self.activation_factor.value = factor
+
     def set_excitation(self, name: str, value: float) -> None:
         """Set a muscle's excitation in [0, 1] (no recompilation)."""
         if name not in self.muscles:
@@ -755,7 +764,7 @@ class FemBody:
                 EnergyTerm(
                     f"muscle:{m.name}",
                     lambda F, a0, m=m, f=fiber: f.strain_energy(
-                        F, a0, self.load_factor * m.excitation
+                        F, a0, self.activation_factor * m.excitation
                     ),
                     self.quadrature_degree,
                     m.cells,

@@ -731,7 +731,7 @@ def solve_static(
         factors = [c[0] for c in converged]
         weights = _extrapolation_weights(factors, factor)
         u2 = converged[-1][1]
-        body.load_factor.value = factor
+        body.set_load_factor(factor)
         # A conservative body keeps the predictor when it lowers the energy (its merit);
         # without a potential it is kept unless it inverts an element (the residual norm
         # is no measure of closeness here: see _backtrack).
@@ -771,7 +771,7 @@ def solve_static(
         is then indefinite (a hard constraint's tension): the tetrahedral cube stretched by
         1.3 took 14 and 9 Newton iterations from it, 3 and 3 from this predictor
         (scripts/static_newton_counts.py, tet_stretch)."""
-        body.load_factor.value = factor
+        body.set_load_factor(factor)
         base = ramp.current()
         body.assemble(tangent=True, diag=1.0)  # K(u_k) and R(u_k)
         body.R.copy(ds)
@@ -813,7 +813,7 @@ def solve_static(
                     f"{factor:g} inverts elements of {body.name!r}",
                     iterations=0,
                 )
-        body.load_factor.value = factor
+        body.set_load_factor(factor)
         norm = residual()
         scale = max(body.R.norm(), atol)  # fixed rows included: the size of the loads
         target = max(rtol * scale, atol)
@@ -980,6 +980,7 @@ def solve_static(
             ramp.give_back()
         raise
     finally:
+        body.set_load_factor(1.0)  # a failed solve leaves the loads as the user set them
         for vec in (du, ds, r):
             vec.destroy()
 
@@ -1007,7 +1008,7 @@ def solve_static_reduced(
     vc = body.volume_constraint
 
     def solve_increment(factor: float, limit: int) -> int:
-        body.full.load_factor.value = factor
+        body.full.set_load_factor(factor)
         scale = []
 
         def newton() -> int:
@@ -1069,12 +1070,15 @@ def solve_static_reduced(
             it += _hold_volumes_newton(body, newton)
         return it
 
-    return ramp_load(
-        solve_increment,
-        body.state,
-        body.set_state,
-        load_steps,
-        max_iterations,
-        "static solve (reduced)",
-        progress,
-    )
+    try:
+        return ramp_load(
+            solve_increment,
+            body.state,
+            body.set_state,
+            load_steps,
+            max_iterations,
+            "static solve (reduced)",
+            progress,
+        )
+    finally:
+        body.full.set_load_factor(1.0)  # a failed solve leaves the loads as the user set them

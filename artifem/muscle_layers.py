@@ -54,8 +54,8 @@ def _kind(muscle) -> tuple:
 class MuscleLayers:
     """The muscles of ``body`` dealt into layers (module docstring); ``terms`` gives one
     (density, cells, direction) per layer. The layers' excitations are the muscles' times
-    the body's load factor (:attr:`~artifem.fem_body.FemBody.load_factor`: a static solve
-    ramps the activation with the loads; 1 otherwise)."""
+    the body's :attr:`~artifem.fem_body.FemBody.activation_factor` (a static solve ramps
+    the activation with the loads; 1 otherwise)."""
 
     def __init__(self, body):
         self.layers = []
@@ -81,7 +81,7 @@ class MuscleLayers:
                 layer.sort()
                 cells = np.array([c for c, _ in layer], dtype=np.int32)
                 owner = np.array([k for _, k in layer], dtype=np.int64)
-                self.layers.append(_Layer(muscles, cells, owner, Q, body.load_factor))
+                self.layers.append(_Layer(muscles, cells, owner, Q, body.activation_factor))
 
     def refresh(self) -> None:
         """Copy the muscles' excitations into the layers' fields."""
@@ -99,9 +99,9 @@ class MuscleLayers:
 class _Layer:
     """One integral: cells, the owning muscle of each, and the cell-wise fields."""
 
-    def __init__(self, muscles: list, cells: np.ndarray, owner: np.ndarray, Q, load_factor):
+    def __init__(self, muscles: list, cells: np.ndarray, owner: np.ndarray, Q, activation):
         self.muscles, self.cells, self.owner = muscles, cells, owner
-        self.load_factor = load_factor
+        self.activation = activation  # the body's activation factor
         W = muscles[0].direction.function_space
         bs = W.dofmap.index_map_bs
         self.direction = fem.Function(W, name="layer fiber direction")
@@ -150,4 +150,4 @@ class _Layer:
         return static, lambda: {self.excitation: self._excitations()[owner]}
 
     def density(self, F, a0):
-        return self.fiber.strain_energy(F, a0, self.load_factor * self.excitation)
+        return self.fiber.strain_energy(F, a0, self.activation * self.excitation)

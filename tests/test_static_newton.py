@@ -282,4 +282,12 @@ def test_the_load_steps_ramp_the_muscle_excitations(island):
     assert len(counts) == len(seen) == 2
     np.testing.assert_allclose(seen[0], half, rtol=0, atol=1e-9 * np.abs(half).max())
     assert np.abs(seen[1] - half).max() > 0.1 * np.abs(half).max()
-    assert body.muscles["top"].excitation.value == 1.0 and body.load_factor.value == 1.0
+    assert body.muscles["top"].excitation.value == 1.0
+    assert body.load_factor.value == body.activation_factor.value == 1.0
+
+    # a solve that fails gives the loads and the activation back as they were set
+    scene, body = beam()
+    body.set_excitation("top", 1.0)
+    with pytest.raises(af.StepFailed):
+        scene.solve_static(load_steps="auto", max_iterations=1)
+    assert body.load_factor.value == body.activation_factor.value == 1.0

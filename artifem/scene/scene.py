@@ -1228,7 +1228,7 @@ class Scene:
         self._gravity = factor * g
         self.load_factor = factor
         for body in self._full_bodies():
-            body.load_factor.value = factor
+            body.set_load_factor(factor)
 
     def _residual(self, L) -> tuple[np.ndarray, list]:
         """(F_m, the constraints' rows on the masters): statics asks phi + G dq = 0 on the
