@@ -26,6 +26,28 @@ from artifem.reduction import reductor
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the study runs in serial")
 
 
+#: max_error_mm of each quick-study run (basis, points, sampling), measured (protrusion,
+#: the default hard incompressibility); the tests allow 25 % above it (the trained
+#: points' greedy choice may turn on round-off on another machine). A 60 mm tongue moving
+#: about 7 mm: these are the errors a change must not make worse.
+MEASURED_MAX_ERROR_MM = {
+    ("extended-modal", 60, "trained"): 1.576,
+    ("extended-modal", 120, "trained"): 1.547,
+    ("extended-modal", 60, "random"): 4.399,
+    ("extended-modal", 120, "random"): 1.929,
+    ("trained-pod", 60, "trained"): 1.500,
+    ("trained-pod", 120, "trained"): 1.256,
+    ("trained-pod", 60, "random"): 3.701,
+    ("trained-pod", 120, "random"): 3.180,
+}
+ERROR_MARGIN = 1.25
+
+
+def within_measured(run: dict) -> bool:
+    key = (run["basis"], run["points"], run["sampling"])
+    return run["max_error_mm"] <= ERROR_MARGIN * MEASURED_MAX_ERROR_MM[key]
+
+
 @pytest.fixture(scope="module")
 def quick_study(quick_tongue_study):
     """``artifem study tongue --quick --out DIR``'s DIR (session fixture, tests/conftest.py)."""
@@ -58,11 +80,9 @@ def test_study_json_has_every_configuration(quick_study):
     for r in runs:
         assert not r["failed"], r
         assert 0 < r["mean_error_mm"] <= r["max_error_mm"] <= r["max_node_error_mm"]
-        assert r["max_error_mm"] < 5.0, r  # a 60 mm tongue moving ~10 mm
+        assert within_measured(r), r
         # speed: reported (targets in the study JSON), not asserted; the ratio is the right way up
         assert r["speedup"] == pytest.approx(full_ms / r["ms_per_step"])
-    pod = [r for r in runs if r["basis"] == "trained-pod" and r["sampling"] == "trained"]
-    assert min(r["max_error_mm"] for r in pod) < 2.0
     series = np.load(quick_study / "series.npz")
     steps = round(config.duration / config.dt)
     assert series["times"].shape == (steps + 1,)
@@ -145,7 +165,7 @@ def test_the_hard_study_keeps_the_reduced_volume_closer_than_the_penalty(quick_s
 
     for sampling in ("trained", "random"):
         h, p = run(hard, sampling), run(penalty, sampling)
-        assert not h["failed"] and h["max_error_mm"] < 5.0, h
+        assert not h["failed"] and within_measured(h), h
         assert h["full_max_volume_change"] < 1e-4 < p["full_max_volume_change"]
         assert h["max_volume_change"] < 0.5 * p["max_volume_change"], (h, p)
 
