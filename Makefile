@@ -33,10 +33,10 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(VENV)/bin/artifem demo --out results/demo
 
-# The whole suite, the long studies included (tests marked `slow`: the tongue's
-# level-0/level-1 convergence and hard cases, the manufactured-solution rates of the
-# quadratic bulk term, the two-rank MPI run; `pytest --collect-only -q -m slow` lists
-# them). To skip those while developing:
+# The whole suite, the long tests included (marked `slow`: every test of a file measured
+# to take over 15 s in tests/durations.json, and the long studies marked by hand;
+# `pytest --collect-only -q -m slow` lists them). To skip those while developing (2.5
+# minutes with a warm JIT cache):
 #   make test PYTEST_ARGS='-m "not slow"'
 # Any other pytest arguments go the same way, e.g. PYTEST_ARGS='tests/test_airway.py -x'.
 # Tests run in random order (pytest-randomly, seed printed first); replay one with

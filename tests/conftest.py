@@ -18,6 +18,11 @@ on the other worker.
 - ``quick_tongue_study``: ``artifem study tongue --quick``'s output directory
   (test_tongue_study; test_cli_end_to_end's demo starts from its training cache).
 
+Slow tests: every test of a file measured to take over ``SLOW_S`` seconds
+(``tests/durations.json``) is marked ``slow``, besides those marked by hand, so that
+``make test PYTEST_ARGS='-m "not slow"'`` is a loop of 2.5 minutes (a warm JIT cache); a new file
+counts as fast until ``make test-durations`` has measured it.
+
 Order of the files under pytest-xdist: the files measured to take over ``HEAVY_S``
 seconds (``tests/durations.json``, written by ``make test-durations``) go first, in the
 random order pytest-randomly gave them, the rest after them in theirs; with
@@ -42,7 +47,10 @@ import pytest
 
 #: seconds of a test file (setup, call and teardown of its tests) above which it runs first
 HEAVY_S = 20.0
+#: seconds of a test file above which its tests are marked ``slow`` (module docstring)
+SLOW_S = 15.0
 DURATIONS = Path(__file__).with_name("durations.json")
+_SECONDS = json.loads(DURATIONS.read_text())["seconds_per_file"] if DURATIONS.exists() else {}
 
 
 def pytest_addoption(parser):
@@ -55,13 +63,19 @@ def pytest_addoption(parser):
     )
 
 
+def pytest_itemcollected(item):
+    """The tests of a file measured to take over ``SLOW_S`` are ``slow`` (before ``-m``
+    deselects)."""
+    if _SECONDS.get(item.nodeid.split("::")[0], 0.0) >= SLOW_S:
+        item.add_marker(pytest.mark.slow)
+
+
 @pytest.hookimpl(trylast=True)  # after pytest-randomly's shuffle
 def pytest_collection_modifyitems(config, items):
     """Long files first (module docstring), each group in the order it came in."""
-    if "PYTEST_XDIST_WORKER" not in os.environ or not DURATIONS.exists():
+    if "PYTEST_XDIST_WORKER" not in os.environ:
         return
-    seconds = json.loads(DURATIONS.read_text())["seconds_per_file"]
-    items.sort(key=lambda item: seconds.get(item.nodeid.split("::")[0], 0.0) < HEAVY_S)
+    items.sort(key=lambda item: _SECONDS.get(item.nodeid.split("::")[0], 0.0) < HEAVY_S)
 
 
 _file_seconds: collections.Counter = collections.Counter()
