@@ -126,8 +126,11 @@ def test_reduced_tongue_follows_the_full_attachment(data, results, tmp_path_fact
     assert red["tension_N"]["left"] == pytest.approx(full["tension_N"]["left"], rel=1e-12)
     d_full = np.array(full["attachment_displacement_m"]["left"])
     d_red = np.array(red["attachment_displacement_m"]["left"])
-    assert np.linalg.norm(d_red - d_full) < 0.2 * np.linalg.norm(d_full)
-    assert peak(red) == pytest.approx(peak(full), rel=0.5)
+    # measured: the attachment 7.1 % of its 6.2 mm displacement off, the peak stress 4.3 %
+    # above the full model's; 1.5 times each allowed (the trained points may differ on
+    # another machine's round-off)
+    assert np.linalg.norm(d_red - d_full) < 1.5 * 0.071 * np.linalg.norm(d_full)
+    assert peak(red) == pytest.approx(peak(full), rel=1.5 * 0.043)
 
 
 def test_an_unknown_support_is_refused():
