@@ -20,8 +20,8 @@ on the other worker.
 
 Slow tests: every test of a file measured to take over ``SLOW_S`` seconds
 (``tests/durations.json``) is marked ``slow``, besides those marked by hand, so that
-``make test PYTEST_ARGS='-m "not slow"'`` is a loop of 2.5 minutes (a warm JIT cache); a new file
-counts as fast until ``make test-durations`` has measured it.
+``make test PYTEST_ARGS='-m "not slow"'`` is a loop of about 2.5 minutes (a warm JIT
+cache); a new file counts as fast until ``make test-durations`` has measured it.
 
 Order of the files under pytest-xdist: the files measured to take over ``HEAVY_S``
 seconds (``tests/durations.json``, written by ``make test-durations``) go first, in the
