@@ -28,6 +28,7 @@ from artifem.io.to_dolfinx import (
     to_dolfinx,
 )
 from artifem.render import render_bodies
+from outputs import read_series, same_rows
 
 # The ArtiSynth tongue shipped with the project (models/data, with its LICENSE).
 TONGUE = (
@@ -490,12 +491,17 @@ def test_mesh_info_cli(capsys, tmp_path):
 def test_result_writer(tmp_path, tongue):
     msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
     u = fem.Function(fem.functionspace(msh, ("Lagrange", 1, (3,))), name="displacement")
+    rows = msh.geometry.x.shape[0]
     with ResultWriter(tmp_path / "out" / "tongue", u) as writer:
         for t in (0.0, 0.1):
-            u.x.array[:] = t
+            u.x.array[:] = t * (1.0 + np.arange(u.x.array.size))  # distinct values per dof
             writer.write(t)
-    assert writer.path.exists() and writer.path.parent == tmp_path / "out"
-    assert sum(f.stat().st_size for f in writer.path.rglob("*") if f.is_file()) > 0
+    assert writer.path.parent == tmp_path / "out"
+    series = read_series(writer.path)
+    np.testing.assert_array_equal(series.times, [0.0, 0.1])
+    assert "displacement" in series.fields
+    assert np.all(series.at("displacement", 0) == 0.0)
+    assert same_rows(series.at("displacement"), u.x.array.reshape(rows, 3))
 
 
 def test_render_png(tmp_path, tongue):

@@ -1,0 +1,60 @@
+"""Reading back what a run wrote, so that a test compares an output instead of only finding
+it (issue 32): a VTX series through the ``adios2`` reader, a picture through matplotlib."""
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Series(NamedTuple):
+    """A VTX series (``.bp``) as written by :class:`artifem.io.results.ResultWriter`."""
+
+    path: Path
+    times: np.ndarray  #: the time of each written step
+    fields: frozenset  #: the functions' names
+
+    def at(self, name: str, step: int = -1) -> np.ndarray:
+        """The values of field ``name`` at ``step`` (negative: from the end), one row per
+        node of the written mesh (its geometry order, not the function's dof order)."""
+        import adios2
+
+        step = step % len(self.times)
+        with adios2.FileReader(str(self.path)) as f:
+            return np.asarray(f.read(name, step_selection=[step, 1]))
+
+
+def read_series(path) -> Series:
+    """The times and field names of the VTX series at ``path``."""
+    import adios2
+
+    path = Path(path)
+    assert path.is_dir(), f"no VTX series at {path}"
+    with adios2.FileReader(str(path)) as f:
+        names = set(f.available_variables())
+        times = np.atleast_1d(np.asarray(f.read("step", step_selection=[0, f.num_steps()])))
+    geometry = {"NumberOfEntities", "NumberOfNodes", "connectivity", "geometry", "step", "types"}
+    fields = frozenset(n for n in names - geometry if not n.startswith("vtk"))
+    return Series(path, times.ravel(), fields)
+
+
+def same_rows(written: np.ndarray, values: np.ndarray, rtol: float = 1e-12) -> bool:
+    """Whether the written nodal rows are ``values`` (n x d) up to the node order (the
+    series holds the mesh's geometry order): their sorted row norms agree to ``rtol``."""
+    a = np.sort(np.linalg.norm(np.reshape(written, (len(values), -1)), axis=1))
+    b = np.sort(np.linalg.norm(np.reshape(values, (len(values), -1)), axis=1))
+    return bool(np.allclose(a, b, rtol=rtol, atol=rtol * max(np.abs(b).max(), 1e-300)))
+
+
+def assert_picture(path, min_pixels: int = 200) -> np.ndarray:
+    """The PNG at ``path`` decodes, is at least ``min_pixels`` on each side and is not one
+    flat colour (something was drawn); returns its RGB pixels."""
+    import matplotlib.image
+
+    path = Path(path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
+    rgb = matplotlib.image.imread(path)[..., :3]
+    assert min(rgb.shape[:2]) >= min_pixels, f"{path}: {rgb.shape[1]} x {rgb.shape[0]} pixels"
+    colours = np.unique(rgb.reshape(-1, 3), axis=0)
+    assert len(colours) > 16, f"{path}: {len(colours)} colours, nothing drawn"
+    return rgb
