@@ -1,5 +1,5 @@
 """``artifem study beam-ellipsoid`` (models/beam_ellipsoid/study.py) end to end: static
-solve, reference, a short swing, PNG and JSON.
+solve, reference, a short swing, PNG (decoded, not blank) and JSON.
 
 The physics checks of the scene (static deflection against the stiff-block
 reference, the swing's energy) are in tests/test_multibody_coupled.py; this
@@ -25,6 +25,7 @@ from mpi4py import MPI
 
 from artifem.models.beam_ellipsoid.model import BeamEllipsoidConfig, build_reference
 from artifem.models.beam_ellipsoid.study import run
+from outputs import assert_picture
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
@@ -87,8 +88,7 @@ def test_run_writes_the_picture_and_the_figures(tmp_path):
     energy = swing["energy_J"]
     assert np.isfinite(energy["final"])
     assert energy["max"] <= energy["initial"] + 1e-9 * abs(energy["initial"])
-    png = tmp_path / "beam_ellipsoid.png"
-    assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert_picture(tmp_path / "beam_ellipsoid.png")
 
 
 def test_reference_block_must_be_whole_cells():
@@ -127,5 +127,4 @@ def test_simulate_beam_ellipsoid_is_the_studys_swing(tmp_path):
     assert figures["euler_bernoulli_static_tip_mm"] == pytest.approx(theory, rel=1e-12)
     free_fall_mm = 1e3 * 0.5 * G * duration**2
     assert 0.9 < figures["max_tip_mm"] / free_fall_mm < 1.25
-    png = tmp_path / "frame" / "beam-ellipsoid.png"
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert_picture(tmp_path / "frame" / "beam-ellipsoid.png")

@@ -128,6 +128,27 @@ def point_errors(reduced, reference) -> dict[str, float]:
     }
 
 
+#: each candidate's max mean node error (mm) against the every-point model, of the points
+#: before the enrichment, after it, and of as many points trained at once: measured
+MEASURED_POINT_ERRORS_MM = {
+    "before": {
+        "high": 0.28210607549815603,
+        "fast": 0.34549431817395815,
+        "release": 0.19096521450310197,
+    },
+    "enriched": {
+        "high": 0.04010416039021537,
+        "fast": 0.014119613910765905,
+        "release": 0.08848704085408422,
+    },
+    "same count": {
+        "high": 0.12194275777125445,
+        "fast": 0.28271632070312686,
+        "release": 0.24128172321617325,
+    },
+}
+
+
 def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(tmp_path):
     reductor = Reductor(MODEL, POINTS_TRAINING, tmp_path, progress=False)
     spec = Points(40, tol=1e-3, training_states=20)
@@ -142,7 +163,8 @@ def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(t
             assert entry["added"] == max(entry["indicators"], key=entry["indicators"].get)
     rounds = len(result.history) - (2 if result.stopped == "stalled" else 1)
     kept = result.history[rounds]  # the model returned
-    assert kept["max_indicator"] < 0.2 * first["max_indicator"]
+    # measured (two runs, same digits): 0.0459 of the first round's indicator; 1.25 x that
+    assert kept["max_indicator"] < 1.25 * 0.04588815045665892 * first["max_indicator"]
     assert result.states[0].shape == (10 * rounds, W4.size)  # 10 visited states a round
     everything = reductor.reduce(W4, Points(sampling="all"))
     before = reductor.reduce(W4, spec)  # the cache still holds the first points
@@ -153,11 +175,14 @@ def test_point_enrichment_lowers_the_residual_and_the_error_without_a_full_run(t
         "enriched": point_errors(result.reduced, everything),
         "same count": point_errors(same_count, everything),
     }
-    # enriched / before, measured: 0.14, 0.04 and 0.46 (high, fast, release); enriched /
-    # same count: 0.33, 0.05, 0.37
+    # max mean node errors (mm) against every point, measured (two runs, same digits):
+    # the enriched model's within 1.25 x, the others not below theirs / 1.25 (enriched /
+    # before: 0.14, 0.04 and 0.46; enriched / same count: 0.33, 0.05, 0.37)
+    measured = MEASURED_POINT_ERRORS_MM
     for name in POINTS_POOL:
-        assert errors["enriched"][name] < 0.5 * errors["before"][name]
-        assert errors["enriched"][name] < 0.5 * errors["same count"][name]
+        assert errors["enriched"][name] < 1.25 * measured["enriched"][name], errors
+        assert errors["before"][name] > measured["before"][name] / 1.25, errors
+        assert errors["same count"][name] > measured["same count"][name] / 1.25, errors
     assert not list(tmp_path.glob("full-run*"))  # no full run beyond the training
 
 

@@ -33,6 +33,7 @@ from artifem.models.masseter.model import (
     membrane_mesh,
 )
 from artifem.models.masseter.study import simulate
+from outputs import assert_picture
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial scene")
 
@@ -42,6 +43,20 @@ CONFIG = MasseterConfig(**COARSE)
 STRAIGHT = dataclasses.replace(
     CONFIG, width_top=CONFIG.width_bottom, bulge=0.0, lean=0.0, bow=0.0, curve=0.0, jaw_strip=None
 )
+#: The coarse models' figures (``simulate(build_model(CONFIG, ...))``: the static equilibrium
+#: after the ramp), measured; deterministic (the same to the last digit in either order of
+#: the models). docs/img/masseter.json is the 2.5 mm study, not this 5 mm one. Compared to
+#: 1e-6 relative (Newton stops at 1e-10 of the loads).
+MEASURED = {
+    "embedding/none": ([0.32371934354, -0.00218001271, 2.13526558054], 0.86973175179),
+    "embedding/embedded": ([0.30870236739, 0.02599587613, 1.86217831742], 0.88524364384),
+    "conforming/none": ([0.35399268260, 0.01794403814, 2.39526677378], 0.93096666899),
+    "conforming/embedded": ([0.34164074847, 0.04830129409, 2.15793158851], 0.92027160898),
+    "conforming/slabs": ([0.32567256868, 0.01889735166, 1.98991348303], 0.88925125850),
+}
+#: |F_embedding - F_conforming| / F_conforming on the coarse setting, measured from MEASURED
+#: (2.6 % and 4 % on the 2.5 mm cells of docs/masseter.md: the gap is the discretization's).
+COARSE_GAP = {"none": 0.1080735082, "embedded": 0.1361666299}
 
 
 @pytest.fixture(scope="module")
@@ -177,8 +192,18 @@ def test_jaw_force_is_fiber_stress_times_section_when_exact(primary):
 def test_jaw_and_arch_forces_balance(results):
     for label, (_, r) in results.items():
         assert r["force_balance_N"] < 1e-8 * r["jaw_force_magnitude_N"], label
-        assert r["jaw_force_N"][2] > 0.5, label  # the jaw is pulled up, to the arch
-        assert r["min_det_F"] > 0.5, label
+
+
+def test_coarse_jaw_forces_and_det_F_are_the_measured_ones(results):
+    """Every coarse model's jaw force (pulled up, +z, to the arch, leaning forward in x with
+    the fibers) and min det F over the ramp and the equilibrium are MEASURED's, to 1e-6."""
+    assert set(results) == set(MEASURED)
+    for label, (_, r) in results.items():
+        force, det_F = MEASURED[label]
+        np.testing.assert_allclose(
+            r["jaw_force_N"], force, rtol=1e-6, atol=1e-6 * np.linalg.norm(force), err_msg=label
+        )
+        assert r["min_det_F"] == pytest.approx(det_F, rel=1e-6), label
 
 
 def test_voxel_mass_equals_the_conforming_mass_within_the_voxelization_bound(results):
@@ -191,11 +216,13 @@ def test_voxel_mass_equals_the_conforming_mass_within_the_voxelization_bound(res
 
 
 def test_embedding_and_conforming_jaw_forces_agree(results):
-    """Within 15 % on the coarse setting (5 mm cells; 2.5 mm: see docs/masseter.md)."""
+    """Within the coarse setting's measured gap, 10.8 % without aponeuroses and 13.6 % with
+    embedded membranes (5 mm cells; 2.6 % and 4 % on the 2.5 mm cells of docs/masseter.md),
+    to 1e-5 of it: the embedding force below the conforming one."""
     for apo in ("none", "embedded"):
         fe = results[f"embedding/{apo}"][1]["jaw_force_magnitude_N"]
         fc = results[f"conforming/{apo}"][1]["jaw_force_magnitude_N"]
-        assert abs(fe - fc) <= 0.15 * fc, (apo, fe, fc)
+        assert (fc - fe) / fc == pytest.approx(COARSE_GAP[apo], rel=1e-5), (apo, fe, fc)
 
 
 def test_aponeuroses_stiffen_the_muscle_and_change_the_jaw_force_alike(results):
@@ -237,7 +264,9 @@ def test_bad_input():
 def test_simulate_masseter_runs_one_model_through_the_runner(tmp_path):
     """``artifem simulate masseter`` at the coarse level: the excitation ramped, the welded
     jaw pulled up towards the arch (+z) while the muscle shortens (in motion the jaw's and
-    the arch's forces need not balance: the study measures them at equilibrium)."""
+    the arch's forces need not balance: the study measures them at equilibrium). The 3 steps
+    are deterministic: their jaw force (the largest of the steps at the last, as the ramp
+    rises), max |u| and min det F are the measured ones to 1e-6; the picture is drawn."""
     import json
 
     from artifem.cli import main
@@ -250,10 +279,16 @@ def test_simulate_masseter_runs_one_model_through_the_runner(tmp_path):
     assert f["nodes"] == f["primary_nodes"] == model.primary.V.dofmap.index_map.size_local
     assert (f["membrane_nodes"], f["excitation"], f["ramp_s"]) == (0, 0.1, 0.1)
     assert f["mass_kg"] == pytest.approx(model.primary.total_mass(), rel=1e-12)
-    assert f["jaw_force_N"][2] > 0 and f["max_displacement_mm"] > 0 and 0 < f["min_det_F"] <= 1.5
-    assert f["jaw_force_magnitude_N"] == pytest.approx(np.linalg.norm(f["jaw_force_N"]))
-    assert f["jaw_force_magnitude_N"] <= f["jaw_force_magnitude_max_N"]  # recorded each step
-    assert (tmp_path / "embedding" / "masseter.png").read_bytes()[:4] == b"\x89PNG"
+    # measured (the same in two processes and either order of the tests)
+    force = [0.093899541857, -0.002427116813, 0.622354190705]
+    np.testing.assert_allclose(
+        f["jaw_force_N"], force, rtol=1e-6, atol=1e-6 * np.linalg.norm(force)
+    )
+    assert f["max_displacement_mm"] == pytest.approx(2.436534115327, rel=1e-6)
+    assert f["min_det_F"] == pytest.approx(0.955787014025, rel=1e-6)
+    assert f["jaw_force_magnitude_N"] == pytest.approx(np.linalg.norm(f["jaw_force_N"]), rel=1e-12)
+    assert f["jaw_force_magnitude_max_N"] == pytest.approx(f["jaw_force_magnitude_N"], rel=1e-12)
+    assert_picture(tmp_path / "embedding" / "masseter.png")
 
 
 def test_wedge_membranes_are_drawn_as_vtk_wedges():

@@ -218,7 +218,8 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
     """Backward Euler on a conservative system dissipates at least the jump of the
     kinetic energy: E_{k+1} - E_k = -1/2 dq'^T M~ dq' - (Pi~(q_k) - Pi~(q_{k+1})
     - f~(q_{k+1}) . (q_k - q_{k+1})), the bracket >= 0 where Pi~ is convex (small
-    strains). Measured: the energy drop is 1.015 to 20 times 1/2 dq'^T M~ dq'."""
+    strains). Measured: the energy drop is 1.015 to 20 times 1/2 dq'^T M~ dq', and the
+    run ends at 0.1950 of its initial energy (its own seeded basis: deterministic)."""
     body = make_body(excitation=0.3, gravity=(0.0, 0.0, 0.0), loads=False, rayleigh=(0.0, 0.0))
     rng = np.random.default_rng(11)
     # A random basis, mass-orthonormalized (lumped mass): U^T M U = I.
@@ -255,7 +256,8 @@ def test_undamped_implicit_reduced_body_never_gains_energy():
     # Dissipation at least the kinetic-energy jump (round-off of E: ~1e-13 of it).
     excess = change + jumps
     assert excess.max() <= 1e-10 * np.abs(total).max(), f"dissipation short by {excess.max():.3e}"
-    assert 0.01 * total[0] < total[-1] < 0.5 * total[0]  # dissipative, but not overdamped
+    # dissipative, but not overdamped: measured (two runs, same digits), rel 1e-6
+    assert total[-1] / total[0] == pytest.approx(0.19503076202538575, rel=1e-6)
 
 
 # ---- (e) excitations --------------------------------------------------------------------------

@@ -456,7 +456,7 @@ def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(be
     assert np.abs(u_full).max() > 0.05  # 12.7 cm tip motion
     scale = np.linalg.norm(u_full.reshape(STEPS + 1, -1, 3), axis=2).mean(axis=1).max()
 
-    # r = 1, 2, 4 with every point (measured: 0.052, 0.025, 0.0078 m).
+    # r = 1, 2, 4 with every point (measured: 0.052, 0.016, 0.0059 m).
     by_r = [
         max_mean_error(
             reduced_run(body, pod_basis(snapshots.displacements, mass, r=r)[0], all_points(body)),
@@ -465,7 +465,9 @@ def test_error_decreases_with_the_basis_size_and_the_number_of_trained_points(be
         for r in (1, 2, 4)
     ]
     assert by_r[0] > by_r[1] > by_r[2] > 0, by_r
-    assert by_r[2] < 0.25 * scale  # r = 4: 16% of the mean displacement (measured)
+    # r = 4: 12.7 % of the largest mean displacement (0.0468 m); measured (two runs, same
+    # digits): within 1.25 x
+    assert by_r[2] < 1.25 * 0.005925241570750098, (by_r, scale)
 
     # r = 4 with m = 5, 20 trained points and all 144 (measured: 0.01874, 0.00781, 0.00782 m).
     U, _ = pod_basis(snapshots.displacements, mass, r=4)

@@ -21,6 +21,8 @@
     to the requested level, some releasing within the run; another seed gives others.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,7 @@ from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, 
 from artifem.reduction.schedules import each_alone, random_schedules
 from artifem.scene import Scene, simulate
 from artifem.scene.inputs import Gravity, SurfaceLoadLevel
+from outputs import assert_picture
 from reduced_beam import Builds, make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
@@ -134,7 +137,13 @@ def test_every_snapshot_and_point_reproduce_the_full_scene(make, tmp_path):
         assert np.abs(red["tip"] - full["tip"]).max() < 1e-6 * scale
 
 
+#: the held-out schedule's largest nodal error (m) of the POD bases r = 2, 4, 8 on the free
+#: beam, measured (two runs, same digits; the beam moves 0.198 m): the bound is 1.25 x these
+MEASURED_HELD_OUT_ERROR_M = (0.07052360579559819, 0.016115883042228135, 0.0035715691338387423)
+
+
 def test_held_out_error_decreases_with_the_basis_size(tmp_path):
+    """Strictly, and each basis within 1.25 times its measured error."""
     model = ReducibleScene("free", free_beam, "fem", {"model": "free"})
     reductor = Reductor(model, TRAINING, tmp_path, progress=False)
     full = run(model, free_beam(), HELD_OUT, 0.2)["u"]
@@ -144,7 +153,8 @@ def test_held_out_error_decreases_with_the_basis_size(tmp_path):
         u = run(model, reduced.scene(), HELD_OUT, 0.2)["u"]
         errors.append(np.abs(u - full).max())
     assert errors[0] > errors[1] > errors[2]
-    assert errors[2] < 0.05 * np.abs(full).max()
+    for error, measured in zip(errors, MEASURED_HELD_OUT_ERROR_M, strict=True):
+        assert error < 1.25 * measured, errors
 
 
 def test_trained_points_on_a_carried_body_stay_near_every_point(tmp_path):
@@ -155,7 +165,9 @@ def test_trained_points_on_a_carried_body_stay_near_every_point(tmp_path):
         model, reductor.reduce(Basis("pod", 6), Points(sampling="all")).scene(), HELD_OUT, 0.2
     )
     trained = reductor.reduce(Basis("pod", 6), Points(60, tol=1e-6, training_states=40))
-    assert trained.points.m <= 60 and trained.points.residual < 1e-3
+    # the tol is not reached within the 60 points asked for: all 60 taken, and the training
+    # residual is 2.796e-4 (measured, two runs): 1.25 x that
+    assert trained.points.m == 60 and trained.points.residual < 1.25 * 0.0002796324130680636
     some = run(model, trained.scene(), HELD_OUT, 0.2)
     err_every = np.abs(every["u"] - full["u"]).max()
     err_some = np.abs(some["u"] - full["u"]).max()
@@ -245,11 +257,24 @@ def test_random_schedules_are_seeded_space_filling_and_release():
         random_schedules(exciters, 2, seed=0, duration=1.0, excitation=(0.1, 1.5))
 
 
+#: each run's max error (mm) and its hierarchical estimate / error in the split below,
+#: measured (two runs, same digits, seed 99): the errors within 1.25 x, the ratios within a
+#: factor 1.25 (both are reduced models' errors)
+MEASURED_SPLIT = {
+    "random-1-0": (1.2156225746267209, 0.9999606400442934),
+    "random-1-1": (1.3586985116643395, 0.9999955333688375),
+    "ramp": (5.862950894268891, 0.9732633321867273),
+    "held-out-99-0": (1.175021470580914, 1.0205197592921367),
+    "held-out-99-1": (1.2837484665929013, 0.9668305863185739),
+    "held-out-99-2": (1.1543683325259326, 1.0484068759546397),
+}
+
+
 def test_generalization_study_reports_the_three_sets(tmp_path):
     """The train/test split on the free beam: training, the model's motions and held-out
-    random schedules, each run's error and estimate; the hierarchical estimate (r = 12
-    against r = 3) is within a factor of 3 of the error, and the report, series and plot
-    are written."""
+    random schedules, each run's error and estimate within their measured margins (the
+    hierarchical estimate, r = 12 against r = 3, is within 5 % of the error); the report's
+    table rows are the JSON's runs, and the series and the plots are written."""
     from artifem.reduction.generalization import generalization_study
 
     motion = ExcitationSchedule.ramp_and_hold({"top": 0.7}, 0.1)
@@ -268,19 +293,32 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
     sets = figures["sets"]
     assert [len(sets[s]) for s in ("training", "motions", "held-out")] == [2, 1, 3]
     assert figures["reduced"]["basis"]["r"] == 3 and figures["reference"]["basis"]["r"] == 12
+    assert {r["name"] for runs in sets.values() for r in runs} == set(MEASURED_SPLIT)
     for runs in sets.values():
         for r in runs:
-            assert not r["failed"] and r["max_error_mm"] > 0.1
+            error, ratio = MEASURED_SPLIT[r["name"]]
+            assert not r["failed"] and r["max_error_mm"] < 1.25 * error, r
             assert (r["speedup"] is None) == (r in sets["training"])  # no 2nd full run
-            assert 1 / 3 <= r["estimate_ratio"] <= 3
-    assert "## held-out" in (tmp_path / "generalization.md").read_text()
-    assert (tmp_path / "generalization.png").stat().st_size > 10_000
+            assert 1 / 1.25 < r["estimate_ratio"] / ratio < 1.25, r
+    written = json.loads((tmp_path / "generalization.json").read_text())
+    report = (tmp_path / "generalization.md").read_text()
+    for name in ("training", "motions", "held-out"):  # every row of each set's table
+        assert f"## {name}" in report
+        for r in written["sets"][name]:
+            speedup = "-" if r["speedup"] is None else f"{r['speedup']:.0f}x"
+            row = (
+                f"| {r['name']} | {r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
+                f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} | "
+                f"{r['reduced_ms_per_step']:.2f} | {r['max_step_over_median']:.1f} | {speedup} |"
+            )
+            assert row in report, row
+    assert_picture(tmp_path / "generalization.png")
     worst = figures["worst"]  # the render: the worst held-out moment
     assert worst["set"] == "held-out" and worst["mean_error_mm"] == pytest.approx(
         max(r["max_error_mm"] for r in sets["held-out"]), rel=1e-12
     )
     assert worst["max_node_error_mm"] > worst["mean_error_mm"]
-    assert (tmp_path / "generalization_worst.png").stat().st_size > 10_000
+    assert_picture(tmp_path / "generalization_worst.png")
     assert "generalization_worst.png" in (tmp_path / "generalization.md").read_text()
     series = np.load(tmp_path / "generalization_series.npz")
     assert series["held-out/held-out-99-0/error_mm"].shape == (21,)

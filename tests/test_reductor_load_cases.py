@@ -10,7 +10,8 @@ world point, a follower pressure on its top face and gravity: three scene inputs
     the reduced body (same weights, G = sum_j w_j U_j) and the loads act on it live.
 (3) On a held-out load case, a basis trained on the load cases is far closer to the full
     model than one of the same size trained on the muscle alone (the loads bend the beam
-    in directions the muscle does not).
+    in directions the muscle does not): 2.5 mm against 91 mm on a 0.10 m motion, measured;
+    the one within 1.25 x its measured error, the other not below its own / 1.25.
 """
 
 import json
@@ -31,6 +32,7 @@ from artifem.reduction.reductor import Basis, Points, ReducibleScene, Reductor, 
 from artifem.reduction.schedules import random_schedules
 from artifem.scene import Scene, simulate
 from artifem.scene.inputs import Gravity, PathExcitation, SurfaceLoadLevel, controller
+from outputs import assert_picture
 from reduced_beam import make_body, ndofs
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="reduced bodies are serial")
@@ -155,9 +157,9 @@ def test_a_basis_trained_on_load_cases_follows_a_held_out_load_case(tmp_path):
             Basis("pod", 6), Points(sampling="all")
         )
         errors[name] = np.abs(run(reduced.scene(), HELD_OUT, 0.2) - full).max()
-    scale = np.abs(full).max()
-    assert errors["loads"] < 0.05 * scale
-    assert errors["loads"] < 0.2 * errors["muscle"]
+    # measured (two runs, same digits), m: the load-case basis and the muscle-only one
+    assert errors["loads"] < 1.25 * 0.0024632806783443763, errors
+    assert errors["muscle"] > 0.09071138670027198 / 1.25, errors
 
 
 def test_the_scene_study_command_splits_any_model(tmp_path):
@@ -193,7 +195,12 @@ def test_the_scene_study_command_splits_any_model(tmp_path):
     assert figures["reduced"]["basis"]["r"] == 6
     assert all(not r["failed"] for runs in figures["sets"].values() for r in runs)
     assert figures["worst"]["set"] == "held-out"
-    assert (out / "generalization_worst.png").stat().st_size > 10_000
+    report = (out / "generalization.md").read_text()
+    for r in figures["sets"]["held-out"]:  # the held-out table's rows are the JSON's runs
+        row = f"| {r['name']} | {r['max_error_mm']:.2f} | {r['mean_error_mm']:.2f} | "
+        assert row + f"{r['max_estimate_mm']:.2f} | {r['estimate_ratio']:.2f} |" in report
+    assert_picture(out / "generalization.png")
+    assert_picture(out / "generalization_worst.png")
     assert main(args) == 0  # again: all from the cache, the record of the
     assert json.loads((out / "training.json").read_text()) == training  # training kept
 

@@ -9,7 +9,8 @@ the end's centre and shifted sideways, by a level), beside the beam's own muscle
     reproduces the full one on a training schedule.
 (3) On a held-out motion, a basis trained on motions is far closer to the full model than
     one of the same size trained on the muscle alone (the moved end bends the beam in
-    directions the muscle does not).
+    directions the muscle does not): 1.3 mm against 14 mm on a 77 mm motion, measured;
+    the one within 1.25 x its measured error, the other not below its own / 1.25.
 """
 
 import numpy as np
@@ -155,6 +156,6 @@ def test_a_basis_trained_on_motions_follows_a_held_out_motion(tmp_path):
             Basis("pod", 10), Points(sampling="all")
         )
         errors[name] = np.abs(run(reduced.scene(), HELD_OUT, 0.2)["u"] - full).max()
-    scale = np.abs(full).max()
-    assert errors["motions"] < 0.03 * scale
-    assert errors["motions"] < 0.2 * errors["muscle"]
+    # measured (two runs, same digits), m: the motion basis and the muscle-only one
+    assert errors["motions"] < 1.25 * 0.0012581347954740167, errors
+    assert errors["muscle"] > 0.013709727045681498 / 1.25, errors

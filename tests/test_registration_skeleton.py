@@ -3,8 +3,8 @@ artifem.models.registration) at the coarse grid of the suite (12 mm cells): the 
 OpenSim bones (tibia with fibula, talus, calcaneus) on their ankle and subtalar hinges.
 
 - rigid target (the reference turned about its joints and moved): the jointed deformable
-  bones recover the joint angles within 1 degree (measured: 0.004) and come within 10 %
-  of a cell of the target (measured: 3 micrometres), the joints held to round-off;
+  bones recover the joint angles and come near the target within 1.25 times their measured
+  errors (0.004 and 0.001 degrees; 0.5 to 2.9 micrometres), the joints held to round-off;
 - synthetic non-rigid target (scaled, bent, noisy, a third of the calcaneus missing): the
   jointed bones end nearer the target than per-bone rigid ICP and than one jointless
   grid, with no element inverted;
@@ -22,6 +22,7 @@ from artifem.forms import NeoHookean
 from artifem.models import registration as cases
 from artifem.registration.skeletal import register_skeleton
 from artifem.registration.skeleton import Skeleton, read_surface, write_surface
+from outputs import assert_picture
 
 CELL = 0.012
 MATERIAL = NeoHookean.from_young_poisson(1e6, 0.3)
@@ -62,19 +63,33 @@ def test_the_reference_reads_back_and_poses_about_its_hinges(tmp_path):
     )
 
 
+#: the jointed registration's errors on the rigid case at 12 mm cells, measured (two runs,
+#: same digits): |angle - truth| in degrees, and each bone's mean distance to the target (m)
+MEASURED_ANGLE_ERROR_DEG = {"ankle": 0.0037406187106618916, "subtalar": 0.00106509665189769}
+MEASURED_MEAN_M = {
+    "tibia": 4.700481954140043e-07,
+    "talus": 2.661208763048195e-06,
+    "calcaneus": 2.8741319008781748e-06,
+}
+
+
 def test_a_rigidly_posed_target_gives_back_the_joint_angles(rigid_case):
+    """Each joint angle and each bone's mean distance within 1.25 times its measured error
+    (the issue-32 margin of a deterministic error); the report written is the one returned,
+    its picture shows the bones."""
     out, report = rigid_case
     jointed = report["methods"]["jointed"]
     for joint, truth in cases.POSE.items():
-        assert abs(jointed["joint_angles_deg"][joint] - truth) < 1.0
-    for row in jointed["bones"].values():
-        assert row["mean"] < 0.1 * CELL
+        error = abs(jointed["joint_angles_deg"][joint] - truth)
+        assert error < 1.25 * MEASURED_ANGLE_ERROR_DEG[joint], (joint, error)
+    for bone, row in jointed["bones"].items():
+        assert row["mean"] < 1.25 * MEASURED_MEAN_M[bone], (bone, row["mean"])
     assert jointed["joint_constraint_error"] < 1e-10
     written = json.loads((out / "registration.json").read_text())
     assert written["methods"]["jointed"]["joint_angles_deg"] == jointed["joint_angles_deg"]
     V, _ = read_surface(out / "meshes" / "jointed_talus.stl")
     assert len(V) == report["bones"]["talus"]["vertices"]
-    assert (out / "registration.png").stat().st_size > 10_000
+    assert_picture(out / "registration.png")
 
 
 def test_jointed_bones_fit_a_deformed_partial_target_better_than_the_baselines(tmp_path):

@@ -2,20 +2,22 @@
 
 One test per case of models/tongue/hard_cases.py (all eleven exciters at 1.0,
 excitations stepped without a ramp, dt = 0.05 s, kappa = 100 C10 and 1000 C10), 1.0 s
-each. A case passes when the run either (tests/hard_case_checks.py)
+each. A case passes when the run ends as its run in docs/tongue_hard_cases.json (the same
+case, level, dt, duration and integrator; tests/hard_case_checks.py):
 
-- finishes: every landmark finite, min det F > 0 over all steps and no
-  element inverted at the end; or
-- raises ElementInversionError whose message names the time, the elements and
+- finished: on its landmarks to 0.01 mm, its min det F and det F at the end to 1e-3, its
+  volume change to 1e-4 (or 1e-7), with no halving or fallback where that run took none
+  and some where it took some; or
+- stopped with an ElementInversionError whose message names the time, the elements and
   det F, with the body left finite and uninverted at the start of the failed step.
 
-Any other exception (or a NaN) fails. The step and dt_0.05 protrusion variants end on the
-same landmarks (docs/tongue_hard_cases.md). The implicit integrator's runs and the
-agreement of the two integrators are in tests/test_tongue_hard_cases_implicit.py (files
-apart so that the two pytest workers share the work). The ``level_1`` case (about 3
-minutes) is not in the suite: ``python -m artifem.models.tongue.hard_cases --cases
-level_1`` runs it; tests/test_tongue_convergence.py compares the levels' static
-equilibria.
+Any other exception (or a NaN) fails; every case finishes there. The step and dt_0.05
+protrusion variants end on the same landmarks (docs/tongue_hard_cases.md). The implicit
+integrator's runs and the agreement of the two integrators are in
+tests/test_tongue_hard_cases_implicit.py (files apart so that the two pytest workers share
+the work). The ``level_1`` case (about 3 minutes) is not in the suite: ``python -m
+artifem.models.tongue.hard_cases --cases level_1`` runs it; tests/test_tongue_convergence.py
+compares the levels' static equilibria.
 
 Durations on this machine (serial), see that page: the level-0 cases 2-10 s each (4-30 s
 with other jobs on the machine).
@@ -28,7 +30,16 @@ import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models.tongue.hard_cases import build_case, run_built
-from hard_case_checks import PENALTY, check_outcome, check_protrusion_variants, make_runs
+from hard_case_checks import (
+    DET_F_REL,
+    LANDMARK_MM,
+    PENALTY,
+    VOLUME_ABS,
+    assert_same_landmarks,
+    check_outcome,
+    check_protrusion_variants,
+    make_runs,
+)
 
 
 @pytest.fixture(scope="module")
@@ -65,17 +76,16 @@ def test_hard_incompressibility_on_a_hard_case(name, runs):
     """The tongue's default (hard incompressibility, semi-implicit with the implicit
     fallback) finishes the hard cases, 1 s each: the protrusion targets switched on at
     t = 0 (``step``), every exciter at 1.0 ramped (``all_exciters``) or switched on at
-    t = 0 (``all_step``), antagonists together at 1.0 from t = 0 (``coactivation``), with
-    min det F > 0 and the volume held to the element tolerance 1e-4 (the penalty lets it
-    change by about 3 %). A step that leaves volumes off by more than 1 % is projected back
-    (``integrators._project_volumes``); where the semi-implicit step inverts elements (the
-    co-activation and every exciter switched on at once) the implicit Newton step takes
-    over (``fallbacks``); the dt = 0.05 s protrusion finishes too."""
+    t = 0 (``all_step``), antagonists together at 1.0 from t = 0 (``coactivation``), as
+    their committed runs do (check_outcome): the volume changes by 3e-7 to 6e-6 there (the
+    penalty lets it change by about 3 %). A step that leaves volumes off by more than 1 % is
+    projected back (``integrators._project_volumes``); where the semi-implicit step inverts
+    elements (the co-activation and every exciter switched on at once) the implicit Newton
+    step takes over (``fallbacks``); the dt = 0.05 s protrusion finishes too."""
     tongue, result = runs(name, "semi-implicit")
     assert tongue.config.integrator == "semi-implicit"
     check_outcome(name, tongue, result)
     assert result["outcome"] == "finished", result.get("error")
-    assert abs(result["volume_change"]) <= 1e-4
     if name in ("incompressible_coactivation", "incompressible_all_step"):
         assert result["fallbacks"] > 0  # the semi-implicit step inverts elements there
 
@@ -83,15 +93,26 @@ def test_hard_incompressibility_on_a_hard_case(name, runs):
 @pytest.mark.slow
 def test_fast_pulses_finish():
     """Every exciter pulsed at 0.8, two groups in antiphase switched every 0.05 s (within
-    1 ms) from t = 0: five switches finish with default settings, the volume held to
-    2e-4 (measured 1.1e-4: the semi-implicit steps between switches hold the constraint
+    1 ms) from t = 0: five switches finish with default settings and the implicit fallback
+    (the committed run in docs/tongue_hard_cases.json is 1 s: this one is measured, the
+    same in two processes, and compared with the tolerances of the committed runs). The
+    volume changes by 9.4e-6: the semi-implicit steps between switches hold the constraint
     linearized, and what they leave, up to ``Incompressible.step_tol`` per element, the
-    next step corrects)."""
+    next step corrects. The 7 halvings and 5 fallbacks turn on round-off
+    (hard_case_checks.py): only that there are some is checked."""
     tongue, _, dt = build_case("incompressible_pulses", "semi-implicit")
     result = run_built(tongue, dt, duration=0.25)
     assert result["outcome"] == "finished", result.get("error")
-    assert result["steps_done"] == 25 and result["min_det_F"] > 0
-    assert abs(result["volume_change"]) <= 2e-4 and result["fallbacks"] > 0
+    assert result["steps_done"] == 25
+    measured = {
+        "tip": [8.6463, 0.0, -12.4463],
+        "top": [3.2287, -0.0002, -6.649],
+        "base": [6.3232, -0.0002, -6.5128],
+    }
+    assert_same_landmarks(result, {"landmarks_mm": measured}, "pulses at 0.25 s", LANDMARK_MM)
+    assert result["min_det_F"] == pytest.approx(0.11762632004, rel=DET_F_REL)
+    assert result["volume_change"] == pytest.approx(9.426332730e-6, abs=VOLUME_ABS)
+    assert result["fallbacks"] > 0 and result["halvings"] > 0
 
 
 @pytest.mark.slow

@@ -5,10 +5,11 @@ contract; a file of its own so that the two pytest workers share the work).
 The implicit integrator runs the level-0 cases that differ most from the semi-implicit
 step's: the full excitation stepped at t = 0 (``step``: an indefinite tangent on the
 first steps), the stiffest penalty (``kappa_1000C10``) and the large time step
-(``dt_0.05``). The others (``all_exciters``, ``kappa_100C10``: 40-60 s each with the
-implicit step on two busy cores) and level 1 (about 4 minutes) are in the hard-case
-study, ``python -m artifem.models.tongue.hard_cases --integrators implicit`` (its table in
-docs/tongue_hard_cases.md), to keep ``make test`` near 12 minutes.
+(``dt_0.05``), each against its run in docs/tongue_hard_cases.json
+(``hard_case_checks.check_outcome``). The others (``all_exciters``, ``kappa_100C10``:
+40-60 s each with the implicit step on two busy cores) and level 1 (about 4 minutes) are
+in the hard-case study, ``python -m artifem.models.tongue.hard_cases --integrators
+implicit`` (its table in docs/tongue_hard_cases.md), to keep ``make test`` near 12 minutes.
 """
 
 import pytest
