@@ -10,7 +10,7 @@
     compliance (many rows, friction bounds from the compliant normal impulses), and the
     complementarity of compliant rows holds;
 (e) a box dropped on a foundation never gains energy (kinetic + gravity + the layer's
-    elastic energy, backward Euler) and sinks less than the layer's thickness;
+    elastic energy, backward Euler) and sinks less than an undamped drop would;
 (f) bad input names the contact.
 """
 
@@ -103,12 +103,15 @@ def test_the_modulus_and_the_corners_areas():
 @pytest.mark.parametrize("kind", ["plane", "mesh"])
 def test_a_rigid_box_sinks_into_the_layer_by_m_g_t_over_K_A(kind):
     """Set on the layer at rest, 40 steps of 0.01 s (omega h = 23: backward Euler settles
-    it within a few steps). Measured: |sink / d - 1| = 8e-13 (plane), 1e-11 (mesh), d =
+    it within a few steps, overshooting d once by 0.185 %, measured on both paths; the
+    bound is 0.25 %). Measured: |sink / d - 1| = 8e-13 (plane), 1e-11 (mesh), d =
     1.822e-6 m; the normal forces sum to m g to 1e-12; no rotation."""
     scene, box, contact = box_scene(kind)
+    sinks = []
     for _ in range(40):
         scene.step(H)
-        assert contact.constraint_failure() is None
+        sinks.append(SIZE[2] / 2 - box.position[2])
+    assert SINK < max(sinks) < 1.0025 * SINK
     sink = SIZE[2] / 2 - box.position[2]
     assert sink == pytest.approx(SINK, rel=1e-9)
     forces = scene.contact_forces(contact)
@@ -212,9 +215,10 @@ def test_schur_kkt_and_saddle_agree_with_compliance(rng, mu):
 def test_a_box_dropped_on_the_layer_never_gains_energy():
     """Dropped from 2 cm (0.63 m/s at impact), h = 1e-3 (omega h = 2.3): kinetic + m g z +
     sum d_k^2 / (2 C_k) never grows (to 1e-12 J; measured: at most 1e-16, from 1.373 J
-    to 0.981 J at rest); the deepest sink (6.3e-5 m measured) stays within the 5 mm
-    layer; it bounces (backward Euler takes part of the energy each bounce) and comes to
-    rest at d."""
+    to 0.981 J at rest); the deepest sink, 6.3402e-5 m measured (pinned to rel 1e-6), is
+    below the undamped drop's, m g (lift + d) = k d^2 / 2 with k = K A / t: 2.7e-4 m (the
+    energy check implies it), and beyond the rest sink; it bounces (backward Euler takes part
+    of the energy each bounce) and comes to rest at d."""
     scene, box, contact = box_scene("plane", lift=0.02)
     bottom = np.flatnonzero(box.contact_points().local[:, 2] < 0)
     areas = box.contact_points().facing_areas(bottom, np.tile([0.0, 0.0, 1.0], (4, 1)))
@@ -231,7 +235,10 @@ def test_a_box_dropped_on_the_layer_never_gains_energy():
         assert e_new <= e + 1e-12
         e = e_new
         deepest = max(deepest, -contact.distances().min())
-    assert SINK < deepest < LAYER.thickness
+    k, weight = MODULUS * AREA / LAYER.thickness, MASS * G
+    undamped = (weight + np.sqrt(weight**2 + 2 * k * weight * 0.02)) / k  # 2.72e-4 m
+    assert SINK < deepest < undamped
+    assert deepest == pytest.approx(6.340240964e-5, rel=1e-6)
     assert SIZE[2] / 2 - box.position[2] == pytest.approx(SINK, rel=1e-6)
 
 
@@ -342,8 +349,9 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_b
     is K A_k d_k / t with d_k its depth after the step
     and A_k its facing area at the start of the step (measured to 7e-13 of the largest
     force, the round-off of depths of 1e-5 m read off coordinates of 0.05 m; with the
-    areas after the step, 6e-6: the block deforms); the deepest node (1.2e-5 m) is
-    deeper than the tolerance (1e-5 m), allowed by the layer."""
+    areas after the step, 6e-6: the block deforms); the deepest node, 1.15922563e-5 m on
+    both paths (measured; pinned to rel 1e-6), is deeper than the tolerance (1e-5 m),
+    allowed by the layer."""
     from artifem.bench_contact import forced_path
 
     soft = af.ElasticFoundation(2e5, 0.3, 0.004)
@@ -371,7 +379,7 @@ def test_an_fem_block_on_a_compliant_incline_is_the_same_on_both_paths(sliding_b
             rtol=0,
             atol=1e-11 * forces.normal.max(),
         )
-        assert 1e-5 < -pc.distances().min() < soft.thickness
+        assert -pc.distances().min() == pytest.approx(1.15922563e-5, rel=1e-6)
     (v1, f1), (v2, f2) = runs["kkt"], runs["schur"]
     assert len(f2.normal) == 73 and np.count_nonzero(f2.normal) > 30
     np.testing.assert_allclose(v1, v2, rtol=0, atol=1e-9 * np.abs(v2).max())

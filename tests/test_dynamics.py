@@ -154,12 +154,22 @@ def assert_never_grows(total):
 def test_rayleigh_damped_energy_never_grows(integrator):
     """Released from rest under gravity (large sag, ~30% of the length): the total
     energy T + Pi (Pi includes the work of gravity) starts at 0 and decreases at
-    every step; it converges to the static minimum."""
+    every step; it converges to the static minimum, Pi of the same beam solved statically
+    (-35.930 J).
+
+    Measured after 60 steps of 0.02 s: E - E_static = 1.30e-4 (semi-implicit) and 1.21e-4
+    (implicit) of |E_static|, kinetic energy 2.7e-5 and 2.5e-5 of its peak (13.3 J); the
+    bounds, 1.6e-4 and 3.5e-5, are about 1.25x the larger."""
     total, kinetic = energy_history(integrator, rayleigh=(2.0, 0.01))
     assert total[0] == 0.0
     assert kinetic.max() > 1.0  # it really fell
-    assert total[-1] < -20.0  # and released potential energy
-    assert kinetic[-1] < 0.05 * kinetic.max()  # damping took most of the motion out
+    twin, _ = cantilever(BEAM_MATERIAL, rayleigh=(2.0, 0.01), gravity=(0.0, 0.0, -9.81))
+    static = scene_with(twin)
+    static.solve_static()
+    minimum = static.energy()
+    # Above the minimum (T >= 0 and the static state minimizes Pi), and close to it.
+    assert 0.0 < total[-1] - minimum < 1.6e-4 * abs(minimum), (total[-1], minimum)
+    assert kinetic[-1] < 3.5e-5 * kinetic.max()  # damping took the motion out
     assert_never_grows(total)
 
 
@@ -322,9 +332,13 @@ def test_excitation_changes_the_motion_without_recompiling():
     assert body._compiled is compiled
     assert body.muscles["top"].excitation.value == 0.5
     u_tip = body.displacement_at(tip)
-    # The top half shortens: the tip moves back along x and the beam curls up (+z).
-    assert u_tip[:, 2].mean() > 1e-4
-    assert u_tip[:, 0].min() < -1e-5
+    # The top half shortens: the tip moves back along x and the beam curls up (+z). The run is
+    # deterministic (mumps): measured mean tip (-24.973175, 0, 12.979762) mm and least x
+    # -40.194512 mm after the 5 excited steps; rel 1e-6 (y is 0 by the section's symmetry).
+    assert u_tip.mean(axis=0) == pytest.approx(
+        [-2.4973174956e-2, 0.0, 1.2979762058e-2], rel=1e-6, abs=1e-12
+    )
+    assert u_tip[:, 0].min() == pytest.approx(-4.019451160e-2, rel=1e-6)
 
     body.set_excitation("top", 0.0)
     scene.step(0.01)
@@ -382,12 +396,26 @@ def test_static_neo_hookean_cantilever_under_a_very_small_load():
     assert neo == pytest.approx(euler_bernoulli, rel=0.1)
 
 
-def test_implicit_euler_settles_a_stiff_beam_under_gravity():
-    body, tip = cantilever(
+def stiff_beam():
+    return cantilever(
         NeoHookean.from_young_poisson(1.0e8, 0.3), rayleigh=(5.0, 0.01), gravity=(0.0, 0.0, -9.81)
     )
+
+
+def test_implicit_euler_settles_a_stiff_beam_under_gravity():
+    """Released under gravity, 30 implicit steps of 0.02 s take the damped stiff beam to its
+    static equilibrium (the same beam solved statically). Measured: max |u - u_static| =
+    3.1e-9 of max |u_static| (3.1 mm), max |v| = 1.2e-9 m/s; the bounds, 1e-8 and 5e-9 m/s,
+    allow about 3x and 4x."""
+    body, _ = stiff_beam()
     scene = scene_with(body, "implicit")
     for _ in range(30):
         scene.step(0.02)
     assert scene.t == pytest.approx(0.6)
-    assert body.displacement_at(tip)[:, 2].mean() < 0
+    twin, _ = stiff_beam()
+    scene_with(twin).solve_static()
+    u_static = twin.u.x.array
+    assert np.abs(u_static).max() > 1e-3  # it sags
+    difference = np.abs(body.u.x.array - u_static).max() / np.abs(u_static).max()
+    assert difference < 1e-8, difference
+    assert np.abs(body.v.x.array).max() < 5e-9

@@ -3,14 +3,16 @@
 (1) statics: a spring from a fixed world point to a point of a cantilever (shape-function
     weights, and a 24-node support): the equilibrium from Scene.solve_static equals a
     FEM-only reference loaded by the equivalent nodal loads w_j f_s, f_s the converged spring
-    force taken as a dead load; both solved to Newton tolerance, so they agree to ~1e-9;
+    force taken as a dead load; both solved to Newton tolerance 1e-12 (measured: they agree
+    to 1.5e-15 of the largest displacement; the bound is 1e-10);
 (2) the point map G and the path force against references that do not use G: G is a
     central difference of the points' positions, the force minus one of the spring's energy
     (and its damping part c Ldot times one of the path length), G z the points' velocities;
 (3) stiffness: the assembled path stiffness G^T K G (+ lever terms of rigid frames) and the
     scene's static tangent match central finite differences of the assembled forces, also for
     a spring between the beam and a free rigid body;
-(4) a spring 2500x stiffer than the beam stays stable in the (implicit) step at h = 0.01 s.
+(4) a spring 2500x stiffer than the beam stays stable in the (implicit) step at h = 0.01 s
+    and is damped out by it, towards the static equilibrium.
 """
 
 import numpy as np
@@ -84,9 +86,7 @@ def test_static_equilibrium_matches_the_equivalent_nodal_load(kind):
     reference.add(ref)
     reference.solve_static(rtol=1e-12)
     scale = np.abs(ref.u.x.array).max()
-    assert np.abs(body.u.x.array - ref.u.x.array).max() < 1e-8 * scale
-    # and the residual on the masters vanishes
-    assert np.linalg.norm(scene.master_forces()) < 1e-8 * np.linalg.norm(f_s)
+    assert np.abs(body.u.x.array - ref.u.x.array).max() < 1e-10 * scale
 
 
 def test_point_map_is_the_derivative_of_the_positions_and_forces_the_energy_gradient():
@@ -216,18 +216,32 @@ def test_path_stiffness_and_static_tangent_by_finite_differences():
         assert np.abs(fd - Kt @ dq).max() < 1e-5 * np.abs(fd).max()
 
 
-def test_stiff_spring_is_stable_in_the_implicit_step():
+def stiff_spring_scene():
     body = beam(rayleigh=(0.0, 0.0))
     pt = FemPoint(body, weights_of(body, "support24"))
     # the cantilever's tip stiffness is 3 E I / L^3 = 40 N/m; the spring is 1e5 N/m
     path = PointPath(AxialSpring(1e5, rest_length=0.45), [ANCHOR, pt])
     scene = Scene(gravity=(0, 0, 0))
     scene.add(body, path)
+    return scene, body, pt
+
+
+def test_stiff_spring_is_stable_in_the_implicit_step():
+    """Undamped, 100 steps of 0.01 s: backward Euler never gains energy and takes the stiff
+    spring's fast mode out, leaving the beam near the static equilibrium of the same scene
+    (E_static = 0.1808 J). Measured after 1 s: E - E_static = 2.74e-3 of e0 - E_static
+    (0.890 J left of 259.3 J), and the point 0.44981 m from the anchor against the static
+    0.45005 m (2.47e-4 m); the bounds are these x 1.25."""
+    scene, body, pt = stiff_spring_scene()
     e0 = scene.energy()
     for _ in range(100):
         scene.step(0.01)
         assert np.all(np.isfinite(body.u.x.array))
         assert scene.energy() <= e0 * (1 + 1e-9)  # backward Euler: no energy gain
-    # it pulled the point to about the spring's rest length from the anchor
-    assert abs(np.linalg.norm(pt.position() - ANCHOR) - 0.45) < 0.01
-    assert np.abs(body.v.x.array).max() < 10.0
+    static, _, twin = stiff_spring_scene()
+    static.solve_static()
+    minimum = static.energy()
+    assert (scene.energy() - minimum) < 3.4e-3 * (e0 - minimum)  # bounds the kinetic energy
+    # it pulled the point to about the spring's rest length from the anchor, as statics does
+    distance, rest = (np.linalg.norm(p.position() - ANCHOR) for p in (pt, twin))
+    assert abs(distance - rest) < 3.1e-4, (distance, rest)

@@ -4,12 +4,15 @@
     stiffness and load) moves exactly as the beam alone stepped by ImplicitEuler
     on its own: the coupled Newton solves the same equations.
 (2) A hinged pendulum: backward Euler dissipates (the energy never rises), the joint
-    holds at the end of every step to Newton's tolerance, and the implicit solution
+    holds at the end of every step to round-off (measured: at most 2.1e-13 m over 100
+    steps, the bound 1e-12 m; the step's own Newton tolerance allows about 1e-8), and the
+    implicit solution
     converges to the semi-implicit one at first order (the two are first-order
     methods with different errors).
 (3) A bone carrying tissue, hinged, pulled by a muscle: one implicit and one
     semi-implicit step from the same state differ by O(h^2) (local error of two
-    consistent first-order methods), and Newton converges in a few iterations.
+    consistent first-order methods), and Newton converges quadratically, in a few
+    iterations.
 (4) A custom integrator object steps bodies on their own only: a clear error for a
     coupled island.
 """
@@ -95,11 +98,12 @@ def swing(h, integrator, duration=1.0):
 
 def test_implicit_pendulum_dissipates_holds_its_hinge_and_converges_at_first_order():
     scene, rod = hinged_rod()
-    energy = [scene.energy()]
+    energy, hinge = [scene.energy()], []
     for _ in range(100):
         scene.step(0.01)
         energy.append(scene.energy())
-        assert scene.constraint_errors()["hinge"] < 1e-8
+        hinge.append(scene.constraint_errors()["hinge"])
+    assert max(hinge) < 1e-12
     rises = np.diff(energy)
     assert rises.max() <= 1e-9 * abs(energy[0])  # backward Euler: no gain
     assert energy[-1] < energy[0] - 1e-3  # and a visible loss
@@ -136,6 +140,10 @@ def bone_and_tissue(integrator):
 
 
 def test_one_implicit_step_differs_from_the_semi_implicit_one_at_second_order():
+    """The gap between the two steps falls 4x when h halves (second order), and the implicit
+    step's Newton converges quadratically: m_{k+1} / m_0 <= C (m_k / m_0)^2 for its merits
+    m_k above round-off (1e-13 m_0), measured C at most 0.11 over 3 iterations at each h;
+    the bound is 0.15."""
     start, _, _ = bone_and_tissue("semi-implicit")
     for _ in range(5):  # a moving state
         start.step(0.01)
@@ -149,9 +157,10 @@ def test_one_implicit_step_differs_from_the_semi_implicit_one_at_second_order():
             scene.step(h)
             positions.append(np.concatenate([bone.position, tissue.u.x.array]))
             if integrator == "implicit":
-                merits = scene.last_solve["merits"]
+                merits = np.asarray(scene.last_solve["merits"]) / scene.last_solve["merits"][0]
                 assert 1 <= len(merits) - 1 <= 8
-                assert merits[-1] <= 1e-8 * merits[0] or merits[-1] <= 1e-12
+                above = merits[1:] > 1e-13
+                assert np.all(merits[1:][above] <= 0.15 * merits[:-1][above] ** 2), merits
         gaps.append(np.abs(positions[1] - positions[0]).max())
     assert gaps[0] > 1e-9
     assert 3.0 < gaps[0] / gaps[1] < 5.0 and 3.0 < gaps[1] / gaps[2] < 5.0

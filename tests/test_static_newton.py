@@ -57,24 +57,31 @@ def assert_quadratic(residuals, counts):
 
 @pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
 def test_quadratic_under_a_dead_traction(hard, direct_solver):
+    """Hard: the solve stops once every element's volume change is within the constraint's
+    tol (1e-6); the body's volume int J dX changed by 7.6e-9 (measured; the bound is that
+    x 1.3)."""
     body = cantilever(hard)
+    reference = body.volume()
     body.add_traction((0.0, 0.0, -200.0), where=top)
     counts = solve_static(body, direct_solver(body), load_steps=3)
     assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
     assert_quadratic(counts.residuals, counts)
     if hard:
-        assert body.volume_constraint.violation() <= body.volume_constraint.spec.tol
+        assert abs(body.volume() / reference - 1.0) < 1e-8
 
 
 @pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
 def test_quadratic_under_a_follower_pressure(hard, direct_solver):
+    """Hard: the body's volume changed by 3.1e-8 (measured; the bound is that x 1.3; the
+    constraint's tol of 1e-6 on each element is what the solve enforces)."""
     body = cantilever(hard)
+    reference = body.volume()
     body.add_pressure(200.0, where=top)
     counts = solve_static(body, direct_solver(body), load_steps=3)
     assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
     assert_quadratic(counts.residuals, counts)
     if hard:
-        assert body.volume_constraint.violation() <= body.volume_constraint.spec.tol
+        assert abs(body.volume() / reference - 1.0) < 4e-8
 
 
 def long_beam():
@@ -110,24 +117,23 @@ def test_the_predictor_extrapolates_a_quadratic_exactly():
 def test_the_long_beam_is_solved_by_adaptive_load_steps():
     """The 10:1 neo-Hookean beam (E = 10) under a follower pressure 0.004 on its bottom
     face: load_steps="auto" chooses the increments (a failed one is cut) and solves the
-    full load; a fixed count still works, and its increments are cut where they fail."""
+    full load; a fixed count still works, and its increments are cut where they fail. The
+    beam bends far up (large rotation): its highest node rises 5.0147820 (measured; pinned
+    to rel 1e-8, the two runs agree to 2e-11 of it), and both runs reach the same
+    equilibrium (measured to 1.2e-10; the bound is 1e-9)."""
     body = long_beam()
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(body)
     counts = scene.solve_static(load_steps="auto")
     assert body.load_factor.value == 1.0
     tip = body.u.x.array.reshape(-1, 3)[:, 2].max()
-    assert tip > 2.0, tip  # bent far up (large rotation)
+    assert tip == pytest.approx(5.0147820424, rel=1e-8)
     assert max(counts) <= 10 and len(counts) <= 20, counts
-    body.assemble(tangent=False)
-    r = body.R.copy()
-    body.zero_fixed(r)
-    assert r.norm() < 1e-8 * body.R.norm()
     fixed = long_beam()
     scene = Scene(gravity=(0.0, 0.0, 0.0), linear_solver="mumps")
     scene.add(fixed)
     scene.solve_static(load_steps=1)  # one step: cut until it converges
-    assert np.abs(fixed.u.x.array - body.u.x.array).max() < 1e-6
+    assert np.abs(fixed.u.x.array - body.u.x.array).max() < 1e-9
 
 
 def _compressed_cube(s: float):
