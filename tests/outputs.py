@@ -61,3 +61,38 @@ def assert_picture(path, min_pixels: int = 200) -> np.ndarray:
     colours = np.unique((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).size
     assert colours > 16, f"{path}: {colours} colours, nothing drawn"
     return rgb
+
+
+def study_report_rows(data: dict) -> list[str]:
+    """The rows ``artifem study tongue``'s report.md must have for its study.json ``data``,
+    formatted here: its Table 2 analog (trained points: each basis's ms per step by point
+    count; one motion: the run's own) and its table of every run (volume changes in %)."""
+    from artifem.models.tongue.report import BASIS_NAMES
+
+    runs = data["runs"]
+    trained = [r for r in runs if r["sampling"] == "trained"]
+    counts = sorted({r["points"] for r in trained}, reverse=True)
+
+    def ms(basis, r, points):
+        return np.median(
+            [
+                x["ms_per_step"]
+                for x in trained
+                if (x["basis"], x["r"], x["points"]) == (basis, r, points)
+            ]
+        )
+
+    table2 = [
+        f"| {BASIS_NAMES[basis]} (r={r}) | "
+        + " | ".join(f"{ms(basis, r, m):.2f}" for m in counts)
+        + " |"
+        for basis, r in sorted({(x["basis"], x["r"]) for x in trained})
+    ]
+    every = [
+        f"| {r['basis']} | {r['r']} | {r['points']} | {r['sampling']} | {r['motion']} | "
+        f"{r['ms_per_step']:.2f} | {r['speedup']:.1f} | {r['mean_error_mm']:.2f} | "
+        f"{r['max_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
+        f"{100 * r['max_volume_change']:.3f} | {100 * r['full_max_volume_change']:.3f} | ok |"
+        for r in runs
+    ]
+    return table2 + every

@@ -33,7 +33,7 @@ from mpi4py import MPI
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.cli import main
-from outputs import assert_picture, read_series
+from outputs import assert_picture, read_series, study_report_rows
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the commands run in serial")
 
@@ -635,40 +635,6 @@ def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
 
 
 # ---- demo ------------------------------------------------------------------------------
-
-
-def study_report_rows(data: dict) -> list[str]:
-    """The rows report.md must have for study.json's ``data`` (as test_tongue_study
-    formats them): the Table 2 analog (trained points; one motion: each run's ms per step)
-    and the table of every run."""
-    from artifem.models.tongue.report import BASIS_NAMES
-
-    trained = [r for r in data["runs"] if r["sampling"] == "trained"]
-    counts = sorted({r["points"] for r in trained}, reverse=True)
-
-    def ms(basis, r, points):
-        return np.median(
-            [
-                x["ms_per_step"]
-                for x in trained
-                if (x["basis"], x["r"], x["points"]) == (basis, r, points)
-            ]
-        )
-
-    table2 = [
-        f"| {BASIS_NAMES[basis]} (r={r}) | "
-        + " | ".join(f"{ms(basis, r, m):.2f}" for m in counts)
-        + " |"
-        for basis, r in sorted({(x["basis"], x["r"]) for x in trained})
-    ]
-    every = [
-        f"| {r['basis']} | {r['r']} | {r['points']} | {r['sampling']} | {r['motion']} | "
-        f"{r['ms_per_step']:.2f} | {r['speedup']:.1f} | {r['mean_error_mm']:.2f} | "
-        f"{r['max_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
-        f"{100 * r['max_volume_change']:.3f} | {100 * r['full_max_volume_change']:.3f} | ok |"
-        for r in data["runs"]
-    ]
-    return table2 + every
 
 
 #: each tongue motion of the quick demo (``simulate tongue --case all --duration 0.1``, level

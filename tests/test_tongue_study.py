@@ -22,7 +22,7 @@ from artifem.cli import main
 from artifem.errors import InputError
 from artifem.models.tongue import study
 from artifem.reduction import reductor
-from outputs import assert_picture
+from outputs import assert_picture, study_report_rows
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the study runs in serial")
 
@@ -93,41 +93,6 @@ def test_study_json_has_every_configuration(quick_study):
         assert np.nanmax(error) == pytest.approx(r["max_error_mm"])
 
 
-def report_rows(data: dict) -> list[str]:
-    """The rows report.md must have for study.json's ``data``, formatted here: its Table 2
-    analog (trained points: each basis's ms per step by point count, one motion: the
-    run's own) and its table of every run (volume changes in %)."""
-    from artifem.models.tongue.report import BASIS_NAMES
-
-    runs = data["runs"]
-    trained = [r for r in runs if r["sampling"] == "trained"]
-    counts = sorted({r["points"] for r in trained}, reverse=True)
-
-    def ms(basis, r, points):
-        return np.median(
-            [
-                x["ms_per_step"]
-                for x in trained
-                if (x["basis"], x["r"], x["points"]) == (basis, r, points)
-            ]
-        )
-
-    table2 = [
-        f"| {BASIS_NAMES[basis]} (r={r}) | "
-        + " | ".join(f"{ms(basis, r, m):.2f}" for m in counts)
-        + " |"
-        for basis, r in sorted({(x["basis"], x["r"]) for x in trained})
-    ]
-    every = [
-        f"| {r['basis']} | {r['r']} | {r['points']} | {r['sampling']} | {r['motion']} | "
-        f"{r['ms_per_step']:.2f} | {r['speedup']:.1f} | {r['mean_error_mm']:.2f} | "
-        f"{r['max_error_mm']:.2f} | {r['max_node_error_mm']:.2f} | "
-        f"{100 * r['max_volume_change']:.3f} | {100 * r['full_max_volume_change']:.3f} | ok |"
-        for r in runs
-    ]
-    return table2 + every
-
-
 def test_report_and_pictures_exist(quick_study):
     """report.md's tables are study.json's figures (every row of both), its full-model
     line is the JSON's, and the pictures show something."""
@@ -135,7 +100,7 @@ def test_report_and_pictures_exist(quick_study):
     report = (quick_study / "report.md").read_text()
     assert "Table 2" in report and "Targets" in report
     lines = report.splitlines()
-    for row in report_rows(data):
+    for row in study_report_rows(data):
         assert row in lines, row
     assert f"Full model: ours {data['full']['ms_per_step']:.2f} ms per step" in report
     for png in ["error_protrusion.png", "speed_vs_error.png"]:
