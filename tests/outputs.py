@@ -4,6 +4,8 @@ it (issue 32): a VTX series through the ``adios2`` reader, a picture through mat
 from pathlib import Path
 from typing import NamedTuple
 
+import pytest
+
 import artifem  # noqa: F401  (must precede dolfinx)
 import dolfinx  # noqa: F401  (before adios2: the other order fails to load DOLFINx's ADIOS2)
 import numpy as np
@@ -96,3 +98,42 @@ def study_report_rows(data: dict) -> list[str]:
         for r in runs
     ]
     return table2 + every
+
+
+def landmark_rows(X) -> dict:
+    """The rows of a written tongue series at the tongue's landmarks, found by their rest
+    coordinates (the level-1 landmarks are the level-0 ones' material points,
+    test_tongue_model)."""
+    from artifem.models.tongue.model import load_tongue_data
+
+    data = load_tongue_data(0)
+    return {
+        name: int(np.argmin(np.linalg.norm(X - data.mesh.points[row], axis=1)))
+        for name, row in data.landmarks.items()
+    }
+
+
+def assert_tongue_series(out, f) -> None:
+    """The two series ``simulate tongue`` wrote in ``out`` against its figures ``f``:
+    t = 0 and every step; at the last, the landmarks it reports (rounded to 1e-3 mm) and
+    the range of the element pressures."""
+    times = f["dt"] * np.arange(f["steps"] + 1)
+    series = read_series(out / "tongue.bp")
+    np.testing.assert_allclose(series.times, times, atol=1e-15)
+    X, u = series.at("geometry", 0), series.at("displacement")
+    for name, node in landmark_rows(X).items():
+        np.testing.assert_allclose(
+            1e3 * u[node], f["landmarks"][name], rtol=0, atol=5e-4 + 1e-9, err_msg=name
+        )
+    pressure = read_series(out / "tongue_pressure.bp")
+    np.testing.assert_allclose(pressure.times, times, atol=1e-15)
+    p = pressure.at("pressure")
+    assert [p.min(), p.max()] == pytest.approx(f["pressure_range_Pa"], rel=1e-12)
+
+
+def assert_landmarks(f, measured) -> None:
+    """The figures' landmarks (mm, rounded to 1e-3 by the command) are the measured ones,
+    to one rounding unit."""
+    assert set(f["landmarks"]) == set(measured)
+    for name, mm in measured.items():
+        np.testing.assert_allclose(f["landmarks"][name], mm, rtol=0, atol=1.5e-3, err_msg=name)

@@ -17,7 +17,7 @@ from artifem.models.tongue.model import (
     read_max_forces,
 )
 from artifem.scene import simulate
-from outputs import assert_picture, read_series
+from outputs import assert_landmarks, assert_picture, assert_tongue_series
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -150,8 +150,6 @@ def test_simulate_tongue_command_writes_results(tmp_path):
     """0.1 s of retraction through the command: its figures are the measured ones, its two
     series hold every step and end at the landmarks and the pressure range it reports,
     and its picture shows the tongue."""
-    from artifem.models.tongue.model import load_tongue_data
-
     status = main(
         [
             "simulate",
@@ -177,21 +175,8 @@ def test_simulate_tongue_command_writes_results(tmp_path):
         "top": [10.52, 0.0, -2.687],
         "base": [5.857, 0.0, -5.754],
     }
-    assert set(figures["landmarks"]) == set(measured)
-    for name, mm in measured.items():
-        np.testing.assert_allclose(figures["landmarks"][name], mm, rtol=0, atol=1.5e-3)
-    times = 0.01 * np.arange(11)  # t = 0 and 10 steps
-    series = read_series(out / "tongue.bp")
-    np.testing.assert_allclose(series.times, times, atol=1e-15)
-    X, u = series.at("geometry", 0), series.at("displacement")
-    data = load_tongue_data(0)
-    for name, row in data.landmarks.items():
-        node = np.argmin(np.linalg.norm(X - data.mesh.points[row], axis=1))
-        np.testing.assert_allclose(1e3 * u[node], figures["landmarks"][name], atol=5e-4 + 1e-9)
-    pressure = read_series(out / "tongue_pressure.bp")
-    np.testing.assert_allclose(pressure.times, times, atol=1e-15)
-    p = pressure.at("pressure")
-    assert [p.min(), p.max()] == pytest.approx(figures["pressure_range_Pa"], rel=1e-12)
+    assert_landmarks(figures, measured)
+    assert_tongue_series(out, figures)
     assert_picture(out / "tongue.png")
 
 
