@@ -187,16 +187,18 @@ def quick_jaw_tongue(tmp_path_factory) -> QuickJawTongue:
 
 @pytest.fixture(scope="session")
 def quick_tongue_study(tmp_path_factory) -> Path:
-    """The output directory of ``artifem study tongue --quick`` (about 40 s): study.json,
-    report, pictures and the training cache (``cache/``). test_tongue_study reads it and
-    runs the study again in it (after deleting one training artifact, which that run
-    restores); test_cli_end_to_end copies its cache into the quick demo's study directory,
-    as a second demo run would find it."""
+    """The output directory of ``artifem study tongue --quick --held-out 2`` (about 50 s;
+    the command of the committed quick split, docs/benchmarks/quick_splits.json): study.json,
+    generalization.json, report, pictures and the training cache (``cache/``).
+    test_tongue_study reads it and runs the study again in it (after deleting one training
+    artifact, which that run restores); test_cli_end_to_end copies its cache into the
+    quick demo's study directory, as a second demo run would find it."""
     import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
     from artifem.cli import main
+    from outputs import quick_split
 
     def make(out: Path) -> None:
-        assert main(["study", "tongue", "--quick", "--out", str(out)]) == 0
+        assert main([*quick_split("tongue")["argv"], "--out", str(out)]) == 0
 
     return computed_once(tmp_path_factory, "study", make)
 

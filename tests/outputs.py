@@ -137,3 +137,40 @@ def assert_landmarks(f, measured) -> None:
     assert set(f["landmarks"]) == set(measured)
     for name, mm in measured.items():
         np.testing.assert_allclose(f["landmarks"][name], mm, rtol=0, atol=1.5e-3, err_msg=name)
+
+
+#: scripts/quick_splits.py's record of the quick train/test splits the suite re-derives
+QUICK_SPLITS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "quick_splits.json"
+
+
+def quick_split(name: str) -> dict:
+    """The committed quick split ``name`` ("tongue", "jaw-tongue"): its command (``argv``),
+    its study's own figures (``runs``) and generalization.json's errors (``sets``), with
+    the margin the suite allows (``margin``)."""
+    import json
+
+    doc = json.loads(QUICK_SPLITS.read_text())
+    return {**doc["splits"][name], "margin": doc["margin"]}
+
+
+def assert_split_as_committed(out, name: str) -> None:
+    """generalization.json in ``out`` has the committed quick split's runs, set by set
+    (training, motions, held-out), none failed, each run's largest and mean error at most
+    the margin times the committed one and its estimate / error ratio within the margin
+    either way of it: a change that breaks how the reduced model generalizes fails."""
+    import json
+
+    committed = quick_split(name)
+    margin = committed["margin"]
+    split = json.loads((Path(out) / "generalization.json").read_text())
+    assert set(split["sets"]) == set(committed["sets"])
+    for which, runs in split["sets"].items():
+        assert {r["name"] for r in runs} == set(committed["sets"][which]), which
+        for r in runs:
+            c = committed["sets"][which][r["name"]]
+            where = (which, r["name"], r, c)
+            assert not r["failed"] and not r.get("full_failed"), where
+            assert r["max_error_mm"] <= margin * c["max_error_mm"], where
+            assert r["mean_error_mm"] <= margin * c["mean_error_mm"], where
+            ratio = r["estimate_ratio"] / c["estimate_ratio"]
+            assert 1 / margin <= ratio <= margin, where

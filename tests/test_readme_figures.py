@@ -791,3 +791,42 @@ def test_galerkin_gap_tables_and_figures_match_their_jsons():
     summary = REDUCED.replace("\n", " ")
     count = ["no", "one", "two", "three", "four", "five", "six"][len(helped)]
     assert f"closes most of the gap on {count} of six held-out runs at level 0" in summary
+
+
+def test_quick_split_table_matches_its_json():
+    """The verification page's quick splits: each command, the range of the largest error
+    per set and of the held-out estimate ratio, and the training described, from
+    docs/benchmarks/quick_splits.json (scripts/quick_splits.py)."""
+    splits = load("quick_splits.json")["splits"]
+    text = section("verification.md", "## Quick train/test splits")
+    rows = {row[0]: row for row in table_after("| split |", text)}
+    assert set(rows) == set(splits)
+
+    def span(values):
+        return [min(values), max(values)]
+
+    for name, split in splits.items():
+        row, sets = rows[name], split["sets"]
+        assert row[1] == f"`artifem {' '.join(split['argv'])}`"
+        cells = [*row[2:5], row[5]]
+        figures = [
+            *(
+                span([r["max_error_mm"] for r in sets[s].values()])
+                for s in ("training", "motions", "held-out")
+            ),
+            span([r["estimate_ratio"] for r in sets["held-out"].values()]),
+        ]
+        for cell, (lo, hi) in zip(cells, figures):
+            shown = cell.split("-")
+            assert agrees(shown[0], lo) and agrees(shown[1], hi), (name, cell, lo, hi)
+    tongue, jaw = splits["tongue"]["reduced"], splits["jaw-tongue"]["reduced"]
+    prose = re.sub(r"\s+", " ", text)
+    assert (
+        f"The tongue's quick training is {tongue['runs']} runs of "
+        f"{splits['tongue']['training_duration']} s (each exciter alone), its split's model "
+        f"trained POD r = {tongue['basis']['size']} with {tongue['points']['count']} trained "
+        f"points; the jaw-tongue's is {jaw['runs']} runs of "
+        f"{splits['jaw-tongue']['training_duration']} s, r = {jaw['basis']['size']} POD "
+        "vectors and the jaw's "
+        f"{jaw['basis']['lift_columns']} lift columns, {jaw['points']['count']} trained points"
+    ) in prose
