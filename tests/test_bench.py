@@ -127,3 +127,59 @@ def test_parse_sizes():
     assert bench.parse_sizes("1k,5x4x3") == [("1k", (15, 7, 7)), ("5x4x3", (5, 4, 3))]
     with pytest.raises(ValueError):
         bench.parse_sizes("0x1x1")
+
+
+def test_the_targets_hold_at_their_bounds_and_are_printed(tmp_path, monkeypatch, capsys):
+    """bench fom's targets, those of docs/benchmarks.md (on 2 cores, at most 100 ms per step
+    at 3,000 nodes and 650 ms at 13,000): a two-rank case at its target meets it, one above
+    misses it, a one-rank or a 1k case has none; each is written and printed. The cases
+    are made up (``run_cases`` replaced): this checks the bookkeeping, not a machine."""
+    ms = {("1k", 1): 1e3, ("1k", 2): 1e3, ("3k", 1): 1e3, ("3k", 2): 100.5, ("13k", 1): 1e3}
+    ms[("13k", 2)] = 650.0
+
+    def made_up(title, plan, steps, warmup, timeout, mpiexec):
+        cases = []
+        for item in plan:
+            key = (item["fields"]["size"], item["ranks"])
+            fields = dict.fromkeys(bench.CASE_FIELDS, 1.0)
+            cases.append(
+                {
+                    **fields,
+                    **item["fields"],
+                    "ranks": item["ranks"],
+                    "solver": item["solver"],
+                    "ms_per_step": ms[key],
+                }
+            )
+        return cases, []
+
+    monkeypatch.setattr(bench, "run_cases", made_up)
+    out = tmp_path / "fom.json"
+    assert main(["bench", "fom", "--out", str(out), "--sizes", "1k,3k,13k", "--ranks", "1,2"]) == 0
+    targets = json.loads(out.read_text())["targets"]
+    assert [(t["size"], t["ranks"], t["target_ms_per_step"], t["met"]) for t in targets] == [
+        ("3k", 2, 100.0, False),
+        ("13k", 2, 650.0, True),
+    ]
+    printed = capsys.readouterr().out
+    assert f"target 3k on 2 ranks ({bench.DEFAULT_SOLVER}): 100.5 ms <= 100 ms: NOT met" in printed
+    assert f"target 13k on 2 ranks ({bench.DEFAULT_SOLVER}): 650.0 ms <= 650 ms: met" in printed
+
+
+def test_machine_info_without_proc_cpuinfo_names_the_platform(monkeypatch):
+    """Where /proc/cpuinfo cannot be read (macOS, a container without /proc), the report
+    names the CPU as the platform module does instead of failing."""
+    import platform
+    from pathlib import Path
+
+    real = Path.read_text
+
+    def no_proc(self, *args, **kwargs):
+        if str(self) == "/proc/cpuinfo":
+            raise FileNotFoundError(self)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "read_text", no_proc)
+    info = bench.machine_info()
+    assert info["cpu"] == (platform.processor() or platform.machine())
+    assert info["cores"] >= 1

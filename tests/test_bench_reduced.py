@@ -82,5 +82,15 @@ def test_bench_reduced_on_the_quick_training(quick_tongue_study, tmp_path):
     assert case["parts"]["stresses"]["flops"] == sum(
         k["points"] * k["flops_per_point"] for k in kernels
     )
+    # the dense parts' textbook counts for r = 8, m = 120 (a multiply-add is 2): the tangent
+    # U^T B^T C B U over the points, the force and kinematics products, the r x r solve
+    r, m = 8, 120
+    dense = {
+        "tangent": 81 * m + 2 * 81 * r * m + 2 * 9 * m * r * r,
+        "force": 2 * 9 * m * r,
+        "kinematics": 2 * 9 * m * r,
+        "rest": round(2 / 3 * r**3),
+    }
+    assert {k: case["parts"][k]["flops"] for k in dense} == dense
     assert case["flops_per_step"] == sum(p["flops"] for p in case["parts"].values())
     assert case["ms_per_step"] > 0 and case["met"] is None

@@ -177,6 +177,14 @@ CASES = [  # (argv, fragment of the one line); "{tmp}" is the test's own directo
         ["bench", "scenes", "--out", "{tmp}/b.json", "--quick", "--steps", "-1"],
         "argument --steps: must be a positive integer",
     ),
+    (
+        ["bench", "reduced", "--out", "{tmp}/b.json", "--incompressibility", "lu"],
+        "--incompressibility: choose from penalty, hard; got 'lu'",
+    ),
+    (
+        ["bench", "reduced", "--out", "{tmp}/b.json", "--incompressibility", ","],
+        "--incompressibility: choose from penalty, hard; got ','",
+    ),
     (["study", "tongue", "--out", "{tmp}/o", "--level", "2"], "invalid choice: 2"),
     (["study", "tongue", "--out", "{tmp}/o", "--quick", "--bases", "pca"], "invalid choice: 'pca'"),
     (["study", "jaw-tongue", "--out", "{tmp}/o", "--motions", "yawn"], "invalid choice: 'yawn'"),

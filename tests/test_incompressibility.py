@@ -76,9 +76,16 @@ def test_penalty_reduces_volume_change_without_locking():
     assert abs(u_locked[2]) < 0.7 * abs(u_pen[2])
 
 
-def test_penalty_must_be_positive():
+@pytest.mark.parametrize("kappa", [-1.0, 0.0, float("nan"), float("inf")])
+def test_penalty_must_be_positive(kappa):
     with pytest.raises(ValueError, match="incompressibility"):
-        FemBody(_box(), NeoHookean(MU, MU), 1000.0, incompressibility=-1.0)
+        FemBody(_box(), NeoHookean(MU, MU), 1000.0, incompressibility=kappa)
+
+
+def test_any_positive_penalty_is_accepted():
+    """kappa_inc > 0 is the whole condition: a soft 0.5 Pa penalty is a valid body."""
+    body = FemBody(_box(), NeoHookean(MU, MU), 1000.0, incompressibility=0.5)
+    assert body.incompressibility == 0.5
 
 
 # ---- the hard constraint (artifem.incompressibility) ------------------------------------
