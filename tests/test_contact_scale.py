@@ -176,6 +176,9 @@ def test_many_rows_at_once_settle_a_resting_block():
                 scene.step(H)
                 trials.append(scene.last_solve["trials"])
         after = scene.momentum()[2]
+        # gravity along -z, a frictionless plane: nothing pushes the block sideways
+        sideways = np.abs(scene.momentum()[:2]).max()
+        assert sideways <= 1e-12 * body.total_mass() * G * H, sideways
         balance = after - before + H * (body.total_mass() * G + 10.0 * after)
         assert H * scene.contact_forces(pc).normal.sum() == pytest.approx(balance, rel=1e-9)
         runs[path] = (
