@@ -81,6 +81,25 @@ def test_energy_and_gravity_are_weighted_by_the_fraction():
     assert body.potential_energy() == pytest.approx(psi * body.voxels.volume, rel=1e-10)
 
 
+def test_energy_terms_of_a_muscled_voxel_body_are_those_of_its_fem_body():
+    """Like any FemBody, a voxel body lists one energy term per muscle by default and one
+    per layer of muscles when merged (its own forms)."""
+    from artifem.forms import BlemkerFiber
+
+    V, T = sphere_surface(res=16)
+    body = VoxelFemBody(V, T, MATERIAL, RHO, (4, 4, 4), samples=2)
+    ref = FemBody(body.mesh, MATERIAL, RHO)
+    n = body.mesh.topology.index_map(3).size_local
+    for b in (body, ref):
+        b.add_muscle("a", np.arange(n // 2), (1.0, 0.0, 0.0), BlemkerFiber(2.0e4), 0.5)
+        b.add_muscle("b", np.arange(n // 2, n), (0.0, 1.0, 0.0), BlemkerFiber(1.0e4), 0.2)
+    names = [t.name for t in ref.energy_terms()]
+    assert names == ["material", "muscle:a", "muscle:b"]
+    assert [t.name for t in body.energy_terms()] == names
+    merged = [t.name for t in body.energy_terms(merged=True)]
+    assert merged == [t.name for t in ref.energy_terms(merged=True)] != names
+
+
 # ---- static comparison with a conforming tetrahedral mesh --------------------------------
 
 L, R = 0.3, 0.05
