@@ -6,7 +6,8 @@ body is an island of its own, its PETSc solver distributed) runs serially and un
 ``mpiexec -n 2``; node and cell arguments are input indices, so the script is
 identical on any number of ranks. Displacements of a few input nodes and the
 total energy must agree to 1e-8 relative (a direct solver on both sides; the
-differences are round-off in the order of summation).
+differences are round-off in the order of summation), and every node of the box is its
+own nearest node on either.
 """
 
 import json
@@ -68,7 +69,10 @@ SCRIPT = textwrap.dedent('''
     implicit.add(body)
     for _ in range(3):
         implicit.step(0.01)
+    lattice = [(L * i / 8, W * j / 3, H * k / 2)
+               for i in range(9) for j in range(4) for k in range(3)]
     result = {
+        "nearest": [body.nearest_node(point) for point in lattice],
         "ranks": comm.size,
         "probes": probes.tolist(),
         "after_semi": after_semi.tolist(),
@@ -106,6 +110,9 @@ def test_two_ranks_equal_serial(tmp_path):
     assert serial["probes"] == parallel["probes"] and len(serial["probes"]) >= 8
     assert serial["cells_in_muscle"] == parallel["cells_in_muscle"] == 24
     assert serial["halvings"] == parallel["halvings"]
+    # each of the box's 108 nodes is its own nearest node, whichever rank holds it
+    assert sorted(serial["nearest"]) == list(range(9 * 4 * 3))
+    assert parallel["nearest"] == serial["nearest"]
     assert serial["time"] == pytest.approx(0.13) and parallel["time"] == pytest.approx(0.13)
     for key in ("after_semi", "after_implicit"):
         a, b = np.array(serial[key]), np.array(parallel[key])
