@@ -183,3 +183,17 @@ def test_machine_info_without_proc_cpuinfo_names_the_platform(monkeypatch):
     info = bench.machine_info()
     assert info["cpu"] == (platform.processor() or platform.machine())
     assert info["cores"] >= 1
+
+
+def test_the_worker_alone_runs_the_level0_tongue_without_warm_up(capsys):
+    """``python -m artifem.bench_worker --scene tongue`` without --level is the level-0
+    tongue (946 nodes); with no warm-up its one step is the timed one."""
+    from artifem import bench_worker
+
+    argv = ["--scene", "tongue", "--solver", bench.DEFAULT_SOLVER, "--steps", "1", "--warmup", "0"]
+    assert bench_worker.main(argv) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("BENCH_RESULT "))
+    result = json.loads(line.removeprefix("BENCH_RESULT "))
+    assert result["nodes"] == 946 and result["scene"] == "tongue"
+    assert (result["steps"], result["warmup_steps"]) == (1, 0)
+    assert len(result["iterations_per_step"]) == 1
