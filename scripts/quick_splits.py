@@ -2,7 +2,7 @@
 the quick reduced jaw-tongue study, each with two held-out random schedules (seed 1000),
 as the commands below write them; their figures go to docs/benchmarks/quick_splits.json.
 
-    OPENBLAS_NUM_THREADS=1 python scripts/quick_splits.py       # about 2 minutes
+    OPENBLAS_NUM_THREADS=1 python scripts/quick_splits.py       # a few minutes
 
 The suite runs the same commands (tests/conftest.py's ``quick_tongue_study``,
 tests/test_jaw_tongue_reduced.py) and allows each error at most ``MARGIN`` times the
@@ -32,10 +32,9 @@ COMMANDS = {
 }
 
 
-def split_figures(out: pathlib.Path) -> dict:
-    """Per set of generalization.json, each run's largest and mean error (mm) and its
+def split_figures(split: dict) -> dict:
+    """Per set of a generalization.json, each run's largest and mean error (mm) and its
     estimate over its error."""
-    split = json.loads((out / "generalization.json").read_text())
     return {
         name: {
             r["name"]: {
@@ -84,7 +83,7 @@ def main_() -> None:
                 "training_duration": split["training_duration"],
                 "reduced": {k: split["reduced"][k] for k in ("runs", "basis", "points")},
                 "runs": figures[name](out),
-                "sets": split_figures(out),
+                "sets": split_figures(split),
             }
     OUT.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"quick_splits: {OUT}")

@@ -1,6 +1,7 @@
 """Reading back what a run wrote, so that a test compares an output instead of only finding
 it (issue 32): a VTX series through the ``adios2`` reader, a picture through matplotlib."""
 
+import json
 from pathlib import Path
 from typing import NamedTuple
 
@@ -147,8 +148,6 @@ def quick_split(name: str) -> dict:
     """The committed quick split ``name`` ("tongue", "jaw-tongue"): its command (``argv``),
     its study's own figures (``runs``) and generalization.json's errors (``sets``), with
     the margin the suite allows (``margin``)."""
-    import json
-
     doc = json.loads(QUICK_SPLITS.read_text())
     return {**doc["splits"][name], "margin": doc["margin"]}
 
@@ -158,8 +157,6 @@ def assert_split_as_committed(out, name: str) -> None:
     (training, motions, held-out), none failed, each run's largest and mean error at most
     the margin times the committed one and its estimate / error ratio within the margin
     either way of it: a change that breaks how the reduced model generalizes fails."""
-    import json
-
     committed = quick_split(name)
     margin = committed["margin"]
     split = json.loads((Path(out) / "generalization.json").read_text())
