@@ -282,9 +282,12 @@ class ImplicitEuler:
             Mw.destroy()
             return E
 
+        tangent_at_v = [False]  # whether body.K holds the tangent at the current v
+
         def residual(tangent: bool) -> float:
             """Assemble at the current v and return ||r(v)|| (r stored in r)."""
             body.assemble(tangent=tangent)
+            tangent_at_v[0] = tangent
             w.array[:] = v.array - v0.array
             body.mass_mult(w, r)
             r.axpy(h, body.R)
@@ -308,6 +311,8 @@ class ImplicitEuler:
             for it in range(1, self.max_iterations + 1):
                 if norm <= self.rtol * norm0 or norm <= self.atol:
                     return it - 1
+                if not tangent_at_v[0]:  # assembled only when a solve needs it
+                    residual(tangent=True)
                 A = body.K
                 A.scale(h * h)
                 body.add_damping(A, h)
@@ -344,7 +349,7 @@ class ImplicitEuler:
                 )
                 if step is None:
                     raise StepFailed(f"implicit Euler: line search failed at Newton iteration {it}")
-                norm = residual(tangent=True)
+                norm = residual(tangent=False)
                 if step == 1.0 and _at_round_off(dv, v):
                     return it
             if norm <= self.rtol * norm0 or norm <= self.atol:  # the last iteration converged
@@ -706,8 +711,12 @@ def solve_static(
     r = u.duplicate()
     vc = body.volume_constraint
 
-    def residual(tangent: bool = True) -> float:
+    tangent_at_u = [False]  # whether body.K holds the tangent at the current u
+
+    def residual(tangent: bool = False) -> float:
+        """R at the current u into r (K too with ``tangent``: only a solve needs it)."""
         body.assemble(tangent=tangent, diag=1.0)
+        tangent_at_u[0] = tangent
         body.R.copy(r)
         body.zero_fixed(r)
         return r.norm()
@@ -857,6 +866,8 @@ def solve_static(
                     f"iterations at load factor {factor:g} (|R| = {norm:.3e})",
                     iterations=it - 1,
                 )
+            if not tangent_at_u[0]:
+                residual(tangent=True)  # the same R, and K at this u
             r.scale(-1.0)
             # Inexact Newton stays quadratic when the linear residual is O(|R|^2); a tenth
             # of the Newton target is enough (it is never the last digits' limit).
