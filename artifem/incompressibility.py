@@ -226,12 +226,12 @@ class VolumeConstraint:
             cell_of = np.empty(self.n_owned, dtype=np.int32)
             owned = dofs[:, 0] < self.n_owned
             cell_of[dofs[owned, 0]] = np.flatnonzero(owned)
-            ids, what = self.body.input_cell_index(cell_of[order]), "element"
+            ids, what = self.body.input_cell_index(cell_of[order]), "element(s)"
         else:  # nodal: the geometry's node ids
             node_of = np.empty(dofs.max() + 1, dtype=np.int64)
             node_of[dofs.reshape(-1)] = self.body.mesh.geometry.dofmaps[0].reshape(-1)
             ids = self.body.mesh.geometry.input_global_indices[node_of[order]]
-            what = "node patch"
+            what = "node patch(es)"
         found = sorted(
             sum(
                 self.body.mesh.comm.allgather(
@@ -244,7 +244,7 @@ class VolumeConstraint:
         shown = ", ".join(f"{i} ({v:.1e})" for v, i in found)
         return (
             f"FemBody {self.body.name!r}: element volumes off by more than "
-            f"{self.spec.tol:g} at {what}(s) (input index, relative volume change) {shown}"
+            f"{self.spec.tol:g} at {what} (input index, relative volume change) {shown}"
         )
 
     def step_failure(self) -> str | None:

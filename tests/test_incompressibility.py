@@ -1,6 +1,8 @@
 """The element-wise incompressibility penalty: exact on affine fields, conserves volume, no
 locking."""
 
+import re
+
 import numpy as np
 import pytest
 import ufl
@@ -15,6 +17,7 @@ from artifem.incompressibility import Incompressible
 from artifem.scene import Scene
 
 MU = 1000.0
+_TET = mesh.CellType.tetrahedron
 
 
 def _box(n=(8, 2, 2), length=0.1, side=0.01):
@@ -724,3 +727,23 @@ def test_the_incompressibility_page_quotes_its_json():
         for line in table.splitlines():
             if line.startswith("|") and not line.startswith("|---"):
                 assert line in page, line
+
+
+def test_a_tetrahedral_constraint_names_its_node_patches_by_input_index():
+    """P1 tetrahedra hold nodal pressures, so ``describe`` names node patches by input node
+    index. Under a uniform compression u = -0.1 x every patch changes its volume by
+    J - 1 = 0.9^3 - 1 = -0.271 exactly (g_i = (J - 1) V_i), so all of them are worst:
+    asking for every one lists each input node once."""
+    domain = mesh.create_box(MPI.COMM_WORLD, [[0, 0, 0], [1, 1, 1]], [2, 2, 2], _TET)
+    body = FemBody(
+        domain, NeoHookean(MU, MU), 1000.0, incompressibility=Incompressible(kappa=100 * MU)
+    )
+    body.u.x.array[:] = -0.1 * body.V.tabulate_dof_coordinates().reshape(-1)
+    vc = body.volume_constraint
+    vc.at_current_state()
+    nodes = domain.geometry.index_map().size_global
+    message = vc.describe(count=nodes)
+    assert "element volumes off by more than 1e-06 at node patch(es) (input index" in message
+    shown = re.findall(r"(\d+) \(([\d.e+-]+)\)", message)
+    assert sorted(int(i) for i, _ in shown) == list(range(nodes))
+    assert {ratio for _, ratio in shown} == {"2.7e-01"}
