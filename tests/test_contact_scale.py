@@ -254,3 +254,21 @@ def test_a_block_landing_and_sliding_on_an_incline_is_the_same_on_both_paths(sli
     np.testing.assert_allclose(v1, v2, rtol=0, atol=1e-10 * G * H)
     np.testing.assert_allclose(f1.normal, f2.normal, rtol=0, atol=1e-10 * f2.normal.max())
     np.testing.assert_allclose(f1.friction, f2.friction, rtol=0, atol=1e-10 * f2.normal.max())
+
+
+def test_the_rigid_benchmark_box_rests_on_a_grid_spanning_its_bottom_face():
+    """``bench contact``'s rigid case (``rigid_scene(n)``): n x n contact points on the
+    plane spanning the box's bottom face, read from its rows: a point r from the centre of
+    mass pushes along n = z with the twist row (n, r x n) = (0, 0, 1, y, -x, 0)."""
+    from artifem.bench_contact import BOX, rigid_scene
+
+    _, box, pc = rigid_scene(5)
+    (block,) = pc.row_blocks()
+    ((body, G),) = block.jacobians
+    G = G.toarray() if hasattr(G, "toarray") else np.asarray(G)
+    assert body is box and G.shape == (25, 6)
+    np.testing.assert_array_equal(block.phi, 0.0)  # every point on the plane
+    np.testing.assert_array_equal(G[:, :3], np.tile([0.0, 0.0, 1.0], (25, 1)))
+    points = {(round(-x, 12), round(y, 12)) for y, x in G[:, 3:5]}
+    s = np.linspace(-0.5, 0.5, 5)
+    assert points == {(round(x * BOX[0], 12), round(y * BOX[1], 12)) for x in s for y in s}
