@@ -197,3 +197,34 @@ def test_the_worker_alone_runs_the_level0_tongue_without_warm_up(capsys):
     assert result["nodes"] == 946 and result["scene"] == "tongue"
     assert (result["steps"], result["warmup_steps"]) == (1, 0)
     assert len(result["iterations_per_step"]) == 1
+
+
+def test_bench_scenes_keeps_the_other_scenes_when_one_fails(tmp_path, monkeypatch):
+    """A scene whose benchmark raises is recorded under ``errors`` with its exception; the
+    scenes after it still run and are written; the command exits 1. (Two stand-in scene
+    modules: the real ones run in tests/test_cli_end_to_end.py.)"""
+    import sys
+    import types
+
+    from artifem import bench_scenes
+
+    def failing(steps=None):
+        raise RuntimeError("the mesh is gone")
+
+    modules = {
+        "scene_a": types.SimpleNamespace(benchmark=failing),
+        "scene_b": types.SimpleNamespace(benchmark=lambda steps=None: {"cases": {"full": steps}}),
+    }
+    for name, module in modules.items():
+        monkeypatch.setitem(sys.modules, f"stand_in_{name}", module)
+    monkeypatch.setattr(bench_scenes, "SCENES", {n: f"stand_in_{n}" for n in modules})
+    out = tmp_path / "scenes.json"
+    code = main(
+        ["bench", "scenes", "--scenes", "scene_a,scene_b", "--steps", "3", "--out", str(out)]
+    )
+    assert code == 1
+    report = json.loads(out.read_text())
+    assert report["errors"] == [{"scene": "scene_a", "error": "RuntimeError: the mesh is gone"}]
+    assert list(report["scenes"]) == ["scene_b"]
+    assert report["scenes"]["scene_b"]["cases"] == {"full": 3}
+    assert report["scenes"]["scene_b"]["seconds"] >= 0
