@@ -249,3 +249,36 @@ def test_point_attachment_snapping_to_a_hex_mesh_stays_in_the_element():
         assert w.weights.min() >= -1e-14 and w.weights.max() <= 1 + 1e-14
         assert w.distance == pytest.approx(np.linalg.norm(w.rest_position - X), rel=1e-12)
         assert w.distance <= np.linalg.norm(on_cell - X, axis=1).min() + 1e-9
+
+
+def test_a_point_just_past_a_slanted_face_is_located_in_the_tetrahedron_holding_it():
+    """Points 1e-9 inside a tetrahedron across each interior face from the neighbour whose
+    reference face xi_1 + xi_2 + xi_3 = 1 (the one opposite its first vertex) that face is:
+    both cells collide within dolfinx's distance tolerance, and the one holding the point
+    (all weights >= 0) is taken, not the neighbour it lies 1e-9 outside."""
+    from artifem.embedding.embedded_mesh import locate_points
+
+    body = box_body("tetrahedron", n=(2, 2, 2))
+    msh = body.mesh
+    msh.topology.create_connectivity(2, 3)
+    msh.topology.create_connectivity(3, 2)
+    faces_of, cells_of = msh.topology.connectivity(3, 2), msh.topology.connectivity(2, 3)
+    x, dofs = msh.geometry.x, msh.geometry.dofmaps[0]
+    points, holders = [], []
+    for cell in range(msh.topology.index_map(3).size_local):
+        slanted = set(dofs[cell][1:])  # the face opposite local vertex 0
+        for face in faces_of.links(cell):
+            pair = cells_of.links(face)
+            if len(pair) != 2:
+                continue
+            other = int(pair[0] if pair[1] == cell else pair[1])
+            if set(dofs[other]) - set(dofs[cell]) and slanted <= set(dofs[other]):
+                inward = x[list(set(dofs[other]) - slanted)[0]] - x[list(slanted)].mean(axis=0)
+                points.append(
+                    x[list(slanted)].mean(axis=0) + 1e-9 * inward / np.linalg.norm(inward)
+                )
+                holders.append(other)
+    assert len(points) > 10
+    where = locate_points(body, np.array(points))
+    np.testing.assert_array_equal(where.cells, holders)
+    assert where.weights.min() >= 0.0 and np.all(where.distance == 0.0)
