@@ -16,6 +16,7 @@ import pytest
 
 import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from hard_case_checks import (
+    COMMITTED,
     assert_same_landmarks,
     check_outcome,
     check_protrusion_variants,
@@ -43,7 +44,10 @@ def test_hard_case_implicit(name, runs):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", IMPLICIT)
 def test_both_integrators_end_on_the_same_state(name, runs):
-    semi, implicit = runs(name, "semi-implicit")[1], runs(name, "implicit")[1]
+    """The implicit run ends where the semi-implicit one does (AGREE_MM). The semi-implicit
+    run is the committed one: tests/test_tongue_hard_cases.py re-runs it and holds it to
+    that run's landmarks, rounded to 1e-4 mm, so running it here again adds nothing."""
+    semi, implicit = COMMITTED[name, "semi-implicit"], runs(name, "implicit")[1]
     for r in (semi, implicit):  # documented: every case finishes, no halving
         assert (r["outcome"], r["halvings"]) == ("finished", 0), (name, r.get("error"))
     assert_same_landmarks(semi, implicit, name)
