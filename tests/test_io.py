@@ -412,6 +412,39 @@ def test_geo_file(tmp_path):
     assert 0.95 * exact < volume(mesh) < exact  # inscribed polygonal cylinder
 
 
+def test_reading_a_geo_file_leaves_gmsh_as_it_found_it(tmp_path):
+    """The reader finalizes gmsh only if it initialized it: a caller's session, its models,
+    its current model and its options outlive the read."""
+    import gmsh
+
+    geo = tmp_path / "box.geo"
+    geo.write_text('SetFactory("OpenCASCADE");\nBox(1) = {0, 0, 0, 0.1, 0.1, 0.1};\n')
+    assert not gmsh.isInitialized()
+    read_mesh(geo, gmsh_mesh_size=0.05)
+    assert not gmsh.isInitialized()  # started and finalized by the reader
+    gmsh.initialize(interruptible=False)
+    try:
+        gmsh.model.add("caller")
+        gmsh.model.occ.addSphere(0, 0, 0, 1.0)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.3)
+        models = gmsh.model.list()  # ["", "caller"]: initialize made the first
+        read_mesh(geo, gmsh_mesh_size=0.05)
+        assert gmsh.isInitialized() and gmsh.model.list() == models
+        assert gmsh.model.getCurrent() == "caller" and gmsh.model.getEntities(3) == [(3, 1)]
+        assert gmsh.option.getNumber("Mesh.MeshSizeMax") == 0.3
+    finally:
+        gmsh.finalize()
+
+
+def test_a_planar_mesh_is_refused_for_its_2d_points(tmp_path):
+    path = tmp_path / "square.mesh"  # medit keeps the dimension
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    meshio.write(path, meshio.Mesh(points, [("triangle", np.array([[0, 1, 2], [0, 2, 3]]))]))
+    with pytest.raises(MeshError, match="points are 2D; a volume mesh needs 3D points"):
+        read_mesh(path)
+
+
 def test_vtu_round_trip(tmp_path, tongue):
     path = tmp_path / "tongue.vtu"
     meshio.write(

@@ -63,15 +63,22 @@ def read_mesh(
 
 
 def _read_geo(path: Path, mesh_size: float | None) -> MeshData:
-    """Mesh a gmsh .geo in 3D with the gmsh API and read the resulting mesh."""
+    """Mesh a gmsh .geo in 3D with the gmsh API and read the resulting mesh. A caller's gmsh
+    session is left as it was: its models, its current model and the options set here."""
     import gmsh
 
     started = not gmsh.isInitialized()
     if started:
         gmsh.initialize(interruptible=False)
+    options = ("General.Terminal", "Mesh.MeshSizeMax")
+    caller = (
+        None if started else (gmsh.model.getCurrent(), [gmsh.option.getNumber(o) for o in options])
+    )
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.open(str(path))
+        # a model of its own: gmsh.open would replace the caller's models
+        gmsh.model.add(f"artifem:{path.stem}")
+        gmsh.merge(str(path))
         if mesh_size is not None:
             gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
         gmsh.model.mesh.generate(3)
@@ -84,9 +91,14 @@ def _read_geo(path: Path, mesh_size: float | None) -> MeshData:
             raise
         raise MeshError(f"{path}: gmsh failed to mesh it: {exc}") from exc
     finally:
-        gmsh.model.remove()  # the model gmsh.open created; a caller's models stay
+        gmsh.model.remove()  # the reader's model
         if started:
             gmsh.finalize()
+        else:
+            current, values = caller
+            gmsh.model.setCurrent(current)
+            for option, value in zip(options, values):
+                gmsh.option.setNumber(option, value)
     mesh.source = str(path)
     return mesh
 
