@@ -1,8 +1,10 @@
 """The ArtiSynth tongue data: muscle bundles, fibers, element directions, 2x2x2 refinement."""
 
+import re
 from pathlib import Path
 
 import artifem  # noqa: F401  (must precede dolfinx)
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -313,6 +315,13 @@ def test_refined_tongue(md, refined):
     for k in (0, len(edges), len(edges) + len(faces), n_new - 1):
         assert np.allclose(r.points[946 + k], md.points[refined.node_parents[k]].mean(axis=0))
     assert sorted({len(p) for p in refined.node_parents}) == [2, 4, 8]
+    # the grouped parents are the same arrays, and a repr leaves them out (kept short)
+    np.testing.assert_array_equal(
+        refined.edge_parents, np.array(refined.node_parents[: len(edges)])
+    )
+    assert not {"edge_parents", "face_parents", "centre_parents"} & set(
+        re.findall(r"(\w+)=", repr(refined))
+    )
 
 
 def _face_counts(cells):
