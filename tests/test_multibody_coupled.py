@@ -425,8 +425,10 @@ def test_constrained_step_satisfies_the_kkt_and_complementarity_conditions():
 def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
     """A light rod hinged to the world carries a stiff FEM block through its top-face nodes.
     The small-amplitude period is 2 pi sqrt(I_O / (m g d)) with I_O and m d from the
-    rod and the block's lumped nodal masses, with the finite-amplitude factor 1 + theta0^2 / 16
-    (measured: 5.6e-6 relative at h = 2 ms; joint error 5e-9 m)."""
+    rod and the block's lumped nodal masses, with the finite-amplitude factor 1 + theta0^2 / 16.
+    Measured at h = 2 ms: the period within 5.58e-6 relative, the joint error 5.07e-9 m (the
+    stabilized drift); asserted to 1.25 times those (deterministic runs; the margin is for
+    round-off elsewhere)."""
     L_rod, a = 0.3, 0.06
     block = box((a, a, a), (2, 2, 2), young=1e8, origin=(-a / 2, -a / 2, -L_rod - a))
     rod_body = RigidBody(
@@ -466,8 +468,8 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
     i = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
     crossings = t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
     assert crossings.size >= 3
-    assert abs(np.diff(crossings).mean() / T0 - 1) < 5e-3
-    assert max(scene.constraint_errors().values()) < 1e-6
+    assert abs(np.diff(crossings).mean() / T0 - 1) < 1.25 * 5.58e-6
+    assert max(scene.constraint_errors().values()) < 1.25 * 5.07e-9
 
 
 # ---- (7) bad input -------------------------------------------------------------------------
