@@ -265,9 +265,16 @@ ROTATION_CASES = [
 def test_rigid_rotation_is_stress_free_except_linear_elastic(name, material, fields):
     psi, P, _ = point_response(material, R, **fields)
     if material is LINEAR:
-        # eps = sym(R) - I != 0: small-strain elasticity sees a rotation as strain
-        assert np.abs(P).max() > 0.1 * LINEAR.mu
-        assert psi > 0.01 * LINEAR.mu
+        # eps = sym(R) - I != 0: small-strain elasticity sees a rotation as strain, with its
+        # closed-form energy mu eps:eps + lambda/2 (tr eps)^2 and stress 2 mu eps + lambda tr(eps) I
+        eps = 0.5 * (R + R.T) - np.eye(3)
+        mu, lmbda = LINEAR.mu, LINEAR.lmbda
+        assert np.abs(eps).max() > 0.1  # a rotation large enough to matter
+        assert psi == pytest.approx(
+            mu * np.sum(eps * eps) + 0.5 * lmbda * np.trace(eps) ** 2, rel=1e-12
+        )
+        expected = 2 * mu * eps + lmbda * np.trace(eps) * np.eye(3)
+        np.testing.assert_allclose(P, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
     else:
         assert psi == pytest.approx(0.0, abs=1e-9)
         np.testing.assert_allclose(P, 0.0, atol=1e-8)
