@@ -171,7 +171,10 @@ def test_trained_points_on_a_carried_body_stay_near_every_point(tmp_path):
     some = run(model, trained.scene(), HELD_OUT, 0.2)
     err_every = np.abs(every["u"] - full["u"]).max()
     err_some = np.abs(some["u"] - full["u"]).max()
-    assert err_some < 2.0 * err_every + 1e-3 * np.abs(full["u"]).max()
+    # measured (the beam's tip moves 0.0896 m): every point 2.856e-3 m, the 60 trained points
+    # 2.867e-3 m (0.4 % more); each within 1.25 x its measured value
+    assert err_every < 1.25 * 0.002856219486849991
+    assert err_some < 1.25 * 0.0028674613388382023
     assert some["attached"].max() < 1e-12
 
 
