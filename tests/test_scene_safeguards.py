@@ -27,6 +27,7 @@ from artifem.multibody.point_attachments import shape_function_weights
 from artifem.multibody.point_paths import PointPath
 from artifem.multibody.rigid_body import RigidBody
 from artifem.scene import Scene
+from outputs import assert_picture
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
@@ -262,3 +263,11 @@ def test_jaw_tongue_with_every_exciter_stepped_to_one_runs(tmp_path):
         )
         == 0
     )
+    # ... to the same end: its record is the run above (same code, same steps)
+    written = json.loads((tmp_path / "o" / "all" / "simulate.json").read_text())
+    assert (written["steps"], written["dt"], written["motion"]) == (10, 0.05, "all")
+    np.testing.assert_allclose(
+        written["final_tip_displacement_mm"], 1e3 * out["tip"][-1], rtol=1e-9, atol=1e-9
+    )
+    assert written["min_det_F"] == pytest.approx(s.scene.min_det_F, rel=1e-12)
+    assert_picture(tmp_path / "o" / "all" / "jaw-tongue.png")
