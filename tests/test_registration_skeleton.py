@@ -92,7 +92,14 @@ def test_a_rigidly_posed_target_gives_back_the_joint_angles(rigid_case):
     assert_picture(out / "registration.png")
 
 
+#: mean surface distance (m) over the bones of the deformed partial target, per method,
+#: measured (the fit is deterministic): the jointed bones 16 % below the single body
+MEASURED_DEFORMED_M = {"rigid": 7.826e-4, "single": 1.519e-4, "jointed": 1.277e-4}
+
+
 def test_jointed_bones_fit_a_deformed_partial_target_better_than_the_baselines(tmp_path):
+    """Each method within 1.25 times its measured mean distance (MEASURED_DEFORMED_M), the
+    jointed bones below both baselines; the joints held to round-off (measured 2e-14 m)."""
     ref, target = cases.write_case("synthetic", tmp_path / "input")
     report = register_skeleton(
         ref,
@@ -108,8 +115,11 @@ def test_jointed_bones_fit_a_deformed_partial_target_better_than_the_baselines(t
         for m, row in report["methods"].items()
     }
     assert mean["jointed"] < mean["rigid"] and mean["jointed"] < mean["single"]
+    assert mean["jointed"] < 1.25 * MEASURED_DEFORMED_M["jointed"]
+    for baseline in ("rigid", "single"):  # the baselines' margin is real
+        assert mean[baseline] > MEASURED_DEFORMED_M[baseline] / 1.25, (baseline, mean)
     jointed = report["methods"]["jointed"]
-    assert jointed["joint_constraint_error"] < 1e-6
+    assert jointed["joint_constraint_error"] < 1e-10
     assert jointed["min_det_F"] > 0 and report["methods"]["single"]["min_det_F"] > 0
 
 
