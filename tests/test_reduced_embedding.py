@@ -198,11 +198,18 @@ def test_a_small_basis_carries_the_sheet_exactly_and_feels_its_mass(tmp_path):
     assert np.abs(G.T @ A_s @ G).max() > 1e-3 * np.abs(expected).max()
 
     # a heavier sheet (the same reduced model put into a scene built with it) changes the
-    # reduced beam's motion
+    # reduced beam's motion as it changes the full beam's, in part: the 4 POD vectors were
+    # trained with the light sheet. Measured: the full beam's largest change 21.0 mm, the
+    # reduced beam's 14.9 mm (0.707 of it), the reduced heavy run 13.2 mm off the full one;
+    # each within 1.25 times (the ratio either way)
     heavy = beam_with_a_sheet(density=10000.0)
     reduced.put_in(heavy)
-    change = np.abs(run(heavy)["beam"] - red["beam"]).max()
-    assert change > 0.03 * np.abs(red["beam"]).max()
+    red_heavy = run(heavy)["beam"]
+    full_light = run(beam_with_a_sheet())["beam"]
+    full_heavy = run(beam_with_a_sheet(density=10000.0))["beam"]
+    ratio = np.abs(red_heavy - red["beam"]).max() / np.abs(full_heavy - full_light).max()
+    assert 0.707 / 1.25 < ratio < min(1.25 * 0.707, 1.0)
+    assert np.abs(red_heavy - full_heavy).max() < 1.25 * 0.01319
 
 
 def test_the_static_tangent_through_the_sheet_and_the_lift_matches_finite_differences(tmp_path):
