@@ -155,3 +155,18 @@ def test_a_study_under_two_ranks_trains_on_both_and_finishes_on_one(tmp_path):
     assert all(training["by_rank"])  # both ranks computed
     split = json.loads((out / "generalization.json").read_text())
     assert [len(split["sets"][s]) for s in ("training", "motions", "held-out")] == [4, 1, 1]
+    # the same study in one process gives the same split: each training run is computed
+    # whole on one rank, so the errors agree to round-off
+    from artifem.cli import main
+
+    argv = proc.args[proc.args.index("study") :]
+    serial = tmp_path / "serial"
+    assert (
+        main([*argv[: argv.index("--out") + 1], str(serial), *argv[argv.index("--out") + 2 :]]) == 0
+    )
+    alone = json.loads((serial / "generalization.json").read_text())
+    for name, runs in split["sets"].items():
+        for run, serial_run in zip(runs, alone["sets"][name], strict=True):
+            assert run["name"] == serial_run["name"]
+            for key in ("max_error_mm", "mean_error_mm", "max_estimate_mm"):
+                assert run[key] == pytest.approx(serial_run[key], rel=1e-9), (name, key)
