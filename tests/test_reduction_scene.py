@@ -116,8 +116,6 @@ def test_reduced_static_solve_equals_the_full_one():
     counts = solve_static_reduced(reduced, load_steps="auto")
     assert counts.factors[-1] == 1.0 and max(counts) <= 10, counts
     np.testing.assert_allclose(reduced.nodal_displacement(), u, rtol=0, atol=1e-8 * np.abs(u).max())
-    weight = 1000.0 * 0.06 * 9.81  # |gravity load| (N), the scale of f~
-    assert np.linalg.norm(reduced.force()) < 1e-8 * weight
     # Through a Scene (already at equilibrium: no Newton step moves it).
     reduced_scene = Scene(gravity=body.gravity.value.copy())
     reduced_scene.add(reduced)
