@@ -181,6 +181,37 @@ def test_jaw_tongue_reduced_table_matches_its_study_json():
     assert max(m["max_angle_difference_deg"] for m in study) <= angle
 
 
+def test_mutation_runs_on_the_verification_page_match_mutation_json():
+    """The table of the mutation study's runs (before, and after the tests written against
+    its survivors) is the report's: commits, how much of the sample ran, counts and rates;
+    the page names the tool and the sample."""
+    report = load("mutation.json")
+    page = (ROOT / "docs" / "verification.md").read_text()
+    section = page[page.index("## Mutation study") :]
+    tool, version = report["tool"].split()
+    assert f"{tool} {version}" in section
+    assert f"draws {report['sample']['mutants']} of them (seed {report['sample']['seed']})" in (
+        re.sub(r"\s+", " ", section)
+    )
+    rows = {row[0]: row for row in table_after("| run | commit |", section)}
+    assert set(rows) == set(report["runs"]), "a run of mutation.json is missing from the page"
+    for label, run in report["runs"].items():
+        t, row = run["totals"], rows[label]
+        assert row[1].strip("`") == run["commit"][:7], label
+        done = f"{t['mutants']} of {report['sample']['mutants']}"
+        assert row[2] == (done if not run["complete"] else str(t["mutants"])), label
+        counts = [int(c) for c in row[3:8]]
+        assert counts == [
+            t["killed"],
+            t["timeout"],
+            t["survived"],
+            t["not_executed"],
+            t["equivalent"],
+        ], label
+        assert agrees(row[8].removesuffix(" %"), 100 * t["kill_rate"]), label
+        assert agrees(row[9].removesuffix(" %"), 100 * t["kill_rate_non_equivalent"]), label
+
+
 def test_hand_written_mutation_figures_on_the_verification_page_match_their_json():
     totals = load("mutation_hand_written.json")["totals"]
     page = (ROOT / "docs" / "verification.md").read_text()
