@@ -193,10 +193,11 @@ def test_force_and_tangent_are_derivatives_of_the_energy():
 def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
     """POD of a full hard run (r = 8) and of its pressures (s = 4 modes, no constant one), the
     run replayed by the
-    reduced body: with the constraint it follows the full run to 0.2 % of the motion and
+    reduced body: with the constraint it follows the full run to 0.024 % of the motion and
     changes the element volumes as the full semi-implicit run does (its O(h^2) drift per
-    step) within 5 %; without the constraint the same basis is 10 times
-    further off and its volume changes differ by a third. With s = 6 the reduced body was
+    step) to 0.07 %; without the constraint the same basis is 82 times further off (2.0 %)
+    and changes the volumes 18 times as much (measured, deterministic; asserted within 1.25
+    times, the baseline's margins the other way). With s = 6 the reduced body was
     near locking (8 displacement modes): 7 % off since the Rayleigh damping is beta K_0
     (it was 0.1 % when beta K(u) also damped the augmentation's stiff modes); s = 3, 4, 5:
     0.05 %, 0.01 %, 0.06 %."""
@@ -233,8 +234,9 @@ def test_a_trained_reduced_body_changes_volumes_as_the_full_body_does():
         reduced.to_full()
         runs[hold] = (error, _element_volume_change(twin))
     (error, held), (error_free, free) = runs[True], runs[False]
-    assert error < 2e-3 and error_free > 10 * error, (change, runs)
-    assert abs(held / change - 1) < 0.05 and abs(free / change - 1) > 0.3, (change, runs)
+    assert error < 1.25 * 2.42e-4 and error_free > 1.976e-2 / 1.25, (change, runs)
+    assert abs(held / change - 1) < 1.25 * 7.05e-4, (change, runs)
+    assert free / change - 1 > 16.96 / 1.25, (change, runs)
 
 
 def test_the_constant_pressure_mode_holds_the_total_volume():
