@@ -350,14 +350,8 @@ class LinearSolver:
         )
         self._rebuild = too_many or self._solves_since_setup >= self.lag_max_solves
 
-    def reset(self) -> None:
-        """Forget the warm start and rebuild the preconditioner at the next solve."""
-        self._rebuild = True
-        if self._previous is not None:
-            self._previous.destroy()
-            self._previous = None
-
-    def destroy(self):
+    def destroy(self) -> None:
+        """Free its PETSc objects now (the KSPs, the warm start); unusable afterwards."""
         self.ksp.destroy()
         if self._direct is not None:
             self._direct.destroy()

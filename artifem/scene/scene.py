@@ -555,6 +555,8 @@ class Scene:
             members.pop(next(k for k, other in enumerate(members) if other is item))
             self._layout = None
         self._comm = self.fem_bodies[0].mesh.comm if self.fem_bodies else MPI.COMM_SELF
+        for solver in self._linear_solvers.values():  # their PETSc objects, freed now
+            solver.destroy()
         self._linear_solvers.clear()
         self._schur = None
 
