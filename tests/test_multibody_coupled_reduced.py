@@ -15,6 +15,8 @@
 (6) bad input.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -263,6 +265,12 @@ def test_bad_lift_attachments_are_clear_errors():
     wrong = ReducedFemBody(body, lifted_basis(body, lift, 4)[:, :4], all_points(body))
     with pytest.raises(ValueError, match="does not contain the lift"):
         LiftAttachment(wrong, lift, b)
+    n = lift.columns.shape[0]
+    short = dataclasses.replace(lift, columns=lift.columns[:-3])  # another body's lift
+    with pytest.raises(ValueError, match=f"the lift has {n - 3} rows, the basis {n}"):
+        LiftAttachment(
+            ReducedFemBody(body, lifted_basis(body, lift, 4), all_points(body)), short, b
+        )
     U = lifted_basis(body, lift, 4)
     U[3 * lift.dofs[0], 0] = 1.0  # a column moving a carried node
     with pytest.raises(ValueError, match="would not follow the body"):
