@@ -2,8 +2,9 @@
 
 Each body is a dolfinx Mesh or a (Mesh, displacement Function or None) pair.
 Meshes are converted with dolfinx.plot.vtk_mesh (on the displacement's function
-space when there is one, so nodal displacements warp the grid points); in
-parallel each rank renders only its local cells.
+space when there is one, so nodal displacements warp the grid points). In parallel
+(render_bodies is then collective) the ranks' cells are gathered on rank 0, which alone
+draws the picture and writes the file.
 """
 
 from __future__ import annotations
@@ -150,6 +151,16 @@ def add_displacement(
     plotter.add_mesh(rest, style="wireframe", color="gray", opacity=rest_opacity)
 
 
+def _gathered(comm, grid: pv.UnstructuredGrid) -> pv.UnstructuredGrid | None:
+    """The ranks' parts of one body's grid merged on rank 0 (None on the others); the
+    points shared by two ranks appear twice, which draws the same picture."""
+    parts = comm.gather(grid, root=0)
+    if comm.rank != 0:
+        return None
+    parts = [p for p in parts if p.n_cells] or parts[:1]
+    return parts[0] if len(parts) == 1 else pv.merge(parts, merge_points=False)
+
+
 def render_bodies(
     png: str | Path,
     bodies: Body | Sequence[Body],
@@ -194,6 +205,11 @@ def render_bodies(
         deformed, rest = body_grid(msh, u)
         colored.append(_attach_scalars(deformed, msh, u, s, scalar_name))
         grids.append((deformed, rest))
+    comm = bodies[0][0].comm
+    if comm.size > 1:  # each rank holds its own cells: rank 0 draws them all, alone
+        grids = [tuple(_gathered(comm, g) for g in pair) for pair in grids]
+        if comm.rank != 0:
+            return Path(png)
     shared = not isinstance(scalars, (list, tuple))
     ranges = [g.get_data_range(scalar_name) for (g, _), c in zip(grids, colored) if c]
     shared_clim = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else None
