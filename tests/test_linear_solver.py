@@ -121,3 +121,24 @@ def test_mumps_workspace_too_small_is_enlarged_and_factored_again(monkeypatch):
     y = M.createVecRight()
     LinearSolver(MPI.COMM_SELF, "mumps", symmetric=False).solve(M, b, y)
     assert np.abs(y.array - expected).max() < 1e-8 * scale
+
+
+def test_removing_a_body_frees_its_linear_solver():
+    """A scene's linear solver of a body it steps is freed when the body leaves the scene
+    (Scene.remove: its KSPs and warm-start vectors destroyed, not left to the collector)."""
+    from dolfinx import mesh
+
+    from artifem.fem_body import FemBody
+    from artifem.forms import NeoHookean
+    from artifem.scene import Scene
+
+    box = mesh.create_box(MPI.COMM_SELF, [[0, 0, 0], [1, 0.2, 0.2]], [4, 1, 1])
+    body = FemBody(box, NeoHookean(1e4, 1e4), 1000.0)
+    body.fix_nodes(body.find_nodes(lambda x: np.isclose(x[0], 0.0)))
+    scene = Scene(gravity=(0.0, 0.0, -9.81))
+    scene.add(body)
+    scene.step(1e-3)  # the default iterative solver, with its warm start
+    solver = scene.linear_solver_for(body)
+    assert solver.ksp.handle != 0 and solver._previous is not None
+    scene.remove(body)
+    assert solver.ksp.handle == 0 and solver._previous.handle == 0
