@@ -42,10 +42,23 @@ def run(args: argparse.Namespace) -> int:
     curves = stress_stretch_curves(material, stretches)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot_stress_stretch(curves, args.out, title=f"{args.material}: {material}")
-    if args.json:
+    if args.json:  # null where a curve has ended (no traction-free state)
         data = {
-            mode: {k: np.asarray(v).tolist() for k, v in c.items()} for mode, c in curves.items()
+            mode: {
+                k: [None if np.isnan(x) else x for x in np.asarray(v).tolist()]
+                for k, v in c.items()
+            }
+            for mode, c in curves.items()
         }
         args.out.with_suffix(".json").write_text(json.dumps(data, indent=1))
+    for mode, c in curves.items():
+        ended = np.isnan(np.asarray(c.get("P11", []), dtype=float))
+        if ended.any():
+            gone = c["stretch"][ended]
+            print(
+                f"{args.material}: no traction-free {mode} state at {ended.sum()} of the "
+                f"{ended.size} stretches ({gone.min():.4g} to {gone.max():.4g}): the curve "
+                "ends there"
+            )
     print(f"wrote {args.out}")
     return 0

@@ -56,6 +56,34 @@ def _solve_lateral(response, stretch, free, guess):
     return np.exp(s)
 
 
+def _continued(solve, stretches) -> list:
+    """``solve(stretch, guess)`` along ``stretches`` outward from the one nearest 1, each from
+    its neighbour's solution (guess None at the first); a side ends at its first stretch
+    without a solution (None from there: no traction-free state, e.g. St Venant-Kirchhoff
+    stretched equibiaxially beyond sqrt(1 + (1 - nu) / (2 nu))). A SolverError at the
+    stretch nearest 1 is raised: no traction-free state even there."""
+    out = [None] * len(stretches)
+    if not len(stretches):
+        return out
+    start = int(np.argmin(np.abs(np.log(stretches))))
+    out[start] = solve(stretches[start], None)
+    for side in (range(start + 1, len(stretches)), range(start - 1, -1, -1)):
+        previous = out[start]
+        for k in side:
+            try:
+                previous = out[k] = solve(stretches[k], previous)
+            except SolverError:
+                break
+    return out
+
+
+def _nominal(response, diagonal) -> np.ndarray:
+    """P of F = diag(``diagonal``); NaN where a stretch is (a curve that ended)."""
+    if np.isnan(diagonal).any():
+        return np.full((3, 3), np.nan)
+    return response(np.diag(diagonal))[1]
+
+
 def stress_stretch_curves(material, stretches, shears=None, **fields):
     """Nominal (first Piola-Kirchhoff) stress along three homogeneous tests.
 
@@ -67,7 +95,10 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
       keys shear, P12, P11, P22.
 
     The lateral solves keep F diagonal, which is traction-free only if the
-    coordinate axes stay principal (isotropic materials, fibers along an axis).
+    coordinate axes stay principal (isotropic materials, fibers along an axis). They run
+    outward from the stretch nearest 1; a curve ends (NaN from there) where the material
+    has no traction-free state, and a SolverError is raised when even the stretch nearest
+    1 has none (a material without lateral stiffness).
     """
     stretches = np.asarray(stretches, dtype=float)
     shears = stretches - 1.0 if shears is None else np.asarray(shears, dtype=float)
@@ -80,20 +111,27 @@ def stress_stretch_curves(material, stretches, shears=None, **fields):
         for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_2", "lateral_stretch_3")
     }
     equibiaxial = {key: [] for key in ("stretch", "P11", "P22", "P33", "lateral_stretch_3")}
-    lateral_uniaxial, lateral_biaxial = None, None
-    for stretch in stretches:
-        guess = lateral_uniaxial if lateral_uniaxial is not None else np.full(2, stretch**-0.5)
-        lateral_uniaxial = _solve_lateral(response, stretch, [1, 2], guess)
-        _, P, _ = response(np.diag([stretch, *lateral_uniaxial]))
-        for key, value in zip(uniaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], *lateral_uniaxial)):
+    lateral_uniaxial = _continued(
+        lambda stretch, guess: _solve_lateral(
+            response, stretch, [1, 2], np.full(2, stretch**-0.5) if guess is None else guess
+        ),
+        stretches,
+    )
+    lateral_biaxial = _continued(
+        lambda stretch, guess: _solve_lateral(
+            response, stretch, [2], np.array([stretch**-2.0]) if guess is None else guess
+        ),
+        stretches,
+    )
+    for stretch, lateral in zip(stretches, lateral_uniaxial):
+        lateral = np.full(2, np.nan) if lateral is None else lateral
+        P = _nominal(response, [stretch, *lateral])
+        for key, value in zip(uniaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], *lateral)):
             uniaxial[key].append(value)
-
-        guess = lateral_biaxial if lateral_biaxial is not None else np.array([stretch**-2.0])
-        lateral_biaxial = _solve_lateral(response, stretch, [2], guess)
-        _, P, _ = response(np.diag([stretch, stretch, lateral_biaxial[0]]))
-        for key, value in zip(
-            equibiaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], lateral_biaxial[0])
-        ):
+    for stretch, lateral in zip(stretches, lateral_biaxial):
+        t3 = np.nan if lateral is None else lateral[0]
+        P = _nominal(response, [stretch, stretch, t3])
+        for key, value in zip(equibiaxial, (stretch, P[0, 0], P[1, 1], P[2, 2], t3)):
             equibiaxial[key].append(value)
 
     shear = {key: [] for key in ("shear", "P12", "P11", "P22")}

@@ -95,6 +95,32 @@ def test_material_curves_command(tmp_path):
     assert np.all(np.diff(uni["P11"]) > 0)  # a tensile stress that grows with stretch
 
 
+def test_material_curves_of_st_venant_kirchhoff_end_where_it_has_no_state(tmp_path, capsys):
+    """``material curves svk`` (E = 3 kPa, nu = 0.45): St Venant-Kirchhoff's traction-free
+    lateral stretches have closed forms, t^2 = 1 - nu (l^2 - 1) (uniaxial) and
+    t3^2 = 1 - 2 nu / (1 - nu) (l^2 - 1) (equibiaxial), so the equibiaxial state exists only
+    up to l = 1.269: the curve ends there (null in the JSON, said on stdout) instead of the
+    command failing; the rest is the closed form to round-off."""
+    png = tmp_path / "svk.png"
+    assert main(["material", "curves", "svk", "--out", str(png), "--json"]) == 0
+    assert "no traction-free equibiaxial state at 12 of the 41 stretches" in capsys.readouterr().out
+    assert_picture(png)
+    curves = json.loads(png.with_suffix(".json").read_text())
+    nu = 0.45
+    uni, bi = curves["uniaxial"], curves["equibiaxial"]
+    l = np.array(uni["stretch"])
+    np.testing.assert_allclose(uni["lateral_stretch_2"], np.sqrt(1 - nu * (l**2 - 1)), rtol=1e-12)
+    exists = 1 - 2 * nu / (1 - nu) * (l**2 - 1) > 0
+    assert exists.sum() == 29 and l[exists].max() == pytest.approx(1.25)
+    t3 = np.array([np.nan if x is None else x for x in bi["lateral_stretch_3"]], dtype=float)
+    np.testing.assert_allclose(
+        t3[exists], np.sqrt(1 - 2 * nu / (1 - nu) * (l[exists] ** 2 - 1)), rtol=1e-12
+    )
+    assert np.all(np.isnan(t3[~exists])) and all(
+        bi["P11"][k] is None for k in np.flatnonzero(~exists)
+    )
+
+
 def test_excitation_schedule_ramp_hold_and_file(tmp_path):
     s = ExcitationSchedule.ramp_and_hold({"GGP": 0.4, "TRANS": 0.4}, 0.5)
     assert s.at(0.25) == pytest.approx({"GGP": 0.2, "TRANS": 0.2})
