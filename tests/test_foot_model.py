@@ -145,7 +145,7 @@ def test_the_tibialis_anterior_lifts_the_hanging_forefoot(foot_cache):
     assert soleus == pytest.approx(79.60087987885903, rel=1e-6)
 
 
-def test_simulate_foot_and_study_foot_agree_on_the_standing_figures(tmp_path):
+def test_simulate_foot_and_study_foot_agree_on_the_standing_figures(tmp_path, standing):
     """``artifem simulate foot`` (the runner) and ``artifem study foot`` (timed against the
     foot's parts) run the same standing case: the same steps give the same figures, and the
     floor carries the load ramped so far plus the weight, less the momentum still
@@ -169,7 +169,9 @@ def test_simulate_foot_and_study_foot_agree_on_the_standing_figures(tmp_path):
         else:
             assert np.allclose(run["standing"][key], value, rtol=1e-9), key
     assert run["min_det_F"] == pytest.approx(study["min_det_F"], rel=1e-12)
-    load = run["standing"]["load_plus_weight_N"]
-    assert load > 0.2 * HALF_WEIGHT  # t = 0.02 s of the 0.1 s ramp, plus the weight
+    foot, _ = standing  # the same level-0 foot: its weight
+    weight = G * (foot.tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
+    expected = 0.2 * HALF_WEIGHT + weight  # t = 0.02 s of the 0.1 s ramp, plus the weight
+    assert run["standing"]["load_plus_weight_N"] == pytest.approx(expected, rel=1e-9)
     for png in ("foot.png", "plantar_pressure.png"):
         assert_picture(tmp_path / "run" / "standing" / png)

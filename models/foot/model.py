@@ -106,17 +106,18 @@ class TibiaLoad:
     def bodies(self) -> tuple:
         return (self.tibia,)
 
-    def _force(self, t: float) -> float:
+    def magnitude(self, t: float) -> float:
+        """The downward force at t, newtons."""
         return self.level * self.force * (min(t / self.ramp, 1.0) if self.ramp > 0 else 1.0)
 
     def master_loads(self, t: float):
         wrench = np.zeros(6)
-        wrench[1] = -self._force(t)
+        wrench[1] = -self.magnitude(t)
         return [(self.tibia, wrench)]
 
     def potential_energy(self, t: float) -> float:
         """f(t) y of the tibia's centre of mass (the load's potential)."""
-        return self._force(t) * float(self.tibia.position[1])
+        return self.magnitude(t) * float(self.tibia.position[1])
 
 
 @dataclass(frozen=True)
@@ -318,13 +319,13 @@ def sole(foot: Foot) -> dict:
 
 def case_figures(foot: Foot, rest: dict, pressure: dict | None) -> dict:
     """The case's own figures: standing (``pressure``: :func:`sole`), the floor's force against
-    load + weight, the contact area, the peak plantar pressure (rear and fore thirds) and the
-    centre of pressure; lift, the first metatarsal's rise from ``rest`` (bone name -> rest
-    position) and the talus's dorsiflexion."""
+    the load at the time + weight, the contact area, the peak plantar pressure (rear and fore
+    thirds) and the centre of pressure; lift, the first metatarsal's rise from ``rest`` (bone
+    name -> rest position) and the talus's dorsiflexion."""
     tissue, figures = foot.tissue, {}
     if pressure is not None:
         weight = 9.81 * (tissue.total_mass() + sum(b.mass for b in foot.bones.values()))
-        expected = (foot.load.level * foot.load.force if foot.load else 0.0) + weight
+        expected = (foot.load.magnitude(foot.scene.t) if foot.load else 0.0) + weight
         normal = float(foot.scene.contact_forces(foot.floor).normal.sum())
         x = pressure["points"][:, 0]
         third = (x.max() - x.min()) / 3
