@@ -142,3 +142,25 @@ def test_removing_a_body_frees_its_linear_solver():
     assert solver.ksp.handle != 0 and solver._previous is not None
     scene.remove(body)
     assert solver.ksp.handle == 0 and solver._previous.handle == 0
+
+
+def test_small_dense_solves_hold_blas_to_one_thread_and_give_it_back():
+    """The scene's dense LU (artifem.scene.direct_solver) runs on one BLAS thread; the
+    caller's setting is back afterwards, also when the block raises; a library already on
+    one thread is left alone."""
+    from threadpoolctl import threadpool_limits
+
+    from artifem.scene.direct_solver import _BLAS, one_blas_thread
+
+    assert _BLAS  # numpy's and scipy's BLAS were found (and any other loaded)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = [lib.num_threads for lib in _BLAS]
+        assert 2 in before  # a library that can run two threads
+        with one_blas_thread():
+            assert [lib.num_threads for lib in _BLAS] == [1] * len(_BLAS)
+        assert [lib.num_threads for lib in _BLAS] == before
+        with pytest.raises(RuntimeError, match="inside"), one_blas_thread():
+            raise RuntimeError("inside")
+        assert [lib.num_threads for lib in _BLAS] == before
+    with threadpool_limits(limits=1, user_api="blas"), one_blas_thread():
+        assert [lib.num_threads for lib in _BLAS] == [1] * len(_BLAS)

@@ -11,6 +11,7 @@ the previous one reuses MUMPS' analysis.
 from __future__ import annotations
 
 import warnings
+from contextlib import contextmanager
 
 import numpy as np
 import scipy.linalg
@@ -25,9 +26,27 @@ __all__ = ["DirectSolver"]
 
 #: Systems of at most this many unknowns are dense (LAPACK), larger ones sparse (MUMPS).
 DENSE_MAX = 400
-#: One BLAS thread for the small dense systems: faster alone (0.9 against 2.8 ms for a
-#: 300 x 300 LU on 2 cores) and 100x faster when another process holds the other core.
-_BLAS = ThreadpoolController()
+#: The BLAS libraries loaded (numpy's and scipy's OpenBLAS), found once.
+_BLAS = ThreadpoolController().select(user_api="blas").lib_controllers
+
+
+@contextmanager
+def one_blas_thread():
+    """One BLAS thread inside the block, for the small dense systems: faster alone (0.9
+    against 2.8 ms for a 300 x 300 LU on 2 cores) and 70x faster when another process
+    holds the other core (6 x 6: 7.8 ms against 0.12). It sets the libraries' threads
+    itself, only where they are not one already: threadpoolctl's ``limit()`` queries every
+    library's description on each call (46 us), longer than a rigid scene's whole LU."""
+    changed = [(lib, n) for lib in _BLAS if (n := lib.num_threads) != 1]
+    for lib, _ in changed:
+        lib.set_num_threads(1)
+    try:
+        yield
+    finally:
+        for lib, n in changed:
+            lib.set_num_threads(n)
+
+
 SINGULAR = "a singular system: redundant joints, or a free body with no mass?"
 #: MUMPS ICNTL settings of the sparse LU beyond MUMPS' own defaults (none).
 MUMPS_ICNTL: dict = {}
@@ -59,7 +78,7 @@ class DirectSolver:
             with (
                 np.errstate(all="ignore"),
                 warnings.catch_warnings(),
-                _BLAS.limit(limits=1, user_api="blas"),
+                one_blas_thread(),
             ):
                 warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # checked below
                 lu, piv = scipy.linalg.lu_factor(dense, check_finite=False)
@@ -106,7 +125,7 @@ class DirectSolver:
         """K^-1 B for the last factored K; B (n,) or (n, k)."""
         B = np.asarray(B, dtype=float)
         if self._dense is not None:
-            with _BLAS.limit(limits=1, user_api="blas"):
+            with one_blas_thread():
                 out = scipy.linalg.lu_solve(self._dense, B, check_finite=False)
         else:
             columns = np.asfortranarray(B.reshape(B.shape[0], -1))
