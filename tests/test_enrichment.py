@@ -99,6 +99,9 @@ def test_bad_input_is_refused_before_any_run(tmp_path):
         greedy_training(MODEL, FIRST, {"low": ramp(0.3)}, cache=tmp_path, **OPTIONS)
     with pytest.raises(InputError, match="max_runs"):
         greedy_training(MODEL, FIRST, POOL, cache=tmp_path, max_runs=0, **OPTIONS)
+    for tol in (-0.5, float("nan")):
+        with pytest.raises(InputError, match="tol must be >= 0"):
+            greedy_training(MODEL, FIRST, POOL, cache=tmp_path, **{**OPTIONS, "tol": tol})
     assert not list(tmp_path.glob("*.npz"))
 
 
