@@ -303,6 +303,8 @@ def test_generalization_study_reports_the_three_sets(tmp_path):
             assert not r["failed"] and r["max_error_mm"] < 1.25 * error, r
             assert (r["speedup"] is None) == (r in sets["training"])  # no 2nd full run
             assert 1 / 1.25 < r["estimate_ratio"] / ratio < 1.25, r
+            # the slowest step after the first over the median: at least 1 (3 or more steps)
+            assert np.isfinite(r["max_step_over_median"]) and r["max_step_over_median"] >= 1, r
     written = json.loads((tmp_path / "generalization.json").read_text())
     report = (tmp_path / "generalization.md").read_text()
     for name in ("training", "motions", "held-out"):  # every row of each set's table
