@@ -57,7 +57,8 @@ docs: $(STAMP)
 	cd docs && OPENBLAS_NUM_THREADS=$(THREADS) ../$(PY) -m sphinx -W --keep-going -b html . _build/html
 
 # Refresh tests/durations.json, the seconds of each test file that order the files for
-# the workers: the suite run with an empty JIT cache, as on a fresh machine; the file is
+# the workers, and the CPU seconds each took (the suite's time on 2 cores is about their
+# sum over 2): the suite run with an empty JIT cache, as on a fresh machine; the file is
 # rewritten only if the run passed.
 test-durations: $(STAMP)
 	cache=$$(mktemp -d) && XDG_CACHE_HOME=$$cache $(MAKE) test \

@@ -35,6 +35,7 @@ import collections
 import fcntl
 import json
 import os
+import resource
 import shutil
 import time
 import zlib
@@ -79,16 +80,44 @@ def pytest_collection_modifyitems(config, items):
 
 
 _file_seconds: collections.Counter = collections.Counter()
+_file_cpu: collections.Counter = collections.Counter()
 _tests: set = set()
 _started: list = []
+_cpu_mark: list = [0.0]
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and of the processes it has waited for (a command's
+    subprocess, ``mpiexec``'s ranks, the C compiler of a form)."""
+    own, children = (
+        resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+    )
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def pytest_sessionstart(session):
     _started.append(time.perf_counter())
 
 
+def pytest_runtest_logstart(nodeid, location):
+    _cpu_mark[0] = _cpu_seconds()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Each phase's report carries the CPU seconds it took (``cpu_s``), for
+    ``--write-durations``: a file's CPU against its wall time shows waiting (another
+    worker's form compile, a shared fixture's lock) apart from work."""
+    report = yield
+    now = _cpu_seconds()
+    report.user_properties.append(("cpu_s", now - _cpu_mark[0]))
+    _cpu_mark[0] = now
+    return report
+
+
 def pytest_runtest_logreport(report):
     _file_seconds[report.nodeid.split("::")[0]] += report.duration
+    _file_cpu[report.nodeid.split("::")[0]] += dict(report.user_properties).get("cpu_s", 0.0)
     _tests.add(report.nodeid)
 
 
@@ -101,13 +130,15 @@ def pytest_sessionfinish(session, exitstatus):
         json.dumps(
             {
                 "what": "seconds per test file (setup, call and teardown of its tests) in one "
-                "passing run of the suite with an empty JIT cache; tests/conftest.py runs "
-                "the long files first",
+                "passing run of the suite with an empty JIT cache, and the CPU seconds they "
+                "took (the test's process and the processes it waited for); "
+                "tests/conftest.py runs the long files first",
                 "command": "make test-durations",
                 "tests": len(_tests),
                 "workers": workers,
                 "wall_s": round(time.perf_counter() - _started[0], 1),
                 "seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_seconds.items())},
+                "cpu_seconds_per_file": {f: round(t, 1) for f, t in sorted(_file_cpu.items())},
             },
             indent=1,
         )
