@@ -277,6 +277,10 @@ def test_fem_skin_follows_affine_motion_and_pressure_sums_to_the_integral():
     np.testing.assert_allclose(rskin.velocities(), skin.velocities(), atol=1e-13)
     fr = rskin.master_forces(f)[0]
     np.testing.assert_allclose(fr, U.T @ skin.master_forces(f)[0], atol=1e-12)
+    # the reduced master's nodal displacement is the lifted state's (n, 3)
+    np.testing.assert_allclose(
+        rskin.masters[0].nodal_displacement(), skin.masters[0].nodal_displacement(), atol=1e-15
+    )
 
 
 def test_outside_vertices_are_snapped_and_bad_input_is_refused():
