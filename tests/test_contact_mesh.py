@@ -855,3 +855,17 @@ def test_held_pairs_keep_their_features_and_measure_them_exactly(icosphere):
     contact.hold_pairs(False)
     for a, b in zip(keyed(fresh), keyed(contact._pairs())):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("degrees", "sharp"), [(29.5, False), (30.5, True), (-30.5, False)])
+def test_an_edge_is_sharp_past_thirty_degrees_and_only_on_a_ridge(degrees, sharp):
+    """Two triangles meeting on the x-axis, the second folded by ``degrees`` about it:
+    down (a ridge) it is sharp past SHARP_ANGLE = 30 degrees, up (a valley) never."""
+    from artifem.multibody.mesh_contact import _sharp
+
+    a = np.radians(degrees)
+    x = np.array([[0, 0, 0], [1, 0, 0], [0.5, -1, 0], [0.5, np.cos(a), -np.sin(a)]], float)
+    tris = np.array([[0, 1, 2], [1, 0, 3]])
+    normals = np.array([[0.0, 0.0, 1.0], [0.0, np.sin(a), np.cos(a)]])
+    got = _sharp(x, tris, np.array([[0, 1]]), np.array([[0, 1]]), normals)
+    assert got.tolist() == [sharp]
