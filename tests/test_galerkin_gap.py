@@ -68,6 +68,13 @@ def test_held_instants_start_a_hold_after_the_ramp():
     times = np.arange(31) * DT
     held = held_instant(schedule, times, hold=0.05)
     assert np.array_equal(np.flatnonzero(held), np.arange(15, 31))
+    # held, then released at 0.3 s: held before the release whatever comes after it, not
+    # while the release is inside the last 0.05 s, held again once it is older
+    release = ExcitationSchedule(
+        np.array([0.0, 0.1, 0.3, 0.31]), {"top": np.array([0.0, 0.5, 0.5, 0.0])}
+    )
+    held = held_instant(release, np.arange(41) * DT, hold=0.05)
+    assert held[[16, 20, 29]].all() and not held[[32, 33, 34]].any() and held[[37, 40]].all()
 
 
 def test_a_complete_basis_has_no_gap(tmp_path):
