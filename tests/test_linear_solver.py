@@ -164,3 +164,70 @@ def test_small_dense_solves_hold_blas_to_one_thread_and_give_it_back():
         assert [lib.num_threads for lib in _BLAS] == before
     with threadpool_limits(limits=1, user_api="blas"), one_blas_thread():
         assert [lib.num_threads for lib in _BLAS] == [1] * len(_BLAS)
+
+
+class _FakeMumps:
+    """A KSP stand-in whose MUMPS factorization reports the INFOG(1) values given, one per
+    attempt (what factor_mumps reads and calls, no PETSc)."""
+
+    def __init__(self, infog):
+        self.infog, self.attempts, self.icntl14 = list(infog), 0, 20
+
+    # the KSP
+    def getPC(self):
+        return self
+
+    def setUp(self):
+        self.attempts += 1
+
+    def getOperators(self):
+        return ()
+
+    def reset(self):
+        pass
+
+    def setOperators(self, *operators):
+        pass
+
+    # its PC
+    def setFactorSetUpSolverType(self):
+        pass
+
+    def getFactorMatrix(self):
+        return self
+
+    # its factor matrix
+    def getMumpsInfog(self, k):
+        return self.infog[self.attempts - 1]
+
+    def getMumpsIcntl(self, k):
+        return self.icntl14
+
+    def setMumpsIcntl(self, k, value):
+        if k == 14:
+            self.icntl14 = value
+
+
+#: the MUMPS 5 manual's INFOG(1) values of a workspace too small (its remedy: a larger
+#: ICNTL(14)): -8, -9 (the main integer and real arrays of the factorization), -11, -12
+#: (the real workspace of the solution and of iterative refinement), -14, -15 (the integer
+#: workspace of the same), -17 (the send buffer), -20 (the receive buffer)
+WORKSPACE_ERRORS = (-8, -9, -11, -12, -14, -15, -17, -20)
+
+
+@pytest.mark.parametrize("code", WORKSPACE_ERRORS)
+def test_every_workspace_error_of_the_manual_is_retried_with_more_room(code):
+    from artifem.linear_solver import factor_mumps
+
+    ksp = _FakeMumps([code, code, 0])
+    assert factor_mumps(ksp, {}) == 0
+    assert ksp.attempts == 3 and ksp.icntl14 == 80  # 20 % doubled twice
+
+
+@pytest.mark.parametrize("code", [-10, -13, -1])
+def test_other_mumps_errors_are_returned_at_once(code):
+    """-10 (singular), -13 (an allocation failed), -1 (an error on another process)."""
+    from artifem.linear_solver import factor_mumps
+
+    ksp = _FakeMumps([code, 0])
+    assert factor_mumps(ksp, {}) == code and ksp.attempts == 1
