@@ -77,6 +77,12 @@ def test_held_instants_start_a_hold_after_the_ramp():
     assert held[[16, 20, 29]].all() and not held[[32, 33, 34]].any() and held[[37, 40]].all()
 
 
+def test_a_run_without_a_held_instant_is_a_row_of_empty_cells():
+    header, rule, row = write_markdown([{"run": "pulses", "held": False}]).splitlines()[-3:]
+    assert row.startswith("| pulses | no held instant |")
+    assert row.count("|") == header.count("|") == rule.count("|")
+
+
 def test_a_complete_basis_has_no_gap(tmp_path):
     body = beam().fem_bodies[0]
     complete = ReducedModel(MODEL, full_basis(body), [], all_points(body))
