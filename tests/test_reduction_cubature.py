@@ -143,6 +143,10 @@ def test_integration_points_validates():
         IntegrationPoints(np.array([0, 1]), np.array([1.0, 0.0]), "random", None)
     with pytest.raises(ValueError, match="distinct"):
         IntegrationPoints(np.array([1, 1]), np.array([1.0, 1.0]), "random", None)
+    with pytest.raises(ValueError, match="integers"):
+        IntegrationPoints(np.array([0.0, 1.5]), np.array([1.0, 1.0]), "random", None)
+    empty = IntegrationPoints(np.array([]), np.array([]), "random", None)  # float, but none
+    assert empty.indices.size == 0 and empty.indices.dtype == np.int64
 
 
 def test_random_points_by_group_share_m_and_keep_each_group_volume():
