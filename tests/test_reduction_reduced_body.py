@@ -264,6 +264,11 @@ def test_basis_rows_at_fixed_dofs_must_be_zero():
     U[3 * body.fixed_dofs[0], 1] = 1.0
     with pytest.raises(ValueError, match="fixed dofs"):
         ReducedFemBody(body, U, all_points(body))
+    # round-off up to 1e-10 max|U| is not a nonzero row: a node at exactly that is not named
+    U /= np.abs(U).max()
+    U[3 * body.fixed_dofs[1] + 2, 0] = 1e-10
+    with pytest.raises(ValueError, match=r"nonzero at 1 fixed node\(s\)"):
+        ReducedFemBody(body, U, all_points(body))
     with pytest.raises(ValueError, match="shape"):
         ReducedFemBody(body, U[:-1], all_points(body))
 
