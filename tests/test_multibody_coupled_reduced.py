@@ -279,6 +279,9 @@ def test_bad_lift_attachments_are_clear_errors():
         rigid_lift(body, body.find_nodes(lambda x: x[0] < 1e-12), b.position, b.rotation)
     with pytest.raises(ValueError, match="also held by another rigid body"):
         rigid_lift(body, end_nodes(body), b.position, b.rotation, held=end_nodes(body)[:2])
+    for pose in (1.1 * b.rotation, b.rotation @ np.diag([1.0, 1.0, -1.0])):  # scaled, mirrored
+        with pytest.raises(ValueError, match="not a proper rotation"):
+            rigid_lift(body, end_nodes(body), b.position, pose)
     reduced = ReducedFemBody(body, lifted_basis(body, lift, 4), all_points(body))
     scene = Scene()
     scene.add(reduced, LiftAttachment(reduced, lift, b))
