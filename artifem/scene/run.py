@@ -23,18 +23,15 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 from tqdm import tqdm
 
 from dolfinx import fem
 
 from artifem.errors import InputError, SolverError
 from artifem.io.results import ResultWriter
+from artifem.scene.direct_solver import one_blas_thread
 
 __all__ = ["Run", "simulate"]
-
-#: NumPy's BLAS, held to one thread while a scene runs (module docstring)
-_BLAS = ThreadpoolController()
 
 
 @dataclass
@@ -143,34 +140,35 @@ def simulate(
     comm = scene.comm
     values = {name: [np.asarray(f(scene), dtype=float)] for name, f in record.items()}
     times, step_ms, failure = [scene.t], [], None
-    blas = _BLAS.limit(limits=1, user_api="blas")
-    try:
-        write()
-        keep_snapshots()
-        show = progress and comm.rank == 0
-        for k in tqdm(range(1, steps + 1), desc=label, unit="step", disable=not show, leave=leave):
-            comm.Barrier()
-            tic = time.perf_counter()
-            try:
-                scene.step(dt)
-            except SolverError as exc:
-                if on_failure == "raise":
-                    raise
-                failure = exc
-                break
-            comm.Barrier()
-            step_ms.append(1e3 * (time.perf_counter() - tic))
-            scene.t = t0 + k * dt  # no drift from repeated addition
-            times.append(scene.t)
-            for name, f in record.items():
-                values[name].append(np.asarray(f(scene), dtype=float))
+    with one_blas_thread():  # module docstring
+        try:
+            write()
             keep_snapshots()
-            if k % write_every == 0:
-                write()
-    finally:
-        blas.restore_original_limits()
-        for _, writer in writers:
-            writer.close()
+            show = progress and comm.rank == 0
+            for k in tqdm(
+                range(1, steps + 1), desc=label, unit="step", disable=not show, leave=leave
+            ):
+                comm.Barrier()
+                tic = time.perf_counter()
+                try:
+                    scene.step(dt)
+                except SolverError as exc:
+                    if on_failure == "raise":
+                        raise
+                    failure = exc
+                    break
+                comm.Barrier()
+                step_ms.append(1e3 * (time.perf_counter() - tic))
+                scene.t = t0 + k * dt  # no drift from repeated addition
+                times.append(scene.t)
+                for name, f in record.items():
+                    values[name].append(np.asarray(f(scene), dtype=float))
+                keep_snapshots()
+                if k % write_every == 0:
+                    write()
+        finally:
+            for _, writer in writers:
+                writer.close()
     return Run(
         np.array(times),
         {name: _stacked(v) for name, v in values.items()},
