@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from artifem.errors import InputError
@@ -136,15 +135,14 @@ def reduced_run(
     scene = reduced.scene()
     body = next(b for b in scene.reduced_bodies if b.name == reduced.model.body)
     reduced.model.drive(scene, schedule)
-    with threadpool_limits(limits=1, user_api="blas"):
-        run = simulate(
-            scene,
-            duration,
-            dt,
-            record={"q": lambda s: body.q.copy()},
-            on_failure="stop",
-            progress=False,
-        )
+    run = simulate(  # on one BLAS thread (artifem.scene.run)
+        scene,
+        duration,
+        dt,
+        record={"q": lambda s: body.q.copy()},
+        on_failure="stop",
+        progress=False,
+    )
     steps = int(round(duration / dt))
     q = np.full((steps + 1, body.r), np.nan)
     q[: len(run.records["q"])] = run.records["q"]
