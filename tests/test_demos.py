@@ -73,13 +73,15 @@ SERIES = {
     "contact_pad_on_bone.py": {"pad.bp": (0.03, 0.005), "pad_contact_pressure.bp": (0.03, 0.005)},
 }
 
-#: the largest nodal displacement at the last step, measured (two runs, same digits); rel
-#: 1e-6 allows another machine of the same kind (the quick runs are deterministic)
+#: the largest nodal displacement at the last step, measured (two runs, same digits), and
+#: the relative tolerance: 1e-6 where the runs are the same on every machine measured; the
+#: pad's contact rows make it turn on round-off: 0.0049365019 on one machine, 0.0049365232 on
+#: another (AMD EPYC, OpenBLAS Haswell/Zen kernels; 4.3e-6 apart), so 1e-4 there
 MEASURED_MAX_U_M = {
-    "tissue.bp": 0.01378963853086978,
-    "beam_modes.bp": 0.03310692837482838,
-    "block.bp": 0.0027249293302724614,
-    "pad.bp": 0.004936501880568165,
+    "tissue.bp": (0.01378963853086978, 1e-6),
+    "beam_modes.bp": (0.03310692837482838, 1e-6),
+    "block.bp": (0.0027249293302724614, 1e-6),
+    "pad.bp": (0.004936501880568165, 1e-4),
 }
 
 
@@ -89,7 +91,8 @@ def last_displacement(path):
     series = read_series(path)
     u = series.at("displacement")
     if path.name in MEASURED_MAX_U_M:
-        assert np.abs(u).max() == pytest.approx(MEASURED_MAX_U_M[path.name], rel=1e-6)
+        measured, rel = MEASURED_MAX_U_M[path.name]
+        assert np.abs(u).max() == pytest.approx(measured, rel=rel)
     return series.at("geometry", 0), u
 
 

@@ -36,12 +36,14 @@ def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(
     """0.1 s runs (the load's ramp), both configurations against one full run: the reduced
     tissue has the 6 POD vectors and the 11 bone groups' 12 lift columns each. On 100
     random points (the paper's) its largest mean node error on the held-out 90 kg is
-    1.88 mm of the tissue's 20.0 mm; on 100 trained (ECSW) points, where many more
-    friction rows under the sole than reduced coordinates make the bounds' fixed point
-    circle (the sliding rows are then held at mu lambda_n of the same solve), 0.29 mm,
-    within the issue's 1 mm (both measured, two runs; asserted within 1.25 x, the
-    issue-32 margin: docs/foot/reduced_configs_level0.json is for the script's longer
-    run). The per-step error and ms are the figures' series, and they plot."""
+    1.88 mm of the tissue's 20.0 mm (measured, the same on every machine tried; asserted
+    within 1.25 x, the issue-32 margin: docs/foot/reduced_configs_level0.json is for the
+    script's longer run); on 100 trained (ECSW) points, where many more friction rows under
+    the sole than reduced coordinates make the bounds' fixed point circle (the sliding rows
+    are then held at mu lambda_n of the same solve), it turns on round-off: 0.29, 0.33
+    and 0.37 mm on three machines or BLAS kernels, asserted within 1.25 x the largest,
+    inside the issue's 1 mm. The per-step error and ms are the figures' series, and they
+    plot."""
     configs = {name: replace(config, level=0, duration=0.1) for name, config in fr.CONFIGS.items()}
     results = fr.compare("standing", configs, training_cache, progress=False, mesh_cache=foot_cache)
     paper, trained = results["paper"], results["trained"]
@@ -50,7 +52,7 @@ def test_reduced_standing_foot_follows_the_full_one_on_a_held_out_weight(
     assert paper["training"]["snapshots"] == 3 * 10
     assert paper["max_displacement_mm"] == pytest.approx(20.01979011073167, rel=1e-6)  # full
     assert paper["max_mean_node_error_mm"] < 1.25 * 1.8786986785914968
-    assert trained["max_mean_node_error_mm"] < 1.25 * 0.28775652103416527
+    assert trained["max_mean_node_error_mm"] < 1.25 * 0.36959971065735525
     steps = round(0.1 / paper["config"]["dt"])
     for r in (paper, trained):  # the per-step series the figures summarize
         assert len(r["mean_node_error_mm"]) == len(r["reduced_ms"]) == len(r["full_ms"]) == steps

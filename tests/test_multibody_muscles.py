@@ -19,6 +19,8 @@ from artifem.multibody.muscles import (
     ThelenMuscle,
     ThelenParameters,
     active_force_length,
+    REST_STRAIN,
+    REST_VELOCITY,
     force_velocity,
     force_velocity_inverse,
     passive_force_length,
@@ -91,6 +93,10 @@ def test_passive_force_length_reaches_one_at_eps0m():
     assert np.all(f[ln <= 1] == 0.0)
     assert np.all(np.diff(f) >= 0) and np.all(np.diff(f[ln > 1]) > 0)
     assert passive_force_length(1.0 + 1e-12) < 1e-11  # continuous at the optimal length
+    # at the optimal length, to round-off of either sign, the slope is the unstretched one
+    for rest in (1.0 - 1e-15, 1.0, 1.0 + 1e-15, 1.0 + REST_STRAIN):
+        assert passive_force_length(rest, derivative=True) == (0.0, 0.0), rest
+    assert passive_force_length(1.0 + 2 * REST_STRAIN, derivative=True)[1] > 0.05
     mask = np.abs(ln - 1) > 1e-3
     assert np.allclose(df[mask], fd_slope(passive_force_length, ln[mask]), rtol=1e-6, atol=1e-9)
 
@@ -108,10 +114,20 @@ def test_force_velocity_reference_points():
     f = force_velocity(v)
     assert np.all(np.diff(f) > 0) and np.all(f < flen)
     # Thelen's design: lengthening slope at 0 is twice the shortening slope; ArtiSynth's C1 option
-    s_short = force_velocity(-1e-9, derivative=True)[1]
-    s_long = force_velocity(1e-9, derivative=True)[1]
-    assert s_short == pytest.approx(1 + 1 / af) and s_long == pytest.approx(2 + 2 / af)
-    assert force_velocity(1e-9, c1_at_zero=True, derivative=True)[1] == pytest.approx(1 + 1 / af)
+    s_short = force_velocity(-1e-6, derivative=True)[1]
+    s_long = force_velocity(1e-6, derivative=True)[1]
+    assert s_short == pytest.approx(1 + 1 / af, rel=1e-4)  # O(v) from the slopes at 0
+    assert s_long == pytest.approx(2 + 2 / af, rel=1e-4)
+    one_slope = force_velocity(1e-6, c1_at_zero=True, derivative=True)[1]
+    assert one_slope == pytest.approx(1 + 1 / af, rel=1e-4)
+    # at rest (a velocity at round-off, of either sign) the slope is the shortening one, the
+    # same on every machine: the step from rest does not depend on the round-off's sign
+    for rest in (-1e-12, 0.0, 1e-12, REST_VELOCITY):
+        slope = force_velocity(rest, derivative=True)[1]
+        assert slope == pytest.approx(1 + 1 / af, rel=1e-9), rest
+    assert force_velocity(2 * REST_VELOCITY, derivative=True)[1] == pytest.approx(
+        2 + 2 / af, rel=1e-6
+    )
     mask = (np.abs(v) > 1e-3) & (v > -1 + 1e-3)
     _, df = force_velocity(v, derivative=True)
     assert np.allclose(df[mask], fd_slope(force_velocity, v[mask]), rtol=1e-6)

@@ -62,7 +62,9 @@ def test_bad_input(exciters, count, duration, fragment):
 
 #: seed 0's five schedules, two steps of 0.01 s on the level-0 tongue: (retried steps:
 #: fallbacks, halvings; min det F; max |V / V0 - 1|), measured (two runs, same digits; the
-#: runs are deterministic, their wall times are not). det F to rel 1e-6.
+#: runs are deterministic on one machine, their wall times are not). To rel 1e-4: a run
+#: with retried steps turns on round-off across machines (pulses-0-2's min det F: 0.2433487,
+#: 0.2433484 and 0.2433509 with three BLAS kernels).
 MEASURED_RUNS = {
     "smooth-0-0": (0, 0, 0.5679368620627201, 0.00012877664909538566),
     "coactivation-0-1": (0, 0, 0.6846359376598343, 3.397258193271746e-05),
@@ -102,8 +104,8 @@ def test_a_short_study_of_the_tongue_reports_every_run(tmp_path):
         assert r["outcome"] == "finished" and r["error"] is None, name
         assert r["steps"] == 2 and r["t_reached"] == pytest.approx(0.02)
         assert (r["fallbacks"], r["halvings"]) == (fallbacks, halvings), name
-        assert r["min_det_F"] == pytest.approx(det_F, rel=1e-6), name
-        assert r["max_volume_change"] == pytest.approx(volume, rel=1e-6), name
+        assert r["min_det_F"] == pytest.approx(det_F, rel=1e-4), name
+        assert r["max_volume_change"] == pytest.approx(volume, rel=1e-4), name
         assert r["cost"] is not None, name  # a timing: only its presence is determined
 
 

@@ -32,10 +32,7 @@ import artifem  # noqa: F401  (must precede dolfinx / petsc4py)
 from artifem.models.tongue.hard_cases import build_case, run_built
 from hard_case_checks import (
     DET_F_REL,
-    LANDMARK_MM,
     PENALTY,
-    VOLUME_ABS,
-    assert_same_landmarks,
     check_outcome,
     check_protrusion_variants,
     make_runs,
@@ -90,28 +87,39 @@ def test_hard_incompressibility_on_a_hard_case(name, runs):
         assert result["fallbacks"] > 0  # the semi-implicit step inverts elements there
 
 
+#: the pulses at 0.25 s on three machines or BLAS kernels (the committed 1 s run's machine;
+#: AMD EPYC with OpenBLAS's Haswell and with its Sandybridge kernels): which steps are halved
+#: or taken by the fallback turns on round-off (7 or 8 halvings, 4 or 5 fallbacks), and the
+#: landmarks follow (mm)
+PULSES_MM = {
+    "tip": [[8.6463, 0.0, -12.4463], [8.6757, 0.0001, -13.5615], [8.6817, 0.0001, -13.663]],
+    "top": [[3.2287, -0.0002, -6.649], [3.0053, -0.0002, -6.7134], [2.9849, -0.0003, -6.7189]],
+    "base": [[6.3232, -0.0002, -6.5128], [6.2767, -0.0002, -6.4169], [6.2747, -0.0003, -6.3947]],
+}
+
+
 @pytest.mark.slow
 def test_fast_pulses_finish():
     """Every exciter pulsed at 0.8, two groups in antiphase switched every 0.05 s (within
     1 ms) from t = 0: five switches finish with default settings and the implicit fallback
-    (the committed run in docs/tongue_hard_cases.json is 1 s: this one is measured, the
-    same in two processes, and compared with the tolerances of the committed runs). The
-    volume changes by 9.4e-6: the semi-implicit steps between switches hold the constraint
-    linearized, and what they leave, up to ``Incompressible.step_tol`` per element, the
-    next step corrects. The 7 halvings and 5 fallbacks turn on round-off
-    (hard_case_checks.py): only that there are some is checked."""
+    (the committed run in docs/tongue_hard_cases.json is 1 s: this one is measured). The
+    halvings and fallbacks turn on round-off (hard_case_checks.py), so only that there are
+    some is checked, and the path with them: each landmark within twice the spread of its
+    PULSES_MM (1.2 mm at most) of their mean, min det F within 1e-3 of 0.1176 (0.11761 to
+    0.11763 measured). The volume is held: the semi-implicit steps between switches hold the
+    constraint linearized, and what they leave, up to ``Incompressible.step_tol`` per
+    element, the next step corrects (measured 1.6e-6 to 9.4e-6; the issue's bound 1e-4)."""
     tongue, _, dt = build_case("incompressible_pulses", "semi-implicit")
     result = run_built(tongue, dt, duration=0.25)
     assert result["outcome"] == "finished", result.get("error")
     assert result["steps_done"] == 25
-    measured = {
-        "tip": [8.6463, 0.0, -12.4463],
-        "top": [3.2287, -0.0002, -6.649],
-        "base": [6.3232, -0.0002, -6.5128],
-    }
-    assert_same_landmarks(result, {"landmarks_mm": measured}, "pulses at 0.25 s", LANDMARK_MM)
-    assert result["min_det_F"] == pytest.approx(0.11762632004, rel=DET_F_REL)
-    assert result["volume_change"] == pytest.approx(9.426332730e-6, abs=VOLUME_ABS)
+    for name, runs in PULSES_MM.items():
+        runs = np.array(runs)
+        spread = np.linalg.norm(runs.max(0) - runs.min(0))
+        off = np.linalg.norm(np.array(result["landmarks_mm"][name]) - runs.mean(0))
+        assert off <= 2 * spread, (name, result["landmarks_mm"][name])
+    assert result["min_det_F"] == pytest.approx(0.1176, rel=DET_F_REL)
+    assert abs(result["volume_change"]) < 1e-4
     assert result["fallbacks"] > 0 and result["halvings"] > 0
 
 

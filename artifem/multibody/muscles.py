@@ -126,6 +126,13 @@ def active_force_length(fiber_length, width: float = 0.45, *, derivative: bool =
     return _result(f, df, x.ndim == 0)
 
 
+#: |l - 1| within which a normalized fiber length is the optimal one for f_PE's slope:
+#: f_PE has a kink at l = 1 (zero below, slope k_PE / (eps0M (e^k_PE - 1)) above), and a
+#: muscle whose optimal length is its starting length sits on it at round-off (a jump of
+#: f_PE below 1e-11 of F0 here).
+REST_STRAIN = 1e-10
+
+
 def passive_force_length(
     fiber_length, shape: float = 5.0, strain_at_one: float = 0.6, *, derivative: bool = False
 ):
@@ -136,18 +143,32 @@ def passive_force_length(
     so f_PE = 1 at strain eps0M (l = 1 + eps0M). ``shape`` is k_PE (OpenSim's
     KshapePassive, 5), ``strain_at_one`` eps0M (FmaxMuscleStrain, 0.6 young /
     0.5 old). Zero below the optimal length as in OpenSim's Thelen2003Muscle
-    (the paper's formula would dip to -1/(e^k_PE - 1) there).
+    (the paper's formula would dip to -1/(e^k_PE - 1) there), and up to
+    :data:`REST_STRAIN` above it.
     """
     kpe = _curve_param("passive_force_length", "shape (k_PE)", shape)
     e0 = _curve_param("passive_force_length", "strain_at_one (eps0M)", strain_at_one)
     x = np.asarray(fiber_length, dtype=float)
-    stretched = x > 1.0
+    # at the optimal length (where models often start) the slope jumps from 0: within
+    # REST_STRAIN of it the fiber counts as unstretched, whatever the round-off's sign
+    stretched = x > 1.0 + REST_STRAIN
     with np.errstate(over="ignore"):
         ex = np.exp(kpe * (np.where(stretched, x, 1.0) - 1.0) / e0)
     denom = math.expm1(kpe)
     f = np.where(stretched, (ex - 1.0) / denom, 0.0)
     df = np.where(stretched, kpe / e0 * ex / denom, 0.0) if derivative else None
     return _result(f, df, x.ndim == 0)
+
+
+#: |v| below which a normalized fiber velocity is rest for f_V's slope (1e-10 of the maximum
+#: shortening velocity). Thelen's f_V has a kink at v = 0 (the lengthening slope is twice
+#: the shortening one), so the damping a step linearizes with jumps there; a scene at rest
+#: has fiber velocities at round-off (measured: 1e-17 to 6e-15) whose sign is the
+#: machine's (its BLAS kernels), and the first step from rest took one slope or the other:
+#: the jaw-tongue's opener turned the jaw 2.6 % more in 0.1 s on one machine than on
+#: another. At rest the slope is the shortening one, f_V's left slope at v = 0 (as at an
+#: exact 0 before).
+REST_VELOCITY = 1e-10
 
 
 def _fv_lengthening_slope(af: float, c1_at_zero: bool) -> float:
@@ -173,7 +194,8 @@ def force_velocity(
                                      k = 2 + 2/A_f
 
     f(-1) = 0, f(0) = 1, f -> F_len as v -> inf; f = 0 below -1. The lengthening
-    slope at 0 is twice the shortening slope (1 + 1/A_f), by Thelen's design;
+    slope at 0 is twice the shortening slope (1 + 1/A_f), by Thelen's design (the
+    derivative for |v| <= :data:`REST_VELOCITY` is the shortening one: rest);
     ``c1_at_zero`` uses k = 1 + 1/A_f instead (ArtiSynth's Thelen2003AxialMuscle
     modification, continuous slope). Defaults: A_f = 0.25, F_len = 1.4 (young
     adults; OpenSim's default is 1.8).
@@ -192,7 +214,7 @@ def force_velocity(
     if derivative:
         dshort = (1.0 + 1.0 / af) / (1.0 - vs / af) ** 2
         dlength = k * d * d / (k * vl + d) ** 2
-        df = np.where(v <= -1.0, 0.0, np.where(v <= 0.0, dshort, dlength))
+        df = np.where(v <= -1.0, 0.0, np.where(v <= REST_VELOCITY, dshort, dlength))
     return _result(f, df, v.ndim == 0)
 
 
