@@ -65,6 +65,26 @@ class StepFailed(SolverError):
         self.iterations = int(iterations)
 
 
+class SingularSystem(StepFailed):
+    """A linear system with a zero pivot. ``matrix``: the system itself where it was
+    small enough to factor densely (else None), so that whoever knows what its unknowns
+    are can say which motions nothing resists (:meth:`null_space`)."""
+
+    def __init__(self, message: str = "", matrix: np.ndarray | None = None, iterations: int = 0):
+        super().__init__(message, iterations)
+        self.matrix = matrix
+
+    def null_space(self, rtol: float = 1e-10) -> np.ndarray | None:
+        """Orthonormal columns spanning the near null space of ``matrix``: its right
+        singular vectors with sigma <= rtol sigma_max (at least the smallest one); None
+        without the matrix."""
+        if self.matrix is None or not np.all(np.isfinite(self.matrix)):
+            return None
+        _, sigma, vt = np.linalg.svd(self.matrix)
+        keep = max(int(np.count_nonzero(sigma <= rtol * max(sigma[0], 1e-300))), 1)
+        return vt[-keep:].T
+
+
 class LinearSolveError(SolverError):
     """The KSP did not converge (or the factorization failed) for this matrix."""
 

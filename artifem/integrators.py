@@ -40,7 +40,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from artifem.errors import InputError, StepFailed
+from artifem.errors import InputError, SingularSystem, StepFailed
 from artifem.fem_body import FemBody
 from artifem.incompressibility import hold_linearized
 from artifem.linear_solver import LinearSolver
@@ -614,12 +614,15 @@ def ramp_load(
     halved, up to :data:`MAX_CUTS` times; a fixed schedule (``load_steps`` an integer)
     still lands on each of its factors k / n, ``"auto"`` doubles the increment after an
     easy one (:data:`EASY_ITERATIONS`) and cuts one that needs more than
-    :data:`AUTO_MAX_ITERATIONS`."""
+    :data:`AUTO_MAX_ITERATIONS`. A tangent singular in an increment's first iteration (at
+    the last converged state: :class:`~artifem.errors.SingularSystem`) is cut once, since
+    the load may change it (a follower load, a path's tension); singular there again, the
+    solve stops at once with that error instead of cutting on."""
     marks, increment = load_schedule(load_steps)
     auto = marks is None
     limit = min(max_iterations, AUTO_MAX_ITERATIONS) if auto else max_iterations
     counts, factors, failed = [], [], 0
-    factor, cuts = 0.0, 0
+    factor, cuts, singular = 0.0, 0, 0
     while factor < 1.0 - 1e-14:
         if auto:
             goal = min(1.0, factor + increment)
@@ -635,6 +638,14 @@ def ramp_load(
             failed += error.iterations
             restore(state)
             cuts += 1
+            at_start = isinstance(error, SingularSystem) and error.iterations <= 1
+            singular = singular + 1 if at_start else 0
+            if singular == 2:
+                raise SingularSystem(
+                    f"{what}: the tangent at load factor {factor:g} is singular, and a "
+                    f"smaller load increment does not change that ({error})",
+                    iterations=error.iterations,
+                ) from error
             if cuts > MAX_CUTS:
                 raise StepFailed(
                     f"{what}: the load increment {factor:g} -> {goal:g} failed "
@@ -646,7 +657,7 @@ def ramp_load(
         factors.append(goal)
         if progress is not None and (auto or goal in marks):
             progress.update(1)
-        cuts = 0
+        cuts = singular = 0
         if auto:
             if it <= EASY_ITERATIONS:
                 increment *= 2.0

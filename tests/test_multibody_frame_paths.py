@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
+from artifem.errors import SingularSystem
 from artifem.multibody.frame_paths import FramePath
 from artifem.multibody.joints import SliderJoint
 from artifem.multibody.muscles import AxialSpring, ThelenMuscle, ThelenParameters
-from artifem.multibody.rigid_body import Frame, RigidBody
+from artifem.multibody.rigid_body import Frame, RigidBody, exp_so3
 from artifem.scene import Scene
 
 G = 9.81
@@ -105,6 +106,42 @@ def test_the_static_solve_holds_the_weight_on_the_muscle():
     system.solve_static()
     assert muscle.tension(-body.position[2])[0] == pytest.approx(3.0 * G, rel=1e-9)
     assert path.conservative
+
+
+def test_a_static_solve_names_the_motions_nothing_resists_that_the_loads_push():
+    """A weight on a vertical slider with nothing to hold it up, and a free body: statics
+    has no equilibrium, and says which motion of which body is left to the loads, at the
+    first load increment and its one cut (the tangent does not depend on the load there),
+    not after 12 cuts."""
+    body, *_ = hanging(mass=3.0, z=-0.6)
+    system = Scene(gravity=(0.0, 0.0, -G))
+    system.add(body, guided(body))
+    with pytest.raises(SingularSystem) as failed:
+        system.solve_static()
+    message = str(failed.value)
+    assert "a smaller load increment does not change that" in message
+    assert "nothing resists 'weight' translating along (0, 0, 1):" in message
+    assert "the loads push that way, so there is no static equilibrium" in message
+    free = RigidBody("free", 1.0, np.eye(3) * 1e-3)
+    system = Scene(gravity=(0.0, 0.0, -G))
+    system.add(free)
+    with pytest.raises(
+        SingularSystem, match="'free' translating along any axis and rotating about any axis"
+    ):
+        system.solve_static()
+
+
+def test_a_weight_hung_by_its_centre_of_mass_keeps_its_orientation_in_statics():
+    """Nothing resists its turns and nothing works on them (neutral motions): statics keeps
+    the orientation it has and finds the height, z = -(L0 + m g / k)."""
+    body, top, bottom = hanging(mass=3.0, z=-0.6)
+    body.rotation = exp_so3((0.3, 0.2, -0.1))
+    start = body.rotation.copy()
+    system = Scene(gravity=(0.0, 0.0, -G))
+    system.add(body, FramePath(AxialSpring(400.0, 0.5), [top, bottom], name="spring"))
+    system.solve_static()
+    assert body.position == pytest.approx([0.0, 0.0, -(0.5 + 3.0 * G / 400.0)], abs=1e-12)
+    np.testing.assert_allclose(body.rotation, start, atol=1e-12)
 
 
 class ConstantForce:

@@ -19,7 +19,7 @@ from petsc4py import PETSc
 from scipy import sparse
 from threadpoolctl import ThreadpoolController
 
-from artifem.errors import StepFailed
+from artifem.errors import SingularSystem, StepFailed
 from artifem.linear_solver import configure_mumps, factor_mumps
 
 __all__ = ["DirectSolver"]
@@ -71,7 +71,8 @@ class DirectSolver:
         return self.factor(K, what).apply(b)
 
     def factor(self, K, what: str) -> DirectSolver:
-        """LU of K (dense or sparse); StepFailed (naming ``what``) when it is singular."""
+        """LU of K (dense or sparse); StepFailed (naming ``what``) when it fails, a
+        :class:`~artifem.errors.SingularSystem` at a zero pivot (the dense K on it)."""
         self._what = what
         if K.shape[0] <= DENSE_MAX:
             dense = K.toarray() if sparse.issparse(K) else np.asarray(K, dtype=float)
@@ -86,7 +87,9 @@ class DirectSolver:
             if not np.all(np.isfinite(lu)) or (
                 pivots.size and pivots.min() <= 1e-14 * max(pivots.max(), 1e-300)
             ):
-                raise StepFailed(f"{what}: the dense LU found a zero pivot; {SINGULAR}")
+                raise SingularSystem(
+                    f"{what}: the dense LU found a zero pivot; {SINGULAR}", matrix=dense
+                )
             self._dense = (lu, piv)
             return self
         self._dense = None
@@ -115,7 +118,8 @@ class DirectSolver:
         if info < 0:
             self.ksp.reset()  # the next factorization starts afresh
             self._pattern = None
-            raise StepFailed(
+            error = SingularSystem if info == -10 else StepFailed
+            raise error(
                 f"{what}: the LU factorization failed (MUMPS INFOG(1) = {info}"
                 f"{', a zero pivot' if info == -10 else ''}); {SINGULAR}"
             )

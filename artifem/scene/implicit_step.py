@@ -59,8 +59,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-from artifem.errors import StepFailed
+from artifem.errors import SingularSystem, StepFailed
 from artifem.scene.constraints import StepRows, impulses_by_constraint, solve_constrained
+from artifem.scene.layout import STEP_ADVICE
 
 __all__ = ["NewtonSystem", "implicit_step"]
 
@@ -193,15 +194,18 @@ def implicit_step(scene, L, h: float, rtol: float, atol: float, max_iterations: 
                 StepRows(g.block, G, g.c + np.asarray(G @ z_m).ravel(), g.compliance)
                 for g, G in zip(rows, G_x)
             ]
-            z_new, lam_new, _ = solve_constrained(
-                scene._solver,
-                J,
-                J @ z_m - r,
-                shifted,
-                where,
-                force_rows=[g.G for g in rows],
-                memory=scene._active_sets,
-            )
+            try:
+                z_new, lam_new, _ = solve_constrained(
+                    scene._solver,
+                    J,
+                    J @ z_m - r,
+                    shifted,
+                    where,
+                    force_rows=[g.G for g in rows],
+                    memory=scene._active_sets,
+                )
+            except SingularSystem as error:
+                raise L.unresisted(error, J, STEP_ADVICE) from error
             dz = z_new - z_m
             step, z_start = 1.0, z_m
             while step >= 1e-4:

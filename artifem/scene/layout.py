@@ -19,7 +19,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
 
-from artifem.errors import InputError
+from artifem.errors import InputError, SingularSystem
 from artifem.fem_body import FemBody
 from artifem.incompressibility import hold_linearized
 from artifem.integrators import reduced_step_system, step_system
@@ -36,7 +36,7 @@ from artifem.multibody.rigid_body import (
 )
 from artifem.reduction.rigid_lift import RigidLift
 from artifem.scene.constraint_map import ConstraintMap
-from artifem.scene.direct_solver import DENSE_MAX
+from artifem.scene.direct_solver import DENSE_MAX, SINGULAR
 
 
 @dataclass
@@ -1032,6 +1032,74 @@ class Layout:
         vals += [np.abs(b.position).max() for b in self.roots]
         return max(vals, default=1.0)
 
+    def describe_motions(self, N: np.ndarray) -> str:
+        """The motions spanned by the orthonormal columns of ``N`` (n_masters x k: the
+        :meth:`free_motions` of a singular system) in words, body by body: a rigid body's
+        translations and rotations (world directions where they are one or two), a
+        deformable body's nodes or reduced coordinates; bodies attached to a rigid body
+        move with it."""
+        parts = []
+        start = 0
+        for body, rows in self.free_fem:
+            block = N[start : start + len(rows)]
+            moved = np.linalg.norm(block, axis=1) > 1e-6
+            if moved.any():
+                nodes = np.unique(rows[moved] // 3).size
+                parts.append(f"{nodes} node{'s' * (nodes > 1)} of {body.name!r} moving")
+            start += len(rows)
+        for body, rows in self.free_reduced:
+            moved = np.linalg.norm(N[start : start + len(rows)], axis=1) > 1e-6
+            if moved.any():
+                parts.append(f"reduced coordinates {rows[moved].tolist()} of {body.name!r} moving")
+            start += len(rows)
+        for body in self.roots:
+            c = self.master_col[id(body)]
+            motions = [_directions(N[c + k : c + k + 3], noun) for k, noun in ((0, "t"), (3, "r"))]
+            if any(motions):
+                parts.append(f"{body.name!r} " + " and ".join(m for m in motions if m))
+        return "; ".join(parts) if parts else "no body's coordinates (the constraint rows)"
+
+    def unresisted(self, error: SingularSystem, A, advice: str) -> SingularSystem:
+        """``error`` with the motions nothing resists named (:meth:`describe_motions` of
+        :meth:`free_motions`), ``advice`` after them; ``error`` itself where they are not
+        known."""
+        N = self.free_motions(error, A)
+        if N is None:
+            return error
+        what = str(error).removesuffix(f"; {SINGULAR}")
+        return SingularSystem(
+            f"{what}; nothing resists {self.describe_motions(N)}: {advice}",
+            iterations=error.iterations,
+        )
+
+    def free_motions(self, error: SingularSystem, A) -> np.ndarray | None:
+        """Orthonormal master motions (n_masters x k) that the singular system of ``error``
+        leaves free: its null space's master part, when its matrix is the masters' ``A``
+        or a KKT matrix bordering it; else None (a Schur complement, a sparse system)."""
+        N = error.null_space()
+        n = self.n_masters
+        if N is None or N.shape[0] < n:
+            return None
+        A = A.toarray() if sparse.issparse(A) else np.asarray(A)
+        scale = max(np.abs(A).max(initial=0.0), 1e-300)
+        if not np.allclose(error.matrix[:n, :n], A, rtol=0.0, atol=1e-12 * scale):
+            return None
+        U, sigma, _ = np.linalg.svd(N[:n], full_matrices=False)
+        U = U[:, sigma > 1e-6 * max(sigma.max(initial=0.0), 1e-300)]
+        return U if U.shape[1] else None
+
+    def neutral_stiffness(self, error: SingularSystem, A, F: np.ndarray):
+        """eps N N^T over the :meth:`free_motions` N of ``error``'s system when the forces
+        ``F`` do no work along them (|N^T F| <= 1e-10 |F|): neutral motions, along which
+        every position is an equilibrium (a rod on a ball joint spinning about its own
+        axis); with it the step stays put along them. eps = 1e-6 max |A|. None where
+        there are none, or ``F`` pushes along them (no equilibrium)."""
+        N = self.free_motions(error, A)
+        if N is None or np.abs(N.T @ F).max() > 1e-10 * max(np.linalg.norm(F), 1e-300):
+            return None
+        A = A.toarray() if sparse.issparse(A) else np.asarray(A)
+        return self.fmt(1e-6 * np.abs(A).max() * (N @ N.T))
+
     def inverted(self) -> bool:
         """True when an element inverted or a frame's support collapsed (place_slaves)."""
         if self.collapsed_frames:
@@ -1045,6 +1113,35 @@ class Layout:
             if detF.size and not np.nanmin(detF) > 0:
                 return True
         return False
+
+
+#: What a step whose matrix leaves motions free may have met (Layout.unresisted).
+STEP_ADVICE = "no mass or inertia there, or a negative stiffness that cancels it (a smaller step?)"
+#: What a static solve should try when its loads push along motions nothing resists.
+STATICS_ADVICE = (
+    "the loads push that way, so there is no static equilibrium: hold it (a joint, a "
+    "spring, a second path point), or run the dynamics (Scene.step)"
+)
+
+
+def _directions(block: np.ndarray, kind: str) -> str:
+    """The span of a rigid body's translation (``kind`` "t") or rotation ("r") rows of
+    orthonormal motions ``block`` (3 x k) in words; "" when they do not move it."""
+    U, sigma, _ = np.linalg.svd(block)
+    rank = int(np.count_nonzero(sigma > 1e-6))
+    verb, on = ("translating", "along") if kind == "t" else ("rotating", "about")
+    if rank == 0:
+        return ""
+    if rank == 3:
+        return f"{verb} {on} any axis"
+    d = U[:, 0] if rank == 1 else U[:, 2]  # the direction, or the plane's normal
+    d = np.round(d * np.sign(d[np.argmax(np.abs(d))]), 3) + 0.0
+    where = f"({d[0]:g}, {d[1]:g}, {d[2]:g})"
+    if rank == 1:
+        return f"{verb} {on} {where}"
+    if kind == "t":
+        return f"{verb} in the plane normal to {where}"
+    return f"{verb} about any axis normal to {where}"
 
 
 def _chain(body, attachments, cycle: str) -> list:

@@ -242,6 +242,7 @@ from artifem.errors import (
     ElementInversionError,
     InputError,
     LinearSolveError,
+    SingularSystem,
     StepFailed,
     UnknownNameError,
 )
@@ -282,7 +283,7 @@ from artifem.scene.direct_solver import DirectSolver
 from artifem.scene.implicit_step import implicit_step
 from artifem.scene.increment_slip import IncrementSlip
 from artifem.scene.schur_island import SchurIsland
-from artifem.scene.layout import Layout
+from artifem.scene.layout import STATICS_ADVICE, STEP_ADVICE, Layout
 
 __all__ = ["Scene", "SceneState"]
 
@@ -1049,16 +1050,21 @@ class Scene:
             return np.zeros(0), np.zeros(0), lambda rhs: (np.zeros(0), np.zeros(0))
         info: dict = {}
         tic = time.perf_counter()
-        z_m, lam, active, resolve = solve_constrained(
-            self._solver,
-            A_m,
-            b_m,
-            rows,
-            f"t = {self.t:g}",
-            resolver=True,
-            memory=self._active_sets,
-            info=info,
-        )
+        try:
+            z_m, lam, active, resolve = solve_constrained(
+                self._solver,
+                A_m,
+                b_m,
+                rows,
+                f"t = {self.t:g}",
+                resolver=True,
+                memory=self._active_sets,
+                info=info,
+            )
+        except SingularSystem as error:
+            if self._layout is None:
+                raise
+            raise self._layout.unresisted(error, A_m, STEP_ADVICE) from error
         seconds = dict(self._layout.constraint_map.seconds) if self._layout is not None else {}
         seconds["solve"] = time.perf_counter() - tic
         self.last_solve = {
@@ -1308,20 +1314,43 @@ class Scene:
             K = self.static_tangent()
             tangents = [L.fmt(K)]
             last = memory.start(rows) if rows else None
-            if near and last is not None and np.any(last[3]):  # rows turn under their forces
+            turning = near and last is not None and np.any(last[3])
+            if turning:  # rows turn under their forces
                 P = L.prolongation()
                 tangents.insert(0, L.fmt(K - P.T @ L.constraint_map.stiffness(rows, last[3]) @ P))
-            # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set
-            for k, K in enumerate(tangents):
+            # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set.
+            # Where each tangent is singular (a small, dense system): outside Newton's region
+            # the rows' turning with the reactions that balance F best (-G_a^T lambda = F in
+            # least squares: gravity resists a pendulum's swing only through its joint's
+            # reaction turning with it); then, along motions that nothing resists and no
+            # force works on, a small stiffness (neutral: every position along them is an
+            # equilibrium, and the step keeps the one it has: a ball-jointed rod's spin).
+            neutral = False
+            for K in tangents:
                 try:
                     dq, lam, active = solve_saddle(
                         self._solver, L.kkt, K, F, rows, "static solve", memory
                     )
                     break
                 except StepFailed as error:
-                    if k + 1 == len(tangents):
-                        error.iterations = it
+                    if K is not tangents[-1]:
+                        continue
+                    error.iterations = it
+                    if not isinstance(error, SingularSystem) or error.matrix is None:
                         raise
+                    if rows and not turning:
+                        turning = True
+                        balancing = _balancing_reactions(F, rows, active)
+                        if np.any(balancing):
+                            P = L.prolongation()
+                            stiffness = L.constraint_map.stiffness(rows, balancing)
+                            tangents.append(L.fmt(K - P.T @ stiffness @ P))
+                            continue
+                    held = None if neutral else L.neutral_stiffness(error, K, F)
+                    if held is None:
+                        raise L.unresisted(error, K, STATICS_ADVICE) from error
+                    neutral = True
+                    tangents.append(K + held)
             # the rows held at a bound (sliding friction) push with their last forces
             held = np.where(active, 0.0, lam) if rows else None
             if rows:  # the constraints apply G^T lambda (forces: h = 1)
@@ -1409,6 +1438,16 @@ class Scene:
             f"iterations at load factor {factor:g} (|r| = {norm:.3e})",
             iterations=max_iterations,
         )
+
+
+def _balancing_reactions(F: np.ndarray, rows: list, active: np.ndarray) -> np.ndarray:
+    """The row forces lambda (all rows; 0 off ``active``) that balance the master forces
+    best: -G_a^T lambda_a = F in least squares (statics' sign: F + G^T lambda = 0)."""
+    lam = np.zeros(active.size)
+    if active.any():
+        G = np.vstack([g.G.toarray() if sparse.issparse(g.G) else g.G for g in rows])[active]
+        lam[active] = -np.linalg.lstsq(G.T, F, rcond=None)[0]
+    return lam
 
 
 def _carried(rows: list, memory: ActiveSetMemory) -> tuple:
