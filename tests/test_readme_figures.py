@@ -540,6 +540,10 @@ def test_static_newton_counts_on_the_verification_page_match_their_json():
     assert agrees(m[1], -first["linear_step_min_uz"])
     assert agrees(m[3], -first["equilibrium_min_uz"])
     assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first["equilibrium_min_uz"] < 4.5
+    smaller = first["first_increment_at_a_fraction_of_40_pa"]
+    m = re.search(r"takes (\d+) iterations at 1/16 of the 40 Pa load and (\d+) at 1/64", text)
+    assert m, "the smaller load steps' sentence changed: update this test with it"
+    assert (int(m[1]), int(m[2])) == (smaller["1/16"], smaller["1/64"])
 
 
 def test_the_tongue_drop_on_the_contact_page_matches_its_json():
