@@ -1318,14 +1318,24 @@ class Scene:
             if turning:  # rows turn under their forces
                 P = L.prolongation()
                 tangents.insert(0, L.fmt(K - P.T @ L.constraint_map.stiffness(rows, last[3]) @ P))
+            elif rows and L.dense:
+                # A small island's rows turn under the reactions that balance F best,
+                # -G_a^T lambda = F in least squares, where no solve has given their
+                # forces yet (joints: their reactions carry a loaded pendulum's stiffness,
+                # and Newton converged linearly without it, at 0.4 per iteration).
+                balancing = _balancing_reactions(F, rows, _carried(rows, memory)[0])
+                if np.any(balancing):
+                    P = L.prolongation()
+                    stiffness = L.constraint_map.stiffness(rows, balancing)
+                    tangents.insert(0, L.fmt(K - P.T @ stiffness @ P))
+                turning = True
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set.
-            # Where each tangent is singular (a small, dense system): outside Newton's region
-            # the rows' turning with the reactions that balance F best (-G_a^T lambda = F in
-            # least squares: gravity resists a pendulum's swing only through its joint's
-            # reaction turning with it); then, along motions that nothing resists and no
-            # force works on, a small stiffness (neutral: every position along them is an
-            # equilibrium, and the step keeps the one it has: a ball-jointed rod's spin).
-            neutral = False
+            # Where each tangent is singular (a small, dense system): the rows' turning
+            # with the balancing reactions, if not taken yet; then, along the motions the
+            # first (most complete) tangent leaves free, if no force works on them, a small
+            # stiffness (neutral: every position along them is an equilibrium, and the
+            # step keeps the one it has: a ball-jointed rod's spin about its own axis).
+            first = neutral = None  # (the first singular tangent, its error)
             for K in tangents:
                 try:
                     dq, lam, active = solve_saddle(
@@ -1333,24 +1343,29 @@ class Scene:
                     )
                     break
                 except StepFailed as error:
+                    singular = isinstance(error, SingularSystem) and error.matrix is not None
+                    if singular and first is None:
+                        first = (K, error)
                     if K is not tangents[-1]:
                         continue
                     error.iterations = it
-                    if not isinstance(error, SingularSystem) or error.matrix is None:
+                    if first is None:
                         raise
                     if rows and not turning:
                         turning = True
-                        balancing = _balancing_reactions(F, rows, active)
+                        balancing = _balancing_reactions(F, rows, _carried(rows, memory)[0])
                         if np.any(balancing):
                             P = L.prolongation()
                             stiffness = L.constraint_map.stiffness(rows, balancing)
                             tangents.append(L.fmt(K - P.T @ stiffness @ P))
+                            first = None  # the turned tangent is the most complete
                             continue
-                    held = None if neutral else L.neutral_stiffness(error, K, F)
+                    best, failure = first
+                    held = None if neutral else L.neutral_stiffness(failure, best, F)
                     if held is None:
-                        raise L.unresisted(error, K, STATICS_ADVICE) from error
+                        raise L.unresisted(failure, best, STATICS_ADVICE) from error
                     neutral = True
-                    tangents.append(K + held)
+                    tangents.append(best + held)
             # the rows held at a bound (sliding friction) push with their last forces
             held = np.where(active, 0.0, lam) if rows else None
             if rows:  # the constraints apply G^T lambda (forces: h = 1)
