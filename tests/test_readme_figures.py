@@ -540,6 +540,13 @@ def test_static_newton_counts_on_the_verification_page_match_their_json():
     assert agrees(m[1], -first["linear_step_min_uz"])
     assert agrees(m[3], -first["equilibrium_min_uz"])
     assert m[2] == "four" and 3.5 <= first["linear_step_min_uz"] / first["equilibrium_min_uz"] < 4.5
+    m = re.search(
+        r"The loaded solve takes ([\d.]+) s \(the JSON's `seconds`; the unloaded one ([\d.]+) s\)",
+        text,
+    )
+    assert m, "the foot's solve-time sentence changed: update this test with it"
+    assert agrees(m[1], results["foot_standing"]["seconds"])
+    assert agrees(m[2], results["foot_unloaded"]["seconds"])
     smaller = first["first_increment_at_a_fraction_of_40_pa"]
     m = re.search(r"takes (\d+) iterations at 1/16 of the 40 Pa load and (\d+) at 1/64", text)
     assert m, "the smaller load steps' sentence changed: update this test with it"

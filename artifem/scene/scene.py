@@ -1335,7 +1335,7 @@ class Scene:
             # first (most complete) tangent leaves free, if no force works on them, a small
             # stiffness (neutral: every position along them is an equilibrium, and the
             # step keeps the one it has: a ball-jointed rod's spin about its own axis).
-            first = neutral = None  # (the first singular tangent, its error)
+            first, neutral = None, False  # first: (the first singular tangent, its error)
             for K in tangents:
                 try:
                     dq, lam, active = solve_saddle(
