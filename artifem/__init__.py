@@ -102,6 +102,7 @@ _PUBLIC = {
             "OutsideMeshError",
             "SolverError",
             "StepFailed",
+            "SingularSystem",
             "ElementInversionError",
         ],
         "artifem.errors",
