@@ -162,6 +162,39 @@ class ConstantForce:
         return -float(self.force @ self.body.position)
 
 
+class Tether(ConstantForce):
+    """A load element pulling a body's centre of mass to the origin, f = -k p, with its
+    Jacobian df/dp = -k 1 as a block over the body's 3 translations only (``narrow``) or
+    padded to its 6 coordinates."""
+
+    def __init__(self, body, k, narrow):
+        super().__init__(body, np.zeros(3))
+        self.k, self.narrow = k, narrow
+
+    def master_loads(self, t):
+        return [(self.body, np.concatenate([-self.k * self.body.position, np.zeros(3)]))]
+
+    def master_load_jacobians(self, t):
+        K = -self.k * np.eye(3 if self.narrow else 6)
+        if not self.narrow:
+            K[3:, 3:] = 0.0
+        return [(self.body, self.body, K)]
+
+
+def test_a_load_jacobian_block_may_cover_a_bodys_first_coordinates_only():
+    """A load's Jacobian block (the static tangent's) narrower than its body's coordinates
+    is placed on the first ones: statics finds the tether's equilibrium p = -m g / k either
+    way, in one Newton iteration (the load is linear), the turns kept (neutral)."""
+    k = 200.0
+    for narrow in (True, False):
+        body, *_ = hanging(mass=1.0, z=-0.5)
+        system = Scene(gravity=(0.0, 0.0, -G))
+        system.add(body, Tether(body, k, narrow))
+        assert system.solve_static() == [1]
+        np.testing.assert_allclose(body.position, [0.0, 0.0, -G / k], rtol=0.0, atol=1e-14)
+        np.testing.assert_allclose(body.rotation, np.eye(3), rtol=0.0, atol=1e-14)
+
+
 def test_a_load_elements_potential_enters_the_scenes_energy_and_its_statics():
     """Scene.potential_energy takes a load element's potential (times the load factor), so
     statics keeps the energy as its merit: a spring stretched by a constant force rests at

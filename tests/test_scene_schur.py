@@ -134,6 +134,19 @@ def test_what_the_schur_island_does_not_take_is_a_clear_error(scene_module):
     )
     with pytest.raises(InputError, match="also has point paths"):
         scene.step(0.01)
+    scene, beam, bone = ns["build"](MPI.COMM_SELF, island_solver="schur")
+    cam = af.RigidBody(
+        "cam",
+        1.0,
+        np.eye(3),
+        position=(0.5, 0.1, 0.3),
+        motion="prescribed",
+        trajectory=lambda t: ((0.5, 0.1, 0.3), np.eye(3), np.zeros(3), np.zeros(3)),
+    )
+    on_top = beam.find_nodes(lambda x: (np.abs(x[0] - 0.5) < 1e-9) & (x[2] > 0.2 - 1e-9))
+    scene.add(cam, af.NodeAttachment(beam, on_top, cam, name="on the cam"))
+    with pytest.raises(InputError, match="'on the cam': nodes on the prescribed body 'cam'"):
+        scene.step(0.01)
     with pytest.raises(InputError, match="island_solver must be"):
         af.Scene(island_solver="lu")
 
