@@ -1293,6 +1293,16 @@ class Scene:
             for constraint in self.constraints:
                 constraint.hold_pairs(False)
 
+    @staticmethod
+    def _balanced_tangent(L, K, F, rows, memory):
+        """K - P^T d(G^T lambda)/dq P with the reactions that balance F best
+        (:func:`_balancing_reactions` over the rows active now); None when they vanish."""
+        balancing = _balancing_reactions(F, rows, _carried(rows, memory)[0])
+        if not np.any(balancing):
+            return None
+        P = L.prolongation()
+        return L.fmt(K - P.T @ L.constraint_map.stiffness(rows, balancing) @ P)
+
     def _newton_iterations(self, L, rtol, atol, max_iterations, factor, contacts, residuals) -> int:
         """:meth:`_newton`'s iterations."""
         memory, slip = contacts
@@ -1323,11 +1333,9 @@ class Scene:
                 # -G_a^T lambda = F in least squares, where no solve has given their
                 # forces yet (joints: their reactions carry a loaded pendulum's stiffness,
                 # and Newton converged linearly without it, at 0.4 per iteration).
-                balancing = _balancing_reactions(F, rows, _carried(rows, memory)[0])
-                if np.any(balancing):
-                    P = L.prolongation()
-                    stiffness = L.constraint_map.stiffness(rows, balancing)
-                    tangents.insert(0, L.fmt(K - P.T @ stiffness @ P))
+                turned = self._balanced_tangent(L, K, F, rows, memory)
+                if turned is not None:
+                    tangents.insert(0, turned)
                 turning = True
             # K dq - G^T lambda = F, free rows G dq = -phi, bounded ones by an active set.
             # Where each tangent is singular (a small, dense system): the rows' turning
@@ -1353,11 +1361,9 @@ class Scene:
                         raise
                     if rows and not turning:
                         turning = True
-                        balancing = _balancing_reactions(F, rows, _carried(rows, memory)[0])
-                        if np.any(balancing):
-                            P = L.prolongation()
-                            stiffness = L.constraint_map.stiffness(rows, balancing)
-                            tangents.append(L.fmt(K - P.T @ stiffness @ P))
+                        turned = self._balanced_tangent(L, K, F, rows, memory)
+                        if turned is not None:
+                            tangents.append(turned)
                             first = None  # the turned tangent is the most complete
                             continue
                     best, failure = first
