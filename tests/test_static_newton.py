@@ -55,11 +55,21 @@ def assert_quadratic(residuals, counts):
             assert (b * r0) / (a * r0) ** 2 < 10.0, (norms, b * r0 / (a * r0) ** 2)
 
 
+def assert_volume_held(body, reference):
+    """The body's volume int J dX changed by no more than its worst element (a weighted mean
+    of the elements' changes g_i / V_i), which the solve holds to the constraint's tol: by
+    7.6e-9 and 3.1e-8 under the dead and follower loads alone, the first 1.3e-8 in a run of
+    the whole suite (where the solve stops, within tol, turns on round-off: not a figure to pin)."""
+    vc = body.volume_constraint
+    vc.at_current_state()
+    assert abs(body.volume() / reference - 1.0) <= vc.violation() * (1 + 1e-6) + 1e-14
+    assert vc.violation() <= vc.spec.tol
+
+
 @pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
 def test_quadratic_under_a_dead_traction(hard, direct_solver):
     """Hard: the solve stops once every element's volume change is within the constraint's
-    tol (1e-6); the body's volume int J dX changed by 7.6e-9 (measured; the bound is that
-    x 1.3)."""
+    tol (1e-6): assert_volume_held."""
     body = cantilever(hard)
     reference = body.volume()
     body.add_traction((0.0, 0.0, -200.0), where=top)
@@ -67,13 +77,12 @@ def test_quadratic_under_a_dead_traction(hard, direct_solver):
     assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
     assert_quadratic(counts.residuals, counts)
     if hard:
-        assert abs(body.volume() / reference - 1.0) < 1e-8
+        assert_volume_held(body, reference)
 
 
 @pytest.mark.parametrize("hard", [False, True], ids=["compressible", "hard"])
 def test_quadratic_under_a_follower_pressure(hard, direct_solver):
-    """Hard: the body's volume changed by 3.1e-8 (measured; the bound is that x 1.3; the
-    constraint's tol of 1e-6 on each element is what the solve enforces)."""
+    """Hard: assert_volume_held."""
     body = cantilever(hard)
     reference = body.volume()
     body.add_pressure(200.0, where=top)
@@ -81,7 +90,7 @@ def test_quadratic_under_a_follower_pressure(hard, direct_solver):
     assert body.u.x.array.reshape(-1, 3)[:, 2].min() < -0.1
     assert_quadratic(counts.residuals, counts)
     if hard:
-        assert abs(body.volume() / reference - 1.0) < 4e-8
+        assert_volume_held(body, reference)
 
 
 def long_beam():
