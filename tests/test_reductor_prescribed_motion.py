@@ -96,7 +96,7 @@ def test_the_input_moves_the_prescribed_body_by_its_level():
     assert np.abs(clamp.velocity).max() < 1e-12  # held: at rest again
 
 
-def test_bad_prescribed_motions_are_refused_by_name():
+def test_bad_prescribed_motions_are_refused_by_name(tmp_path):
     scene = moved_beam()
     with pytest.raises(UnknownNameError, match="no rigid body 'jaw'"):
         PrescribedMotion("jaw").check(scene)
@@ -112,9 +112,10 @@ def test_bad_prescribed_motions_are_refused_by_name():
                 "bad", moved_beam, "fem", {"model": "bad"}, loads={"move": PrescribedMotion("jaw")}
             ),
             TRAINING,
-            "unused",
+            tmp_path / "cache",
             progress=False,
         )
+    assert not (tmp_path / "cache").exists()  # refused before any work: no cache made
 
 
 #: ramps and releases short enough to reach their levels within the runs

@@ -396,7 +396,6 @@ class Reductor:
         comm: MPI.Comm = MPI.COMM_SELF,
     ):
         self.model, self.training, self.progress, self.comm = model, training, progress, comm
-        self.cache = ArtifactCache(cache)
         self.scene = model.build()
         self.body = model.fem_body(self.scene)
         if self.body.mesh.comm.size != 1:
@@ -440,6 +439,7 @@ class Reductor:
         if hard and pressure_modes < 1:
             raise InputError(f"pressure_modes must be >= 1, got {pressure_modes}")
         self.pressure_modes = pressure_modes if hard else 0
+        self.cache = ArtifactCache(cache)  # created once the input is known good
         self.seconds: dict[str, float] = {}
         self._runs = None  # (each training run's Snapshots, seconds), loaded once
         self._snapshots = None
