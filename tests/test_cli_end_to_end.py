@@ -596,6 +596,7 @@ def test_bench_scenes_quick(tmp_path, quick_jaw_tongue):
         ):
             assert finite_positive(aw["cases"][case][key]), (case, key)
     assert aw["cases"]["reduced"]["masters"] == r + 6
+    assert aw["skin_vertices"] > 900 and aw["speedup"]["ms_per_step_without_airway"] > 0
     ms = scenes["masseter"]
     assert set(ms["cases"]) == {f"{p}/{a}" for p, a in MODELS}
     assert all(finite_positive(c["ms_per_step"]) for c in ms["cases"].values())
