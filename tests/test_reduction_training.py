@@ -537,3 +537,19 @@ def test_undamped_trained_reduced_model_never_gains_energy(beam, start):
     assert change.max() <= 1e-12 * np.abs(total).max(), f"energy grew by {change.max():.3e}"
     assert total[-1] < total[0]
     reset(body)
+
+
+def test_project_is_u_transpose_m_and_refuses_rows_of_another_shape():
+    """q_s = U^T M u_s for each row, the lumped diagonal and a callable M x alike; rows
+    of the wrong width, a single vector or a stack of matrices are refused by name."""
+    from artifem.errors import InputError
+
+    rng = np.random.default_rng(3)
+    U, m = rng.normal(size=(12, 3)), rng.uniform(1.0, 2.0, size=12)
+    rows = rng.normal(size=(4, 12))
+    expected = np.array([U.T @ (m * u) for u in rows])
+    np.testing.assert_allclose(project(U, m, rows), expected, rtol=1e-13)
+    np.testing.assert_allclose(project(U, lambda x: m * x, rows), expected, rtol=1e-13)
+    for bad in (rows[:, :11], rows[0], rows[None]):
+        with pytest.raises(InputError, match=r"displacements must be rows \(n_snapshots"):
+            project(U, m, bad)
