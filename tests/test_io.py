@@ -538,13 +538,22 @@ def test_result_writer(tmp_path, tongue):
 
 
 def test_render_png(tmp_path, tongue):
+    """Two bodies side by side, into a directory two levels deep that does not exist yet;
+    one body given as a bare (mesh, displacement) pair is drawn as the one-body list."""
     import pyvista as pv
 
     msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
     u = fem.Function(fem.functionspace(msh, ("Lagrange", 1, (3,))))
     u.interpolate(lambda x: np.vstack([0 * x[0], 0 * x[0], 0.2 * (x[0] - 0.057)]))
+    bare, listed = (
+        render_bodies(tmp_path / name, body, window_size=(300, 200))
+        for name, body in (("bare.png", (msh, u)), ("listed.png", [(msh, u)]))
+    )
+    np.testing.assert_array_equal(
+        *(np.asarray(pv.read(p).point_data.active_scalars) for p in (bare, listed))
+    )
     png = render_bodies(
-        tmp_path / "img" / "tongue.png",
+        tmp_path / "img" / "tongue" / "tongue.png",
         [msh, (msh, u)],
         scalars=[None, "displacement"],
         titles=["rest", "deformed"],
