@@ -12,19 +12,8 @@ from dataclasses import replace
 import numpy as np
 
 from artifem.errors import MeshError
-from artifem.io.mesh_data import MeshData
+from artifem.io.mesh_data import HEX_VTK_CORNER, MeshData
 
-# VTK hexahedron vertex of each reference corner (a, b, c) in {0,1}^3.
-_HEX_VTK_AT = {
-    (0, 0, 0): 0,
-    (1, 0, 0): 1,
-    (1, 1, 0): 2,
-    (0, 1, 0): 3,
-    (0, 0, 1): 4,
-    (1, 0, 1): 5,
-    (1, 1, 1): 6,
-    (0, 1, 1): 7,
-}
 _HEX_FACES = [(0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
 _HEX_EDGES = {
     frozenset(e)
@@ -52,12 +41,12 @@ REORIENT = {"hexahedron": np.array([4, 5, 6, 7, 0, 1, 2, 3]), "tetrahedron": np.
 def _hex_corner_edges():
     """For each VTK corner, the VTK (from, to) node pairs of its three reference-axis edges."""
     pairs = []
-    for corner, _ in sorted(_HEX_VTK_AT.items(), key=lambda kv: kv[1]):
+    for corner, _ in sorted(HEX_VTK_CORNER.items(), key=lambda kv: kv[1]):
         axes = []
         for axis in range(3):
             lo, hi = list(corner), list(corner)
             lo[axis], hi[axis] = 0, 1
-            axes.append((_HEX_VTK_AT[tuple(lo)], _HEX_VTK_AT[tuple(hi)]))
+            axes.append((HEX_VTK_CORNER[tuple(lo)], HEX_VTK_CORNER[tuple(hi)]))
         pairs.append(axes)
     return np.array(pairs)  # (8 corners, 3 axes, 2)
 
@@ -193,7 +182,7 @@ _GAUSS_01 = 0.5 + np.array([-1.0, 1.0]) / (2.0 * np.sqrt(3.0))
 def _trilinear_shape_gradients(xi: np.ndarray) -> np.ndarray:
     """Gradients (3,8) of the trilinear shape functions (VTK order) at reference point xi."""
     grads = np.zeros((3, 8))
-    for (a, b, c), node in _HEX_VTK_AT.items():
+    for (a, b, c), node in HEX_VTK_CORNER.items():
         fa = (xi[0] if a else 1 - xi[0], 1 if a else -1)
         fb = (xi[1] if b else 1 - xi[1], 1 if b else -1)
         fc = (xi[2] if c else 1 - xi[2], 1 if c else -1)

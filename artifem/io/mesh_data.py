@@ -28,6 +28,20 @@ def require_file(path: str | Path, what: str = "mesh file") -> Path:
     return path
 
 
+#: The VTK hexahedron's vertex at each reference corner (a, b, c) in {0, 1}^3 (the order of
+#: MeshData's hexahedra).
+HEX_VTK_CORNER = {
+    (0, 0, 0): 0,
+    (1, 0, 0): 1,
+    (1, 1, 0): 2,
+    (0, 1, 0): 3,
+    (0, 0, 1): 4,
+    (1, 0, 1): 5,
+    (1, 1, 1): 6,
+    (0, 1, 1): 7,
+}
+
+
 @dataclass
 class MeshData:
     """A single-cell-type volume mesh with the ids and tags of its source file.

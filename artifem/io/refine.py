@@ -29,20 +29,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from artifem.errors import MeshError
-from artifem.io.mesh_data import MeshData
+from artifem.io.mesh_data import HEX_VTK_CORNER, MeshData
 
-# VTK hexahedron corner at reference position (a, b, c) in {0, 1}^3, and back.
-_VTK_AT = {
-    (0, 0, 0): 0,
-    (1, 0, 0): 1,
-    (1, 1, 0): 2,
-    (0, 1, 0): 3,
-    (0, 0, 1): 4,
-    (1, 0, 1): 5,
-    (1, 1, 1): 6,
-    (0, 1, 1): 7,
-}
-_REF_OF = {v: k for k, v in _VTK_AT.items()}
+# HEX_VTK_CORNER (mesh_data) backwards: the reference corner of each VTK vertex.
+_REF_OF = {v: k for k, v in HEX_VTK_CORNER.items()}
 #: Local corner pairs of the 12 edges and quadruples of the 6 faces (VTK numbering).
 HEX_EDGES = np.array(
     [(0, 1), (1, 2), (3, 2), (0, 3), (4, 5), (5, 6), (7, 6), (4, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
@@ -67,7 +57,10 @@ def _lattice_table() -> tuple[np.ndarray, np.ndarray]:
             for k in range(3):
                 choices = [(0, 1) if t == 1 else (t // 2,) for t in (i, j, k)]
                 corners = frozenset(
-                    _VTK_AT[(a, b, c)] for a in choices[0] for b in choices[1] for c in choices[2]
+                    HEX_VTK_CORNER[(a, b, c)]
+                    for a in choices[0]
+                    for b in choices[1]
+                    for c in choices[2]
                 )
                 n_mid = (i == 1) + (j == 1) + (k == 1)
                 kind[i, j, k] = n_mid
