@@ -196,6 +196,20 @@ def _held_pairs(held: _Pairs, x: np.ndarray) -> tuple:
     return (cols, weights, e, np.einsum("ij,ij->i", e, d), held.which[on], spans, count)
 
 
+def _no_pairs() -> tuple:
+    """The pair arrays of ``MeshContact._vertex_pairs`` and ``_edge_pairs`` when no pair
+    is near: (cols, weights, e, phi, which, spans, count) with no rows."""
+    return (
+        np.zeros((0, 4), int),
+        np.zeros((0, 4)),
+        np.zeros((0, 3)),
+        np.zeros(0),
+        np.zeros((0, 3), int),
+        np.zeros((0, 2, 4)),
+        np.zeros(0, int),
+    )
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
 
@@ -577,15 +591,7 @@ class MeshContact:
         g, R, p = other
         xp = (xw - p) @ R  # in other's frame
         xq, tq = g.x, g.tris
-        empty = (
-            np.zeros((0, 4), int),
-            np.zeros((0, 4)),
-            np.zeros((0, 3)),
-            np.zeros(0),
-            np.zeros((0, 3), int),
-            np.zeros((0, 2, 4)),
-            np.zeros(0, int),
-        )
+        empty = _no_pairs()
         lo, hi = g.box[0] - self._reach, g.box[1] + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
@@ -645,15 +651,7 @@ class MeshContact:
         xa, xb = xs
         (ga, Ra, _), (gb, Rb, _) = frames
         (ea, fa), (eb, fb) = self._edges
-        empty = (
-            np.zeros((0, 4), int),
-            np.zeros((0, 4)),
-            np.zeros((0, 3)),
-            np.zeros(0),
-            np.zeros((0, 3), int),
-            np.zeros((0, 2, 4)),
-            np.zeros(0, int),
-        )
+        empty = _no_pairs()
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
         # only sharp edges of both meet edge on edge: the candidates are among those
         sharp_b = np.flatnonzero(gb.sharp)
