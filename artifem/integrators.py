@@ -735,6 +735,19 @@ def solve_static(
     def holds() -> bool:  # the volumes as last assembled
         return vc is None or vc.violation() <= vc.spec.tol
 
+    def merit() -> float:  # a conservative body's energy, else |R|
+        return body.potential_energy() if body.conservative else residual(tangent=False)
+
+    def keep_if_lower(start_u: np.ndarray, start: float) -> None:
+        """Move u to the candidate start ``start_u`` of Newton, and back where it inverts
+        an element or its merit is not below ``start``."""
+        previous = u.array.copy()
+        u.array[:] = start_u
+        _update_ghosts(u)
+        if _has_inversion(body) or not merit() < start:
+            u.array[:] = previous
+            _update_ghosts(u)
+
     # The last PREDICTOR_POINTS converged states (load factor, u): the polynomial through
     # them, extrapolated to the next load factor, starts Newton near the new equilibrium
     # (the first Newton step from u_k alone is the tangent predictor, which misses the
@@ -750,24 +763,16 @@ def solve_static(
             return
         factors = [c[0] for c in converged]
         weights = _extrapolation_weights(factors, factor)
-        u2 = converged[-1][1]
         body.set_load_factor(factor)
         # A conservative body keeps the predictor when it lowers the energy (its merit);
         # without a potential it is kept unless it inverts an element (the residual norm
         # is no measure of closeness here: see _backtrack).
-        start = body.potential_energy() if body.conservative else np.inf
         # (the pressures of a hard constraint stay: the multiplier step finds them, and the
         # energy compares starts only at equal pressures)
-        u.array[:] = sum(w * c[1] for w, c in zip(weights, converged))
-        _update_ghosts(u)
-        if (
-            _has_inversion(body)
-            or not (body.potential_energy() if body.conservative else residual(tangent=False))
-            < start
-        ):
-            # the predictor inverts or is no closer in |R|: start from u_k
-            u.array[:] = u2
-            _update_ghosts(u)
+        keep_if_lower(
+            sum(w * c[1] for w, c in zip(weights, converged)),
+            body.potential_energy() if body.conservative else np.inf,
+        )
 
     residuals = []
 
@@ -806,20 +811,7 @@ def solve_static(
         solver.solve(body.K, r, du)
         body.zero_fixed(du)
         ramp.apply(factor)
-        if _has_inversion(body):
-            start = np.inf
-        else:
-            start = body.potential_energy() if body.conservative else residual(tangent=False)
-        u0 = u.array.copy()
-        u.array[:] += du.array
-        _update_ghosts(u)
-        if (
-            _has_inversion(body)
-            or not (body.potential_energy() if body.conservative else residual(tangent=False))
-            < start
-        ):
-            u.array[:] = u0
-            _update_ghosts(u)
+        keep_if_lower(u.array + du.array, np.inf if _has_inversion(body) else merit())
 
     def newton(factor: float, limit: int) -> int:
         predict(factor)
