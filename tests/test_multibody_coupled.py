@@ -33,6 +33,7 @@ from artifem.scene import Scene
 from artifem.multibody.joints import FixedJoint, RevoluteJoint, axis_rotation
 from artifem.multibody.rigid_body import BodyState, Frame, RigidBody, exp_so3
 from coupled_fd import master_force_difference
+from periods import zero_crossing_period
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="coupled scenes are serial")
 
@@ -464,11 +465,7 @@ def test_hinged_fem_bob_swings_with_the_compound_pendulum_period():
         scene.step(h)
         t.append(scene.t)
         x.append(rod_body.position[0])
-    t, x = np.array(t), np.array(x)
-    i = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
-    crossings = t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
-    assert crossings.size >= 3
-    assert abs(np.diff(crossings).mean() / T0 - 1) < 1.25 * 5.58e-6
+    assert abs(zero_crossing_period(t, x) / T0 - 1) < 1.25 * 5.58e-6
     assert max(scene.constraint_errors().values()) < 1.25 * 5.07e-9
 
 

@@ -31,6 +31,7 @@ from artifem.errors import StepFailed
 from artifem.multibody.attachments import RigidAttachment
 from artifem.multibody.force_elements import point_force_wrenches
 from artifem.scene import Scene
+from periods import zero_crossing_period
 
 G = 9.81
 GRAVITY = (0.0, 0.0, -G)
@@ -78,14 +79,6 @@ def rod(name, length, theta, pivot=(0.0, 0.0, 0.0), mass=1.0):
         name, mass, inertia, position=np.asarray(pivot) + 0.5 * length * direction, rotation=R
     )
     return body, np.asarray(pivot) + length * direction
-
-
-def zero_crossing_period(t, x):
-    """Mean period from the upward zero crossings of x(t), linearly interpolated."""
-    i = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
-    crossings = t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
-    assert crossings.size >= 3, "too few oscillations to measure a period"
-    return np.diff(crossings).mean()
 
 
 def two_body_joint(joint_type, seed, limits=None, world=False):
