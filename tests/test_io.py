@@ -588,3 +588,13 @@ def test_node_and_cell_rows_by_file_id(tongue):
     assert np.array_equal(tongue.cell_ids[tongue.cell_rows([740, 1])], [740, 1])
     with pytest.raises(MeshError, match="node ids not in the mesh: \\[947\\]"):
         tongue.node_rows([5, 947])
+
+
+@pytest.mark.parametrize("bad", [-1, 8], ids=["negative", "past the last point"])
+def test_cells_indexing_outside_the_points_are_refused(bad):
+    """Either end of the range alone is an error: an index below 0, or one at or past the
+    point count (8 points of the unit hexahedron)."""
+    cells = np.arange(8)
+    cells[3] = bad
+    with pytest.raises(MeshError, match="cell connectivity indexes outside the 8 points"):
+        hex_mesh(cells)
