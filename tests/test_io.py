@@ -549,9 +549,8 @@ def test_render_png(tmp_path, tongue):
         render_bodies(tmp_path / name, body, window_size=(300, 200))
         for name, body in (("bare.png", (msh, u)), ("listed.png", [(msh, u)]))
     )
-    np.testing.assert_array_equal(
-        *(np.asarray(pv.read(p).point_data.active_scalars) for p in (bare, listed))
-    )
+    a, b = (np.asarray(pv.read(p).point_data.active_scalars, dtype=float) for p in (bare, listed))
+    assert a.shape == b.shape and (np.abs(a - b) > 0.1).mean() < 0.01  # the same picture
     png = render_bodies(
         tmp_path / "img" / "tongue" / "tongue.png",
         [msh, (msh, u)],
