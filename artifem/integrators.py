@@ -771,7 +771,7 @@ def solve_static(
         # energy compares starts only at equal pressures)
         keep_if_lower(
             sum(w * c[1] for w, c in zip(weights, converged)),
-            body.potential_energy() if body.conservative else np.inf,
+            merit() if body.conservative else np.inf,
         )
 
     residuals = []

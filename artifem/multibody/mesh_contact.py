@@ -591,17 +591,16 @@ class MeshContact:
         g, R, p = other
         xp = (xw - p) @ R  # in other's frame
         xq, tq = g.x, g.tris
-        empty = _no_pairs()
         lo, hi = g.box[0] - self._reach, g.box[1] + self._reach
         near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
         if not near.size:
-            return empty, None
+            return _no_pairs(), None
         S, I, C, N = _signed_distance(g, xp[near])
         j = int(np.argmin(S))
         deepest = (float(S[j]), int(near[j]), int(I[j]))
         close = S < self._reach
         if not np.any(close):
-            return empty, deepest
+            return _no_pairs(), deepest
         near, S, I, C, N = near[close], S[close], I[close], C[close], N[close]
         k, f = _close_pairs(xp[near], g.centroids, g.reach + self._reach)
         v = near[k]
@@ -651,7 +650,6 @@ class MeshContact:
         xa, xb = xs
         (ga, Ra, _), (gb, Rb, _) = frames
         (ea, fa), (eb, fb) = self._edges
-        empty = _no_pairs()
         lo, hi = xb.min(axis=0) - self._reach, xb.max(axis=0) + self._reach
         # only sharp edges of both meet edge on edge: the candidates are among those
         sharp_b = np.flatnonzero(gb.sharp)
@@ -663,7 +661,7 @@ class MeshContact:
             & np.all((mid_a + half_a[:, None] >= lo) & (mid_a - half_a[:, None] <= hi), axis=1)
         )
         if not cand.size or not sharp_b.size:
-            return empty, None
+            return _no_pairs(), None
         k, j = _close_pairs(
             mid_a[cand], cKDTree(mid_b), half_a[cand].max() + half_b.max() + self._reach
         )
