@@ -1,9 +1,11 @@
 """The tongue on hard cases, semi-implicit: finish cleanly or stop with a clear error, never NaN.
 
-One test per case of models/tongue/hard_cases.py (all eleven exciters at 1.0,
-excitations stepped without a ramp, dt = 0.05 s, kappa = 100 C10 and 1000 C10), 1.0 s
-each. A case passes when the run ends as its run in docs/tongue_hard_cases.json (the same
-case, level, dt, duration and integrator; tests/hard_case_checks.py):
+One test per case of models/tongue/hard_cases.py (all eleven exciters at 1.0, excitations
+stepped without a ramp, dt = 0.05 s, kappa = 100 C10 and 1000 C10), each run to the end of
+the ramp, t = 0.5 s (the protrusion variants ``step`` and ``dt_0.05`` and
+``incompressible_all_exciters`` to t = 1 s: hard_case_checks.FULL_RUNS). A case passes when
+the run ends as its run in docs/tongue_hard_cases.json (the same case, level, dt and
+integrator, 1 s) was at that time (tests/hard_case_checks.py):
 
 - finished: on its landmarks to 0.01 mm, its min det F and det F at the end to 1e-3, its
   volume change to 1e-4 (or 1e-7), with no halving or fallback where that run took none
@@ -70,15 +72,16 @@ def test_protrusion_variants_end_on_the_same_state(integrator, runs):
     ],
 )
 def test_hard_incompressibility_on_a_hard_case(name, runs):
-    """The tongue's default (hard incompressibility, semi-implicit with the implicit
-    fallback) finishes the hard cases, 1 s each: the protrusion targets switched on at
-    t = 0 (``step``), every exciter at 1.0 ramped (``all_exciters``) or switched on at
-    t = 0 (``all_step``), antagonists together at 1.0 from t = 0 (``coactivation``), as
-    their committed runs do (check_outcome): the volume changes by 3e-7 to 6e-6 there (the
-    penalty lets it change by about 3 %). A step that leaves volumes off by more than 1 % is
-    projected back (``integrators._project_volumes``); where the semi-implicit step inverts
-    elements (the co-activation and every exciter switched on at once) the implicit Newton
-    step takes over (``fallbacks``); the dt = 0.05 s protrusion finishes too."""
+    """The tongue's default (hard incompressibility, semi-implicit with the implicit fallback)
+    finishes the hard cases (to t = 0.5 s, all_exciters to 1 s): the protrusion targets
+    switched on at t = 0 (``step``), every exciter at 1.0 ramped (``all_exciters``) or
+    switched on at t = 0 (``all_step``), antagonists together at 1.0 from t = 0
+    (``coactivation``), as their committed runs do (check_outcome): the volume changes by
+    3e-7 to 6e-6 there (the penalty lets it change by about 3 %). A step that leaves volumes
+    off by more than 1 % is projected back (``integrators._project_volumes``); where the
+    semi-implicit step inverts elements (the co-activation and every exciter switched on at
+    once) the implicit Newton step takes over (``fallbacks``); the dt = 0.05 s protrusion
+    finishes too."""
     tongue, result = runs(name, "semi-implicit")
     assert tongue.config.integrator == "semi-implicit"
     check_outcome(name, tongue, result)

@@ -33,7 +33,9 @@ scene gives up after its step halvings with
 leaving the body at the start of the failed step. Anything else (a NaN, a
 non-convergence reported as another exception) is a failure of the library.
 :func:`main` runs every case with both integrators and writes
-docs/tongue_hard_cases.md and docs/tongue_hard_cases.json.
+docs/tongue_hard_cases.md and docs/tongue_hard_cases.json, each row with its figures at
+the end of the ramp too (``at``, what the suite's shorter runs are checked against);
+``--keep-timings`` re-runs rows on a busy machine and keeps their quiet timings.
 """
 
 from __future__ import annotations
@@ -210,7 +212,10 @@ def run_built(
     change V / V0 - 1 at the end,
     landmark displacements (mm) at the end and at ``record_times``, the median
     ms per step, the wall time, whether the state is finite afterwards and, on
-    an inversion error, its time, element count, det F and message.
+    an inversion error, its time, element count, det F and message. ``at`` holds the
+    end figures as they were at each of ``record_times`` (``{"0.5": {"landmarks_mm",
+    "min_det_F", "det_F_now", "volume_change", "halvings", "fallbacks"}}``): a run of
+    that duration ends on them (the suite's shorter runs are checked against them).
     """
     scene, body = tongue.scene, tongue.body
     nodes = list(tongue.data.landmarks.values())
@@ -225,7 +230,14 @@ def run_built(
         on_failure="stop",
         progress=progress is not None,
         label=progress or "",
-        record={"landmarks": lambda s: body.displacement_at(nodes)},
+        record={
+            "landmarks": lambda s: body.displacement_at(nodes),
+            "min_det_F": lambda s: s.min_det_F,
+            "det_F_now": lambda s: body.inverted_elements()[1],
+            "volume_change": lambda s: body.volume() / rest_volume - 1.0,
+            "halvings": lambda s: s.halvings,
+            "fallbacks": lambda s: s.fallbacks,
+        },
     )
     wall = time.perf_counter() - wall
     error, step_ms = run.failure, run.step_ms
@@ -236,8 +248,8 @@ def run_built(
         if isinstance(error, ElementInversionError)
         else type(error).__name__
     )
-    recorded = {
-        float(t): run.records["landmarks"][k]
+    recorded = {  # t -> the index of its record
+        float(t): k
         for t in record_times
         for k in np.flatnonzero(np.abs(run.times - t) < 0.5 * dt)[:1]
         if k > 0
@@ -260,7 +272,18 @@ def run_built(
         # steps the semi-implicit integrator failed and Scene.fallback (implicit) completed
         "fallbacks": int(run.fallbacks),
         "landmarks_mm": mm(final),
-        "landmarks_mm_at": {f"{t:g}": mm(d) for t, d in recorded.items()},
+        "landmarks_mm_at": {f"{t:g}": mm(run.records["landmarks"][k]) for t, k in recorded.items()},
+        "at": {
+            f"{t:g}": {
+                "landmarks_mm": mm(run.records["landmarks"][k]),
+                **{
+                    name: float(run.records[name][k])
+                    for name in ("min_det_F", "det_F_now", "volume_change")
+                },
+                **{name: int(run.records[name][k]) for name in ("halvings", "fallbacks")},
+            }
+            for t, k in recorded.items()
+        },
         "ms_per_step": run.ms_per_step,
         "wall_s": round(wall, 2),
         "state_finite": finite,
@@ -467,6 +490,32 @@ def write_docs(results: list[dict], out: Path) -> None:
     (out / "tongue_hard_cases.md").write_text("\n".join(lines))
 
 
+#: the figures a re-run must end on to keep its row's timings (``--keep-timings``)
+SAME_RUN = ("outcome", "steps_done", "landmarks_mm", "min_det_F", "halvings", "fallbacks")
+
+
+def _keep_timing(r: dict, kept: list[dict]) -> None:
+    """r's ms per step and wall time from its row in ``kept`` (the same case and integrator),
+    which it must reproduce (SAME_RUN, min det F to 1e-9 relative)."""
+    old = next(
+        (k for k in kept if (k["case"], k["integrator"]) == (r["case"], r["integrator"])), None
+    )
+    if old is None:
+        raise SystemExit(f"--keep-timings: no row of {r['case']} / {r['integrator']} to keep")
+    for key in SAME_RUN:
+        same = (
+            np.isclose(r[key], old[key], rtol=1e-9, atol=0)
+            if key == "min_det_F"
+            else r[key] == old[key]
+        )
+        if not same:
+            raise SystemExit(
+                f"--keep-timings: {r['case']} / {r['integrator']} ends on {key} = {r[key]}, "
+                f"the kept row on {old[key]}: not the same run; re-run without --keep-timings"
+            )
+    r["ms_per_step"], r["wall_s"] = old["ms_per_step"], old["wall_s"]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
@@ -479,6 +528,13 @@ def main(argv=None) -> int:
         "--rewrite",
         action="store_true",
         help="only rewrite the .md from the existing .json (no runs)",
+    )
+    parser.add_argument(
+        "--keep-timings",
+        action="store_true",
+        help="keep each re-run row's ms per step and wall time from the existing .json "
+        "(timings measured on a quiet machine) where the re-run ends on the same "
+        "landmarks, min det F, halvings and fallbacks; stops where it does not",
     )
     args = parser.parse_args(argv)
     if args.rewrite:
@@ -495,6 +551,8 @@ def main(argv=None) -> int:
         for integrator in args.integrators:
             print(f"{name} / {integrator}: {CASES[name].description} ...", flush=True)
             r = run_case(name, integrator, args.duration, progress=True)
+            if args.keep_timings:
+                _keep_timing(r, kept)
             results.append(r)
             order = {
                 (n, i): k
