@@ -564,6 +564,26 @@ def test_render_png(tmp_path, tongue):
     assert pixels.std() > 10  # not a blank image
 
 
+@pytest.mark.parametrize("where", ["nodes", "cells"])
+def test_render_colors_a_body_by_an_array_of_values(tmp_path, tongue, where):
+    """An array of one value per node or per cell colors the body with the colormap and a
+    color bar: viridis' yellow end (253, 231, 37) is in the picture, and not in the same
+    body drawn without values (one flat color)."""
+    import pyvista as pv
+
+    msh, _ = to_dolfinx(tongue, MPI.COMM_SELF)
+    n = msh.geometry.x.shape[0] if where == "nodes" else msh.topology.index_map(3).size_local
+    values = np.linspace(0.0, 1.0, n)
+
+    def yellow_pixels(png):
+        rgb = np.asarray(pv.read(png).point_data.active_scalars, dtype=float)[:, :3]
+        return int((np.abs(rgb - [253, 231, 37]).max(axis=1) < 30).sum())
+
+    colored = render_bodies(tmp_path / "colored.png", msh, scalars=values, window_size=(600, 400))
+    plain = render_bodies(tmp_path / "plain.png", msh, window_size=(600, 400))
+    assert yellow_pixels(colored) > 50 and yellow_pixels(plain) == 0
+
+
 def test_render_draws_rigid_surfaces_beside_the_bodies(tmp_path, tongue, icosphere):
     """``surfaces``: a triangle surface (a rigid ball under the tongue) drawn in the view:
     the picture changes, and the view takes in the surface's extent."""
