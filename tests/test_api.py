@@ -114,6 +114,18 @@ def test_simulate_holds_numpy_blas_to_one_thread_while_it_runs():
         assert threads() == 2.0
 
 
+def test_simulate_leaves_its_finished_progress_bar_on_screen(capsys):
+    """``progress=True`` draws a bar labelled ``label`` on stderr; by default the finished bar
+    stays (its last state, 3/3 steps, on a line of its own), and ``leave=False`` erases it."""
+    scene = af.Scene()
+    scene.add(af.RigidBody("bone", 0.3, 1e-3 * np.eye(3)))
+    af.simulate(scene, 0.03, 0.01, label="fall")
+    err = capsys.readouterr().err
+    assert err.endswith("\n") and "fall: 100%" in err.split("\r")[-1] and "3/3" in err
+    af.simulate(scene, 0.03, 0.01, label="fall", leave=False)
+    assert "fall: 100%" not in capsys.readouterr().err.split("\r")[-1]
+
+
 def test_simulate_bad_input_is_a_clear_error():
     scene = af.Scene()
     for duration, dt in ((0.0, 0.01), (1.0, -0.01), (np.nan, 0.01)):

@@ -46,6 +46,14 @@ def test_the_mean_distance_falls_with_the_weight_and_the_loop_stops(tmp_path):
     assert abs(d[-1] - d[-2]) < 1e-4 <= abs(d[-2] - d[-3])
 
 
+def test_a_stage_stops_after_max_sweeps():
+    """A tolerance no sweep meets (1e-300 m): each stage runs exactly ``max_sweeps`` sweeps of
+    the ICP alternation, and says so."""
+    scene, body, forces = _scene()
+    result = register(scene, [forces], WEIGHTS[:2], tol=1e-300, max_sweeps=2)
+    assert result.sweeps == [2, 2] and not result.converged
+
+
 def test_a_resumed_registration_ends_where_an_uninterrupted_one_does(tmp_path):
     scene, body, forces = _scene()
     full = register(scene, [forces], WEIGHTS, tol=1e-7)
