@@ -312,6 +312,22 @@ def full_internal_residual(body, u, excitation):
     return R
 
 
+def test_the_point_table_names_an_inverted_element():
+    """An element whose corner node is pushed past its opposite corner (det J < 0 at the
+    points near it, a few 1e-4 m^3: far from -1) is refused by quadrature_points, by its
+    input index."""
+    from artifem.errors import InputError
+
+    body = make_body()
+    x = body.mesh.geometry.x
+    corner = np.flatnonzero(np.all(np.abs(x - [1.0, 0.3, 0.2]) < 1e-12, axis=1))
+    (cell,) = np.flatnonzero(np.isin(body.mesh.geometry.dofmaps[0], corner).any(axis=1))
+    x[corner] = [0.7, 0.1, 0.05]  # past the element's corner (0.75, 0.15, 0.1)
+    (index,) = body.input_cell_index([cell])
+    with pytest.raises(InputError, match=rf"det J <= 0 in input elements \[{index}\]$"):
+        quadrature_points(body)
+
+
 def test_training_forces_are_the_reduced_internal_forces_and_trained_points_fit_them(beam):
     body, snapshots, mass = beam
     reset(body)
