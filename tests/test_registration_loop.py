@@ -81,18 +81,19 @@ def test_bad_schedules_are_refused():
 
 class _Jumpy:
     """The scene, but its static solve fails when the weight rose more than 3.5-fold
-    since the last solve that succeeded (a stand-in for a stage too far)."""
+    since the last solve that succeeded, or, before any succeeded, is over ``first`` (a
+    stand-in for a stage too far)."""
 
-    def __init__(self, scene, forces):
-        self.scene, self.forces, self.last = scene, forces, None
+    def __init__(self, scene, forces, first=np.inf):
+        self.scene, self.forces, self.last, self.first = scene, forces, None, first
 
     def __getattr__(self, name):
         return getattr(self.scene, name)
 
     def solve_static(self, **options):
         w = self.forces.weight
-        if self.last is not None and w > 3.5 * self.last:
-            raise StepFailed(f"weight {w:g} after {self.last:g}")
+        if w > (self.first if self.last is None else 3.5 * self.last):
+            raise StepFailed(f"weight {w:g} after {self.last}")
         self.last = w
         return self.scene.solve_static(**options)
 
@@ -104,3 +105,11 @@ def test_a_stage_that_fails_is_preceded_by_an_intermediate_weight():
     result = register(_Jumpy(scene, forces), [forces], [10.0, 1000.0], tol=1e-9)
     np.testing.assert_allclose(result.weights, [10.0, 10**1.5, 100.0, 10**2.5, 1000.0])
     assert np.all(np.diff(result.mean_distance) < 0)
+
+
+def test_a_first_stage_that_fails_starts_from_a_tenth_of_its_weight():
+    """The first weight, 100, fails before any stage succeeded: the continuation starts
+    from a tenth of it, so 31.6 (the geometric mean of 10 and 100) runs first, then 100."""
+    scene, body, forces = _scene()
+    result = register(_Jumpy(scene, forces, first=50.0), [forces], [100.0], tol=1e-9)
+    np.testing.assert_allclose(result.weights, [10**1.5, 100.0])
