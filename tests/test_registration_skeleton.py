@@ -182,7 +182,11 @@ def test_bad_input_is_refused_before_any_solve(rigid_case, tmp_path):
 
 def test_the_register_command_writes_its_report(rigid_case, tmp_path):
     """``artifem register`` on the rigid case's directories, the ICP baselines only: each
-    bone moved rigidly, so per-bone rigid ICP ends on the target (to 1 micrometre)."""
+    bone moved rigidly, so per-bone rigid ICP ends on the target (to 1 micrometre). The
+    picture has the distance's colour bar (viridis' yellow end, 1 mm: the bones, within a
+    micrometre or so of their targets, are at its dark end)."""
+    import pyvista as pv
+
     from artifem.cli import main
 
     out, _ = rigid_case
@@ -206,6 +210,8 @@ def test_the_register_command_writes_its_report(rigid_case, tmp_path):
     assert set(report["methods"]) == {"rigid", "affine"}
     for row in report["methods"]["rigid"]["bones"].values():
         assert row["mean"] < 1e-6
+    rgb = np.asarray(pv.read(tmp_path / "registration.png").point_data.active_scalars)[:, :3]
+    assert (np.abs(rgb.astype(float) - [253, 231, 37]).max(axis=1) < 30).sum() > 50
     assert (
         main(
             [
