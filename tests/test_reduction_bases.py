@@ -73,6 +73,39 @@ def stocky():
 # ---- linear modes -----------------------------------------------------------------------------
 
 
+def test_a_non_finite_eigenvalue_stops_linear_modes(monkeypatch):
+    """SLEPc giving NaN eigenvalues with finite vectors (the EPS below, SLEPc's own but for
+    the values) stops linear_modes with a SolverError that says so, not a basis."""
+    import types
+
+    import slepc4py
+    from slepc4py import SLEPc
+
+    from artifem.errors import SolverError
+
+    class NaNValues:
+        ProblemType, Type, Which = SLEPc.EPS.ProblemType, SLEPc.EPS.Type, SLEPc.EPS.Which
+
+        def __init__(self):
+            self._eps = SLEPc.EPS()
+
+        def create(self, comm=None):
+            self._eps.create(comm=comm)
+            return self
+
+        def getEigenpair(self, k, v):
+            self._eps.getEigenpair(k, v)
+            return complex(np.nan)
+
+        def __getattr__(self, name):
+            return getattr(self._eps, name)
+
+    body = cantilever(1.0, 0.1, (10, 2, 2))
+    monkeypatch.setattr(slepc4py, "SLEPc", types.SimpleNamespace(EPS=NaNValues, ST=SLEPc.ST))
+    with pytest.raises(SolverError, match="non-finite eigenvalue among the lowest modes"):
+        linear_modes(body, 2)
+
+
 def test_cantilever_bending_frequencies_match_euler_bernoulli(slender):
     """omega_k = (beta_k L)^2 sqrt(E I / (rho A L^4)), k = 1, 2, each a y/z double eigenvalue.
 
